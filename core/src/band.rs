@@ -1,0 +1,144 @@
+//! Overlapping bands: how a fixed 48-row encoder covers an image of any height.
+//!
+//! The encoder's row embedding has [`BAND_TOKEN_ROWS`] entries, so it always sees at most
+//! that many token rows. A taller image is cut into bands whose starts are spread evenly,
+//! at most [`BAND_STRIDE_TOKEN_ROWS`] apart; each output token row is taken from the band
+//! in which it sits furthest from a cut edge (the cut between two bands lies in the middle
+//! of their overlap). Memory therefore depends on the band and the width, never on the height.
+//!
+//! ```
+//! use bino_core::band::BandPlan;
+//! let plan = BandPlan::new(24).unwrap(); // a 96-row image
+//! let bands: Vec<_> = plan.iter().map(|b| (b.start, b.keep_from, b.keep_to)).collect();
+//! assert_eq!(bands, [(0, 0, 9), (6, 9, 15), (12, 15, 24)]);
+//! ```
+
+use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS};
+use crate::Error;
+
+/// One band, in token rows of the whole image.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Band {
+    /// First token row the encoder sees.
+    pub start: usize,
+    /// Token rows the encoder sees (at most [`BAND_TOKEN_ROWS`]).
+    pub rows: usize,
+    /// First token row whose output this band provides.
+    pub keep_from: usize,
+    /// One past the last token row whose output this band provides.
+    pub keep_to: usize,
+}
+
+/// The bands covering an image of `token_rows` token rows.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct BandPlan {
+    token_rows: usize,
+    count: usize,
+}
+
+impl BandPlan {
+    /// Plans the bands of an image with `token_rows` token rows (image rows / 4).
+    pub fn new(token_rows: usize) -> Result<Self, Error> {
+        if token_rows == 0 {
+            return Err(Error::EmptyImage);
+        }
+        let count = if token_rows <= BAND_TOKEN_ROWS {
+            1
+        } else {
+            (token_rows - BAND_TOKEN_ROWS).div_ceil(BAND_STRIDE_TOKEN_ROWS) + 1
+        };
+        Ok(Self { token_rows, count })
+    }
+
+    /// Number of bands.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    /// Always false: a plan has at least one band.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+
+    fn start(&self, index: usize) -> usize {
+        if self.count == 1 {
+            0
+        } else {
+            index * (self.token_rows - BAND_TOKEN_ROWS) / (self.count - 1)
+        }
+    }
+
+    fn cut(&self, index: usize) -> usize {
+        // Between band `index` and `index + 1`: the middle of their overlap.
+        (self.start(index + 1) + self.start(index) + BAND_TOKEN_ROWS) / 2
+    }
+
+    /// Band `index`, or `None` past the end.
+    pub fn get(&self, index: usize) -> Option<Band> {
+        if index >= self.count {
+            return None;
+        }
+        let start = self.start(index);
+        let keep_from = if index == 0 { 0 } else { self.cut(index - 1) };
+        let keep_to = if index + 1 == self.count { self.token_rows } else { self.cut(index) };
+        let rows = BAND_TOKEN_ROWS.min(self.token_rows);
+        Some(Band { start, rows, keep_from, keep_to })
+    }
+
+    /// The bands, top to bottom.
+    pub fn iter(&self) -> impl Iterator<Item = Band> + '_ {
+        (0..self.count).filter_map(move |i| self.get(i))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_row_is_kept_exactly_once_and_inside_its_band() {
+        for rows in 1..200 {
+            let plan = BandPlan::new(rows).unwrap();
+            let mut next = 0;
+            for band in plan.iter() {
+                assert_eq!(band.keep_from, next, "rows {rows}: gap or overlap");
+                assert!(band.keep_to > band.keep_from, "rows {rows}: empty band {band:?}");
+                assert!(band.start <= band.keep_from && band.keep_to <= band.start + band.rows);
+                assert!(band.start + band.rows <= rows);
+                next = band.keep_to;
+            }
+            assert_eq!(next, rows);
+        }
+    }
+
+    #[test]
+    fn bands_are_no_further_apart_than_the_stride() {
+        let plan = BandPlan::new(93).unwrap();
+        let starts: heapless_free::Starts = plan.iter().map(|b| b.start).collect();
+        for pair in starts.0[..starts.1].windows(2) {
+            assert!(pair[1] - pair[0] <= BAND_STRIDE_TOKEN_ROWS);
+        }
+    }
+
+    #[test]
+    fn short_image_is_one_band() {
+        let band = BandPlan::new(7).unwrap().get(0).unwrap();
+        assert_eq!(band, Band { start: 0, rows: 7, keep_from: 0, keep_to: 7 });
+        assert_eq!(BandPlan::new(0), Err(Error::EmptyImage));
+    }
+
+    mod heapless_free {
+        /// A fixed-capacity collector, since core tests run without `alloc`.
+        pub struct Starts(pub [usize; 32], pub usize);
+        impl FromIterator<usize> for Starts {
+            fn from_iter<I: IntoIterator<Item = usize>>(iter: I) -> Self {
+                let mut s = Starts([0; 32], 0);
+                for v in iter {
+                    s.0[s.1] = v;
+                    s.1 += 1;
+                }
+                s
+            }
+        }
+    }
+}

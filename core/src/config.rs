@@ -1,0 +1,63 @@
+//! The BINO model configuration (DESIGN.md, paper section 3): fixed at compile time.
+
+/// Channels of the token stream.
+pub const DIM: usize = 128;
+/// Transformer blocks.
+pub const DEPTH: usize = 7;
+/// Attention heads.
+pub const HEADS: usize = 4;
+/// Channels per head.
+pub const HEAD_DIM: usize = DIM / HEADS;
+/// Hidden width of each block's MLP.
+pub const MLP_HIDDEN: usize = 480;
+/// Image channels the model takes (grayscale replicated to three).
+pub const IN_CHANS: usize = 3;
+/// Patch height on the fused image, in pixels.
+pub const PATCH_H: usize = 4;
+/// Patch width on the fused image (2 columns of each view: a 4x2 stereo micro-cell).
+pub const PATCH_W: usize = 4;
+/// View pixels per patch column: its two phase tokens cover 2 view columns each.
+pub const CELL_W: usize = PATCH_W;
+/// Image rows the encoder sees at once.
+pub const BAND_ROWS: usize = 48;
+/// Token rows per band, and the size of the learnable row-embedding table.
+pub const BAND_TOKEN_ROWS: usize = BAND_ROWS / PATCH_H;
+/// Token rows between the starts of consecutive bands of a tall image.
+pub const BAND_STRIDE_TOKEN_ROWS: usize = 8;
+
+/// Token-grid size of a `height` x `width` view: (token rows, patch columns, fused columns).
+pub const fn token_grid(height: usize, width: usize) -> (usize, usize, usize) {
+    (height / PATCH_H, width / CELL_W, 2 * (width / CELL_W))
+}
+
+/// Checks that a view size fits the token grid; returns (token rows, patch columns).
+pub fn check_view_size(height: usize, width: usize) -> Result<(usize, usize), crate::Error> {
+    if height == 0 || width == 0 {
+        return Err(crate::Error::EmptyImage);
+    }
+    if height % PATCH_H != 0 {
+        return Err(crate::Error::NotMultiple { what: "height", value: height, multiple: PATCH_H });
+    }
+    if width % CELL_W != 0 {
+        return Err(crate::Error::NotMultiple { what: "width", value: width, multiple: CELL_W });
+    }
+    Ok((height / PATCH_H, width / CELL_W))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn grid_of_paper_band() {
+        assert_eq!(token_grid(48, 160), (12, 40, 80));
+        assert_eq!(check_view_size(48, 160), Ok((12, 40)));
+    }
+
+    #[test]
+    fn rejects_sizes_off_the_grid() {
+        assert_eq!(check_view_size(0, 8), Err(crate::Error::EmptyImage));
+        assert!(matches!(check_view_size(50, 8), Err(crate::Error::NotMultiple { what: "height", .. })));
+        assert!(matches!(check_view_size(48, 10), Err(crate::Error::NotMultiple { what: "width", .. })));
+    }
+}

@@ -1,0 +1,22 @@
+//! `bino-core`: the `no_std`, allocation-free engine of BINO edge.
+//!
+//! BINO is a 1.34M-parameter binocular ViT encoder that fuses a rectified stereo pair by
+//! pixel interleaving. This crate holds what every target shares: the model configuration
+//! ([`config`]) and the band plan that lets a fixed-size encoder cover images of any height
+//! ([`band`]). It never allocates and never panics on input: bad input is an [`Error`].
+//!
+//! ```
+//! use bino_core::band::BandPlan;
+//! // A 96-row image (24 token rows) goes as three overlapping 12-row bands.
+//! let plan = BandPlan::new(24).unwrap();
+//! assert_eq!(plan.len(), 3);
+//! ```
+#![no_std]
+#![deny(missing_docs)]
+#![forbid(unsafe_code)]
+
+pub mod band;
+pub mod config;
+pub mod error;
+
+pub use error::Error;

@@ -1,0 +1,1 @@
+"""BINO float model, training and export (PyTorch)."""

@@ -1,0 +1,42 @@
+"""Procedural stereo pairs with known disparity, for fixtures and tests (no data files needed)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+
+def smooth_texture(rng: np.random.Generator, height: int, width: int) -> NDArray[np.float32]:
+    """Multi-scale value noise in [0, 1]: enough structure at every scale for matching."""
+    out = np.zeros((height, width), dtype=np.float64)
+    for cell, weight in ((16, 0.45), (6, 0.3), (2, 0.25)):
+        gh, gw = height // cell + 2, width // cell + 2
+        grid = rng.random((gh, gw))
+        ys = np.arange(height) / cell
+        xs = np.arange(width) / cell
+        y0, x0 = ys.astype(int), xs.astype(int)
+        fy, fx = (ys - y0)[:, None], (xs - x0)[None, :]
+        g00 = grid[y0][:, x0]
+        g01 = grid[y0][:, x0 + 1]
+        g10 = grid[y0 + 1][:, x0]
+        g11 = grid[y0 + 1][:, x0 + 1]
+        top = g00 * (1 - fx) + g01 * fx
+        bottom = g10 * (1 - fx) + g11 * fx
+        out += weight * (top * (1 - fy) + bottom * fy)
+    return out.astype(np.float32)
+
+
+def shifted_pair(
+    seed: int, height: int, width: int, disparity: int
+) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """A grayscale pair (H, W) with left(x, y) == right(x - disparity, y) everywhere."""
+    rng = np.random.default_rng(seed)
+    wide = smooth_texture(rng, height, width + disparity)
+    left = wide[:, disparity:]
+    right = wide[:, :width]
+    return np.ascontiguousarray(left), np.ascontiguousarray(right)
+
+
+def to_view_tensor(gray: NDArray[np.float32]) -> NDArray[np.float32]:
+    """(H, W) grayscale -> (1, 3, H, W), the channel replicated as the model expects."""
+    return np.ascontiguousarray(np.broadcast_to(gray, (1, 3, *gray.shape)), dtype=np.float32)
