@@ -80,9 +80,18 @@ impl BandPlan {
         }
         let start = self.start(index);
         let keep_from = if index == 0 { 0 } else { self.cut(index - 1) };
-        let keep_to = if index + 1 == self.count { self.token_rows } else { self.cut(index) };
+        let keep_to = if index + 1 == self.count {
+            self.token_rows
+        } else {
+            self.cut(index)
+        };
         let rows = BAND_TOKEN_ROWS.min(self.token_rows);
-        Some(Band { start, rows, keep_from, keep_to })
+        Some(Band {
+            start,
+            rows,
+            keep_from,
+            keep_to,
+        })
     }
 
     /// The bands, top to bottom.
@@ -123,7 +132,15 @@ mod tests {
     #[test]
     fn short_image_is_one_band() {
         let band = BandPlan::new(7).unwrap().get(0).unwrap();
-        assert_eq!(band, Band { start: 0, rows: 7, keep_from: 0, keep_to: 7 });
+        assert_eq!(
+            band,
+            Band {
+                start: 0,
+                rows: 7,
+                keep_from: 0,
+                keep_to: 7
+            }
+        );
         assert_eq!(BandPlan::new(0), Err(Error::EmptyImage));
     }
 

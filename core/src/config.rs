@@ -35,11 +35,19 @@ pub fn check_view_size(height: usize, width: usize) -> Result<(usize, usize), cr
     if height == 0 || width == 0 {
         return Err(crate::Error::EmptyImage);
     }
-    if height % PATCH_H != 0 {
-        return Err(crate::Error::NotMultiple { what: "height", value: height, multiple: PATCH_H });
+    if !height.is_multiple_of(PATCH_H) {
+        return Err(crate::Error::NotMultiple {
+            what: "height",
+            value: height,
+            multiple: PATCH_H,
+        });
     }
-    if width % CELL_W != 0 {
-        return Err(crate::Error::NotMultiple { what: "width", value: width, multiple: CELL_W });
+    if !width.is_multiple_of(CELL_W) {
+        return Err(crate::Error::NotMultiple {
+            what: "width",
+            value: width,
+            multiple: CELL_W,
+        });
     }
     Ok((height / PATCH_H, width / CELL_W))
 }
@@ -57,7 +65,13 @@ mod tests {
     #[test]
     fn rejects_sizes_off_the_grid() {
         assert_eq!(check_view_size(0, 8), Err(crate::Error::EmptyImage));
-        assert!(matches!(check_view_size(50, 8), Err(crate::Error::NotMultiple { what: "height", .. })));
-        assert!(matches!(check_view_size(48, 10), Err(crate::Error::NotMultiple { what: "width", .. })));
+        assert!(matches!(
+            check_view_size(50, 8),
+            Err(crate::Error::NotMultiple { what: "height", .. })
+        ));
+        assert!(matches!(
+            check_view_size(48, 10),
+            Err(crate::Error::NotMultiple { what: "width", .. })
+        ));
     }
 }

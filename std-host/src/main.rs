@@ -1,1 +1,198 @@
-fn main(){}
+//! `bino`: the BINO edge command line.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{bail, ensure, Context, Result};
+use bino_core::config::DIM;
+use bino_host::image_io::{load_gray, GrayImage};
+use bino_host::npy::Array;
+use bino_host::pairs::{read_index, Split};
+use bino_host::profile::{Profile, View};
+use bino_host::reference::{FeatureMap, ReferenceEncoder};
+use bino_host::{npz, synthetic};
+use clap::{Parser, Subcommand};
+
+/// BINO edge: a binocular ViT stereo encoder for edge boards, host tools.
+#[derive(Parser)]
+#[command(version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Run the float ONNX reference on a pair; write tokens and descriptor maps as .npz.
+    ///
+    /// Arrays in the archive (float32, C order; open with numpy.load):
+    /// `left`, `right` (H, W) the views after the profile, gray in [0, 1];
+    /// `tokens` (H/4, W/2, 128) the de-positioned fused token grid of (left, right);
+    /// `desc_left`, `desc_right` (H/4, W/4, 128) the descriptor maps (encoder on (I, I),
+    /// phase-averaged). Without --left/--right a built-in procedural scene (160x96) is used.
+    Reference {
+        /// Left image (PNG, PPM/PGM or JPEG; gray or colour).
+        #[arg(long, requires = "right")]
+        left: Option<PathBuf>,
+        /// Right image, the same size as the left.
+        #[arg(long, requires = "left")]
+        right: Option<PathBuf>,
+        /// Resolution profile of EVAL.md: w160, w320 or native.
+        #[arg(long, default_value = "w160")]
+        profile: Profile,
+        /// Encoder exported by `python -m bino_train.export`.
+        #[arg(long, default_value = "weights/bino_encoder.onnx")]
+        onnx: PathBuf,
+        /// Output archive (.npz).
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// List the pairs of a data folder's PAIRS.tsv.
+    Pairs {
+        /// Folder holding PAIRS.tsv.
+        #[arg(long, default_value = "../shared/data")]
+        data: PathBuf,
+        /// Only this split (train or eval).
+        #[arg(long)]
+        split: Option<String>,
+    },
+}
+
+fn main() -> ExitCode {
+    match run(Cli::parse()) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(err) => {
+            eprintln!("error: {err:#}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn run(cli: Cli) -> Result<()> {
+    match cli.command {
+        Command::Reference {
+            left,
+            right,
+            profile,
+            onnx,
+            out,
+        } => reference(left.zip(right), profile, &onnx, &out),
+        Command::Pairs { data, split } => list_pairs(&data, split.as_deref()),
+    }
+}
+
+fn reference(files: Option<(PathBuf, PathBuf)>, profile: Profile, onnx: &Path, out: &Path) -> Result<()> {
+    ensure!(
+        out.extension().is_some_and(|e| e == "npz"),
+        "output {} must end in .npz (the reference writes a NumPy archive)",
+        out.display()
+    );
+    let (left, right, source) = match files {
+        Some((l, r)) => {
+            let (left, right) = (load_gray(&l)?, load_gray(&r)?);
+            let source = format!("{} + {}", l.display(), r.display());
+            (left, right, source)
+        }
+        None => {
+            let scene = synthetic::default_scene(160, 96);
+            (scene.left, scene.right, "built-in procedural scene".to_string())
+        }
+    };
+    let (left, right) = apply_profile(&left, &right, profile, &source)?;
+    let mut encoder = ReferenceEncoder::load(onnx)?;
+    let started = Instant::now();
+    let tokens = encoder.tokens(&left, &right)?;
+    let desc_left = encoder.descriptors(&left)?;
+    let desc_right = encoder.descriptors(&right)?;
+    let elapsed = started.elapsed();
+
+    let view = |v: &View| Array::new(vec![v.height, v.width], v.pixels.clone());
+    let map = |m: &FeatureMap| Array::new(vec![m.rows, m.cols, DIM], m.data.clone());
+    let arrays = [
+        ("left", view(&left)?),
+        ("right", view(&right)?),
+        ("tokens", map(&tokens)?),
+        ("desc_left", map(&desc_left)?),
+        ("desc_right", map(&desc_right)?),
+    ];
+    let named: Vec<(&str, &Array)> = arrays.iter().map(|(n, a)| (*n, a)).collect();
+    write_atomically(out, |file| npz::write(file, &named))?;
+    println!(
+        "{source}: {}x{} at profile {profile}; tokens {}x{}x{DIM}, descriptors {}x{}x{DIM}; \
+         3 encoder passes in {:.2} s (tract-onnx, {})",
+        left.width,
+        left.height,
+        tokens.rows,
+        tokens.cols,
+        desc_left.rows,
+        desc_left.cols,
+        elapsed.as_secs_f64(),
+        encoder.path().display()
+    );
+    println!("wrote {}", out.display());
+    Ok(())
+}
+
+fn apply_profile(left: &GrayImage, right: &GrayImage, profile: Profile, source: &str) -> Result<(View, View)> {
+    if (left.width, left.height) != (right.width, right.height) {
+        bail!(
+            "{source}: left is {}x{} but right is {}x{}; a rectified pair has views of one size",
+            left.width,
+            left.height,
+            right.width,
+            right.height
+        );
+    }
+    let apply = |v: &GrayImage| profile.apply(v).with_context(|| source.to_string());
+    Ok((apply(left)?, apply(right)?))
+}
+
+// Writes through a temporary file and renames, so a failure never leaves a half-written output.
+fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> Result<()>,
+) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create folder {}", dir.display()))?;
+    }
+    let tmp = path.with_extension("npz.partial");
+    let file = std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
+    let mut writer = std::io::BufWriter::new(file);
+    write(&mut writer).with_context(|| format!("cannot write {}", tmp.display()))?;
+    writer
+        .into_inner()
+        .map_err(|e| e.into_error())
+        .with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot move output into {}", path.display()))
+}
+
+fn list_pairs(data: &Path, split: Option<&str>) -> Result<()> {
+    let wanted = match split {
+        None => None,
+        Some("train") => Some(Split::Train),
+        Some("eval") => Some(Split::Eval),
+        Some(other) => bail!("unknown split {other:?} (expected train or eval)"),
+    };
+    let pairs = read_index(data)?;
+    let mut out = std::io::stdout().lock();
+    for pair in pairs.iter().filter(|p| wanted.is_none_or(|s| p.split == s)) {
+        let line = writeln!(
+            out,
+            "{}\t{}\t{}\t{}x{}\t{}",
+            pair.pair_id,
+            pair.split,
+            pair.dataset,
+            pair.width,
+            pair.height,
+            pair.left.display()
+        );
+        match line {
+            // A closed pipe (`bino pairs | head`) just ends the listing.
+            Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => return Ok(()),
+            other => other?,
+        }
+    }
+    Ok(())
+}

@@ -1,1 +1,31 @@
+//! Helpers shared by the workspace-level integration tests.
 
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use bino_host::npy::{self, Array};
+use bino_host::profile::View;
+
+/// The folder of committed test fixtures.
+pub fn fixtures() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("fixtures")
+}
+
+/// Reads a `.npy` fixture.
+pub fn read_npy(path: &Path) -> Result<Array> {
+    let bytes = std::fs::read(path).with_context(|| format!("cannot read fixture {}", path.display()))?;
+    npy::decode(&bytes).with_context(|| format!("fixture {}", path.display()))
+}
+
+/// A (1, 3, H, W) view tensor with the gray channel replicated, as a [`View`] (channel 0).
+pub fn view_from_nchw(array: &Array) -> Result<View> {
+    let [n, c, h, w] = array.shape[..] else {
+        anyhow::bail!("expected a 4-D array, got {:?}", array.shape)
+    };
+    anyhow::ensure!(n == 1 && c == 3, "expected shape (1, 3, H, W), got {:?}", array.shape);
+    Ok(View {
+        width: w,
+        height: h,
+        pixels: array.data[..h * w].to_vec(),
+    })
+}

@@ -1,0 +1,90 @@
+//! Loading views: any PNG/PPM/PGM/JPEG, gray or colour, as 8-bit grayscale.
+//!
+//! Colour goes to gray with OpenCV's fixed-point BT.601 rule, so the Rust CLI and the Python
+//! training code (which uses `cv2.cvtColor`) see the same pixels.
+
+use std::path::Path;
+
+use anyhow::{ensure, Context, Result};
+
+/// An 8-bit grayscale image, row-major.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct GrayImage {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// `width * height` pixels, row by row.
+    pub pixels: Vec<u8>,
+}
+
+impl GrayImage {
+    /// Wraps `pixels`; fails when the size disagrees or the image is empty.
+    pub fn new(width: usize, height: usize, pixels: Vec<u8>) -> Result<Self> {
+        ensure!(width > 0 && height > 0, "image is empty ({width}x{height})");
+        ensure!(
+            pixels.len() == width * height,
+            "{width}x{height} image needs {} pixels, got {}",
+            width * height,
+            pixels.len()
+        );
+        Ok(Self { width, height, pixels })
+    }
+}
+
+/// OpenCV's `COLOR_RGB2GRAY` on 8-bit input: (4899 R + 9617 G + 1868 B + 2^13) >> 14.
+pub fn rgb_to_gray(r: u8, g: u8, b: u8) -> u8 {
+    ((4899 * r as u32 + 9617 * g as u32 + 1868 * b as u32 + (1 << 13)) >> 14) as u8
+}
+
+/// Loads an image file as 8-bit gray. The error names the file and what is wrong with it.
+pub fn load_gray(path: &Path) -> Result<GrayImage> {
+    ensure!(path.exists(), "image {} does not exist", path.display());
+    let decoded = image::ImageReader::open(path)
+        .with_context(|| format!("cannot open image {}", path.display()))?
+        .with_guessed_format()
+        .with_context(|| format!("cannot read image {}", path.display()))?
+        .decode()
+        .with_context(|| format!("cannot decode image {} (PNG, PPM/PGM or JPEG expected)", path.display()))?;
+    let (width, height) = (decoded.width() as usize, decoded.height() as usize);
+    let pixels = if decoded.color().has_color() {
+        decoded
+            .to_rgb8()
+            .pixels()
+            .map(|p| rgb_to_gray(p[0], p[1], p[2]))
+            .collect()
+    } else {
+        decoded.to_luma8().into_raw()
+    };
+    GrayImage::new(width, height, pixels).with_context(|| format!("image {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn gray_rule_matches_opencv_reference_values() {
+        // Values from cv2.cvtColor(np.uint8([[[r, g, b]]]), cv2.COLOR_RGB2GRAY).
+        assert_eq!(rgb_to_gray(255, 255, 255), 255);
+        assert_eq!(rgb_to_gray(0, 0, 0), 0);
+        assert_eq!(rgb_to_gray(255, 0, 0), 76);
+        assert_eq!(rgb_to_gray(0, 255, 0), 150);
+        assert_eq!(rgb_to_gray(0, 0, 255), 29);
+        assert_eq!(rgb_to_gray(12, 200, 99), 132);
+    }
+
+    #[test]
+    fn missing_and_garbage_files_are_named_in_errors() {
+        let dir = std::env::temp_dir().join(format!("bino-image-io-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let missing = dir.join("missing.png");
+        let err = format!("{:#}", load_gray(&missing).unwrap_err());
+        assert!(err.contains("missing.png") && err.contains("does not exist"), "{err}");
+        let garbage = dir.join("garbage.png");
+        std::fs::write(&garbage, b"definitely not an image").unwrap();
+        let err = format!("{:#}", load_gray(&garbage).unwrap_err());
+        assert!(err.contains("garbage.png"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+}

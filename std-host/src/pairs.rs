@@ -1,0 +1,210 @@
+//! The `PAIRS.tsv` index of a stereo data folder (see `../shared/data/DATA.md`).
+//!
+//! Columns are found by name, paths are relative to the index's folder, and every malformed
+//! line is reported with its line number.
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, ensure, Context, Result};
+
+/// Which use a pair is for.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Split {
+    /// Unlabeled pairs that training may use.
+    Train,
+    /// Labeled pairs for evaluation only: never trained on, not even self-supervised.
+    Eval,
+}
+
+impl fmt::Display for Split {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Split::Train => "train",
+            Split::Eval => "eval",
+        })
+    }
+}
+
+/// Ground truth of a labeled pair: disparity of the left image = stored value / `scale`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GroundTruth {
+    /// 8-bit disparity image (PGM or PNG).
+    pub path: PathBuf,
+    /// Divisor from stored value to disparity in pixels.
+    pub scale: f32,
+    /// Stored value that means "no ground truth".
+    pub invalid: u8,
+}
+
+/// One row of `PAIRS.tsv`, paths resolved against the index's folder.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairRecord {
+    /// Unique name.
+    pub pair_id: String,
+    /// Train or eval.
+    pub split: Split,
+    /// Source dataset name.
+    pub dataset: String,
+    /// Left image file.
+    pub left: PathBuf,
+    /// Right image file.
+    pub right: PathBuf,
+    /// Ground truth, for eval pairs.
+    pub gt: Option<GroundTruth>,
+    /// Original width in pixels.
+    pub width: usize,
+    /// Original height in pixels.
+    pub height: usize,
+}
+
+const COLUMNS: [&str; 11] = [
+    "pair_id",
+    "split",
+    "dataset",
+    "left",
+    "right",
+    "gt",
+    "gt_format",
+    "gt_scale",
+    "gt_invalid",
+    "width",
+    "height",
+];
+
+/// Reads `DIR/PAIRS.tsv` (or the file itself when `path` names a file).
+pub fn read_index(path: &Path) -> Result<Vec<PairRecord>> {
+    let file = if path.is_dir() {
+        path.join("PAIRS.tsv")
+    } else {
+        path.to_path_buf()
+    };
+    let text = std::fs::read_to_string(&file).with_context(|| format!("cannot read pair index {}", file.display()))?;
+    let root = file.parent().unwrap_or(Path::new("."));
+    parse_index(&text, root).with_context(|| format!("pair index {}", file.display()))
+}
+
+/// Parses the text of a `PAIRS.tsv`, resolving paths against `root`.
+pub fn parse_index(text: &str, root: &Path) -> Result<Vec<PairRecord>> {
+    let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
+    let (_, header) = lines.next().context("empty index (no header line)")?;
+    let names: Vec<&str> = header.split('\t').map(str::trim).collect();
+    let mut index = [0usize; COLUMNS.len()];
+    for (slot, column) in index.iter_mut().zip(COLUMNS) {
+        *slot = names
+            .iter()
+            .position(|n| *n == column)
+            .with_context(|| format!("header lacks column {column:?}"))?;
+    }
+    let mut records = Vec::new();
+    for (number, line) in lines {
+        let fields: Vec<&str> = line.split('\t').map(str::trim).collect();
+        let field = |i: usize| fields.get(index[i]).copied().unwrap_or("");
+        let record = parse_record(&field, root).with_context(|| format!("line {}", number + 1))?;
+        records.push(record);
+    }
+    let mut ids: Vec<&str> = records.iter().map(|r| r.pair_id.as_str()).collect();
+    ids.sort_unstable();
+    if let Some(w) = ids.windows(2).find(|w| w[0] == w[1]) {
+        bail!("pair_id {:?} appears twice", w[0]);
+    }
+    Ok(records)
+}
+
+fn parse_record<'a>(field: &dyn Fn(usize) -> &'a str, root: &Path) -> Result<PairRecord> {
+    let pair_id = field(0);
+    ensure!(!pair_id.is_empty(), "empty pair_id");
+    let split = match field(1) {
+        "train" => Split::Train,
+        "eval" => Split::Eval,
+        other => bail!("pair {pair_id}: split {other:?} is neither train nor eval"),
+    };
+    let path = |i: usize, what: &str| -> Result<PathBuf> {
+        let value = field(i);
+        ensure!(!value.is_empty(), "pair {pair_id}: no {what} image");
+        Ok(root.join(value))
+    };
+    let gt = match field(5) {
+        "" => None,
+        gt => {
+            ensure!(
+                matches!(field(6), "pgm_u8" | "png_u8"),
+                "pair {pair_id}: unknown gt_format {:?}",
+                field(6)
+            );
+            let scale: f32 = field(7)
+                .parse()
+                .with_context(|| format!("pair {pair_id}: bad gt_scale {:?}", field(7)))?;
+            ensure!(scale > 0.0, "pair {pair_id}: gt_scale must be positive");
+            let invalid = field(8)
+                .parse()
+                .with_context(|| format!("pair {pair_id}: bad gt_invalid {:?}", field(8)))?;
+            Some(GroundTruth {
+                path: root.join(gt),
+                scale,
+                invalid,
+            })
+        }
+    };
+    ensure!(
+        split == Split::Train || gt.is_some(),
+        "pair {pair_id}: eval pair without ground truth"
+    );
+    let size = |i: usize, what: &str| -> Result<usize> {
+        field(i)
+            .parse()
+            .with_context(|| format!("pair {pair_id}: bad {what} {:?}", field(i)))
+    };
+    Ok(PairRecord {
+        pair_id: pair_id.to_string(),
+        split,
+        dataset: field(2).to_string(),
+        left: path(3, "left")?,
+        right: path(4, "right")?,
+        gt,
+        width: size(9, "width")?,
+        height: size(10, "height")?,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const HEADER: &str = "pair_id\tsplit\tdataset\tleft\tright\tgt\tgt_format\tgt_scale\tgt_invalid\twidth\theight\n";
+
+    #[test]
+    fn parses_train_and_eval_rows() {
+        let text = format!(
+            "{HEADER}a\teval\tmb\tx/l.png\tx/r.png\tx/d.pgm\tpgm_u8\t8\t0\t432\t381\nb\ttrain\tk\tl.png\tr.png\t\t\t\t\t1344\t372\n"
+        );
+        let pairs = parse_index(&text, Path::new("/data")).unwrap();
+        assert_eq!(pairs.len(), 2);
+        assert_eq!(pairs[0].left, Path::new("/data/x/l.png"));
+        assert_eq!(pairs[0].gt.as_ref().unwrap().scale, 8.0);
+        assert_eq!(pairs[1].split, Split::Train);
+        assert!(pairs[1].gt.is_none());
+        assert_eq!((pairs[1].width, pairs[1].height), (1344, 372));
+    }
+
+    #[test]
+    fn reports_bad_lines_by_number() {
+        let text = format!("{HEADER}a\ttest\tmb\tl\tr\t\t\t\t\t4\t4\n");
+        let err = format!("{:#}", parse_index(&text, Path::new(".")).unwrap_err());
+        assert!(
+            err.contains("line 2") && err.contains("neither train nor eval"),
+            "{err}"
+        );
+        let text = format!("{HEADER}a\teval\tmb\tl\tr\t\t\t\t\t4\t4\n");
+        assert!(
+            parse_index(&text, Path::new(".")).is_err(),
+            "eval rows need ground truth"
+        );
+        let text = format!("{HEADER}a\ttrain\tk\tl\tr\t\t\t\t\t4\t4\na\ttrain\tk\tl\tr\t\t\t\t\t4\t4\n");
+        assert!(parse_index(&text, Path::new(".")).is_err(), "duplicate ids");
+        assert!(
+            parse_index("pair_id\tsplit\n", Path::new(".")).is_err(),
+            "missing columns"
+        );
+    }
+}

@@ -1,0 +1,218 @@
+//! The `bino` binary end to end: good input gives the documented archive, every bad input a
+//! clear error naming the file, a non-zero exit and no panic.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use bino_host::npz;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+fn random_onnx() -> PathBuf {
+    repo().join("tests/fixtures/encoder_random_seed0.onnx")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("bino-cli-{}-{name}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn bino(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_bino"))
+        .args(args)
+        .current_dir(repo())
+        .output()
+        .unwrap()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn assert_fails_with(out: &Output, needles: &[&str]) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "expected failure, stderr: {stderr}");
+    assert!(!stderr.contains("panicked"), "must not panic: {stderr}");
+    for needle in needles {
+        assert!(stderr.contains(needle), "stderr lacks {needle:?}: {stderr}");
+    }
+}
+
+fn write_png(path: &Path, width: u32, height: u32) {
+    image::GrayImage::from_fn(width, height, |x, y| image::Luma([((x * 7 + y * 13) % 256) as u8]))
+        .save(path)
+        .unwrap();
+}
+
+#[test]
+fn reference_on_builtin_scene_writes_documented_arrays() {
+    let dir = scratch("builtin");
+    let out = dir.join("ref.npz");
+    let run = bino(&["reference", "--onnx", s(&random_onnx()), "--out", s(&out)]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let arrays = npz::read(&std::fs::read(&out).unwrap()).unwrap();
+    let shapes: Vec<(&str, &[usize])> = arrays.iter().map(|(n, a)| (n.as_str(), a.shape.as_slice())).collect();
+    assert_eq!(
+        shapes,
+        [
+            ("left", &[96, 160][..]),
+            ("right", &[96, 160][..]),
+            ("tokens", &[24, 80, 128][..]),
+            ("desc_left", &[24, 40, 128][..]),
+            ("desc_right", &[24, 40, 128][..]),
+        ]
+    );
+    assert!(!dir.join("ref.npz.partial").exists());
+}
+
+#[test]
+fn reference_runs_on_a_real_pair_at_w160() {
+    let data = repo().join("../shared/data");
+    let left = data.join("middlebury-2001-2003/scenes2001/barn1/im2.ppm");
+    let right = data.join("middlebury-2001-2003/scenes2001/barn1/im6.ppm");
+    let out = scratch("real").join("barn1.npz");
+    let run = bino(&[
+        "reference",
+        "--left",
+        s(&left),
+        "--right",
+        s(&right),
+        "--onnx",
+        s(&random_onnx()),
+        "--out",
+        s(&out),
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let arrays = npz::read(&std::fs::read(&out).unwrap()).unwrap();
+    // 432x381 -> 160 x round(141.1) -> 140 rows: 35 token rows, 40 patch columns.
+    assert_eq!(arrays[2].1.shape, [35, 80, 128]);
+    assert_eq!(arrays[3].1.shape, [35, 40, 128]);
+}
+
+#[test]
+fn missing_image_is_named() {
+    let dir = scratch("missing");
+    write_png(&dir.join("r.png"), 64, 48);
+    let run = bino(&[
+        "reference",
+        "--left",
+        s(&dir.join("l.png")),
+        "--right",
+        s(&dir.join("r.png")),
+        "--onnx",
+        s(&random_onnx()),
+        "--out",
+        s(&dir.join("o.npz")),
+    ]);
+    assert_fails_with(&run, &["l.png", "does not exist"]);
+    assert!(!dir.join("o.npz").exists());
+}
+
+#[test]
+fn unreadable_image_is_named() {
+    let dir = scratch("garbage");
+    std::fs::write(dir.join("l.png"), b"\x89PNG but truncated").unwrap();
+    write_png(&dir.join("r.png"), 64, 48);
+    let run = bino(&[
+        "reference",
+        "--left",
+        s(&dir.join("l.png")),
+        "--right",
+        s(&dir.join("r.png")),
+        "--onnx",
+        s(&random_onnx()),
+        "--out",
+        s(&dir.join("o.npz")),
+    ]);
+    assert_fails_with(&run, &["l.png", "cannot decode"]);
+}
+
+#[test]
+fn mismatched_pair_is_refused() {
+    let dir = scratch("mismatch");
+    write_png(&dir.join("l.png"), 64, 48);
+    write_png(&dir.join("r.png"), 68, 48);
+    let run = bino(&[
+        "reference",
+        "--left",
+        s(&dir.join("l.png")),
+        "--right",
+        s(&dir.join("r.png")),
+        "--onnx",
+        s(&random_onnx()),
+        "--out",
+        s(&dir.join("o.npz")),
+    ]);
+    assert_fails_with(&run, &["l.png", "64x48", "68x48"]);
+}
+
+#[test]
+fn size_off_the_profile_is_refused() {
+    let dir = scratch("profile");
+    write_png(&dir.join("l.png"), 66, 50);
+    write_png(&dir.join("r.png"), 66, 50);
+    let run = bino(&[
+        "reference",
+        "--profile",
+        "native",
+        "--left",
+        s(&dir.join("l.png")),
+        "--right",
+        s(&dir.join("r.png")),
+        "--onnx",
+        s(&random_onnx()),
+        "--out",
+        s(&dir.join("o.npz")),
+    ]);
+    assert_fails_with(&run, &["l.png", "66x50", "multiples of 4"]);
+    // A sliver leaves no 4-row band at width 160.
+    write_png(&dir.join("l.png"), 640, 3);
+    write_png(&dir.join("r.png"), 640, 3);
+    let run = bino(&[
+        "reference",
+        "--left",
+        s(&dir.join("l.png")),
+        "--right",
+        s(&dir.join("r.png")),
+        "--onnx",
+        s(&random_onnx()),
+        "--out",
+        s(&dir.join("o.npz")),
+    ]);
+    assert_fails_with(&run, &["640x3", "w160"]);
+}
+
+#[test]
+fn missing_onnx_is_named() {
+    let dir = scratch("onnx");
+    let run = bino(&[
+        "reference",
+        "--onnx",
+        s(&dir.join("absent.onnx")),
+        "--out",
+        s(&dir.join("o.npz")),
+    ]);
+    assert_fails_with(&run, &["absent.onnx", "does not exist"]);
+    std::fs::write(dir.join("broken.onnx"), b"not protobuf at all").unwrap();
+    let run = bino(&[
+        "reference",
+        "--onnx",
+        s(&dir.join("broken.onnx")),
+        "--out",
+        s(&dir.join("o.npz")),
+    ]);
+    assert_fails_with(&run, &["broken.onnx"]);
+}
+
+#[test]
+fn pairs_lists_the_eval_split() {
+    let run = bino(&["pairs", "--data", "../shared/data", "--split", "eval"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert_eq!(stdout.lines().count(), 16, "EVAL.md: 16 eval pairs");
+    assert!(stdout.lines().all(|l| l.split('\t').nth(1) == Some("eval")));
+    assert_fails_with(&bino(&["pairs", "--data", "/nonexistent-dir"]), &["nonexistent-dir"]);
+}

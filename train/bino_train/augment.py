@@ -1,0 +1,243 @@
+"""Training crops from the train split, and the stereo-aware nuisances of paper section 3.5.
+
+A crop: pick a pair, a resize width (log-uniform in a range, quantised so resized images can be
+cached), then the same 48 x 160 window in both views, which keeps the rectified geometry
+left(x, y) = right(x - d, y), d >= 0. Nuisances act on each view independently: photometric
+(contrast, brightness, gamma), gaussian noise, and an occluding rectangle in one view.
+A horizontal flip is only ever applied together with a swap of the views: mirroring turns the
+left view into a right view, and swapping restores d >= 0.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import OrderedDict
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import Tensor
+
+from .pairs import Pair, check_training_pairs, load_gray_u8
+
+Gray = NDArray[np.float32]
+
+
+@dataclass(frozen=True)
+class AugmentConfig:
+    crop_h: int = 48
+    crop_w: int = 160
+    min_width: int = 160
+    """Smallest resized image width (raised per image so that the crop fits)."""
+    max_width: int = 672
+    """Largest resized image width (never above the original width: no upsampling)."""
+    width_step: int = 8
+    """Resize widths are multiples of this, so a few resized copies per image get reused."""
+    balance_datasets: bool = False
+    """Pick datasets uniformly instead of pairs (the driving sequence dominates the pair count)."""
+    flip_prob: float = 0.5
+    independent: bool = True
+    """Photometric and noise parameters drawn per view (the paper's strongest recipe)."""
+    photometric_prob: float = 0.8
+    brightness: float = 0.1
+    contrast: float = 0.2
+    gamma: float = 0.25
+    noise_prob: float = 0.5
+    noise_std: float = 0.03
+    occlusion_prob: float = 0.5
+    occlusion_h: tuple[int, int] = (8, 32)
+    occlusion_w: tuple[int, int] = (8, 48)
+    cache_mb: int = 384
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    @staticmethod
+    def from_dict(d: dict[str, Any]) -> AugmentConfig:
+        fixed = dict(d)
+        for key in ("occlusion_h", "occlusion_w"):
+            if key in fixed:
+                fixed[key] = tuple(fixed[key])
+        return AugmentConfig(**fixed)
+
+
+CLEAN = AugmentConfig(photometric_prob=0.0, noise_prob=0.0, occlusion_prob=0.0, flip_prob=0.0)
+
+
+class ImageStore:
+    """Grayscale train images, each decoded once, with an LRU cache of area-resized copies."""
+
+    def __init__(self, pairs: list[Pair], cache_mb: int) -> None:
+        check_training_pairs(pairs)
+        self.pairs = pairs
+        self._originals: dict[tuple[int, int], NDArray[np.uint8]] = {}
+        self._resized: OrderedDict[tuple[int, int, int], NDArray[np.uint8]] = OrderedDict()
+        self._budget = cache_mb * 1024 * 1024
+        self._bytes = 0
+
+    def original(self, index: int, view: int) -> NDArray[np.uint8]:
+        key = (index, view)
+        if key not in self._originals:
+            pair = self.pairs[index]
+            image = load_gray_u8(pair.left if view == 0 else pair.right)
+            if image.shape != (pair.height, pair.width):
+                raise ValueError(f"{pair.pair_id}: size {image.shape} differs from PAIRS.tsv")
+            self._originals[key] = image
+        return self._originals[key]
+
+    def resized(self, index: int, view: int, width: int) -> NDArray[np.uint8]:
+        key = (index, view, width)
+        hit = self._resized.get(key)
+        if hit is not None:
+            self._resized.move_to_end(key)
+            return hit
+        image = self.original(index, view)
+        h, w = image.shape
+        if width == w:
+            return image
+        height = int(math.floor(h * width / w + 0.5))
+        out = np.asarray(cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA))
+        self._resized[key] = out
+        self._bytes += out.nbytes
+        while self._bytes > self._budget and len(self._resized) > 1:
+            _, old = self._resized.popitem(last=False)
+            self._bytes -= old.nbytes
+        return out
+
+
+def width_range(pair: Pair, cfg: AugmentConfig) -> tuple[int, int]:
+    """Quantised resize widths for which a crop fits, smallest and largest."""
+    step = cfg.width_step
+    need = max(cfg.min_width, cfg.crop_w, math.ceil(cfg.crop_h * pair.width / pair.height))
+    if need > pair.width:
+        raise ValueError(f"{pair.pair_id} ({pair.width}x{pair.height}) is too small for a crop")
+    lo = min(math.ceil(need / step) * step, pair.width)
+    hi = max(lo, (min(cfg.max_width, pair.width) // step) * step)
+    return lo, hi
+
+
+def sample_window(
+    store: ImageStore, rng: np.random.Generator, cfg: AugmentConfig, weights: NDArray[np.float64]
+) -> tuple[Gray, Gray]:
+    """A clean crop (crop_h, crop_w) of both views of a random pair at a random scale."""
+    index = int(rng.choice(len(store.pairs), p=weights))
+    lo, hi = width_range(store.pairs[index], cfg)
+    width = math.exp(rng.uniform(math.log(lo), math.log(hi))) if hi > lo else float(lo)
+    width_q = int(min(hi, max(lo, round(width / cfg.width_step) * cfg.width_step)))
+    views = [store.resized(index, v, width_q) for v in (0, 1)]
+    h, w = views[0].shape
+    y = int(rng.integers(0, h - cfg.crop_h + 1))
+    x = int(rng.integers(0, w - cfg.crop_w + 1))
+    left, right = (
+        v[y : y + cfg.crop_h, x : x + cfg.crop_w].astype(np.float32) / np.float32(255.0)
+        for v in views
+    )
+    return left, right
+
+
+def flip_swap(left: Gray, right: Gray) -> tuple[Gray, Gray]:
+    """Mirror both views and swap them: left(x) = right(x - d) with d >= 0 still holds."""
+    return np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1])
+
+
+def photometric(image: Gray, params: tuple[float, float, float]) -> Gray:
+    """Contrast about the mean, brightness offset, then gamma; values stay in [0, 1]."""
+    contrast, brightness, gamma = params
+    mean = float(image.mean())
+    out = np.clip((image - mean) * contrast + mean + brightness, 0.0, 1.0)
+    return np.power(out, gamma, dtype=np.float32)
+
+
+def draw_photometric(rng: np.random.Generator, cfg: AugmentConfig) -> tuple[float, float, float]:
+    contrast = rng.uniform(1.0 - cfg.contrast, 1.0 + cfg.contrast)
+    brightness = rng.uniform(-cfg.brightness, cfg.brightness)
+    gamma = math.exp(rng.uniform(-math.log1p(cfg.gamma), math.log1p(cfg.gamma)))
+    return float(contrast), float(brightness), float(gamma)
+
+
+def occlude(image: Gray, rng: np.random.Generator, cfg: AugmentConfig) -> Gray:
+    """Replace a random rectangle by a flat patch or by noise (something the other view lacks)."""
+    h, w = image.shape
+    rh = int(rng.integers(cfg.occlusion_h[0], min(cfg.occlusion_h[1], h) + 1))
+    rw = int(rng.integers(cfg.occlusion_w[0], min(cfg.occlusion_w[1], w) + 1))
+    y = int(rng.integers(0, h - rh + 1))
+    x = int(rng.integers(0, w - rw + 1))
+    out = image.copy()
+    level = rng.uniform(0.0, 1.0)
+    if rng.random() < 0.5:
+        out[y : y + rh, x : x + rw] = level
+    else:
+        patch = level + rng.normal(0.0, rng.uniform(0.05, 0.3), size=(rh, rw))
+        out[y : y + rh, x : x + rw] = np.clip(patch, 0.0, 1.0)
+    return out
+
+
+def nuisances(left: Gray, right: Gray, rng: np.random.Generator, cfg: AugmentConfig) -> tuple[Gray, Gray]:
+    """Flip+swap, photometric, noise and one-view occlusion, each with its probability."""
+    if rng.random() < cfg.flip_prob:
+        left, right = flip_swap(left, right)
+    views = [left, right]
+    if rng.random() < cfg.photometric_prob:
+        shared = draw_photometric(rng, cfg)
+        for v in range(2):
+            views[v] = photometric(views[v], draw_photometric(rng, cfg) if cfg.independent else shared)
+    if rng.random() < cfg.noise_prob:
+        shared_std = rng.uniform(0.0, cfg.noise_std)
+        for v in range(2):
+            std = rng.uniform(0.0, cfg.noise_std) if cfg.independent else shared_std
+            noisy = views[v] + rng.normal(0.0, std, size=views[v].shape)
+            views[v] = np.clip(noisy, 0.0, 1.0).astype(np.float32)
+    if rng.random() < cfg.occlusion_prob:
+        v = int(rng.integers(0, 2))
+        views[v] = occlude(views[v], rng, cfg)
+    return views[0].astype(np.float32), views[1].astype(np.float32)
+
+
+def dataset_weights(pairs: list[Pair], balance: bool) -> NDArray[np.float64]:
+    if not balance:
+        return np.full(len(pairs), 1.0 / len(pairs))
+    counts: dict[str, int] = {}
+    for p in pairs:
+        counts[p.dataset] = counts.get(p.dataset, 0) + 1
+    w = np.array([1.0 / counts[p.dataset] for p in pairs])
+    return w / w.sum()
+
+
+class CropSampler:
+    """Endless augmented training batches; its state (RNG + count) makes resume exact."""
+
+    def __init__(self, pairs: list[Pair], cfg: AugmentConfig, seed: int) -> None:
+        self.cfg = cfg
+        self.store = ImageStore(pairs, cfg.cache_mb)
+        self.weights = dataset_weights(pairs, cfg.balance_datasets)
+        self.rng = np.random.default_rng(seed)
+        self.batches = 0
+
+    def next_batch(self, batch: int) -> tuple[Tensor, Tensor]:
+        """(left, right), each (B, 1, crop_h, crop_w) float32 in [0, 1]."""
+        lefts, rights = [], []
+        for _ in range(batch):
+            left, right = sample_window(self.store, self.rng, self.cfg, self.weights)
+            left, right = nuisances(left, right, self.rng, self.cfg)
+            lefts.append(left)
+            rights.append(right)
+        self.batches += 1
+        return (
+            torch.from_numpy(np.stack(lefts)[:, None]),
+            torch.from_numpy(np.stack(rights)[:, None]),
+        )
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"rng": self.rng.bit_generator.state, "batches": self.batches}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.rng.bit_generator.state = state["rng"]
+        self.batches = int(state["batches"])
+
+
+def to_three_channels(view: Tensor) -> Tensor:
+    """(B, 1, H, W) -> (B, 3, H, W): grayscale replicated, as the encoder expects."""
+    return view.expand(-1, 3, -1, -1)
