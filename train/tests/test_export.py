@@ -1,0 +1,55 @@
+"""The ONNX export and the committed parity fixture agree with the PyTorch model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import onnxruntime as ort
+import pytest
+import torch
+
+from bino_train.export import export_onnx, main, output_names, random_encoder
+from bino_train.model import stage_names
+
+FIXTURES = Path(__file__).resolve().parents[2] / "tests" / "fixtures"
+
+
+def test_committed_fixture_matches_the_current_model() -> None:
+    # If model.py changes, the committed ONNX + fixture must be regenerated (see export.py).
+    folder = FIXTURES / "parity"
+    encoder = random_encoder(0)
+    left = torch.from_numpy(np.load(folder / "left.npy"))
+    right = torch.from_numpy(np.load(folder / "right.npy"))
+    with torch.no_grad():
+        stages = dict(zip(stage_names(encoder.cfg), encoder.forward_stages(left, right), strict=True))
+    for name in ("embed", "tokens"):
+        expected = np.load(folder / f"{name}.npy")
+        assert np.abs(stages[name].numpy() - expected).max() < 1e-5, name
+
+
+@pytest.mark.parametrize("height,width", [(48, 80), (32, 44)])
+def test_onnx_with_intermediates_matches_torch_at_dynamic_sizes(
+    tmp_path: Path, height: int, width: int
+) -> None:
+    encoder = random_encoder(3)
+    path = tmp_path / "enc.onnx"
+    export_onnx(encoder, path, intermediates=True, provenance="test")
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    assert [o.name for o in session.get_outputs()] == output_names(encoder.cfg, True)
+    rng = np.random.default_rng(0)
+    left = rng.random((1, 3, height, width), dtype=np.float32)
+    right = rng.random((1, 3, height, width), dtype=np.float32)
+    got = session.run(None, {"left": left, "right": right})
+    with torch.no_grad():
+        stages = encoder.forward_stages(torch.from_numpy(left), torch.from_numpy(right))
+    want = [stages[-1], *stages[:-1]]
+    assert len(got) == len(want) == 9
+    for g, w in zip(got, want, strict=True):
+        assert g.shape == (1, height // 4, width // 2, 128)
+        assert np.abs(g - w.numpy()).max() < 1e-4
+
+
+def test_random_init_is_refused_into_weights(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit, match="refusing"):
+        main(["--random-init-seed", "0", "--out", str(tmp_path / "weights" / "x.onnx")])
