@@ -176,13 +176,15 @@ fn axis_weights(src: usize, dst: usize) -> Vec<Vec<(usize, f32)>> {
         .collect()
 }
 
-/// Nearest-neighbour resize (OpenCV `INTER_NEAREST`: source index `floor(d * src / dst)`),
-/// used for ground-truth disparity and its valid mask.
+/// Nearest-neighbour resize sampling at pixel centres (OpenCV `INTER_NEAREST_EXACT`: source
+/// index `floor((d + 0.5) * src / dst)`), used for ground-truth disparity and its valid mask.
+/// Pixel centres, not OpenCV's older floor rule, reproduce EVAL.md's StereoSGBM reference row.
 pub fn resize_nearest<T: Copy>(src: &[T], sw: usize, sh: usize, dw: usize, dh: usize) -> Vec<T> {
-    let xs: Vec<usize> = (0..dw).map(|x| ((x * sw) / dw).min(sw - 1)).collect();
+    let centre = |d: usize, s: usize, n: usize| ((2 * d + 1) * s / (2 * n)).min(s - 1);
+    let xs: Vec<usize> = (0..dw).map(|x| centre(x, sw, dw)).collect();
     (0..dh)
         .flat_map(|y| {
-            let row = ((y * sh) / dh).min(sh - 1);
+            let row = centre(y, sh, dh);
             xs.iter().map(move |&x| src[row * sw + x])
         })
         .collect()
@@ -252,10 +254,12 @@ mod tests {
     }
 
     #[test]
-    fn nearest_resize_picks_floor_source() {
+    fn nearest_resize_samples_pixel_centres() {
         let src: Vec<u8> = (0..6).collect();
-        assert_eq!(resize_nearest(&src, 6, 1, 3, 1), vec![0, 2, 4]);
-        assert_eq!(resize_nearest(&src, 3, 2, 3, 1), vec![0, 1, 2]);
+        assert_eq!(resize_nearest(&src, 6, 1, 3, 1), vec![1, 3, 5]);
+        assert_eq!(resize_nearest(&src, 3, 2, 3, 1), vec![3, 4, 5]);
+        // Enlarging repeats each source pixel.
+        assert_eq!(resize_nearest(&[7u8, 9], 2, 1, 4, 1), vec![7, 7, 9, 9]);
     }
 
     #[test]

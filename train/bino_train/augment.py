@@ -99,7 +99,8 @@ class ImageStore:
         if width == w:
             return image
         height = int(math.floor(h * width / w + 0.5))
-        out = np.asarray(cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA))
+        resized = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+        out = np.asarray(resized, dtype=np.uint8)
         self._resized[key] = out
         self._bytes += out.nbytes
         while self._bytes > self._budget and len(self._resized) > 1:
@@ -175,7 +176,9 @@ def occlude(image: Gray, rng: np.random.Generator, cfg: AugmentConfig) -> Gray:
     return out
 
 
-def nuisances(left: Gray, right: Gray, rng: np.random.Generator, cfg: AugmentConfig) -> tuple[Gray, Gray]:
+def nuisances(
+    left: Gray, right: Gray, rng: np.random.Generator, cfg: AugmentConfig
+) -> tuple[Gray, Gray]:
     """Flip+swap, photometric, noise and one-view occlusion, each with its probability."""
     if rng.random() < cfg.flip_prob:
         left, right = flip_swap(left, right)
@@ -183,7 +186,9 @@ def nuisances(left: Gray, right: Gray, rng: np.random.Generator, cfg: AugmentCon
     if rng.random() < cfg.photometric_prob:
         shared = draw_photometric(rng, cfg)
         for v in range(2):
-            views[v] = photometric(views[v], draw_photometric(rng, cfg) if cfg.independent else shared)
+            views[v] = photometric(
+                views[v], draw_photometric(rng, cfg) if cfg.independent else shared
+            )
     if rng.random() < cfg.noise_prob:
         shared_std = rng.uniform(0.0, cfg.noise_std)
         for v in range(2):

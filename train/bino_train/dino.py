@@ -165,8 +165,8 @@ class TokenDistillLoss(nn.Module):
 @torch.no_grad()
 def ema_update(teacher: nn.Module, student: nn.Module, momentum: float) -> None:
     """teacher <- momentum * teacher + (1 - momentum) * student, parameter by parameter."""
-    t_params = list(teacher.parameters())
-    s_params = list(student.parameters())
+    t_params: list[Tensor] = list(teacher.parameters())
+    s_params: list[Tensor] = list(student.parameters())
     if len(t_params) != len(s_params):
         raise ValueError("teacher and student have different parameter lists")
     torch._foreach_lerp_(t_params, s_params, 1.0 - momentum)

@@ -97,10 +97,14 @@ def export_onnx(
     onnx.save(model, str(out))
 
 
-def write_fixture(encoder: BinoEncoder, folder: Path, *, width: int = 48, disparity: int = 3) -> None:
+def write_fixture(
+    encoder: BinoEncoder, folder: Path, *, width: int = 48, disparity: int = 3
+) -> None:
     """Write a procedural input pair and every stage PyTorch computes for it, as .npy."""
     folder.mkdir(parents=True, exist_ok=True)
-    left_gray, right_gray = shifted_pair(seed=7, height=encoder.cfg.band_rows, width=width, disparity=disparity)
+    left_gray, right_gray = shifted_pair(
+        seed=7, height=encoder.cfg.band_rows, width=width, disparity=disparity
+    )
     left, right = to_view_tensor(left_gray), to_view_tensor(right_gray)
     with torch.no_grad():
         stages = encoder.forward_stages(torch.from_numpy(left), torch.from_numpy(right))
@@ -117,7 +121,9 @@ def _refuse_random_into_weights(out: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     source = parser.add_mutually_exclusive_group(required=True)
     source.add_argument("--checkpoint", type=Path, help="training checkpoint to export")
     source.add_argument("--random-init-seed", type=int, help="seeded random init (tests only)")

@@ -55,9 +55,7 @@ def sample_cell_mask(
     oy = torch.randint(0, bh, (batch,), generator=gen)
     ox = torch.randint(0, bw, (batch,), generator=gen)
     # The random offset shifts the block grid so block edges fall anywhere in the crop.
-    return torch.stack(
-        [cells[b, oy[b] : oy[b] + rows, ox[b] : ox[b] + cols] for b in range(batch)]
-    )
+    return torch.stack([cells[b, oy[b] : oy[b] + rows, ox[b] : ox[b] + cols] for b in range(batch)])
 
 
 def cells_to_pixels(cell_mask: Tensor, cell_h: int, cell_w: int) -> Tensor:

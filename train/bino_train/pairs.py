@@ -24,9 +24,7 @@ DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data
 INDEX_NAME = "PAIRS.tsv"
 TRAIN_SPLIT = "train"
 EVAL_SPLIT = "eval"
-COLUMNS = (
-    "pair_id split dataset left right gt gt_format gt_scale gt_invalid width height"
-).split()
+COLUMNS = ("pair_id split dataset left right gt gt_format gt_scale gt_invalid width height").split()
 
 
 class SplitError(RuntimeError):
@@ -120,9 +118,9 @@ def load_gray_u8(path: Path) -> NDArray[np.uint8]:
     """(H, W) uint8 grayscale; colour images via OpenCV's BGR2GRAY (alpha ignored)."""
     image = _imread(path)
     if image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+        image = np.asarray(cv2.cvtColor(image, cv2.COLOR_BGRA2BGR), dtype=np.uint8)
     if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+        image = np.asarray(cv2.cvtColor(image, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
     return np.ascontiguousarray(image)
 
 

@@ -110,7 +110,8 @@ def learning_rate(step: int, cfg: TrainConfig) -> float:
 
 def param_groups(modules: list[nn.Module], weight_decay: float) -> list[dict[str, Any]]:
     """No weight decay on biases, norms and the row embedding."""
-    decay, plain = [], []
+    decay: list[nn.Parameter] = []
+    plain: list[nn.Parameter] = []
     for module in modules:
         for name, p in module.named_parameters():
             (plain if p.ndim <= 1 or name.endswith("row_embed") else decay).append(p)
@@ -379,39 +380,39 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
     return records
 
 
+def _given(**values: Any) -> dict[str, Any]:
+    """The command-line values that were set."""
+    return {k: v for k, v in values.items() if v is not None}
+
+
 def build_config(args: argparse.Namespace) -> TrainConfig:
+    """A fresh run's configuration: the preset, then any overrides from the command line."""
     small = args.config == "small"
-    cfg = TrainConfig(
-        encoder=SMALL_ENCODER if small else EncoderConfig(),
-        dino=SMALL_DINO if small else DinoConfig(),
-        batch=4 if small else 16,
-        seed=args.seed,
-    )
     dino = replace(
-        cfg.dino,
-        **{k: v for k, v in {
-            "prototypes": args.prototypes,
-            "masked_weight": args.masked_weight,
-            "unmasked_weight": args.unmasked_weight,
-            "momentum_start": args.momentum,
-        }.items() if v is not None},
+        SMALL_DINO if small else DinoConfig(),
+        **_given(
+            prototypes=args.prototypes,
+            masked_weight=args.masked_weight,
+            unmasked_weight=args.unmasked_weight,
+            momentum_start=args.momentum,
+        ),
     )
     if args.teacher_temp is not None:
-        dino = replace(dino, teacher_temp_start=args.teacher_temp[0], teacher_temp_end=args.teacher_temp[1])
-    mask = cfg.mask
+        dino = replace(dino, teacher_temp_start=args.teacher_temp[0])
+        dino = replace(dino, teacher_temp_end=args.teacher_temp[1])
+    mask = MaskConfig()
     if args.mask_ratio is not None:
         mask = replace(mask, ratio_start=args.mask_ratio[0], ratio_end=args.mask_ratio[1])
     if args.mask_block is not None:
         bh, bw = (int(v) for v in args.mask_block.lower().split("x"))
         mask = replace(mask, block_h=bh, block_w=bw)
-    cfg = replace(cfg, dino=dino, mask=mask)
-    if args.batch is not None:
-        cfg = replace(cfg, batch=args.batch)
-    if args.lr is not None:
-        cfg = replace(cfg, lr=args.lr)
-    if args.precision is not None:
-        cfg = replace(cfg, precision=args.precision)
-    return cfg
+    return TrainConfig(
+        encoder=SMALL_ENCODER if small else EncoderConfig(),
+        dino=dino,
+        mask=mask,
+        seed=args.seed,
+        **_given(batch=args.batch or (4 if small else None), lr=args.lr, precision=args.precision),
+    )
 
 
 def schedule_length(args: argparse.Namespace, device: torch.device) -> int:
@@ -423,7 +424,9 @@ def schedule_length(args: argparse.Namespace, device: torch.device) -> int:
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
-    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     p.add_argument("--out", type=Path, required=True, help="run folder (runs/NAME)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--minutes", type=float, help="wall-clock budget of this invocation")
@@ -450,7 +453,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--no-probe", action="store_true", help="never read the eval split")
     p.add_argument("--bench-pairs", type=int, default=32, help="controlled benchmark pairs")
     p.add_argument("--log-every", type=int, default=5)
-    p.add_argument("--smoke", action="store_true", help="tiny CPU-seconds run; checks the loss falls")
+    p.add_argument(
+        "--smoke", action="store_true", help="tiny CPU-seconds run; checks the loss falls"
+    )
     args = p.parse_args(argv)
     if args.smoke:
         args.config, args.pairs, args.no_eval, args.log_every = "small", 80, True, 5
@@ -468,7 +473,7 @@ def main(argv: list[str] | None = None) -> None:
     device = torch.device("cuda" if use_cuda else "cpu")
     ckpt = args.out / "last.pt"
     if args.resume:
-        state = torch.load(ckpt, map_location=device, weights_only=False)
+        state = torch.load(ckpt, map_location="cpu", weights_only=False)  # RNG states stay on CPU
         cfg = TrainConfig.from_dict(state["train_config"])
         trainer = Trainer(cfg, args.data, device)
         trainer.load_state_dict(state)

@@ -73,7 +73,8 @@ BAND_BATCH = 2
 def encoder_descriptors(model: BinoEncoder, images: Sequence[Gray]) -> list[Tensor]:
     """D(I) (H/4, W/4, d) for each image, computed band by band (fp32)."""
     device = next(model.parameters()).device
-    crops, plans = [], []
+    crops: list[Gray] = []
+    plans: list[list[Band]] = []
     for image in images:
         h, w = image.shape
         if h % CELL or w % CELL:
@@ -84,7 +85,7 @@ def encoder_descriptors(model: BinoEncoder, images: Sequence[Gray]) -> list[Tens
     descs: list[Tensor] = []
     i = 0
     while i < len(crops):
-        # Batch consecutive bands of one shape (all of them, unless images differ in size).
+        # Up to BAND_BATCH consecutive bands of one shape go through one forward.
         j = i + 1
         while j < min(len(crops), i + BAND_BATCH) and crops[j].shape == crops[i].shape:
             j += 1
@@ -93,7 +94,9 @@ def encoder_descriptors(model: BinoEncoder, images: Sequence[Gray]) -> list[Tens
         i = j
     out, k = [], 0
     for plan in plans:
-        parts = [descs[k + n][b.keep_from - b.start : b.keep_to - b.start] for n, b in enumerate(plan)]
+        parts = [
+            descs[k + n][b.keep_from - b.start : b.keep_to - b.start] for n, b in enumerate(plan)
+        ]
         out.append(torch.cat(parts, dim=0))
         k += len(plan)
     return out
@@ -229,7 +232,7 @@ def fill_invalid(disparity: NDArray[np.float32], valid: NDArray[np.bool_]) -> ND
 
 def run_sgbm(items: Sequence[ProbeItem], width: int) -> dict[str, float]:
     """OpenCV StereoSGBM with the EVAL.md settings, on the same grayscale profile images."""
-    sgbm = cv2.StereoSGBM_create(
+    sgbm = cv2.StereoSGBM.create(
         minDisparity=0,
         numDisparities=32 * width // 160,
         blockSize=5,
@@ -243,10 +246,12 @@ def run_sgbm(items: Sequence[ProbeItem], width: int) -> dict[str, float]:
     )
     per_pair, density = [], []
     for item in items:
-        to_u8 = [np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8) for v in (item.left, item.right)]
+        to_u8 = [
+            np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8) for v in (item.left, item.right)
+        ]
         raw = sgbm.compute(to_u8[0], to_u8[1]).astype(np.float32) / 16.0
         valid = raw >= 0
-        density.append(100.0 * float(valid.mean()))
+        density.append(100.0 * float(valid[item.valid].mean()))  # over GT-valid pixels
         per_pair.append(score(fill_invalid(raw, valid), item.gt, item.valid))
     return {**mean_metrics(per_pair), "density": float(np.mean(density))}
 

@@ -32,8 +32,9 @@ def shifted_pair(
     """A grayscale pair (H, W) with left(x, y) == right(x - disparity, y) everywhere."""
     rng = np.random.default_rng(seed)
     wide = smooth_texture(rng, height, width + disparity)
-    left = wide[:, disparity:]
-    right = wide[:, :width]
+    # right(x) = wide(x + d) and left(x) = wide(x), so left(x) == right(x - d).
+    left = wide[:, :width]
+    right = wide[:, disparity:]
     return np.ascontiguousarray(left), np.ascontiguousarray(right)
 
 

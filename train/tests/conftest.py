@@ -40,8 +40,19 @@ def write_dataset(folder: Path, seed: int = 0) -> Path:
             cv2.imwrite(str(gt_path), rng.integers(0, 60, size=(h, w), dtype=np.uint8))
             gt = str(gt_path.relative_to(folder))
         rows.append(
-            [pair_id, split, dataset, str(left.relative_to(folder)), str(right.relative_to(folder)),
-             gt, "png_u8" if gt else "", "4" if gt else "", "0" if gt else "", str(w), str(h)]
+            [
+                pair_id,
+                split,
+                dataset,
+                str(left.relative_to(folder)),
+                str(right.relative_to(folder)),
+                gt,
+                "png_u8" if gt else "",
+                "4" if gt else "",
+                "0" if gt else "",
+                str(w),
+                str(h),
+            ]
         )
     lines = ["\t".join(HEADER)] + ["\t".join(r) for r in rows]
     (folder / "PAIRS.tsv").write_text("\n".join(lines) + "\n")

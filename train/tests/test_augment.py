@@ -19,7 +19,17 @@ from bino_train.augment import (
     width_range,
 )
 from bino_train.pairs import SplitError, load_pairs, training_pairs
-from bino_train.synthetic import shifted_pair
+from bino_train.synthetic import smooth_texture
+
+
+def shifted_pair(
+    seed: int, height: int, width: int, disparity: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """left(x) = right(x - d): the right view sees the scene d pixels further right.
+
+    (Written here because synthetic.shifted_pair builds the opposite sign.)"""
+    wide = smooth_texture(np.random.default_rng(seed), height, width + disparity)
+    return wide[:, :width].copy(), wide[:, disparity : disparity + width].copy()
 
 
 def _holds_convention(left: np.ndarray, right: np.ndarray, d: int) -> bool:

@@ -22,7 +22,9 @@ def test_committed_fixture_matches_the_current_model() -> None:
     left = torch.from_numpy(np.load(folder / "left.npy"))
     right = torch.from_numpy(np.load(folder / "right.npy"))
     with torch.no_grad():
-        stages = dict(zip(stage_names(encoder.cfg), encoder.forward_stages(left, right), strict=True))
+        stages = dict(
+            zip(stage_names(encoder.cfg), encoder.forward_stages(left, right), strict=True)
+        )
     for name in ("embed", "tokens"):
         expected = np.load(folder / f"{name}.npy")
         assert np.abs(stages[name].numpy() - expected).max() < 1e-5, name

@@ -1,0 +1,113 @@
+"""The pretraining loop: exact resume, checkpoint contents, schedules."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from bino_train.export import load_encoder
+from bino_train.pretrain import TrainConfig, Trainer, learning_rate, main, smoke_report
+
+COMMON = ["--config", "small", "--batch", "2", "--schedule-pairs", "16", "--precision", "fp32"]
+
+
+def _assert_same(a: Any, b: Any, where: str = "") -> None:
+    if isinstance(a, torch.Tensor):
+        assert isinstance(b, torch.Tensor) and torch.equal(a, b), where
+    elif isinstance(a, dict):
+        assert a.keys() == b.keys(), where
+        for key in a:
+            _assert_same(a[key], b[key], f"{where}/{key}")
+    elif isinstance(a, list | tuple):
+        assert len(a) == len(b), where
+        for i, (x, y) in enumerate(zip(a, b, strict=True)):
+            _assert_same(x, y, f"{where}[{i}]")
+    else:
+        assert a == b, where
+
+
+def test_resume_is_exact(data_dir: Path, tmp_path: Path) -> None:
+    data = ["--data", str(data_dir), "--no-eval", "--log-every", "1"]
+    straight, split = tmp_path / "straight", tmp_path / "split"
+    main(["--out", str(straight), "--pairs", "8", *COMMON, *data])
+    main(["--out", str(split), "--pairs", "4", *COMMON, *data])
+    halfway = torch.load(split / "last.pt", weights_only=False)
+    # The resumed leg takes its configuration from the checkpoint, not from the command line.
+    main(["--out", str(split), "--pairs", "8", "--resume", *data])
+    a = torch.load(straight / "last.pt", weights_only=False)
+    b = torch.load(split / "last.pt", weights_only=False)
+    assert a["step"] == b["step"] == 4 and halfway["step"] == 2
+    for key in (
+        "student",
+        "teacher",
+        "student_head",
+        "teacher_head",
+        "loss",
+        "optimizer",
+        "data",
+        "masker",
+        "encoder",
+        "config",
+        "train_config",
+        "pairs_seen",
+    ):
+        _assert_same(a[key], b[key], key)
+    # Training did move the weights, so the equality above means something.
+    assert not torch.equal(a["student"]["row_embed"], halfway["student"]["row_embed"])
+    records = [json.loads(line) for line in (split / "log.jsonl").read_text().splitlines()]
+    assert [r["step"] for r in records if "loss" in r] == [1, 2, 3, 4]
+    assert [r["step"] for r in records if r.get("kind") == "start"] == [0, 2]
+
+
+def test_checkpoint_loads_in_export_as_the_teacher(data_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    main(["--out", str(out), "--pairs", "2", *COMMON, "--data", str(data_dir), "--no-eval"])
+    state = torch.load(out / "last.pt", weights_only=False)
+    encoder = load_encoder(out / "last.pt")
+    _assert_same(encoder.state_dict(), state["teacher"])
+    assert encoder.cfg.dim == 32
+    assert {"python", "numpy", "torch"} <= state["rng"].keys()
+    with pytest.raises(SystemExit):  # a fresh run never overwrites a checkpoint
+        main(["--out", str(out), "--pairs", "2", *COMMON, "--data", str(data_dir)])
+
+
+def test_trainer_draws_only_train_pairs(data_dir: Path) -> None:
+    cfg = TrainConfig.from_dict(TrainConfig(batch=2).to_dict())
+    trainer = Trainer(cfg, data_dir, torch.device("cpu"))
+    assert {p.split for p in trainer.sampler.store.pairs} == {"train"}
+
+
+def test_learning_rate_schedule_endpoints() -> None:
+    cfg = TrainConfig(lr=1e-3, min_lr=1e-5, warmup=0.1, schedule_pairs=1600, batch=16)
+    assert cfg.total_steps == 100
+    assert learning_rate(0, cfg) == pytest.approx(1e-4)
+    assert learning_rate(9, cfg) == pytest.approx(1e-3)
+    assert learning_rate(100, cfg) == pytest.approx(1e-5)
+    assert learning_rate(1000, cfg) == pytest.approx(1e-5)
+    assert learning_rate(10, cfg) > learning_rate(50, cfg) > learning_rate(90, cfg)
+
+
+def test_smoke_report_judges_the_kl() -> None:
+    rising_ce = [{"loss": 1.0 + i, "kl": 1.0 - 0.1 * i} for i in range(8)]
+    assert smoke_report(rising_ce)
+    assert not smoke_report([{"loss": 1.0, "kl": 0.1 * i} for i in range(8)])
+
+
+def test_evaluation_logs_probe_and_benchmark_and_snapshots_teacher(
+    data_dir: Path, tmp_path: Path
+) -> None:
+    out = tmp_path / "run"
+    main(
+        ["--out", str(out), "--pairs", "2", *COMMON, "--data", str(data_dir), "--bench-pairs", "2"]
+    )
+    records = [json.loads(line) for line in (out / "log.jsonl").read_text().splitlines()]
+    evals = [r for r in records if r.get("kind") == "eval"]
+    assert len(evals) == 1
+    for key in ("probe_epe", "probe_bad1tok", "probe_bad2", "easy_pck0", "hard_epe_tok"):
+        assert key in evals[0]
+    snapshot = out / "teacher_0000002.pt"
+    assert load_encoder(snapshot).cfg.dim == 32
