@@ -51,6 +51,9 @@ class AugmentConfig:
     occlusion_h: tuple[int, int] = (8, 32)
     occlusion_w: tuple[int, int] = (8, 48)
     cache_mb: int = 384
+    teacher_clean: bool = False
+    """Teacher sees the pair before the appearance nuisances, the student after: the
+    slot-wise target then asks the student's tokens to be invariant to them."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -180,8 +183,23 @@ def nuisances(
     left: Gray, right: Gray, rng: np.random.Generator, cfg: AugmentConfig
 ) -> tuple[Gray, Gray]:
     """Flip+swap, photometric, noise and one-view occlusion, each with its probability."""
+    left, right = maybe_flip(left, right, rng, cfg)
+    return appearance(left, right, rng, cfg)
+
+
+def maybe_flip(
+    left: Gray, right: Gray, rng: np.random.Generator, cfg: AugmentConfig
+) -> tuple[Gray, Gray]:
+    """Horizontal flip, always together with the view swap (keeps d >= 0)."""
     if rng.random() < cfg.flip_prob:
-        left, right = flip_swap(left, right)
+        return flip_swap(left, right)
+    return left, right
+
+
+def appearance(
+    left: Gray, right: Gray, rng: np.random.Generator, cfg: AugmentConfig
+) -> tuple[Gray, Gray]:
+    """Photometric change, noise and one-view occlusion (the geometry is left alone)."""
     views = [left, right]
     if rng.random() < cfg.photometric_prob:
         shared = draw_photometric(rng, cfg)
@@ -222,18 +240,23 @@ class CropSampler:
         self.batches = 0
 
     def next_batch(self, batch: int) -> tuple[Tensor, Tensor]:
-        """(left, right), each (B, 1, crop_h, crop_w) float32 in [0, 1]."""
-        lefts, rights = [], []
+        """(left, right), each (B, 1, crop_h, crop_w) float32 in [0, 1], with nuisances."""
+        _, _, left, right = self.next_batch_with_clean(batch)
+        return left, right
+
+    def next_batch_with_clean(self, batch: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        """(clean left, clean right, left, right): the same flipped crops before and after
+        the appearance nuisances, each (B, 1, crop_h, crop_w) float32 in [0, 1]."""
+        views: list[list[Gray]] = [[], [], [], []]
         for _ in range(batch):
             left, right = sample_window(self.store, self.rng, self.cfg, self.weights)
-            left, right = nuisances(left, right, self.rng, self.cfg)
-            lefts.append(left)
-            rights.append(right)
+            left, right = maybe_flip(left, right, self.rng, self.cfg)
+            changed = appearance(left, right, self.rng, self.cfg)
+            for slot, view in zip(views, (left, right, *changed), strict=True):
+                slot.append(view.astype(np.float32))
         self.batches += 1
-        return (
-            torch.from_numpy(np.stack(lefts)[:, None]),
-            torch.from_numpy(np.stack(rights)[:, None]),
-        )
+        stacked = [torch.from_numpy(np.stack(v)[:, None]) for v in views]
+        return stacked[0], stacked[1], stacked[2], stacked[3]
 
     def state_dict(self) -> dict[str, Any]:
         return {"rng": self.rng.bit_generator.state, "batches": self.batches}

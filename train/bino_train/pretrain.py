@@ -172,7 +172,9 @@ class Trainer:
 
     def train_step(self) -> dict[str, Any]:
         cfg, step, dev = self.cfg, self.step, self.device
-        left, right = self.sampler.next_batch(cfg.batch)
+        clean_left, clean_right, left, right = self.sampler.next_batch_with_clean(cfg.batch)
+        if not cfg.augment.teacher_clean:
+            clean_left, clean_right = left, right
         ratio = mask_ratio(step, cfg.total_steps, cfg.mask)
         masked = self.masker(left, right, ratio)
         lr = learning_rate(step, cfg)
@@ -184,7 +186,10 @@ class Trainer:
             cfg.dino.teacher_temp_start,
             cfg.dino.teacher_temp_end,
         )
-        views = [to_three_channels(v.to(dev)) for v in (left, right, masked.left, masked.right)]
+        views = [
+            to_three_channels(v.to(dev))
+            for v in (clean_left, clean_right, masked.left, masked.right)
+        ]
         with torch.autocast(dev.type, dtype=torch.bfloat16, enabled=self.bf16):
             with torch.no_grad():
                 t_tokens = self.teacher(views[0], views[1])
@@ -406,10 +411,17 @@ def build_config(args: argparse.Namespace) -> TrainConfig:
     if args.mask_block is not None:
         bh, bw = (int(v) for v in args.mask_block.lower().split("x"))
         mask = replace(mask, block_h=bh, block_w=bw)
+    augment = replace(
+        AugmentConfig(),
+        **_given(min_width=args.crop_widths and args.crop_widths[0]),
+        **_given(max_width=args.crop_widths and args.crop_widths[1]),
+        teacher_clean=args.teacher_clean,
+    )
     return TrainConfig(
         encoder=SMALL_ENCODER if small else EncoderConfig(),
         dino=dino,
         mask=mask,
+        augment=augment,
         seed=args.seed,
         **_given(batch=args.batch or (4 if small else None), lr=args.lr, precision=args.precision),
     )
@@ -444,6 +456,18 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--teacher-temp", type=float, nargs=2, metavar=("START", "END"))
     p.add_argument("--momentum", type=float, help="EMA momentum at step 0")
     p.add_argument("--precision", choices=("auto", "bf16", "fp32"), help="default auto")
+    p.add_argument(
+        "--crop-widths",
+        type=int,
+        nargs=2,
+        metavar=("MIN", "MAX"),
+        help="range of image widths the 48x160 crops are cut from (crop scale)",
+    )
+    p.add_argument(
+        "--teacher-clean",
+        action="store_true",
+        help="teacher sees the pair before photometric/noise/occlusion nuisances",
+    )
     p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
