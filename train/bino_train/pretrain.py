@@ -308,6 +308,8 @@ class RunOptions:
     probe: bool = True
     bench_pairs: int = 32
     log_every: int = 5
+    eval_student: bool = False
+    """Also evaluate the student: the EMA teacher lags it, so short runs show trends earlier."""
 
 
 class _StopFlag:
@@ -336,6 +338,9 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
     def evaluate() -> None:
         t0 = time.perf_counter()
         metrics = evaluator(trainer.teacher)
+        if opts.eval_student:
+            metrics |= {f"student_{k}": v for k, v in evaluator(trainer.student).items()}
+            trainer.student.train()
         torch.save(
             {"config": trainer.cfg.encoder.to_dict(), "encoder": trainer.teacher.state_dict()},
             opts.out / f"teacher_{trainer.pairs_seen:07d}.pt",
@@ -463,6 +468,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         metavar=("MIN", "MAX"),
         help="range of image widths the 48x160 crops are cut from (crop scale)",
     )
+    p.add_argument("--eval-student", action="store_true", help="evaluate the student too")
     p.add_argument(
         "--teacher-clean",
         action="store_true",
@@ -520,6 +526,7 @@ def main(argv: list[str] | None = None) -> None:
         probe=not args.no_probe,
         bench_pairs=args.bench_pairs,
         log_every=args.log_every,
+        eval_student=args.eval_student,
     )
     records = run(trainer, opts)
     print(f"done: step {trainer.step}, {trainer.pairs_seen} pairs, checkpoint {ckpt}")

@@ -1,0 +1,129 @@
+"""The shared head scored on the eval split by EVAL.md, next to StereoSGBM from the same run.
+
+    python -m bino_train.head_eval --encoder runs/PRE/last.pt --head runs/HEAD/last.pt
+    python -m bino_train.head_eval --random-init-seed 0 --head runs/HEAD/last.pt --profile w160
+
+Descriptors are computed exactly as in probe.py (each view resized to the profile, 48-row
+overlapping bands stitched for taller images); the head runs on the whole stitched map (it is
+convolutional in rows and columns). Head disparity in patch columns x 4 = px on the token grid,
+bilinearly upsampled to pixels, then epe / bad1tok / bad2 per pair and the mean over pairs.
+The no-linkage probe (cosine WTA, 10 columns) on the same descriptors is reported alongside.
+The head predicts every pixel: density 100.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .head import StereoHead, load_head
+from .model import BinoEncoder
+from .probe import (
+    ProbeItem,
+    encoder_describe,
+    load_probe_set,
+    mean_metrics,
+    run_sgbm,
+    score,
+    similarity_volume,
+    upsample_disparity,
+    wta_subtoken,
+)
+from .profile import profile_width
+
+PROBE_COLS = 10
+"""The probe's default candidate count (probe.py)."""
+
+
+@torch.no_grad()
+def head_scores(
+    encoder: BinoEncoder, head: StereoHead, items: Sequence[ProbeItem]
+) -> tuple[list[dict[str, float]], list[dict[str, float]]]:
+    """Per-pair EVAL.md metrics of the head and of the probe, from one set of descriptors."""
+    describe = encoder_describe(encoder)
+    head = head.eval()
+    device = next(head.parameters()).device
+    heads, probes = [], []
+    for item in items:
+        dl, dr = describe([item.left, item.right])
+        out = head(dl[None].to(device), dr[None].to(device))
+        disp = upsample_disparity(out.disparity[0].float().cpu().numpy())
+        heads.append(score(disp, item.gt, item.valid))
+        probe = wta_subtoken(similarity_volume(dl, dr, PROBE_COLS))
+        probes.append(score(upsample_disparity(probe), item.gt, item.valid))
+    return heads, probes
+
+
+def evaluate_head(
+    encoder: BinoEncoder,
+    head: StereoHead,
+    data_dir: Path | None = None,
+    profile: str = "w160",
+    per_pair: bool = False,
+) -> dict[str, Any]:
+    """{"head": metrics, "probe": metrics, "sgbm": metrics} (means over the eval pairs)."""
+    items = load_probe_set(data_dir, profile)
+    heads, probes = head_scores(encoder, head, items)
+    out: dict[str, Any] = {
+        "profile": profile,
+        "pairs": len(items),
+        "head": {**mean_metrics(heads), "density": 100.0},
+        "probe": {**mean_metrics(probes), "density": 100.0},
+        "sgbm": run_sgbm(items, profile_width(profile)),
+    }
+    if per_pair:
+        out["per_pair"] = {it.pair_id: m for it, m in zip(items, heads, strict=True)}
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    source = parser.add_mutually_exclusive_group(required=True)
+    source.add_argument("--encoder", type=Path, help="encoder checkpoint the head was trained on")
+    source.add_argument("--random-init-seed", type=int, help="encoder at a seeded random init")
+    parser.add_argument("--head", type=Path, required=True, help="head checkpoint")
+    parser.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
+    parser.add_argument("--profile", default="w160", help="w160 or w320")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    parser.add_argument("--per-pair", action="store_true", help="include per-pair head metrics")
+    args = parser.parse_args(argv)
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+
+    from .export import load_encoder, random_encoder
+    from .head_train import EncoderSource, build_encoder, encoder_digest
+
+    start = time.perf_counter()
+    state = torch.load(args.head, map_location="cpu", weights_only=False)
+    if args.encoder is not None:
+        encoder = load_encoder(args.encoder)
+        method = f"head {args.head} on encoder {args.encoder}"
+    else:
+        trained = EncoderSource(**state.get("encoder_source", {"kind": "random-init"}))
+        # A random-init encoder is rebuilt with the config the head was trained on.
+        if trained.kind == "random-init" and trained.seed == args.random_init_seed:
+            encoder = build_encoder(trained)
+        else:
+            encoder = random_encoder(args.random_init_seed)
+        method = f"head {args.head} on random-init encoder seed {args.random_init_seed}"
+    trained_hash = state.get("encoder_source", {}).get("sha256", "")
+    if trained_hash and trained_hash != encoder_digest(encoder):
+        print("warning: this encoder is not the one the head was trained on", file=sys.stderr)
+    head = load_head(args.head)
+    result = evaluate_head(encoder, head, args.data, args.profile, args.per_pair)
+    output: dict[str, Any] = {"method": method, "head_step": state.get("step"), **result}
+    output["seconds"] = round(time.perf_counter() - start, 2)
+    print(json.dumps(output, indent=1))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,143 @@
+"""weights/MANIFEST.json: what was shipped, how it was trained, and what it measured.
+
+    python -m bino_train.manifest --pretrain-run runs/NAME --head-run runs/HEAD \
+        --metrics runs/metrics.json --experiments experiments.json --out ../weights/MANIFEST.json
+
+Every file in the weights folder gets its sha256; the recipe comes from the checkpoints, the
+metrics from the JSON written by the evaluation commands, and the list of what was tried
+(with what it did) from `experiments.json`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import platform
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from .pairs import training_pairs
+
+LICENCE = (
+    "Trained on ../shared/data train-split pairs: Karlsruhe sequences and ETH3D are CC BY-NC-SA "
+    "(non-commercial), Middlebury is free for research with citation, OAK-D captures are MIT "
+    "(see ../shared/data/DATA.md). These weights inherit the non-commercial restriction."
+)
+
+
+def sha256(path: Path) -> str:
+    digest = hashlib.sha256()
+    with path.open("rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
+def file_hashes(folder: Path) -> dict[str, str]:
+    """sha256 of every file in `folder` except the manifest itself."""
+    return {
+        p.name: sha256(p)
+        for p in sorted(folder.iterdir())
+        if p.is_file() and p.name != "MANIFEST.json"
+    }
+
+
+def run_summary(run: Path) -> dict[str, Any]:
+    """Recipe and progress of a training run, from its last checkpoint and log."""
+    state = torch.load(run / "last.pt", map_location="cpu", weights_only=False)
+    summary: dict[str, Any] = {
+        "run": run.name,
+        "train_config": state.get("train_config"),
+        "steps": state.get("step"),
+        "pairs_seen": state.get("pairs_seen"),
+        "train_seconds": state.get("train_seconds"),
+    }
+    log = run / "log.jsonl"
+    if log.is_file():
+        records = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
+        summary["sessions"] = sum(1 for r in records if r.get("kind") == "start")
+        summary["evaluations"] = [r for r in records if r.get("kind") == "eval"]
+    return summary
+
+
+def hardware() -> dict[str, str]:
+    cpu = platform.processor() or platform.machine()
+    try:
+        info = Path("/proc/cpuinfo").read_text()
+        cpu = next(
+            line.split(":", 1)[1].strip() for line in info.splitlines() if "model name" in line
+        )
+    except (OSError, StopIteration):
+        pass
+    return {
+        "cpu": cpu,
+        "torch_threads": str(torch.get_num_threads()),
+        "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else "none",
+        "python": sys.version.split()[0],
+        "torch": torch.__version__,
+        "platform": platform.platform(),
+    }
+
+
+def git_commit(repo: Path) -> str:
+    try:
+        out = subprocess.run(
+            ["git", "-C", str(repo), "rev-parse", "HEAD"],
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        return out.stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+
+
+def build_manifest(
+    weights: Path,
+    pretrain_run: Path,
+    head_run: Path | None,
+    metrics: dict[str, Any],
+    experiments: list[dict[str, Any]],
+    data_dir: Path | None,
+) -> dict[str, Any]:
+    pairs = training_pairs(data_dir)
+    return {
+        "files": file_hashes(weights),
+        "code_commit": git_commit(weights.parent),
+        "hardware": hardware(),
+        "pretraining": run_summary(pretrain_run),
+        "head_training": run_summary(head_run) if head_run is not None else None,
+        "training_pairs": [p.pair_id for p in pairs],
+        "metrics": metrics,
+        "experiments": experiments,
+        "licence": LICENCE,
+    }
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--pretrain-run", type=Path, required=True)
+    parser.add_argument("--head-run", type=Path)
+    parser.add_argument("--metrics", type=Path, help="JSON of measured metrics")
+    parser.add_argument("--experiments", type=Path, help="JSON list of recipes tried")
+    parser.add_argument("--data", type=Path, default=None)
+    parser.add_argument("--out", type=Path, required=True, help="weights/MANIFEST.json")
+    args = parser.parse_args(argv)
+    metrics = json.loads(args.metrics.read_text()) if args.metrics else {}
+    experiments = json.loads(args.experiments.read_text()) if args.experiments else []
+    manifest = build_manifest(
+        args.out.parent, args.pretrain_run, args.head_run, metrics, experiments, args.data
+    )
+    args.out.write_text(json.dumps(manifest, indent=2) + "\n")
+    print(f"wrote {args.out} ({len(manifest['files'])} files hashed)")
+
+
+if __name__ == "__main__":
+    main()
