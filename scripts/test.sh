@@ -28,4 +28,20 @@ cd train
 "$BINO_VENV/bin/mypy" bino_train
 "$BINO_VENV/bin/python" -m pytest -p no:cacheprovider
 
+step "training smoke: tiny pretraining + head, export, run both in tract"
+# Seconds-long runs that exit non-zero unless their loss fell; the exports must load and run
+# in tract through the same CLI path as the shipped weights.
+smoke="$(mktemp -d)"
+trap 'rm -rf "$smoke"' EXIT
+py() { "$BINO_VENV/bin/python" -W ignore "$@"; }
+py -m bino_train.pretrain --out "$smoke/pretrain" --smoke
+py -m bino_train.export --checkpoint "$smoke/pretrain/last.pt" --out "$smoke/encoder.onnx"
+py -m bino_train.head_train --encoder "$smoke/pretrain/last.pt" --out "$smoke/head" --smoke
+py -m bino_train.head --checkpoint "$smoke/head/last.pt" --out "$smoke/head.onnx"
+cd "$BINO_ROOT"
+cargo run -q --locked -p bino-host --bin bino -- reference --profile native \
+  --onnx "$smoke/encoder.onnx" --head "$smoke/head.onnx" --out "$smoke/reference.npz"
+py -c "import numpy as np, sys; d = np.load(sys.argv[1])['disparity']; \
+assert d.shape == (24, 40) and np.isfinite(d).all(), d.shape" "$smoke/reference.npz"
+
 step "all tests passed"

@@ -6,7 +6,9 @@
 pub mod image_io;
 pub mod npy;
 pub mod npz;
+pub mod onnx;
 pub mod pairs;
 pub mod profile;
 pub mod reference;
+pub mod reference_head;
 pub mod synthetic;

@@ -6,12 +6,12 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{bail, ensure, Context, Result};
-use bino_core::config::DIM;
 use bino_host::image_io::{load_gray, GrayImage};
 use bino_host::npy::Array;
 use bino_host::pairs::{read_index, Split};
 use bino_host::profile::{Profile, View};
 use bino_host::reference::{FeatureMap, ReferenceEncoder};
+use bino_host::reference_head::ReferenceHead;
 use bino_host::{npz, synthetic};
 use clap::{Parser, Subcommand};
 
@@ -31,7 +31,8 @@ enum Command {
     /// `left`, `right` (H, W) the views after the profile, gray in [0, 1];
     /// `tokens` (H/4, W/2, 128) the de-positioned fused token grid of (left, right);
     /// `desc_left`, `desc_right` (H/4, W/4, 128) the descriptor maps (encoder on (I, I),
-    /// phase-averaged). Without --left/--right a built-in procedural scene (160x96) is used.
+    /// phase-averaged); with --head also `disparity` (H/4, W/4) in patch columns. Without
+    /// --left/--right a built-in procedural scene (160x96) is used.
     Reference {
         /// Left image (PNG, PPM/PGM or JPEG; gray or colour).
         #[arg(long, requires = "right")]
@@ -45,6 +46,10 @@ enum Command {
         /// Encoder exported by `python -m bino_train.export`.
         #[arg(long, default_value = "weights/bino_encoder.onnx")]
         onnx: PathBuf,
+        /// Shared head exported by `python -m bino_train.head`; adds `disparity` (H/4, W/4),
+        /// in patch columns, to the archive.
+        #[arg(long)]
+        head: Option<PathBuf>,
         /// Output archive (.npz).
         #[arg(long)]
         out: PathBuf,
@@ -77,13 +82,20 @@ fn run(cli: Cli) -> Result<()> {
             right,
             profile,
             onnx,
+            head,
             out,
-        } => reference(left.zip(right), profile, &onnx, &out),
+        } => reference(left.zip(right), profile, &onnx, head.as_deref(), &out),
         Command::Pairs { data, split } => list_pairs(&data, split.as_deref()),
     }
 }
 
-fn reference(files: Option<(PathBuf, PathBuf)>, profile: Profile, onnx: &Path, out: &Path) -> Result<()> {
+fn reference(
+    files: Option<(PathBuf, PathBuf)>,
+    profile: Profile,
+    onnx: &Path,
+    head: Option<&Path>,
+    out: &Path,
+) -> Result<()> {
     ensure!(
         out.extension().is_some_and(|e| e == "npz"),
         "output {} must end in .npz (the reference writes a NumPy archive)",
@@ -102,32 +114,42 @@ fn reference(files: Option<(PathBuf, PathBuf)>, profile: Profile, onnx: &Path, o
     };
     let (left, right) = apply_profile(&left, &right, profile, &source)?;
     let mut encoder = ReferenceEncoder::load(onnx)?;
+    let mut head = head.map(ReferenceHead::load).transpose()?;
     let started = Instant::now();
     let tokens = encoder.tokens(&left, &right)?;
     let desc_left = encoder.descriptors(&left)?;
     let desc_right = encoder.descriptors(&right)?;
     let elapsed = started.elapsed();
+    let disparity = head
+        .as_mut()
+        .map(|h| h.disparity(&desc_left, &desc_right))
+        .transpose()?;
 
     let view = |v: &View| Array::new(vec![v.height, v.width], v.pixels.clone());
-    let map = |m: &FeatureMap| Array::new(vec![m.rows, m.cols, DIM], m.data.clone());
-    let arrays = [
+    let map = |m: &FeatureMap| Array::new(vec![m.rows, m.cols, m.dim], m.data.clone());
+    let mut arrays = vec![
         ("left", view(&left)?),
         ("right", view(&right)?),
         ("tokens", map(&tokens)?),
         ("desc_left", map(&desc_left)?),
         ("desc_right", map(&desc_right)?),
     ];
+    if let Some(d) = &disparity {
+        arrays.push(("disparity", Array::new(vec![d.rows, d.cols], d.data.clone())?));
+    }
     let named: Vec<(&str, &Array)> = arrays.iter().map(|(n, a)| (*n, a)).collect();
     write_atomically(out, |file| npz::write(file, &named))?;
     println!(
-        "{source}: {}x{} at profile {profile}; tokens {}x{}x{DIM}, descriptors {}x{}x{DIM}; \
+        "{source}: {}x{} at profile {profile}; tokens {}x{}x{}, descriptors {}x{}x{}; \
          3 encoder passes in {:.2} s (tract-onnx, {})",
         left.width,
         left.height,
         tokens.rows,
         tokens.cols,
+        tokens.dim,
         desc_left.rows,
         desc_left.cols,
+        desc_left.dim,
         elapsed.as_secs_f64(),
         encoder.path().display()
     );

@@ -34,6 +34,9 @@ class DinoConfig:
     unmasked_weight: float = 1.0
     """Token weights in the cross-entropy: uniform (the paper's best) when equal."""
     chunk_tokens: int = 1024
+    head_bn: bool = False
+    """BatchNorm after the head's hidden layer (DINO's `use_bn`): removes the component all
+    tokens share, which otherwise dominates the cosine logits and flattens the teacher."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -61,8 +64,9 @@ class DinoHead(nn.Module):
 
     def __init__(self, in_dim: int, cfg: DinoConfig) -> None:
         super().__init__()
+        norm: nn.Module = nn.BatchNorm1d(cfg.hidden) if cfg.head_bn else nn.Identity()
         self.mlp = nn.Sequential(
-            nn.Linear(in_dim, cfg.hidden), nn.GELU(), nn.Linear(cfg.hidden, cfg.bottleneck)
+            nn.Linear(in_dim, cfg.hidden), norm, nn.GELU(), nn.Linear(cfg.hidden, cfg.bottleneck)
         )
         self.prototypes = nn.Parameter(torch.empty(cfg.prototypes, cfg.bottleneck))
         for m in self.mlp:

@@ -407,6 +407,8 @@ def build_config(args: argparse.Namespace) -> TrainConfig:
             momentum_start=args.momentum,
         ),
     )
+    if args.head_bn:
+        dino = replace(dino, head_bn=True)
     if args.teacher_temp is not None:
         dino = replace(dino, teacher_temp_start=args.teacher_temp[0])
         dino = replace(dino, teacher_temp_end=args.teacher_temp[1])
@@ -469,6 +471,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="range of image widths the 48x160 crops are cut from (crop scale)",
     )
     p.add_argument("--eval-student", action="store_true", help="evaluate the student too")
+    p.add_argument("--head-bn", action="store_true", help="BatchNorm in the projection head")
     p.add_argument(
         "--teacher-clean",
         action="store_true",
