@@ -8,8 +8,9 @@
 //! ```
 //! use bino_core::band::BandPlan;
 //! // A 96-row image (24 token rows) goes as three overlapping 12-row bands.
-//! let plan = BandPlan::new(24).unwrap();
+//! let plan = BandPlan::new(24)?;
 //! assert_eq!(plan.len(), 3);
+//! # Ok::<(), bino_core::Error>(())
 //! ```
 #![no_std]
 #![deny(missing_docs)]
