@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -32,7 +31,7 @@ from torch import Tensor
 
 from .augment import CLEAN, AugmentConfig, ImageStore, dataset_weights, nuisances, sample_window
 from .pairs import training_pairs
-from .probe import CELL, Describe, encoder_describe, window_descriptors
+from .probe import CELL, Describe, describe_from_args
 
 Gray = NDArray[np.float32]
 
@@ -130,21 +129,8 @@ def main(argv: list[str] | None = None) -> None:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
 
-    from .export import load_encoder, random_encoder  # export pulls in onnx; only the CLI needs it
-
     start = time.perf_counter()
-    if args.baseline is not None:
-        if not args.baseline.startswith("window"):
-            sys.exit(f"error: unknown baseline {args.baseline!r}")
-        size = int(args.baseline.removeprefix("window"))
-        describe: Describe = lambda images: window_descriptors(images, size)  # noqa: E731
-        method = args.baseline
-    elif args.checkpoint is not None:
-        describe = encoder_describe(load_encoder(args.checkpoint))
-        method = f"checkpoint {args.checkpoint}"
-    else:
-        describe = encoder_describe(random_encoder(args.random_init_seed))
-        method = f"random-init seed {args.random_init_seed}"
+    describe, method = describe_from_args(args.baseline, args.checkpoint, args.random_init_seed)
     sets = make_benchmark(args.data, args.pairs, args.seed, args.max_shift_cols)
     result: dict[str, object] = {"method": method, "pairs": args.pairs, "seed": args.seed}
     result.update(run_all(describe, sets))

@@ -28,7 +28,6 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from types import FrameType
 from typing import Any
 
 import numpy as np
@@ -39,7 +38,7 @@ from .config import EncoderConfig
 from .head import HeadConfig, StereoHead, head_loss
 from .head_data import DataConfig, DescBatch, DescriptorPool, HeadSampler, encode
 from .model import BinoEncoder, parameter_count
-from .pretrain import param_groups, rng_states, save_atomic, set_rng_states
+from .pretrain import StopFlag, param_groups, rng_states, save_atomic, set_rng_states
 
 ASSUMED_STEPS_PER_S = {"cpu": 0.5, "cuda": 10.0}
 """Only used to turn --minutes into a schedule length when neither --steps nor
@@ -236,15 +235,6 @@ class RunOptions:
     log_every: int = 10
 
 
-class _StopFlag:
-    def __init__(self) -> None:
-        self.stop = False
-
-    def __call__(self, signum: int, frame: FrameType | None) -> None:
-        print(f"signal {signum}: stopping after this step", file=sys.stderr)
-        self.stop = True
-
-
 def run(trainer: HeadTrainer, opts: RunOptions) -> list[dict[str, Any]]:
     """Train until a stop condition; returns this invocation's step records."""
     opts.out.mkdir(parents=True, exist_ok=True)
@@ -254,7 +244,7 @@ def run(trainer: HeadTrainer, opts: RunOptions) -> list[dict[str, Any]]:
         with log_path.open("a") as f:
             f.write(json.dumps(record) + "\n")
 
-    flag = _StopFlag()
+    flag = StopFlag()
     previous = [signal.signal(s, flag) for s in (signal.SIGINT, signal.SIGTERM)]
     start = last_ckpt = time.perf_counter()
     records: list[dict[str, Any]] = []

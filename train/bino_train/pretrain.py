@@ -312,7 +312,9 @@ class RunOptions:
     """Also evaluate the student: the EMA teacher lags it, so short runs show trends earlier."""
 
 
-class _StopFlag:
+class StopFlag:
+    """Signal handler for SIGINT/SIGTERM: finish the current step, checkpoint, stop."""
+
     def __init__(self) -> None:
         self.stop = False
 
@@ -326,7 +328,7 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
     opts.out.mkdir(parents=True, exist_ok=True)
     log_path = opts.out / "log.jsonl"
     evaluator = Evaluator(opts.data_dir, opts.bench_pairs, opts.probe)
-    flag = _StopFlag()
+    flag = StopFlag()
     previous = [signal.signal(s, flag) for s in (signal.SIGINT, signal.SIGTERM)]
     start = last_ckpt = last_eval = time.perf_counter()
     records: list[dict[str, Any]] = []

@@ -261,6 +261,23 @@ def encoder_describe(model: BinoEncoder) -> Describe:
     return lambda images: encoder_descriptors(model, images)
 
 
+def describe_from_args(
+    baseline: str | None, checkpoint: Path | None, seed: int | None
+) -> tuple[Describe, str]:
+    """The descriptor function a CLI asked for (windowN baseline, checkpoint or random init),
+    and its name for the report."""
+    from .export import load_encoder, random_encoder  # export pulls in onnx; only CLIs need it
+
+    if baseline is not None:
+        if not baseline.startswith("window"):
+            sys.exit(f"error: unknown baseline {baseline!r}")
+        size = int(baseline.removeprefix("window"))
+        return (lambda images: window_descriptors(images, size)), baseline
+    if checkpoint is not None:
+        return encoder_describe(load_encoder(checkpoint)), f"checkpoint {checkpoint}"
+    return encoder_describe(random_encoder(seed or 0)), f"random-init seed {seed}"
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -278,8 +295,6 @@ def main(argv: list[str] | None = None) -> None:
     if args.threads > 0:
         torch.set_num_threads(args.threads)
 
-    from .export import load_encoder, random_encoder  # export pulls in onnx; only the CLI needs it
-
     start = time.perf_counter()
     items = load_probe_set(args.data, args.profile)
     per_pair: dict[str, dict[str, float]] = {}
@@ -287,18 +302,7 @@ def main(argv: list[str] | None = None) -> None:
         result = run_sgbm(items, profile_width(args.profile))
         method = "sgbm"
     else:
-        if args.baseline is not None:
-            if not args.baseline.startswith("window"):
-                sys.exit(f"error: unknown baseline {args.baseline!r}")
-            size = int(args.baseline.removeprefix("window"))
-            describe: Describe = lambda images: window_descriptors(images, size)  # noqa: E731
-            method = args.baseline
-        elif args.checkpoint is not None:
-            describe = encoder_describe(load_encoder(args.checkpoint))
-            method = f"checkpoint {args.checkpoint}"
-        else:
-            describe = encoder_describe(random_encoder(args.random_init_seed))
-            method = f"random-init seed {args.random_init_seed}"
+        describe, method = describe_from_args(args.baseline, args.checkpoint, args.random_init_seed)
         scores = probe_scores(describe, items, args.max_cols)
         result = {**mean_metrics(scores), "density": 100.0}
         if args.per_pair:
