@@ -84,17 +84,22 @@ def export_onnx(
             opset_version=OPSET,
             dynamo=False,
         )
-    model = onnx.load(str(out))
     meta = {
         "bino.weights": provenance,
         "bino.config": repr(cfg.to_dict()),
         "bino.parameters": str(parameter_count(encoder)),
     }
+    stamp_metadata(out, meta)
+
+
+def stamp_metadata(path: Path, meta: dict[str, str]) -> None:
+    """Add `meta` to the ONNX file's metadata (provenance travels with the model), check, save."""
+    model = onnx.load(str(path))
     for key, value in meta.items():
         entry = model.metadata_props.add()
         entry.key, entry.value = key, value
     onnx.checker.check_model(model)
-    onnx.save(model, str(out))
+    onnx.save(model, str(path))
 
 
 def write_fixture(

@@ -27,11 +27,11 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import onnx
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from .export import stamp_metadata
 from .model import parameter_count
 
 OPSET = 17
@@ -264,18 +264,13 @@ def export_head_onnx(
             opset_version=OPSET,
             dynamo=False,
         )
-    model = onnx.load(str(out))
     meta = {
         "bino.weights": provenance,
         "bino.head_config": repr(cfg.to_dict()),
         "bino.parameters": str(parameter_count(head)),
         "bino.disparity_unit": "patch columns (4 px at the encoder input)",
     }
-    for key, value in meta.items():
-        entry = model.metadata_props.add()
-        entry.key, entry.value = key, value
-    onnx.checker.check_model(model)
-    onnx.save(model, str(out))
+    stamp_metadata(out, meta)
 
 
 def main(argv: list[str] | None = None) -> None:
