@@ -25,6 +25,17 @@ pub const BAND_TOKEN_ROWS: usize = BAND_ROWS / PATCH_H;
 /// Token rows between the starts of consecutive bands of a tall image.
 pub const BAND_STRIDE_TOKEN_ROWS: usize = 8;
 
+/// Channels of the shared head's L/R projection.
+pub const HEAD_PROJ_DIM: usize = 96;
+/// Groups of the head's groupwise correlation.
+pub const HEAD_GROUPS: usize = 16;
+/// Channels of the head's 3D regularisation net.
+pub const HEAD_HIDDEN: usize = 24;
+/// Residual 3D convolutions between the head's stem and output.
+pub const HEAD_MIDDLE_LAYERS: usize = 4;
+/// Disparity candidates of the head, in patch columns (`0..HEAD_MAX_DISP`).
+pub const HEAD_MAX_DISP: usize = 12;
+
 /// Token-grid size of a `height` x `width` view: (token rows, patch columns, fused columns).
 pub const fn token_grid(height: usize, width: usize) -> (usize, usize, usize) {
     (height / PATCH_H, width / CELL_W, 2 * (width / CELL_W))

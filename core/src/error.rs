@@ -26,6 +26,48 @@ pub enum Error {
     },
     /// The left and right views have different sizes.
     PairMismatch,
+    /// A band is taller than the encoder's band.
+    BandTooTall {
+        /// Rows given.
+        rows: usize,
+        /// The most the encoder takes.
+        max: usize,
+    },
+    /// A buffer has the wrong length.
+    BufferSize {
+        /// Which buffer.
+        what: &'static str,
+        /// Length it must have.
+        expected: usize,
+        /// Length it has.
+        found: usize,
+    },
+    /// The arena cannot hold what the run needs.
+    ArenaTooSmall {
+        /// Bytes the run needs.
+        needed: usize,
+        /// Bytes the arena has.
+        available: usize,
+    },
+    /// The weight blob was made for another model configuration.
+    ConfigMismatch {
+        /// The configuration field that differs.
+        field: &'static str,
+        /// This build's value.
+        expected: usize,
+        /// The blob's value.
+        found: usize,
+    },
+    /// A quantisation parameter in the blob is out of range (a shift of 0 or above 62, a
+    /// negative epsilon, a table of the wrong size).
+    BadParameter {
+        /// The tensor holding it.
+        id: crate::blob::TensorId,
+    },
+    /// Rows were pushed into a stream after it was finished.
+    StreamFinished,
+    /// The weight blob is malformed or lacks a tensor the model needs.
+    Blob(crate::blob::BlobError),
 }
 
 impl fmt::Display for Error {
@@ -39,7 +81,28 @@ impl fmt::Display for Error {
                 write!(f, "image width {width} exceeds the configured maximum {max}")
             }
             Error::PairMismatch => write!(f, "left and right views differ in size"),
+            Error::BandTooTall { rows, max } => write!(f, "band of {rows} rows is taller than the encoder's {max}"),
+            Error::BufferSize { what, expected, found } => {
+                write!(f, "{what} holds {found} values, expected {expected}")
+            }
+            Error::ArenaTooSmall { needed, available } => {
+                write!(f, "arena of {available} bytes is too small: the run needs {needed}")
+            }
+            Error::ConfigMismatch { field, expected, found } => {
+                write!(f, "weight blob has {field} = {found}, this build expects {expected}")
+            }
+            Error::BadParameter { id } => {
+                write!(f, "weight blob tensor {:#010x} holds an out-of-range parameter", id.0)
+            }
+            Error::StreamFinished => write!(f, "row pushed after the stream was finished"),
+            Error::Blob(e) => write!(f, "{e}"),
         }
+    }
+}
+
+impl From<crate::blob::BlobError> for Error {
+    fn from(e: crate::blob::BlobError) -> Self {
+        Error::Blob(e)
     }
 }
 

@@ -16,8 +16,16 @@
 #![deny(missing_docs)]
 #![forbid(unsafe_code)]
 
+pub mod arena;
 pub mod band;
+pub mod blob;
 pub mod config;
+pub mod crc32;
 pub mod error;
+pub mod fixed;
+pub mod kernels;
+pub mod model;
+#[cfg(test)]
+mod testutil;
 
 pub use error::Error;

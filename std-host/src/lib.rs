@@ -3,12 +3,20 @@
 //! CLI writes.
 #![deny(missing_docs)]
 
+pub mod blob_writer;
+pub mod eval;
+pub mod float_head;
+pub mod float_weights;
 pub mod image_io;
+pub mod int8;
 pub mod npy;
 pub mod npz;
 pub mod onnx;
+pub mod onnx_params;
 pub mod pairs;
 pub mod profile;
+pub mod quantize;
 pub mod reference;
 pub mod reference_head;
 pub mod synthetic;
+pub mod taps;

@@ -7,9 +7,11 @@ use std::time::Instant;
 
 use anyhow::{bail, ensure, Context, Result};
 use bino_host::image_io::{load_gray, GrayImage};
+use bino_host::int8::Int8Model;
 use bino_host::npy::Array;
 use bino_host::pairs::{read_index, Split};
 use bino_host::profile::{Profile, View};
+use bino_host::quantize::{quantize, QuantizeOptions};
 use bino_host::reference::{FeatureMap, ReferenceEncoder};
 use bino_host::reference_head::ReferenceHead;
 use bino_host::{npz, synthetic};
@@ -54,6 +56,32 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// Quantise the float ONNX models into the int8 weight blob the engine runs.
+    ///
+    /// Weights: symmetric int8 per output channel. Activation formats come from the float
+    /// encoder's intermediate tensors (tract) on bands of train-split pairs only: per-channel
+    /// 0.01/99.99 percentiles for the residual stream, MSE-optimal clipping elsewhere
+    /// (docs/int8-model.md).
+    Quantize {
+        /// Float encoder (`python -m bino_train.export`).
+        #[arg(long, default_value = "weights/bino_encoder.onnx")]
+        onnx: PathBuf,
+        /// Folder with PAIRS.tsv; only `split = train` pairs are read.
+        #[arg(long, default_value = "../shared/data")]
+        calib: PathBuf,
+        /// Train pairs to calibrate on (both views, one band each; spread over the split).
+        #[arg(long, default_value_t = 64)]
+        calib_pairs: usize,
+        /// Resolution profile of the calibration bands.
+        #[arg(long, default_value = "w160")]
+        profile: Profile,
+        /// Widest band the blob supports, in pixels.
+        #[arg(long, default_value_t = 640)]
+        max_width: usize,
+        /// Output blob.
+        #[arg(long, default_value = "weights/bino_int8.bin")]
+        out: PathBuf,
+    },
     /// List the pairs of a data folder's PAIRS.tsv.
     Pairs {
         /// Folder holding PAIRS.tsv.
@@ -86,7 +114,46 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => reference(left.zip(right), profile, &onnx, head.as_deref(), &out),
         Command::Pairs { data, split } => list_pairs(&data, split.as_deref()),
+        Command::Quantize {
+            onnx,
+            calib,
+            calib_pairs,
+            profile,
+            max_width,
+            out,
+        } => {
+            let opts = QuantizeOptions {
+                encoder: onnx,
+                data: calib,
+                profile,
+                calib_pairs,
+                max_width,
+            };
+            quantize_command(&opts, &out)
+        }
     }
+}
+
+fn quantize_command(opts: &QuantizeOptions, out: &Path) -> Result<()> {
+    let started = Instant::now();
+    let (blob, report) = quantize(opts, |done, total| {
+        eprint!("\rcalibrating: band {done}/{total}");
+        if done == total {
+            eprintln!();
+        }
+    })?;
+    // The blob must load in the engine before it is written.
+    Int8Model::from_bytes(blob.clone(), &out.display().to_string())?;
+    write_atomically(out, |file| Ok(file.write_all(&blob)?))?;
+    println!(
+        "{}: {} bytes from {} ({} calibration bands, {:.1} s)",
+        out.display(),
+        blob.len(),
+        opts.encoder.display(),
+        report.bands,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
 }
 
 fn reference(
@@ -179,7 +246,11 @@ fn write_atomically(
     if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create folder {}", dir.display()))?;
     }
-    let tmp = path.with_extension("npz.partial");
+    let extension = path
+        .extension()
+        .map(|e| e.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let tmp = path.with_extension(format!("{extension}.partial"));
     let file = std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
     let mut writer = std::io::BufWriter::new(file);
     write(&mut writer).with_context(|| format!("cannot write {}", tmp.display()))?;

@@ -1,0 +1,171 @@
+//! One query row of one attention head against all keys of the band: scores, integer
+//! softmax, weighted sum of values. Memory is one score and one weight per key: attention is
+//! never materialised as an N x N matrix.
+//!
+//! Softmax weights are `round(255 * exp(s_j - s_max))` (8 bits, the maximum is exactly 255),
+//! and the output divides by their sum through one reciprocal per row, so diffuse attention
+//! over hundreds of keys keeps its mass instead of rounding every probability to zero.
+
+use super::exp::exp_neg_u8;
+use super::matmul::dot;
+use crate::config::HEAD_DIM;
+use crate::fixed::{round_shift, sat_i8_i64, Requant};
+
+/// Fraction bits of the normalised weighted average before the output factor.
+pub const AVG_FRAC_BITS: u32 = 16;
+
+/// Quantisation parameters of one head's attention.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AttentionQ {
+    /// Score gap (int32 units of `q . k`) to Q8 base-2 units: folds the q and k scales,
+    /// `1/sqrt(head_dim)` and `log2(e)`.
+    pub to_log2_q8: Requant,
+    /// Q16 weighted average of value codes to output codes (`value scale / output scale / 2^16`).
+    pub out: Requant,
+}
+
+/// Attention of query `q` (`HEAD_DIM` codes) over `keys` and `values` (`n x HEAD_DIM` each).
+/// `scores` and `weights` are scratch with room for `n` entries; the result goes to `out`.
+pub fn attend(
+    q: &[i8],
+    keys: &[i8],
+    values: &[i8],
+    p: &AttentionQ,
+    scores: &mut [i32],
+    weights: &mut [u8],
+    out: &mut [i8],
+) {
+    let n = (keys.len() / HEAD_DIM)
+        .min(values.len() / HEAD_DIM)
+        .min(scores.len())
+        .min(weights.len());
+    let (scores, weights) = (&mut scores[..n], &mut weights[..n]);
+    let mut max = i32::MIN;
+    for (s, k) in scores.iter_mut().zip(keys.chunks_exact(HEAD_DIM)) {
+        *s = dot(q, k);
+        max = max.max(*s);
+    }
+    let mut total: u32 = 0;
+    for (w, &s) in weights.iter_mut().zip(scores.iter()) {
+        *w = exp_neg_u8(max as i64 - s as i64, p.to_log2_q8);
+        total += *w as u32;
+    }
+    let mut acc = [0i32; HEAD_DIM];
+    for (&w, v) in weights.iter().zip(values.chunks_exact(HEAD_DIM)) {
+        let w = w as i32;
+        for (a, &x) in acc.iter_mut().zip(v) {
+            *a = a.wrapping_add(w * x as i32);
+        }
+    }
+    if total == 0 {
+        out.iter_mut().for_each(|o| *o = 0);
+        return;
+    }
+    // total >= 255 (the maximum's own weight), so the reciprocal keeps >= 23 bits.
+    let recip = ((1u64 << 31) + total as u64 / 2) / total as u64;
+    for (o, &a) in out.iter_mut().zip(acc.iter()) {
+        let avg = round_shift(a as i64 * recip as i64, 31 - AVG_FRAC_BITS);
+        *o = sat_i8_i64(p.out.apply_i64(avg));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::{requant_of, Rng};
+
+    fn exp(x: f64) -> f64 {
+        // exp for tests without std: (1 + x/2^20)^(2^20) by squaring.
+        let mut r = 1.0 + x / 1048576.0;
+        for _ in 0..20 {
+            r *= r;
+        }
+        r
+    }
+
+    /// Float attention on the dequantised codes.
+    fn reference(q: &[i8], keys: &[i8], values: &[i8], score_scale: f64, out: &mut [f64; HEAD_DIM]) {
+        let n = keys.len() / HEAD_DIM;
+        let mut s = [0f64; 64];
+        for j in 0..n {
+            s[j] = dot(q, &keys[j * HEAD_DIM..(j + 1) * HEAD_DIM]) as f64 * score_scale;
+        }
+        let max = s[..n].iter().cloned().fold(f64::MIN, f64::max);
+        let w: [f64; 64] = core::array::from_fn(|j| if j < n { exp(s[j] - max) } else { 0.0 });
+        let total: f64 = w.iter().sum();
+        for d in 0..HEAD_DIM {
+            out[d] = (0..n).map(|j| w[j] * values[j * HEAD_DIM + d] as f64).sum::<f64>() / total;
+        }
+    }
+
+    #[test]
+    fn matches_float_softmax_attention() {
+        let mut rng = Rng::new(21);
+        const N: usize = 64;
+        let mut keys = [0i8; N * HEAD_DIM];
+        let mut values = [0i8; N * HEAD_DIM];
+        let mut q = [0i8; HEAD_DIM];
+        for score_scale in [1e-4, 1e-3, 4e-3] {
+            rng.fill_i8(&mut keys);
+            rng.fill_i8(&mut values);
+            rng.fill_i8(&mut q);
+            // gap * score_scale * log2(e) * 256 as mult / 2^shift.
+            let p = AttentionQ {
+                to_log2_q8: requant_of(score_scale * core::f64::consts::LOG2_E * 256.0),
+                out: Requant {
+                    mult: 1 << 30,
+                    shift: 31 + AVG_FRAC_BITS - 1,
+                },
+            };
+            let mut scores = [0i32; N];
+            let mut weights = [0u8; N];
+            let mut out = [0i8; HEAD_DIM];
+            attend(&q, &keys, &values, &p, &mut scores, &mut weights, &mut out);
+            let mut want = [0f64; HEAD_DIM];
+            reference(&q, &keys, &values, score_scale, &mut want);
+            for d in 0..HEAD_DIM {
+                // 8-bit weights: a fraction of an output code on average, at most ~1.5.
+                assert!(
+                    (out[d] as f64 - want[d]).abs() <= 1.5,
+                    "scale {score_scale} d {d}: {} vs {}",
+                    out[d],
+                    want[d]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn diffuse_attention_keeps_its_mass() {
+        // 512 equal keys: every float weight is 1/512, far below an 8-bit probability step.
+        const N: usize = 512;
+        let keys = [0i8; N * HEAD_DIM];
+        let values: [i8; N * HEAD_DIM] =
+            core::array::from_fn(|i| if (i / HEAD_DIM).is_multiple_of(2) { 100 } else { 50 });
+        let p = AttentionQ {
+            to_log2_q8: Requant {
+                mult: 1 << 30,
+                shift: 31,
+            },
+            out: Requant {
+                mult: 1 << 30,
+                shift: 31 + AVG_FRAC_BITS - 1,
+            },
+        };
+        let (mut scores, mut weights, mut out) = ([0i32; N], [0u8; N], [0i8; HEAD_DIM]);
+        attend(&[3; HEAD_DIM], &keys, &values, &p, &mut scores, &mut weights, &mut out);
+        assert_eq!(out, [75; HEAD_DIM]);
+    }
+
+    #[test]
+    fn empty_and_short_inputs_do_not_panic() {
+        let p = AttentionQ {
+            to_log2_q8: Requant { mult: 1, shift: 1 },
+            out: Requant { mult: 1, shift: 1 },
+        };
+        let mut out = [7i8; HEAD_DIM];
+        attend(&[1; HEAD_DIM], &[], &[], &p, &mut [], &mut [], &mut out);
+        assert_eq!(out, [0; HEAD_DIM]);
+        attend(&[1; 3], &[1; 100], &[1; 10], &p, &mut [0; 1], &mut [0; 0], &mut out);
+    }
+}

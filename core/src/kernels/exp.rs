@@ -1,0 +1,100 @@
+//! Integer exponentials for softmax: `exp(-x)` of a non-negative score gap, as unsigned 8 bits.
+//!
+//! The gap between a score and its row maximum is mapped to base-2 units in Q8 fixed point by
+//! one [`Requant`] (it folds the quantisation scales, `1/sqrt(head_dim)` and `log2(e)`); the
+//! integer part becomes a shift, the fraction indexes a 256-entry table of `2^(-f/256)`.
+
+use crate::fixed::Requant;
+
+/// `round(2^(-f/256) * 2^15)` for `f` in `0..256`.
+pub const EXP2_NEG_Q15: [u16; 256] = [
+    32768, 32679, 32591, 32503, 32415, 32327, 32240, 32153, 32066, 31979, 31893, 31806, 31720, 31635, 31549, 31464,
+    31379, 31294, 31209, 31125, 31041, 30957, 30873, 30790, 30706, 30623, 30541, 30458, 30376, 30293, 30212, 30130,
+    30048, 29967, 29886, 29805, 29725, 29644, 29564, 29484, 29405, 29325, 29246, 29167, 29088, 29009, 28931, 28852,
+    28774, 28697, 28619, 28542, 28464, 28388, 28311, 28234, 28158, 28082, 28006, 27930, 27855, 27779, 27704, 27629,
+    27554, 27480, 27406, 27332, 27258, 27184, 27110, 27037, 26964, 26891, 26818, 26746, 26674, 26601, 26530, 26458,
+    26386, 26315, 26244, 26173, 26102, 26031, 25961, 25891, 25821, 25751, 25681, 25612, 25543, 25474, 25405, 25336,
+    25268, 25199, 25131, 25063, 24995, 24928, 24860, 24793, 24726, 24659, 24593, 24526, 24460, 24394, 24328, 24262,
+    24196, 24131, 24066, 24001, 23936, 23871, 23806, 23742, 23678, 23614, 23550, 23486, 23423, 23359, 23296, 23233,
+    23170, 23108, 23045, 22983, 22921, 22859, 22797, 22735, 22674, 22613, 22552, 22491, 22430, 22369, 22309, 22248,
+    22188, 22128, 22068, 22009, 21949, 21890, 21831, 21772, 21713, 21654, 21595, 21537, 21479, 21421, 21363, 21305,
+    21247, 21190, 21133, 21076, 21019, 20962, 20905, 20849, 20792, 20736, 20680, 20624, 20568, 20513, 20457, 20402,
+    20347, 20292, 20237, 20182, 20127, 20073, 20019, 19965, 19911, 19857, 19803, 19750, 19696, 19643, 19590, 19537,
+    19484, 19431, 19379, 19326, 19274, 19222, 19170, 19118, 19066, 19015, 18963, 18912, 18861, 18810, 18759, 18708,
+    18658, 18607, 18557, 18507, 18457, 18407, 18357, 18308, 18258, 18209, 18160, 18110, 18061, 18013, 17964, 17915,
+    17867, 17819, 17770, 17722, 17674, 17627, 17579, 17531, 17484, 17437, 17390, 17343, 17296, 17249, 17202, 17156,
+    17109, 17063, 17017, 16971, 16925, 16879, 16834, 16788, 16743, 16697, 16652, 16607, 16562, 16518, 16473, 16428,
+];
+
+/// `round(255 * 2^(-x/256))` for `x >= 0` in Q8 base-2 units (0 from `x >= 23 * 256`).
+#[inline(always)]
+pub fn exp2_neg_u8(x: i64) -> u8 {
+    if x < 0 {
+        return 255;
+    }
+    let whole = x >> 8;
+    if whole >= 23 {
+        return 0;
+    }
+    let frac = (x & 255) as u8;
+    let scaled = EXP2_NEG_Q15[frac as usize] as u32 * 255;
+    (((scaled >> whole) + (1 << 14)) >> 15) as u8
+}
+
+/// `exp(-gap * scale)` as `0..=255`, where `to_log2_q8` turns a score gap into Q8 base-2 units.
+#[inline(always)]
+pub fn exp_neg_u8(gap: i64, to_log2_q8: Requant) -> u8 {
+    exp2_neg_u8(to_log2_q8.apply_i64(gap))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn table_is_exp2() {
+        for (f, &t) in EXP2_NEG_Q15.iter().enumerate() {
+            let want = libm_exp2(-(f as f64) / 256.0) * 32768.0;
+            assert!((t as f64 - want).abs() <= 0.5, "{f}");
+        }
+    }
+
+    #[test]
+    fn exp2_neg_u8_within_one_lsb() {
+        for x in (0..(24 * 256)).step_by(7) {
+            let want = 255.0 * libm_exp2(-(x as f64) / 256.0);
+            let got = exp2_neg_u8(x) as f64;
+            assert!((got - want).abs() <= 1.0, "{x}: {got} vs {want}");
+        }
+        assert_eq!(exp2_neg_u8(0), 255);
+        assert_eq!(exp2_neg_u8(-5), 255);
+        assert_eq!(exp2_neg_u8(i64::MAX), 0);
+    }
+
+    /// 2^x for tests without std's float functions: a short series is exact enough here.
+    fn libm_exp2(x: f64) -> f64 {
+        let mut whole = x as i64;
+        if whole as f64 > x {
+            whole -= 1;
+        }
+        let frac = x - whole as f64;
+        // e^(frac ln 2) by Taylor series (|frac ln2| < 0.7: 20 terms are exact to 1e-16).
+        let y = frac * core::f64::consts::LN_2;
+        let (mut term, mut sum) = (1.0f64, 1.0f64);
+        for i in 1..20 {
+            term *= y / i as f64;
+            sum += term;
+        }
+        let mut p = 1.0f64;
+        let mut w = whole;
+        while w < 0 {
+            p /= 2.0;
+            w += 1;
+        }
+        while w > 0 {
+            p *= 2.0;
+            w -= 1;
+        }
+        sum * p
+    }
+}

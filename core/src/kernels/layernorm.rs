@@ -1,0 +1,208 @@
+//! Integer LayerNorm without its affine part (gamma and beta are folded into the next linear
+//! layer by the quantiser), robust to the large per-channel offsets of a ViT residual stream.
+//!
+//! The input is int8 with a per-channel format `real = scale[c] * (q - zero[c])`; `rel[c]`
+//! holds `scale[c]` in a common unit, so `v[c] = (q - zero[c]) * rel[c]` is the real value in
+//! that unit. The row is centred exactly (`D * v - sum v`), renormalised to 24 significant
+//! bits so the variance fits in 64 bits, and divided by an integer square root. The output is
+//! `z / out_scale`, rounded and saturated to int8.
+
+use super::I32s;
+use crate::fixed::{bit_length, isqrt_u64, round_shift, sat_i8_i64, Requant};
+
+/// Significant bits the centred values are renormalised to.
+const WORK_BITS: i32 = 24;
+/// `z` is carried in Q16 between the division and the output factor.
+pub const Z_FRAC_BITS: u32 = 16;
+const RECIP_BITS: u32 = 40;
+
+/// Parameters of one integer LayerNorm.
+#[derive(Clone, Copy)]
+pub struct LayerNormQ<'p, Z: I32s + ?Sized, R: I32s + ?Sized> {
+    /// Input zero points per channel.
+    pub zero: &'p Z,
+    /// Input scales per channel in a common unit.
+    pub rel: &'p R,
+    /// LayerNorm epsilon in the common unit squared.
+    pub eps: i64,
+    /// `1 / (output scale * 2^16)`: from the Q16 normalised value to int8.
+    pub out: Requant,
+}
+
+/// Normalises each `dim`-channel row of `x` into `out`.
+pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
+    x: &[i8],
+    dim: usize,
+    p: &LayerNormQ<'_, Z, R>,
+    out: &mut [i8],
+) {
+    if dim == 0 {
+        return;
+    }
+    for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
+        layernorm_row(row, p, out_row);
+    }
+}
+
+fn layernorm_row<Z: I32s + ?Sized, R: I32s + ?Sized>(row: &[i8], p: &LayerNormQ<'_, Z, R>, out: &mut [i8]) {
+    let d = row.len() as i64;
+    let value = |c: usize, q: i8| (q as i64 - p.zero.at(c) as i64) * p.rel.at(c) as i64;
+    let sum: i64 = row
+        .iter()
+        .enumerate()
+        .map(|(c, &q)| value(c, q))
+        .fold(0, i64::saturating_add);
+    // Centred and scaled by D, exactly: no rounding of the mean.
+    let centred = |c: usize, q: i8| value(c, q).saturating_mul(d).saturating_sub(sum);
+    let max_dev = row
+        .iter()
+        .enumerate()
+        .map(|(c, &q)| centred(c, q).unsigned_abs())
+        .max()
+        .unwrap_or(0);
+    let shift = bit_length(max_dev) as i32 - WORK_BITS;
+    let norm = |c: usize, q: i8| scale_pow2(centred(c, q), -shift);
+    let sum_sq = row.iter().enumerate().map(|(c, &q)| {
+        let v = norm(c, q);
+        v.saturating_mul(v)
+    });
+    let var = sum_sq.fold(0i64, i64::saturating_add) / d;
+    // eps is in unit^2; the centred values carry a factor D and 2^-shift.
+    let eps = scale_pow2(p.eps.saturating_mul(d * d), -2 * shift);
+    let std = (isqrt_u64(var.saturating_add(eps).max(0) as u64) as i64).max(1);
+    let recip = (1i64 << RECIP_BITS) / std;
+    for (c, (&q, o)) in row.iter().zip(out.iter_mut()).enumerate() {
+        let z_q16 = round_shift(norm(c, q).saturating_mul(recip), RECIP_BITS - Z_FRAC_BITS);
+        *o = sat_i8_i64(p.out.apply_i64(z_q16));
+    }
+}
+
+/// `x * 2^e`, saturating, rounding on right shifts.
+fn scale_pow2(x: i64, e: i32) -> i64 {
+    if e >= 0 {
+        let e = e.min(62) as u32;
+        x.checked_mul(1i64 << e)
+            .unwrap_or(if x < 0 { i64::MIN } else { i64::MAX })
+    } else {
+        round_shift(x, e.unsigned_abs())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::params::Uniform;
+    use crate::testutil::Rng;
+
+    /// sqrt for tests, without std: Newton's method.
+    fn sqrt(x: f64) -> f64 {
+        let mut r = if x > 1.0 { x } else { 1.0 };
+        for _ in 0..200 {
+            r = 0.5 * (r + x / r);
+        }
+        r
+    }
+
+    fn float_layernorm(real: &[f64], eps: f64, out_scale: f64, out: &mut [f64]) {
+        let n = real.len() as f64;
+        let mean = real.iter().sum::<f64>() / n;
+        let var = real.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n;
+        for (o, v) in out.iter_mut().zip(real) {
+            *o = ((v - mean) / sqrt(var + eps) / out_scale).clamp(-128.0, 127.0);
+        }
+    }
+
+    #[test]
+    fn matches_float_layernorm_with_channel_formats() {
+        const D: usize = 128;
+        let mut rng = Rng::new(11);
+        let out_scale = 4.0 / 127.0;
+        // 1 / (out_scale * 2^16) as mult / 2^shift.
+        let factor = 1.0 / (out_scale * 65536.0);
+        let shift = 40u32;
+        let out = Requant {
+            mult: (factor * (1u64 << shift) as f64) as i32,
+            shift,
+        };
+        let mut zero = [0i32; D];
+        let mut rel = [0i32; D];
+        let mut scale = [0f64; D];
+        for c in 0..D {
+            // Channel scales over two decades, offsets far from zero (a shared "common vector").
+            scale[c] = 0.002 * (1 + rng.range(0, 100)) as f64;
+            zero[c] = rng.range(-600, 600) as i32;
+        }
+        let unit = scale.iter().cloned().fold(0.0, f64::max) / 32768.0;
+        for c in 0..D {
+            rel[c] = (scale[c] / unit) as i32;
+        }
+        let eps_real = 1e-5;
+        let p = LayerNormQ {
+            zero: &zero,
+            rel: &rel,
+            eps: (eps_real / (unit * unit)) as i64,
+            out,
+        };
+        for trial in 0..50 {
+            let mut x = [0i8; D];
+            rng.fill_i8(&mut x);
+            if trial == 0 {
+                x = [5; D]; // constant codes, channel formats differ: still a real distribution
+            }
+            let mut got = [0i8; D];
+            layernorm_rows(&x, D, &p, &mut got);
+            let real: [f64; D] = core::array::from_fn(|c| (x[c] as f64 - zero[c] as f64) * rel[c] as f64 * unit);
+            let mut want = [0f64; D];
+            float_layernorm(&real, eps_real, out_scale, &mut want);
+            for c in 0..D {
+                assert!(
+                    (got[c] as f64 - want[c]).abs() <= 0.51,
+                    "trial {trial} c {c}: {} vs {}",
+                    got[c],
+                    want[c]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn constant_row_gives_zeros() {
+        let out = Requant {
+            mult: 1 << 30,
+            shift: 31,
+        };
+        let p = LayerNormQ {
+            zero: &Uniform(0),
+            rel: &Uniform(1 << 15),
+            eps: 1 << 20,
+            out,
+        };
+        let mut got = [9i8; 16];
+        layernorm_rows(&[77i8; 16], 16, &p, &mut got);
+        assert_eq!(got, [0; 16]);
+    }
+
+    #[test]
+    fn extreme_parameters_do_not_panic() {
+        let out = Requant {
+            mult: i32::MAX,
+            shift: 1,
+        };
+        let p = LayerNormQ {
+            zero: &Uniform(i32::MIN),
+            rel: &Uniform(i32::MAX),
+            eps: i64::MAX,
+            out,
+        };
+        let mut got = [0i8; 8];
+        layernorm_rows(&[-128, 127, 0, 1, -1, 5, 6, 7], 8, &p, &mut got);
+        let p = LayerNormQ {
+            zero: &Uniform(0),
+            rel: &Uniform(0),
+            eps: 0,
+            out,
+        };
+        layernorm_rows(&[-128, 127, 0, 1, -1, 5, 6, 7], 8, &p, &mut got);
+        assert_eq!(got, [0; 8]);
+    }
+}

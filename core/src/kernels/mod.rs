@@ -1,0 +1,15 @@
+//! Integer kernels of the int8 path. Each is a plain function over slices that cannot panic:
+//! lengths that do not fit just compute fewer outputs (the engine checks shapes up front),
+//! and every accumulation is bounded by the model's fixed sizes or done with wrapping /
+//! saturating arithmetic.
+
+pub mod attention;
+pub mod epilogue;
+pub mod exp;
+pub mod layernorm;
+pub mod lut;
+pub mod matmul;
+pub mod params;
+pub mod rope;
+
+pub use params::I32s;

@@ -1,0 +1,546 @@
+//! The int8 encoder: a band of up to 48 rows -> residual stream -> descriptor map.
+//!
+//! Memory (all from the caller's arena): the residual stream, keys and values of the band
+//! (`3 x tokens x DIM` bytes), one score and one softmax weight per token, and scratch for
+//! [`TOKEN_BLOCK`] tokens at a time. Attention runs one query at a time over all keys, the MLP
+//! hidden layer exists only for one token block: there is no `N x N` or `N x MLP_HIDDEN` buffer.
+//!
+//! Each block runs in three passes over token blocks:
+//! 1. LayerNorm, keys (RoPE) and values of every token, stored per head;
+//! 2. LayerNorm, queries (RoPE), attention, output projection, residual add;
+//! 3. LayerNorm, fc1, GELU table, fc2, residual add.
+//!
+//! Pass 2 may overwrite a token's residual because every key and value was made in pass 1.
+
+use super::ids::{residual_after_attention, residual_after_block};
+use super::probe::{Probe, Stage};
+use super::weights::{BlockWeights, EncoderWeights, LinearQ, ResidualFormat, RopeTables, EMBED_INPUTS};
+use crate::arena::{Carver, ALIGN_SLACK};
+use crate::blob::Blob;
+use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
+use crate::fixed::{round_shift, sat_i8_i64, Requant};
+use crate::kernels::attention::attend;
+use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant};
+use crate::kernels::layernorm::layernorm_rows;
+use crate::kernels::lut::apply_lut;
+use crate::kernels::matmul::matmul_i8;
+use crate::kernels::params::{Offset, Uniform};
+use crate::kernels::rope::rope_token;
+use crate::kernels::I32s;
+use crate::Error;
+
+/// Tokens processed together by the matrix multiplies (a multiple of the kernel's 4 rows).
+pub const TOKEN_BLOCK: usize = 8;
+
+/// Fraction bits of descriptor values before the row embedding is removed.
+pub const DESC_FRAC_BITS: u32 = 8;
+
+const fn max(a: usize, b: usize) -> usize {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// Widest accumulator row: fc1's hidden layer, or keys and values together.
+const ACC_WIDTH: usize = max(MLP_HIDDEN, 2 * DIM);
+
+/// Arena bytes the encoder needs for a band of `band_rows` image rows and `width` pixels.
+/// Firmware sizes its static arena with it: `static ARENA: [u8; arena_bytes(48, 160)]`.
+pub const fn arena_bytes(band_rows: usize, width: usize) -> usize {
+    let tokens = (band_rows / PATCH_H) * 2 * (width / CELL_W);
+    3 * tokens * DIM // residual stream, keys, values
+        + tokens * 4 + ALIGN_SLACK // attention scores
+        + tokens // softmax weights
+        + TOKEN_BLOCK * (3 * DIM + MLP_HIDDEN) // normalised, queries, attention output, hidden
+        + TOKEN_BLOCK * ACC_WIDTH * 4 + ALIGN_SLACK // accumulators
+}
+
+/// One grayscale view of a band: `height x width` pixels, row-major.
+#[derive(Debug, Clone, Copy)]
+pub struct GrayBand<'a> {
+    pixels: &'a [u8],
+    width: usize,
+    height: usize,
+}
+
+impl<'a> GrayBand<'a> {
+    /// A band view; `height` at most [`BAND_ROWS`], both sizes multiples of 4.
+    pub fn new(pixels: &'a [u8], width: usize, height: usize) -> Result<Self, Error> {
+        crate::config::check_view_size(height, width)?;
+        if height > BAND_ROWS {
+            return Err(Error::BandTooTall {
+                rows: height,
+                max: BAND_ROWS,
+            });
+        }
+        let expected = width * height;
+        if pixels.len() != expected {
+            return Err(Error::BufferSize {
+                what: "band pixels",
+                expected,
+                found: pixels.len(),
+            });
+        }
+        Ok(Self { pixels, width, height })
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.height
+    }
+
+    #[inline(always)]
+    fn code(&self, y: usize, x: usize) -> i8 {
+        // Pixel p in [0, 255] is the real value p / 255; codes are p - 128 (zero point -128).
+        let p = self.pixels.get(y * self.width + x).copied().unwrap_or(0);
+        (p ^ 0x80) as i8
+    }
+}
+
+/// What the encoder sees: a stereo pair, or one view twice (the descriptor pathway).
+#[derive(Clone, Copy)]
+enum Fused<'a> {
+    Pair(GrayBand<'a>, GrayBand<'a>),
+    Same(GrayBand<'a>),
+}
+
+impl Fused<'_> {
+    /// The 4x4 fused-image patch of token (`row`, fused column `col`): per image row, view
+    /// columns 2c and 2c+1 interleaved as L, R, L, R (`X[2u] = L[u]`, `X[2u+1] = R[u]`).
+    fn patch(&self, row: usize, col: usize, out: &mut [i8]) {
+        let (left, right) = match *self {
+            Fused::Pair(l, r) => (l, r),
+            Fused::Same(v) => (v, v),
+        };
+        for (kh, out_row) in out.chunks_exact_mut(4).take(PATCH_H).enumerate() {
+            let y = PATCH_H * row + kh;
+            let (u0, u1) = (2 * col, 2 * col + 1);
+            out_row.copy_from_slice(&[left.code(y, u0), right.code(y, u0), left.code(y, u1), right.code(y, u1)]);
+        }
+    }
+}
+
+/// What a run used.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct RunReport {
+    /// Token rows of the band.
+    pub rows: usize,
+    /// Fused token columns.
+    pub fused_cols: usize,
+    /// Arena bytes used (the high-water mark).
+    pub arena_used: usize,
+}
+
+struct Buffers<'a> {
+    x: &'a mut [i8],
+    keys: &'a mut [i8],
+    values: &'a mut [i8],
+    scores: &'a mut [i32],
+    softmax: &'a mut [u8],
+    normed: &'a mut [i8],
+    queries: &'a mut [i8],
+    attended: &'a mut [i8],
+    hidden: &'a mut [i8],
+    acc: &'a mut [i32],
+}
+
+impl<'a> Buffers<'a> {
+    fn carve(carver: &mut Carver<'a>, tokens: usize) -> Result<Self, Error> {
+        Ok(Self {
+            x: carver.i8s(tokens * DIM)?,
+            keys: carver.i8s(tokens * DIM)?,
+            values: carver.i8s(tokens * DIM)?,
+            scores: carver.i32s(tokens)?,
+            softmax: carver.u8s(tokens)?,
+            normed: carver.i8s(TOKEN_BLOCK * DIM)?,
+            queries: carver.i8s(TOKEN_BLOCK * DIM)?,
+            attended: carver.i8s(TOKEN_BLOCK * DIM)?,
+            hidden: carver.i8s(TOKEN_BLOCK * MLP_HIDDEN)?,
+            acc: carver.i32s(TOKEN_BLOCK * ACC_WIDTH)?,
+        })
+    }
+}
+
+/// The int8 encoder over the weights of a blob.
+#[derive(Clone, Copy)]
+pub struct Encoder<'w> {
+    weights: EncoderWeights<'w>,
+}
+
+impl<'w> Encoder<'w> {
+    /// Validates the blob's encoder tensors (see [`EncoderWeights::new`]).
+    pub fn new(blob: Blob<'w>) -> Result<Self, Error> {
+        Ok(Self {
+            weights: EncoderWeights::new(blob)?,
+        })
+    }
+
+    /// The weights.
+    pub fn weights(&self) -> &EncoderWeights<'w> {
+        &self.weights
+    }
+
+    /// Widest band the weights support, in pixels.
+    pub fn max_width(&self) -> usize {
+        self.weights.max_patch_cols() * CELL_W
+    }
+
+    /// Descriptor map of one view (the encoder on (I, I), phase tokens averaged): writes
+    /// `rows/4 x width/4 x DIM` int8 codes (descriptor scale in the blob's metadata) to `out`.
+    pub fn describe(
+        &self,
+        view: GrayBand<'_>,
+        arena: &mut [u8],
+        out: &mut [i8],
+        probe: &mut impl Probe,
+    ) -> Result<RunReport, Error> {
+        let expected = (view.height / PATCH_H) * (view.width / CELL_W) * DIM;
+        if out.len() != expected {
+            return Err(Error::BufferSize {
+                what: "descriptor output",
+                expected,
+                found: out.len(),
+            });
+        }
+        let (report, x) = self.forward(Fused::Same(view), view, arena, probe)?;
+        self.write_descriptors(x, report.rows, report.fused_cols, out)?;
+        Ok(report)
+    }
+
+    /// The encoder on a stereo pair; the fused token stream is observed through `probe`
+    /// ([`Stage::Block`] of the last block is the output before de-positioning).
+    pub fn encode_pair(
+        &self,
+        left: GrayBand<'_>,
+        right: GrayBand<'_>,
+        arena: &mut [u8],
+        probe: &mut impl Probe,
+    ) -> Result<RunReport, Error> {
+        if left.width != right.width || left.height != right.height {
+            return Err(Error::PairMismatch);
+        }
+        Ok(self.forward(Fused::Pair(left, right), left, arena, probe)?.0)
+    }
+
+    fn forward<'a>(
+        &self,
+        fused: Fused<'_>,
+        view: GrayBand<'_>,
+        arena: &'a mut [u8],
+        probe: &mut impl Probe,
+    ) -> Result<(RunReport, &'a [i8]), Error> {
+        if view.width > self.max_width() {
+            return Err(Error::TooWide {
+                width: view.width,
+                max: self.max_width(),
+            });
+        }
+        let rows = view.height / PATCH_H;
+        let fused_cols = 2 * (view.width / CELL_W);
+        let tokens = rows * fused_cols;
+        let mut carver = Carver::new(arena, arena_bytes(view.height, view.width))?;
+        let buf = Buffers::carve(&mut carver, tokens)?;
+        let rope = self.weights.rope()?;
+        let grid = Grid { rows, fused_cols };
+        self.embed(fused, grid, buf.x, buf.normed, buf.acc)?;
+        probe.observe(Stage::Embed, rows, fused_cols, buf.x);
+        let Buffers {
+            x,
+            keys,
+            values,
+            scores,
+            softmax,
+            normed,
+            queries,
+            attended,
+            hidden,
+            acc,
+        } = buf;
+        for b in 0..DEPTH {
+            let w = self.weights.block(b)?;
+            let input = self.weights.residual(residual_after_attention(b) - 1)?;
+            let middle = self.weights.residual(residual_after_attention(b))?;
+            let output = self.weights.residual(residual_after_block(b))?;
+            let attention = AttentionPass {
+                w: &w,
+                rope: &rope,
+                grid,
+                input: &input,
+                output: &middle,
+            };
+            attention.keys_values(x, normed, acc, keys, values);
+            attention.queries_attend(x, normed, acc, queries, attended, keys, values, scores, softmax)?;
+            probe.observe(Stage::Attention(b), rows, fused_cols, x);
+            mlp(&w, &middle, &output, x, normed, hidden, acc);
+            probe.observe(Stage::Block(b), rows, fused_cols, x);
+        }
+        Ok((
+            RunReport {
+                rows,
+                fused_cols,
+                arena_used: carver.used(),
+            },
+            x,
+        ))
+    }
+
+    fn embed(
+        &self,
+        fused: Fused<'_>,
+        grid: Grid,
+        x: &mut [i8],
+        patches: &mut [i8],
+        acc: &mut [i32],
+    ) -> Result<(), Error> {
+        let embed = self.weights.embed()?;
+        let format = self.weights.residual(0)?;
+        for (block, x_block) in x.chunks_mut(TOKEN_BLOCK * DIM).enumerate() {
+            let first = block * TOKEN_BLOCK;
+            let count = x_block.len() / DIM;
+            for (i, patch) in patches.chunks_exact_mut(EMBED_INPUTS).take(count).enumerate() {
+                let (row, col) = grid.position(first + i);
+                fused.patch(row, col, patch);
+            }
+            matmul_i8(
+                &patches[..count * EMBED_INPUTS],
+                embed.weight,
+                EMBED_INPUTS,
+                &mut acc[..count * DIM],
+            );
+            for (i, (acc_row, x_row)) in acc.chunks_exact(DIM).zip(x_block.chunks_exact_mut(DIM)).enumerate() {
+                let (row, _) = grid.position(first + i);
+                // The bias table has one row per token row: the row embedding is folded in.
+                let bias = Offset {
+                    inner: &embed.bias,
+                    start: row * DIM,
+                };
+                let rq = ChannelRequant {
+                    bias: &bias,
+                    mult: &embed.mult,
+                    shift: embed.shift,
+                };
+                requant_rows(acc_row, &rq, &format.zero, x_row);
+            }
+        }
+        Ok(())
+    }
+
+    fn write_descriptors(&self, x: &[i8], rows: usize, fused_cols: usize, out: &mut [i8]) -> Result<(), Error> {
+        let format = self.weights.residual(residual_after_block(DEPTH - 1))?;
+        let (desc, row_offsets) = self.weights.descriptor()?;
+        let mut out_cells = out.chunks_exact_mut(DIM);
+        for (row, x_row) in x.chunks_exact(fused_cols * DIM).take(rows).enumerate() {
+            for pair in x_row.chunks_exact(2 * DIM) {
+                let (even, odd) = pair.split_at(DIM);
+                let Some(cell) = out_cells.next() else { return Ok(()) };
+                for (c, ((&q0, &q1), o)) in even.iter().zip(odd).zip(cell.iter_mut()).enumerate() {
+                    let zero = format.zero.at(c) as i64;
+                    let sum = q0 as i64 - zero + (q1 as i64 - zero);
+                    let shift = desc.shift.get(c).copied().unwrap_or(1) as u32;
+                    let scaled = Requant {
+                        mult: desc.mult.at(c),
+                        shift,
+                    }
+                    .apply_i64(sum);
+                    let offset = row_offsets.at(row * DIM + c) as i64;
+                    *o = sat_i8_i64(round_shift(scaled - offset, DESC_FRAC_BITS));
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The token grid of a band.
+#[derive(Clone, Copy)]
+struct Grid {
+    rows: usize,
+    fused_cols: usize,
+}
+
+impl Grid {
+    fn tokens(&self) -> usize {
+        self.rows * self.fused_cols
+    }
+
+    /// (token row, fused column) of token `t`.
+    fn position(&self, t: usize) -> (usize, usize) {
+        (t / self.fused_cols.max(1), t % self.fused_cols.max(1))
+    }
+}
+
+/// The attention half of one block.
+struct AttentionPass<'p, 'w> {
+    w: &'p BlockWeights<'w>,
+    rope: &'p RopeTables<'w>,
+    grid: Grid,
+    input: &'p ResidualFormat<'w>,
+    output: &'p ResidualFormat<'w>,
+}
+
+impl AttentionPass<'_, '_> {
+    /// Pass 1: keys (rotated) and values of every token, stored `[head][token][HEAD_DIM]`.
+    fn keys_values(&self, x: &[i8], normed: &mut [i8], acc: &mut [i32], keys: &mut [i8], values: &mut [i8]) {
+        let ln = self.w.norm1.with_input(self.input);
+        let qkv = &self.w.qkv;
+        let kv_weights = qkv.weight.get(DIM * DIM..3 * DIM * DIM).unwrap_or(&[]);
+        let key_bias = Offset {
+            inner: &qkv.bias,
+            start: DIM,
+        };
+        let key_mult = Offset {
+            inner: &qkv.mult,
+            start: DIM,
+        };
+        let key_rq = ChannelRequant {
+            bias: &key_bias,
+            mult: &key_mult,
+            shift: qkv.shift.get(DIM..2 * DIM).unwrap_or(&[]),
+        };
+        let value_bias = Offset {
+            inner: &qkv.bias,
+            start: 2 * DIM,
+        };
+        let value_mult = Offset {
+            inner: &qkv.mult,
+            start: 2 * DIM,
+        };
+        let value_rq = ChannelRequant {
+            bias: &value_bias,
+            mult: &value_mult,
+            shift: qkv.shift.get(2 * DIM..).unwrap_or(&[]),
+        };
+        let tokens = self.grid.tokens();
+        let mut rotated = [0i8; DIM];
+        let mut value = [0i8; DIM];
+        for (block, x_block) in x.chunks(TOKEN_BLOCK * DIM).enumerate() {
+            let count = x_block.len() / DIM;
+            layernorm_rows(x_block, DIM, &ln, normed);
+            matmul_i8(&normed[..count * DIM], kv_weights, DIM, &mut acc[..count * 2 * DIM]);
+            for (i, kv) in acc.chunks_exact(2 * DIM).take(count).enumerate() {
+                let t = block * TOKEN_BLOCK + i;
+                let (row, col) = self.grid.position(t);
+                let (row_angles, col_angles) = self.rope.angles(row, col / 2);
+                let (k_acc, v_acc) = kv.split_at(DIM);
+                rope_token(k_acc, &key_rq, &row_angles, &col_angles, &mut rotated);
+                requant_rows(v_acc, &value_rq, &Uniform(0), &mut value);
+                scatter_heads(&rotated, keys, tokens, t);
+                scatter_heads(&value, values, tokens, t);
+            }
+        }
+    }
+
+    /// Pass 2: queries, attention over all keys, output projection, residual add.
+    #[allow(clippy::too_many_arguments)]
+    fn queries_attend(
+        &self,
+        x: &mut [i8],
+        normed: &mut [i8],
+        acc: &mut [i32],
+        queries: &mut [i8],
+        attended: &mut [i8],
+        keys: &[i8],
+        values: &[i8],
+        scores: &mut [i32],
+        softmax: &mut [u8],
+    ) -> Result<(), Error> {
+        let ln = self.w.norm1.with_input(self.input);
+        let qkv = &self.w.qkv;
+        let q_weights = qkv.weight.get(..DIM * DIM).unwrap_or(&[]);
+        let query_rq = qkv.requant();
+        let proj = &self.w.proj;
+        let carry = self.w.carry_attention.from_format(self.input);
+        let head_len = self.grid.tokens() * HEAD_DIM;
+        for (block, x_block) in x.chunks_mut(TOKEN_BLOCK * DIM).enumerate() {
+            let count = x_block.len() / DIM;
+            layernorm_rows(x_block, DIM, &ln, normed);
+            matmul_i8(&normed[..count * DIM], q_weights, DIM, &mut acc[..count * DIM]);
+            for (i, (q_acc, query)) in acc
+                .chunks_exact(DIM)
+                .zip(queries.chunks_exact_mut(DIM))
+                .take(count)
+                .enumerate()
+            {
+                let (row, col) = self.grid.position(block * TOKEN_BLOCK + i);
+                let (row_angles, col_angles) = self.rope.angles(row, col / 2);
+                rope_token(q_acc, &query_rq, &row_angles, &col_angles, query);
+            }
+            for (query, out) in queries
+                .chunks_exact(DIM)
+                .zip(attended.chunks_exact_mut(DIM))
+                .take(count)
+            {
+                let heads = query.chunks_exact(HEAD_DIM).zip(out.chunks_exact_mut(HEAD_DIM));
+                let kv = keys.chunks_exact(head_len).zip(values.chunks_exact(head_len));
+                for (((q_head, out_head), (k_head, v_head)), p) in heads.zip(kv).zip(self.w.attention.iter()) {
+                    attend(q_head, k_head, v_head, p, scores, softmax, out_head);
+                }
+            }
+            project_add(proj, &attended[..count * DIM], acc, x_block, &carry, &self.output.zero);
+        }
+        Ok(())
+    }
+}
+
+/// `x += proj(a)` with the residual format change `carry`.
+fn project_add<Z: I32s + ?Sized>(
+    proj: &LinearQ<'_>,
+    a: &[i8],
+    acc: &mut [i32],
+    x_block: &mut [i8],
+    carry: &crate::kernels::epilogue::ChannelRescale<'_, impl I32s + ?Sized, impl I32s + ?Sized>,
+    new_zero: &Z,
+) {
+    let count = x_block.len() / DIM;
+    let inputs = a.len() / count.max(1);
+    matmul_i8(a, proj.weight, inputs, &mut acc[..count * DIM]);
+    residual_add(x_block, carry, &acc[..count * DIM], &proj.requant(), new_zero);
+}
+
+/// Pass 3: the MLP of every token block (hidden layer only for one block at a time).
+fn mlp(
+    w: &BlockWeights<'_>,
+    input: &ResidualFormat<'_>,
+    output: &ResidualFormat<'_>,
+    x: &mut [i8],
+    normed: &mut [i8],
+    hidden: &mut [i8],
+    acc: &mut [i32],
+) {
+    let ln = w.norm2.with_input(input);
+    let carry = w.carry_mlp.from_format(input);
+    for x_block in x.chunks_mut(TOKEN_BLOCK * DIM) {
+        let count = x_block.len() / DIM;
+        layernorm_rows(x_block, DIM, &ln, normed);
+        let hidden = &mut hidden[..count * MLP_HIDDEN];
+        matmul_i8(
+            &normed[..count * DIM],
+            w.fc1.weight,
+            DIM,
+            &mut acc[..count * MLP_HIDDEN],
+        );
+        requant_rows(&acc[..count * MLP_HIDDEN], &w.fc1.requant(), &Uniform(0), hidden);
+        apply_lut(hidden, w.gelu);
+        project_add(&w.fc2, hidden, acc, x_block, &carry, &output.zero);
+    }
+}
+
+/// Writes one token's `DIM` codes into a `[head][token][HEAD_DIM]` store.
+fn scatter_heads(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
+    for (head, part) in store
+        .chunks_exact_mut(tokens * HEAD_DIM)
+        .zip(token.chunks_exact(HEAD_DIM))
+        .take(HEADS)
+    {
+        if let Some(dst) = head.get_mut(t * HEAD_DIM..(t + 1) * HEAD_DIM) {
+            dst.copy_from_slice(part);
+        }
+    }
+}

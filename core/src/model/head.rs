@@ -1,0 +1,513 @@
+//! The shared stereo head in int8, streaming: descriptor rows in, disparity rows out.
+//!
+//! Per descriptor row pair: LayerNorm and the shared projection of both views, the groupwise
+//! correlation over `HEAD_MAX_DISP` candidates (row layout `[column][disparity][channel]`), then
+//! six 3x3x3 convolutions over (row, disparity, column): a stem, four residual middle layers
+//! (`x + relu(conv(x))`) and the output layer, whose logits go through an integer softmax to a
+//! soft-argmin disparity and a confidence. Each convolution keeps a ring of the three input rows
+//! its kernel spans, so memory depends on the width only; an output row leaves the head six rows
+//! after its descriptors went in (one per convolution) and [`HeadStream::finish`] flushes the rest.
+
+use super::ids::{self, kind, Linear, HEAD_CONVS, HEAD_LAYERNORM};
+use super::weights::{LayerNormScalars, LinearQ};
+use crate::arena::{Carver, ALIGN_SLACK};
+use crate::blob::Blob;
+use crate::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM};
+use crate::fixed::{sat_i8_i64, Requant, MAX_SHIFT};
+use crate::kernels::epilogue::requant_rows;
+use crate::kernels::exp::exp_neg_u8;
+use crate::kernels::layernorm::{layernorm_rows, LayerNormQ};
+use crate::kernels::matmul::{dot, matmul_i8};
+use crate::kernels::params::Uniform;
+use crate::Error;
+
+/// Kernel positions of a 3x3x3 convolution.
+const TAPS: usize = 27;
+/// Channels per correlation group.
+const PER_GROUP: usize = HEAD_PROJ_DIM / HEAD_GROUPS;
+/// Descriptor cells projected together.
+const CELL_BLOCK: usize = 8;
+/// The LayerNorm's input unit: descriptors are per-tensor, so any common scale works.
+const DESC_REL: i32 = 256;
+/// Fraction bits of the disparity and confidence outputs.
+pub const OUT_FRAC_BITS: u32 = 8;
+
+const fn max(a: usize, b: usize) -> usize {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// Input channels of convolution `layer`.
+const fn conv_inputs(layer: usize) -> usize {
+    if layer == 0 {
+        HEAD_GROUPS
+    } else {
+        HEAD_HIDDEN
+    }
+}
+
+/// Output channels of convolution `layer`.
+const fn conv_outputs(layer: usize) -> usize {
+    if layer == HEAD_CONVS - 1 {
+        1
+    } else {
+        HEAD_HIDDEN
+    }
+}
+
+/// Bytes of one ring row of convolution `layer`'s input, for `cols` patch columns.
+const fn ring_row(layer: usize, cols: usize) -> usize {
+    cols * HEAD_MAX_DISP * conv_inputs(layer)
+}
+
+/// Arena bytes of a head stream over `cols` patch columns (descriptor map width).
+pub const fn arena_bytes(cols: usize) -> usize {
+    let mut rings = 0;
+    let mut layer = 0;
+    while layer < HEAD_CONVS {
+        rings += 3 * ring_row(layer, cols);
+        layer += 1;
+    }
+    let acc = max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * HEAD_PROJ_DIM);
+    rings
+        + 2 * cols * HEAD_PROJ_DIM // projected left and right rows
+        + CELL_BLOCK * DIM // normalised descriptors
+        + HEAD_MAX_DISP * TAPS * HEAD_HIDDEN // one column's gathered kernel inputs
+        + acc * 4 + ALIGN_SLACK
+        + cols * HEAD_MAX_DISP * 4 + ALIGN_SLACK // output logits
+        + 2 * (cols * 2 + 1) // disparity and confidence (u16, aligned)
+}
+
+/// The head's weights in a blob, validated once.
+#[derive(Clone, Copy)]
+pub struct HeadWeights<'w> {
+    blob: Blob<'w>,
+    norm: LayerNormScalars,
+    correlation: Requant,
+    softmax: Requant,
+    zeros: [i32; HEAD_CONVS],
+    carries: [Requant; HEAD_MIDDLE_LAYERS],
+}
+
+impl<'w> HeadWeights<'w> {
+    /// Checks every head tensor of `blob`.
+    pub fn new(blob: Blob<'w>) -> Result<Self, Error> {
+        let norm_id = ids::id(kind::LAYERNORM, HEAD_LAYERNORM);
+        let values = blob.i64s(norm_id, 3)?;
+        let norm_out = requant_i64(values.get(1), values.get(2)).ok_or(Error::BadParameter { id: norm_id })?;
+        let eps = values.get(0).unwrap_or(-1);
+        if eps < 0 {
+            return Err(Error::BadParameter { id: norm_id });
+        }
+        let pair = |k: u16| -> Result<Requant, Error> {
+            let id = ids::id(k, 0);
+            let v = blob.i32s(id, 2)?;
+            requant_i64(v.get(0).map(i64::from), v.get(1).map(i64::from)).ok_or(Error::BadParameter { id })
+        };
+        let zero_list = blob.i32s(ids::id(kind::HEAD_ZERO, 0), HEAD_CONVS)?;
+        let mut zeros = [0i32; HEAD_CONVS];
+        for (i, z) in zeros.iter_mut().enumerate() {
+            *z = zero_list.get(i).unwrap_or(0);
+        }
+        let carry_id = ids::id(kind::HEAD_CARRY, 0);
+        let carry_list = blob.i32s(carry_id, 2 * HEAD_MIDDLE_LAYERS)?;
+        let mut carries = [Requant { mult: 0, shift: 1 }; HEAD_MIDDLE_LAYERS];
+        for (i, c) in carries.iter_mut().enumerate() {
+            let (m, s) = (
+                carry_list.get(2 * i).map(i64::from),
+                carry_list.get(2 * i + 1).map(i64::from),
+            );
+            *c = requant_i64(m, s).ok_or(Error::BadParameter { id: carry_id })?;
+        }
+        let weights = Self {
+            blob,
+            norm: LayerNormScalars { eps, out: norm_out },
+            correlation: pair(kind::HEAD_CORRELATION)?,
+            softmax: pair(kind::HEAD_SOFTMAX)?,
+            zeros,
+            carries,
+        };
+        weights.projection()?;
+        for layer in 0..HEAD_CONVS {
+            weights.conv(layer)?;
+        }
+        Ok(weights)
+    }
+
+    /// The shared projection (`HEAD_PROJ_DIM x DIM`).
+    pub fn projection(&self) -> Result<LinearQ<'w>, Error> {
+        LinearQ::load(&self.blob, Linear::HeadProj, HEAD_PROJ_DIM, DIM, HEAD_PROJ_DIM)
+    }
+
+    /// Convolution `layer` (0 stem, 1..=4 middle, 5 output).
+    pub fn conv(&self, layer: usize) -> Result<LinearQ<'w>, Error> {
+        let (outputs, inputs) = (conv_outputs(layer), TAPS * conv_inputs(layer));
+        LinearQ::load(&self.blob, Linear::HeadConv(layer), outputs, inputs, outputs)
+    }
+}
+
+fn requant_i64(mult: Option<i64>, shift: Option<i64>) -> Option<Requant> {
+    let mult = i32::try_from(mult?).ok()?;
+    let shift = u32::try_from(shift?).ok().filter(|&s| (1..=MAX_SHIFT).contains(&s))?;
+    Requant::new(mult, shift)
+}
+
+/// One output row of the head.
+#[derive(Debug, Clone, Copy)]
+pub struct HeadRow<'r> {
+    /// Token row.
+    pub row: usize,
+    /// Soft-argmin disparity per patch column, in patch columns, Q8 (`/ 256`).
+    pub disparity_q8: &'r [u16],
+    /// Largest candidate probability per patch column, Q8 (`256` = certain).
+    pub confidence_q8: &'r [u16],
+    /// Output-layer accumulators (`cols x HEAD_MAX_DISP`); `i32::MIN` marks candidates outside
+    /// the right view. Real logit = accumulator x the blob's `META_HEAD_LOGIT_SCALE`.
+    pub logits: &'r [i32],
+}
+
+/// Receives the head's rows in order.
+pub trait HeadSink {
+    /// Called once per token row, top to bottom.
+    fn row(&mut self, row: HeadRow<'_>);
+}
+
+/// Streaming state of the head over one descriptor map (any number of rows, fixed width).
+pub struct HeadStream<'a, 'w> {
+    w: HeadWeights<'w>,
+    cols: usize,
+    rings: &'a mut [i8],
+    pushed: [usize; HEAD_CONVS],
+    produced: [usize; HEAD_CONVS],
+    input_done: bool,
+    f_left: &'a mut [i8],
+    f_right: &'a mut [i8],
+    normed: &'a mut [i8],
+    gathered: &'a mut [i8],
+    acc: &'a mut [i32],
+    logits: &'a mut [i32],
+    disparity: &'a mut [u16],
+    confidence: &'a mut [u16],
+    arena_used: usize,
+}
+
+impl<'a, 'w> HeadStream<'a, 'w> {
+    /// A stream over descriptor rows of `cols` patch columns, its buffers cut from `arena`.
+    pub fn new(weights: HeadWeights<'w>, cols: usize, arena: &'a mut [u8]) -> Result<Self, Error> {
+        if cols == 0 {
+            return Err(Error::EmptyImage);
+        }
+        let mut carver = Carver::new(arena, arena_bytes(cols))?;
+        let rings_len = (0..HEAD_CONVS).map(|l| 3 * ring_row(l, cols)).sum();
+        let rings = carver.i8s(rings_len)?;
+        let f_left = carver.i8s(cols * HEAD_PROJ_DIM)?;
+        let f_right = carver.i8s(cols * HEAD_PROJ_DIM)?;
+        let normed = carver.i8s(CELL_BLOCK * DIM)?;
+        let gathered = carver.i8s(HEAD_MAX_DISP * TAPS * HEAD_HIDDEN)?;
+        let acc = carver.i32s(max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * HEAD_PROJ_DIM))?;
+        let logits = carver.i32s(cols * HEAD_MAX_DISP)?;
+        let disparity = carver.u16s(cols)?;
+        let confidence = carver.u16s(cols)?;
+        let arena_used = carver.used();
+        Ok(Self {
+            w: weights,
+            cols,
+            rings,
+            pushed: [0; HEAD_CONVS],
+            produced: [0; HEAD_CONVS],
+            input_done: false,
+            f_left,
+            f_right,
+            normed,
+            gathered,
+            acc,
+            logits,
+            disparity,
+            confidence,
+            arena_used,
+        })
+    }
+
+    /// Arena bytes the stream took.
+    pub fn arena_used(&self) -> usize {
+        self.arena_used
+    }
+
+    /// Feeds the next descriptor row of both views (`cols x DIM` codes each); emits every
+    /// output row that became computable.
+    pub fn push_row(&mut self, desc_left: &[i8], desc_right: &[i8], sink: &mut impl HeadSink) -> Result<(), Error> {
+        let expected = self.cols * DIM;
+        for (what, row) in [("left descriptor row", desc_left), ("right descriptor row", desc_right)] {
+            if row.len() != expected {
+                return Err(Error::BufferSize {
+                    what,
+                    expected,
+                    found: row.len(),
+                });
+            }
+        }
+        if self.input_done {
+            return Err(Error::StreamFinished);
+        }
+        let proj = self.w.projection()?;
+        let norm = LayerNormQ {
+            zero: &Uniform(0),
+            rel: &Uniform(DESC_REL),
+            eps: self.w.norm.eps,
+            out: self.w.norm.out,
+        };
+        project(desc_left, &norm, &proj, self.normed, self.acc, self.f_left);
+        project(desc_right, &norm, &proj, self.normed, self.acc, self.f_right);
+        let row = self.pushed[0];
+        let slot = ring_slot_mut(self.rings, self.cols, 0, row);
+        correlate(self.f_left, self.f_right, self.w.correlation, slot);
+        self.pushed[0] += 1;
+        self.pump(sink)
+    }
+
+    /// Ends the input: emits the remaining rows (the bottom edge is zero-padded).
+    pub fn finish(&mut self, sink: &mut impl HeadSink) -> Result<(), Error> {
+        self.input_done = true;
+        self.pump(sink)
+    }
+
+    /// Rows emitted so far.
+    pub fn rows_out(&self) -> usize {
+        self.produced[HEAD_CONVS - 1]
+    }
+
+    fn input_complete(&self, layer: usize) -> bool {
+        match layer {
+            0 => self.input_done,
+            l => self.input_complete(l - 1) && self.produced[l - 1] == self.pushed[l - 1],
+        }
+    }
+
+    fn next_output(&self, layer: usize) -> Option<usize> {
+        let m = self.produced[layer];
+        let available = self.pushed[layer];
+        (m < available && (m + 1 < available || self.input_complete(layer))).then_some(m)
+    }
+
+    /// Deepest layer first, so a ring's oldest row is consumed before it is overwritten.
+    fn pump(&mut self, sink: &mut impl HeadSink) -> Result<(), Error> {
+        'work: loop {
+            for layer in (0..HEAD_CONVS).rev() {
+                if let Some(m) = self.next_output(layer) {
+                    self.conv_row(layer, m, sink)?;
+                    self.produced[layer] += 1;
+                    if layer + 1 < HEAD_CONVS {
+                        self.pushed[layer + 1] += 1;
+                    }
+                    continue 'work;
+                }
+            }
+            return Ok(());
+        }
+    }
+
+    /// Output row `m` of convolution `layer` from its input rows `m - 1 ..= m + 1`.
+    fn conv_row(&mut self, layer: usize, m: usize, sink: &mut impl HeadSink) -> Result<(), Error> {
+        let conv = self.w.conv(layer)?;
+        let cols = self.cols;
+        let cin = conv_inputs(layer);
+        let cout = conv_outputs(layer);
+        let rows_in = self.pushed[layer];
+        let base = ring_base(layer, cols);
+        let (lower, upper) = self
+            .rings
+            .split_at_mut(ring_base(layer + 1, cols).min(self.rings.len()));
+        let input = lower.get(base..).unwrap_or(&[]);
+        let slot_of = |r: isize| -> Option<&[i8]> {
+            let r = usize::try_from(r).ok().filter(|&r| r < rows_in)?;
+            let len = ring_row(layer, cols);
+            input.get((r % 3) * len..(r % 3 + 1) * len)
+        };
+        let rows = [slot_of(m as isize - 1), slot_of(m as isize), slot_of(m as isize + 1)];
+        let zero = self.w.zeros.get(layer).copied().unwrap_or(0);
+        let out_len = ring_row(layer + 1, cols);
+        let out_slot = if layer + 1 < HEAD_CONVS {
+            let next = self.pushed[layer + 1];
+            upper.get_mut((next % 3) * out_len..(next % 3 + 1) * out_len)
+        } else {
+            None
+        };
+        let k = TAPS * cin;
+        let rq = conv.requant();
+        let mut out_slot = out_slot;
+        for p in 0..cols {
+            gather(&rows, p, cols, cin, zero as i8, &mut self.gathered[..HEAD_MAX_DISP * k]);
+            matmul_i8(
+                &self.gathered[..HEAD_MAX_DISP * k],
+                conv.weight,
+                k,
+                &mut self.acc[..HEAD_MAX_DISP * cout],
+            );
+            if layer + 1 == HEAD_CONVS {
+                for (d, &a) in self.acc.iter().take(HEAD_MAX_DISP).enumerate() {
+                    if let Some(l) = self.logits.get_mut(p * HEAD_MAX_DISP + d) {
+                        *l = if d <= p {
+                            a.saturating_add(conv.bias.at(0))
+                        } else {
+                            i32::MIN
+                        };
+                    }
+                }
+                continue;
+            }
+            let Some(out) = out_slot.as_deref_mut() else { continue };
+            let out_cell = out
+                .get_mut(p * HEAD_MAX_DISP * cout..(p + 1) * HEAD_MAX_DISP * cout)
+                .unwrap_or(&mut []);
+            let next_zero = self.w.zeros.get(layer + 1).copied().unwrap_or(0) as i64;
+            let center = rows[1].and_then(|r| r.get(p * HEAD_MAX_DISP * cin..(p + 1) * HEAD_MAX_DISP * cin));
+            for (i, (o, &a)) in out_cell.iter_mut().zip(self.acc.iter()).enumerate() {
+                let relu = rq.apply(i % cout, a).max(0);
+                let carried = match (layer, center) {
+                    (0, _) => 0,
+                    (l, Some(x)) => {
+                        let carry = self
+                            .w
+                            .carries
+                            .get(l - 1)
+                            .copied()
+                            .unwrap_or(Requant { mult: 0, shift: 1 });
+                        carry.apply_i64(x.get(i).copied().unwrap_or(0) as i64 - zero as i64)
+                    }
+                    (_, None) => 0,
+                };
+                *o = sat_i8_i64(carried + relu + next_zero);
+            }
+        }
+        if layer + 1 == HEAD_CONVS {
+            self.emit(m, sink);
+        }
+        Ok(())
+    }
+
+    fn emit(&mut self, row: usize, sink: &mut impl HeadSink) {
+        for (p, cell) in self.logits.chunks_exact(HEAD_MAX_DISP).enumerate().take(self.cols) {
+            let (disparity, confidence) = soft_argmin(cell, self.w.softmax);
+            if let (Some(d), Some(c)) = (self.disparity.get_mut(p), self.confidence.get_mut(p)) {
+                (*d, *c) = (disparity, confidence);
+            }
+        }
+        sink.row(HeadRow {
+            row,
+            disparity_q8: self.disparity,
+            confidence_q8: self.confidence,
+            logits: self.logits,
+        });
+    }
+}
+
+/// Soft-argmin over the valid candidates of one cell: (disparity, confidence), both Q8.
+fn soft_argmin(logits: &[i32], to_log2_q8: Requant) -> (u16, u16) {
+    let max = logits.iter().copied().max().unwrap_or(i32::MIN);
+    if max == i32::MIN {
+        return (0, 0);
+    }
+    let (mut total, mut moment) = (0u32, 0u32);
+    for (d, &l) in logits.iter().enumerate() {
+        if l != i32::MIN {
+            let w = exp_neg_u8(max as i64 - l as i64, to_log2_q8) as u32;
+            total += w;
+            moment += d as u32 * w;
+        }
+    }
+    let total = total.max(1);
+    let q8 = 1u32 << OUT_FRAC_BITS;
+    let disparity = (moment * q8 + total / 2) / total;
+    let confidence = (255 * q8 + total / 2) / total;
+    (
+        disparity.min(u16::MAX as u32) as u16,
+        confidence.min(u16::MAX as u32) as u16,
+    )
+}
+
+/// LayerNorm + projection of one descriptor row, `CELL_BLOCK` cells at a time.
+fn project(
+    desc: &[i8],
+    norm: &LayerNormQ<'_, Uniform, Uniform>,
+    proj: &LinearQ<'_>,
+    normed: &mut [i8],
+    acc: &mut [i32],
+    out: &mut [i8],
+) {
+    for (cells, out_cells) in desc
+        .chunks(CELL_BLOCK * DIM)
+        .zip(out.chunks_mut(CELL_BLOCK * HEAD_PROJ_DIM))
+    {
+        let count = cells.len() / DIM;
+        layernorm_rows(cells, DIM, norm, normed);
+        matmul_i8(
+            &normed[..count * DIM],
+            proj.weight,
+            DIM,
+            &mut acc[..count * HEAD_PROJ_DIM],
+        );
+        requant_rows(&acc[..count * HEAD_PROJ_DIM], &proj.requant(), &Uniform(0), out_cells);
+    }
+}
+
+/// One correlation row: `[column][disparity][group]`, zero where the candidate is outside.
+fn correlate(f_left: &[i8], f_right: &[i8], rq: Requant, out: &mut [i8]) {
+    let cells_left = f_left.chunks_exact(HEAD_PROJ_DIM);
+    for (p, (left, out_cell)) in cells_left
+        .zip(out.chunks_exact_mut(HEAD_MAX_DISP * HEAD_GROUPS))
+        .enumerate()
+    {
+        for (d, out_groups) in out_cell.chunks_exact_mut(HEAD_GROUPS).enumerate() {
+            let right = p
+                .checked_sub(d)
+                .and_then(|q| f_right.get(q * HEAD_PROJ_DIM..(q + 1) * HEAD_PROJ_DIM));
+            match right {
+                Some(right) => {
+                    let groups = left.chunks_exact(PER_GROUP).zip(right.chunks_exact(PER_GROUP));
+                    for (o, (a, b)) in out_groups.iter_mut().zip(groups) {
+                        *o = sat_i8_i64(rq.apply_i64(dot(a, b) as i64));
+                    }
+                }
+                None => out_groups.fill(0),
+            }
+        }
+    }
+}
+
+/// The 27 kernel inputs of every disparity of column `p` (positions ordered row, disparity,
+/// column; channels innermost); outside the volume they are the input's zero point.
+fn gather(rows: &[Option<&[i8]>; 3], p: usize, cols: usize, cin: usize, zero: i8, out: &mut [i8]) {
+    for (d, taps) in out.chunks_exact_mut(TAPS * cin).enumerate() {
+        let mut chunks = taps.chunks_exact_mut(cin);
+        for row in rows {
+            for dd in [d.wrapping_sub(1), d, d + 1] {
+                for pp in [p.wrapping_sub(1), p, p + 1] {
+                    let Some(dst) = chunks.next() else { return };
+                    let src = match row {
+                        Some(r) if dd < HEAD_MAX_DISP && pp < cols => {
+                            r.get((pp * HEAD_MAX_DISP + dd) * cin..(pp * HEAD_MAX_DISP + dd + 1) * cin)
+                        }
+                        _ => None,
+                    };
+                    match src {
+                        Some(s) => dst.copy_from_slice(s),
+                        None => dst.fill(zero),
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn ring_base(layer: usize, cols: usize) -> usize {
+    (0..layer).map(|l| 3 * ring_row(l, cols)).sum()
+}
+
+fn ring_slot_mut(rings: &mut [i8], cols: usize, layer: usize, row: usize) -> &mut [i8] {
+    let len = ring_row(layer, cols);
+    let start = ring_base(layer, cols) + (row % 3) * len;
+    rings.get_mut(start..start + len).unwrap_or(&mut [])
+}

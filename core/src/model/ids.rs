@@ -1,0 +1,169 @@
+//! The tensor inventory of a BINO int8 blob: which [`TensorId`]s exist and what they hold.
+//! `docs/int8-model.md` documents every entry; `bino quantize` writes them.
+//!
+//! Residual formats: the residual stream is int8 with a per-channel format
+//! `real = scale[c] * (q - zero[c])`. Format `s` is the stream after embedding (`s = 0`), after
+//! block `b`'s attention (`s = 2b + 1`) and after its MLP (`s = 2b + 2`).
+
+use crate::blob::TensorId;
+use crate::config::DEPTH;
+
+/// Tensor kinds (the high 16 bits of a [`TensorId`]).
+pub mod kind {
+    /// `u16[CONFIG_LEN]`: the model configuration the blob was made for (see [`super::ConfigField`]).
+    pub const CONFIG: u16 = 1;
+    /// `i8[out x in]`: a linear layer's weights, one output channel per row.
+    pub const LINEAR_WEIGHT: u16 = 10;
+    /// `i32[out]` (embedding: `i32[rows x out]`, with the row embedding): bias in accumulator units.
+    pub const LINEAR_BIAS: u16 = 11;
+    /// `i32[out]`: requantisation multipliers of the layer's output.
+    pub const LINEAR_MULT: u16 = 12;
+    /// `u8[out]`: requantisation shifts of the layer's output.
+    pub const LINEAR_SHIFT: u16 = 13;
+    /// `i32[DIM]`: zero points of residual format `index`.
+    pub const RESIDUAL_ZERO: u16 = 20;
+    /// `i32[DIM]`: scales of residual format `index` in a common unit (for LayerNorm).
+    pub const RESIDUAL_REL: u16 = 21;
+    /// `i32[DIM]`: multipliers from residual format `index` to `index + 1`.
+    pub const CARRY_MULT: u16 = 22;
+    /// `u8[DIM]`: shifts from residual format `index` to `index + 1`.
+    pub const CARRY_SHIFT: u16 = 23;
+    /// `i64[3]`: LayerNorm `index`: epsilon (input unit squared), output multiplier, shift.
+    pub const LAYERNORM: u16 = 30;
+    /// `i32[HEADS x 4]`: block `index`'s attention per head: score-to-log2 mult, shift,
+    /// output mult, shift.
+    pub const ATTENTION: u16 = 31;
+    /// `i8[256]`: block `index`'s GELU from fc1 output codes to fc2 input codes.
+    pub const GELU_TABLE: u16 = 32;
+    /// `i16[BAND_TOKEN_ROWS x 2 QUARTER]`: RoPE cosines then sines (Q14) per token row.
+    pub const ROPE_ROWS: u16 = 33;
+    /// `i16[max patch columns x 2 QUARTER]`: RoPE cosines then sines (Q14) per patch column.
+    pub const ROPE_COLS: u16 = 34;
+    /// `i32[DIM]`: descriptor multipliers (final residual format to Q8 descriptor codes).
+    pub const DESC_MULT: u16 = 40;
+    /// `u8[DIM]`: descriptor shifts.
+    pub const DESC_SHIFT: u16 = 41;
+    /// `i32[BAND_TOKEN_ROWS x DIM]`: the row embedding in Q8 descriptor codes (de-positioning).
+    pub const DESC_ROW_OFFSET: u16 = 42;
+    /// `i32[2]`: the head's correlation requantisation (mult, shift).
+    pub const HEAD_CORRELATION: u16 = 50;
+    /// `i32[2 x HEAD_MIDDLE_LAYERS]`: per middle layer, the residual carry (mult, shift).
+    pub const HEAD_CARRY: u16 = 51;
+    /// `i32[HEAD_CONVS]`: zero points of the conv layers' inputs (correlation, hidden formats).
+    pub const HEAD_ZERO: u16 = 52;
+    /// `i32[2]`: logit accumulator gap to Q8 log2 units (mult, shift) for the head's softmax.
+    pub const HEAD_SOFTMAX: u16 = 53;
+    /// `f32[DIM]`: scales of residual format `index` (host tools only; never read by the engine).
+    pub const META_RESIDUAL_SCALE: u16 = 60;
+    /// `f32[1]`: the descriptor scale (host tools only).
+    pub const META_DESC_SCALE: u16 = 61;
+    /// `f32[1]`: real logit per unit of the head's output accumulator (host tools only).
+    pub const META_HEAD_LOGIT_SCALE: u16 = 62;
+}
+
+/// Positions in the [`kind::CONFIG`] tensor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[repr(u16)]
+pub enum ConfigField {
+    /// Token channels.
+    Dim = 0,
+    /// Transformer blocks.
+    Depth,
+    /// Attention heads.
+    Heads,
+    /// MLP hidden width.
+    MlpHidden,
+    /// Token rows of a band (row-embedding entries).
+    BandTokenRows,
+    /// Widest input the RoPE table covers, in patch columns.
+    MaxPatchCols,
+    /// Head projection channels.
+    HeadProjDim,
+    /// Head correlation groups.
+    HeadGroups,
+    /// Head hidden channels.
+    HeadHidden,
+    /// Head residual middle layers.
+    HeadMiddleLayers,
+    /// Head disparity candidates.
+    HeadMaxDisp,
+}
+
+/// Length of the [`kind::CONFIG`] tensor.
+pub const CONFIG_LEN: usize = 11;
+
+/// The linear layers of the model (index of the `LINEAR_*` kinds).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Linear {
+    /// Patch embedding (4x4 fused patch, channels folded): `DIM x 16`.
+    Embed,
+    /// Block `b`'s query/key/value projection: `3 DIM x DIM`.
+    Qkv(usize),
+    /// Block `b`'s attention output projection: `DIM x DIM`.
+    Proj(usize),
+    /// Block `b`'s first MLP layer: `MLP_HIDDEN x DIM`.
+    Fc1(usize),
+    /// Block `b`'s second MLP layer: `DIM x MLP_HIDDEN`.
+    Fc2(usize),
+    /// The head's shared projection: `HEAD_PROJ_DIM x DIM` (its LayerNorm's affine folded in).
+    HeadProj,
+    /// The head's 3D convolution `i` (0 stem, 1..=4 middle, 5 output): `out x 27 in`,
+    /// kernel positions ordered (row, disparity, column), channels innermost.
+    HeadConv(usize),
+}
+
+impl Linear {
+    /// Index of this layer in tensor ids.
+    pub const fn index(self) -> u16 {
+        let i = match self {
+            Linear::Embed => 0,
+            Linear::Qkv(b) => 1 + 4 * b,
+            Linear::Proj(b) => 2 + 4 * b,
+            Linear::Fc1(b) => 3 + 4 * b,
+            Linear::Fc2(b) => 4 + 4 * b,
+            Linear::HeadProj => HEAD_LINEAR_BASE,
+            Linear::HeadConv(i) => HEAD_LINEAR_BASE + 1 + i,
+        };
+        i as u16
+    }
+
+    /// The id of this layer's tensor of `kind` (one of the `LINEAR_*` kinds).
+    pub const fn id(self, kind: u16) -> TensorId {
+        TensorId::new(kind, self.index())
+    }
+}
+
+/// Linear-layer index of the head's projection; its convolutions follow.
+pub const HEAD_LINEAR_BASE: usize = 100;
+/// The head's 3D convolutions: stem, middle layers, output.
+pub const HEAD_CONVS: usize = crate::config::HEAD_MIDDLE_LAYERS + 2;
+/// LayerNorm index of the head's input normalisation.
+pub const HEAD_LAYERNORM: usize = 100;
+
+/// Residual format after embedding.
+pub const fn residual_after_embed() -> usize {
+    0
+}
+
+/// Residual format after block `b`'s attention.
+pub const fn residual_after_attention(b: usize) -> usize {
+    2 * b + 1
+}
+
+/// Residual format after block `b`'s MLP (the block's output).
+pub const fn residual_after_block(b: usize) -> usize {
+    2 * b + 2
+}
+
+/// Number of residual formats.
+pub const RESIDUAL_FORMATS: usize = 2 * DEPTH + 1;
+
+/// LayerNorm ids: block `b`'s first (before attention) and second (before the MLP).
+pub const fn layernorm_index(b: usize, second: bool) -> usize {
+    2 * b + second as usize
+}
+
+/// Tensor id of kind `kind` and a `usize` index (indices here are all far below 2^16).
+pub const fn id(kind: u16, index: usize) -> TensorId {
+    TensorId::new(kind, index as u16)
+}

@@ -1,0 +1,325 @@
+//! Typed, validated views of the encoder's tensors in a blob (zero-copy: they borrow it).
+
+use super::ids::{self, kind, ConfigField, Linear, CONFIG_LEN, RESIDUAL_FORMATS};
+use crate::blob::{Blob, Le, TensorId};
+use crate::config::{BAND_TOKEN_ROWS, DEPTH, DIM, HEADS, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP};
+use crate::config::{HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM, MLP_HIDDEN, PATCH_H, PATCH_W};
+use crate::fixed::{Requant, MAX_SHIFT};
+use crate::kernels::attention::AttentionQ;
+use crate::kernels::epilogue::{ChannelRequant, ChannelRescale};
+use crate::kernels::layernorm::LayerNormQ;
+use crate::kernels::rope::{Angles, QUARTER};
+use crate::Error;
+
+/// Inputs of the patch embedding: one 4x4 patch of the fused image, channels folded.
+pub const EMBED_INPUTS: usize = PATCH_H * PATCH_W;
+
+/// A linear layer: int8 weights (one output channel per row) and its output requantisation.
+#[derive(Clone, Copy)]
+pub struct LinearQ<'w> {
+    /// `out x in` weights.
+    pub weight: &'w [i8],
+    /// Bias in accumulator units (`out`, or `rows x out` for the embedding).
+    pub bias: Le<'w, i32>,
+    /// Output multipliers.
+    pub mult: Le<'w, i32>,
+    /// Output shifts.
+    pub shift: &'w [u8],
+}
+
+impl<'w> LinearQ<'w> {
+    pub(crate) fn load(
+        blob: &Blob<'w>,
+        layer: Linear,
+        outputs: usize,
+        inputs: usize,
+        bias_len: usize,
+    ) -> Result<Self, Error> {
+        Ok(Self {
+            weight: blob.i8s(layer.id(kind::LINEAR_WEIGHT), outputs * inputs)?,
+            bias: blob.i32s(layer.id(kind::LINEAR_BIAS), bias_len)?,
+            mult: blob.i32s(layer.id(kind::LINEAR_MULT), outputs)?,
+            shift: checked_shifts(blob, layer.id(kind::LINEAR_SHIFT), outputs)?,
+        })
+    }
+
+    /// The output requantisation of all channels.
+    pub fn requant(&self) -> ChannelRequant<'_, Le<'w, i32>, Le<'w, i32>> {
+        ChannelRequant {
+            bias: &self.bias,
+            mult: &self.mult,
+            shift: self.shift,
+        }
+    }
+}
+
+/// One per-channel int8 format of the residual stream.
+#[derive(Clone, Copy)]
+pub struct ResidualFormat<'w> {
+    /// Zero points.
+    pub zero: Le<'w, i32>,
+    /// Scales in a common unit (LayerNorm input).
+    pub rel: Le<'w, i32>,
+}
+
+/// Moving the residual stream from one format to the next.
+#[derive(Clone, Copy)]
+pub struct Carry<'w> {
+    /// Multipliers.
+    pub mult: Le<'w, i32>,
+    /// Shifts.
+    pub shift: &'w [u8],
+}
+
+/// A LayerNorm's scalars.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LayerNormScalars {
+    /// Epsilon in the input unit squared.
+    pub eps: i64,
+    /// Normalised (Q16) to output codes.
+    pub out: Requant,
+}
+
+impl LayerNormScalars {
+    /// The kernel parameters for an input in `format`.
+    pub fn with_input<'p, 'w>(&self, format: &'p ResidualFormat<'w>) -> LayerNormQ<'p, Le<'w, i32>, Le<'w, i32>> {
+        LayerNormQ {
+            zero: &format.zero,
+            rel: &format.rel,
+            eps: self.eps,
+            out: self.out,
+        }
+    }
+}
+
+/// Everything one transformer block needs.
+#[derive(Clone, Copy)]
+pub struct BlockWeights<'w> {
+    /// LayerNorm before attention.
+    pub norm1: LayerNormScalars,
+    /// Query, key, value projection (`3 DIM` outputs: q, k, v).
+    pub qkv: LinearQ<'w>,
+    /// Per-head softmax and output parameters.
+    pub attention: [AttentionQ; HEADS],
+    /// Attention output projection.
+    pub proj: LinearQ<'w>,
+    /// Residual format change across the attention half.
+    pub carry_attention: Carry<'w>,
+    /// LayerNorm before the MLP.
+    pub norm2: LayerNormScalars,
+    /// First MLP layer (to GELU input codes).
+    pub fc1: LinearQ<'w>,
+    /// GELU from fc1 codes to fc2 input codes.
+    pub gelu: &'w [i8; 256],
+    /// Second MLP layer.
+    pub fc2: LinearQ<'w>,
+    /// Residual format change across the MLP half.
+    pub carry_mlp: Carry<'w>,
+}
+
+/// The encoder's weights in a blob, validated once by [`EncoderWeights::new`].
+#[derive(Clone, Copy)]
+pub struct EncoderWeights<'w> {
+    blob: Blob<'w>,
+    max_patch_cols: usize,
+}
+
+impl<'w> EncoderWeights<'w> {
+    /// Checks that `blob` was made for this model configuration and holds every encoder tensor
+    /// with the right type and size, and valid shifts.
+    pub fn new(blob: Blob<'w>) -> Result<Self, Error> {
+        let config = blob.u16s(ids::id(kind::CONFIG, 0), CONFIG_LEN)?;
+        let expect = [
+            (ConfigField::Dim, "dim", DIM),
+            (ConfigField::Depth, "depth", DEPTH),
+            (ConfigField::Heads, "heads", HEADS),
+            (ConfigField::MlpHidden, "mlp_hidden", MLP_HIDDEN),
+            (ConfigField::BandTokenRows, "band_token_rows", BAND_TOKEN_ROWS),
+            (ConfigField::HeadProjDim, "head_proj_dim", HEAD_PROJ_DIM),
+            (ConfigField::HeadGroups, "head_groups", HEAD_GROUPS),
+            (ConfigField::HeadHidden, "head_hidden", HEAD_HIDDEN),
+            (ConfigField::HeadMiddleLayers, "head_middle_layers", HEAD_MIDDLE_LAYERS),
+            (ConfigField::HeadMaxDisp, "head_max_disp", HEAD_MAX_DISP),
+        ];
+        for (field, name, expected) in expect {
+            let found = config.get(field as usize).unwrap_or(0) as usize;
+            if found != expected {
+                return Err(Error::ConfigMismatch {
+                    field: name,
+                    expected,
+                    found,
+                });
+            }
+        }
+        let max_patch_cols = config.get(ConfigField::MaxPatchCols as usize).unwrap_or(0) as usize;
+        if max_patch_cols == 0 {
+            return Err(Error::ConfigMismatch {
+                field: "max_patch_cols",
+                expected: 1,
+                found: 0,
+            });
+        }
+        let weights = Self { blob, max_patch_cols };
+        weights.embed()?;
+        for s in 0..RESIDUAL_FORMATS {
+            weights.residual(s)?;
+        }
+        for b in 0..DEPTH {
+            weights.block(b)?;
+        }
+        weights.descriptor()?;
+        weights.rope()?;
+        Ok(weights)
+    }
+
+    /// The blob these views borrow.
+    pub fn blob(&self) -> &Blob<'w> {
+        &self.blob
+    }
+
+    /// Widest input the weights cover (the RoPE column table), in patch columns.
+    pub fn max_patch_cols(&self) -> usize {
+        self.max_patch_cols
+    }
+
+    /// The patch embedding; its bias holds one row of `DIM` per token row (row embedding folded in).
+    pub fn embed(&self) -> Result<LinearQ<'w>, Error> {
+        LinearQ::load(&self.blob, Linear::Embed, DIM, EMBED_INPUTS, BAND_TOKEN_ROWS * DIM)
+    }
+
+    /// Residual format `s`.
+    pub fn residual(&self, s: usize) -> Result<ResidualFormat<'w>, Error> {
+        Ok(ResidualFormat {
+            zero: self.blob.i32s(ids::id(kind::RESIDUAL_ZERO, s), DIM)?,
+            rel: self.blob.i32s(ids::id(kind::RESIDUAL_REL, s), DIM)?,
+        })
+    }
+
+    fn carry(&self, s: usize) -> Result<Carry<'w>, Error> {
+        Ok(Carry {
+            mult: self.blob.i32s(ids::id(kind::CARRY_MULT, s), DIM)?,
+            shift: checked_shifts(&self.blob, ids::id(kind::CARRY_SHIFT, s), DIM)?,
+        })
+    }
+
+    fn layernorm(&self, index: usize) -> Result<LayerNormScalars, Error> {
+        let id = ids::id(kind::LAYERNORM, index);
+        let values = self.blob.i64s(id, 3)?;
+        let eps = values.get(0).unwrap_or(0);
+        let mult = i32::try_from(values.get(1).unwrap_or(-1)).map_err(|_| Error::BadParameter { id })?;
+        let shift = u32::try_from(values.get(2).unwrap_or(0)).map_err(|_| Error::BadParameter { id })?;
+        if eps < 0 {
+            return Err(Error::BadParameter { id });
+        }
+        let out = Requant::new(mult, shift).ok_or(Error::BadParameter { id })?;
+        Ok(LayerNormScalars { eps, out })
+    }
+
+    fn attention(&self, b: usize) -> Result<[AttentionQ; HEADS], Error> {
+        let id = ids::id(kind::ATTENTION, b);
+        let values = self.blob.i32s(id, HEADS * 4)?;
+        let requant = |i: usize| {
+            let mult = values.get(i).unwrap_or(0);
+            let shift = u32::try_from(values.get(i + 1).unwrap_or(0)).unwrap_or(0);
+            Requant::new(mult, shift).ok_or(Error::BadParameter { id })
+        };
+        let mut heads = [AttentionQ {
+            to_log2_q8: Requant { mult: 0, shift: 1 },
+            out: Requant { mult: 0, shift: 1 },
+        }; HEADS];
+        for (h, head) in heads.iter_mut().enumerate() {
+            *head = AttentionQ {
+                to_log2_q8: requant(4 * h)?,
+                out: requant(4 * h + 2)?,
+            };
+        }
+        Ok(heads)
+    }
+
+    /// Block `b`'s weights.
+    pub fn block(&self, b: usize) -> Result<BlockWeights<'w>, Error> {
+        let gelu_id = ids::id(kind::GELU_TABLE, b);
+        let gelu = self.blob.i8s(gelu_id, 256)?;
+        let gelu: &[i8; 256] = gelu.try_into().map_err(|_| Error::BadParameter { id: gelu_id })?;
+        Ok(BlockWeights {
+            norm1: self.layernorm(ids::layernorm_index(b, false))?,
+            qkv: LinearQ::load(&self.blob, Linear::Qkv(b), 3 * DIM, DIM, 3 * DIM)?,
+            attention: self.attention(b)?,
+            proj: LinearQ::load(&self.blob, Linear::Proj(b), DIM, DIM, DIM)?,
+            carry_attention: self.carry(ids::residual_after_attention(b) - 1)?,
+            norm2: self.layernorm(ids::layernorm_index(b, true))?,
+            fc1: LinearQ::load(&self.blob, Linear::Fc1(b), MLP_HIDDEN, DIM, MLP_HIDDEN)?,
+            gelu,
+            fc2: LinearQ::load(&self.blob, Linear::Fc2(b), DIM, MLP_HIDDEN, DIM)?,
+            carry_mlp: self.carry(ids::residual_after_block(b) - 1)?,
+        })
+    }
+
+    /// Final residual format to Q8 descriptor codes, and the row embedding in those codes.
+    pub fn descriptor(&self) -> Result<(Carry<'w>, Le<'w, i32>), Error> {
+        let carry = Carry {
+            mult: self.blob.i32s(ids::id(kind::DESC_MULT, 0), DIM)?,
+            shift: checked_shifts(&self.blob, ids::id(kind::DESC_SHIFT, 0), DIM)?,
+        };
+        let offsets = self
+            .blob
+            .i32s(ids::id(kind::DESC_ROW_OFFSET, 0), BAND_TOKEN_ROWS * DIM)?;
+        Ok((carry, offsets))
+    }
+
+    /// The RoPE cosine / sine tables.
+    pub fn rope(&self) -> Result<RopeTables<'w>, Error> {
+        Ok(RopeTables {
+            rows: self
+                .blob
+                .i16s(ids::id(kind::ROPE_ROWS, 0), BAND_TOKEN_ROWS * 2 * QUARTER)?,
+            cols: self
+                .blob
+                .i16s(ids::id(kind::ROPE_COLS, 0), self.max_patch_cols * 2 * QUARTER)?,
+        })
+    }
+}
+
+/// RoPE tables: per token row and per patch column, `QUARTER` cosines then `QUARTER` sines.
+#[derive(Clone, Copy)]
+pub struct RopeTables<'w> {
+    rows: Le<'w, i16>,
+    cols: Le<'w, i16>,
+}
+
+impl RopeTables<'_> {
+    /// Angles of token row `row` and patch column `col` (zeros past the tables' ends).
+    pub fn angles(&self, row: usize, col: usize) -> (Angles, Angles) {
+        (read_angles(&self.rows, row), read_angles(&self.cols, col))
+    }
+}
+
+fn read_angles(table: &Le<'_, i16>, at: usize) -> Angles {
+    let mut a = Angles::default();
+    let base = at.saturating_mul(2 * QUARTER);
+    for i in 0..QUARTER {
+        a.cos[i] = table.get(base.saturating_add(i)).unwrap_or(0);
+        a.sin[i] = table.get(base.saturating_add(QUARTER + i)).unwrap_or(0);
+    }
+    a
+}
+
+impl<'w> Carry<'w> {
+    /// The rescale from `from` to the next format.
+    pub fn from_format<'p>(&'p self, from: &'p ResidualFormat<'w>) -> ChannelRescale<'p, Le<'w, i32>, Le<'w, i32>> {
+        ChannelRescale {
+            zero: &from.zero,
+            mult: &self.mult,
+            shift: self.shift,
+        }
+    }
+}
+
+/// A shift array whose every entry is a valid [`Requant`] shift.
+fn checked_shifts<'w>(blob: &Blob<'w>, id: TensorId, len: usize) -> Result<&'w [u8], Error> {
+    let shifts = blob.u8s(id, len)?;
+    if shifts.iter().any(|&s| s == 0 || s as u32 > MAX_SHIFT) {
+        return Err(Error::BadParameter { id });
+    }
+    Ok(shifts)
+}

@@ -1,0 +1,176 @@
+//! The int8 engine of `bino-core` on the host: a blob file, descriptor maps of whole views
+//! (overlapping bands, like the float reference), and dequantised stage outputs for
+//! comparisons.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{ensure, Context, Result};
+use bino_core::band::BandPlan;
+use bino_core::blob::Blob;
+use bino_core::config::{check_view_size, DIM, PATCH_H};
+use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
+use bino_core::model::ids::{self, kind};
+use bino_core::model::probe::{NoProbe, Probe, Stage};
+
+use crate::profile::View;
+use crate::reference::FeatureMap;
+
+/// A weight blob read from a file, with its encoder validated.
+pub struct Int8Model {
+    path: PathBuf,
+    bytes: Vec<u8>,
+}
+
+impl Int8Model {
+    /// Reads and validates `path` (made by `bino quantize`).
+    pub fn load(path: &Path) -> Result<Self> {
+        let bytes = std::fs::read(path).with_context(|| format!("cannot read weight blob {}", path.display()))?;
+        let model = Self {
+            path: path.to_path_buf(),
+            bytes,
+        };
+        model
+            .encoder()
+            .with_context(|| format!("invalid weight blob {}", path.display()))?;
+        Ok(model)
+    }
+
+    /// Wraps blob bytes already in memory.
+    pub fn from_bytes(bytes: Vec<u8>, name: &str) -> Result<Self> {
+        let model = Self {
+            path: PathBuf::from(name),
+            bytes,
+        };
+        model.encoder().with_context(|| format!("invalid weight blob {name}"))?;
+        Ok(model)
+    }
+
+    /// Where the blob came from.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// The blob's bytes.
+    pub fn bytes(&self) -> &[u8] {
+        &self.bytes
+    }
+
+    /// The parsed blob.
+    pub fn blob(&self) -> Result<Blob<'_>> {
+        Blob::parse(&self.bytes).map_err(|e| anyhow::anyhow!("{e}"))
+    }
+
+    /// The encoder over the blob.
+    pub fn encoder(&self) -> Result<Encoder<'_>> {
+        Encoder::new(self.blob()?).map_err(|e| anyhow::anyhow!("{e}"))
+    }
+
+    /// Real value of one descriptor code.
+    pub fn descriptor_scale(&self) -> Result<f32> {
+        meta_f32(&self.blob()?, ids::id(kind::META_DESC_SCALE, 0), 1).map(|v| v[0])
+    }
+
+    /// Per-channel (scale, zero point) of residual format `s`, to dequantise stage outputs.
+    pub fn residual_format(&self, s: usize) -> Result<(Vec<f32>, Vec<i32>)> {
+        let blob = self.blob()?;
+        let scale = meta_f32(&blob, ids::id(kind::META_RESIDUAL_SCALE, s), DIM)?;
+        let zero = blob
+            .i32s(ids::id(kind::RESIDUAL_ZERO, s), DIM)
+            .map_err(|e| anyhow::anyhow!("{e}"))?;
+        Ok((scale, zero.iter().collect()))
+    }
+
+    /// Int8 descriptor codes of a whole view (`H/4 x W/4 x DIM`), band by band.
+    pub fn descriptor_codes(&self, view: &View) -> Result<(usize, usize, Vec<i8>)> {
+        self.descriptor_codes_probed(view, &mut NoProbe)
+    }
+
+    /// [`Int8Model::descriptor_codes`], with every band's stages shown to `probe`.
+    pub fn descriptor_codes_probed(&self, view: &View, probe: &mut impl Probe) -> Result<(usize, usize, Vec<i8>)> {
+        let encoder = self.encoder()?;
+        let (rows, cols) = check_view_size(view.height, view.width).map_err(anyhow::Error::msg)?;
+        ensure!(
+            view.width <= encoder.max_width(),
+            "view is {} px wide; the blob supports at most {} (quantise with a larger --max-width)",
+            view.width,
+            encoder.max_width()
+        );
+        let pixels = to_u8(&view.pixels);
+        let plan = BandPlan::new(rows).map_err(anyhow::Error::msg)?;
+        let mut arena = vec![0u8; arena_bytes(bino_core::config::BAND_ROWS, view.width)];
+        let mut out = vec![0i8; rows * cols * DIM];
+        let mut band_out = Vec::new();
+        for band in plan.iter() {
+            let (y0, h) = (band.start * PATCH_H, band.rows * PATCH_H);
+            let band_pixels = &pixels[y0 * view.width..(y0 + h) * view.width];
+            let gray = GrayBand::new(band_pixels, view.width, h).map_err(anyhow::Error::msg)?;
+            band_out.resize(band.rows * cols * DIM, 0);
+            encoder
+                .describe(gray, &mut arena, &mut band_out, probe)
+                .map_err(anyhow::Error::msg)?;
+            let row_len = cols * DIM;
+            let from = (band.keep_from - band.start) * row_len;
+            let to = (band.keep_to - band.start) * row_len;
+            out[band.keep_from * row_len..band.keep_to * row_len].copy_from_slice(&band_out[from..to]);
+        }
+        Ok((rows, cols, out))
+    }
+
+    /// Dequantised descriptor map of a view, comparable with the float reference's.
+    pub fn descriptors(&self, view: &View) -> Result<FeatureMap> {
+        let (rows, cols, codes) = self.descriptor_codes(view)?;
+        let scale = self.descriptor_scale()?;
+        Ok(FeatureMap {
+            rows,
+            cols,
+            dim: DIM,
+            data: codes.iter().map(|&c| c as f32 * scale).collect(),
+        })
+    }
+}
+
+/// Pixels in [0, 1] as the 8-bit codes a camera delivers.
+pub fn to_u8(pixels: &[f32]) -> Vec<u8> {
+    pixels
+        .iter()
+        .map(|&v| (v * 255.0).round().clamp(0.0, 255.0) as u8)
+        .collect()
+}
+
+/// A probe that keeps a dequantised copy of every stage of one band.
+#[derive(Default)]
+pub struct StageRecorder {
+    /// (stage, rows, fused columns, residual codes).
+    pub stages: Vec<(Stage, usize, usize, Vec<i8>)>,
+}
+
+impl Probe for StageRecorder {
+    fn observe(&mut self, stage: Stage, rows: usize, fused_cols: usize, codes: &[i8]) {
+        self.stages.push((stage, rows, fused_cols, codes.to_vec()));
+    }
+}
+
+/// Real values of residual codes in a per-channel format.
+pub fn dequantise_residual(codes: &[i8], scale: &[f32], zero: &[i32]) -> Vec<f32> {
+    codes
+        .chunks_exact(DIM)
+        .flat_map(|token| {
+            token
+                .iter()
+                .enumerate()
+                .map(|(c, &q)| scale[c] * (q as i32 - zero[c]) as f32)
+        })
+        .collect()
+}
+
+fn meta_f32(blob: &Blob<'_>, id: bino_core::blob::TensorId, len: usize) -> Result<Vec<f32>> {
+    let (dtype, bytes) = blob.raw(id).map_err(|e| anyhow::anyhow!("{e}"))?;
+    ensure!(
+        dtype == bino_core::blob::Dtype::F32 && bytes.len() == 4 * len,
+        "blob metadata {id:?} malformed"
+    );
+    Ok(bytes
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect())
+}

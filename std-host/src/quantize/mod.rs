@@ -1,0 +1,67 @@
+//! Post-training quantisation: float ONNX models + calibration on train-split pairs -> the
+//! int8 weight blob the engine runs (docs/int8-model.md).
+//!
+//! Weights: symmetric int8 per output channel. Activations: formats chosen from the float
+//! model's intermediate tensors computed by tract on calibration bands (see [`formats`] for the
+//! range choices: per-channel percentiles for the residual stream, MSE-optimal clipping for
+//! the rest).
+
+pub mod calibrate;
+pub mod encoder;
+pub mod formats;
+pub mod scales;
+
+use std::path::PathBuf;
+
+use anyhow::{ensure, Context, Result};
+use bino_core::config::CELL_W;
+
+use crate::blob_writer::BlobWriter;
+use crate::float_weights::FloatEncoder;
+use crate::profile::Profile;
+
+/// What `bino quantize` reads.
+#[derive(Debug, Clone)]
+pub struct QuantizeOptions {
+    /// The float encoder (`python -m bino_train.export`).
+    pub encoder: PathBuf,
+    /// Folder with `PAIRS.tsv`; only its train split is used.
+    pub data: PathBuf,
+    /// Resolution profile of the calibration bands.
+    pub profile: Profile,
+    /// Train pairs to calibrate on (both views of each, one band per view).
+    pub calib_pairs: usize,
+    /// Widest band the blob will support, in pixels (sizes the RoPE column table).
+    pub max_width: usize,
+}
+
+/// What a quantisation did.
+#[derive(Debug, Clone)]
+pub struct QuantizeReport {
+    /// Calibration bands run through the float model.
+    pub bands: usize,
+    /// The chosen activation formats.
+    pub formats: formats::EncoderFormats,
+}
+
+/// Builds the blob; `progress(done, total)` is called after each calibration band.
+pub fn quantize(opts: &QuantizeOptions, progress: impl FnMut(usize, usize)) -> Result<(Vec<u8>, QuantizeReport)> {
+    ensure!(
+        opts.max_width >= CELL_W && opts.max_width.is_multiple_of(CELL_W),
+        "--max-width {} must be a positive multiple of {CELL_W}",
+        opts.max_width
+    );
+    let float = FloatEncoder::from_onnx(&opts.encoder)?;
+    let bands = calibrate::calibration_bands(&opts.data, opts.profile, opts.calib_pairs)?;
+    let stats = calibrate::collect(&opts.encoder, &bands, progress).context("calibration")?;
+    let formats = formats::EncoderFormats::choose(&stats);
+    let mut writer = BlobWriter::new();
+    encoder::write_encoder(&float, &formats, opts.max_width / CELL_W, &mut writer)?;
+    Ok((
+        writer.finish(),
+        QuantizeReport {
+            bands: stats.bands,
+            formats,
+        },
+    ))
+}
