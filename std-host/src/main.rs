@@ -6,6 +6,9 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{bail, ensure, Context, Result};
+use bino_host::bench::{bench, BenchOptions};
+use bino_host::compare::{compare, CompareOptions};
+use bino_host::eval::DEFAULT_MAX_COLS;
 use bino_host::image_io::{load_gray, GrayImage};
 use bino_host::int8::Int8Model;
 use bino_host::npy::Array;
@@ -66,6 +69,12 @@ enum Command {
         /// Float encoder (`python -m bino_train.export`).
         #[arg(long, default_value = "weights/bino_encoder.onnx")]
         onnx: PathBuf,
+        /// Float shared head (`python -m bino_train.head`); quantised into the same blob.
+        #[arg(long)]
+        head: Option<PathBuf>,
+        /// Train pairs whose descriptor maps calibrate the head.
+        #[arg(long, default_value_t = 16)]
+        head_calib_pairs: usize,
         /// Folder with PAIRS.tsv; only `split = train` pairs are read.
         #[arg(long, default_value = "../shared/data")]
         calib: PathBuf,
@@ -91,6 +100,65 @@ enum Command {
         #[arg(long)]
         split: Option<String>,
     },
+    /// Compare the float encoder (tract-onnx) with the int8 engine on eval pairs.
+    ///
+    /// Per view and band: the cosine of the residual stream after the embedding and after each
+    /// block's attention and MLP halves (the float model runs on the engine's own 8-bit pixels
+    /// / 255, so only the engines differ). Per view: the descriptor maps' cosine (float on the
+    /// exact view). Per pair: integer WTA disparity agreement and the EVAL.md metrics of the
+    /// no-linkage readout of both. Prints the means with the targets (descriptor cosine >= 0.99,
+    /// WTA agreement >= 98 %, int8 epe at most 3 % above float); progress on stderr.
+    Compare {
+        /// Folder with PAIRS.tsv.
+        #[arg(long, default_value = "../shared/data")]
+        data: PathBuf,
+        /// Split to compare on: only eval (the metrics need ground truth).
+        #[arg(long, default_value = "eval")]
+        split: String,
+        /// Resolution profile of EVAL.md: w160, w320 or native.
+        #[arg(long, default_value = "w160")]
+        profile: Profile,
+        /// Float encoder (`python -m bino_train.export`; `--intermediates` not required).
+        #[arg(long, default_value = "weights/bino_encoder.onnx")]
+        onnx: PathBuf,
+        /// Int8 weight blob quantised from it (`bino quantize`).
+        #[arg(long, default_value = "weights/bino_int8.bin")]
+        blob: PathBuf,
+        /// Also write every number (per pair and mean) and the inputs' provenance as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Disparity candidates of the no-linkage readout, in patch columns.
+        #[arg(long, default_value_t = DEFAULT_MAX_COLS)]
+        max_cols: usize,
+        /// Only the first N pairs of the split.
+        #[arg(long)]
+        limit: Option<usize>,
+    },
+    /// Time tract-onnx (f32) and the int8 engine on the same band, single-threaded.
+    ///
+    /// One 48-row band of the built-in scene at the profile's width, encoded on (I, I) by both
+    /// (the descriptor pathway); one warm-up run, then --runs timed runs each. Prints medians,
+    /// minima, GMAC/s and the ratio. Build with --release: a debug build's timings mean little.
+    Bench {
+        /// Float encoder (`python -m bino_train.export`).
+        #[arg(long, default_value = "weights/bino_encoder.onnx")]
+        onnx: PathBuf,
+        /// Int8 weight blob (`bino quantize`).
+        #[arg(long, default_value = "weights/bino_int8.bin")]
+        blob: PathBuf,
+        /// Profile giving the band width: w160 or w320.
+        #[arg(long, default_value = "w160")]
+        profile: Profile,
+        /// Threads: only 1 (tract is built single-threaded; so is the int8 engine).
+        #[arg(long, default_value_t = 1)]
+        threads: usize,
+        /// Timed runs per engine.
+        #[arg(long, default_value_t = 10)]
+        runs: usize,
+        /// Also write the timings as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -105,6 +173,44 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Compare {
+            data,
+            split,
+            profile,
+            onnx,
+            blob,
+            json,
+            max_cols,
+            limit,
+        } => {
+            let opts = CompareOptions {
+                onnx,
+                blob,
+                data,
+                split,
+                profile,
+                max_cols,
+                limit,
+            };
+            compare_command(&opts, json.as_deref())
+        }
+        Command::Bench {
+            onnx,
+            blob,
+            profile,
+            threads,
+            runs,
+            json,
+        } => {
+            let opts = BenchOptions {
+                onnx,
+                blob,
+                profile,
+                threads,
+                runs,
+            };
+            bench_command(&opts, json.as_deref())
+        }
         Command::Reference {
             left,
             right,
@@ -116,6 +222,8 @@ fn run(cli: Cli) -> Result<()> {
         Command::Pairs { data, split } => list_pairs(&data, split.as_deref()),
         Command::Quantize {
             onnx,
+            head,
+            head_calib_pairs,
             calib,
             calib_pairs,
             profile,
@@ -124,6 +232,8 @@ fn run(cli: Cli) -> Result<()> {
         } => {
             let opts = QuantizeOptions {
                 encoder: onnx,
+                head,
+                head_calib_pairs,
                 data: calib,
                 profile,
                 calib_pairs,
@@ -132,6 +242,41 @@ fn run(cli: Cli) -> Result<()> {
             quantize_command(&opts, &out)
         }
     }
+}
+
+fn compare_command(opts: &CompareOptions, json: Option<&Path>) -> Result<()> {
+    let report = compare(opts, |done, total, pair| {
+        let v = &pair.values;
+        eprintln!(
+            "[{done}/{total}] {}: descriptor cosine {:.4}, WTA agreement {:.1} %, epe {:.3} float / {:.3} int8 \
+             ({:.1} s)",
+            pair.pair_id,
+            v.descriptor_cosine,
+            v.wta_agreement,
+            v.float.epe,
+            v.int8.epe,
+            pair.elapsed.as_secs_f64()
+        );
+    })?;
+    println!("{}", report.table());
+    if let Some(path) = json {
+        write_atomically(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+fn bench_command(opts: &BenchOptions, json: Option<&Path>) -> Result<()> {
+    let report = bench(opts, |what| eprintln!("timing {what}"))?;
+    if report.debug_build {
+        eprintln!("WARNING: debug build: timings are only meaningful with --release");
+    }
+    println!("{}", report.text());
+    if let Some(path) = json {
+        write_atomically(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
 }
 
 fn quantize_command(opts: &QuantizeOptions, out: &Path) -> Result<()> {

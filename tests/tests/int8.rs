@@ -3,12 +3,17 @@
 
 use std::path::PathBuf;
 
+use bino_core::model::encoder::{arena_bytes, GrayBand};
+use bino_core::model::probe::NoProbe;
+use bino_core::Error;
 use bino_host::int8::{dequantise_residual, Int8Model, StageRecorder};
 use bino_host::profile::Profile;
 use bino_host::quantize::{quantize, QuantizeOptions};
 use bino_host::reference::ReferenceEncoder;
 use bino_host::synthetic;
+use bino_host::taps::TappedModel;
 use bino_tests::fixtures;
+use tract_onnx::prelude::{tract_ndarray, Tensor};
 
 fn data_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
@@ -39,6 +44,8 @@ fn int8_descriptors_follow_float() {
         profile: Profile::W160,
         calib_pairs: 2,
         max_width: 160,
+        head: Some(fixtures().join("head_random_seed0.onnx")),
+        head_calib_pairs: 2,
     };
     let (blob, _) = quantize(&opts, |_, _| {}).unwrap();
     let model = Int8Model::from_bytes(blob, "fixture blob").unwrap();
@@ -66,4 +73,88 @@ fn int8_descriptors_follow_float() {
     }
     eprintln!("descriptors: mean cosine {desc_cos:.5}");
     assert!(desc_cos >= 0.99, "int8 descriptors cosine {desc_cos}");
+
+    // The head end to end: int8 descriptors -> int8 head versus float -> float.
+    let right = Profile::W160.apply(&scene.right).unwrap();
+    let (rows, cols, codes_left) = model.descriptor_codes(&view).unwrap();
+    let (_, _, codes_right) = model.descriptor_codes(&right).unwrap();
+    let head = model.head(&codes_left, &codes_right, rows, cols).unwrap();
+    let float_right = float.descriptors(&right).unwrap();
+    let head_onnx = fixtures().join("head_random_seed0.onnx");
+    let mut float_head = TappedModel::load(&head_onnx, &["logits".to_string(), "disparity".to_string()], 2).unwrap();
+    let as_tensor = |m: &bino_host::reference::FeatureMap| -> Tensor {
+        tract_ndarray::Array4::from_shape_vec((1, m.rows, m.cols, m.dim), m.data.clone())
+            .unwrap()
+            .into()
+    };
+    let outputs = float_head
+        .run(vec![as_tensor(&expected), as_tensor(&float_right)])
+        .unwrap();
+    let (logits_shape, logits) = &outputs[0];
+    let disparity = &outputs[1].1;
+    assert_eq!(logits_shape, &vec![1, 12, rows, cols]);
+    // Float logits are (D, T, P); the engine's are (T, P, D). Compare valid candidates only.
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for r in 0..rows {
+        for p in 0..cols {
+            for d in 0..=p.min(11) {
+                a.push(head.logits[(r * cols + p) * 12 + d]);
+                b.push(logits[(d * rows + r) * cols + p]);
+            }
+        }
+    }
+    let logit_cos = cosine(&a, &b);
+    let mean_abs: f32 = head
+        .disparity
+        .iter()
+        .zip(disparity)
+        .map(|(x, y)| (x - y).abs())
+        .sum::<f32>()
+        / disparity.len() as f32;
+    eprintln!("head: logit cosine {logit_cos:.5}, mean |disparity int8 - float| {mean_abs:.4} patch columns");
+    assert!(logit_cos >= 0.98, "head logits cosine {logit_cos}");
+    assert!(
+        mean_abs <= 0.25,
+        "head disparity differs by {mean_abs} patch columns on average"
+    );
+
+    // Bad input is an error value, never a panic, and names the problem.
+    let encoder = model.encoder().unwrap();
+    let pixels = vec![128u8; 160 * 48];
+    let band = GrayBand::new(&pixels, 160, 48).unwrap();
+    let needed = arena_bytes(48, 160);
+    let mut small = vec![0u8; needed - 1];
+    let mut out = vec![0i8; 12 * 40 * 128];
+    let err = encoder.describe(band, &mut small, &mut out, &mut NoProbe).unwrap_err();
+    assert_eq!(
+        err,
+        Error::ArenaTooSmall {
+            needed,
+            available: needed - 1
+        }
+    );
+    let mut arena = vec![0u8; needed];
+    let report = encoder.describe(band, &mut arena, &mut out, &mut NoProbe).unwrap();
+    // Everything but unused alignment slack is used: the const fn is tight.
+    assert!(
+        report.arena_used <= needed && report.arena_used + 8 >= needed,
+        "{report:?} vs {needed}"
+    );
+    assert!(matches!(
+        encoder.describe(band, &mut arena, &mut out[1..], &mut NoProbe),
+        Err(Error::BufferSize { .. })
+    ));
+    assert!(matches!(GrayBand::new(&pixels, 160, 44), Err(Error::BufferSize { .. })));
+    assert!(matches!(
+        GrayBand::new(&vec![0u8; 160 * 52], 160, 52),
+        Err(Error::BandTooTall { .. })
+    ));
+    let wide = vec![0u8; 164 * 48];
+    let too_wide = GrayBand::new(&wide, 164, 48).unwrap();
+    let mut big_arena = vec![0u8; arena_bytes(48, 164)];
+    let mut wide_out = vec![0i8; 12 * 41 * 128];
+    assert!(matches!(
+        encoder.describe(too_wide, &mut big_arena, &mut wide_out, &mut NoProbe),
+        Err(Error::TooWide { width: 164, max: 160 })
+    ));
 }

@@ -9,6 +9,7 @@
 pub mod calibrate;
 pub mod encoder;
 pub mod formats;
+pub mod head;
 pub mod scales;
 
 use std::path::PathBuf;
@@ -17,6 +18,7 @@ use anyhow::{ensure, Context, Result};
 use bino_core::config::CELL_W;
 
 use crate::blob_writer::BlobWriter;
+use crate::float_head::FloatHead;
 use crate::float_weights::FloatEncoder;
 use crate::profile::Profile;
 
@@ -25,6 +27,10 @@ use crate::profile::Profile;
 pub struct QuantizeOptions {
     /// The float encoder (`python -m bino_train.export`).
     pub encoder: PathBuf,
+    /// The float shared head (`python -m bino_train.head`), quantised too when given.
+    pub head: Option<PathBuf>,
+    /// Train pairs whose float descriptor maps calibrate the head.
+    pub head_calib_pairs: usize,
     /// Folder with `PAIRS.tsv`; only its train split is used.
     pub data: PathBuf,
     /// Resolution profile of the calibration bands.
@@ -57,6 +63,13 @@ pub fn quantize(opts: &QuantizeOptions, progress: impl FnMut(usize, usize)) -> R
     let formats = formats::EncoderFormats::choose(&stats);
     let mut writer = BlobWriter::new();
     encoder::write_encoder(&float, &formats, opts.max_width / CELL_W, &mut writer)?;
+    if let Some(head_onnx) = &opts.head {
+        let float_head = FloatHead::from_onnx(head_onnx)?;
+        let maps = head::calibration_maps(&opts.encoder, &opts.data, opts.profile, opts.head_calib_pairs)?;
+        let stats = head::collect(head_onnx, &maps).context("head calibration")?;
+        let head_formats = head::HeadFormats::choose(&stats);
+        head::write_head(&float_head, &head_formats, formats.descriptor, &mut writer)?;
+    }
     Ok((
         writer.finish(),
         QuantizeReport {

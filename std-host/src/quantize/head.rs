@@ -1,0 +1,248 @@
+//! The shared head's int8 tensors: calibration on float descriptor maps of train-split pairs
+//! (tract taps of the head ONNX) and the integer parameters of `core/src/model/head.rs`.
+
+use std::path::Path;
+
+use anyhow::{ensure, Context, Result};
+use bino_core::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM};
+use bino_core::kernels::layernorm::Z_FRAC_BITS;
+use bino_core::model::ids::{self, kind, Linear, HEAD_CONVS, HEAD_LAYERNORM};
+use tract_onnx::prelude::*;
+
+use super::calibrate::{z_scores, Samples};
+use super::scales::{asymmetric_format, percentile_sorted, quantize_rows, requant_of, symmetric_mse_scale};
+use crate::blob_writer::BlobWriter;
+use crate::float_head::{FloatConv3d, FloatHead};
+use crate::float_weights::FloatLinear;
+use crate::reference::FeatureMap;
+use crate::taps::TappedModel;
+
+/// Values kept per tensor per calibration map.
+const SAMPLES_PER_MAP: usize = 16_384;
+/// The engine's LayerNorm input unit for descriptors (`core/src/model/head.rs`, `DESC_REL`).
+const DESC_REL: f64 = 256.0;
+/// Upper percentile of the non-negative hidden activations.
+const HIDDEN_UPPER_PERCENTILE: f64 = 0.9999;
+const KERNEL: usize = 27;
+
+/// Tap names of the head ONNX (`python -m bino_train.head`): projected left and right,
+/// correlation volume, stem output, the middle layers' residual outputs.
+pub fn head_taps() -> Vec<String> {
+    let mut names = vec![
+        "/head/proj/Add_output_0".to_string(),
+        "/head/proj_1/Add_output_0".to_string(),
+        "/head/Transpose_output_0".to_string(),
+        "/head/Relu_output_0".to_string(),
+    ];
+    names.extend((1..=HEAD_MIDDLE_LAYERS).map(|i| format!("/head/Add_{i}_output_0")));
+    names
+}
+
+/// What head calibration measured.
+#[derive(Debug, Clone, Default)]
+pub struct HeadStats {
+    /// LayerNorm z-scores of the descriptors.
+    pub normalised: Samples,
+    /// Projected descriptors (both views).
+    pub projected: Samples,
+    /// Correlation volume.
+    pub correlation: Samples,
+    /// Stem output, then each middle layer's output.
+    pub hidden: Vec<Samples>,
+    /// Descriptor map pairs seen.
+    pub maps: usize,
+}
+
+/// Runs the float head on descriptor map pairs and gathers the statistics.
+pub fn collect(head_onnx: &Path, pairs: &[(FeatureMap, FeatureMap)]) -> Result<HeadStats> {
+    let names = head_taps();
+    let mut model = TappedModel::load(head_onnx, &names, 2)?;
+    let mut stats = HeadStats { hidden: vec![Samples::default(); 1 + HEAD_MIDDLE_LAYERS], ..Default::default() };
+    for (left, right) in pairs {
+        ensure!(left.dim == DIM && (left.rows, left.cols) == (right.rows, right.cols), "descriptor maps differ");
+        for map in [left, right] {
+            let z: Vec<f32> = map.data.chunks_exact(DIM).step_by(4).flat_map(z_scores).collect();
+            stats.normalised.add(z.into_iter(), SAMPLES_PER_MAP);
+        }
+        let outputs = model.run(vec![map_tensor(left)?, map_tensor(right)?])?;
+        stats.projected.add(outputs[0].1.iter().copied(), SAMPLES_PER_MAP);
+        stats.projected.add(outputs[1].1.iter().copied(), SAMPLES_PER_MAP);
+        stats.correlation.add(outputs[2].1.iter().copied(), SAMPLES_PER_MAP);
+        for (i, samples) in stats.hidden.iter_mut().enumerate() {
+            samples.add(outputs[3 + i].1.iter().copied(), SAMPLES_PER_MAP);
+        }
+        stats.maps += 1;
+    }
+    Ok(stats)
+}
+
+fn map_tensor(map: &FeatureMap) -> Result<Tensor> {
+    let array = tract_ndarray::Array4::from_shape_vec((1, map.rows, map.cols, map.dim), map.data.clone())?;
+    Ok(array.into())
+}
+
+/// The head's activation formats.
+#[derive(Debug, Clone, PartialEq)]
+pub struct HeadFormats {
+    /// LayerNorm output scale.
+    pub normalised: f64,
+    /// Projection output scale.
+    pub projected: f64,
+    /// Correlation scale.
+    pub correlation: f64,
+    /// Hidden formats (scale, zero point): stem, middle layers.
+    pub hidden: Vec<(f64, i32)>,
+}
+
+impl HeadFormats {
+    /// Chooses every format from the statistics.
+    pub fn choose(stats: &HeadStats) -> Self {
+        let hidden = stats
+            .hidden
+            .iter()
+            .map(|s| {
+                let hi = percentile_sorted(&s.sorted(), HIDDEN_UPPER_PERCENTILE).max(1e-4);
+                asymmetric_format(0.0, hi)
+            })
+            .collect();
+        Self {
+            normalised: symmetric_mse_scale(stats.normalised.values()),
+            projected: symmetric_mse_scale(stats.projected.values()),
+            correlation: symmetric_mse_scale(stats.correlation.values()),
+            hidden,
+        }
+    }
+}
+
+/// Writes every head tensor; `desc_scale` is the encoder's descriptor scale (the head's input).
+pub fn write_head(float: &FloatHead, f: &HeadFormats, desc_scale: f64, w: &mut BlobWriter) -> Result<()> {
+    ensure!(float.middle.len() == HEAD_MIDDLE_LAYERS, "head has {} middle layers", float.middle.len());
+    ensure!(f.hidden.len() == 1 + HEAD_MIDDLE_LAYERS, "head formats incomplete");
+    let unit = desc_scale / DESC_REL;
+    let eps = (float.ln_eps as f64 / (unit * unit)).round() as i64;
+    let out = requant_of(1.0 / (f.normalised * (1u64 << Z_FRAC_BITS) as f64))?;
+    w.add_i64(ids::id(kind::LAYERNORM, HEAD_LAYERNORM), &[eps, out.mult as i64, out.shift as i64])?;
+
+    let proj = fold_layernorm(&float.proj, &float.norm_weight, &float.norm_bias);
+    let (codes, scales) = quantize_rows(&proj.weight, DIM);
+    let bias: Result<Vec<i32>> =
+        scales.iter().zip(&proj.bias).map(|(&s, &b)| to_i32(b as f64 / (f.normalised * s))).collect();
+    let mults: Result<Vec<_>> = scales.iter().map(|&s| requant_of(f.normalised * s / f.projected)).collect();
+    write_linear(w, Linear::HeadProj, &codes, &bias?, &mults?)?;
+
+    let per_group = (HEAD_PROJ_DIM / HEAD_GROUPS) as f64;
+    let corr = requant_of(f.projected * f.projected / per_group / f.correlation)?;
+    w.add_i32(ids::id(kind::HEAD_CORRELATION, 0), &[corr.mult, corr.shift as i32])?;
+
+    let convs: Vec<&FloatConv3d> =
+        std::iter::once(&float.stem).chain(float.middle.iter()).chain(std::iter::once(&float.out)).collect();
+    let mut zeros = vec![0i32; HEAD_CONVS];
+    let mut carries = Vec::new();
+    for (layer, conv) in convs.iter().enumerate() {
+        let (in_scale, in_zero) = if layer == 0 { (f.correlation, 0) } else { f.hidden[layer - 1] };
+        zeros[layer] = in_zero;
+        let weight = kernel_major(conv);
+        let (codes, scales) = quantize_rows(&weight, KERNEL * conv.in_channels);
+        let inputs = KERNEL * conv.in_channels;
+        let bias: Result<Vec<i32>> = (0..conv.out_channels)
+            .map(|n| {
+                let sum: i64 = codes[n * inputs..(n + 1) * inputs].iter().map(|&c| c as i64).sum();
+                to_i32(conv.bias[n] as f64 / (in_scale * scales[n]) - in_zero as f64 * sum as f64)
+            })
+            .collect();
+        let out_scale = if layer + 1 < HEAD_CONVS { f.hidden[layer].0 } else { 1.0 };
+        let mults: Result<Vec<_>> = scales.iter().map(|&s| requant_of(in_scale * s / out_scale)).collect();
+        write_linear(w, Linear::HeadConv(layer), &codes, &bias?, &mults?)?;
+        if (1..HEAD_CONVS - 1).contains(&layer) {
+            let carry = requant_of(in_scale / f.hidden[layer].0)?;
+            carries.extend([carry.mult, carry.shift as i32]);
+        }
+        if layer + 1 == HEAD_CONVS {
+            let logit_scale = in_scale * scales[0];
+            let softmax = requant_of(logit_scale * std::f64::consts::LOG2_E * 256.0)?;
+            w.add_i32(ids::id(kind::HEAD_SOFTMAX, 0), &[softmax.mult, softmax.shift as i32])?;
+            w.add_f32(ids::id(kind::META_HEAD_LOGIT_SCALE, 0), &[logit_scale as f32])?;
+        }
+    }
+    w.add_i32(ids::id(kind::HEAD_ZERO, 0), &zeros)?;
+    w.add_i32(ids::id(kind::HEAD_CARRY, 0), &carries)?;
+    ensure!(HEAD_HIDDEN == float.stem.out_channels && HEAD_MAX_DISP == float.max_disp, "head shape differs");
+    Ok(())
+}
+
+/// Conv3d weights `(out, in, kd, kh, kw)` (volume dims disparity, row, column) reordered to the
+/// engine's `[out][kh][kd][kw][in]`.
+fn kernel_major(conv: &FloatConv3d) -> Vec<f32> {
+    let (co, ci) = (conv.out_channels, conv.in_channels);
+    let mut out = Vec::with_capacity(co * ci * KERNEL);
+    for o in 0..co {
+        for kh in 0..3 {
+            for kd in 0..3 {
+                for kw in 0..3 {
+                    for i in 0..ci {
+                        out.push(conv.weight[(((o * ci + i) * 3 + kd) * 3 + kh) * 3 + kw]);
+                    }
+                }
+            }
+        }
+    }
+    out
+}
+
+fn fold_layernorm(linear: &FloatLinear, gamma: &[f32], beta: &[f32]) -> FloatLinear {
+    let k = linear.in_features;
+    let mut weight = linear.weight.clone();
+    let mut bias = linear.bias.clone();
+    for (n, row) in weight.chunks_exact_mut(k).enumerate() {
+        let shift: f64 = row.iter().zip(beta).map(|(&w, &b)| w as f64 * b as f64).sum();
+        row.iter_mut().zip(gamma).for_each(|(w, &g)| *w *= g);
+        bias[n] += shift as f32;
+    }
+    FloatLinear { out_features: linear.out_features, in_features: k, weight, bias }
+}
+
+fn write_linear(
+    w: &mut BlobWriter,
+    layer: Linear,
+    codes: &[i8],
+    bias: &[i32],
+    mults: &[bino_core::fixed::Requant],
+) -> Result<()> {
+    w.add_i8(layer.id(kind::LINEAR_WEIGHT), codes)?;
+    w.add_i32(layer.id(kind::LINEAR_BIAS), bias)?;
+    w.add_i32(layer.id(kind::LINEAR_MULT), &mults.iter().map(|r| r.mult).collect::<Vec<_>>())?;
+    w.add_u8(layer.id(kind::LINEAR_SHIFT), &mults.iter().map(|r| r.shift as u8).collect::<Vec<_>>())?;
+    Ok(())
+}
+
+fn to_i32(x: f64) -> Result<i32> {
+    let r = x.round();
+    ensure!(r.is_finite() && r.abs() < 2f64.powi(31), "a head bias does not fit in 32 bits ({x:e})");
+    Ok(r as i32)
+}
+
+/// Float descriptor maps of the first `max_pairs` train pairs (spread over the split) for
+/// head calibration.
+pub fn calibration_maps(
+    encoder_onnx: &Path,
+    data: &Path,
+    profile: crate::profile::Profile,
+    max_pairs: usize,
+) -> Result<Vec<(FeatureMap, FeatureMap)>> {
+    use crate::image_io::load_gray;
+    use crate::pairs::{read_index, Split};
+    let index = read_index(data)?;
+    let train: Vec<_> = index.iter().filter(|p| p.split == Split::Train).collect();
+    ensure!(!train.is_empty(), "{} lists no train-split pairs", data.display());
+    let step = train.len().div_ceil(max_pairs.max(1)).max(1);
+    let mut encoder = crate::reference::ReferenceEncoder::load(encoder_onnx)?;
+    let mut maps = Vec::new();
+    for pair in train.iter().step_by(step) {
+        let left = profile.apply(&load_gray(&pair.left)?)?;
+        let right = profile.apply(&load_gray(&pair.right)?)?;
+        let dl = encoder.descriptors(&left).with_context(|| pair.pair_id.clone())?;
+        let dr = encoder.descriptors(&right).with_context(|| pair.pair_id.clone())?;
+        maps.push((dl, dr));
+    }
+    Ok(maps)
+}
