@@ -3,12 +3,15 @@
 //! CLI writes.
 #![deny(missing_docs)]
 
+pub mod bench;
 pub mod blob_writer;
+pub mod compare;
 pub mod eval;
 pub mod float_head;
 pub mod float_weights;
 pub mod image_io;
 pub mod int8;
+pub mod json;
 pub mod npy;
 pub mod npz;
 pub mod onnx;
@@ -18,5 +21,6 @@ pub mod profile;
 pub mod quantize;
 pub mod reference;
 pub mod reference_head;
+pub mod sha256;
 pub mod synthetic;
 pub mod taps;

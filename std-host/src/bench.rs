@@ -1,0 +1,360 @@
+//! `bino bench`: the float encoder run by tract-onnx against the int8 engine, timed on the same
+//! band in one process.
+//!
+//! Both compute the descriptor pathway's encoder pass, the encoder on (I, I) of one
+//! `48 x width` band of the built-in synthetic scene: tract its `tokens` output (f32 pixels
+//! p / 255), the int8 engine [`Encoder::describe`] on the same 8-bit pixels, its arena
+//! allocated before timing. Each gets one warm-up run, then `runs` timed runs. tract's time
+//! includes copying its output out of the tensor (about 0.5 MB, negligible next to the pass).
+//!
+//! Threads: this build of tract-onnx lacks the `multithread-mm` feature (no rayon), so its
+//! only executor is `Executor::SingleThread`; the int8 engine never spawns threads. Both
+//! therefore run on the calling thread, and only `--threads 1` exists. The report also counts
+//! the process's threads after the runs (Linux), as evidence.
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::{ensure, Context, Result};
+use bino_core::config::{BAND_ROWS, DEPTH, DIM, MLP_HIDDEN, PATCH_H, PATCH_W};
+use bino_core::model::encoder::{arena_bytes, GrayBand};
+use bino_core::model::probe::NoProbe;
+use tract_onnx::prelude::{tract_ndarray, Tensor};
+
+use crate::int8::Int8Model;
+use crate::json::{self, Object};
+use crate::onnx::OnnxModel;
+use crate::profile::Profile;
+use crate::sha256::sha256_hex;
+use crate::synthetic;
+
+/// What to time.
+#[derive(Debug, Clone)]
+pub struct BenchOptions {
+    /// Float encoder (ONNX).
+    pub onnx: PathBuf,
+    /// Int8 weight blob.
+    pub blob: PathBuf,
+    /// Profile giving the band width (w160: 160 px).
+    pub profile: Profile,
+    /// Threads; only 1 is supported (see the module docs).
+    pub threads: usize,
+    /// Timed runs per engine, after one warm-up run.
+    pub runs: usize,
+}
+
+/// Timed runs of one engine, in seconds.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Timing {
+    /// Every timed run, in order.
+    pub runs: Vec<f64>,
+}
+
+impl Timing {
+    /// Median run (mean of the middle two for an even count).
+    pub fn median(&self) -> f64 {
+        let mut sorted = self.runs.clone();
+        sorted.sort_by(f64::total_cmp);
+        let n = sorted.len();
+        if n == 0 {
+            f64::NAN
+        } else if n % 2 == 1 {
+            sorted[n / 2]
+        } else {
+            0.5 * (sorted[n / 2 - 1] + sorted[n / 2])
+        }
+    }
+
+    /// Fastest run.
+    pub fn min(&self) -> f64 {
+        self.runs.iter().copied().fold(f64::INFINITY, f64::min)
+    }
+
+    fn json(&self, macs: u64) -> String {
+        Object::new()
+            .num("median_s", self.median())
+            .num("min_s", self.min())
+            .num("gmac_per_s", macs as f64 / self.median() / 1e9)
+            .raw("runs_s", json::array(self.runs.iter().map(|&r| json::number(r))))
+            .render()
+    }
+}
+
+/// Multiply-accumulates of one encoder pass over a band of `tokens` tokens: the embedding
+/// (16 inputs per token), per block qkv, proj, fc1 and fc2 per token, and attention
+/// (scores and weighted sum, `2 N^2 DIM`).
+pub fn encoder_macs(tokens: usize) -> u64 {
+    let n = tokens as u64;
+    let (dim, hidden) = (DIM as u64, MLP_HIDDEN as u64);
+    let embed = n * (PATCH_H * PATCH_W) as u64 * dim;
+    let per_token = dim * 3 * dim + dim * dim + 2 * dim * hidden;
+    let attention = 2 * n * n * dim;
+    embed + DEPTH as u64 * (n * per_token + attention)
+}
+
+/// What `bino bench` measured, and on what.
+#[derive(Debug, Clone)]
+pub struct BenchReport {
+    /// `bino` version.
+    pub version: String,
+    /// Float encoder file.
+    pub onnx: PathBuf,
+    /// Int8 blob file.
+    pub blob: PathBuf,
+    /// SHA-256 of the blob.
+    pub blob_sha256: String,
+    /// Band width in pixels.
+    pub width: usize,
+    /// Band height in pixels.
+    pub height: usize,
+    /// Tokens per pass (token rows x fused columns).
+    pub tokens: usize,
+    /// Multiply-accumulates per pass ([`encoder_macs`]).
+    pub macs: u64,
+    /// Host CPU model, from `/proc/cpuinfo`.
+    pub cpu: Option<String>,
+    /// Whether the binary was compiled with AVX2 enabled.
+    pub built_with_avx2: bool,
+    /// Whether the CPU has AVX2 (x86-64 only).
+    pub cpu_has_avx2: bool,
+    /// Whether debug assertions are on (a dev build: timings are not meaningful).
+    pub debug_build: bool,
+    /// Threads of the process after the timed runs (Linux), expected 1.
+    pub process_threads: Option<usize>,
+    /// tract-onnx f32.
+    pub tract: Timing,
+    /// The int8 engine.
+    pub int8: Timing,
+}
+
+impl BenchReport {
+    /// tract median over int8 median: how many times faster the int8 engine is.
+    pub fn speedup(&self) -> f64 {
+        self.tract.median() / self.int8.median()
+    }
+
+    /// The report as text for people.
+    pub fn text(&self) -> String {
+        let mut lines = Vec::new();
+        if self.debug_build {
+            lines.push(
+                "WARNING: this is a debug build (debug assertions on): timings are only meaningful \
+                 from `cargo build --release`"
+                    .to_string(),
+            );
+        }
+        lines.push(format!(
+            "bino {} bench: one {}x{} band on (I, I), {} tokens, {:.3} GMAC per encoder pass",
+            self.version,
+            self.width,
+            self.height,
+            self.tokens,
+            self.macs as f64 / 1e9
+        ));
+        lines.push(format!(
+            "cpu: {}; AVX2: cpu {}, binary {}; threads: 1 (process threads after runs: {})",
+            self.cpu.as_deref().unwrap_or("unknown"),
+            yes_no(self.cpu_has_avx2),
+            yes_no(self.built_with_avx2),
+            self.process_threads.map_or("unknown".to_string(), |n| n.to_string())
+        ));
+        for (name, timing) in [("tract f32", &self.tract), ("int8", &self.int8)] {
+            lines.push(format!(
+                "{name:<10} median {:>9.2} ms  min {:>9.2} ms  {:>6.2} GMAC/s  ({} runs)",
+                timing.median() * 1e3,
+                timing.min() * 1e3,
+                self.macs as f64 / timing.median() / 1e9,
+                timing.runs.len()
+            ));
+        }
+        lines.push(format!("tract / int8 (medians): {:.2}x", self.speedup()));
+        lines.join("\n")
+    }
+
+    /// The report as JSON.
+    pub fn to_json(&self) -> String {
+        Object::new()
+            .str("tool", "bino bench")
+            .str("version", &self.version)
+            .str("onnx", &self.onnx.display().to_string())
+            .str("blob", &self.blob.display().to_string())
+            .str("blob_sha256", &self.blob_sha256)
+            .int("width", self.width as u64)
+            .int("height", self.height as u64)
+            .int("tokens", self.tokens as u64)
+            .int("macs", self.macs)
+            .raw("cpu", self.cpu.as_deref().map_or("null".to_string(), json::string))
+            .bool("built_with_avx2", self.built_with_avx2)
+            .bool("cpu_has_avx2", self.cpu_has_avx2)
+            .bool("debug_build", self.debug_build)
+            .int("threads", 1)
+            .raw(
+                "process_threads",
+                self.process_threads.map_or("null".to_string(), |n| n.to_string()),
+            )
+            .raw("tract_f32", self.tract.json(self.macs))
+            .raw("int8", self.int8.json(self.macs))
+            .num("tract_over_int8", self.speedup())
+            .render()
+    }
+}
+
+fn yes_no(v: bool) -> &'static str {
+    if v {
+        "yes"
+    } else {
+        "no"
+    }
+}
+
+/// The host CPU's model name from `/proc/cpuinfo`, if there is one.
+pub fn cpu_model() -> Option<String> {
+    let info = std::fs::read_to_string("/proc/cpuinfo").ok()?;
+    info.lines()
+        .find(|l| l.starts_with("model name") || l.starts_with("Model"))
+        .and_then(|l| l.split_once(':'))
+        .map(|(_, v)| v.trim().to_string())
+}
+
+fn cpu_has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+// Threads of this process (Linux: entries of /proc/self/task).
+fn process_threads() -> Option<usize> {
+    std::fs::read_dir("/proc/self/task").ok().map(|d| d.count())
+}
+
+// One warm-up run, then `runs` timed runs; `prepare` makes each run's input off the clock.
+fn time_runs<T>(runs: usize, mut prepare: impl FnMut() -> T, mut run: impl FnMut(T) -> Result<()>) -> Result<Timing> {
+    run(prepare()).context("warm-up run")?;
+    let mut times = Vec::with_capacity(runs);
+    for _ in 0..runs {
+        let input = prepare();
+        let started = Instant::now();
+        run(input)?;
+        times.push(started.elapsed().as_secs_f64());
+    }
+    Ok(Timing { runs: times })
+}
+
+/// Times both engines; `note` is told what is being timed as it starts.
+pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchReport> {
+    ensure!(
+        opts.threads == 1,
+        "--threads {} is not available: tract-onnx is built without its multithread-mm feature \
+         and the int8 engine is single-threaded, so both run on one thread (--threads 1)",
+        opts.threads
+    );
+    ensure!(opts.runs >= 1, "--runs must be at least 1");
+    let width = opts
+        .profile
+        .width()
+        .with_context(|| format!("bench needs a fixed-width profile (w160 or w320), not {}", opts.profile))?;
+    let height = BAND_ROWS;
+    let pixels = synthetic::default_scene(width, height).left.pixels;
+
+    let int8 = Int8Model::load(&opts.blob)?;
+    let encoder = int8.encoder()?;
+    ensure!(
+        width <= encoder.max_width(),
+        "the blob supports bands up to {} px wide, the profile needs {width}",
+        encoder.max_width()
+    );
+    let mut tract = OnnxModel::load(&opts.onnx, "tokens", 2)
+        .context("the encoder is exported by `python -m bino_train.export` (inputs left, right)")?;
+    // The same pixels for both engines: the int8 codes p, tract p / 255.
+    let input: Tensor = tract_ndarray::Array4::from_shape_fn((1, 3, height, width), |(_, _, y, x)| {
+        pixels[y * width + x] as f32 / 255.0
+    })
+    .into();
+
+    note("tract f32: plan, warm-up, timed runs");
+    // The plan for this shape is built on the first call, before the warm-up.
+    tract.run(vec![input.clone(), input.clone()])?;
+    let tract_timing = time_runs(
+        opts.runs,
+        || vec![input.clone(), input.clone()],
+        |inputs| tract.run(inputs).map(|_| ()),
+    )?;
+
+    note("int8 engine: warm-up, timed runs");
+    let band = GrayBand::new(&pixels, width, height).map_err(anyhow::Error::msg)?;
+    let mut arena = vec![0u8; arena_bytes(height, width)];
+    let mut out = vec![0i8; (height / PATCH_H) * (width / PATCH_W) * DIM];
+    let int8_timing = time_runs(
+        opts.runs,
+        || (),
+        |()| {
+            encoder
+                .describe(band, &mut arena, &mut out, &mut NoProbe)
+                .map_err(anyhow::Error::msg)?;
+            Ok(())
+        },
+    )?;
+
+    let tokens = (height / PATCH_H) * 2 * (width / PATCH_W);
+    Ok(BenchReport {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        onnx: opts.onnx.clone(),
+        blob: opts.blob.clone(),
+        blob_sha256: sha256_hex(int8.bytes()),
+        width,
+        height,
+        tokens,
+        macs: encoder_macs(tokens),
+        cpu: cpu_model(),
+        built_with_avx2: cfg!(target_feature = "avx2"),
+        cpu_has_avx2: cpu_has_avx2(),
+        debug_build: cfg!(debug_assertions),
+        process_threads: process_threads(),
+        tract: tract_timing,
+        int8: int8_timing,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mac_count_of_a_48x160_band() {
+        // 960 tokens: embed 960*16*128, per block 960*(49152+16384+122880) + 2*960^2*128.
+        let n = 960u64;
+        let expected = n * 16 * 128 + 7 * (n * (128 * 384 + 128 * 128 + 128 * 480 * 2) + 2 * n * n * 128);
+        assert_eq!(encoder_macs(960), expected);
+        assert_eq!(expected, 2_919_628_800);
+    }
+
+    #[test]
+    fn median_and_min() {
+        let t = Timing {
+            runs: vec![3.0, 1.0, 2.0, 10.0],
+        };
+        assert_eq!((t.median(), t.min()), (2.5, 1.0));
+        let odd = Timing {
+            runs: vec![5.0, 1.0, 4.0],
+        };
+        assert_eq!(odd.median(), 4.0);
+    }
+
+    #[test]
+    fn more_than_one_thread_is_refused_before_loading_anything() {
+        let opts = BenchOptions {
+            onnx: PathBuf::from("missing.onnx"),
+            blob: PathBuf::from("missing.bin"),
+            profile: Profile::W160,
+            threads: 2,
+            runs: 1,
+        };
+        let err = bench(&opts, |_| {}).unwrap_err();
+        assert!(format!("{err:#}").contains("multithread-mm"), "{err:#}");
+    }
+}

@@ -1,0 +1,464 @@
+//! `bino compare`: the float encoder (tract-onnx) against the int8 engine on the eval pairs.
+//!
+//! For every view of every pair:
+//! - **stages**: the residual stream after the embedding and after each block's attention and
+//!   MLP halves, band by band (the int8 engine's [`BandPlan`]), as the mean per-token cosine.
+//!   The float model gets the same 8-bit pixels the engine sees ([`to_u8`], divided by 255),
+//!   so that only the engines differ;
+//! - **descriptors**: the float reference on the exact view against the int8 engine, as the
+//!   mean per-cell cosine.
+//!
+//! Per pair, from those descriptor maps: how often the integer winner-take-all disparity
+//! (argmax of the cosine similarity volume) agrees, and the `EVAL.md` metrics of the
+//! no-linkage readout for each model. Pairs are averaged without weights, like the metrics.
+
+pub mod report;
+pub mod stages;
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, ensure, Context, Result};
+use bino_core::band::BandPlan;
+use bino_core::config::{DIM, PATCH_H};
+use bino_core::model::probe::Stage;
+
+use crate::eval::{
+    load_eval_item, mean_metrics, score, similarity_volume, upsample_disparity, wta_subtoken, EvalItem, Metrics,
+    SimilarityVolume,
+};
+use crate::int8::{dequantise_residual, to_u8, Int8Model, StageRecorder};
+use crate::pairs::{read_index, Split};
+use crate::profile::{Profile, View};
+use crate::reference::{FeatureMap, ReferenceEncoder};
+use crate::sha256::sha256_hex;
+use stages::{mean_token_cosine, EmbedSource, FloatStages, STAGE_COUNT};
+
+/// What to compare, and on which pairs.
+#[derive(Debug, Clone)]
+pub struct CompareOptions {
+    /// Float encoder (ONNX).
+    pub onnx: PathBuf,
+    /// Int8 weight blob made from it by `bino quantize`.
+    pub blob: PathBuf,
+    /// Folder holding `PAIRS.tsv`.
+    pub data: PathBuf,
+    /// Split to read: only `eval` (the metrics need ground truth).
+    pub split: String,
+    /// Resolution profile of the views.
+    pub profile: Profile,
+    /// Disparity candidates of the no-linkage readout, in patch columns.
+    pub max_cols: usize,
+    /// Only the first this many pairs of the split.
+    pub limit: Option<usize>,
+}
+
+/// The int8 head against the float head on one pair or on average; filled in by the head
+/// comparison (not computed yet: always `None` for now).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeadComparison {
+    /// Cosine of the int8 and float logits over the valid candidates.
+    pub logit_cosine: f64,
+    /// Mean |int8 - float| soft-argmin disparity, in patch columns.
+    pub disparity_mean_abs: f64,
+}
+
+/// The numbers of one pair, or their unweighted mean over pairs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Comparison {
+    /// Mean per-token cosine of each stage, indexed by residual format
+    /// ([`stages::stage_label`] names them).
+    pub stage_cosine: Vec<f64>,
+    /// Mean per-cell cosine of the descriptor maps.
+    pub descriptor_cosine: f64,
+    /// % of left-view cells whose integer WTA disparity is the same for both models.
+    pub wta_agreement: f64,
+    /// Metrics of the no-linkage readout of the float descriptors.
+    pub float: Metrics,
+    /// Metrics of the no-linkage readout of the int8 descriptors.
+    pub int8: Metrics,
+    /// The head comparison, once there is one.
+    pub head: Option<HeadComparison>,
+}
+
+impl Comparison {
+    /// Relative epe change of int8 over float, in %: `(int8 - float) / float * 100`.
+    pub fn epe_change_pct(&self) -> f64 {
+        (self.int8.epe - self.float.epe) / self.float.epe * 100.0
+    }
+
+    /// Unweighted mean over pairs; the head only when every pair has one.
+    pub fn mean<'a>(items: impl IntoIterator<Item = &'a Comparison>) -> Result<Comparison> {
+        let items: Vec<&Comparison> = items.into_iter().collect();
+        ensure!(!items.is_empty(), "no pairs to average");
+        let n = items.len() as f64;
+        let mean = |get: &dyn Fn(&Comparison) -> f64| items.iter().map(|c| get(c)).sum::<f64>() / n;
+        let heads: Option<Vec<HeadComparison>> = items.iter().map(|c| c.head).collect();
+        let floats: Vec<Metrics> = items.iter().map(|c| c.float).collect();
+        let int8s: Vec<Metrics> = items.iter().map(|c| c.int8).collect();
+        Ok(Comparison {
+            stage_cosine: (0..STAGE_COUNT).map(|s| mean(&|c| c.stage_cosine[s])).collect(),
+            descriptor_cosine: mean(&|c| c.descriptor_cosine),
+            wta_agreement: mean(&|c| c.wta_agreement),
+            float: mean_metrics(&floats)?,
+            int8: mean_metrics(&int8s)?,
+            head: heads.map(|h| HeadComparison {
+                logit_cosine: h.iter().map(|x| x.logit_cosine).sum::<f64>() / n,
+                disparity_mean_abs: h.iter().map(|x| x.disparity_mean_abs).sum::<f64>() / n,
+            }),
+        })
+    }
+}
+
+/// One pair's comparison.
+#[derive(Debug, Clone, PartialEq)]
+pub struct PairComparison {
+    /// The pair's `pair_id`.
+    pub pair_id: String,
+    /// View width at the profile.
+    pub width: usize,
+    /// View height at the profile.
+    pub height: usize,
+    /// Bands per view.
+    pub bands: usize,
+    /// Its numbers.
+    pub values: Comparison,
+    /// Wall time spent on the pair.
+    pub elapsed: Duration,
+}
+
+/// Everything `bino compare` measured, with what it measured it on.
+#[derive(Debug, Clone)]
+pub struct CompareReport {
+    /// `bino` version.
+    pub version: String,
+    /// Float encoder file.
+    pub onnx: PathBuf,
+    /// Int8 blob file.
+    pub blob: PathBuf,
+    /// SHA-256 of the blob's bytes.
+    pub blob_sha256: String,
+    /// Data folder.
+    pub data: PathBuf,
+    /// Split compared.
+    pub split: Split,
+    /// Resolution profile.
+    pub profile: Profile,
+    /// Disparity candidates of the readout.
+    pub max_cols: usize,
+    /// Where the float embedding stage came from.
+    pub embed_source: EmbedSource,
+    /// Per pair, in index order.
+    pub pairs: Vec<PairComparison>,
+    /// Unweighted mean over the pairs.
+    pub mean: Comparison,
+}
+
+/// The two models, ready to compare views of any size (tract plans are cached per band shape).
+pub struct Comparer {
+    int8: Int8Model,
+    stages: FloatStages,
+    reference: ReferenceEncoder,
+    // Per residual format: (scale, zero point), read once from the blob.
+    formats: Vec<(Vec<f32>, Vec<i32>)>,
+    descriptor_scale: f32,
+    max_cols: usize,
+}
+
+// What one view gave.
+struct ViewComparison {
+    stage_cosine: Vec<f64>,
+    bands: usize,
+    descriptor_cosine: f64,
+    float: FeatureMap,
+    int8: FeatureMap,
+}
+
+impl Comparer {
+    /// Loads the float encoder `onnx` and the int8 blob `blob`; `max_cols` disparity candidates.
+    pub fn load(onnx: &Path, blob: &Path, max_cols: usize) -> Result<Self> {
+        ensure!(max_cols > 0, "--max-cols must be at least 1");
+        let int8 = Int8Model::load(blob)?;
+        let formats = (0..STAGE_COUNT)
+            .map(|s| int8.residual_format(s))
+            .collect::<Result<Vec<_>>>()
+            .with_context(|| format!("blob {} lacks residual format metadata", blob.display()))?;
+        let descriptor_scale = int8.descriptor_scale()?;
+        let stages = FloatStages::load(onnx)?;
+        let reference = ReferenceEncoder::load(onnx)?;
+        Ok(Self {
+            int8,
+            stages,
+            reference,
+            formats,
+            descriptor_scale,
+            max_cols,
+        })
+    }
+
+    /// The int8 model.
+    pub fn int8(&self) -> &Int8Model {
+        &self.int8
+    }
+
+    /// Where the float embedding stage comes from.
+    pub fn embed_source(&self) -> EmbedSource {
+        self.stages.embed_source()
+    }
+
+    /// Compares both models on one eval pair.
+    pub fn compare_pair(&mut self, item: &EvalItem) -> Result<PairComparison> {
+        let started = Instant::now();
+        let left = self.compare_view(&item.left).context("left view")?;
+        let right = self.compare_view(&item.right).context("right view")?;
+        let float_volume = similarity_volume(&left.float, &right.float, self.max_cols)?;
+        let int8_volume = similarity_volume(&left.int8, &right.int8, self.max_cols)?;
+        let values = Comparison {
+            stage_cosine: (0..STAGE_COUNT)
+                .map(|s| 0.5 * (left.stage_cosine[s] + right.stage_cosine[s]))
+                .collect(),
+            descriptor_cosine: 0.5 * (left.descriptor_cosine + right.descriptor_cosine),
+            wta_agreement: wta_agreement(&float_volume, &int8_volume)?,
+            float: readout_metrics(&float_volume, item).context("float readout")?,
+            int8: readout_metrics(&int8_volume, item).context("int8 readout")?,
+            head: None,
+        };
+        Ok(PairComparison {
+            pair_id: item.pair_id.clone(),
+            width: item.left.width,
+            height: item.left.height,
+            bands: left.bands,
+            values,
+            elapsed: started.elapsed(),
+        })
+    }
+
+    fn compare_view(&mut self, view: &View) -> Result<ViewComparison> {
+        let mut recorder = StageRecorder::default();
+        let (rows, cols, codes) = self.int8.descriptor_codes_probed(view, &mut recorder)?;
+        let int8 = FeatureMap {
+            rows,
+            cols,
+            dim: DIM,
+            data: codes.iter().map(|&c| c as f32 * self.descriptor_scale).collect(),
+        };
+        let float = self.reference.descriptors(view)?;
+        let descriptor_cosine = mean_token_cosine(&int8.data, &float.data, DIM).context("descriptor maps")?;
+
+        let plan = BandPlan::new(rows).map_err(anyhow::Error::msg)?;
+        let bands = split_bands(recorder.stages)?;
+        ensure!(
+            bands.len() == plan.len(),
+            "the int8 engine ran {} bands, the band plan has {}",
+            bands.len(),
+            plan.len()
+        );
+        // The engine's own pixels, back in [0, 1]: the float model sees exactly what it sees.
+        let pixels: Vec<f32> = to_u8(&view.pixels).iter().map(|&p| p as f32 / 255.0).collect();
+        let mut sums = [0.0f64; STAGE_COUNT];
+        for (band, int8_stages) in plan.iter().zip(&bands) {
+            let (y0, h) = (band.start * PATCH_H, band.rows * PATCH_H);
+            let float_stages = self
+                .stages
+                .run_band(&pixels[y0 * view.width..(y0 + h) * view.width], view.width, h)?;
+            for (format, codes) in int8_stages.iter().enumerate() {
+                let (scale, zero) = &self.formats[format];
+                let got = dequantise_residual(codes, scale, zero);
+                sums[format] += mean_token_cosine(&got, &float_stages[format], DIM)
+                    .with_context(|| format!("stage {}", stages::stage_label(format)))?;
+            }
+        }
+        Ok(ViewComparison {
+            stage_cosine: sums.iter().map(|s| s / bands.len() as f64).collect(),
+            bands: bands.len(),
+            descriptor_cosine,
+            float,
+            int8,
+        })
+    }
+}
+
+// The recorder's stages grouped by band (each band starts with its embedding), and within a
+// band indexed by residual format; fails unless every band shows every stage once.
+fn split_bands(recorded: Vec<(Stage, usize, usize, Vec<i8>)>) -> Result<Vec<Vec<Vec<i8>>>> {
+    let mut bands: Vec<Vec<Option<Vec<i8>>>> = Vec::new();
+    for (stage, _, _, codes) in recorded {
+        if stage == Stage::Embed {
+            bands.push(vec![None; STAGE_COUNT]);
+        }
+        let band = bands
+            .last_mut()
+            .with_context(|| format!("the int8 engine showed {stage:?} before any embedding"))?;
+        let slot = band
+            .get_mut(stage.residual_format())
+            .with_context(|| format!("unexpected stage {stage:?}"))?;
+        ensure!(slot.is_none(), "the int8 engine showed {stage:?} twice in one band");
+        *slot = Some(codes);
+    }
+    bands
+        .into_iter()
+        .map(|band| {
+            band.into_iter()
+                .enumerate()
+                .map(|(format, codes)| {
+                    codes.with_context(|| format!("the int8 engine never showed stage {}", stages::stage_label(format)))
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Integer winner-take-all disparity of every cell: the first candidate with the largest
+/// similarity (candidates outside the right view are `-inf` in the volume, so never win).
+pub fn wta_integer(volume: &SimilarityVolume) -> Vec<usize> {
+    volume
+        .values
+        .chunks_exact(volume.candidates.max(1))
+        .map(|sims| {
+            sims.iter()
+                .enumerate()
+                .fold(
+                    (0, f32::NEG_INFINITY),
+                    |best, (k, &s)| if s > best.1 { (k, s) } else { best },
+                )
+                .0
+        })
+        .collect()
+}
+
+/// % of cells where two similarity volumes of the same shape have the same integer WTA winner.
+pub fn wta_agreement(a: &SimilarityVolume, b: &SimilarityVolume) -> Result<f64> {
+    ensure!(
+        (a.rows, a.cols, a.candidates) == (b.rows, b.cols, b.candidates),
+        "similarity volumes differ in shape"
+    );
+    let (wa, wb) = (wta_integer(a), wta_integer(b));
+    ensure!(!wa.is_empty(), "empty similarity volume");
+    let same = wa.iter().zip(&wb).filter(|(x, y)| x == y).count();
+    Ok(100.0 * same as f64 / wa.len() as f64)
+}
+
+// EVAL.md metrics of the no-linkage readout of one similarity volume.
+fn readout_metrics(volume: &SimilarityVolume, item: &EvalItem) -> Result<Metrics> {
+    score(&upsample_disparity(&wta_subtoken(volume)), &item.gt)
+}
+
+/// Runs the comparison over the split's pairs; `progress(done, total, pair)` after each pair.
+pub fn compare(
+    opts: &CompareOptions,
+    mut progress: impl FnMut(usize, usize, &PairComparison),
+) -> Result<CompareReport> {
+    let split = match opts.split.as_str() {
+        "eval" => Split::Eval,
+        "train" => {
+            bail!("compare scores both models against ground truth, which only eval pairs have: use --split eval")
+        }
+        other => bail!("unknown split {other:?} (expected eval)"),
+    };
+    ensure!(opts.limit != Some(0), "--limit must be at least 1");
+    let records: Vec<_> = read_index(&opts.data)?
+        .into_iter()
+        .filter(|r| r.split == split)
+        .take(opts.limit.unwrap_or(usize::MAX))
+        .collect();
+    ensure!(!records.is_empty(), "no {split} pairs in {}", opts.data.display());
+    let mut comparer = Comparer::load(&opts.onnx, &opts.blob, opts.max_cols)?;
+    let mut pairs = Vec::with_capacity(records.len());
+    for (i, record) in records.iter().enumerate() {
+        let item = load_eval_item(record, opts.profile)?;
+        let pair = comparer
+            .compare_pair(&item)
+            .with_context(|| format!("pair {}", record.pair_id))?;
+        progress(i + 1, records.len(), &pair);
+        pairs.push(pair);
+    }
+    let mean = Comparison::mean(pairs.iter().map(|p| &p.values))?;
+    Ok(CompareReport {
+        version: env!("CARGO_PKG_VERSION").to_string(),
+        onnx: opts.onnx.clone(),
+        blob: opts.blob.clone(),
+        blob_sha256: sha256_hex(comparer.int8().bytes()),
+        data: opts.data.clone(),
+        split,
+        profile: opts.profile,
+        max_cols: opts.max_cols,
+        embed_source: comparer.embed_source(),
+        pairs,
+        mean,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn volume(values: Vec<f32>, candidates: usize) -> SimilarityVolume {
+        SimilarityVolume {
+            rows: 1,
+            cols: values.len() / candidates,
+            candidates,
+            values,
+        }
+    }
+
+    #[test]
+    fn wta_takes_the_first_maximum_and_skips_excluded_candidates() {
+        let ninf = f32::NEG_INFINITY;
+        let v = volume(vec![0.5, ninf, ninf, 0.1, 0.9, ninf, 0.3, 0.3, 0.2], 3);
+        assert_eq!(wta_integer(&v), [0, 1, 0]);
+        let w = volume(vec![0.5, ninf, ninf, 0.95, 0.9, ninf, 0.3, 0.3, 0.2], 3);
+        assert!((wta_agreement(&v, &w).unwrap() - 200.0 / 3.0).abs() < 1e-9);
+    }
+
+    fn metrics(epe: f64) -> Metrics {
+        Metrics {
+            epe,
+            bad1tok: 10.0,
+            bad2: 20.0,
+            density: 100.0,
+        }
+    }
+
+    #[test]
+    fn mean_is_unweighted_and_keeps_the_head_only_when_complete() {
+        let a = Comparison {
+            stage_cosine: vec![1.0; STAGE_COUNT],
+            descriptor_cosine: 1.0,
+            wta_agreement: 100.0,
+            float: metrics(2.0),
+            int8: metrics(2.0),
+            head: Some(HeadComparison {
+                logit_cosine: 1.0,
+                disparity_mean_abs: 0.0,
+            }),
+        };
+        let b = Comparison {
+            stage_cosine: vec![0.5; STAGE_COUNT],
+            descriptor_cosine: 0.5,
+            wta_agreement: 50.0,
+            int8: metrics(3.0),
+            ..a.clone()
+        };
+        let m = Comparison::mean([&a, &b]).unwrap();
+        assert_eq!(m.stage_cosine, vec![0.75; STAGE_COUNT]);
+        assert_eq!((m.descriptor_cosine, m.wta_agreement), (0.75, 75.0));
+        assert_eq!((m.float.epe, m.int8.epe), (2.0, 2.5));
+        assert_eq!(m.epe_change_pct(), 25.0);
+        assert!(m.head.is_some());
+        let c = Comparison { head: None, ..b };
+        assert!(Comparison::mean([&a, &c]).unwrap().head.is_none());
+        assert!(Comparison::mean([]).is_err());
+    }
+
+    #[test]
+    fn split_bands_needs_every_stage_once_per_band() {
+        let stage = |s: usize| (stages::stage_of_format(s), 1, 2, vec![s as i8; 2 * DIM]);
+        let band: Vec<_> = (0..STAGE_COUNT).map(stage).collect();
+        let two = [band.clone(), band.clone()].concat();
+        let bands = split_bands(two).unwrap();
+        assert_eq!(bands.len(), 2);
+        assert_eq!(bands[1][3][0], 3);
+        assert!(split_bands(band[..STAGE_COUNT - 1].to_vec()).is_err());
+        assert!(split_bands(band[1..].to_vec()).is_err());
+    }
+}

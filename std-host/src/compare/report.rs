@@ -1,0 +1,345 @@
+//! The comparison as a readable table with the issue's targets, and as JSON.
+
+use std::fmt::Write;
+
+use super::stages::{stage_label, EmbedSource, STAGE_COUNT};
+use super::{CompareReport, Comparison, HeadComparison, PairComparison};
+use crate::json::{self, Object};
+
+/// Target: mean per-cell descriptor cosine at least this.
+pub const DESCRIPTOR_COSINE_TARGET: f64 = 0.99;
+/// Target: integer WTA disparity agreement at least this many %.
+pub const WTA_AGREEMENT_TARGET: f64 = 98.0;
+/// Target: int8 epe at most this many % above float epe (lower is always fine).
+pub const EPE_CHANGE_TARGET_PCT: f64 = 3.0;
+
+/// One of the issue's acceptance targets, evaluated on the mean over pairs.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Check {
+    /// Machine name (JSON key).
+    pub name: &'static str,
+    /// The target, for people.
+    pub target: String,
+    /// The measured value.
+    pub value: f64,
+    /// Whether the value meets the target.
+    pub pass: bool,
+}
+
+/// The targets, evaluated on `mean`.
+pub fn checks(mean: &Comparison) -> Vec<Check> {
+    let change = mean.epe_change_pct();
+    vec![
+        Check {
+            name: "descriptor_cosine",
+            target: format!(">= {DESCRIPTOR_COSINE_TARGET}"),
+            value: mean.descriptor_cosine,
+            pass: mean.descriptor_cosine >= DESCRIPTOR_COSINE_TARGET,
+        },
+        Check {
+            name: "wta_agreement_pct",
+            target: format!(">= {WTA_AGREEMENT_TARGET} %"),
+            value: mean.wta_agreement,
+            pass: mean.wta_agreement >= WTA_AGREEMENT_TARGET,
+        },
+        Check {
+            name: "epe_change_pct",
+            target: format!("<= +{EPE_CHANGE_TARGET_PCT} %"),
+            value: change,
+            pass: change <= EPE_CHANGE_TARGET_PCT,
+        },
+    ]
+}
+
+fn verdict(pass: bool) -> &'static str {
+    if pass {
+        "PASS"
+    } else {
+        "MISS"
+    }
+}
+
+impl CompareReport {
+    /// The targets, evaluated on the mean over pairs.
+    pub fn checks(&self) -> Vec<Check> {
+        checks(&self.mean)
+    }
+
+    /// The report as a table for people.
+    pub fn table(&self) -> String {
+        let mut t = String::new();
+        let mean = &self.mean;
+        let check = |name: &str| {
+            self.checks()
+                .into_iter()
+                .find(|c| c.name == name)
+                .map(|c| format!("target {:<9} {}", c.target, verdict(c.pass)))
+                .unwrap_or_default()
+        };
+        let _ = writeln!(
+            t,
+            "bino {} compare: float {} (tract-onnx) vs int8 {} (sha256 {})",
+            self.version,
+            self.onnx.display(),
+            self.blob.display(),
+            &self.blob_sha256[..self.blob_sha256.len().min(16)]
+        );
+        let _ = writeln!(
+            t,
+            "{} {} pairs of {} at {}, {} disparity candidates; mean over pairs",
+            self.pairs.len(),
+            self.split,
+            self.data.display(),
+            self.profile,
+            self.max_cols
+        );
+        let _ = writeln!(
+            t,
+            "\nstage cosine (per token; float on the engine's u8 pixels; embed from {})",
+            match self.embed_source {
+                EmbedSource::GraphOutput => "graph output `embed`",
+                EmbedSource::InternalValue => "value `/Add_output_0`",
+            }
+        );
+        for (format, cos) in mean.stage_cosine.iter().enumerate() {
+            let worst = self
+                .pairs
+                .iter()
+                .map(|p| p.values.stage_cosine[format])
+                .fold(f64::INFINITY, f64::min);
+            let _ = writeln!(t, "  {:<12} {cos:.5}   (worst pair {worst:.5})", stage_label(format));
+        }
+        let _ = writeln!(
+            t,
+            "  {:<12} {:.5}   {}",
+            "descriptors",
+            mean.descriptor_cosine,
+            check("descriptor_cosine")
+        );
+        let _ = writeln!(
+            t,
+            "\nWTA agreement  {:.2} %   {}",
+            mean.wta_agreement,
+            check("wta_agreement_pct")
+        );
+        let _ = writeln!(t, "\nno-linkage readout   float      int8     change");
+        let metric_row = |t: &mut String, name: &str, f: f64, i: f64, extra: &str| {
+            let change = (i - f) / f * 100.0;
+            let row = format!("  {name:<16} {f:>8.4}  {i:>8.4}  {change:>+7.2} %  {extra}");
+            let _ = writeln!(t, "{}", row.trim_end());
+        };
+        metric_row(
+            &mut t,
+            "epe (px)",
+            mean.float.epe,
+            mean.int8.epe,
+            &check("epe_change_pct"),
+        );
+        metric_row(&mut t, "bad1tok (%)", mean.float.bad1tok, mean.int8.bad1tok, "");
+        metric_row(&mut t, "bad2 (%)", mean.float.bad2, mean.int8.bad2, "");
+        if let Some(head) = &mean.head {
+            let _ = writeln!(
+                t,
+                "\nhead: logit cosine {:.5}, mean |disparity int8 - float| {:.4} patch columns",
+                head.logit_cosine, head.disparity_mean_abs
+            );
+        }
+        let _ = writeln!(
+            t,
+            "\n{:<24} {:>9} {:>8} {:>10} {:>10} {:>8}",
+            "pair", "desc cos", "WTA %", "epe float", "epe int8", "change"
+        );
+        for p in &self.pairs {
+            let v = &p.values;
+            let _ = writeln!(
+                t,
+                "{:<24} {:>9.5} {:>8.2} {:>10.4} {:>10.4} {:>+7.2} %",
+                p.pair_id,
+                v.descriptor_cosine,
+                v.wta_agreement,
+                v.float.epe,
+                v.int8.epe,
+                v.epe_change_pct()
+            );
+        }
+        let checks = self.checks();
+        let passed = checks.iter().filter(|c| c.pass).count();
+        let _ = write!(t, "\ntargets met: {passed} of {}", checks.len());
+        t
+    }
+
+    /// The report as JSON: provenance, the mean, the targets and every pair.
+    pub fn to_json(&self) -> String {
+        let checks = self.checks().into_iter().map(|c| {
+            Object::new()
+                .str("name", c.name)
+                .str("target", &c.target)
+                .num("value", c.value)
+                .bool("pass", c.pass)
+                .render()
+        });
+        Object::new()
+            .str("tool", "bino compare")
+            .str("version", &self.version)
+            .str("onnx", &self.onnx.display().to_string())
+            .str("blob", &self.blob.display().to_string())
+            .str("blob_sha256", &self.blob_sha256)
+            .str("data", &self.data.display().to_string())
+            .str("split", &self.split.to_string())
+            .str("profile", &self.profile.to_string())
+            .int("max_cols", self.max_cols as u64)
+            .str(
+                "stage_pixels",
+                "float stages run on the int8 engine's u8 pixels / 255; descriptors and metrics on the exact views",
+            )
+            .str(
+                "embed_value",
+                match self.embed_source {
+                    EmbedSource::GraphOutput => "embed",
+                    EmbedSource::InternalValue => "/Add_output_0",
+                },
+            )
+            .raw(
+                "stages",
+                json::array((0..STAGE_COUNT).map(|s| json::string(&stage_label(s)))),
+            )
+            .raw(
+                "mean",
+                comparison_json(&self.mean)
+                    .int("pairs", self.pairs.len() as u64)
+                    .render(),
+            )
+            .raw("targets", json::array(checks))
+            .raw("pairs", json::array(self.pairs.iter().map(pair_json)))
+            .render()
+    }
+}
+
+fn pair_json(p: &PairComparison) -> String {
+    let fields = Object::new()
+        .str("pair_id", &p.pair_id)
+        .int("width", p.width as u64)
+        .int("height", p.height as u64)
+        .int("bands_per_view", p.bands as u64)
+        .num("seconds", p.elapsed.as_secs_f64());
+    comparison_fields(fields, &p.values).render()
+}
+
+fn comparison_json(c: &Comparison) -> Object {
+    comparison_fields(Object::new(), c)
+}
+
+fn comparison_fields(object: Object, c: &Comparison) -> Object {
+    let stages = (0..STAGE_COUNT).fold(Object::new(), |o, s| o.num(&stage_label(s), c.stage_cosine[s]));
+    object
+        .raw("stage_cosine", stages.render())
+        .num("descriptor_cosine", c.descriptor_cosine)
+        .num("wta_agreement_pct", c.wta_agreement)
+        .raw("float", c.float.to_json())
+        .raw("int8", c.int8.to_json())
+        .num("epe_change_pct", c.epe_change_pct())
+        .raw("head", c.head.as_ref().map_or("null".to_string(), head_json))
+}
+
+fn head_json(h: &HeadComparison) -> String {
+    Object::new()
+        .num("logit_cosine", h.logit_cosine)
+        .num("disparity_mean_abs", h.disparity_mean_abs)
+        .render()
+}
+
+#[cfg(test)]
+mod tests {
+    use std::path::PathBuf;
+    use std::time::Duration;
+
+    use super::*;
+    use crate::eval::Metrics;
+    use crate::pairs::Split;
+    use crate::profile::Profile;
+
+    fn comparison(desc: f64, wta: f64, epe_float: f64, epe_int8: f64) -> Comparison {
+        let m = |epe| Metrics {
+            epe,
+            bad1tok: 30.0,
+            bad2: 50.0,
+            density: 100.0,
+        };
+        Comparison {
+            stage_cosine: (0..STAGE_COUNT).map(|s| 1.0 - s as f64 * 1e-3).collect(),
+            descriptor_cosine: desc,
+            wta_agreement: wta,
+            float: m(epe_float),
+            int8: m(epe_int8),
+            head: None,
+        }
+    }
+
+    fn report(mean: Comparison) -> CompareReport {
+        CompareReport {
+            version: "0.0.0".into(),
+            onnx: PathBuf::from("enc \"x\".onnx"),
+            blob: PathBuf::from("q.bin"),
+            blob_sha256: "ab".repeat(32),
+            data: PathBuf::from("data"),
+            split: Split::Eval,
+            profile: Profile::W160,
+            max_cols: 10,
+            embed_source: EmbedSource::GraphOutput,
+            pairs: vec![PairComparison {
+                pair_id: "p1".into(),
+                width: 160,
+                height: 120,
+                bands: 3,
+                values: mean.clone(),
+                elapsed: Duration::from_millis(1500),
+            }],
+            mean,
+        }
+    }
+
+    #[test]
+    fn targets_pass_and_miss_at_the_issue_thresholds() {
+        let good = checks(&comparison(0.99, 98.0, 2.0, 2.05));
+        assert!(good.iter().all(|c| c.pass), "{good:?}");
+        // Better int8 epe is fine; just below each threshold is not.
+        assert!(checks(&comparison(0.995, 99.0, 2.0, 1.5)).iter().all(|c| c.pass));
+        let bad = checks(&comparison(0.9899, 97.9, 2.0, 2.07));
+        assert!(bad.iter().all(|c| !c.pass), "{bad:?}");
+    }
+
+    #[test]
+    fn table_marks_each_target() {
+        let table = report(comparison(0.995, 97.0, 2.0, 2.02)).table();
+        assert!(
+            table.contains("descriptors  0.99500   target >= 0.99   PASS"),
+            "{table}"
+        );
+        assert!(
+            table.contains("WTA agreement  97.00 %   target >= 98 %   MISS"),
+            "{table}"
+        );
+        assert!(table.contains("block6"), "{table}");
+        assert!(table.contains("targets met: 2 of 3"), "{table}");
+    }
+
+    #[test]
+    fn json_parses_and_holds_every_number() {
+        let mut mean = comparison(0.995, 99.0, 2.0, 2.02);
+        mean.head = Some(HeadComparison {
+            logit_cosine: 0.98,
+            disparity_mean_abs: 0.1,
+        });
+        let text = report(mean).to_json();
+        let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["onnx"], "enc \"x\".onnx");
+        assert_eq!(v["stages"].as_array().unwrap().len(), STAGE_COUNT);
+        assert_eq!(v["mean"]["pairs"], 1);
+        assert_eq!(v["mean"]["stage_cosine"]["embed"], 1.0);
+        assert_eq!(v["mean"]["head"]["logit_cosine"], 0.98);
+        assert_eq!(v["pairs"][0]["bands_per_view"], 3);
+        assert_eq!(v["pairs"][0]["int8"]["epe"], 2.02);
+        assert_eq!(v["targets"].as_array().unwrap().len(), 3);
+        assert!((v["mean"]["epe_change_pct"].as_f64().unwrap() - 1.0).abs() < 1e-9);
+    }
+}
