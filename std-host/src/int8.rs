@@ -9,8 +9,10 @@ use bino_core::band::BandPlan;
 use bino_core::blob::Blob;
 use bino_core::config::{check_view_size, DIM, PATCH_H};
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
+use bino_core::model::head::{
+    arena_bytes as head_arena_bytes, HeadRow, HeadSink, HeadStream, HeadWeights, OUT_FRAC_BITS,
+};
 use bino_core::model::ids::{self, kind};
-use bino_core::model::head::{arena_bytes as head_arena_bytes, HeadRow, HeadSink, HeadStream, HeadWeights, OUT_FRAC_BITS};
 use bino_core::model::probe::{NoProbe, Probe, Stage};
 
 use crate::profile::View;
@@ -154,12 +156,20 @@ struct CollectRows<'m> {
 impl HeadSink for CollectRows<'_> {
     fn row(&mut self, row: HeadRow<'_>) {
         let q8 = (1u32 << OUT_FRAC_BITS) as f32;
-        self.out.disparity.extend(row.disparity_q8.iter().map(|&d| d as f32 / q8));
-        self.out.confidence.extend(row.confidence_q8.iter().map(|&c| c as f32 / q8));
-        let scale = self.logit_scale;
         self.out
-            .logits
-            .extend(row.logits.iter().map(|&l| if l == i32::MIN { f32::NEG_INFINITY } else { l as f32 * scale }));
+            .disparity
+            .extend(row.disparity_q8.iter().map(|&d| d as f32 / q8));
+        self.out
+            .confidence
+            .extend(row.confidence_q8.iter().map(|&c| c as f32 / q8));
+        let scale = self.logit_scale;
+        self.out.logits.extend(row.logits.iter().map(|&l| {
+            if l == i32::MIN {
+                f32::NEG_INFINITY
+            } else {
+                l as f32 * scale
+            }
+        }));
     }
 }
 
@@ -171,7 +181,10 @@ impl Int8Model {
 
     /// The int8 head over two descriptor code maps (`rows x cols x DIM` each), streamed row by row.
     pub fn head(&self, left: &[i8], right: &[i8], rows: usize, cols: usize) -> Result<HeadMaps> {
-        ensure!(left.len() == rows * cols * DIM && right.len() == left.len(), "descriptor maps differ in size");
+        ensure!(
+            left.len() == rows * cols * DIM && right.len() == left.len(),
+            "descriptor maps differ in size"
+        );
         let blob = self.blob()?;
         let weights = HeadWeights::new(blob)
             .map_err(|e| anyhow::anyhow!("{e}"))
@@ -179,13 +192,26 @@ impl Int8Model {
         let logit_scale = meta_f32(&blob, ids::id(kind::META_HEAD_LOGIT_SCALE, 0), 1)?[0];
         let mut arena = vec![0u8; head_arena_bytes(cols)];
         let mut stream = HeadStream::new(weights, cols, &mut arena).map_err(anyhow::Error::msg)?;
-        let mut maps = HeadMaps { rows, cols, disparity: Vec::new(), confidence: Vec::new(), logits: Vec::new() };
-        let mut sink = CollectRows { out: &mut maps, logit_scale };
+        let mut maps = HeadMaps {
+            rows,
+            cols,
+            disparity: Vec::new(),
+            confidence: Vec::new(),
+            logits: Vec::new(),
+        };
+        let mut sink = CollectRows {
+            out: &mut maps,
+            logit_scale,
+        };
         for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
             stream.push_row(l, r, &mut sink).map_err(anyhow::Error::msg)?;
         }
         stream.finish(&mut sink).map_err(anyhow::Error::msg)?;
-        ensure!(maps.disparity.len() == rows * cols, "head emitted {} cells", maps.disparity.len());
+        ensure!(
+            maps.disparity.len() == rows * cols,
+            "head emitted {} cells",
+            maps.disparity.len()
+        );
         Ok(maps)
     }
 }

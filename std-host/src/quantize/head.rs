@@ -57,9 +57,15 @@ pub struct HeadStats {
 pub fn collect(head_onnx: &Path, pairs: &[(FeatureMap, FeatureMap)]) -> Result<HeadStats> {
     let names = head_taps();
     let mut model = TappedModel::load(head_onnx, &names, 2)?;
-    let mut stats = HeadStats { hidden: vec![Samples::default(); 1 + HEAD_MIDDLE_LAYERS], ..Default::default() };
+    let mut stats = HeadStats {
+        hidden: vec![Samples::default(); 1 + HEAD_MIDDLE_LAYERS],
+        ..Default::default()
+    };
     for (left, right) in pairs {
-        ensure!(left.dim == DIM && (left.rows, left.cols) == (right.rows, right.cols), "descriptor maps differ");
+        ensure!(
+            left.dim == DIM && (left.rows, left.cols) == (right.rows, right.cols),
+            "descriptor maps differ"
+        );
         for map in [left, right] {
             let z: Vec<f32> = map.data.chunks_exact(DIM).step_by(4).flat_map(z_scores).collect();
             stats.normalised.add(z.into_iter(), SAMPLES_PER_MAP);
@@ -116,30 +122,49 @@ impl HeadFormats {
 
 /// Writes every head tensor; `desc_scale` is the encoder's descriptor scale (the head's input).
 pub fn write_head(float: &FloatHead, f: &HeadFormats, desc_scale: f64, w: &mut BlobWriter) -> Result<()> {
-    ensure!(float.middle.len() == HEAD_MIDDLE_LAYERS, "head has {} middle layers", float.middle.len());
+    ensure!(
+        float.middle.len() == HEAD_MIDDLE_LAYERS,
+        "head has {} middle layers",
+        float.middle.len()
+    );
     ensure!(f.hidden.len() == 1 + HEAD_MIDDLE_LAYERS, "head formats incomplete");
     let unit = desc_scale / DESC_REL;
     let eps = (float.ln_eps as f64 / (unit * unit)).round() as i64;
     let out = requant_of(1.0 / (f.normalised * (1u64 << Z_FRAC_BITS) as f64))?;
-    w.add_i64(ids::id(kind::LAYERNORM, HEAD_LAYERNORM), &[eps, out.mult as i64, out.shift as i64])?;
+    w.add_i64(
+        ids::id(kind::LAYERNORM, HEAD_LAYERNORM),
+        &[eps, out.mult as i64, out.shift as i64],
+    )?;
 
     let proj = fold_layernorm(&float.proj, &float.norm_weight, &float.norm_bias);
     let (codes, scales) = quantize_rows(&proj.weight, DIM);
-    let bias: Result<Vec<i32>> =
-        scales.iter().zip(&proj.bias).map(|(&s, &b)| to_i32(b as f64 / (f.normalised * s))).collect();
-    let mults: Result<Vec<_>> = scales.iter().map(|&s| requant_of(f.normalised * s / f.projected)).collect();
+    let bias: Result<Vec<i32>> = scales
+        .iter()
+        .zip(&proj.bias)
+        .map(|(&s, &b)| to_i32(b as f64 / (f.normalised * s)))
+        .collect();
+    let mults: Result<Vec<_>> = scales
+        .iter()
+        .map(|&s| requant_of(f.normalised * s / f.projected))
+        .collect();
     write_linear(w, Linear::HeadProj, &codes, &bias?, &mults?)?;
 
     let per_group = (HEAD_PROJ_DIM / HEAD_GROUPS) as f64;
     let corr = requant_of(f.projected * f.projected / per_group / f.correlation)?;
     w.add_i32(ids::id(kind::HEAD_CORRELATION, 0), &[corr.mult, corr.shift as i32])?;
 
-    let convs: Vec<&FloatConv3d> =
-        std::iter::once(&float.stem).chain(float.middle.iter()).chain(std::iter::once(&float.out)).collect();
+    let convs: Vec<&FloatConv3d> = std::iter::once(&float.stem)
+        .chain(float.middle.iter())
+        .chain(std::iter::once(&float.out))
+        .collect();
     let mut zeros = vec![0i32; HEAD_CONVS];
     let mut carries = Vec::new();
     for (layer, conv) in convs.iter().enumerate() {
-        let (in_scale, in_zero) = if layer == 0 { (f.correlation, 0) } else { f.hidden[layer - 1] };
+        let (in_scale, in_zero) = if layer == 0 {
+            (f.correlation, 0)
+        } else {
+            f.hidden[layer - 1]
+        };
         zeros[layer] = in_zero;
         let weight = kernel_major(conv);
         let (codes, scales) = quantize_rows(&weight, KERNEL * conv.in_channels);
@@ -166,7 +191,10 @@ pub fn write_head(float: &FloatHead, f: &HeadFormats, desc_scale: f64, w: &mut B
     }
     w.add_i32(ids::id(kind::HEAD_ZERO, 0), &zeros)?;
     w.add_i32(ids::id(kind::HEAD_CARRY, 0), &carries)?;
-    ensure!(HEAD_HIDDEN == float.stem.out_channels && HEAD_MAX_DISP == float.max_disp, "head shape differs");
+    ensure!(
+        HEAD_HIDDEN == float.stem.out_channels && HEAD_MAX_DISP == float.max_disp,
+        "head shape differs"
+    );
     Ok(())
 }
 
@@ -198,7 +226,12 @@ fn fold_layernorm(linear: &FloatLinear, gamma: &[f32], beta: &[f32]) -> FloatLin
         row.iter_mut().zip(gamma).for_each(|(w, &g)| *w *= g);
         bias[n] += shift as f32;
     }
-    FloatLinear { out_features: linear.out_features, in_features: k, weight, bias }
+    FloatLinear {
+        out_features: linear.out_features,
+        in_features: k,
+        weight,
+        bias,
+    }
 }
 
 fn write_linear(
@@ -210,14 +243,23 @@ fn write_linear(
 ) -> Result<()> {
     w.add_i8(layer.id(kind::LINEAR_WEIGHT), codes)?;
     w.add_i32(layer.id(kind::LINEAR_BIAS), bias)?;
-    w.add_i32(layer.id(kind::LINEAR_MULT), &mults.iter().map(|r| r.mult).collect::<Vec<_>>())?;
-    w.add_u8(layer.id(kind::LINEAR_SHIFT), &mults.iter().map(|r| r.shift as u8).collect::<Vec<_>>())?;
+    w.add_i32(
+        layer.id(kind::LINEAR_MULT),
+        &mults.iter().map(|r| r.mult).collect::<Vec<_>>(),
+    )?;
+    w.add_u8(
+        layer.id(kind::LINEAR_SHIFT),
+        &mults.iter().map(|r| r.shift as u8).collect::<Vec<_>>(),
+    )?;
     Ok(())
 }
 
 fn to_i32(x: f64) -> Result<i32> {
     let r = x.round();
-    ensure!(r.is_finite() && r.abs() < 2f64.powi(31), "a head bias does not fit in 32 bits ({x:e})");
+    ensure!(
+        r.is_finite() && r.abs() < 2f64.powi(31),
+        "a head bias does not fit in 32 bits ({x:e})"
+    );
     Ok(r as i32)
 }
 
