@@ -124,6 +124,9 @@ enum Command {
         /// Int8 weight blob quantised from it (`bino quantize`).
         #[arg(long, default_value = "weights/bino_int8.bin")]
         blob: PathBuf,
+        /// Float shared head: also compare the int8 head's logits and disparity with it.
+        #[arg(long)]
+        head: Option<PathBuf>,
         /// Also write every number (per pair and mean) and the inputs' provenance as JSON.
         #[arg(long)]
         json: Option<PathBuf>,
@@ -179,6 +182,7 @@ fn run(cli: Cli) -> Result<()> {
             profile,
             onnx,
             blob,
+            head,
             json,
             max_cols,
             limit,
@@ -186,6 +190,7 @@ fn run(cli: Cli) -> Result<()> {
             let opts = CompareOptions {
                 onnx,
                 blob,
+                head,
                 data,
                 split,
                 profile,

@@ -6,14 +6,14 @@ use std::path::PathBuf;
 use bino_core::model::encoder::{arena_bytes, GrayBand};
 use bino_core::model::probe::NoProbe;
 use bino_core::Error;
+use bino_host::compare::head::{compare_heads, FloatHeadRunner};
+use bino_host::compare::HeadComparison;
 use bino_host::int8::{dequantise_residual, Int8Model, StageRecorder};
 use bino_host::profile::Profile;
 use bino_host::quantize::{quantize, QuantizeOptions};
 use bino_host::reference::ReferenceEncoder;
 use bino_host::synthetic;
-use bino_host::taps::TappedModel;
 use bino_tests::fixtures;
-use tract_onnx::prelude::{tract_ndarray, Tensor};
 
 fn data_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
@@ -80,37 +80,12 @@ fn int8_descriptors_follow_float() {
     let (_, _, codes_right) = model.descriptor_codes(&right).unwrap();
     let head = model.head(&codes_left, &codes_right, rows, cols).unwrap();
     let float_right = float.descriptors(&right).unwrap();
-    let head_onnx = fixtures().join("head_random_seed0.onnx");
-    let mut float_head = TappedModel::load(&head_onnx, &["logits".to_string(), "disparity".to_string()], 2).unwrap();
-    let as_tensor = |m: &bino_host::reference::FeatureMap| -> Tensor {
-        tract_ndarray::Array4::from_shape_vec((1, m.rows, m.cols, m.dim), m.data.clone())
-            .unwrap()
-            .into()
-    };
-    let outputs = float_head
-        .run(vec![as_tensor(&expected), as_tensor(&float_right)])
-        .unwrap();
-    let (logits_shape, logits) = &outputs[0];
-    let disparity = &outputs[1].1;
-    assert_eq!(logits_shape, &vec![1, 12, rows, cols]);
-    // Float logits are (D, T, P); the engine's are (T, P, D). Compare valid candidates only.
-    let (mut a, mut b) = (Vec::new(), Vec::new());
-    for r in 0..rows {
-        for p in 0..cols {
-            for d in 0..=p.min(11) {
-                a.push(head.logits[(r * cols + p) * 12 + d]);
-                b.push(logits[(d * rows + r) * cols + p]);
-            }
-        }
-    }
-    let logit_cos = cosine(&a, &b);
-    let mean_abs: f32 = head
-        .disparity
-        .iter()
-        .zip(disparity)
-        .map(|(x, y)| (x - y).abs())
-        .sum::<f32>()
-        / disparity.len() as f32;
+    let mut float_head = FloatHeadRunner::load(&fixtures().join("head_random_seed0.onnx")).unwrap();
+    let float_out = float_head.run(&expected, &float_right).unwrap();
+    let HeadComparison {
+        logit_cosine: logit_cos,
+        disparity_mean_abs: mean_abs,
+    } = compare_heads(&head, &float_out).unwrap();
     eprintln!("head: logit cosine {logit_cos:.5}, mean |disparity int8 - float| {mean_abs:.4} patch columns");
     assert!(logit_cos >= 0.98, "head logits cosine {logit_cos}");
     assert!(

@@ -135,6 +135,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--out", type=Path, required=True, help="ONNX file to write")
     parser.add_argument("--intermediates", action="store_true", help="also output embed, block0..")
     parser.add_argument("--fixture", type=Path, help="folder for a parity fixture (.npy files)")
+    parser.add_argument(
+        "--state-dict", type=Path, help="also save {config, encoder} (PyTorch) to this file"
+    )
     args = parser.parse_args(argv)
 
     if args.checkpoint is not None:
@@ -148,6 +151,9 @@ def main(argv: list[str] | None = None) -> None:
         provenance = f"random-init seed {args.random_init_seed} (tests only, not trained)"
     export_onnx(encoder, args.out, intermediates=args.intermediates, provenance=provenance)
     print(f"wrote {args.out} ({parameter_count(encoder):,} parameters; {provenance})")
+    if args.state_dict is not None:
+        torch.save({"config": encoder.cfg.to_dict(), "encoder": encoder.state_dict()}, args.state_dict)
+        print(f"wrote {args.state_dict}")
     if args.fixture is not None:
         write_fixture(encoder, args.fixture)
         print(f"wrote fixture {args.fixture}")

@@ -280,6 +280,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--checkpoint", type=Path, help="head checkpoint (head_train last.pt)")
     parser.add_argument("--out", type=Path, help="ONNX file to write")
     parser.add_argument("--logits", action="store_true", help="also output the logits")
+    parser.add_argument(
+        "--state-dict", type=Path, help="also save {head_config, head} (PyTorch) to this file"
+    )
     args = parser.parse_args(argv)
     if args.checkpoint is None:
         n = head_parameters()
@@ -298,6 +301,9 @@ def main(argv: list[str] | None = None) -> None:
     provenance = f"head checkpoint {args.checkpoint.name} at step {state.get('step')}"
     export_head_onnx(head, args.out, provenance=provenance, logits=args.logits)
     print(f"wrote {args.out} ({parameter_count(head):,} parameters; {provenance})")
+    if args.state_dict is not None:
+        torch.save({"head_config": head.cfg.to_dict(), "head": head.state_dict()}, args.state_dict)
+        print(f"wrote {args.state_dict}")
 
 
 if __name__ == "__main__":

@@ -1,7 +1,7 @@
 """weights/MANIFEST.json: what was shipped, how it was trained, and what it measured.
 
     python -m bino_train.manifest --pretrain-run runs/NAME --head-run runs/HEAD \
-        --metrics runs/metrics.json --experiments experiments.json --out ../weights/MANIFEST.json
+        --metrics-dir runs/metrics --experiments experiments.json --out ../weights/MANIFEST.json
 
 Every file in the weights folder gets its sha256; the recipe comes from the checkpoints, the
 metrics from the JSON written by the evaluation commands, and the list of what was tried
@@ -97,6 +97,13 @@ def git_commit(repo: Path) -> str:
         return "unknown"
 
 
+def collect_metrics(folder: Path) -> dict[str, Any]:
+    """Every `NAME.json` of `folder` as `{NAME: content}`, in name order."""
+    if not folder.is_dir():
+        raise SystemExit(f"error: metrics folder {folder} does not exist")
+    return {path.stem: json.loads(path.read_text()) for path in sorted(folder.glob("*.json"))}
+
+
 def build_manifest(
     weights: Path,
     pretrain_run: Path,
@@ -126,11 +133,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--pretrain-run", type=Path, required=True)
     parser.add_argument("--head-run", type=Path)
     parser.add_argument("--metrics", type=Path, help="JSON of measured metrics")
+    parser.add_argument(
+        "--metrics-dir", type=Path, help="folder of JSON results: each becomes metrics[file stem]"
+    )
     parser.add_argument("--experiments", type=Path, help="JSON list of recipes tried")
     parser.add_argument("--data", type=Path, default=None)
     parser.add_argument("--out", type=Path, required=True, help="weights/MANIFEST.json")
     args = parser.parse_args(argv)
     metrics = json.loads(args.metrics.read_text()) if args.metrics else {}
+    if args.metrics_dir is not None:
+        metrics.update(collect_metrics(args.metrics_dir))
     experiments = json.loads(args.experiments.read_text()) if args.experiments else []
     manifest = build_manifest(
         args.out.parent, args.pretrain_run, args.head_run, metrics, experiments, args.data

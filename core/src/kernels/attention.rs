@@ -7,7 +7,7 @@
 //! over hundreds of keys keeps its mass instead of rounding every probability to zero.
 
 use super::exp::exp_neg_u8;
-use super::matmul::dot;
+use super::matmul::{dot, dot4};
 use crate::config::HEAD_DIM;
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 
@@ -57,6 +57,72 @@ pub fn attend(
             *a = a.wrapping_add(w * x as i32);
         }
     }
+    normalise(&acc, total, p, out);
+}
+
+/// Queries attended together by [`attend_block`]: each key and value is read once per block.
+pub const QUERY_BLOCK: usize = 4;
+
+/// [`attend`] for [`QUERY_BLOCK`] queries at once, bit-identical to it query by query, with the
+/// values transposed: `values_t` is `HEAD_DIM x n` (one row per value channel), so the weighted
+/// sum is a dot product of each query's weights with each channel row.
+///
+/// `scores` and `weights` need `QUERY_BLOCK * n` entries. Unused query slots are computed like
+/// the others; the caller ignores their outputs.
+pub fn attend_block(
+    queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
+    keys: &[i8],
+    values_t: &[i8],
+    p: &AttentionQ,
+    scores: &mut [i32],
+    weights: &mut [u8],
+    out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
+) {
+    let n = (keys.len() / HEAD_DIM)
+        .min(values_t.len() / HEAD_DIM)
+        .min(scores.len() / QUERY_BLOCK)
+        .min(weights.len() / QUERY_BLOCK);
+    if n == 0 {
+        *out = [[0; HEAD_DIM]; QUERY_BLOCK];
+        return;
+    }
+    // Scores key-major (the four queries of a key side by side), weights query-major.
+    let scores = &mut scores[..QUERY_BLOCK * n];
+    let [q0, q1, q2, q3] = queries;
+    let mut max = [i32::MIN; QUERY_BLOCK];
+    for (s4, k) in scores.chunks_exact_mut(QUERY_BLOCK).zip(keys.chunks_exact(HEAD_DIM)) {
+        let s = dot4(q0, q1, q2, q3, k);
+        for ((slot, m), v) in s4.iter_mut().zip(max.iter_mut()).zip(s) {
+            *slot = v;
+            *m = (*m).max(v);
+        }
+    }
+    let mut total = [0u32; QUERY_BLOCK];
+    for (r, w_row) in weights.chunks_exact_mut(n).take(QUERY_BLOCK).enumerate() {
+        let column = scores.iter().skip(r).step_by(QUERY_BLOCK);
+        for (w, &s) in w_row.iter_mut().zip(column) {
+            *w = exp_neg_u8(max[r] as i64 - s as i64, p.to_log2_q8);
+            total[r] += *w as u32;
+        }
+    }
+    let mut rows = weights.chunks_exact(n);
+    let (Some(w0), Some(w1), Some(w2), Some(w3)) = (rows.next(), rows.next(), rows.next(), rows.next()) else {
+        return;
+    };
+    let mut acc = [[0i32; HEAD_DIM]; QUERY_BLOCK];
+    for (d, channel) in values_t.chunks_exact(n).take(HEAD_DIM).enumerate() {
+        for (acc_q, s) in acc.iter_mut().zip(dot4(w0, w1, w2, w3, channel)) {
+            acc_q[d] = s;
+        }
+    }
+    for ((out_q, acc_q), &t) in out.iter_mut().zip(&acc).zip(&total) {
+        normalise(acc_q, t, p, out_q);
+    }
+}
+
+/// Weighted average `acc / total` requantised to output codes (0 when nothing attended).
+#[inline(always)]
+fn normalise(acc: &[i32; HEAD_DIM], total: u32, p: &AttentionQ, out: &mut [i8]) {
     if total == 0 {
         out.iter_mut().for_each(|o| *o = 0);
         return;
@@ -136,6 +202,33 @@ mod tests {
     }
 
     #[test]
+    fn block_is_bit_identical_to_single_queries() {
+        let mut rng = Rng::new(5);
+        const N: usize = 37;
+        let mut keys = [0i8; N * HEAD_DIM];
+        let mut values = [0i8; N * HEAD_DIM];
+        let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+        for score_scale in [1e-4, 2e-3, 3e-2] {
+            rng.fill_i8(&mut keys);
+            rng.fill_i8(&mut values);
+            queries.iter_mut().for_each(|q| rng.fill_i8(q));
+            let p = AttentionQ {
+                to_log2_q8: requant_of(score_scale * core::f64::consts::LOG2_E * 256.0),
+                out: requant_of(1.0 / 65536.0),
+            };
+            let (mut scores, mut weights) = ([0i32; QUERY_BLOCK * N], [0u8; QUERY_BLOCK * N]);
+            let mut out = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+            let values_t: [i8; N * HEAD_DIM] = core::array::from_fn(|i| values[(i % N) * HEAD_DIM + i / N]);
+            attend_block(&queries, &keys, &values_t, &p, &mut scores, &mut weights, &mut out);
+            for (q, got) in queries.iter().zip(&out) {
+                let mut want = [0i8; HEAD_DIM];
+                attend(q, &keys, &values, &p, &mut scores[..N], &mut weights[..N], &mut want);
+                assert_eq!(*got, want, "scale {score_scale}");
+            }
+        }
+    }
+
+    #[test]
     fn diffuse_attention_keeps_its_mass() {
         // 512 equal keys: every float weight is 1/512, far below an 8-bit probability step.
         const N: usize = 512;
@@ -167,5 +260,17 @@ mod tests {
         attend(&[1; HEAD_DIM], &[], &[], &p, &mut [], &mut [], &mut out);
         assert_eq!(out, [0; HEAD_DIM]);
         attend(&[1; 3], &[1; 100], &[1; 10], &p, &mut [0; 1], &mut [0; 0], &mut out);
+        let mut block_out = [[7i8; HEAD_DIM]; QUERY_BLOCK];
+        let queries = [[1i8; HEAD_DIM]; QUERY_BLOCK];
+        attend_block(
+            &queries,
+            &[1; 100],
+            &[1; 10],
+            &p,
+            &mut [0; 3],
+            &mut [0; 9],
+            &mut block_out,
+        );
+        assert_eq!(block_out, [[0; HEAD_DIM]; QUERY_BLOCK]);
     }
 }

@@ -47,15 +47,73 @@ pub fn dot(a: &[i8], b: &[i8]) -> i32 {
         .fold(0i32, |s, (&x, &y)| s.wrapping_add(x as i32 * y as i32))
 }
 
+/// An 8-bit operand of the dot products: int8 codes, or the unsigned softmax weights.
+pub trait Code: bytemuck::Pod {
+    /// Whether the byte is signed (decides sign- or zero-extension).
+    const SIGNED: bool;
+    /// Zero of the type.
+    const ZERO: Self;
+    /// The value in 32 bits.
+    fn wide(self) -> i32;
+}
+
+impl Code for i8 {
+    const SIGNED: bool = true;
+    const ZERO: Self = 0;
+    #[inline(always)]
+    fn wide(self) -> i32 {
+        self as i32
+    }
+}
+
+impl Code for u8 {
+    const SIGNED: bool = false;
+    const ZERO: Self = 0;
+    #[inline(always)]
+    fn wide(self) -> i32 {
+        self as i32
+    }
+}
+
+/// Four dot products of rows `a0..a3` (equal lengths) against one shared int8 vector `w`
+/// (each `w` element loaded once). Products of a `u8` and an `i8` fit 16 bits too.
 #[inline(always)]
-fn dot4(a0: &[i8], a1: &[i8], a2: &[i8], a3: &[i8], w: &[i8]) -> [i32; 4] {
+pub fn dot4<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    {
+        use super::matmul_avx2::{dot4 as dot4_simd, LANES};
+        let head = w.len() - w.len() % LANES;
+        let s = dot4_simd(a0, a1, a2, a3, w.get(..head).unwrap_or(&[]));
+        fn tail<T>(x: &[T], head: usize) -> &[T] {
+            x.get(head..).unwrap_or(&[])
+        }
+        let t = dot4_portable(
+            tail(a0, head),
+            tail(a1, head),
+            tail(a2, head),
+            tail(a3, head),
+            tail(w, head),
+        );
+        [
+            s[0].wrapping_add(t[0]),
+            s[1].wrapping_add(t[1]),
+            s[2].wrapping_add(t[2]),
+            s[3].wrapping_add(t[3]),
+        ]
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    dot4_portable(a0, a1, a2, a3, w)
+}
+
+#[inline(always)]
+fn dot4_portable<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
     let mut s = [0i32; 4];
     for ((((&x0, &x1), &x2), &x3), &wv) in a0.iter().zip(a1).zip(a2).zip(a3).zip(w) {
         let wv = wv as i32;
-        s[0] = s[0].wrapping_add(x0 as i32 * wv);
-        s[1] = s[1].wrapping_add(x1 as i32 * wv);
-        s[2] = s[2].wrapping_add(x2 as i32 * wv);
-        s[3] = s[3].wrapping_add(x3 as i32 * wv);
+        s[0] = s[0].wrapping_add(x0.wide() * wv);
+        s[1] = s[1].wrapping_add(x1.wide() * wv);
+        s[2] = s[2].wrapping_add(x2.wide() * wv);
+        s[3] = s[3].wrapping_add(x3.wide() * wv);
     }
     s
 }
@@ -74,6 +132,24 @@ mod tests {
             }
         }
         out
+    }
+
+    #[test]
+    fn four_row_dot_matches_plain_dots_at_model_sizes() {
+        // On AVX2 hosts this checks the SIMD kernel (and its tail) against the plain dot.
+        let mut rng = Rng::new(11);
+        let mut rows = [0i8; 5 * 480];
+        for k in [1, 15, 16, 32, 33, 128, 479, 480] {
+            rng.fill_i8(&mut rows);
+            if k == 480 {
+                rows.fill(-128);
+            }
+            let r: [&[i8]; 5] = core::array::from_fn(|i| &rows[i * k..(i + 1) * k]);
+            let got = dot4(r[0], r[1], r[2], r[3], r[4]);
+            for (i, &g) in got.iter().enumerate() {
+                assert_eq!(g, dot(r[i], r[4]), "k={k} row {i}");
+            }
+        }
     }
 
     #[test]

@@ -9,6 +9,8 @@ pub mod exp;
 pub mod layernorm;
 pub mod lut;
 pub mod matmul;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+mod matmul_avx2;
 pub mod params;
 pub mod rope;
 

@@ -6,7 +6,7 @@
 //! hidden layer exists only for one token block: there is no `N x N` or `N x MLP_HIDDEN` buffer.
 //!
 //! Each block runs in three passes over token blocks:
-//! 1. LayerNorm, keys (RoPE) and values of every token, stored per head;
+//! 1. LayerNorm, keys (RoPE) and values of every token, stored per head (values transposed);
 //! 2. LayerNorm, queries (RoPE), attention, output projection, residual add;
 //! 3. LayerNorm, fc1, GELU table, fc2, residual add.
 //!
@@ -19,7 +19,7 @@ use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::Blob;
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
-use crate::kernels::attention::attend;
+use crate::kernels::attention::{attend_block, QUERY_BLOCK};
 use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant};
 use crate::kernels::layernorm::layernorm_rows;
 use crate::kernels::lut::apply_lut;
@@ -51,8 +51,8 @@ const ACC_WIDTH: usize = max(MLP_HIDDEN, 2 * DIM);
 pub const fn arena_bytes(band_rows: usize, width: usize) -> usize {
     let tokens = (band_rows / PATCH_H) * 2 * (width / CELL_W);
     3 * tokens * DIM // residual stream, keys, values
-        + tokens * 4 + ALIGN_SLACK // attention scores
-        + tokens // softmax weights
+        + QUERY_BLOCK * tokens * 4 + ALIGN_SLACK // attention scores of one query block
+        + QUERY_BLOCK * tokens // softmax weights
         + TOKEN_BLOCK * (3 * DIM + MLP_HIDDEN) // normalised, queries, attention output, hidden
         + TOKEN_BLOCK * ACC_WIDTH * 4 + ALIGN_SLACK // accumulators
 }
@@ -157,8 +157,8 @@ impl<'a> Buffers<'a> {
             x: carver.i8s(tokens * DIM)?,
             keys: carver.i8s(tokens * DIM)?,
             values: carver.i8s(tokens * DIM)?,
-            scores: carver.i32s(tokens)?,
-            softmax: carver.u8s(tokens)?,
+            scores: carver.i32s(QUERY_BLOCK * tokens)?,
+            softmax: carver.u8s(QUERY_BLOCK * tokens)?,
             normed: carver.i8s(TOKEN_BLOCK * DIM)?,
             queries: carver.i8s(TOKEN_BLOCK * DIM)?,
             attended: carver.i8s(TOKEN_BLOCK * DIM)?,
@@ -386,7 +386,8 @@ struct AttentionPass<'p, 'w> {
 }
 
 impl AttentionPass<'_, '_> {
-    /// Pass 1: keys (rotated) and values of every token, stored `[head][token][HEAD_DIM]`.
+    /// Pass 1: keys (rotated) of every token stored `[head][token][HEAD_DIM]`, values
+    /// channel-major `[head][HEAD_DIM][token]`.
     fn keys_values(&self, x: &[i8], normed: &mut [i8], acc: &mut [i32], keys: &mut [i8], values: &mut [i8]) {
         let ln = self.w.norm1.with_input(self.input);
         let qkv = &self.w.qkv;
@@ -432,7 +433,7 @@ impl AttentionPass<'_, '_> {
                 rope_token(k_acc, &key_rq, &row_angles, &col_angles, &mut rotated);
                 requant_rows(v_acc, &value_rq, &Uniform(0), &mut value);
                 scatter_heads(&rotated, keys, tokens, t);
-                scatter_heads(&value, values, tokens, t);
+                scatter_channels(&value, values, tokens, t);
             }
         }
     }
@@ -472,15 +473,24 @@ impl AttentionPass<'_, '_> {
                 let (row_angles, col_angles) = self.rope.angles(row, col / 2);
                 rope_token(q_acc, &query_rq, &row_angles, &col_angles, query);
             }
-            for (query, out) in queries
-                .chunks_exact(DIM)
-                .zip(attended.chunks_exact_mut(DIM))
-                .take(count)
-            {
-                let heads = query.chunks_exact(HEAD_DIM).zip(out.chunks_exact_mut(HEAD_DIM));
-                let kv = keys.chunks_exact(head_len).zip(values.chunks_exact(head_len));
-                for (((q_head, out_head), (k_head, v_head)), p) in heads.zip(kv).zip(self.w.attention.iter()) {
-                    attend(q_head, k_head, v_head, p, scores, softmax, out_head);
+            let kv = keys.chunks_exact(head_len).zip(values.chunks_exact(head_len));
+            for (head, ((k_head, v_head), p)) in kv.zip(self.w.attention.iter()).enumerate() {
+                let part = head * HEAD_DIM..(head + 1) * HEAD_DIM;
+                let query_tokens = queries.get(..count * DIM).unwrap_or_default().chunks(QUERY_BLOCK * DIM);
+                let out_tokens = attended
+                    .get_mut(..count * DIM)
+                    .unwrap_or_default()
+                    .chunks_mut(QUERY_BLOCK * DIM);
+                for (q_tokens, o_tokens) in query_tokens.zip(out_tokens) {
+                    let mut q_block = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+                    for (q, token) in q_block.iter_mut().zip(q_tokens.chunks_exact(DIM)) {
+                        q.copy_from_slice(&token[part.clone()]);
+                    }
+                    let mut out_block = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+                    attend_block(&q_block, k_head, v_head, p, scores, softmax, &mut out_block);
+                    for (o, token) in out_block.iter().zip(o_tokens.chunks_exact_mut(DIM)) {
+                        token[part.clone()].copy_from_slice(o);
+                    }
                 }
             }
             project_add(proj, &attended[..count * DIM], acc, x_block, &carry, &self.output.zero);
@@ -533,6 +543,16 @@ fn mlp(
 }
 
 /// Writes one token's `DIM` codes into a `[head][token][HEAD_DIM]` store.
+/// Stores token `t`'s values channel-major (`DIM x tokens`): each head's slice is then the
+/// `HEAD_DIM x tokens` transposed layout [`attend_block`] reads.
+fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
+    for (channel, &v) in store.chunks_exact_mut(tokens).zip(token) {
+        if let Some(slot) = channel.get_mut(t) {
+            *slot = v;
+        }
+    }
+}
+
 fn scatter_heads(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
     for (head, part) in store
         .chunks_exact_mut(tokens * HEAD_DIM)

@@ -12,6 +12,7 @@
 //! (argmax of the cosine similarity volume) agrees, and the `EVAL.md` metrics of the
 //! no-linkage readout for each model. Pairs are averaged without weights, like the metrics.
 
+pub mod head;
 pub mod report;
 pub mod stages;
 
@@ -41,6 +42,8 @@ pub struct CompareOptions {
     pub onnx: PathBuf,
     /// Int8 weight blob made from it by `bino quantize`.
     pub blob: PathBuf,
+    /// Float shared head (ONNX); compared with the blob's int8 head when given.
+    pub head: Option<PathBuf>,
     /// Folder holding `PAIRS.tsv`.
     pub data: PathBuf,
     /// Split to read: only `eval` (the metrics need ground truth).
@@ -53,8 +56,7 @@ pub struct CompareOptions {
     pub limit: Option<usize>,
 }
 
-/// The int8 head against the float head on one pair or on average; filled in by the head
-/// comparison (not computed yet: always `None` for now).
+/// The int8 head against the float head on one pair or on average (`bino compare --head`).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HeadComparison {
     /// Cosine of the int8 and float logits over the valid candidates.
@@ -136,6 +138,8 @@ pub struct CompareReport {
     pub onnx: PathBuf,
     /// Int8 blob file.
     pub blob: PathBuf,
+    /// The float head compared, if any.
+    pub head: Option<PathBuf>,
     /// SHA-256 of the blob's bytes.
     pub blob_sha256: String,
     /// Data folder.
@@ -163,6 +167,7 @@ pub struct Comparer {
     formats: Vec<(Vec<f32>, Vec<i32>)>,
     descriptor_scale: f32,
     max_cols: usize,
+    float_head: Option<head::FloatHeadRunner>,
 }
 
 // What one view gave.
@@ -172,13 +177,21 @@ struct ViewComparison {
     descriptor_cosine: f64,
     float: FeatureMap,
     int8: FeatureMap,
+    codes: Vec<i8>,
 }
 
 impl Comparer {
-    /// Loads the float encoder `onnx` and the int8 blob `blob`; `max_cols` disparity candidates.
-    pub fn load(onnx: &Path, blob: &Path, max_cols: usize) -> Result<Self> {
+    /// Loads the float encoder `onnx` and the int8 blob `blob`, and the float head `head` if
+    /// given (the blob must then hold the int8 head); `max_cols` disparity candidates.
+    pub fn load(onnx: &Path, blob: &Path, head: Option<&Path>, max_cols: usize) -> Result<Self> {
         ensure!(max_cols > 0, "--max-cols must be at least 1");
         let int8 = Int8Model::load(blob)?;
+        let float_head = head.map(head::FloatHeadRunner::load).transpose()?;
+        ensure!(
+            float_head.is_none() || int8.has_head(),
+            "blob {} has no shared head to compare: quantise with `bino quantize --head`",
+            blob.display()
+        );
         let formats = (0..STAGE_COUNT)
             .map(|s| int8.residual_format(s))
             .collect::<Result<Vec<_>>>()
@@ -193,6 +206,7 @@ impl Comparer {
             formats,
             descriptor_scale,
             max_cols,
+            float_head,
         })
     }
 
@@ -221,7 +235,7 @@ impl Comparer {
             wta_agreement: wta_agreement(&float_volume, &int8_volume)?,
             float: readout_metrics(&float_volume, item).context("float readout")?,
             int8: readout_metrics(&int8_volume, item).context("int8 readout")?,
-            head: None,
+            head: self.compare_head(&left, &right).context("shared head")?,
         };
         Ok(PairComparison {
             pair_id: item.pair_id.clone(),
@@ -231,6 +245,16 @@ impl Comparer {
             values,
             elapsed: started.elapsed(),
         })
+    }
+
+    fn compare_head(&mut self, left: &ViewComparison, right: &ViewComparison) -> Result<Option<HeadComparison>> {
+        let Some(float_head) = self.float_head.as_mut() else {
+            return Ok(None);
+        };
+        let (rows, cols) = (left.int8.rows, left.int8.cols);
+        let int8 = self.int8.head(&left.codes, &right.codes, rows, cols)?;
+        let float = float_head.run(&left.float, &right.float)?;
+        head::compare_heads(&int8, &float).map(Some)
     }
 
     fn compare_view(&mut self, view: &View) -> Result<ViewComparison> {
@@ -274,6 +298,7 @@ impl Comparer {
             descriptor_cosine,
             float,
             int8,
+            codes,
         })
     }
 }
@@ -362,7 +387,7 @@ pub fn compare(
         .take(opts.limit.unwrap_or(usize::MAX))
         .collect();
     ensure!(!records.is_empty(), "no {split} pairs in {}", opts.data.display());
-    let mut comparer = Comparer::load(&opts.onnx, &opts.blob, opts.max_cols)?;
+    let mut comparer = Comparer::load(&opts.onnx, &opts.blob, opts.head.as_deref(), opts.max_cols)?;
     let mut pairs = Vec::with_capacity(records.len());
     for (i, record) in records.iter().enumerate() {
         let item = load_eval_item(record, opts.profile)?;
@@ -377,6 +402,7 @@ pub fn compare(
         version: env!("CARGO_PKG_VERSION").to_string(),
         onnx: opts.onnx.clone(),
         blob: opts.blob.clone(),
+        head: opts.head.clone(),
         blob_sha256: sha256_hex(comparer.int8().bytes()),
         data: opts.data.clone(),
         split,

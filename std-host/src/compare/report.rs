@@ -183,6 +183,12 @@ impl CompareReport {
             .str("version", &self.version)
             .str("onnx", &self.onnx.display().to_string())
             .str("blob", &self.blob.display().to_string())
+            .raw(
+                "head_onnx",
+                self.head
+                    .as_ref()
+                    .map_or("null".to_string(), |h| crate::json::string(&h.display().to_string())),
+            )
             .str("blob_sha256", &self.blob_sha256)
             .str("data", &self.data.display().to_string())
             .str("split", &self.split.to_string())
@@ -280,6 +286,7 @@ mod tests {
             version: "0.0.0".into(),
             onnx: PathBuf::from("enc \"x\".onnx"),
             blob: PathBuf::from("q.bin"),
+            head: Some(PathBuf::from("head.onnx")),
             blob_sha256: "ab".repeat(32),
             data: PathBuf::from("data"),
             split: Split::Eval,
@@ -333,6 +340,7 @@ mod tests {
         let text = report(mean).to_json();
         let v: serde_json::Value = serde_json::from_str(&text).unwrap();
         assert_eq!(v["onnx"], "enc \"x\".onnx");
+        assert_eq!(v["head_onnx"], "head.onnx");
         assert_eq!(v["stages"].as_array().unwrap().len(), STAGE_COUNT);
         assert_eq!(v["mean"]["pairs"], 1);
         assert_eq!(v["mean"]["stage_cosine"]["embed"], 1.0);

@@ -1,0 +1,80 @@
+#!/usr/bin/env bash
+# Reproduces everything in weights/ from scratch, or resumes an interrupted run.
+#
+#   scripts/train_weights.sh            # from scratch (about 3 h of CPU on this project's 2 cores)
+#   scripts/train_weights.sh --resume   # continue the runs in train/runs/ where they stopped
+#
+# Each stage checkpoints (pretraining every few minutes, the head every 5 minutes) and `--resume`
+# continues exactly, so the script can be stopped and restarted at will: a stage whose target is
+# already reached returns at once. Stages: pretraining (30,000 pairs) -> shared head (HEAD_STEPS
+# steps) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
+# the trained encoder and the random init, head vs StereoSGBM on the eval split) -> int8 blob ->
+# MANIFEST.json. Set BINO_THREADS to change the torch thread count (default 2).
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+cd "$BINO_ROOT"
+
+resume=()
+if [[ "${1:-}" == "--resume" ]]; then
+  resume=(--resume)
+elif [[ -n "${1:-}" ]]; then
+  echo "usage: $0 [--resume]" >&2
+  exit 2
+fi
+
+threads="${BINO_THREADS:-2}"
+pretrain_pairs=30000
+head_steps="${HEAD_STEPS:-1200}"
+pre=runs/p1_clean_bn
+head=runs/head_p1
+weights="$BINO_ROOT/weights"
+data="${BINO_DATA:-$BINO_ROOT/../shared/data}"
+py() { (cd train && "$BINO_VENV/bin/python" -W ignore "$@"); }
+step() { printf '\n== %s\n' "$*"; }
+
+scripts/setup.sh
+
+step "pretraining to $pretrain_pairs pairs ($pre)"
+if [[ ${#resume[@]} -eq 0 ]]; then
+  py -m bino_train.pretrain --out "$pre" --pairs "$pretrain_pairs" --threads "$threads" \
+    --teacher-clean --head-bn --momentum 0.99 --eval-minutes 10 --eval-student
+else
+  py -m bino_train.pretrain --out "$pre" --resume --pairs "$pretrain_pairs" --threads "$threads" \
+    --eval-minutes 10 --eval-student
+fi
+
+step "shared head to $head_steps steps ($head)"
+if [[ ${#resume[@]} -eq 0 ]]; then
+  py -m bino_train.head_train --encoder "$pre/last.pt" --out "$head" --steps "$head_steps" \
+    --threads "$threads"
+else
+  py -m bino_train.head_train --out "$head" --resume --steps "$head_steps" --threads "$threads"
+fi
+
+step "exports and state dicts"
+py -m bino_train.head --checkpoint "$head/last.pt" --out "$weights/bino_head.onnx" \
+  --state-dict "$weights/bino_head.pt"
+py -m bino_train.export --checkpoint "$pre/last.pt" --out "$weights/bino_encoder.onnx" \
+  --state-dict "$weights/bino_encoder.pt"
+
+step "measurements (train/runs/metrics.json)"
+metrics=train/runs/metrics
+mkdir -p "$metrics"
+py -m bino_train.benchmark --checkpoint "$pre/last.pt" --threads "$threads" >"$metrics/benchmark_trained.json"
+py -m bino_train.benchmark --random-init-seed 0 --threads "$threads" >"$metrics/benchmark_random.json"
+py -m bino_train.probe --checkpoint "$pre/last.pt" --threads "$threads" >"$metrics/probe_trained.json"
+py -m bino_train.probe --random-init-seed 0 --threads "$threads" >"$metrics/probe_random.json"
+py -m bino_train.head_eval --encoder "$pre/last.pt" --head "$head/last.pt" --threads "$threads" \
+  >"$metrics/head_eval_w160.json"
+
+step "int8 blob"
+cargo run -q --release --locked -p bino-host --bin bino -- quantize \
+  --onnx "$weights/bino_encoder.onnx" --head "$weights/bino_head.onnx" --calib "$data" \
+  --out "$weights/bino_int8.bin"
+cargo run -q --release --locked -p bino-host --bin bino -- compare --data "$data" --split eval \
+  --profile w160 --onnx "$weights/bino_encoder.onnx" --blob "$weights/bino_int8.bin" \
+  --head "$weights/bino_head.onnx" --json "$metrics/int8_compare_w160.json"
+
+step "manifest"
+py -m bino_train.manifest --pretrain-run "$pre" --head-run "$head" --metrics-dir runs/metrics \
+  --experiments experiments.json --out "$weights/MANIFEST.json"
