@@ -86,29 +86,46 @@ pub fn attend_block(
         *out = [[0; HEAD_DIM]; QUERY_BLOCK];
         return;
     }
-    // Scores key-major (the four queries of a key side by side), weights query-major.
-    let scores = &mut scores[..QUERY_BLOCK * n];
+    // One row of n scores and one of n weights per query.
+    let mut score_rows = scores.chunks_exact_mut(n);
+    let mut weight_rows = weights.chunks_exact_mut(n);
+    let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
+        score_rows.next(),
+        score_rows.next(),
+        score_rows.next(),
+        score_rows.next(),
+    ) else {
+        return;
+    };
+    let (Some(w0), Some(w1), Some(w2), Some(w3)) = (
+        weight_rows.next(),
+        weight_rows.next(),
+        weight_rows.next(),
+        weight_rows.next(),
+    ) else {
+        return;
+    };
     let [q0, q1, q2, q3] = queries;
     let mut max = [i32::MIN; QUERY_BLOCK];
-    for (s4, k) in scores.chunks_exact_mut(QUERY_BLOCK).zip(keys.chunks_exact(HEAD_DIM)) {
+    let score_slots = s0.iter_mut().zip(s1.iter_mut()).zip(s2.iter_mut()).zip(s3.iter_mut());
+    for ((((x0, x1), x2), x3), k) in score_slots.zip(keys.chunks_exact(HEAD_DIM)) {
         let s = dot4(q0, q1, q2, q3, k);
-        for ((slot, m), v) in s4.iter_mut().zip(max.iter_mut()).zip(s) {
-            *slot = v;
+        (*x0, *x1, *x2, *x3) = (s[0], s[1], s[2], s[3]);
+        for (m, v) in max.iter_mut().zip(s) {
             *m = (*m).max(v);
         }
     }
     let mut total = [0u32; QUERY_BLOCK];
-    for (r, w_row) in weights.chunks_exact_mut(n).take(QUERY_BLOCK).enumerate() {
-        let column = scores.iter().skip(r).step_by(QUERY_BLOCK);
-        for (w, &s) in w_row.iter_mut().zip(column) {
-            *w = exp_neg_u8(max[r] as i64 - s as i64, p.to_log2_q8);
-            total[r] += *w as u32;
+    let rows = [(&*s0, &mut *w0), (&*s1, &mut *w1), (&*s2, &mut *w2), (&*s3, &mut *w3)];
+    for (((s_row, w_row), &m), t) in rows.into_iter().zip(&max).zip(total.iter_mut()) {
+        let mut sum = 0u32;
+        for (w, &s) in w_row.iter_mut().zip(s_row.iter()) {
+            *w = exp_neg_u8(m as i64 - s as i64, p.to_log2_q8);
+            sum += *w as u32;
         }
+        *t = sum;
     }
-    let mut rows = weights.chunks_exact(n);
-    let (Some(w0), Some(w1), Some(w2), Some(w3)) = (rows.next(), rows.next(), rows.next(), rows.next()) else {
-        return;
-    };
+    let (w0, w1, w2, w3) = (&*w0, &*w1, &*w2, &*w3);
     let mut acc = [[0i32; HEAD_DIM]; QUERY_BLOCK];
     for (d, channel) in values_t.chunks_exact(n).take(HEAD_DIM).enumerate() {
         for (acc_q, s) in acc.iter_mut().zip(dot4(w0, w1, w2, w3, channel)) {
