@@ -5,7 +5,9 @@
 
 pub mod bench;
 pub mod blob_writer;
+pub mod colour;
 pub mod compare;
+pub mod demo;
 pub mod eval;
 pub mod float_head;
 pub mod float_weights;

@@ -59,6 +59,26 @@ enum Command {
         #[arg(long)]
         out: PathBuf,
     },
+    /// The int8 pipeline on the built-in stereo scene (no data needed): encoder on both views,
+    /// no-linkage matching and the shared head, scored against the scene's known disparity;
+    /// writes the pair, the disparity maps, the error maps and report.json to --out.
+    Demo {
+        /// Int8 weight blob (default: the one shipped in weights/).
+        #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+        blob: PathBuf,
+        /// Output folder.
+        #[arg(long, default_value = "out/demo")]
+        out: PathBuf,
+        /// Scene width in pixels (multiple of 4).
+        #[arg(long, default_value_t = 320)]
+        width: usize,
+        /// Scene height in pixels (multiple of 4; taller than 48 runs overlapping bands).
+        #[arg(long, default_value_t = 96)]
+        height: usize,
+        /// Disparity candidates of the no-linkage readout, in patch columns.
+        #[arg(long, default_value_t = DEFAULT_MAX_COLS)]
+        max_cols: usize,
+    },
     /// Quantise the float ONNX models into the int8 weight blob the engine runs.
     ///
     /// Weights: symmetric int8 per output channel. Activation formats come from the float
@@ -66,8 +86,11 @@ enum Command {
     /// 0.01/99.99 percentiles for the residual stream, MSE-optimal clipping elsewhere
     /// (docs/int8-model.md).
     Quantize {
-        /// Float encoder (`python -m bino_train.export`).
-        #[arg(long, default_value = "weights/bino_encoder.onnx")]
+        /// Float encoder exported with `--intermediates` (`python -m bino_train.export
+        /// --intermediates`): calibration reads its per-stage tensors. The shipped
+        /// weights/bino_encoder.onnx has the plain outputs; scripts/train_weights.sh makes the
+        /// intermediates export next to the run.
+        #[arg(long, default_value = "train/runs/bino_encoder_taps.onnx")]
         onnx: PathBuf,
         /// Float shared head (`python -m bino_train.head`); quantised into the same blob.
         #[arg(long)]
@@ -176,6 +199,19 @@ fn main() -> ExitCode {
 
 fn run(cli: Cli) -> Result<()> {
     match cli.command {
+        Command::Demo {
+            blob,
+            out,
+            width,
+            height,
+            max_cols,
+        } => demo_command(&bino_host::demo::DemoOptions {
+            blob,
+            out,
+            width,
+            height,
+            max_cols,
+        }),
         Command::Compare {
             data,
             split,
@@ -247,6 +283,37 @@ fn run(cli: Cli) -> Result<()> {
             quantize_command(&opts, &out)
         }
     }
+}
+
+fn demo_command(opts: &bino_host::demo::DemoOptions) -> Result<()> {
+    let started = std::time::Instant::now();
+    let report = bino_host::demo::run_demo(opts, |step| {
+        eprintln!("[{:5.1} s] {step} ...", started.elapsed().as_secs_f64());
+    })?;
+    println!(
+        "BINO int8 demo: built-in scene {}x{}, blob {}",
+        report.width,
+        report.height,
+        opts.blob.display()
+    );
+    println!("{:<8} {:>9} {:>9} {:>9}", "readout", "epe px", "bad1tok %", "bad2 %");
+    for r in &report.readouts {
+        println!(
+            "{:<8} {:>9.3} {:>9.2} {:>9.2}",
+            r.name, r.metrics.epe, r.metrics.bad1tok, r.metrics.bad2
+        );
+    }
+    for (step, took) in &report.timings {
+        println!("  {step}: {:.1} ms", took.as_secs_f64() * 1e3);
+    }
+    println!(
+        "arena: encoder {} bytes per 48-row band, head {} bytes (both fixed, sized by const fn)",
+        report.encoder_arena_bytes, report.head_arena_bytes
+    );
+    for file in &report.files {
+        println!("wrote {}", file.display());
+    }
+    Ok(())
 }
 
 fn compare_command(opts: &CompareOptions, json: Option<&Path>) -> Result<()> {

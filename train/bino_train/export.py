@@ -152,7 +152,9 @@ def main(argv: list[str] | None = None) -> None:
     export_onnx(encoder, args.out, intermediates=args.intermediates, provenance=provenance)
     print(f"wrote {args.out} ({parameter_count(encoder):,} parameters; {provenance})")
     if args.state_dict is not None:
-        torch.save({"config": encoder.cfg.to_dict(), "encoder": encoder.state_dict()}, args.state_dict)
+        torch.save(
+            {"config": encoder.cfg.to_dict(), "encoder": encoder.state_dict()}, args.state_dict
+        )
         print(f"wrote {args.state_dict}")
     if args.fixture is not None:
         write_fixture(encoder, args.fixture)

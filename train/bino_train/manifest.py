@@ -39,11 +39,11 @@ def sha256(path: Path) -> str:
 
 
 def file_hashes(folder: Path) -> dict[str, str]:
-    """sha256 of every file in `folder` except the manifest itself."""
+    """sha256 of every shipped artifact in `folder` (documentation and the manifest excluded)."""
     return {
         p.name: sha256(p)
         for p in sorted(folder.iterdir())
-        if p.is_file() and p.name != "MANIFEST.json"
+        if p.is_file() and p.name != "MANIFEST.json" and p.suffix != ".md"
     }
 
 
@@ -101,7 +101,13 @@ def collect_metrics(folder: Path) -> dict[str, Any]:
     """Every `NAME.json` of `folder` as `{NAME: content}`, in name order."""
     if not folder.is_dir():
         raise SystemExit(f"error: metrics folder {folder} does not exist")
-    return {path.stem: json.loads(path.read_text()) for path in sorted(folder.glob("*.json"))}
+    metrics: dict[str, Any] = {}
+    for path in sorted(folder.glob("*.json")):
+        try:
+            metrics[path.stem] = json.loads(path.read_text())
+        except json.JSONDecodeError as err:
+            raise SystemExit(f"error: {path} is not valid JSON: {err}") from err
+    return metrics
 
 
 def build_manifest(

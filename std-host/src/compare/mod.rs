@@ -25,8 +25,8 @@ use bino_core::config::{DIM, PATCH_H};
 use bino_core::model::probe::Stage;
 
 use crate::eval::{
-    load_eval_item, mean_metrics, score, similarity_volume, upsample_disparity, wta_subtoken, EvalItem, Metrics,
-    SimilarityVolume,
+    load_eval_item, mean_metrics, score, similarity_volume, upsample_disparity, wta_subtoken, DisparityMap, EvalItem,
+    Metrics, SimilarityVolume,
 };
 use crate::int8::{dequantise_residual, to_u8, Int8Model, StageRecorder};
 use crate::pairs::{read_index, Split};
@@ -63,6 +63,17 @@ pub struct HeadComparison {
     pub logit_cosine: f64,
     /// Mean |int8 - float| soft-argmin disparity, in patch columns.
     pub disparity_mean_abs: f64,
+    /// EVAL.md metrics of the float head's disparity.
+    pub float: Metrics,
+    /// EVAL.md metrics of the int8 head's disparity.
+    pub int8: Metrics,
+}
+
+impl HeadComparison {
+    /// Relative epe change of the int8 head over the float head, in %.
+    pub fn epe_change_pct(&self) -> f64 {
+        (self.int8.epe - self.float.epe) / self.float.epe * 100.0
+    }
 }
 
 /// The numbers of one pair, or their unweighted mean over pairs.
@@ -104,10 +115,15 @@ impl Comparison {
             wta_agreement: mean(&|c| c.wta_agreement),
             float: mean_metrics(&floats)?,
             int8: mean_metrics(&int8s)?,
-            head: heads.map(|h| HeadComparison {
-                logit_cosine: h.iter().map(|x| x.logit_cosine).sum::<f64>() / n,
-                disparity_mean_abs: h.iter().map(|x| x.disparity_mean_abs).sum::<f64>() / n,
-            }),
+            head: match heads {
+                Some(h) => Some(HeadComparison {
+                    logit_cosine: h.iter().map(|x| x.logit_cosine).sum::<f64>() / n,
+                    disparity_mean_abs: h.iter().map(|x| x.disparity_mean_abs).sum::<f64>() / n,
+                    float: mean_metrics(&h.iter().map(|x| x.float).collect::<Vec<_>>())?,
+                    int8: mean_metrics(&h.iter().map(|x| x.int8).collect::<Vec<_>>())?,
+                }),
+                None => None,
+            },
         })
     }
 }
@@ -235,7 +251,7 @@ impl Comparer {
             wta_agreement: wta_agreement(&float_volume, &int8_volume)?,
             float: readout_metrics(&float_volume, item).context("float readout")?,
             int8: readout_metrics(&int8_volume, item).context("int8 readout")?,
-            head: self.compare_head(&left, &right).context("shared head")?,
+            head: self.compare_head(&left, &right, item).context("shared head")?,
         };
         Ok(PairComparison {
             pair_id: item.pair_id.clone(),
@@ -247,14 +263,28 @@ impl Comparer {
         })
     }
 
-    fn compare_head(&mut self, left: &ViewComparison, right: &ViewComparison) -> Result<Option<HeadComparison>> {
+    fn compare_head(
+        &mut self,
+        left: &ViewComparison,
+        right: &ViewComparison,
+        item: &EvalItem,
+    ) -> Result<Option<HeadComparison>> {
         let Some(float_head) = self.float_head.as_mut() else {
             return Ok(None);
         };
         let (rows, cols) = (left.int8.rows, left.int8.cols);
         let int8 = self.int8.head(&left.codes, &right.codes, rows, cols)?;
         let float = float_head.run(&left.float, &right.float)?;
-        head::compare_heads(&int8, &float).map(Some)
+        let scored = |values: &[f32]| {
+            let tokens = DisparityMap {
+                width: cols,
+                height: rows,
+                values: values.to_vec(),
+            };
+            score(&upsample_disparity(&tokens), &item.gt)
+        };
+        let metrics = (scored(&float.disparity)?, scored(&int8.disparity)?);
+        head::compare_heads(&int8, &float, metrics).map(Some)
     }
 
     fn compare_view(&mut self, view: &View) -> Result<ViewComparison> {
@@ -456,6 +486,8 @@ mod tests {
             head: Some(HeadComparison {
                 logit_cosine: 1.0,
                 disparity_mean_abs: 0.0,
+                float: metrics(1.0),
+                int8: metrics(1.5),
             }),
         };
         let b = Comparison {
@@ -470,7 +502,7 @@ mod tests {
         assert_eq!((m.descriptor_cosine, m.wta_agreement), (0.75, 75.0));
         assert_eq!((m.float.epe, m.int8.epe), (2.0, 2.5));
         assert_eq!(m.epe_change_pct(), 25.0);
-        assert!(m.head.is_some());
+        assert_eq!(m.head.map(|h| h.epe_change_pct()), Some(50.0));
         let c = Comparison { head: None, ..b };
         assert!(Comparison::mean([&a, &c]).unwrap().head.is_none());
         assert!(Comparison::mean([]).is_err());

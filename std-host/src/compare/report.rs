@@ -140,9 +140,12 @@ impl CompareReport {
         if let Some(head) = &mean.head {
             let _ = writeln!(
                 t,
-                "\nhead: logit cosine {:.5}, mean |disparity int8 - float| {:.4} patch columns",
+                "\nshared head          float      int8     change   (logit cosine {:.5}, mean |int8 - float| {:.4} patch columns)",
                 head.logit_cosine, head.disparity_mean_abs
             );
+            metric_row(&mut t, "epe (px)", head.float.epe, head.int8.epe, "");
+            metric_row(&mut t, "bad1tok (%)", head.float.bad1tok, head.int8.bad1tok, "");
+            metric_row(&mut t, "bad2 (%)", head.float.bad2, head.int8.bad2, "");
         }
         let _ = writeln!(
             t,
@@ -251,6 +254,9 @@ fn head_json(h: &HeadComparison) -> String {
     Object::new()
         .num("logit_cosine", h.logit_cosine)
         .num("disparity_mean_abs", h.disparity_mean_abs)
+        .raw("float", h.float.to_json())
+        .raw("int8", h.int8.to_json())
+        .num("epe_change_pct", h.epe_change_pct())
         .render()
 }
 
@@ -336,6 +342,8 @@ mod tests {
         mean.head = Some(HeadComparison {
             logit_cosine: 0.98,
             disparity_mean_abs: 0.1,
+            float: Metrics { epe: 1.5, ..mean.float },
+            int8: Metrics { epe: 1.6, ..mean.float },
         });
         let text = report(mean).to_json();
         let v: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -345,6 +353,7 @@ mod tests {
         assert_eq!(v["mean"]["pairs"], 1);
         assert_eq!(v["mean"]["stage_cosine"]["embed"], 1.0);
         assert_eq!(v["mean"]["head"]["logit_cosine"], 0.98);
+        assert_eq!(v["mean"]["head"]["int8"]["epe"], 1.6);
         assert_eq!(v["pairs"][0]["bands_per_view"], 3);
         assert_eq!(v["pairs"][0]["int8"]["epe"], 2.02);
         assert_eq!(v["targets"].as_array().unwrap().len(), 3);

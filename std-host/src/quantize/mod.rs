@@ -59,7 +59,8 @@ pub fn quantize(opts: &QuantizeOptions, progress: impl FnMut(usize, usize)) -> R
     );
     let float = FloatEncoder::from_onnx(&opts.encoder)?;
     let bands = calibrate::calibration_bands(&opts.data, opts.profile, opts.calib_pairs)?;
-    let stats = calibrate::collect(&opts.encoder, &bands, progress).context("calibration")?;
+    let stats = calibrate::collect(&opts.encoder, &bands, progress)
+        .context("calibration (it reads the encoder's intermediate tensors: export with `--intermediates`)")?;
     let formats = formats::EncoderFormats::choose(&stats);
     let mut writer = BlobWriter::new();
     encoder::write_encoder(&float, &formats, opts.max_width / CELL_W, &mut writer)?;

@@ -138,13 +138,37 @@ mod tests {
         }
     }
 
+    /// Quantisation MSE of `values` at `scale` (the quantity the search minimises).
+    fn quantisation_error(values: &[f32], scale: f64) -> f64 {
+        values
+            .iter()
+            .map(|&v| {
+                let q = (v.abs() as f64 / scale).round().min(127.0) * scale;
+                (q - v.abs() as f64).powi(2)
+            })
+            .sum()
+    }
+
     #[test]
     fn mse_scale_clips_a_lone_outlier() {
-        let mut values: Vec<f32> = (0..10_000).map(|i| ((i % 200) as f32 - 100.0) / 100.0).collect();
+        // A dense bulk in [-1, 1] and one outlier at 50: spending the codes on [-50, 50]
+        // costs the bulk more than clipping the outlier somewhat costs it.
+        let mut values: Vec<f32> = (0..20_000).map(|i| ((i % 200) as f32 - 100.0) / 100.0).collect();
         values.push(50.0);
         let scale = symmetric_mse_scale(&values);
-        assert!(scale * 127.0 < 10.0, "bound {}", scale * 127.0);
+        let min_max = 50.0 / 127.0;
+        assert!(scale < min_max, "bound {}", scale * 127.0);
         assert!(scale * 127.0 >= 0.99, "bound {}", scale * 127.0);
+        assert!(quantisation_error(&values, scale) < quantisation_error(&values, min_max));
+        let p99 = 0.99 / 127.0;
+        assert!(quantisation_error(&values, scale) <= quantisation_error(&values, p99));
+    }
+
+    #[test]
+    fn mse_scale_keeps_the_full_range_without_outliers() {
+        let values: Vec<f32> = (0..10_000).map(|i| ((i % 200) as f32 - 100.0) / 100.0).collect();
+        let bound = symmetric_mse_scale(&values) * 127.0;
+        assert!(bound > 0.98 && bound <= 1.0, "bound {bound}");
     }
 
     #[test]

@@ -1,0 +1,280 @@
+//! `bino demo`: the int8 pipeline end to end on the built-in procedural scene, with no data
+//! files: encoder on both views (descriptor pathway), the no-linkage readout and the shared
+//! head, scored against the scene's known disparity, written as pictures and a report.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use anyhow::{ensure, Context, Result};
+use bino_core::config::{BAND_ROWS, DIM};
+use bino_core::model::{encoder, head};
+
+use crate::colour::{colourise, error_colour};
+use crate::eval::{no_linkage_disparity, score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
+use crate::int8::Int8Model;
+use crate::json::Object;
+use crate::profile::{Profile, View};
+use crate::reference::FeatureMap;
+use crate::synthetic::{default_scene, SyntheticPair};
+
+/// The int8 blob shipped with the repository (found from any working directory).
+pub const DEFAULT_BLOB: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/bino_int8.bin");
+
+/// Errors above this many pixels are drawn at full strength in the error maps.
+const ERROR_MAP_MAX_PX: f32 = 8.0;
+
+/// What the demo runs on and where it writes.
+#[derive(Debug, Clone)]
+pub struct DemoOptions {
+    /// Int8 weight blob.
+    pub blob: PathBuf,
+    /// Output folder (created).
+    pub out: PathBuf,
+    /// Scene width in pixels (multiple of 4, at most the blob's maximum width).
+    pub width: usize,
+    /// Scene height in pixels (multiple of 4; taller than one band means overlapping bands).
+    pub height: usize,
+    /// Disparity candidates of the no-linkage readout, in patch columns.
+    pub max_cols: usize,
+}
+
+/// One readout scored against the scene's true disparity.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ReadoutResult {
+    /// `nolink` or `head`.
+    pub name: &'static str,
+    /// EVAL.md metrics (pixels at the scene's resolution).
+    pub metrics: Metrics,
+    /// Per-pixel disparity in pixels.
+    pub disparity: DisparityMap,
+}
+
+/// Everything the demo measured.
+#[derive(Debug, Clone)]
+pub struct DemoReport {
+    /// Scene size.
+    pub width: usize,
+    /// Scene height.
+    pub height: usize,
+    /// Readouts, no-linkage first, then the head if the blob has one.
+    pub readouts: Vec<ReadoutResult>,
+    /// Wall time of each step.
+    pub timings: Vec<(&'static str, Duration)>,
+    /// Arena bytes the encoder needs for one band of this width.
+    pub encoder_arena_bytes: usize,
+    /// Arena bytes the streaming head needs for this width.
+    pub head_arena_bytes: usize,
+    /// Files written.
+    pub files: Vec<PathBuf>,
+}
+
+/// Runs the demo; `progress` hears about each step before it starts.
+pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<DemoReport> {
+    ensure!(
+        opts.width.is_multiple_of(4) && opts.height.is_multiple_of(4) && opts.width >= 16 && opts.height >= 16,
+        "scene size {}x{} must be multiples of 4, at least 16",
+        opts.width,
+        opts.height
+    );
+    let mut steps = Steps {
+        timings: Vec::new(),
+        progress: &mut progress,
+    };
+    let model = steps.run("loading the int8 blob", || {
+        Int8Model::load(&opts.blob).with_context(|| format!("the demo needs the int8 blob {}", opts.blob.display()))
+    })?;
+
+    let scene = default_scene(opts.width, opts.height);
+    let left = Profile::Native.apply(&scene.left)?;
+    let right = Profile::Native.apply(&scene.right)?;
+    let (rows, cols, codes_left) = steps.run("encoding the left view (int8)", || {
+        model.descriptor_codes(&left).context("left view")
+    })?;
+    let (_, _, codes_right) = steps.run("encoding the right view (int8)", || {
+        model.descriptor_codes(&right).context("right view")
+    })?;
+
+    let truth = ground_truth(&scene);
+    let mut readouts = Vec::new();
+    readouts.push(steps.run("no-linkage matching", || {
+        let scale = model.descriptor_scale()?;
+        let map = |codes: &[i8]| FeatureMap {
+            rows,
+            cols,
+            dim: DIM,
+            data: codes.iter().map(|&c| c as f32 * scale).collect(),
+        };
+        let tokens = no_linkage_disparity(&map(&codes_left), &map(&codes_right), opts.max_cols)?;
+        scored("nolink", &tokens, &truth)
+    })?);
+    if model.has_head() {
+        readouts.push(steps.run("shared head (int8, streamed row by row)", || {
+            let maps = model.head(&codes_left, &codes_right, rows, cols)?;
+            let tokens = DisparityMap {
+                width: cols,
+                height: rows,
+                values: maps.disparity,
+            };
+            scored("head", &tokens, &truth)
+        })?);
+    }
+    let files = steps.run("writing pictures and report", || {
+        write_outputs(opts, &scene, &left, &right, &readouts)
+    })?;
+    let timings = steps.timings;
+
+    Ok(DemoReport {
+        width: opts.width,
+        height: opts.height,
+        readouts,
+        timings,
+        encoder_arena_bytes: encoder::arena_bytes(BAND_ROWS, opts.width),
+        head_arena_bytes: head::arena_bytes(cols),
+        files,
+    })
+}
+
+/// Runs the demo's steps in order, announcing and timing each.
+struct Steps<'a, P: FnMut(&str)> {
+    timings: Vec<(&'static str, Duration)>,
+    progress: &'a mut P,
+}
+
+impl<P: FnMut(&str)> Steps<'_, P> {
+    fn run<T>(&mut self, name: &'static str, step: impl FnOnce() -> Result<T>) -> Result<T> {
+        (self.progress)(name);
+        let started = Instant::now();
+        let value = step()?;
+        self.timings.push((name, started.elapsed()));
+        Ok(value)
+    }
+}
+
+fn ground_truth(scene: &SyntheticPair) -> GroundTruthMap {
+    GroundTruthMap {
+        width: scene.left.width,
+        height: scene.left.height,
+        disparity: scene.disparity.clone(),
+        valid: vec![true; scene.disparity.len()],
+    }
+}
+
+fn scored(name: &'static str, tokens: &DisparityMap, truth: &GroundTruthMap) -> Result<ReadoutResult> {
+    let disparity = upsample_disparity(tokens);
+    let metrics = score(&disparity, truth).with_context(|| format!("scoring the {name} readout"))?;
+    Ok(ReadoutResult {
+        name,
+        metrics,
+        disparity,
+    })
+}
+
+fn write_outputs(
+    opts: &DemoOptions,
+    scene: &SyntheticPair,
+    left: &View,
+    right: &View,
+    readouts: &[ReadoutResult],
+) -> Result<Vec<PathBuf>> {
+    std::fs::create_dir_all(&opts.out).with_context(|| format!("cannot create {}", opts.out.display()))?;
+    let (w, h) = (scene.left.width, scene.left.height);
+    let max_disparity = scene.disparity.iter().cloned().fold(1.0f32, f32::max);
+    let mut files = Vec::new();
+    let mut save = |name: &str, image: image::DynamicImage| -> Result<()> {
+        let path = opts.out.join(name);
+        save_png(&image, &path)?;
+        files.push(path);
+        Ok(())
+    };
+    save("left.png", gray(left)?)?;
+    save("right.png", gray(right)?)?;
+    save(
+        "disparity_true.png",
+        rgb(w, h, colourise(&scene.disparity, max_disparity))?,
+    )?;
+    for r in readouts {
+        save(
+            &format!("disparity_{}.png", r.name),
+            rgb(w, h, colourise(&r.disparity.values, max_disparity))?,
+        )?;
+        let errors: Vec<f32> = (r.disparity.values.iter().zip(&scene.disparity))
+            .map(|(p, t)| (p - t).abs())
+            .collect();
+        save(
+            &format!("error_{}.png", r.name),
+            rgb(w, h, error_colour(&errors, ERROR_MAP_MAX_PX))?,
+        )?;
+    }
+    let report = opts.out.join("report.json");
+    std::fs::write(&report, report_json(opts, readouts) + "\n")
+        .with_context(|| format!("cannot write {}", report.display()))?;
+    files.push(report);
+    Ok(files)
+}
+
+fn report_json(opts: &DemoOptions, readouts: &[ReadoutResult]) -> String {
+    let mut object = Object::new()
+        .str("tool", "bino demo")
+        .str("blob", &opts.blob.display().to_string())
+        .int("width", opts.width as u64)
+        .int("height", opts.height as u64)
+        .str(
+            "scene",
+            "built-in procedural planes: background d=4 px, boxes d=10 and 16 px",
+        );
+    for r in readouts {
+        object = object.raw(r.name, r.metrics.to_json());
+    }
+    object.render()
+}
+
+fn gray(view: &View) -> Result<image::DynamicImage> {
+    let pixels = crate::int8::to_u8(&view.pixels);
+    let image = image::GrayImage::from_raw(view.width as u32, view.height as u32, pixels)
+        .context("view size does not match its pixels")?;
+    Ok(image.into())
+}
+
+fn rgb(width: usize, height: usize, pixels: Vec<u8>) -> Result<image::DynamicImage> {
+    let image = image::RgbImage::from_raw(width as u32, height as u32, pixels)
+        .context("picture size does not match its pixels")?;
+    Ok(image.into())
+}
+
+/// Writes through a temporary file, so an interrupted run never leaves a partial picture.
+fn save_png(image: &image::DynamicImage, path: &Path) -> Result<()> {
+    let tmp = path.with_extension("png.partial");
+    image
+        .save_with_format(&tmp, image::ImageFormat::Png)
+        .with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bad_sizes_and_missing_blobs_are_errors() {
+        let opts = DemoOptions {
+            blob: PathBuf::from("/nonexistent/blob.bin"),
+            out: std::env::temp_dir().join("bino-demo-test"),
+            width: 162,
+            height: 48,
+            max_cols: 10,
+        };
+        let err = run_demo(&opts, |_| {}).unwrap_err().to_string();
+        assert!(err.contains("multiples of 4"), "{err}");
+        let opts = DemoOptions { width: 160, ..opts };
+        let err = format!("{:#}", run_demo(&opts, |_| {}).unwrap_err());
+        assert!(err.contains("/nonexistent/blob.bin"), "{err}");
+    }
+
+    #[test]
+    fn ground_truth_is_the_scene_disparity() {
+        let scene = default_scene(64, 48);
+        let truth = ground_truth(&scene);
+        assert_eq!(truth.disparity, scene.disparity);
+        assert_eq!(truth.valid_count(), 64 * 48);
+    }
+}

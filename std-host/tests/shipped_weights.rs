@@ -1,0 +1,79 @@
+//! The weights committed in weights/: the manifest's hashes match the files, and the int8 blob
+//! runs the demo and reads disparity out of the built-in scene better than a constant guess.
+
+use std::path::{Path, PathBuf};
+
+use bino_host::demo::{run_demo, DemoOptions, DEFAULT_BLOB};
+use bino_host::sha256::sha256_hex;
+use bino_host::synthetic::default_scene;
+
+fn weights() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../weights")
+}
+
+#[test]
+fn manifest_hashes_every_shipped_file() {
+    let text = std::fs::read_to_string(weights().join("MANIFEST.json")).expect("weights/MANIFEST.json");
+    let manifest: serde_json::Value = serde_json::from_str(&text).expect("manifest is JSON");
+    let files = manifest["files"].as_object().expect("manifest lists files");
+    for name in ["bino_encoder.onnx", "bino_head.onnx", "bino_int8.bin"] {
+        assert!(files.contains_key(name), "manifest lacks {name}");
+    }
+    for (name, want) in files {
+        let bytes = std::fs::read(weights().join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(
+            sha256_hex(&bytes),
+            want.as_str().unwrap(),
+            "{name} changed since the manifest"
+        );
+    }
+}
+
+#[test]
+fn demo_on_the_shipped_blob_beats_a_constant_guess() {
+    let (width, height) = (160, 48);
+    let out = std::env::temp_dir().join(format!("bino-demo-{}", std::process::id()));
+    let opts = DemoOptions {
+        blob: PathBuf::from(DEFAULT_BLOB),
+        out: out.clone(),
+        width,
+        height,
+        max_cols: 12,
+    };
+    let report = run_demo(&opts, |_| {}).expect("demo runs on the shipped blob");
+
+    // The best constant disparity under absolute error is the median of the truth.
+    let truth = default_scene(width, height).disparity;
+    let mut sorted = truth.clone();
+    sorted.sort_by(f32::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let constant_epe = truth.iter().map(|d| (d - median).abs()).sum::<f32>() / truth.len() as f32;
+
+    let names: Vec<&str> = report.readouts.iter().map(|r| r.name).collect();
+    assert_eq!(names, ["nolink", "head"], "the shipped blob carries the head");
+    for readout in &report.readouts {
+        assert!(
+            (readout.metrics.epe as f32) < 0.6 * constant_epe,
+            "{}: epe {} vs constant guess {constant_epe}",
+            readout.name,
+            readout.metrics.epe
+        );
+    }
+    for name in [
+        "left.png",
+        "disparity_true.png",
+        "disparity_head.png",
+        "error_nolink.png",
+    ] {
+        let picture = image::open(out.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(
+            (picture.width(), picture.height()),
+            (width as u32, height as u32),
+            "{name}"
+        );
+    }
+    let report_json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
+    assert!(report_json["head"]["epe"].as_f64().is_some(), "{report_json}");
+    std::fs::remove_dir_all(&out).ok();
+}
