@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use bino_host::demo::{run_demo, DemoOptions, DEFAULT_BLOB};
+use bino_host::eval::DEFAULT_MAX_COLS;
 use bino_host::sha256::sha256_hex;
 use bino_host::synthetic::default_scene;
 
@@ -31,14 +32,15 @@ fn manifest_hashes_every_shipped_file() {
 
 #[test]
 fn demo_on_the_shipped_blob_beats_a_constant_guess() {
-    let (width, height) = (160, 48);
+    // The demo's default scene: two overlapping bands, boxes at 10 and 16 px over a 4 px plane.
+    let (width, height) = (320, 96);
     let out = std::env::temp_dir().join(format!("bino-demo-{}", std::process::id()));
     let opts = DemoOptions {
         blob: PathBuf::from(DEFAULT_BLOB),
         out: out.clone(),
         width,
         height,
-        max_cols: 12,
+        max_cols: DEFAULT_MAX_COLS,
     };
     let report = run_demo(&opts, |_| {}).expect("demo runs on the shipped blob");
 
@@ -51,14 +53,15 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
 
     let names: Vec<&str> = report.readouts.iter().map(|r| r.name).collect();
     assert_eq!(names, ["nolink", "head"], "the shipped blob carries the head");
-    for readout in &report.readouts {
-        assert!(
-            (readout.metrics.epe as f32) < 0.6 * constant_epe,
-            "{}: epe {} vs constant guess {constant_epe}",
-            readout.name,
-            readout.metrics.epe
-        );
-    }
+    let epe: Vec<f32> = report.readouts.iter().map(|r| r.metrics.epe as f32).collect();
+    eprintln!("epe nolink {} head {} constant guess {constant_epe}", epe[0], epe[1]);
+    assert!(
+        epe[0] < 0.8 * constant_epe,
+        "nolink epe {} vs constant guess {constant_epe}",
+        epe[0]
+    );
+    // The head regularises over the volume: it should beat the raw winner-take-all readout.
+    assert!(epe[1] < epe[0], "head epe {} vs nolink {}", epe[1], epe[0]);
     for name in [
         "left.png",
         "disparity_true.png",

@@ -6,8 +6,7 @@ use std::path::PathBuf;
 use bino_core::model::encoder::{arena_bytes, GrayBand};
 use bino_core::model::probe::NoProbe;
 use bino_core::Error;
-use bino_host::compare::head::{compare_heads, FloatHeadRunner};
-use bino_host::compare::HeadComparison;
+use bino_host::compare::head::{compare_heads, FloatHeadRunner, HeadAgreement};
 use bino_host::int8::{dequantise_residual, Int8Model, StageRecorder};
 use bino_host::profile::Profile;
 use bino_host::quantize::{quantize, QuantizeOptions};
@@ -82,7 +81,7 @@ fn int8_descriptors_follow_float() {
     let float_right = float.descriptors(&right).unwrap();
     let mut float_head = FloatHeadRunner::load(&fixtures().join("head_random_seed0.onnx")).unwrap();
     let float_out = float_head.run(&expected, &float_right).unwrap();
-    let HeadComparison {
+    let HeadAgreement {
         logit_cosine: logit_cos,
         disparity_mean_abs: mean_abs,
     } = compare_heads(&head, &float_out).unwrap();

@@ -11,8 +11,6 @@ use bino_core::config::HEAD_MAX_DISP;
 use tract_onnx::prelude::*;
 
 use super::stages::cosine;
-use super::HeadComparison;
-use crate::eval::Metrics;
 use crate::int8::HeadMaps;
 use crate::reference::FeatureMap;
 use crate::taps::TappedModel;
@@ -66,9 +64,17 @@ impl FloatHeadRunner {
     }
 }
 
-/// Compares the int8 head's maps with the float head's on the same grid; `metrics` are the
-/// EVAL.md metrics of (float, int8) disparity, scored by the caller who has the ground truth.
-pub fn compare_heads(int8: &HeadMaps, float: &FloatHeadOutput, metrics: (Metrics, Metrics)) -> Result<HeadComparison> {
+/// How closely the int8 head's maps follow the float head's on the same grid.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HeadAgreement {
+    /// Cosine of the int8 and float logits over the valid candidates.
+    pub logit_cosine: f64,
+    /// Mean |int8 - float| soft-argmin disparity, in patch columns.
+    pub disparity_mean_abs: f64,
+}
+
+/// Compares the int8 head's maps with the float head's on the same grid.
+pub fn compare_heads(int8: &HeadMaps, float: &FloatHeadOutput) -> Result<HeadAgreement> {
     let (rows, cols) = (int8.rows, int8.cols);
     ensure!(
         int8.logits.len() == rows * cols * HEAD_MAX_DISP
@@ -94,24 +100,15 @@ pub fn compare_heads(int8: &HeadMaps, float: &FloatHeadOutput, metrics: (Metrics
         .map(|(x, y)| (x - y).abs() as f64)
         .sum::<f64>()
         / (rows * cols).max(1) as f64;
-    Ok(HeadComparison {
+    Ok(HeadAgreement {
         logit_cosine: cosine(&a, &b),
         disparity_mean_abs,
-        float: metrics.0,
-        int8: metrics.1,
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    const NO_METRICS: Metrics = Metrics {
-        epe: 0.0,
-        bad1tok: 0.0,
-        bad2: 0.0,
-        density: 0.0,
-    };
 
     fn maps(rows: usize, cols: usize, logit: impl Fn(usize, usize, usize) -> f32) -> (HeadMaps, FloatHeadOutput) {
         let mut engine = vec![0.0; rows * cols * HEAD_MAX_DISP];
@@ -144,7 +141,7 @@ mod tests {
     #[test]
     fn equal_heads_agree_whatever_the_layouts() {
         let (int8, float) = maps(2, 5, |r, p, d| (r * 31 + p * 7 + d) as f32 - 20.0);
-        let c = compare_heads(&int8, &float, (NO_METRICS, NO_METRICS)).unwrap();
+        let c = compare_heads(&int8, &float).unwrap();
         assert!((c.logit_cosine - 1.0).abs() < 1e-9, "{}", c.logit_cosine);
         assert_eq!(c.disparity_mean_abs, 0.0);
     }
@@ -154,11 +151,11 @@ mod tests {
         let (mut int8, mut float) = maps(1, 3, |_, p, d| (p + d) as f32 + 1.0);
         // Column 0 has only candidate 0; this one must not matter (and may be -inf).
         int8.logits[5] = f32::NEG_INFINITY;
-        let c = compare_heads(&int8, &float, (NO_METRICS, NO_METRICS)).unwrap();
+        let c = compare_heads(&int8, &float).unwrap();
         assert!((c.logit_cosine - 1.0).abs() < 1e-9);
         float.disparity[1] = 2.5;
         int8.logits[HEAD_MAX_DISP] = -50.0; // column 1, candidate 0: inside the view
-        let c = compare_heads(&int8, &float, (NO_METRICS, NO_METRICS)).unwrap();
+        let c = compare_heads(&int8, &float).unwrap();
         assert!(c.logit_cosine < 0.99);
         assert!((c.disparity_mean_abs - 1.0 / 3.0).abs() < 1e-9);
     }
@@ -167,6 +164,6 @@ mod tests {
     fn size_mismatch_is_an_error() {
         let (mut int8, float) = maps(1, 3, |_, _, _| 1.0);
         int8.disparity.pop();
-        assert!(compare_heads(&int8, &float, (NO_METRICS, NO_METRICS)).is_err());
+        assert!(compare_heads(&int8, &float).is_err());
     }
 }

@@ -283,8 +283,13 @@ impl Comparer {
             };
             score(&upsample_disparity(&tokens), &item.gt)
         };
-        let metrics = (scored(&float.disparity)?, scored(&int8.disparity)?);
-        head::compare_heads(&int8, &float, metrics).map(Some)
+        let agreement = head::compare_heads(&int8, &float)?;
+        Ok(Some(HeadComparison {
+            logit_cosine: agreement.logit_cosine,
+            disparity_mean_abs: agreement.disparity_mean_abs,
+            float: scored(&float.disparity)?,
+            int8: scored(&int8.disparity)?,
+        }))
     }
 
     fn compare_view(&mut self, view: &View) -> Result<ViewComparison> {
