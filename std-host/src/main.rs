@@ -359,6 +359,13 @@ fn quantize_command(opts: &QuantizeOptions, out: &Path) -> Result<()> {
             eprintln!();
         }
     })?;
+    if let Some(choice) = &report.head_choice {
+        eprintln!("head correlation format, mean |int8 - float| disparity on the calibration maps (train split):");
+        for (i, (label, error)) in choice.tried.iter().enumerate() {
+            let mark = if i == choice.chosen { "  <- chosen" } else { "" };
+            eprintln!("  {label:<20} {error:.4} patch columns{mark}");
+        }
+    }
     // The blob must load in the engine before it is written.
     Int8Model::from_bytes(blob.clone(), &out.display().to_string())?;
     write_atomically(out, |file| Ok(file.write_all(&blob)?))?;

@@ -24,6 +24,11 @@ const DESC_REL: f64 = 256.0;
 /// Upper percentile of the non-negative hidden activations.
 const HIDDEN_UPPER_PERCENTILE: f64 = 0.9999;
 const KERNEL: usize = 27;
+/// Upper percentiles of `|correlation|` tried as its clipping bound, besides the MSE choice.
+/// The volume's matching peaks are a heavy tail (on the shipped weights the maximum is ~6x
+/// the 99th percentile) that MSE spends most codes on, while the stem conv needs resolution
+/// in the bulk; which bound serves the head best is measured, not assumed.
+const CORRELATION_PERCENTILES: [f64; 5] = [0.9999, 0.999, 0.995, 0.99, 0.98];
 
 /// Tap names of the head ONNX (`python -m bino_train.head`): projected left and right,
 /// correlation volume, stem output, the middle layers' residual outputs.
@@ -51,11 +56,14 @@ pub struct HeadStats {
     pub hidden: Vec<Samples>,
     /// Descriptor map pairs seen.
     pub maps: usize,
+    /// The float head's disparity (patch columns) on each calibration pair.
+    pub float_disparity: Vec<Vec<f32>>,
 }
 
 /// Runs the float head on descriptor map pairs and gathers the statistics.
 pub fn collect(head_onnx: &Path, pairs: &[(FeatureMap, FeatureMap)]) -> Result<HeadStats> {
-    let names = head_taps();
+    let mut names = head_taps();
+    names.push("disparity".to_string());
     let mut model = TappedModel::load(head_onnx, &names, 2)?;
     let mut stats = HeadStats {
         hidden: vec![Samples::default(); 1 + HEAD_MIDDLE_LAYERS],
@@ -77,6 +85,7 @@ pub fn collect(head_onnx: &Path, pairs: &[(FeatureMap, FeatureMap)]) -> Result<H
         for (i, samples) in stats.hidden.iter_mut().enumerate() {
             samples.add(outputs[3 + i].1.iter().copied(), SAMPLES_PER_MAP);
         }
+        stats.float_disparity.push(outputs[names.len() - 1].1.clone());
         stats.maps += 1;
     }
     Ok(stats)
@@ -118,6 +127,62 @@ impl HeadFormats {
             hidden,
         }
     }
+
+    /// The formats to try, labelled: [`HeadFormats::choose`] (MSE correlation bound), then the
+    /// same with the correlation clipped at each of [`CORRELATION_PERCENTILES`].
+    pub fn candidates(stats: &HeadStats) -> Vec<(String, Self)> {
+        let mse = Self::choose(stats);
+        let mut abs: Vec<f32> = stats.correlation.values().iter().map(|v| v.abs()).collect();
+        abs.sort_by(f32::total_cmp);
+        let mut out = vec![("correlation MSE".to_string(), mse.clone())];
+        for q in CORRELATION_PERCENTILES {
+            let bound = percentile_sorted(&abs, q).max(1e-6);
+            let label = format!("correlation p{}", q * 100.0);
+            out.push((
+                label,
+                Self {
+                    correlation: bound / 127.0,
+                    ..mse.clone()
+                },
+            ));
+        }
+        out
+    }
+}
+
+/// Mean |int8 - float| head disparity in patch columns over the calibration pairs: the int8
+/// head of `model` on the float descriptors quantised to its input codes (`desc_scale`).
+pub fn disagreement(
+    model: &crate::int8::Int8Model,
+    pairs: &[(FeatureMap, FeatureMap)],
+    float_disparity: &[Vec<f32>],
+    desc_scale: f64,
+) -> Result<f64> {
+    ensure!(
+        pairs.len() == float_disparity.len() && !pairs.is_empty(),
+        "head calibration saw {} maps and {} float disparities",
+        pairs.len(),
+        float_disparity.len()
+    );
+    let codes = |map: &FeatureMap| -> Vec<i8> {
+        map.data
+            .iter()
+            .map(|&x| (x as f64 / desc_scale).round().clamp(-127.0, 127.0) as i8)
+            .collect()
+    };
+    let (mut sum, mut cells) = (0.0f64, 0usize);
+    for ((left, right), float) in pairs.iter().zip(float_disparity) {
+        let maps = model.head(&codes(left), &codes(right), left.rows, left.cols)?;
+        ensure!(maps.disparity.len() == float.len(), "head maps differ in size");
+        sum += maps
+            .disparity
+            .iter()
+            .zip(float)
+            .map(|(a, b)| (a - b).abs() as f64)
+            .sum::<f64>();
+        cells += float.len();
+    }
+    Ok(sum / cells as f64)
 }
 
 /// Writes every head tensor; `desc_scale` is the encoder's descriptor scale (the head's input).
@@ -287,4 +352,43 @@ pub fn calibration_maps(
         maps.push((dl, dr));
     }
     Ok(maps)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn samples(values: impl IntoIterator<Item = f32>) -> Samples {
+        let values: Vec<f32> = values.into_iter().collect();
+        let mut s = Samples::default();
+        s.add(values.into_iter(), usize::MAX);
+        s
+    }
+
+    #[test]
+    fn correlation_candidates_start_with_mse_and_tighten() {
+        // A bulk in [-10, 10] and a heavy tail of matching peaks up to 170.
+        let bulk = (0..10_000).map(|i| (i % 200) as f32 / 10.0 - 10.0);
+        let peaks = (0..50).map(|i| 20.0 + 3.0 * i as f32);
+        let stats = HeadStats {
+            normalised: samples([1.0, -1.0]),
+            projected: samples([1.0, -1.0]),
+            correlation: samples(bulk.chain(peaks)),
+            hidden: vec![samples([0.0, 1.0]); 1 + HEAD_MIDDLE_LAYERS],
+            ..Default::default()
+        };
+        let candidates = HeadFormats::candidates(&stats);
+        assert_eq!(candidates.len(), 1 + CORRELATION_PERCENTILES.len());
+        assert_eq!(candidates[0].1, HeadFormats::choose(&stats));
+        let bounds: Vec<f64> = candidates[1..].iter().map(|(_, f)| f.correlation * 127.0).collect();
+        assert!(bounds.windows(2).all(|w| w[0] > w[1]), "{bounds:?}");
+        assert!(bounds[0] <= 170.0 && *bounds.last().unwrap() >= 9.0, "{bounds:?}");
+        // Only the correlation format differs between candidates.
+        for (_, f) in &candidates[1..] {
+            assert_eq!(
+                (f.projected, &f.hidden),
+                (candidates[0].1.projected, &candidates[0].1.hidden)
+            );
+        }
+    }
 }

@@ -48,6 +48,18 @@ pub struct QuantizeReport {
     pub bands: usize,
     /// The chosen activation formats.
     pub formats: formats::EncoderFormats,
+    /// How the head's correlation format was chosen (with `--head`).
+    pub head_choice: Option<HeadChoice>,
+}
+
+/// The head format candidates and their measured disagreement with the float head on the
+/// train-split calibration maps; the lowest wins.
+#[derive(Debug, Clone)]
+pub struct HeadChoice {
+    /// (label, mean |int8 - float| disparity in patch columns), in the order tried.
+    pub tried: Vec<(String, f64)>,
+    /// Index of the winner in `tried`.
+    pub chosen: usize,
 }
 
 /// Builds the blob; `progress(done, total)` is called after each calibration band.
@@ -62,20 +74,51 @@ pub fn quantize(opts: &QuantizeOptions, progress: impl FnMut(usize, usize)) -> R
     let stats = calibrate::collect(&opts.encoder, &bands, progress)
         .context("calibration (it reads the encoder's intermediate tensors: export with `--intermediates`)")?;
     let formats = formats::EncoderFormats::choose(&stats);
-    let mut writer = BlobWriter::new();
-    encoder::write_encoder(&float, &formats, opts.max_width / CELL_W, &mut writer)?;
-    if let Some(head_onnx) = &opts.head {
-        let float_head = FloatHead::from_onnx(head_onnx)?;
-        let maps = head::calibration_maps(&opts.encoder, &opts.data, opts.profile, opts.head_calib_pairs)?;
-        let stats = head::collect(head_onnx, &maps).context("head calibration")?;
-        let head_formats = head::HeadFormats::choose(&stats);
-        head::write_head(&float_head, &head_formats, formats.descriptor, &mut writer)?;
+    let build = |head: Option<(&FloatHead, &head::HeadFormats)>| -> Result<Vec<u8>> {
+        let mut writer = BlobWriter::new();
+        encoder::write_encoder(&float, &formats, opts.max_width / CELL_W, &mut writer)?;
+        if let Some((float_head, head_formats)) = head {
+            head::write_head(float_head, head_formats, formats.descriptor, &mut writer)?;
+        }
+        Ok(writer.finish())
+    };
+    let Some(head_onnx) = &opts.head else {
+        return Ok((
+            build(None)?,
+            QuantizeReport {
+                bands: stats.bands,
+                formats,
+                head_choice: None,
+            },
+        ));
+    };
+    let float_head = FloatHead::from_onnx(head_onnx)?;
+    let maps = head::calibration_maps(&opts.encoder, &opts.data, opts.profile, opts.head_calib_pairs)?;
+    let head_stats = head::collect(head_onnx, &maps).context("head calibration")?;
+    // Each candidate blob runs the int8 head on the (train-split) calibration maps.
+    let mut best: Option<(f64, Vec<u8>)> = None;
+    let mut choice = HeadChoice {
+        tried: Vec::new(),
+        chosen: 0,
+    };
+    for (label, head_formats) in head::HeadFormats::candidates(&head_stats) {
+        let blob = build(Some((&float_head, &head_formats)))?;
+        let model = crate::int8::Int8Model::from_bytes(blob, &label)?;
+        let error = head::disagreement(&model, &maps, &head_stats.float_disparity, formats.descriptor)
+            .with_context(|| format!("head candidate {label}"))?;
+        if best.as_ref().is_none_or(|(e, _)| error < *e) {
+            choice.chosen = choice.tried.len();
+            best = Some((error, model.bytes().to_vec()));
+        }
+        choice.tried.push((label, error));
     }
+    let (_, blob) = best.context("no head format candidates")?;
     Ok((
-        writer.finish(),
+        blob,
         QuantizeReport {
             bands: stats.bands,
             formats,
+            head_choice: Some(choice),
         },
     ))
 }
