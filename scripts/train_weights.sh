@@ -56,8 +56,6 @@ py -m bino_train.head --checkpoint "$head/last.pt" --out "$weights/bino_head.onn
   --state-dict "$weights/bino_head.pt"
 py -m bino_train.export --checkpoint "$pre/last.pt" --out "$weights/bino_encoder.onnx" \
   --state-dict "$weights/bino_encoder.pt"
-# Calibration reads the per-stage tensors, which only the --intermediates export names.
-py -m bino_train.export --checkpoint "$pre/last.pt" --out runs/bino_encoder_taps.onnx --intermediates
 
 step "measurements (train/runs/metrics.json)"
 metrics=train/runs/metrics
@@ -71,7 +69,7 @@ py -m bino_train.head_eval --encoder "$pre/last.pt" --head "$head/last.pt" --thr
 
 step "int8 blob"
 cargo run -q --release --locked -p bino-host --bin bino -- quantize \
-  --onnx train/runs/bino_encoder_taps.onnx --head "$weights/bino_head.onnx" --calib "$data" \
+  --onnx "$weights/bino_encoder.onnx" --head "$weights/bino_head.onnx" --calib "$data" \
   --out "$weights/bino_int8.bin"
 cargo run -q --release --locked -p bino-host --bin bino -- compare --data "$data" --split eval \
   --profile w160 --onnx "$weights/bino_encoder.onnx" --blob "$weights/bino_int8.bin" \

@@ -86,11 +86,9 @@ enum Command {
     /// 0.01/99.99 percentiles for the residual stream, MSE-optimal clipping elsewhere
     /// (docs/int8-model.md).
     Quantize {
-        /// Float encoder exported with `--intermediates` (`python -m bino_train.export
-        /// --intermediates`): calibration reads its per-stage tensors. The shipped
-        /// weights/bino_encoder.onnx has the plain outputs; scripts/train_weights.sh makes the
-        /// intermediates export next to the run.
-        #[arg(long, default_value = "train/runs/bino_encoder_taps.onnx")]
+        /// Float encoder (`python -m bino_train.export`, with or without `--intermediates`):
+        /// calibration reads its per-stage tensors by value name.
+        #[arg(long, default_value = "weights/bino_encoder.onnx")]
         onnx: PathBuf,
         /// Float shared head (`python -m bino_train.head`); quantised into the same blob.
         #[arg(long)]

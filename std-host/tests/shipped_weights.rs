@@ -80,3 +80,26 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     assert!(report_json["head"]["epe"].as_f64().is_some(), "{report_json}");
     std::fs::remove_dir_all(&out).ok();
 }
+
+#[test]
+fn quantize_reads_the_plain_shipped_export() {
+    // The shipped encoder has no `--intermediates` outputs: calibration must find the embedding
+    // by its internal value name. A few calibration pairs keep this quick.
+    let opts = bino_host::quantize::QuantizeOptions {
+        encoder: weights().join("bino_encoder.onnx"),
+        head: Some(weights().join("bino_head.onnx")),
+        head_calib_pairs: 2,
+        data: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
+        profile: bino_host::profile::Profile::W160,
+        calib_pairs: 2,
+        max_width: 640,
+    };
+    let (blob, report) = bino_host::quantize::quantize(&opts, |_, _| {}).expect("quantises the plain export");
+    assert_eq!(report.bands, 4, "two pairs, both views");
+    let choice = report.head_choice.expect("head formats were searched");
+    assert_eq!(choice.tried.len(), 6);
+    let best = choice.tried[choice.chosen].1;
+    assert!(choice.tried.iter().all(|(_, e)| *e >= best), "{:?}", choice.tried);
+    let model = bino_host::int8::Int8Model::from_bytes(blob, "quick blob").expect("the blob loads");
+    assert!(model.has_head());
+}

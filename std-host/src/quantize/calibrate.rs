@@ -1,6 +1,7 @@
 //! Calibration: the float encoder (tract) on train-split bands, with the intermediate
 //! tensors ("taps") the int8 formats are chosen from.
 
+use crate::compare::stages::EmbedSource;
 use std::path::Path;
 
 use anyhow::{ensure, Context, Result};
@@ -85,9 +86,9 @@ pub fn block_taps(b: usize) -> [String; 8] {
     ]
 }
 
-/// Tap names, in the order [`collect`] reads them.
-pub fn tap_names() -> Vec<String> {
-    let mut names = vec!["embed".to_string(), "tokens".to_string()];
+/// Tap names, in the order [`collect`] reads them; the embedding is read from `embed`.
+pub fn tap_names(embed: EmbedSource) -> Vec<String> {
+    let mut names = vec![embed.name().to_string(), "tokens".to_string()];
     for b in 0..DEPTH {
         names.extend(block_taps(b));
     }
@@ -124,8 +125,22 @@ fn middle_band(view: &View) -> Result<View> {
 
 /// Runs the float encoder on `(band, band)` for every band and gathers the statistics.
 pub fn collect(onnx: &Path, bands: &[View], mut progress: impl FnMut(usize, usize)) -> Result<EncoderStats> {
-    let names = tap_names();
-    let mut model = TappedModel::load(onnx, &names, 2)?;
+    // A plain export has the embedding only as an internal value; block taps exist in both.
+    let (names, mut model) = match TappedModel::load(onnx, &tap_names(EmbedSource::GraphOutput), 2) {
+        Ok(model) => (tap_names(EmbedSource::GraphOutput), model),
+        Err(graph_err) => {
+            let names = tap_names(EmbedSource::InternalValue);
+            let model = TappedModel::load(onnx, &names, 2).map_err(|internal_err| {
+                anyhow::anyhow!(
+                    "cannot read the calibration tensors of {}: with the `embed` output: {graph_err:#}; \
+                     with its internal value: {internal_err:#}",
+                    onnx.display()
+                )
+            })?;
+            (names, model)
+        }
+    };
+    let embed = names[0].clone();
     let formats = 2 * DEPTH + 1;
     let mut stats = EncoderStats {
         residual: vec![vec![Samples::default(); DIM]; formats],
@@ -145,7 +160,7 @@ pub fn collect(onnx: &Path, bands: &[View], mut progress: impl FnMut(usize, usiz
             let at = names.iter().position(|n| n == name).context("unknown tap")?;
             Ok(&outputs[at].1)
         };
-        add_residual(&mut stats, 0, values("embed")?);
+        add_residual(&mut stats, 0, values(&embed)?);
         let tokens = values("tokens")?;
         stats
             .descriptors

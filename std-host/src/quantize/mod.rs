@@ -71,8 +71,7 @@ pub fn quantize(opts: &QuantizeOptions, progress: impl FnMut(usize, usize)) -> R
     );
     let float = FloatEncoder::from_onnx(&opts.encoder)?;
     let bands = calibrate::calibration_bands(&opts.data, opts.profile, opts.calib_pairs)?;
-    let stats = calibrate::collect(&opts.encoder, &bands, progress)
-        .context("calibration (it reads the encoder's intermediate tensors: export with `--intermediates`)")?;
+    let stats = calibrate::collect(&opts.encoder, &bands, progress).context("calibration")?;
     let formats = formats::EncoderFormats::choose(&stats);
     let build = |head: Option<(&FloatHead, &head::HeadFormats)>| -> Result<Vec<u8>> {
         let mut writer = BlobWriter::new();
