@@ -6,7 +6,7 @@
 //! and the output divides by their sum through one reciprocal per row, so diffuse attention
 //! over hundreds of keys keeps its mass instead of rounding every probability to zero.
 
-use super::exp::exp_neg_u8;
+use super::exp::exp_neg_u8_u32;
 use super::matmul::{dot, dot4};
 use crate::config::HEAD_DIM;
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
@@ -47,7 +47,7 @@ pub fn attend(
     }
     let mut total: u32 = 0;
     for (w, &s) in weights.iter_mut().zip(scores.iter()) {
-        *w = exp_neg_u8(max as i64 - s as i64, p.to_log2_q8);
+        *w = softmax_weight(max, s, p);
         total += *w as u32;
     }
     let mut acc = [0i32; HEAD_DIM];
@@ -120,7 +120,7 @@ pub fn attend_block(
     for (((s_row, w_row), &m), t) in rows.into_iter().zip(&max).zip(total.iter_mut()) {
         let mut sum = 0u32;
         for (w, &s) in w_row.iter_mut().zip(s_row.iter()) {
-            *w = exp_neg_u8(m as i64 - s as i64, p.to_log2_q8);
+            *w = softmax_weight(m, s, p);
             sum += *w as u32;
         }
         *t = sum;
@@ -135,6 +135,14 @@ pub fn attend_block(
     for ((out_q, acc_q), &t) in out.iter_mut().zip(&acc).zip(&total) {
         normalise(acc_q, t, p, out_q);
     }
+}
+
+/// The softmax weight of `score` under the row maximum `max`. Scores are dot products of
+/// `HEAD_DIM` int8 pairs (`|s| <= HEAD_DIM * 2^14`), so the gap never wraps and is
+/// non-negative; 32-bit gaps let the row loop vectorise.
+#[inline(always)]
+fn softmax_weight(max: i32, score: i32, p: &AttentionQ) -> u8 {
+    exp_neg_u8_u32(max.wrapping_sub(score) as u32, p.to_log2_q8)
 }
 
 /// Weighted average `acc / total` requantised to output codes (0 when nothing attended).

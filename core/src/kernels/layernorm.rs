@@ -44,7 +44,49 @@ pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
     }
 }
 
+/// Rows up to this many channels are normalised from a stack buffer of their values (computed
+/// once instead of once per pass); longer rows recompute them.
+const BUFFERED_DIM: usize = 256;
+
 fn layernorm_row<Z: I32s + ?Sized, R: I32s + ?Sized>(row: &[i8], p: &LayerNormQ<'_, Z, R>, out: &mut [i8]) {
+    if row.len() > BUFFERED_DIM {
+        return layernorm_row_unbuffered(row, p, out);
+    }
+    let d = row.len() as i64;
+    let mut buffer = [0i64; BUFFERED_DIM];
+    let v = &mut buffer[..row.len()];
+    for (c, (slot, &q)) in v.iter_mut().zip(row).enumerate() {
+        *slot = (q as i64 - p.zero.at(c) as i64) * p.rel.at(c) as i64;
+    }
+    let sum = v.iter().fold(0i64, |a, &x| a.saturating_add(x));
+    // Centred and scaled by D, exactly: no rounding of the mean.
+    let mut max_dev = 0u64;
+    for x in v.iter_mut() {
+        *x = x.saturating_mul(d).saturating_sub(sum);
+        max_dev = max_dev.max(x.unsigned_abs());
+    }
+    let shift = bit_length(max_dev) as i32 - WORK_BITS;
+    let mut sum_sq = 0i64;
+    for x in v.iter_mut() {
+        *x = scale_pow2(*x, -shift);
+        sum_sq = sum_sq.saturating_add(x.saturating_mul(*x));
+    }
+    let recip = reciprocal_std(sum_sq / d, p.eps, d, shift);
+    for (&x, o) in v.iter().zip(out.iter_mut()) {
+        let z_q16 = round_shift(x.saturating_mul(recip), RECIP_BITS - Z_FRAC_BITS);
+        *o = sat_i8_i64(p.out.apply_i64(z_q16));
+    }
+}
+
+/// `2^RECIP_BITS / sqrt(var + eps)`, with eps (in unit^2) brought to the centred values'
+/// scale: they carry a factor `d` and `2^-shift`.
+fn reciprocal_std(var: i64, eps: i64, d: i64, shift: i32) -> i64 {
+    let eps = scale_pow2(eps.saturating_mul(d * d), -2 * shift);
+    let std = (isqrt_u64(var.saturating_add(eps).max(0) as u64) as i64).max(1);
+    (1i64 << RECIP_BITS) / std
+}
+
+fn layernorm_row_unbuffered<Z: I32s + ?Sized, R: I32s + ?Sized>(row: &[i8], p: &LayerNormQ<'_, Z, R>, out: &mut [i8]) {
     let d = row.len() as i64;
     let value = |c: usize, q: i8| (q as i64 - p.zero.at(c) as i64) * p.rel.at(c) as i64;
     let sum: i64 = row
@@ -66,11 +108,7 @@ fn layernorm_row<Z: I32s + ?Sized, R: I32s + ?Sized>(row: &[i8], p: &LayerNormQ<
         let v = norm(c, q);
         v.saturating_mul(v)
     });
-    let var = sum_sq.fold(0i64, i64::saturating_add) / d;
-    // eps is in unit^2; the centred values carry a factor D and 2^-shift.
-    let eps = scale_pow2(p.eps.saturating_mul(d * d), -2 * shift);
-    let std = (isqrt_u64(var.saturating_add(eps).max(0) as u64) as i64).max(1);
-    let recip = (1i64 << RECIP_BITS) / std;
+    let recip = reciprocal_std(sum_sq.fold(0i64, i64::saturating_add) / d, p.eps, d, shift);
     for (c, (&q, o)) in row.iter().zip(out.iter_mut()).enumerate() {
         let z_q16 = round_shift(norm(c, q).saturating_mul(recip), RECIP_BITS - Z_FRAC_BITS);
         *o = sat_i8_i64(p.out.apply_i64(z_q16));
@@ -109,6 +147,45 @@ mod tests {
         let var = real.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n;
         for (o, v) in out.iter_mut().zip(real) {
             *o = ((v - mean) / sqrt(var + eps) / out_scale).clamp(-128.0, 127.0);
+        }
+    }
+
+    #[test]
+    fn buffered_rows_equal_the_unbuffered_path() {
+        const D: usize = 128;
+        let mut rng = Rng::new(3);
+        for trial in 0..40 {
+            // Ordinary formats, then extreme ones (saturation must agree too).
+            let wide = trial >= 30;
+            let zero: [i32; D] = core::array::from_fn(|_| {
+                if wide {
+                    rng.range(i32::MIN as i64, i32::MAX as i64) as i32
+                } else {
+                    rng.range(-600, 600) as i32
+                }
+            });
+            let rel: [i32; D] = core::array::from_fn(|_| {
+                if wide {
+                    rng.range(0, i32::MAX as i64) as i32
+                } else {
+                    rng.range(1, 40_000) as i32
+                }
+            });
+            let p = LayerNormQ {
+                zero: &zero,
+                rel: &rel,
+                eps: rng.range(0, 1 << 20),
+                out: Requant {
+                    mult: rng.range(1 << 30, i32::MAX as i64) as i32,
+                    shift: rng.range(20, 50) as u32,
+                },
+            };
+            let mut x = [0i8; D];
+            rng.fill_i8(&mut x);
+            let (mut fast, mut slow) = ([0i8; D], [0i8; D]);
+            layernorm_row(&x, &p, &mut fast);
+            layernorm_row_unbuffered(&x, &p, &mut slow);
+            assert_eq!(fast, slow, "trial {trial}");
         }
     }
 
