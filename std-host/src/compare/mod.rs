@@ -86,6 +86,11 @@ pub struct Comparison {
     pub descriptor_cosine: f64,
     /// % of left-view cells whose integer WTA disparity is the same for both models.
     pub wta_agreement: f64,
+    /// Where the winners differ: mean float similarity the int8 winner gives up against the
+    /// float winner (0 without flips). Small against `wta_top2_gap` means flips are near-ties.
+    pub wta_flip_loss: f64,
+    /// Median over cells of the float volume's gap between its best and second-best candidate.
+    pub wta_top2_gap: f64,
     /// Metrics of the no-linkage readout of the float descriptors.
     pub float: Metrics,
     /// Metrics of the no-linkage readout of the int8 descriptors.
@@ -113,6 +118,8 @@ impl Comparison {
             stage_cosine: (0..STAGE_COUNT).map(|s| mean(&|c| c.stage_cosine[s])).collect(),
             descriptor_cosine: mean(&|c| c.descriptor_cosine),
             wta_agreement: mean(&|c| c.wta_agreement),
+            wta_flip_loss: mean(&|c| c.wta_flip_loss),
+            wta_top2_gap: mean(&|c| c.wta_top2_gap),
             float: mean_metrics(&floats)?,
             int8: mean_metrics(&int8s)?,
             head: match heads {
@@ -249,6 +256,8 @@ impl Comparer {
                 .collect(),
             descriptor_cosine: 0.5 * (left.descriptor_cosine + right.descriptor_cosine),
             wta_agreement: wta_agreement(&float_volume, &int8_volume)?,
+            wta_flip_loss: wta_flip_loss(&float_volume, &int8_volume)?,
+            wta_top2_gap: top2_gap_median(&float_volume),
             float: readout_metrics(&float_volume, item).context("float readout")?,
             int8: readout_metrics(&int8_volume, item).context("int8 readout")?,
             head: self.compare_head(&left, &right, item).context("shared head")?,
@@ -398,6 +407,49 @@ pub fn wta_agreement(a: &SimilarityVolume, b: &SimilarityVolume) -> Result<f64> 
     Ok(100.0 * same as f64 / wa.len() as f64)
 }
 
+/// Mean float similarity lost where the int8 WTA winner differs from the float one: `float`
+/// at its own winner minus `float` at the int8 winner (0 when they always agree).
+pub fn wta_flip_loss(float: &SimilarityVolume, int8: &SimilarityVolume) -> Result<f64> {
+    ensure!(
+        (float.rows, float.cols, float.candidates) == (int8.rows, int8.cols, int8.candidates),
+        "similarity volumes differ in shape"
+    );
+    let (wf, wi) = (wta_integer(float), wta_integer(int8));
+    let sims = float.values.chunks_exact(float.candidates.max(1));
+    let (mut lost, mut flips) = (0.0f64, 0usize);
+    for ((s, &a), &b) in sims.zip(&wf).zip(&wi) {
+        if a != b && s[b].is_finite() {
+            lost += (s[a] - s[b]) as f64;
+            flips += 1;
+        }
+    }
+    Ok(if flips == 0 { 0.0 } else { lost / flips as f64 })
+}
+
+/// Median over cells with two or more finite candidates of best minus second-best similarity.
+pub fn top2_gap_median(volume: &SimilarityVolume) -> f64 {
+    let mut gaps: Vec<f32> = volume
+        .values
+        .chunks_exact(volume.candidates.max(1))
+        .filter_map(|sims| {
+            let mut top = [f32::NEG_INFINITY; 2];
+            for &s in sims.iter().filter(|s| s.is_finite()) {
+                if s > top[0] {
+                    top = [s, top[0]];
+                } else if s > top[1] {
+                    top[1] = s;
+                }
+            }
+            top[1].is_finite().then(|| top[0] - top[1])
+        })
+        .collect();
+    if gaps.is_empty() {
+        return 0.0;
+    }
+    gaps.sort_by(f32::total_cmp);
+    gaps[gaps.len() / 2] as f64
+}
+
 // EVAL.md metrics of the no-linkage readout of one similarity volume.
 fn readout_metrics(volume: &SimilarityVolume, item: &EvalItem) -> Result<Metrics> {
     score(&upsample_disparity(&wta_subtoken(volume)), &item.gt)
@@ -469,6 +521,12 @@ mod tests {
         assert_eq!(wta_integer(&v), [0, 1, 0]);
         let w = volume(vec![0.5, ninf, ninf, 0.95, 0.9, ninf, 0.3, 0.3, 0.2], 3);
         assert!((wta_agreement(&v, &w).unwrap() - 200.0 / 3.0).abs() < 1e-9);
+        // The one flip (cell 1: float picks 0.9, the other volume's winner has 0.1 there).
+        assert!((wta_flip_loss(&v, &w).unwrap() - 0.8).abs() < 1e-6);
+        assert_eq!(wta_flip_loss(&v, &v).unwrap(), 0.0);
+        // Gaps: cell 0 has one finite candidate (skipped), cell 1: 0.8, cell 2: 0.0.
+        let gap = top2_gap_median(&v);
+        assert!((gap - 0.8).abs() < 1e-6, "{gap}");
     }
 
     fn metrics(epe: f64) -> Metrics {
@@ -486,6 +544,8 @@ mod tests {
             stage_cosine: vec![1.0; STAGE_COUNT],
             descriptor_cosine: 1.0,
             wta_agreement: 100.0,
+            wta_flip_loss: 0.0,
+            wta_top2_gap: 0.1,
             float: metrics(2.0),
             int8: metrics(2.0),
             head: Some(HeadComparison {

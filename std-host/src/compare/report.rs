@@ -122,6 +122,12 @@ impl CompareReport {
             mean.wta_agreement,
             check("wta_agreement_pct")
         );
+        let _ = writeln!(
+            t,
+            "  where they differ, the int8 winner is {:.5} below the float winner in float similarity\n  \
+             (median best-to-second gap of the float volume: {:.5})",
+            mean.wta_flip_loss, mean.wta_top2_gap
+        );
         let _ = writeln!(t, "\nno-linkage readout   float      int8     change");
         let metric_row = |t: &mut String, name: &str, f: f64, i: f64, extra: &str| {
             let change = (i - f) / f * 100.0;
@@ -244,6 +250,8 @@ fn comparison_fields(object: Object, c: &Comparison) -> Object {
         .raw("stage_cosine", stages.render())
         .num("descriptor_cosine", c.descriptor_cosine)
         .num("wta_agreement_pct", c.wta_agreement)
+        .num("wta_flip_loss", c.wta_flip_loss)
+        .num("wta_top2_gap", c.wta_top2_gap)
         .raw("float", c.float.to_json())
         .raw("int8", c.int8.to_json())
         .num("epe_change_pct", c.epe_change_pct())
@@ -281,6 +289,8 @@ mod tests {
             stage_cosine: (0..STAGE_COUNT).map(|s| 1.0 - s as f64 * 1e-3).collect(),
             descriptor_cosine: desc,
             wta_agreement: wta,
+            wta_flip_loss: 0.001,
+            wta_top2_gap: 0.02,
             float: m(epe_float),
             int8: m(epe_int8),
             head: None,
