@@ -43,10 +43,83 @@ pub fn requant_rows<B: I32s + ?Sized, M: I32s + ?Sized, Z: I32s + ?Sized>(
     if n == 0 {
         return;
     }
-    for (acc_row, out_row) in acc.chunks_exact(n).zip(out.chunks_exact_mut(n)) {
-        for (c, (&a, o)) in acc_row.iter().zip(out_row.iter_mut()).enumerate() {
-            *o = sat_i8_i64(rq.apply(c, a) + zero.at(c) as i64);
+    let rows = acc.len().min(out.len()) / n;
+    let mut start = 0;
+    while start < n {
+        let len = (n - start).min(CHANNEL_CHUNK);
+        match ChunkParams::decode(rq, start, len) {
+            Some(params) => {
+                let mut zeros = [0i64; CHANNEL_CHUNK];
+                for (c, z) in zeros[..len].iter_mut().enumerate() {
+                    *z = zero.at(start + c) as i64;
+                }
+                for r in 0..rows {
+                    let at = r * n + start..r * n + start + len;
+                    let (Some(acc_part), Some(out_part)) = (acc.get(at.clone()), out.get_mut(at)) else {
+                        break;
+                    };
+                    for (i, (&a, o)) in acc_part.iter().zip(out_part.iter_mut()).enumerate() {
+                        *o = sat_i8_i64(params.apply(i, a) + zeros[i]);
+                    }
+                }
+            }
+            None => {
+                for r in 0..rows {
+                    for c in start..start + len {
+                        let i = r * n + c;
+                        if let (Some(&a), Some(o)) = (acc.get(i), out.get_mut(i)) {
+                            *o = sat_i8_i64(rq.apply(c, a) + zero.at(c) as i64);
+                        }
+                    }
+                }
+            }
         }
+        start += len;
+    }
+}
+
+/// Channels whose requantisation parameters are decoded at once (1 KiB of stack).
+const CHANNEL_CHUNK: usize = 64;
+
+/// One chunk of [`ChannelRequant`] decoded into plain arrays, for formats in which the exact
+/// arithmetic needs no saturation: `|bias| < 2^30` and shifts in `1..=62` make
+/// `|(acc + bias) * mult| < 1.5 * 2^62`, so adding the rounding half cannot overflow and the
+/// result equals [`ChannelRequant::apply`] bit for bit. The quantiser only makes such formats.
+struct ChunkParams {
+    bias: [i32; CHANNEL_CHUNK],
+    mult: [i32; CHANNEL_CHUNK],
+    shift: [u32; CHANNEL_CHUNK],
+}
+
+impl ChunkParams {
+    fn decode<B: I32s + ?Sized, M: I32s + ?Sized>(
+        rq: &ChannelRequant<'_, B, M>,
+        start: usize,
+        len: usize,
+    ) -> Option<Self> {
+        let mut p = ChunkParams {
+            bias: [0; CHANNEL_CHUNK],
+            mult: [0; CHANNEL_CHUNK],
+            shift: [1; CHANNEL_CHUNK],
+        };
+        for i in 0..len.min(CHANNEL_CHUNK) {
+            let c = start + i;
+            let (bias, shift) = (rq.bias.at(c), rq.shift.get(c).copied().unwrap_or(1) as u32);
+            if bias.unsigned_abs() >= 1 << 30 || !(1..=62).contains(&shift) {
+                return None;
+            }
+            (p.bias[i], p.mult[i], p.shift[i]) = (bias, rq.mult.at(c), shift);
+        }
+        Some(p)
+    }
+
+    /// [`ChannelRequant::apply`] for channel `start + i`, without saturation (see the type).
+    #[inline(always)]
+    fn apply(&self, i: usize, acc: i32) -> i64 {
+        let i = i % CHANNEL_CHUNK;
+        let product = (acc as i64 + self.bias[i] as i64).wrapping_mul(self.mult[i] as i64);
+        let shift = self.shift[i] & 63;
+        product.wrapping_add(1i64 << ((shift.wrapping_sub(1)) & 63)) >> shift
     }
 }
 
@@ -137,6 +210,44 @@ mod tests {
             let c = i % 4;
             let want = ((a + bias[c]) as f64 * scales[c] - 3.0).clamp(-128.0, 127.0);
             assert!((o as f64 - want).abs() <= 0.5 + 1e-6, "{i}: {o} vs {want}");
+        }
+    }
+
+    #[test]
+    fn requant_rows_equals_the_per_channel_formula_across_chunks() {
+        const N: usize = 130; // two full chunks and a tail
+        let mut rng = Rng::new(9);
+        for trial in 0..6 {
+            let mult: [i32; N] = core::array::from_fn(|_| rng.range(1 << 30, i32::MAX as i64) as i32);
+            let shift: [u8; N] = core::array::from_fn(|_| rng.range(20, 45) as u8);
+            let mut bias: [i32; N] = core::array::from_fn(|_| rng.range(-1 << 20, 1 << 20) as i32);
+            if trial >= 3 {
+                // A bias no quantiser makes: that chunk takes the saturating path.
+                bias[70] = i32::MIN;
+            }
+            let zero: [i32; N] = core::array::from_fn(|_| rng.range(-128, 127) as i32);
+            let rq = ChannelRequant {
+                bias: &bias,
+                mult: &mult,
+                shift: &shift,
+            };
+            let acc: [i32; 3 * N] = core::array::from_fn(|_| {
+                if trial % 3 == 2 {
+                    rng.range(i32::MIN as i64, i32::MAX as i64) as i32
+                } else {
+                    rng.range(-1 << 24, 1 << 24) as i32
+                }
+            });
+            let mut out = [0i8; 3 * N];
+            requant_rows(&acc, &rq, &zero, &mut out);
+            for (i, (&a, &o)) in acc.iter().zip(&out).enumerate() {
+                let c = i % N;
+                assert_eq!(
+                    o,
+                    sat_i8_i64(rq.apply(c, a) + zero[c] as i64),
+                    "trial {trial} index {i}"
+                );
+            }
         }
     }
 
