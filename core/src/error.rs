@@ -66,6 +66,13 @@ pub enum Error {
     },
     /// Rows were pushed into a stream after it was finished.
     StreamFinished,
+    /// More disparity candidates were asked of row matching than it supports (or none).
+    Candidates {
+        /// Candidates asked for.
+        requested: usize,
+        /// The most supported.
+        max: usize,
+    },
     /// The weight blob is malformed or lacks a tensor the model needs.
     Blob(crate::blob::BlobError),
 }
@@ -95,6 +102,12 @@ impl fmt::Display for Error {
                 write!(f, "weight blob tensor {:#010x} holds an out-of-range parameter", id.0)
             }
             Error::StreamFinished => write!(f, "row pushed after the stream was finished"),
+            Error::Candidates { requested, max } => {
+                write!(
+                    f,
+                    "{requested} disparity candidates requested; row matching supports 1 to {max}"
+                )
+            }
             Error::Blob(e) => write!(f, "{e}"),
         }
     }

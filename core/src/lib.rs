@@ -25,6 +25,7 @@ pub mod crc32;
 pub mod error;
 pub mod fixed;
 pub mod kernels;
+pub mod matching;
 pub mod model;
 #[cfg(test)]
 mod testutil;

@@ -6,15 +6,14 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
-use bino_core::config::{BAND_ROWS, DIM};
+use bino_core::config::BAND_ROWS;
 use bino_core::model::{encoder, head};
 
 use crate::colour::{colourise, error_colour};
-use crate::eval::{no_linkage_disparity, score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
-use crate::int8::Int8Model;
+use crate::eval::{score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
+use crate::int8::{match_rows, Int8Model};
 use crate::json::Object;
 use crate::profile::{Profile, View};
-use crate::reference::FeatureMap;
 use crate::synthetic::{default_scene, SyntheticPair};
 
 /// The int8 blob shipped with the repository (found from any working directory).
@@ -96,15 +95,8 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
 
     let truth = ground_truth(&scene);
     let mut readouts = Vec::new();
-    readouts.push(steps.run("no-linkage matching", || {
-        let scale = model.descriptor_scale()?;
-        let map = |codes: &[i8]| FeatureMap {
-            rows,
-            cols,
-            dim: DIM,
-            data: codes.iter().map(|&c| c as f32 * scale).collect(),
-        };
-        let tokens = no_linkage_disparity(&map(&codes_left), &map(&codes_right), opts.max_cols)?;
+    readouts.push(steps.run("no-linkage matching (integer, row by row)", || {
+        let tokens = match_rows(&codes_left, &codes_right, rows, cols, opts.max_cols)?;
         scored("nolink", &tokens, &truth)
     })?);
     if model.has_head() {

@@ -8,6 +8,7 @@ use anyhow::{ensure, Context, Result};
 use bino_core::band::BandPlan;
 use bino_core::blob::Blob;
 use bino_core::config::{check_view_size, DIM, PATCH_H};
+use bino_core::matching;
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
 use bino_core::model::head::{
     arena_bytes as head_arena_bytes, HeadRow, HeadSink, HeadStream, HeadWeights, OUT_FRAC_BITS,
@@ -15,6 +16,7 @@ use bino_core::model::head::{
 use bino_core::model::ids::{self, kind};
 use bino_core::model::probe::{NoProbe, Probe, Stage};
 
+use crate::eval::DisparityMap;
 use crate::profile::View;
 use crate::reference::FeatureMap;
 
@@ -260,4 +262,27 @@ fn meta_f32(blob: &Blob<'_>, id: bino_core::blob::TensorId, len: usize) -> Resul
         .chunks_exact(4)
         .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
         .collect())
+}
+
+/// The integer no-linkage readout of `bino_core::matching`, row by row as a streaming pipeline
+/// runs it: descriptor codes (`rows x cols x DIM`, both views) to disparity in patch columns.
+pub fn match_rows(left: &[i8], right: &[i8], rows: usize, cols: usize, max_cols: usize) -> Result<DisparityMap> {
+    ensure!(
+        left.len() == rows * cols * DIM && right.len() == left.len(),
+        "descriptor maps differ from {rows}x{cols}x{DIM}"
+    );
+    let mut norms = vec![0u32; cols];
+    let mut row_out = vec![0u16; cols];
+    let mut values = Vec::with_capacity(rows * cols);
+    for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
+        matching::inverse_norms(r, DIM, &mut norms).map_err(anyhow::Error::msg)?;
+        matching::match_row(l, r, &norms, DIM, max_cols, &mut row_out).map_err(anyhow::Error::msg)?;
+        let unit = (1u32 << matching::DISPARITY_FRAC_BITS) as f32;
+        values.extend(row_out.iter().map(|&d| d as f32 / unit));
+    }
+    Ok(DisparityMap {
+        width: cols,
+        height: rows,
+        values,
+    })
 }

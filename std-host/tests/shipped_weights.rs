@@ -103,3 +103,48 @@ fn quantize_reads_the_plain_shipped_export() {
     let model = bino_host::int8::Int8Model::from_bytes(blob, "quick blob").expect("the blob loads");
     assert!(model.has_head());
 }
+
+#[test]
+fn integer_row_matching_agrees_with_the_float_readout() {
+    // The same int8 descriptor codes through core's streaming integer matcher and through the
+    // host's float similarity volume (the scale cancels in a cosine).
+    use bino_host::eval::no_linkage_disparity;
+    use bino_host::int8::{match_rows, Int8Model};
+    use bino_host::profile::Profile;
+    use bino_host::reference::FeatureMap;
+
+    let model = Int8Model::load(Path::new(DEFAULT_BLOB)).unwrap();
+    let scene = default_scene(160, 48);
+    let (rows, cols, left) = model
+        .descriptor_codes(&Profile::Native.apply(&scene.left).unwrap())
+        .unwrap();
+    let (_, _, right) = model
+        .descriptor_codes(&Profile::Native.apply(&scene.right).unwrap())
+        .unwrap();
+    let integer = match_rows(&left, &right, rows, cols, DEFAULT_MAX_COLS).unwrap();
+    let map = |codes: &[i8]| FeatureMap {
+        rows,
+        cols,
+        dim: codes.len() / (rows * cols),
+        data: codes.iter().map(|&c| c as f32).collect(),
+    };
+    let float = no_linkage_disparity(&map(&left), &map(&right), DEFAULT_MAX_COLS).unwrap();
+    let cells = integer.values.len();
+    let same_winner = integer
+        .values
+        .iter()
+        .zip(&float.values)
+        .filter(|(a, b)| a.round() == b.round())
+        .count();
+    let mean_abs = integer
+        .values
+        .iter()
+        .zip(&float.values)
+        .map(|(a, b)| (a - b).abs())
+        .sum::<f32>()
+        / cells as f32;
+    eprintln!("integer vs float readout: {same_winner}/{cells} same rounded disparity, mean |diff| {mean_abs}");
+    assert!(same_winner as f32 >= 0.99 * cells as f32, "{same_winner}/{cells}");
+    // Q8 output: only rounding of the parabola step differs where the winner is the same.
+    assert!(mean_abs < 0.02, "{mean_abs}");
+}

@@ -1,0 +1,213 @@
+//! The no-linkage readout in integers, one descriptor row at a time: each left cell is compared
+//! by cosine similarity with the right cells 0 .. `max_cols - 1` patch columns to its left, the
+//! first maximum wins, and a parabola through its neighbours refines it to 1/256 column.
+//!
+//! Streaming: a row needs only its own left and right descriptors (int8 codes) and a scratch of
+//! one inverse norm per right cell, so a pipeline can match each descriptor row as the encoder
+//! emits it; the similarity volume is never stored. The left cell's norm is a common factor of
+//! its candidates, so it changes neither the winner nor the parabola and is not computed.
+
+use crate::fixed::isqrt_u64;
+use crate::Error;
+
+/// Most disparity candidates one cell may have.
+pub const MAX_CANDIDATES: usize = 64;
+/// Fraction bits of the matched disparity (patch columns, Q8).
+pub const DISPARITY_FRAC_BITS: u32 = 8;
+/// `2^INV_NORM_BITS / |r|` is the fixed-point inverse norm of a right descriptor.
+const INV_NORM_BITS: u32 = 30;
+
+/// `round(2^30 / |d|)` for each `dim`-code descriptor of `row` into `out` (0 for an all-zero
+/// descriptor, whose similarities are then 0, as with `F.normalize`).
+pub fn inverse_norms(row: &[i8], dim: usize, out: &mut [u32]) -> Result<(), Error> {
+    let cells = check_row(row, dim)?;
+    check_len("inverse norms", out.len(), cells)?;
+    for (d, o) in row.chunks_exact(dim).zip(out.iter_mut()) {
+        let sum_sq: u64 = d.iter().map(|&x| (x as i32 * x as i32) as u64).sum();
+        // |d|^2 <= dim * 2^14; the square root keeps 16 fraction bits via a 2^32 prescale.
+        let norm_q16 = isqrt_u64(sum_sq << 32) as u64;
+        let scaled = (1u64 << (INV_NORM_BITS + 16)) + norm_q16 / 2;
+        *o = scaled.checked_div(norm_q16).map_or(0, |inv| inv as u32);
+    }
+    Ok(())
+}
+
+/// Matches one row: `left` and `right` are `cols x dim` codes of the same token row,
+/// `right_inv_norms` comes from [`inverse_norms`] of `right`; writes each left cell's
+/// disparity in Q8 patch columns to `out` (`cols` entries).
+pub fn match_row(
+    left: &[i8],
+    right: &[i8],
+    right_inv_norms: &[u32],
+    dim: usize,
+    max_cols: usize,
+    out: &mut [u16],
+) -> Result<(), Error> {
+    let cells = check_row(left, dim)?;
+    if right.len() != left.len() {
+        return Err(Error::PairMismatch);
+    }
+    check_len("right inverse norms", right_inv_norms.len(), cells)?;
+    check_len("disparity row", out.len(), cells)?;
+    if !(1..=MAX_CANDIDATES).contains(&max_cols) {
+        return Err(Error::Candidates {
+            requested: max_cols,
+            max: MAX_CANDIDATES,
+        });
+    }
+    let mut sims = [0i64; MAX_CANDIDATES];
+    for (p, (l, o)) in left.chunks_exact(dim).zip(out.iter_mut()).enumerate() {
+        let candidates = max_cols.min(p + 1);
+        for (k, s) in sims.iter_mut().enumerate().take(candidates) {
+            let q = p - k;
+            let r = right.get(q * dim..(q + 1) * dim).unwrap_or_default();
+            let dot: i32 = l.iter().zip(r).map(|(&a, &b)| a as i32 * b as i32).sum();
+            *s = dot as i64 * right_inv_norms.get(q).copied().unwrap_or(0) as i64;
+        }
+        *o = refine(&sims[..candidates], max_cols);
+    }
+    Ok(())
+}
+
+/// First maximum plus the parabola step (clamped to half a column), taken only when both
+/// neighbours are inside the candidate range and the parabola opens downwards; Q8.
+fn refine(sims: &[i64], max_cols: usize) -> u16 {
+    let mut best = 0;
+    for (k, &s) in sims.iter().enumerate() {
+        if s > sims[best] {
+            best = k;
+        }
+    }
+    let base = (best as i64) << DISPARITY_FRAC_BITS;
+    let step = match (best.checked_sub(1).and_then(|k| sims.get(k)), sims.get(best + 1)) {
+        // The float readout's candidate range is max_cols wide even where fewer exist: a
+        // winner at its last slot has no right neighbour there either.
+        (Some(&l), Some(&r)) if best + 1 < max_cols => {
+            let at = sims[best];
+            let denom = l - 2 * at + r;
+            if denom < 0 {
+                let half = 1i64 << (DISPARITY_FRAC_BITS - 1);
+                // (l - r) / (2 denom) in Q8, rounded to nearest.
+                let num = (l - r) << DISPARITY_FRAC_BITS;
+                let den = 2 * denom;
+                let half_den = den.abs() / 2;
+                let q = if num >= 0 { num + half_den } else { num - half_den } / den;
+                q.clamp(-half, half)
+            } else {
+                0
+            }
+        }
+        _ => 0,
+    };
+    (base + step).clamp(0, u16::MAX as i64) as u16
+}
+
+fn check_row(row: &[i8], dim: usize) -> Result<usize, Error> {
+    if dim == 0 || row.is_empty() {
+        return Err(Error::EmptyImage);
+    }
+    if !row.len().is_multiple_of(dim) {
+        return Err(Error::BufferSize {
+            what: "descriptor row",
+            expected: row.len() / dim * dim,
+            found: row.len(),
+        });
+    }
+    Ok(row.len() / dim)
+}
+
+fn check_len(what: &'static str, found: usize, expected: usize) -> Result<(), Error> {
+    if found == expected {
+        Ok(())
+    } else {
+        Err(Error::BufferSize { what, expected, found })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::Rng;
+
+    const DIM: usize = 16;
+
+    /// Right row = left row shifted by `shift` cells (new cells random): matches find it.
+    #[test]
+    fn recovers_a_known_shift_exactly() {
+        let mut rng = Rng::new(4);
+        let cols = 20;
+        let mut right = [0i8; 20 * DIM];
+        rng.fill_i8(&mut right);
+        let shift = 3;
+        let mut left = [0i8; 20 * DIM];
+        rng.fill_i8(&mut left);
+        for p in shift..cols {
+            left[p * DIM..(p + 1) * DIM].copy_from_slice(&right[(p - shift) * DIM..(p - shift + 1) * DIM]);
+        }
+        let mut norms = [0u32; 20];
+        inverse_norms(&right, DIM, &mut norms).unwrap();
+        let mut out = [0u16; 20];
+        match_row(&left, &right, &norms, DIM, 8, &mut out).unwrap();
+        for (p, &d) in out.iter().enumerate().skip(shift) {
+            // The winner is exact; random neighbours may pull the parabola a little.
+            assert_eq!((d as i64 + 128) >> 8, shift as i64, "cell {p}: {d}");
+        }
+    }
+
+    #[test]
+    fn parabola_step_matches_the_float_formula() {
+        // sims around the winner k = 2: l = 70, at = 100, r = 90 -> step (70 - 90) / (2 * -40) = 0.25.
+        let sims = [10, 70, 100, 90, 20];
+        assert_eq!(refine(&sims, 5), 2 * 256 + 64);
+        // Winner at the edge of the range: no step.
+        assert_eq!(refine(&[5, 9], 2), 256);
+        // (1 - 3) / (2 * (1 - 10 + 3)) = 0.1667 -> 43/256, rounded to nearest.
+        assert_eq!(refine(&[1, 5, 3], 3), 256 + 43);
+        // Near the left border fewer candidates exist: a winner without a right neighbour
+        // takes no step.
+        assert_eq!(refine(&[1, 5], 3), 256);
+        // A tie goes to the first maximum, whose parabola step is then exactly half a column.
+        assert_eq!(refine(&[0, 100, 100], 3), 256 + 128);
+        assert_eq!(refine(&[0, 100, 99], 3), 256 + 125);
+    }
+
+    #[test]
+    fn zero_descriptors_have_zero_similarity() {
+        let right = [0i8; 2 * DIM];
+        let mut norms = [7u32; 2];
+        inverse_norms(&right, DIM, &mut norms).unwrap();
+        assert_eq!(norms, [0, 0]);
+    }
+
+    #[test]
+    fn bad_shapes_are_errors() {
+        let row = [1i8; 4 * DIM];
+        let mut norms = [0u32; 4];
+        let mut out = [0u16; 4];
+        assert!(matches!(
+            inverse_norms(&row[..DIM + 1], DIM, &mut norms),
+            Err(Error::BufferSize { .. })
+        ));
+        assert!(matches!(
+            inverse_norms(&row, DIM, &mut norms[..3]),
+            Err(Error::BufferSize { .. })
+        ));
+        assert!(matches!(inverse_norms(&[], DIM, &mut norms), Err(Error::EmptyImage)));
+        assert!(matches!(
+            match_row(&row, &row[..2 * DIM], &norms, DIM, 4, &mut out),
+            Err(Error::PairMismatch)
+        ));
+        assert!(matches!(
+            match_row(&row, &row, &norms, DIM, 0, &mut out),
+            Err(Error::Candidates { .. })
+        ));
+        assert!(matches!(
+            match_row(&row, &row, &norms, DIM, MAX_CANDIDATES + 1, &mut out),
+            Err(Error::Candidates { .. })
+        ));
+        assert!(matches!(
+            match_row(&row, &row, &norms, DIM, 4, &mut out[..2]),
+            Err(Error::BufferSize { .. })
+        ));
+    }
+}
