@@ -27,6 +27,7 @@ pub mod fixed;
 pub mod kernels;
 pub mod matching;
 pub mod model;
+pub mod sgm;
 #[cfg(test)]
 mod testutil;
 

@@ -69,6 +69,50 @@ pub fn match_row(
     Ok(())
 }
 
+/// One row of SGM costs (`cols x max_cols`, candidates fastest): `COST_ONE * (1 - cos)` of
+/// each left cell against the right cell `k` columns to its left, `COST_EXCLUDED` where that
+/// is outside the view. Both rows' inverse norms come from [`inverse_norms`].
+pub fn cost_row(
+    left: &[i8],
+    right: &[i8],
+    left_inv_norms: &[u32],
+    right_inv_norms: &[u32],
+    dim: usize,
+    max_cols: usize,
+    out: &mut [u16],
+) -> Result<(), Error> {
+    use crate::sgm::{COST_EXCLUDED, COST_ONE};
+    let cells = check_row(left, dim)?;
+    if right.len() != left.len() {
+        return Err(Error::PairMismatch);
+    }
+    check_len("left inverse norms", left_inv_norms.len(), cells)?;
+    check_len("right inverse norms", right_inv_norms.len(), cells)?;
+    if !(1..=MAX_CANDIDATES).contains(&max_cols) {
+        return Err(Error::Candidates {
+            requested: max_cols,
+            max: MAX_CANDIDATES,
+        });
+    }
+    check_len("cost row", out.len(), cells * max_cols)?;
+    for (p, (l, costs)) in left.chunks_exact(dim).zip(out.chunks_exact_mut(max_cols)).enumerate() {
+        let inv_l = left_inv_norms.get(p).copied().unwrap_or(0) as i64;
+        for (k, c) in costs.iter_mut().enumerate() {
+            let Some(q) = p.checked_sub(k) else {
+                *c = COST_EXCLUDED;
+                continue;
+            };
+            let r = right.get(q * dim..(q + 1) * dim).unwrap_or_default();
+            let dot: i32 = l.iter().zip(r).map(|(&a, &b)| a as i32 * b as i32).sum();
+            let inv_r = right_inv_norms.get(q).copied().unwrap_or(0) as i64;
+            // dot * 2^60 / (|l| |r|) taken down to Q12 in two steps that stay below 2^52.
+            let cos_q12 = (((dot as i64 * inv_l) >> 24) * inv_r) >> 24;
+            *c = (COST_ONE as i64 - cos_q12).clamp(0, COST_EXCLUDED as i64) as u16;
+        }
+    }
+    Ok(())
+}
+
 /// First maximum plus the parabola step (clamped to half a column), taken only when both
 /// neighbours are inside the candidate range and the parabola opens downwards; Q8.
 fn refine(sims: &[i64], max_cols: usize) -> u16 {
@@ -169,6 +213,25 @@ mod tests {
         // A tie goes to the first maximum, whose parabola step is then exactly half a column.
         assert_eq!(refine(&[0, 100, 100], 3), 256 + 128);
         assert_eq!(refine(&[0, 100, 99], 3), 256 + 125);
+    }
+
+    #[test]
+    fn costs_are_one_minus_cosine() {
+        let mut rng = Rng::new(8);
+        let mut left = [0i8; 3 * DIM];
+        rng.fill_i8(&mut left);
+        let mut right = left;
+        right[DIM..2 * DIM].iter_mut().for_each(|x| *x = x.saturating_neg()); // cell 1 opposite
+        let (mut nl, mut nr) = ([0u32; 3], [0u32; 3]);
+        inverse_norms(&left, DIM, &mut nl).unwrap();
+        inverse_norms(&right, DIM, &mut nr).unwrap();
+        let mut cost = [0u16; 3 * 2];
+        cost_row(&left, &right, &nl, &nr, DIM, 2, &mut cost).unwrap();
+        use crate::sgm::{COST_EXCLUDED, COST_ONE};
+        assert!(cost[0] <= 2, "identical cells cost ~0: {cost:?}");
+        assert_eq!(cost[1], COST_EXCLUDED, "cell 0 has no candidate 1");
+        assert!(cost[2] >= 2 * COST_ONE - 2, "opposite cells cost ~2: {cost:?}");
+        assert!(cost[4] <= 2);
     }
 
     #[test]

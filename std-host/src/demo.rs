@@ -8,10 +8,11 @@ use std::time::{Duration, Instant};
 use anyhow::{ensure, Context, Result};
 use bino_core::config::BAND_ROWS;
 use bino_core::model::{encoder, head};
+use bino_core::sgm::Penalties;
 
 use crate::colour::{colourise, error_colour};
 use crate::eval::{score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
-use crate::int8::{match_rows, Int8Model};
+use crate::int8::{match_rows, sgm_rows, Int8Model};
 use crate::json::Object;
 use crate::profile::{Profile, View};
 use crate::synthetic::{default_scene, SyntheticPair};
@@ -35,7 +36,15 @@ pub struct DemoOptions {
     pub height: usize,
     /// Disparity candidates of the no-linkage readout, in patch columns.
     pub max_cols: usize,
+    /// SGM penalties (cost units: 4096 = cosine 1).
+    pub penalties: Penalties,
 }
+
+/// SGM penalties of the demo, in cost units: p1 about the trained descriptors' median
+/// best-to-second cosine gap (0.002, i.e. 8 units), p2 four times that. Stronger penalties
+/// score better still on the demo's piecewise-flat scene (p1 = 32: epe 0.83 px against 1.02),
+/// which would overfit it; proper tuning needs train-split pairs with ground truth.
+pub const DEFAULT_PENALTIES: Penalties = Penalties { p1: 8, p2: 32 };
 
 /// One readout scored against the scene's true disparity.
 #[derive(Debug, Clone, PartialEq)]
@@ -98,6 +107,10 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
     readouts.push(steps.run("no-linkage matching (integer, row by row)", || {
         let tokens = match_rows(&codes_left, &codes_right, rows, cols, opts.max_cols)?;
         scored("nolink", &tokens, &truth)
+    })?);
+    readouts.push(steps.run("SGM, 4 streaming paths (integer)", || {
+        let tokens = sgm_rows(&codes_left, &codes_right, rows, cols, opts.max_cols, opts.penalties)?;
+        scored("sgm", &tokens, &truth)
     })?);
     if model.has_head() {
         readouts.push(steps.run("shared head (int8, streamed row by row)", || {
@@ -254,6 +267,7 @@ mod tests {
             width: 162,
             height: 48,
             max_cols: 10,
+            penalties: DEFAULT_PENALTIES,
         };
         let err = run_demo(&opts, |_| {}).unwrap_err().to_string();
         assert!(err.contains("multiples of 4"), "{err}");

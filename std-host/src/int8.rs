@@ -8,13 +8,13 @@ use anyhow::{ensure, Context, Result};
 use bino_core::band::BandPlan;
 use bino_core::blob::Blob;
 use bino_core::config::{check_view_size, DIM, PATCH_H};
-use bino_core::matching;
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
 use bino_core::model::head::{
     arena_bytes as head_arena_bytes, HeadRow, HeadSink, HeadStream, HeadWeights, OUT_FRAC_BITS,
 };
 use bino_core::model::ids::{self, kind};
 use bino_core::model::probe::{NoProbe, Probe, Stage};
+use bino_core::{matching, sgm};
 
 use crate::eval::DisparityMap;
 use crate::profile::View;
@@ -278,6 +278,43 @@ pub fn match_rows(left: &[i8], right: &[i8], rows: usize, cols: usize, max_cols:
         matching::inverse_norms(r, DIM, &mut norms).map_err(anyhow::Error::msg)?;
         matching::match_row(l, r, &norms, DIM, max_cols, &mut row_out).map_err(anyhow::Error::msg)?;
         let unit = (1u32 << matching::DISPARITY_FRAC_BITS) as f32;
+        values.extend(row_out.iter().map(|&d| d as f32 / unit));
+    }
+    Ok(DisparityMap {
+        width: cols,
+        height: rows,
+        values,
+    })
+}
+
+/// The no-linkage costs through `bino_core::sgm` (4 streaming paths, then the same parabola
+/// refinement): descriptor codes (`rows x cols x DIM`, both views) to disparity in patch columns.
+pub fn sgm_rows(
+    left: &[i8],
+    right: &[i8],
+    rows: usize,
+    cols: usize,
+    max_cols: usize,
+    penalties: sgm::Penalties,
+) -> Result<DisparityMap> {
+    ensure!(
+        left.len() == rows * cols * DIM && right.len() == left.len(),
+        "descriptor maps differ from {rows}x{cols}x{DIM}"
+    );
+    let len = sgm::state_len(cols, max_cols);
+    let (mut vertical, mut diagonal, mut sum) = (vec![0u16; len], vec![0u16; len], vec![0u32; len]);
+    let mut stream = sgm::SgmStream::new(cols, max_cols, penalties, &mut vertical, &mut diagonal, &mut sum)
+        .map_err(anyhow::Error::msg)?;
+    let (mut norms_l, mut norms_r) = (vec![0u32; cols], vec![0u32; cols]);
+    let mut cost = vec![0u16; len];
+    let mut row_out = vec![0u16; cols];
+    let mut values = Vec::with_capacity(rows * cols);
+    let unit = (1u32 << matching::DISPARITY_FRAC_BITS) as f32;
+    for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
+        matching::inverse_norms(l, DIM, &mut norms_l).map_err(anyhow::Error::msg)?;
+        matching::inverse_norms(r, DIM, &mut norms_r).map_err(anyhow::Error::msg)?;
+        matching::cost_row(l, r, &norms_l, &norms_r, DIM, max_cols, &mut cost).map_err(anyhow::Error::msg)?;
+        stream.push_row(&cost, &mut row_out).map_err(anyhow::Error::msg)?;
         values.extend(row_out.iter().map(|&d| d as f32 / unit));
     }
     Ok(DisparityMap {

@@ -78,6 +78,12 @@ enum Command {
         /// Disparity candidates of the no-linkage readout, in patch columns.
         #[arg(long, default_value_t = DEFAULT_MAX_COLS)]
         max_cols: usize,
+        /// SGM penalty for a one-column change (cost units: 4096 = cosine 1).
+        #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p1)]
+        sgm_p1: u16,
+        /// SGM penalty for a larger jump.
+        #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p2)]
+        sgm_p2: u16,
     },
     /// Quantise the float ONNX models into the int8 weight blob the engine runs.
     ///
@@ -203,12 +209,15 @@ fn run(cli: Cli) -> Result<()> {
             width,
             height,
             max_cols,
+            sgm_p1,
+            sgm_p2,
         } => demo_command(&bino_host::demo::DemoOptions {
             blob,
             out,
             width,
             height,
             max_cols,
+            penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
         }),
         Command::Compare {
             data,

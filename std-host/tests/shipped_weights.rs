@@ -41,6 +41,7 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
         width,
         height,
         max_cols: DEFAULT_MAX_COLS,
+        penalties: bino_host::demo::DEFAULT_PENALTIES,
     };
     let report = run_demo(&opts, |_| {}).expect("demo runs on the shipped blob");
 
@@ -52,16 +53,20 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     let constant_epe = truth.iter().map(|d| (d - median).abs()).sum::<f32>() / truth.len() as f32;
 
     let names: Vec<&str> = report.readouts.iter().map(|r| r.name).collect();
-    assert_eq!(names, ["nolink", "head"], "the shipped blob carries the head");
+    assert_eq!(names, ["nolink", "sgm", "head"], "the shipped blob carries the head");
     let epe: Vec<f32> = report.readouts.iter().map(|r| r.metrics.epe as f32).collect();
-    eprintln!("epe nolink {} head {} constant guess {constant_epe}", epe[0], epe[1]);
+    eprintln!(
+        "epe nolink {} sgm {} head {} constant guess {constant_epe}",
+        epe[0], epe[1], epe[2]
+    );
     assert!(
         epe[0] < 0.8 * constant_epe,
         "nolink epe {} vs constant guess {constant_epe}",
         epe[0]
     );
-    // The head regularises over the volume: it should beat the raw winner-take-all readout.
-    assert!(epe[1] < epe[0], "head epe {} vs nolink {}", epe[1], epe[0]);
+    // SGM and the head regularise over the volume: both should beat winner-take-all.
+    assert!(epe[1] < epe[0], "sgm epe {} vs nolink {}", epe[1], epe[0]);
+    assert!(epe[2] < epe[0], "head epe {} vs nolink {}", epe[2], epe[0]);
     for name in [
         "left.png",
         "disparity_true.png",

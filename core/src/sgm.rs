@@ -1,0 +1,285 @@
+//! Semi-global matching over the row-wise cosine costs, in one top-to-bottom pass.
+//!
+//! A streaming pass sees each token row once, so the paths are the ones that only look back:
+//! left to right and right to left within the row (the whole row is there), top to bottom,
+//! and the top-left to bottom-right diagonal. Their aggregated costs are summed and the
+//! minimum is refined by a parabola, as the no-linkage readout is (SGM + local refinement).
+//! Memory: the previous row's vertical and diagonal aggregates and the current row's cost and
+//! sum (`cols x candidates` each); never the cost volume of the image.
+
+use crate::matching::{DISPARITY_FRAC_BITS, MAX_CANDIDATES};
+use crate::Error;
+
+/// Cosine similarity unit of the costs: `cost = COST_ONE * (1 - cos)`, in `0..=2 * COST_ONE`.
+pub const COST_ONE: u16 = 4096;
+/// The cost of a candidate outside the right view.
+pub const COST_EXCLUDED: u16 = 2 * COST_ONE;
+
+/// SGM smoothness penalties in cost units: `p1` for a change of one candidate between
+/// neighbours, `p2` for any larger jump (`p2 >= p1`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Penalties {
+    /// Penalty for a one-column disparity change.
+    pub p1: u16,
+    /// Penalty for a larger change.
+    pub p2: u16,
+}
+
+/// Streaming SGM state over rows of `cols` cells with `candidates` disparities each.
+pub struct SgmStream<'a> {
+    cols: usize,
+    candidates: usize,
+    penalties: Penalties,
+    vertical: &'a mut [u16],
+    diagonal: &'a mut [u16],
+    sum: &'a mut [u32],
+    rows_seen: usize,
+}
+
+/// `u16` values the state keeps (`vertical` and `diagonal`), and `u32` values of `sum`.
+pub const fn state_len(cols: usize, candidates: usize) -> usize {
+    cols * candidates
+}
+
+impl<'a> SgmStream<'a> {
+    /// A stream over `state_len(cols, candidates)`-long buffers for the vertical and diagonal
+    /// aggregates and the per-row sum.
+    pub fn new(
+        cols: usize,
+        candidates: usize,
+        penalties: Penalties,
+        vertical: &'a mut [u16],
+        diagonal: &'a mut [u16],
+        sum: &'a mut [u32],
+    ) -> Result<Self, Error> {
+        if cols == 0 {
+            return Err(Error::EmptyImage);
+        }
+        if !(1..=MAX_CANDIDATES).contains(&candidates) {
+            return Err(Error::Candidates {
+                requested: candidates,
+                max: MAX_CANDIDATES,
+            });
+        }
+        let len = state_len(cols, candidates);
+        for (what, found) in [
+            ("SGM vertical state", vertical.len()),
+            ("SGM diagonal state", diagonal.len()),
+        ] {
+            if found != len {
+                return Err(Error::BufferSize {
+                    what,
+                    expected: len,
+                    found,
+                });
+            }
+        }
+        if sum.len() != len {
+            return Err(Error::BufferSize {
+                what: "SGM row sum",
+                expected: len,
+                found: sum.len(),
+            });
+        }
+        Ok(Self {
+            cols,
+            candidates,
+            penalties,
+            vertical,
+            diagonal,
+            sum,
+            rows_seen: 0,
+        })
+    }
+
+    /// Aggregates one row of costs (`cols x candidates`, candidates fastest) and writes each
+    /// cell's disparity in Q8 patch columns to `out`.
+    pub fn push_row(&mut self, cost: &[u16], out: &mut [u16]) -> Result<(), Error> {
+        let (cols, d) = (self.cols, self.candidates);
+        if cost.len() != cols * d {
+            return Err(Error::BufferSize {
+                what: "SGM cost row",
+                expected: cols * d,
+                found: cost.len(),
+            });
+        }
+        if out.len() != cols {
+            return Err(Error::BufferSize {
+                what: "disparity row",
+                expected: cols,
+                found: out.len(),
+            });
+        }
+        let pen = self.penalties;
+        let first = self.rows_seen == 0;
+        self.sum.iter_mut().for_each(|s| *s = 0);
+        let mut running = [0u16; MAX_CANDIDATES];
+        let mut next = [0u16; MAX_CANDIDATES];
+        // Left to right, then right to left.
+        for order in [false, true] {
+            for i in 0..cols {
+                let p = if order { cols - 1 - i } else { i };
+                let c = &cost[p * d..(p + 1) * d];
+                if i == 0 {
+                    next[..d].copy_from_slice(c);
+                } else {
+                    step(c, &running[..d], pen, &mut next[..d]);
+                }
+                running[..d].copy_from_slice(&next[..d]);
+                add(&mut self.sum[p * d..(p + 1) * d], &next[..d]);
+            }
+        }
+        // Top to bottom: each cell from the same column of the previous row (in place).
+        // Diagonal: from column p - 1 of the previous row, so columns go right to left.
+        for p in (0..cols).rev() {
+            let c = &cost[p * d..(p + 1) * d];
+            let cell = p * d..(p + 1) * d;
+            if first {
+                next[..d].copy_from_slice(c);
+            } else {
+                step(c, &self.vertical[cell.clone()], pen, &mut next[..d]);
+            }
+            self.vertical[cell.clone()].copy_from_slice(&next[..d]);
+            add(&mut self.sum[cell.clone()], &next[..d]);
+            if first || p == 0 {
+                next[..d].copy_from_slice(c);
+            } else {
+                step(c, &self.diagonal[(p - 1) * d..p * d], pen, &mut next[..d]);
+            }
+            self.diagonal[cell.clone()].copy_from_slice(&next[..d]);
+            add(&mut self.sum[cell], &next[..d]);
+        }
+        for (p, o) in out.iter_mut().enumerate() {
+            *o = refine_min(&self.sum[p * d..(p + 1) * d]);
+        }
+        self.rows_seen += 1;
+        Ok(())
+    }
+}
+
+/// One SGM path step: `L[k] = C[k] + min(P[k], P[k +- 1] + p1, min P + p2) - min P`.
+fn step(cost: &[u16], prev: &[u16], pen: Penalties, out: &mut [u16]) {
+    let min_prev = prev.iter().copied().min().unwrap_or(0) as u32;
+    let jump = min_prev + pen.p2 as u32;
+    for (k, (o, &c)) in out.iter_mut().zip(cost).enumerate() {
+        let mut best = prev[k] as u32;
+        if k > 0 {
+            best = best.min(prev[k - 1] as u32 + pen.p1 as u32);
+        }
+        if let Some(&n) = prev.get(k + 1) {
+            best = best.min(n as u32 + pen.p1 as u32);
+        }
+        // best >= min_prev, so the subtraction cannot wrap; the sum stays below 2^16 as long
+        // as costs and p2 do (cost <= 2 * COST_ONE, p2 checked by the caller's choice).
+        *o = (c as u32 + best.min(jump) - min_prev).min(u16::MAX as u32) as u16;
+    }
+}
+
+fn add(sum: &mut [u32], path: &[u16]) {
+    sum.iter_mut().zip(path).for_each(|(s, &v)| *s += v as u32);
+}
+
+/// First minimum plus the parabola step (clamped to half a column), Q8.
+fn refine_min(costs: &[u32]) -> u16 {
+    let mut best = 0;
+    for (k, &c) in costs.iter().enumerate() {
+        if c < costs[best] {
+            best = k;
+        }
+    }
+    let base = (best as i64) << DISPARITY_FRAC_BITS;
+    let step = match (best.checked_sub(1).and_then(|k| costs.get(k)), costs.get(best + 1)) {
+        (Some(&l), Some(&r)) => {
+            let (l, at, r) = (l as i64, costs[best] as i64, r as i64);
+            let denom = l - 2 * at + r;
+            if denom > 0 {
+                let half = 1i64 << (DISPARITY_FRAC_BITS - 1);
+                let num = (l - r) << DISPARITY_FRAC_BITS;
+                let den = 2 * denom;
+                let half_den = den / 2;
+                let q = if num >= 0 { num + half_den } else { num - half_den } / den;
+                q.clamp(-half, half)
+            } else {
+                0
+            }
+        }
+        _ => 0,
+    };
+    (base + step).clamp(0, u16::MAX as i64) as u16
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const PEN: Penalties = Penalties { p1: 100, p2: 400 };
+
+    fn run(rows: &[[u16; 4 * 3]], out: &mut [[u16; 4]]) {
+        let (mut v, mut g, mut s) = ([0u16; 12], [0u16; 12], [0u32; 12]);
+        let mut sgm = SgmStream::new(4, 3, PEN, &mut v, &mut g, &mut s).unwrap();
+        for (row, o) in rows.iter().zip(out.iter_mut()) {
+            sgm.push_row(row, o).unwrap();
+        }
+    }
+
+    #[test]
+    fn clear_minima_survive_aggregation() {
+        // Every cell prefers candidate 1 strongly.
+        let row = [900, 0, 900, 900, 0, 900, 900, 0, 900, 900, 0, 900];
+        let mut out = [[0u16; 4]; 3];
+        run(&[row; 3], &mut out);
+        assert!(out.iter().flatten().all(|&d| d == 256), "{out:?}");
+    }
+
+    #[test]
+    fn smoothness_overrules_a_weak_outlier() {
+        // Cell 2 of the middle row weakly prefers candidate 2; its neighbours want 0 strongly.
+        let strong = [0, 800, 800];
+        let mut rows = [[0u16; 12]; 3];
+        for row in rows.iter_mut() {
+            for p in 0..4 {
+                row[p * 3..p * 3 + 3].copy_from_slice(&strong);
+            }
+        }
+        rows[1][6..9].copy_from_slice(&[60, 800, 0]);
+        let mut out = [[0u16; 4]; 3];
+        run(&rows, &mut out);
+        assert_eq!(out[1][2] >> 8, 0, "{out:?}");
+        // Without aggregation (a single path step from nothing) the outlier would win.
+        assert_eq!(refine_min(&[60, 800, 0]) >> 8, 2);
+    }
+
+    #[test]
+    fn step_follows_the_recurrence() {
+        let prev = [10, 50, 300];
+        let mut out = [0u16; 3];
+        step(&[5, 5, 5], &prev, PEN, &mut out);
+        // k=0: min(10, 50+100, 10+400) - 10 = 0; k=1: min(50, 10+100, 300+100, 410) - 10 = 40;
+        // k=2: min(300, 50+100, 410) - 10 = 140.
+        assert_eq!(out, [5, 45, 145]);
+    }
+
+    #[test]
+    fn bad_buffers_are_errors() {
+        let (mut v, mut g, mut s) = ([0u16; 12], [0u16; 11], [0u32; 12]);
+        assert!(matches!(
+            SgmStream::new(4, 3, PEN, &mut v, &mut g, &mut s),
+            Err(Error::BufferSize { .. })
+        ));
+        let mut g = [0u16; 12];
+        assert!(matches!(
+            SgmStream::new(4, 0, PEN, &mut v, &mut g, &mut s),
+            Err(Error::Candidates { .. })
+        ));
+        let mut sgm = SgmStream::new(4, 3, PEN, &mut v, &mut g, &mut s).unwrap();
+        let mut out = [0u16; 4];
+        assert!(matches!(
+            sgm.push_row(&[0; 11], &mut out),
+            Err(Error::BufferSize { .. })
+        ));
+        assert!(matches!(
+            sgm.push_row(&[0; 12], &mut out[..3]),
+            Err(Error::BufferSize { .. })
+        ));
+    }
+}
