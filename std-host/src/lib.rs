@@ -21,6 +21,7 @@ pub mod onnx_params;
 pub mod pairs;
 pub mod profile;
 pub mod quantize;
+pub mod readout_eval;
 pub mod reference;
 pub mod reference_head;
 pub mod sha256;

@@ -164,6 +164,40 @@ enum Command {
         #[arg(long)]
         limit: Option<usize>,
     },
+    /// Score the int8 pipeline's readouts (nolink, sgm, head) on the eval split, EVAL.md metrics
+    /// per pair and mean. StereoSGBM in the same setting: `python -m bino_train.head_eval`.
+    Eval {
+        /// Folder with PAIRS.tsv.
+        #[arg(long, default_value = "../shared/data")]
+        data: PathBuf,
+        /// Split: eval (the metrics need ground truth).
+        #[arg(long, default_value = "eval")]
+        split: String,
+        /// Resolution profile of EVAL.md: w160, w320 or native.
+        #[arg(long, default_value = "w160")]
+        profile: Profile,
+        /// Int8 weight blob.
+        #[arg(long, default_value = "weights/bino_int8.bin")]
+        blob: PathBuf,
+        /// Readouts to score (repeat or comma-separate): nolink, sgm, head.
+        #[arg(long, value_delimiter = ',', default_value = "nolink,sgm,head")]
+        readout: Vec<bino_host::readout_eval::Readout>,
+        /// Disparity candidates of nolink and sgm, in patch columns.
+        #[arg(long, default_value_t = DEFAULT_MAX_COLS)]
+        max_cols: usize,
+        /// SGM penalty for a one-column change (cost units: 4096 = cosine 1).
+        #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p1)]
+        sgm_p1: u16,
+        /// SGM penalty for a larger jump.
+        #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p2)]
+        sgm_p2: u16,
+        /// Also write every number as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Only the first N pairs of the split.
+        #[arg(long)]
+        limit: Option<usize>,
+    },
     /// Time tract-onnx (f32) and the int8 engine on the same band, single-threaded.
     ///
     /// One 48-row band of the built-in scene at the profile's width, encoded on (I, I) by both
@@ -219,6 +253,30 @@ fn run(cli: Cli) -> Result<()> {
             max_cols,
             penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
         }),
+        Command::Eval {
+            data,
+            split,
+            profile,
+            blob,
+            readout,
+            max_cols,
+            sgm_p1,
+            sgm_p2,
+            json,
+            limit,
+        } => eval_command(
+            &bino_host::readout_eval::EvalOptions {
+                data,
+                split,
+                profile,
+                blob,
+                readouts: readout,
+                max_cols,
+                penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
+                limit,
+            },
+            json.as_deref(),
+        ),
         Command::Compare {
             data,
             split,
@@ -319,6 +377,29 @@ fn demo_command(opts: &bino_host::demo::DemoOptions) -> Result<()> {
     );
     for file in &report.files {
         println!("wrote {}", file.display());
+    }
+    Ok(())
+}
+
+fn eval_command(opts: &bino_host::readout_eval::EvalOptions, json: Option<&Path>) -> Result<()> {
+    let report = bino_host::readout_eval::evaluate(opts, |done, total, pair| {
+        let epe: Vec<String> = opts
+            .readouts
+            .iter()
+            .zip(&pair.metrics)
+            .map(|(r, m)| format!("{} {:.3}", r.name(), m.epe))
+            .collect();
+        eprintln!(
+            "[{done}/{total}] {}: epe {} ({:.1} s)",
+            pair.pair_id,
+            epe.join(", "),
+            pair.elapsed.as_secs_f64()
+        );
+    })?;
+    println!("{}", report.table());
+    if let Some(path) = json {
+        write_atomically(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        println!("wrote {}", path.display());
     }
     Ok(())
 }

@@ -153,3 +153,32 @@ fn integer_row_matching_agrees_with_the_float_readout() {
     // Q8 output: only rounding of the parabola step differs where the winner is the same.
     assert!(mean_abs < 0.02, "{mean_abs}");
 }
+
+#[test]
+fn eval_scores_every_readout_on_eval_pairs() {
+    use bino_host::readout_eval::{evaluate, EvalOptions, Readout};
+    let opts = EvalOptions {
+        data: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
+        split: "eval".into(),
+        profile: bino_host::profile::Profile::W160,
+        blob: PathBuf::from(DEFAULT_BLOB),
+        readouts: vec![Readout::Nolink, Readout::Sgm, Readout::Head],
+        max_cols: DEFAULT_MAX_COLS,
+        penalties: bino_host::demo::DEFAULT_PENALTIES,
+        limit: Some(2),
+    };
+    let mut seen = 0;
+    let report = evaluate(&opts, |done, total, _| {
+        seen = done;
+        assert_eq!(total, 2);
+    })
+    .expect("eval runs on the shipped blob");
+    assert_eq!((seen, report.pairs.len(), report.mean.len()), (2, 2, 3));
+    for m in &report.mean {
+        assert!(m.epe.is_finite() && m.epe > 0.0 && m.epe < 10.0, "{m:?}");
+    }
+    let json: serde_json::Value = serde_json::from_str(&report.to_json()).unwrap();
+    assert_eq!(json["pairs"], 2);
+    assert!(json["mean"]["sgm"]["bad1tok"].as_f64().is_some(), "{json}");
+    assert!(report.table().contains("sgm"));
+}
