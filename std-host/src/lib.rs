@@ -24,6 +24,7 @@ pub mod quantize;
 pub mod readout_eval;
 pub mod reference;
 pub mod reference_head;
+pub mod run;
 pub mod sha256;
 pub mod synthetic;
 pub mod taps;

@@ -198,6 +198,40 @@ enum Command {
         #[arg(long)]
         limit: Option<usize>,
     },
+    /// The int8 pipeline on a rectified pair of any size: writes disparity.png (colour),
+    /// disparity.pfm (float32 pixels) and lr_mask.png (left-right consistent pixels) to --out.
+    Run {
+        /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
+        #[arg(long)]
+        left: PathBuf,
+        /// Right view, same size.
+        #[arg(long)]
+        right: PathBuf,
+        /// Resolution profile: w160, w320 or native (sides must be multiples of 4).
+        #[arg(long, default_value = "w320")]
+        profile: Profile,
+        /// Int8 weight blob.
+        #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+        blob: PathBuf,
+        /// Readout: nolink, sgm or head.
+        #[arg(long, default_value = "sgm")]
+        readout: bino_host::readout_eval::Readout,
+        /// Disparity candidates of nolink and sgm, in patch columns.
+        #[arg(long, default_value_t = 16)]
+        max_cols: usize,
+        /// SGM penalty for a one-column change (cost units: 4096 = cosine 1).
+        #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p1)]
+        sgm_p1: u16,
+        /// SGM penalty for a larger jump.
+        #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p2)]
+        sgm_p2: u16,
+        /// Left-right check tolerance, in patch columns.
+        #[arg(long, default_value_t = 1.0)]
+        lr_max_diff: f32,
+        /// Output folder.
+        #[arg(long, default_value = "out/run")]
+        out: PathBuf,
+    },
     /// Time tract-onnx (f32) and the int8 engine on the same band, single-threaded.
     ///
     /// One 48-row band of the built-in scene at the profile's width, encoded on (I, I) by both
@@ -252,6 +286,28 @@ fn run(cli: Cli) -> Result<()> {
             height,
             max_cols,
             penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
+        }),
+        Command::Run {
+            left,
+            right,
+            profile,
+            blob,
+            readout,
+            max_cols,
+            sgm_p1,
+            sgm_p2,
+            lr_max_diff,
+            out,
+        } => run_command(&bino_host::run::RunOptions {
+            left,
+            right,
+            profile,
+            blob,
+            readout,
+            max_cols,
+            penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
+            lr_max_diff,
+            out,
         }),
         Command::Eval {
             data,
@@ -373,6 +429,32 @@ fn demo_command(opts: &bino_host::demo::DemoOptions) -> Result<()> {
     }
     println!(
         "arena: encoder {} bytes per 48-row band, head {} bytes (both fixed, sized by const fn)",
+        report.encoder_arena_bytes, report.head_arena_bytes
+    );
+    for file in &report.files {
+        println!("wrote {}", file.display());
+    }
+    Ok(())
+}
+
+fn run_command(opts: &bino_host::run::RunOptions) -> Result<()> {
+    let started = Instant::now();
+    let report = bino_host::run::run_pair(opts, |step| {
+        eprintln!("[{:5.1} s] {step} ...", started.elapsed().as_secs_f64());
+    })?;
+    println!(
+        "bino run: {} readout at {}x{} ({}), {:.1} % of pixels left-right consistent",
+        opts.readout.name(),
+        report.width,
+        report.height,
+        opts.profile,
+        report.density
+    );
+    for (step, took) in &report.timings {
+        println!("  {step}: {:.1} ms", took.as_secs_f64() * 1e3);
+    }
+    println!(
+        "arena: encoder {} bytes per 48-row band, head {} bytes",
         report.encoder_arena_bytes, report.head_arena_bytes
     );
     for file in &report.files {

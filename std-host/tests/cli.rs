@@ -216,3 +216,51 @@ fn pairs_lists_the_eval_split() {
     assert!(stdout.lines().all(|l| l.split('\t').nth(1) == Some("eval")));
     assert_fails_with(&bino(&["pairs", "--data", "/nonexistent-dir"]), &["nonexistent-dir"]);
 }
+
+#[test]
+fn run_writes_disparity_pfm_and_mask() {
+    let dir = scratch("run");
+    let (left, right) = (dir.join("l.png"), dir.join("r.png"));
+    write_png(&left, 200, 60);
+    write_png(&right, 200, 60);
+    let out = dir.join("out");
+    let run = bino(&[
+        "run",
+        "--left",
+        s(&left),
+        "--right",
+        s(&right),
+        "--profile",
+        "w160",
+        "--out",
+        s(&out),
+    ]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(stdout.contains("left-right consistent"), "{stdout}");
+    // w160: 200x60 -> 160x48.
+    let mask = image::open(out.join("lr_mask.png")).unwrap();
+    assert_eq!((mask.width(), mask.height()), (160, 48));
+    let pfm = std::fs::read(out.join("disparity.pfm")).unwrap();
+    assert!(pfm.starts_with(b"Pf\n160 48\n-1.0\n"));
+    assert_eq!(pfm.len(), b"Pf\n160 48\n-1.0\n".len() + 160 * 48 * 4);
+}
+
+#[test]
+fn run_refuses_views_of_different_sizes() {
+    let dir = scratch("run-mismatch");
+    let (left, right) = (dir.join("l.png"), dir.join("r.png"));
+    write_png(&left, 200, 60);
+    write_png(&right, 200, 64);
+    let run = bino(&[
+        "run",
+        "--left",
+        s(&left),
+        "--right",
+        s(&right),
+        "--out",
+        s(&dir.join("out")),
+    ]);
+    assert_fails_with(&run, &["differ in size", "l.png", "r.png"]);
+    assert!(!dir.join("out").exists(), "nothing is written on bad input");
+}
