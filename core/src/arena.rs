@@ -77,6 +77,12 @@ impl<'a> Carver<'a> {
         })
     }
 
+    /// `len` zeroed `u32` values, 4-byte aligned (up to [`ALIGN_SLACK`] bytes of padding).
+    pub fn u32s(&mut self, len: usize) -> Result<&'a mut [u32], Error> {
+        let words = self.i32s(len)?;
+        Ok(bytemuck::cast_slice_mut(words))
+    }
+
     /// `len` zeroed `i32` values, 4-byte aligned (up to [`ALIGN_SLACK`] bytes of padding).
     pub fn i32s(&mut self, len: usize) -> Result<&'a mut [i32], Error> {
         let misalign = self.rest.as_ptr() as usize % 4;

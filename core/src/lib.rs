@@ -25,8 +25,10 @@ pub mod crc32;
 pub mod error;
 pub mod fixed;
 pub mod kernels;
+pub mod lr;
 pub mod matching;
 pub mod model;
+pub mod pipeline;
 pub mod sgm;
 #[cfg(test)]
 mod testutil;

@@ -180,7 +180,7 @@ fn add(sum: &mut [u32], path: &[u16]) {
 }
 
 /// First minimum plus the parabola step (clamped to half a column), Q8.
-fn refine_min(costs: &[u32]) -> u16 {
+pub(crate) fn refine_min(costs: &[u32]) -> u16 {
     let mut best = 0;
     for (k, &c) in costs.iter().enumerate() {
         if c < costs[best] {

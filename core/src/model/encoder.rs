@@ -332,29 +332,84 @@ impl<'w> Encoder<'w> {
         Ok(())
     }
 
+    /// Descriptor map of one view written to the front of `arena` itself (the residual
+    /// stream is carved first, and each descriptor cell only reads tokens at or after its own
+    /// position): returns the run report and the map's length in bytes, `rows/4 x width/4 x
+    /// DIM`. A pipeline keeps the map there and uses the rest of the arena for what follows,
+    /// so no separate output buffer is needed.
+    pub fn describe_in_place(
+        &self,
+        view: GrayBand<'_>,
+        arena: &mut [u8],
+        probe: &mut impl Probe,
+    ) -> Result<(RunReport, usize), Error> {
+        let (report, _) = self.forward(Fused::Same(view), view, arena, probe)?;
+        let len = report.rows * (report.fused_cols / 2) * DIM;
+        let x: &mut [i8] = bytemuck::cast_slice_mut(arena.get_mut(..report.rows * report.fused_cols * DIM).ok_or(
+            Error::ArenaTooSmall {
+                needed: len,
+                available: 0,
+            },
+        )?);
+        let params = self.descriptor_params()?;
+        let mut even = [0i8; DIM];
+        let mut odd = [0i8; DIM];
+        for cell in 0..len / DIM {
+            // Cell (row, p) reads fused tokens 2p and 2p + 1 of its row, at index >= 2 * cell.
+            let src = 2 * cell * DIM;
+            even.copy_from_slice(&x[src..src + DIM]);
+            odd.copy_from_slice(&x[src + DIM..src + 2 * DIM]);
+            let row = cell / (report.fused_cols / 2).max(1);
+            params.cell(row, &even, &odd, &mut x[cell * DIM..(cell + 1) * DIM]);
+        }
+        Ok((report, len))
+    }
+
     fn write_descriptors(&self, x: &[i8], rows: usize, fused_cols: usize, out: &mut [i8]) -> Result<(), Error> {
-        let format = self.weights.residual(residual_after_block(DEPTH - 1))?;
-        let (desc, row_offsets) = self.weights.descriptor()?;
+        let params = self.descriptor_params()?;
         let mut out_cells = out.chunks_exact_mut(DIM);
         for (row, x_row) in x.chunks_exact(fused_cols * DIM).take(rows).enumerate() {
             for pair in x_row.chunks_exact(2 * DIM) {
                 let (even, odd) = pair.split_at(DIM);
                 let Some(cell) = out_cells.next() else { return Ok(()) };
-                for (c, ((&q0, &q1), o)) in even.iter().zip(odd).zip(cell.iter_mut()).enumerate() {
-                    let zero = format.zero.at(c) as i64;
-                    let sum = q0 as i64 - zero + (q1 as i64 - zero);
-                    let shift = desc.shift.get(c).copied().unwrap_or(1) as u32;
-                    let scaled = Requant {
-                        mult: desc.mult.at(c),
-                        shift,
-                    }
-                    .apply_i64(sum);
-                    let offset = row_offsets.at(row * DIM + c) as i64;
-                    *o = sat_i8_i64(round_shift(scaled - offset, DESC_FRAC_BITS));
-                }
+                params.cell(row, even, odd, cell);
             }
         }
         Ok(())
+    }
+
+    fn descriptor_params(&self) -> Result<DescriptorParams<'w>, Error> {
+        let (carry, row_offsets) = self.weights.descriptor()?;
+        Ok(DescriptorParams {
+            format: self.weights.residual(residual_after_block(DEPTH - 1))?,
+            carry,
+            row_offsets,
+        })
+    }
+}
+
+/// How the last residual stream becomes descriptors (from the blob, looked up once).
+struct DescriptorParams<'w> {
+    format: ResidualFormat<'w>,
+    carry: super::weights::Carry<'w>,
+    row_offsets: crate::blob::Le<'w, i32>,
+}
+
+impl DescriptorParams<'_> {
+    /// One descriptor: the two phase tokens of a cell averaged, rescaled, row embedding removed.
+    fn cell(&self, row: usize, even: &[i8], odd: &[i8], out: &mut [i8]) {
+        for (c, ((&q0, &q1), o)) in even.iter().zip(odd).zip(out.iter_mut()).enumerate() {
+            let zero = self.format.zero.at(c) as i64;
+            let sum = q0 as i64 - zero + (q1 as i64 - zero);
+            let shift = self.carry.shift.get(c).copied().unwrap_or(1) as u32;
+            let scaled = Requant {
+                mult: self.carry.mult.at(c),
+                shift,
+            }
+            .apply_i64(sum);
+            let offset = self.row_offsets.at(row * DIM + c) as i64;
+            *o = sat_i8_i64(round_shift(scaled - offset, DESC_FRAC_BITS));
+        }
     }
 }
 

@@ -1,0 +1,159 @@
+//! The left-right consistency check, one row at a time.
+//!
+//! The right view's readout needs no second pass over the descriptors: its cost of right cell
+//! `q` at disparity `k` is the left cost of cell `q + k` at `k`, so a left cost row reindexed
+//! gives the right view's row, which feeds the same WTA or SGM. A left cell is kept when the
+//! right cell it lands on reads (nearly) the same disparity; the kept fraction is the paper's
+//! `LRkeep`.
+
+use crate::matching::{DISPARITY_FRAC_BITS, MAX_CANDIDATES};
+use crate::sgm::{refine_min, COST_EXCLUDED};
+use crate::Error;
+
+/// The right view's cost row from the left view's (`cols x candidates`, candidates fastest):
+/// `right[q][k] = left[q + k][k]`, [`COST_EXCLUDED`] where `q + k` is outside the row.
+pub fn right_view_costs(left: &[u16], candidates: usize, out: &mut [u16]) -> Result<(), Error> {
+    let cols = check_costs(left, candidates)?;
+    if out.len() != left.len() {
+        return Err(Error::BufferSize {
+            what: "right-view cost row",
+            expected: left.len(),
+            found: out.len(),
+        });
+    }
+    for (q, costs) in out.chunks_exact_mut(candidates).enumerate() {
+        for (k, c) in costs.iter_mut().enumerate() {
+            *c = if q + k < cols {
+                left.get((q + k) * candidates + k).copied().unwrap_or(COST_EXCLUDED)
+            } else {
+                COST_EXCLUDED
+            };
+        }
+    }
+    Ok(())
+}
+
+/// Winner-takes-all on a cost row: each cell's first minimum refined by a parabola, Q8
+/// patch columns (the same refinement as the SGM readout).
+pub fn wta_costs(costs: &[u16], candidates: usize, out: &mut [u16]) -> Result<(), Error> {
+    let cols = check_costs(costs, candidates)?;
+    if out.len() != cols {
+        return Err(Error::BufferSize {
+            what: "disparity row",
+            expected: cols,
+            found: out.len(),
+        });
+    }
+    let mut wide = [0u32; MAX_CANDIDATES];
+    for (c, o) in costs.chunks_exact(candidates).zip(out.iter_mut()) {
+        wide.iter_mut().zip(c).for_each(|(w, &v)| *w = v as u32);
+        *o = refine_min(&wide[..candidates]);
+    }
+    Ok(())
+}
+
+/// Marks each left cell 1 when the right cell its disparity lands on (`p - round(d)`) reads a
+/// disparity within `max_diff_q8` of it, else 0; returns the number kept.
+pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [u8]) -> Result<usize, Error> {
+    if right.len() != left.len() {
+        return Err(Error::PairMismatch);
+    }
+    if out.len() != left.len() {
+        return Err(Error::BufferSize {
+            what: "left-right mask row",
+            expected: left.len(),
+            found: out.len(),
+        });
+    }
+    let half = 1usize << (DISPARITY_FRAC_BITS - 1);
+    let mut kept = 0;
+    for (p, (&d, o)) in left.iter().zip(out.iter_mut()).enumerate() {
+        let shift = (d as usize + half) >> DISPARITY_FRAC_BITS;
+        let ok = p
+            .checked_sub(shift)
+            .and_then(|q| right.get(q))
+            .is_some_and(|&r| r.abs_diff(d) <= max_diff_q8);
+        *o = ok as u8;
+        kept += ok as usize;
+    }
+    Ok(kept)
+}
+
+fn check_costs(costs: &[u16], candidates: usize) -> Result<usize, Error> {
+    if !(1..=MAX_CANDIDATES).contains(&candidates) {
+        return Err(Error::Candidates {
+            requested: candidates,
+            max: MAX_CANDIDATES,
+        });
+    }
+    if costs.is_empty() {
+        return Err(Error::EmptyImage);
+    }
+    if !costs.len().is_multiple_of(candidates) {
+        return Err(Error::BufferSize {
+            what: "cost row",
+            expected: costs.len() / candidates * candidates,
+            found: costs.len(),
+        });
+    }
+    Ok(costs.len() / candidates)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const X: u16 = COST_EXCLUDED;
+
+    #[test]
+    fn right_costs_are_the_left_costs_reindexed() {
+        // 3 cells, 2 candidates: left[p][k].
+        let left = [10, X, 20, 21, 30, 31];
+        let mut right = [0u16; 6];
+        right_view_costs(&left, 2, &mut right).unwrap();
+        // right[q][0] = left[q][0]; right[q][1] = left[q + 1][1].
+        assert_eq!(right, [10, 21, 20, 31, 30, X]);
+    }
+
+    #[test]
+    fn a_consistent_shift_is_kept_and_a_lone_outlier_is_not() {
+        // Left cells 2..4 read disparity 2 (Q8 512) and land on right cells 0..2, which agree.
+        // Cells 0 and 1 (disparities 0 and 1) land on right cell 0 too, which reads 2.
+        let left = [0, 256, 512, 512, 512];
+        let right = [512, 512, 512, 0, 0];
+        let mut mask = [9u8; 5];
+        let kept = consistent_row(&left, &right, 128, &mut mask).unwrap();
+        assert_eq!(mask, [0, 0, 1, 1, 1]);
+        assert_eq!(kept, 3);
+        // A wider tolerance admits cell 1 (one column off).
+        assert_eq!(consistent_row(&left, &right, 256, &mut mask), Ok(4));
+        // A disparity pointing outside the view is never kept.
+        assert_eq!(consistent_row(&[768], &[768], 128, &mut mask[..1]), Ok(0));
+    }
+
+    #[test]
+    fn wta_on_costs_takes_the_first_minimum() {
+        let costs = [5, 1, 5, 3, 3, 9];
+        let mut out = [0u16; 2];
+        wta_costs(&costs, 3, &mut out).unwrap();
+        assert_eq!(out[0], 256, "symmetric neighbours: no parabola step");
+        assert_eq!(out[1] >> 8, 0, "tie goes to the first candidate");
+    }
+
+    #[test]
+    fn bad_shapes_are_errors() {
+        let mut out = [0u16; 4];
+        assert!(matches!(
+            right_view_costs(&[0; 5], 2, &mut out),
+            Err(Error::BufferSize { .. })
+        ));
+        assert!(matches!(wta_costs(&[0; 4], 0, &mut out), Err(Error::Candidates { .. })));
+        assert!(matches!(wta_costs(&[], 2, &mut out), Err(Error::EmptyImage)));
+        let mut mask = [0u8; 3];
+        assert_eq!(consistent_row(&[0; 3], &[0; 2], 0, &mut mask), Err(Error::PairMismatch));
+        assert!(matches!(
+            consistent_row(&[0; 2], &[0; 2], 0, &mut mask),
+            Err(Error::BufferSize { .. })
+        ));
+    }
+}

@@ -1,0 +1,263 @@
+//! `bino_core::pipeline` (one arena, rows streamed in, every readout row by row) against the
+//! host's whole-map steps over the same shipped blob: the streaming pipeline must give the
+//! same descriptors, WTA, SGM and head outputs, for one band and for images taller than one.
+
+use bino_core::band::Band;
+use bino_core::model::head::HeadRow;
+use bino_core::pipeline::{arena_bytes, MatchedRow, Options, Pipeline, RowSource, Sink, SlicePair, Stage};
+use bino_core::Error;
+use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
+use bino_host::int8::{match_rows, sgm_rows, Int8Model};
+use bino_host::profile::View;
+use bino_host::synthetic;
+
+const MAX_COLS: usize = 16;
+
+fn options() -> Options {
+    Options {
+        max_cols: MAX_COLS,
+        penalties: DEFAULT_PENALTIES,
+        lr_max_diff_q8: 256,
+        head: true,
+    }
+}
+
+/// Everything the pipeline emits, gathered into whole maps.
+#[derive(Default)]
+struct Collect {
+    stages: Vec<Stage>,
+    bands: Vec<Band>,
+    desc_left: Vec<(usize, Vec<i8>)>,
+    desc_right: Vec<(usize, Vec<i8>)>,
+    rows: Vec<usize>,
+    wta: Vec<u16>,
+    sgm: Vec<u16>,
+    wta_mask: Vec<u8>,
+    head_rows: Vec<usize>,
+    head: Vec<u16>,
+    cols: usize,
+}
+
+impl Sink for Collect {
+    fn stage(&mut self, stage: Stage) {
+        self.stages.push(stage);
+    }
+    fn band(&mut self, band: Band, left: &[i8], right: &[i8]) {
+        // Keep only the rows the band provides, as the host's banded encoder does.
+        let row_len = left.len() / band.rows;
+        for row in band.keep_from..band.keep_to {
+            let at = (row - band.start) * row_len;
+            self.desc_left.push((row, left[at..at + row_len].to_vec()));
+            self.desc_right.push((row, right[at..at + row_len].to_vec()));
+        }
+        self.bands.push(band);
+    }
+    fn matched(&mut self, row: &MatchedRow<'_>) {
+        self.rows.push(row.row);
+        self.cols = row.wta_q8.len();
+        self.wta.extend_from_slice(row.wta_q8);
+        self.sgm.extend_from_slice(row.sgm_q8);
+        self.wta_mask.extend_from_slice(row.wta_consistent);
+    }
+    fn head(&mut self, row: HeadRow<'_>) {
+        self.head_rows.push(row.row);
+        self.head.extend_from_slice(row.disparity_q8);
+    }
+}
+
+fn q8(values: &[u16]) -> Vec<f32> {
+    values.iter().map(|&d| d as f32 / 256.0).collect()
+}
+
+fn view(pixels: &[u8], width: usize, height: usize) -> View {
+    View {
+        width,
+        height,
+        pixels: pixels.iter().map(|&p| p as f32 / 255.0).collect(),
+    }
+}
+
+/// Runs the pipeline on the synthetic scene of the given size and checks every readout
+/// against the host's whole-map computation.
+fn pipeline_equals_whole_map_steps(width: usize, height: usize) -> Collect {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let scene = synthetic::default_scene(width, height);
+    let (l, r) = (&scene.left.pixels, &scene.right.pixels);
+    let mut arena = vec![0u8; arena_bytes(height, width, MAX_COLS)];
+    let mut out = Collect::default();
+    let report = pipeline
+        .run(
+            &mut SlicePair::new(l, r, width, height).unwrap(),
+            &options(),
+            &mut arena,
+            &mut out,
+        )
+        .unwrap();
+    assert!(report.arena_used <= arena.len(), "{report:?}");
+
+    let (rows, cols, left) = model.descriptor_codes(&view(l, width, height)).unwrap();
+    let (_, _, right) = model.descriptor_codes(&view(r, width, height)).unwrap();
+    assert_eq!((report.rows, report.cols), (rows, cols));
+    let streamed_left: Vec<i8> = out.desc_left.iter().flat_map(|(_, d)| d.clone()).collect();
+    let streamed_right: Vec<i8> = out.desc_right.iter().flat_map(|(_, d)| d.clone()).collect();
+    assert!(streamed_left == left, "left descriptors differ");
+    assert!(streamed_right == right, "right descriptors differ");
+    assert_eq!(out.rows, (0..rows).collect::<Vec<_>>(), "rows out of order");
+    assert_eq!(out.head_rows, (0..rows).collect::<Vec<_>>(), "head rows out of order");
+
+    let wta = match_rows(&left, &right, rows, cols, MAX_COLS).unwrap();
+    assert_eq!(q8(&out.wta), wta.values, "WTA");
+    let sgm = sgm_rows(&left, &right, rows, cols, MAX_COLS, DEFAULT_PENALTIES).unwrap();
+    assert_eq!(q8(&out.sgm), sgm.values, "SGM");
+    let head = model.head(&left, &right, rows, cols).unwrap();
+    assert_eq!(q8(&out.head), head.disparity, "head");
+    assert_eq!(report.wta_kept, out.wta_mask.iter().map(|&m| m as usize).sum::<usize>());
+    out
+}
+
+#[test]
+fn one_band_streams_to_the_same_outputs_as_whole_maps() {
+    let out = pipeline_equals_whole_map_steps(160, 48);
+    assert_eq!(out.bands.len(), 1);
+    // The encoder passes come first, then per-row readouts.
+    assert_eq!(&out.stages[..3], [Stage::Rows, Stage::EncodeLeft, Stage::EncodeRight]);
+    assert!(out.stages.contains(&Stage::Head));
+}
+
+#[test]
+fn taller_images_go_band_by_band_to_the_same_outputs() {
+    let out = pipeline_equals_whole_map_steps(96, 112);
+    assert_eq!(out.bands.len(), 3);
+}
+
+#[test]
+fn arena_depends_on_the_width_not_the_height() {
+    assert_eq!(arena_bytes(112, 160, MAX_COLS), arena_bytes(4000, 160, MAX_COLS));
+    assert!(arena_bytes(48, 160, MAX_COLS) < arena_bytes(112, 160, MAX_COLS));
+    // The paper's band-pair fits the AN547's 512 KiB of data TCM.
+    assert!(
+        arena_bytes(48, 160, MAX_COLS) <= 512 * 1024,
+        "{}",
+        arena_bytes(48, 160, MAX_COLS)
+    );
+}
+
+#[test]
+fn left_right_check_keeps_mostly_correct_matches() {
+    let (width, height) = (160, 48);
+    let scene = synthetic::default_scene(width, height);
+    let out = pipeline_equals_whole_map_steps(width, height);
+    // True disparity per token (pixel disparity of the cell's top-left pixel / 4 pixels per column).
+    let truth: Vec<f32> = (0..out.rows.len() * out.cols)
+        .map(|i| scene.disparity[(i / out.cols) * 4 * width + (i % out.cols) * 4] / 4.0)
+        .collect();
+    let err = |keep: u8| {
+        let picked: Vec<f32> = (0..truth.len())
+            .filter(|&i| out.wta_mask[i] == keep)
+            .map(|i| (out.wta[i] as f32 / 256.0 - truth[i]).abs())
+            .collect();
+        (picked.iter().sum::<f32>() / picked.len().max(1) as f32, picked.len())
+    };
+    let ((kept_err, kept), (dropped_err, dropped)) = (err(1), err(0));
+    assert!(kept > dropped, "kept {kept}, dropped {dropped}");
+    assert!(
+        kept_err < dropped_err,
+        "kept cells err {kept_err} vs dropped {dropped_err}"
+    );
+}
+
+/// Counts the rows asked of it; fails at row `fail_at`.
+struct CountingSource<'a> {
+    inner: SlicePair<'a>,
+    read: usize,
+    fail_at: usize,
+}
+
+impl RowSource for CountingSource<'_> {
+    fn width(&self) -> usize {
+        self.inner.width()
+    }
+    fn height(&self) -> usize {
+        self.inner.height()
+    }
+    fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
+        if self.read == self.fail_at {
+            return Err(Error::PairMismatch);
+        }
+        self.read += 1;
+        self.inner.next_row(left, right)
+    }
+}
+
+#[test]
+fn rows_are_read_once_in_order_and_source_errors_stop_the_run() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let (width, height) = (32, 100);
+    let scene = synthetic::default_scene(width, height);
+    let (l, r) = (&scene.left.pixels, &scene.right.pixels);
+    let mut arena = vec![0u8; arena_bytes(height, width, MAX_COLS)];
+    let opts = Options {
+        head: false,
+        ..options()
+    };
+    let mut source = CountingSource {
+        inner: SlicePair::new(l, r, width, height).unwrap(),
+        read: 0,
+        fail_at: usize::MAX,
+    };
+    pipeline
+        .run(&mut source, &opts, &mut arena, &mut Collect::default())
+        .unwrap();
+    assert_eq!(source.read, height);
+    let mut failing = CountingSource {
+        inner: SlicePair::new(l, r, width, height).unwrap(),
+        read: 0,
+        fail_at: 60,
+    };
+    let err = pipeline.run(&mut failing, &opts, &mut arena, &mut Collect::default());
+    assert_eq!(err.unwrap_err(), Error::PairMismatch);
+}
+
+#[test]
+fn bad_inputs_are_errors() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let px = vec![0u8; 48 * 160];
+    let mut arena = vec![0u8; arena_bytes(48, 160, MAX_COLS)];
+    let mut sink = Collect::default();
+    let mut run = |source: &mut SlicePair<'_>, opts: Options, arena: &mut [u8]| {
+        pipeline.run(source, &opts, arena, &mut sink).unwrap_err()
+    };
+    let mut pair = SlicePair::new(&px, &px, 160, 48).unwrap();
+    let short = arena.len() - 1;
+    assert!(matches!(
+        run(&mut pair, options(), &mut arena[..short]),
+        Error::ArenaTooSmall { .. }
+    ));
+    let bad_cols = Options {
+        max_cols: 0,
+        ..options()
+    };
+    assert!(matches!(run(&mut pair, bad_cols, &mut arena), Error::Candidates { .. }));
+    let mut odd = SlicePair::new(&px[..47 * 160], &px[..47 * 160], 160, 47).unwrap();
+    assert!(matches!(
+        run(&mut odd, options(), &mut arena),
+        Error::NotMultiple { .. }
+    ));
+    let wide = vec![0u8; 4 * 4096];
+    let mut too_wide = SlicePair::new(&wide, &wide, 4096, 4).unwrap();
+    assert!(matches!(
+        run(&mut too_wide, options(), &mut arena),
+        Error::TooWide { .. }
+    ));
+    assert_eq!(
+        SlicePair::new(&px, &px[..100], 160, 48).unwrap_err(),
+        Error::PairMismatch
+    );
+    assert!(matches!(
+        SlicePair::new(&px, &px, 160, 47),
+        Err(Error::BufferSize { .. })
+    ));
+}
