@@ -453,9 +453,23 @@ fn run_command(opts: &bino_host::run::RunOptions) -> Result<()> {
     for (step, took) in &report.timings {
         println!("  {step}: {:.1} ms", took.as_secs_f64() * 1e3);
     }
+    let p = &report.pipeline;
+    let kept = |cells: usize| 100.0 * cells as f64 / (p.rows * p.cols).max(1) as f64;
     println!(
-        "arena: encoder {} bytes per 48-row band, head {} bytes",
-        report.encoder_arena_bytes, report.head_arena_bytes
+        "  {} band(s); left-right check keeps {:.1} % of WTA and {:.1} % of SGM cells (LRkeep)",
+        p.bands,
+        kept(p.wta_kept),
+        kept(p.sgm_kept)
+    );
+    println!("  time inside the pipeline by stage:");
+    for (stage, took) in &report.stage_times {
+        if !took.is_zero() {
+            println!("    {:<12} {:8.1} ms", stage.name(), took.as_secs_f64() * 1e3);
+        }
+    }
+    println!(
+        "arena: {} bytes used of {} (pixel band {}, descriptors {}, encoder {}, readout streams {})",
+        p.arena_used, report.arena_bytes, p.pixels, p.descriptors, p.encoder, p.streams
     );
     for file in &report.files {
         println!("wrote {}", file.display());

@@ -6,14 +6,17 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
-use bino_core::config::{BAND_ROWS, DIM};
-use bino_core::model::{encoder, head};
+use bino_core::matching::DISPARITY_FRAC_BITS;
+use bino_core::model::head::HeadRow;
+use bino_core::pipeline::{
+    self, MatchedRow, Options as PipelineOptions, Pipeline, Report as PipelineReport, Sink, SlicePair, Stage,
+};
 use bino_core::sgm::Penalties;
 
 use crate::colour::colourise;
 use crate::eval::{fill_invalid, upsample_disparity, DisparityMap, PIXELS_PER_PATCH_COLUMN};
 use crate::image_io::load_gray;
-use crate::int8::{match_rows, sgm_rows, Int8Model};
+use crate::int8::{to_u8, Int8Model};
 use crate::profile::Profile;
 use crate::readout_eval::Readout;
 
@@ -51,10 +54,12 @@ pub struct RunReport {
     pub density: f64,
     /// Wall time of each step.
     pub timings: Vec<(&'static str, Duration)>,
-    /// Encoder arena bytes for one band at this width.
-    pub encoder_arena_bytes: usize,
-    /// Head arena bytes at this width.
-    pub head_arena_bytes: usize,
+    /// Wall time inside the core pipeline, per stage.
+    pub stage_times: Vec<(Stage, Duration)>,
+    /// The core pipeline's report (arena use by part, bands, left-right counts).
+    pub pipeline: PipelineReport,
+    /// Arena bytes allocated (`bino_core::pipeline::arena_bytes`).
+    pub arena_bytes: usize,
     /// Files written.
     pub files: Vec<PathBuf>,
 }
@@ -62,12 +67,12 @@ pub struct RunReport {
 /// Runs the pipeline; `progress` hears about each step before it starts.
 pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<RunReport> {
     let mut timings = Vec::new();
-    let mut step = |name: &'static str, timings: &mut Vec<(&'static str, Duration)>| {
+    let step = |name: &'static str, timings: &mut Vec<(&'static str, Duration)>, progress: &mut dyn FnMut(&str)| {
         progress(name);
         timings.push((name, Duration::ZERO));
         Instant::now()
     };
-    let started = step("loading the pair and the blob", &mut timings);
+    let started = step("loading the pair and the blob", &mut timings, &mut progress);
     let (left_image, right_image) = (load_gray(&opts.left)?, load_gray(&opts.right)?);
     ensure!(
         (left_image.width, left_image.height) == (right_image.width, right_image.height),
@@ -88,43 +93,71 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         .apply(&right_image)
         .with_context(|| format!("{}", opts.right.display()))?;
     let model = Int8Model::load(&opts.blob)?;
+    let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
     finish(&mut timings, started);
 
-    let started = step("int8 encoder, both views", &mut timings);
-    let (rows, cols, codes_left) = model.descriptor_codes(&left).context("left view")?;
-    let (_, _, codes_right) = model.descriptor_codes(&right).context("right view")?;
-    finish(&mut timings, started);
-
-    let started = step("readout and left-right check", &mut timings);
-    let tokens = readout(opts, &model, &codes_left, &codes_right, rows, cols)?;
-    // The right view's disparity from the same descriptors: with both rows mirrored, right
-    // cell q's candidates (left cells q + k) sit k columns to the left, so the mirrored right
-    // view matches like a left view.
-    let mirrored_right = match_rows(
-        &mirror(&codes_right, cols),
-        &mirror(&codes_left, cols),
-        rows,
-        cols,
-        opts.max_cols,
+    let started = step(
+        "int8 pipeline: rows -> encoder (L,L), (R,R) -> readouts, band by band",
+        &mut timings,
+        &mut progress,
     );
-    let right_tokens = mirrored_right.map(|m| unmirror(&m))?;
-    let token_valid = lr_consistent(&tokens, &right_tokens, opts.lr_max_diff);
+    let pipeline_opts = PipelineOptions {
+        max_cols: opts.max_cols,
+        penalties: opts.penalties,
+        lr_max_diff_q8: (opts.lr_max_diff.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16,
+        head: opts.readout == Readout::Head,
+    };
+    let (w, h) = (left.width, left.height);
+    let (lp, rp) = (to_u8(&left.pixels), to_u8(&right.pixels));
+    let mut source = SlicePair::new(&lp, &rp, w, h).map_err(anyhow::Error::msg)?;
+    let arena_bytes = pipeline::arena_bytes(h, w, opts.max_cols);
+    let mut arena = vec![0u8; arena_bytes];
+    let bands = bino_core::band::BandPlan::new(h / bino_core::config::PATCH_H)
+        .map_err(anyhow::Error::msg)?
+        .len();
+    let mut maps = MapSink::new(opts.readout, bands, &mut progress);
+    let report = pipeline
+        .run(&mut source, &pipeline_opts, &mut arena, &mut maps)
+        .map_err(anyhow::Error::msg)?;
+    maps.stage_done();
+    let MapSink {
+        disparity,
+        consistent,
+        stage_times,
+        ..
+    } = maps;
+    finish(&mut timings, started);
+
+    let started = step("pixels, left-right mask", &mut timings, &mut progress);
+    let cols = report.cols;
+    let tokens = DisparityMap {
+        width: cols,
+        height: report.rows,
+        values: disparity,
+    };
+    ensure!(
+        tokens.values.len() == cols * report.rows && consistent.len() == tokens.values.len(),
+        "the pipeline emitted {} of {} cells",
+        tokens.values.len(),
+        cols * report.rows
+    );
     let disparity = upsample_disparity(&tokens);
-    let valid = pixel_mask(&token_valid, cols, disparity.width, disparity.height);
+    let valid = pixel_mask(&consistent, cols, disparity.width, disparity.height);
     let filled = fill_invalid(&disparity, &valid);
     finish(&mut timings, started);
 
-    let started = step("writing outputs", &mut timings);
+    let started = step("writing outputs", &mut timings, &mut progress);
     let files = write_outputs(&opts.out, &filled, &valid)?;
     finish(&mut timings, started);
     let density = 100.0 * valid.iter().filter(|&&v| v).count() as f64 / valid.len().max(1) as f64;
     Ok(RunReport {
-        width: left.width,
-        height: left.height,
+        width: w,
+        height: h,
         density,
         timings,
-        encoder_arena_bytes: encoder::arena_bytes(BAND_ROWS, left.width),
-        head_arena_bytes: head::arena_bytes(cols),
+        stage_times,
+        pipeline: report,
+        arena_bytes,
         files,
     })
 }
@@ -135,54 +168,69 @@ fn finish(timings: &mut [(&'static str, Duration)], started: Instant) {
     }
 }
 
-fn readout(opts: &RunOptions, model: &Int8Model, l: &[i8], r: &[i8], rows: usize, cols: usize) -> Result<DisparityMap> {
-    match opts.readout {
-        Readout::Nolink => match_rows(l, r, rows, cols, opts.max_cols),
-        Readout::Sgm => sgm_rows(l, r, rows, cols, opts.max_cols, opts.penalties),
-        Readout::Head => Ok(DisparityMap {
-            width: cols,
-            height: rows,
-            values: model.head(l, r, rows, cols)?.disparity,
-        }),
-    }
+/// Gathers the chosen readout's rows and left-right mask, and the time spent in each stage;
+/// reports each band as it starts.
+struct MapSink<'p> {
+    readout: Readout,
+    bands: usize,
+    bands_started: usize,
+    progress: &'p mut dyn FnMut(&str),
+    disparity: Vec<f32>,
+    consistent: Vec<bool>,
+    stage_times: Vec<(Stage, Duration)>,
+    current: Option<(Stage, Instant)>,
 }
 
-/// Descriptor rows with their cells in reverse order.
-fn mirror(codes: &[i8], cols: usize) -> Vec<i8> {
-    let mut out = Vec::with_capacity(codes.len());
-    for row in codes.chunks_exact(cols * DIM) {
-        for cell in row.chunks_exact(DIM).rev() {
-            out.extend_from_slice(cell);
+impl<'p> MapSink<'p> {
+    fn new(readout: Readout, bands: usize, progress: &'p mut dyn FnMut(&str)) -> Self {
+        Self {
+            readout,
+            bands,
+            bands_started: 0,
+            progress,
+            disparity: Vec::new(),
+            consistent: Vec::new(),
+            stage_times: Stage::ALL.iter().map(|&s| (s, Duration::ZERO)).collect(),
+            current: None,
         }
     }
-    out
-}
 
-fn unmirror(map: &DisparityMap) -> DisparityMap {
-    let mut values = Vec::with_capacity(map.values.len());
-    for row in map.values.chunks_exact(map.width.max(1)) {
-        values.extend(row.iter().rev());
+    /// Charges the time since the last stage change to that stage.
+    fn stage_done(&mut self) {
+        if let Some((stage, since)) = self.current.take() {
+            if let Some(entry) = self.stage_times.iter_mut().find(|(s, _)| *s == stage) {
+                entry.1 += since.elapsed();
+            }
+        }
     }
-    DisparityMap { values, ..map.clone() }
 }
 
-/// Left cell p with disparity d is consistent when the right cell p - round(d) points back
-/// within `max_diff` columns.
-pub fn lr_consistent(left: &DisparityMap, right: &DisparityMap, max_diff: f32) -> Vec<bool> {
-    let cols = left.width;
-    left.values
-        .iter()
-        .enumerate()
-        .map(|(i, &d)| {
-            let (row, p) = (i / cols.max(1), i % cols.max(1));
-            let q = p as i64 - d.round() as i64;
-            q >= 0
-                && right
-                    .values
-                    .get(row * cols + q as usize)
-                    .is_some_and(|&dr| (dr - d).abs() <= max_diff)
-        })
-        .collect()
+impl Sink for MapSink<'_> {
+    fn stage(&mut self, stage: Stage) {
+        self.stage_done();
+        if stage == Stage::EncodeLeft && self.bands > 1 {
+            self.bands_started += 1;
+            (self.progress)(&format!("  band {} of {}", self.bands_started, self.bands));
+        }
+        self.current = Some((stage, Instant::now()));
+    }
+
+    fn matched(&mut self, row: &MatchedRow<'_>) {
+        let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
+        // The head has no right-view twin: its cells take the SGM readout's check.
+        let (values, mask) = match self.readout {
+            Readout::Nolink => (row.wta_q8, row.wta_consistent),
+            Readout::Sgm => (row.sgm_q8, row.sgm_consistent),
+            Readout::Head => (&[][..], row.sgm_consistent),
+        };
+        self.disparity.extend(values.iter().map(|&d| d as f32 / unit));
+        self.consistent.extend(mask.iter().map(|&m| m != 0));
+    }
+
+    fn head(&mut self, row: HeadRow<'_>) {
+        let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
+        self.disparity.extend(row.disparity_q8.iter().map(|&d| d as f32 / unit));
+    }
 }
 
 /// Token-grid validity to pixels (each cell covers a 4x4 block).
@@ -245,28 +293,6 @@ mod tests {
             height: values.len() / width,
             values,
         }
-    }
-
-    #[test]
-    fn lr_check_keeps_mutual_matches_only() {
-        // Left cell 0 and right cell 0 agree at 0. Left cell 1 (d 0) lands on right cell 1,
-        // which says 1: rejected. Left cells 2 and 3 (d 1) land on right cells 1 and 2, which
-        // say 1 and 3: only cell 2 is kept.
-        let left = map(4, vec![0.0, 0.0, 1.0, 1.2]);
-        let right = map(4, vec![0.0, 1.0, 3.0, 0.0]);
-        assert_eq!(lr_consistent(&left, &right, 0.5), [true, false, true, false]);
-        // A disparity pointing outside the view is inconsistent.
-        let left = map(2, vec![3.0, 0.0]);
-        assert_eq!(lr_consistent(&left, &map(2, vec![0.0, 0.0]), 1.0), [false, true]);
-    }
-
-    #[test]
-    fn mirroring_twice_is_the_identity() {
-        let codes: Vec<i8> = (0..2 * 3 * DIM).map(|i| (i % 251) as i8).collect();
-        assert_eq!(mirror(&mirror(&codes, 3), 3), codes);
-        let m = map(3, vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0]);
-        assert_eq!(unmirror(&unmirror(&m)), m);
-        assert_eq!(unmirror(&m).values, [3.0, 2.0, 1.0, 6.0, 5.0, 4.0]);
     }
 
     #[test]
