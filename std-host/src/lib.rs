@@ -26,5 +26,6 @@ pub mod reference;
 pub mod reference_head;
 pub mod run;
 pub mod sha256;
+pub mod sim;
 pub mod synthetic;
 pub mod taps;

@@ -85,6 +85,49 @@ enum Command {
         #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p2)]
         sgm_p2: u16,
     },
+    /// The board, simulated: the pair is fed row by row into the band buffer as a camera
+    /// delivers it, the int8 pipeline runs in one arena, and each disparity row is drawn
+    /// (embedded-graphics) on an RGB565 display with a status line (host fps, arena use, image
+    /// size); the display is saved as display.png in --out. Without --left/--right the
+    /// built-in 320x96 scene is used.
+    Sim {
+        /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
+        #[arg(long, requires = "right")]
+        left: Option<PathBuf>,
+        /// Right view, same size.
+        #[arg(long, requires = "left")]
+        right: Option<PathBuf>,
+        /// Resolution profile of --left/--right: w160, w320 or native.
+        #[arg(long, default_value = "w320")]
+        profile: Profile,
+        /// Int8 weight blob.
+        #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+        blob: PathBuf,
+        /// Readout drawn: sgm, nolink or head (left-right rejected cells are dark).
+        #[arg(long, default_value = "sgm")]
+        readout: bino_host::readout_eval::Readout,
+        /// Disparity candidates of nolink and sgm, in patch columns.
+        #[arg(long, default_value_t = 16)]
+        max_cols: usize,
+        /// SGM penalty for a one-column change (cost units: 4096 = cosine 1).
+        #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p1)]
+        sgm_p1: u16,
+        /// SGM penalty for a larger jump.
+        #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p2)]
+        sgm_p2: u16,
+        /// Left-right check tolerance, in patch columns.
+        #[arg(long, default_value_t = 1.0)]
+        lr_max_diff: f32,
+        /// Display size, WIDTHxHEIGHT.
+        #[arg(long, default_value = "320x240")]
+        display: bino_host::sim::display::DisplaySize,
+        /// Frames to run (the camera delivers the pair again each time); fps from the median.
+        #[arg(long, default_value_t = 1)]
+        frames: usize,
+        /// Output folder.
+        #[arg(long, default_value = "out/sim")]
+        out: PathBuf,
+    },
     /// Quantise the float ONNX models into the int8 weight blob the engine runs.
     ///
     /// Weights: symmetric int8 per output channel. Activation formats come from the float
@@ -287,6 +330,31 @@ fn run(cli: Cli) -> Result<()> {
             max_cols,
             penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
         }),
+        Command::Sim {
+            left,
+            right,
+            profile,
+            blob,
+            readout,
+            max_cols,
+            sgm_p1,
+            sgm_p2,
+            lr_max_diff,
+            display,
+            frames,
+            out,
+        } => sim_command(&bino_host::sim::SimOptions {
+            pair: left.zip(right),
+            profile,
+            blob,
+            readout,
+            max_cols,
+            penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
+            lr_max_diff,
+            display,
+            frames,
+            out,
+        }),
         Command::Run {
             left,
             right,
@@ -434,6 +502,41 @@ fn demo_command(opts: &bino_host::demo::DemoOptions) -> Result<()> {
     for file in &report.files {
         println!("wrote {}", file.display());
     }
+    Ok(())
+}
+
+fn sim_command(opts: &bino_host::sim::SimOptions) -> Result<()> {
+    let started = Instant::now();
+    let report = bino_host::sim::run_sim(opts, |step| {
+        eprintln!("[{:5.1} s] {step} ...", started.elapsed().as_secs_f64());
+    })?;
+    let stages: Vec<String> = report
+        .stage_times
+        .iter()
+        .filter(|(_, took)| !took.is_zero())
+        .map(|(name, took)| format!("{name} {:.1}", took.as_secs_f64() * 1e3))
+        .collect();
+    eprintln!("last frame, ms by stage: {}", stages.join(", "));
+    let p = &report.pipeline;
+    println!(
+        "bino sim: {} at {}x{}, {} readout; sensor rows read {}/{} (each once), {} band(s), {} token rows drawn; \
+         host {:.2} fps ({:.1} ms/frame, median of {}; not a board figure); arena {} of {} bytes; display {} -> {}",
+        report.source,
+        report.width,
+        report.height,
+        opts.readout.name(),
+        report.rows_delivered,
+        report.height,
+        p.bands,
+        report.rows_drawn,
+        report.host_fps(),
+        report.frame_time().as_secs_f64() * 1e3,
+        report.frame_times.len(),
+        p.arena_used,
+        report.arena_bytes,
+        opts.display,
+        report.png.display()
+    );
     Ok(())
 }
 

@@ -1,0 +1,550 @@
+//! `bino sim`: the board, simulated on the host. The camera pair is fed row by row into the
+//! band buffer as a sensor delivers it ([`sensor::SensorSource`]), the core pipeline
+//! (`bino_core::pipeline`) runs in one arena, and each disparity row is drawn onto an RGB565
+//! display framebuffer with `embedded-graphics` as it comes out ([`DisplaySink`]); a status
+//! line (host fps, arena use, image size) is drawn last and the display is saved as a PNG.
+//!
+//! The fps is the host's: the measured wall time of the pipeline run (drawing included) on
+//! this machine. It says nothing of a Cortex-M board's speed.
+
+pub mod display;
+pub mod sensor;
+
+use std::path::PathBuf;
+use std::time::{Duration, Instant};
+
+use anyhow::{ensure, Context, Result};
+use bino_core::config::HEAD_MAX_DISP;
+use bino_core::matching::DISPARITY_FRAC_BITS;
+use bino_core::model::head::HeadRow;
+use bino_core::pipeline::{self, MatchedRow, Options as PipelineOptions, Pipeline, Report, Sink, Stage};
+use bino_core::sgm::Penalties;
+use embedded_graphics::mono_font::ascii::FONT_6X10;
+use embedded_graphics::mono_font::MonoTextStyle;
+use embedded_graphics::pixelcolor::{Rgb565, Rgb888, RgbColor};
+use embedded_graphics::prelude::*;
+use embedded_graphics::primitives::Rectangle;
+use embedded_graphics::text::{Baseline, Text};
+
+use crate::colour::colourise;
+use crate::image_io::{load_gray, GrayImage};
+use crate::int8::{to_u8, Int8Model};
+use crate::profile::Profile;
+use crate::readout_eval::Readout;
+use crate::synthetic::default_scene;
+use display::{DisplaySize, Framebuffer};
+use sensor::SensorSource;
+
+/// Size of the built-in pair used without `--left/--right` (the `bino demo` scene).
+pub const DEFAULT_SCENE: (usize, usize) = (320, 96);
+
+/// Status lines at the bottom of the display.
+const STATUS_LINES: usize = 2;
+/// Pixel rows per status line (FONT_6X10 is 10 rows high, plus one of spacing).
+const LINE_PITCH: usize = 11;
+/// Pixels between the camera view and the disparity panel.
+const GAP: usize = 2;
+/// Colour of cells the left-right check rejected.
+pub const REJECTED: Rgb565 = Rgb565::new(3, 6, 3);
+/// Background of the status bar.
+const STATUS_BACKGROUND: Rgb565 = Rgb565::new(0, 0, 6);
+
+/// What `bino sim` runs on and where it writes.
+#[derive(Debug, Clone)]
+pub struct SimOptions {
+    /// Left and right views; `None`: the built-in scene ([`DEFAULT_SCENE`]).
+    pub pair: Option<(PathBuf, PathBuf)>,
+    /// Resolution profile of a given pair (the built-in scene runs at its own size).
+    pub profile: Profile,
+    /// Int8 weight blob.
+    pub blob: PathBuf,
+    /// Readout drawn.
+    pub readout: Readout,
+    /// Disparity candidates of nolink and sgm, in patch columns.
+    pub max_cols: usize,
+    /// SGM penalties.
+    pub penalties: Penalties,
+    /// Left-right check tolerance in patch columns.
+    pub lr_max_diff: f32,
+    /// Display size.
+    pub display: DisplaySize,
+    /// Frames to run (the sensor delivers the pair again for each); fps from their median.
+    pub frames: usize,
+    /// Output folder; the display goes to `display.png` in it.
+    pub out: PathBuf,
+}
+
+/// What a simulation measured and wrote.
+#[derive(Debug, Clone)]
+pub struct SimReport {
+    /// Where the pair came from.
+    pub source: String,
+    /// Size the pipeline ran at.
+    pub width: usize,
+    /// Height it ran at.
+    pub height: usize,
+    /// Rows the sensor delivered in the last frame (each row once: equals `height`).
+    pub rows_delivered: usize,
+    /// Wall time of each frame's pipeline run, drawing included.
+    pub frame_times: Vec<Duration>,
+    /// Of the last frame: time in each pipeline stage, then `draw` (the sink's drawing).
+    pub stage_times: Vec<(&'static str, Duration)>,
+    /// The core pipeline's report of the last frame.
+    pub pipeline: Report,
+    /// Arena bytes allocated (`bino_core::pipeline::arena_bytes`).
+    pub arena_bytes: usize,
+    /// Token rows drawn on the display.
+    pub rows_drawn: usize,
+    /// Where things sit on the display.
+    pub layout: Layout,
+    /// The status lines drawn.
+    pub status: Vec<String>,
+    /// The display picture written.
+    pub png: PathBuf,
+}
+
+impl SimReport {
+    /// Median frame time.
+    pub fn frame_time(&self) -> Duration {
+        let mut times = self.frame_times.clone();
+        times.sort();
+        times.get(times.len() / 2).copied().unwrap_or_default()
+    }
+
+    /// Frames per second on this host, from the median frame time.
+    pub fn host_fps(&self) -> f64 {
+        1.0 / self.frame_time().as_secs_f64().max(1e-9)
+    }
+}
+
+/// Runs the simulation; `progress` hears about each step before it starts.
+pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimReport> {
+    ensure!(opts.frames >= 1, "--frames must be at least 1");
+    progress("loading the pair and the blob");
+    let (source, left, right) = load_pair(opts)?;
+    let (width, height) = (left.width, left.height);
+    let model = Int8Model::load(&opts.blob)?;
+    let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
+    ensure!(
+        opts.readout != Readout::Head || pipeline.has_head(),
+        "the blob {} has no shared head; use --readout sgm or nolink",
+        opts.blob.display()
+    );
+    let pipeline_opts = PipelineOptions {
+        max_cols: opts.max_cols,
+        penalties: opts.penalties,
+        lr_max_diff_q8: (opts.lr_max_diff.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16,
+        head: opts.readout == Readout::Head,
+    };
+    let layout = Layout::new(opts.display, width, height)?;
+    let arena_bytes = pipeline::arena_bytes(height, width, opts.max_cols);
+    let mut arena = vec![0u8; arena_bytes];
+
+    let mut frame_times = Vec::with_capacity(opts.frames);
+    let mut last = None;
+    for frame in 0..opts.frames {
+        progress(&format!(
+            "frame {}/{}: sensor rows -> band buffer -> encoder (L,L), (R,R) -> {} -> display",
+            frame + 1,
+            opts.frames,
+            opts.readout.name()
+        ));
+        let mut fb = Framebuffer::new(opts.display);
+        layout.draw_camera(&mut fb, &left);
+        let mut sensor = SensorSource::new(&left.pixels, &right.pixels, width, height).map_err(anyhow::Error::msg)?;
+        let mut sink = DisplaySink::new(&mut fb, layout.disparity, opts.readout, opts.max_cols);
+        let started = Instant::now();
+        let report = pipeline
+            .run(&mut sensor, &pipeline_opts, &mut arena, &mut sink)
+            .map_err(anyhow::Error::msg)?;
+        sink.finish();
+        frame_times.push(started.elapsed());
+        let (stage_times, rows_drawn) = (sink.stage_times(), sink.rows_drawn);
+        ensure!(
+            sensor.frame_done(),
+            "the pipeline read {} of the sensor's {height} rows",
+            sensor.rows_delivered()
+        );
+        last = Some((fb, report, stage_times, rows_drawn, sensor.rows_delivered()));
+    }
+    let Some((mut fb, report, stage_times, rows_drawn, rows_delivered)) = last else {
+        unreachable!("at least one frame ran");
+    };
+    let mut sim = SimReport {
+        source,
+        width,
+        height,
+        rows_delivered,
+        frame_times,
+        stage_times,
+        pipeline: report,
+        arena_bytes,
+        rows_drawn,
+        layout,
+        status: Vec::new(),
+        png: opts.out.join("display.png"),
+    };
+    sim.status = status_lines(&sim, opts.readout);
+    layout.draw_status(&mut fb, &sim.status);
+    progress("writing the display");
+    fb.save_png(&sim.png)?;
+    Ok(sim)
+}
+
+/// The pair as the sensor delivers it: gray bytes at the profile's size.
+fn load_pair(opts: &SimOptions) -> Result<(String, GrayImage, GrayImage)> {
+    let Some((left_path, right_path)) = &opts.pair else {
+        let (w, h) = DEFAULT_SCENE;
+        let scene = default_scene(w, h);
+        return Ok(("built-in scene".to_string(), scene.left, scene.right));
+    };
+    let (left, right) = (load_gray(left_path)?, load_gray(right_path)?);
+    ensure!(
+        (left.width, left.height) == (right.width, right.height),
+        "the views differ in size: {} is {}x{}, {} is {}x{}",
+        left_path.display(),
+        left.width,
+        left.height,
+        right_path.display(),
+        right.width,
+        right.height
+    );
+    let apply = |image: &GrayImage, path: &PathBuf| -> Result<GrayImage> {
+        let view = opts
+            .profile
+            .apply(image)
+            .with_context(|| format!("{}", path.display()))?;
+        GrayImage::new(view.width, view.height, to_u8(&view.pixels))
+    };
+    let source = format!("{} + {} ({})", left_path.display(), right_path.display(), opts.profile);
+    Ok((source, apply(&left, left_path)?, apply(&right, right_path)?))
+}
+
+fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
+    let kept = match readout {
+        Readout::Nolink => sim.pipeline.wta_kept,
+        Readout::Sgm | Readout::Head => sim.pipeline.sgm_kept,
+    };
+    let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
+    vec![
+        format!(
+            "host {:.2} fps ({:.0} ms)  {}x{} {}",
+            sim.host_fps(),
+            sim.frame_time().as_secs_f64() * 1e3,
+            sim.width,
+            sim.height,
+            readout.name()
+        ),
+        format!(
+            "arena {}/{} B  LR {:.0}%",
+            sim.pipeline.arena_used, sim.arena_bytes, kept
+        ),
+    ]
+}
+
+/// A rectangle of the display showing an image-sized picture scaled by `num / den`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Panel {
+    /// Left column on the display.
+    pub x: usize,
+    /// Top row on the display.
+    pub y: usize,
+    /// Columns used.
+    pub width: usize,
+    /// Rows used.
+    pub height: usize,
+    num: usize,
+    den: usize,
+}
+
+impl Panel {
+    /// The largest scaling of an `image_w x image_h` picture into the `room_w x room_h`
+    /// rectangle at `(x, y)`, centred in it.
+    fn fit(x: usize, y: usize, room_w: usize, room_h: usize, image_w: usize, image_h: usize) -> Self {
+        // Scale = min(room_w / image_w, room_h / image_h), kept as a fraction.
+        let (num, den) = if room_w * image_h <= room_h * image_w {
+            (room_w, image_w)
+        } else {
+            (room_h, image_h)
+        };
+        let (width, height) = (image_w * num / den.max(1), image_h * num / den.max(1));
+        Self {
+            x: x + (room_w - width.min(room_w)) / 2,
+            y: y + (room_h - height.min(room_h)) / 2,
+            width,
+            height,
+            num,
+            den: den.max(1),
+        }
+    }
+
+    /// Display pixels `[start, end)` covered by image pixels `[from, to)` along one axis.
+    fn span(&self, from: usize, to: usize) -> (usize, usize) {
+        (from * self.num / self.den, to * self.num / self.den)
+    }
+
+    /// The image pixel shown at display offset `d` along one axis (nearest below).
+    fn source(&self, d: usize) -> usize {
+        d * self.den / self.num.max(1)
+    }
+
+    /// Fills the display rectangle covering image pixels `[x0, x1) x [y0, y1)`.
+    fn fill(&self, fb: &mut Framebuffer, (x0, x1): (usize, usize), (y0, y1): (usize, usize), colour: Rgb565) {
+        let (dx0, dx1) = self.span(x0, x1);
+        let (dy0, dy1) = self.span(y0, y1);
+        let area = Rectangle::new(
+            Point::new((self.x + dx0) as i32, (self.y + dy0) as i32),
+            Size::new((dx1 - dx0) as u32, (dy1 - dy0) as u32),
+        );
+        let Ok(()) = fb.fill_solid(&area, colour);
+    }
+
+    /// The panel's rectangle on the display.
+    pub fn rectangle(&self) -> Rectangle {
+        Rectangle::new(
+            Point::new(self.x as i32, self.y as i32),
+            Size::new(self.width as u32, self.height as u32),
+        )
+    }
+}
+
+/// Where the camera view, the disparity map and the status bar sit on the display: the two
+/// pictures one above the other or side by side, whichever shows them larger.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Layout {
+    /// The left camera view.
+    pub camera: Panel,
+    /// The disparity map (same scale as the camera view: cell (r, c) covers its 4x4 pixels).
+    pub disparity: Panel,
+    /// Top row of the status bar.
+    pub status_y: usize,
+}
+
+impl Layout {
+    /// The layout of a `width x height` pair on `display`.
+    pub fn new(display: DisplaySize, width: usize, height: usize) -> Result<Self> {
+        let (w, h) = (display.width, display.height);
+        let status_y = h.saturating_sub(STATUS_LINES * LINE_PITCH + 1);
+        let room = status_y.saturating_sub(GAP);
+        let stacked = (
+            Panel::fit(0, 0, w, room / 2, width, height),
+            Panel::fit(0, room / 2 + GAP, w, room / 2, width, height),
+        );
+        let half = w.saturating_sub(GAP) / 2;
+        let side = (
+            Panel::fit(0, 0, half, room, width, height),
+            Panel::fit(half + GAP, 0, half, room, width, height),
+        );
+        let (camera, disparity) = if side.0.width * side.0.height > stacked.0.width * stacked.0.height {
+            side
+        } else {
+            stacked
+        };
+        ensure!(
+            disparity.width >= 1 && disparity.height >= 1 && status_y > 0,
+            "display {display} is too small for a {width}x{height} image and {STATUS_LINES} status lines"
+        );
+        Ok(Self {
+            camera,
+            disparity,
+            status_y,
+        })
+    }
+
+    /// Draws the left camera view (gray) into its panel.
+    pub fn draw_camera(&self, fb: &mut Framebuffer, left: &GrayImage) {
+        let p = &self.camera;
+        let pixels = (0..p.height).flat_map(|dy| {
+            let row = p.source(dy).min(left.height - 1) * left.width;
+            (0..p.width).map(move |dx| {
+                let g = left.pixels[row + p.source(dx).min(left.width - 1)];
+                Rgb565::new(g >> 3, g >> 2, g >> 3)
+            })
+        });
+        let Ok(()) = fb.fill_contiguous(&p.rectangle(), pixels);
+    }
+
+    /// Draws the status bar: one line of text per entry (FONT_6X10, white).
+    pub fn draw_status(&self, fb: &mut Framebuffer, lines: &[String]) {
+        let size = fb.display_size();
+        let bar = Rectangle::new(
+            Point::new(0, self.status_y as i32),
+            Size::new(size.width as u32, (size.height - self.status_y) as u32),
+        );
+        let Ok(()) = fb.fill_solid(&bar, STATUS_BACKGROUND);
+        let style = MonoTextStyle::new(&FONT_6X10, Rgb565::WHITE);
+        for (i, line) in lines.iter().enumerate() {
+            let at = Point::new(2, (self.status_y + 1 + i * LINE_PITCH) as i32);
+            let Ok(_) = Text::with_baseline(line, at, style, Baseline::Top).draw(fb);
+        }
+    }
+}
+
+/// Draws each token row of the chosen readout onto the display as the pipeline emits it,
+/// and times the pipeline's stages and its own drawing.
+pub struct DisplaySink<'f> {
+    fb: &'f mut Framebuffer,
+    panel: Panel,
+    readout: Readout,
+    /// Colour scale: this many patch columns is the far end of the map.
+    max_disparity: f32,
+    /// SGM left-right masks of rows the head has not reached yet (the head has no right-view
+    /// twin: its cells take the SGM readout's check, as in `bino run`).
+    pending_masks: Vec<(usize, Vec<u8>)>,
+    /// Token rows drawn.
+    pub rows_drawn: usize,
+    times: [Duration; Stage::ALL.len() + 1],
+    current: Option<(usize, Instant)>,
+}
+
+impl<'f> DisplaySink<'f> {
+    /// A sink drawing `readout` into `panel` of `fb`; `max_cols` candidates of nolink and sgm.
+    pub fn new(fb: &'f mut Framebuffer, panel: Panel, readout: Readout, max_cols: usize) -> Self {
+        let candidates = if readout == Readout::Head {
+            HEAD_MAX_DISP
+        } else {
+            max_cols
+        };
+        Self {
+            fb,
+            panel,
+            readout,
+            max_disparity: candidates.saturating_sub(1).max(1) as f32,
+            pending_masks: Vec::new(),
+            rows_drawn: 0,
+            times: [Duration::ZERO; Stage::ALL.len() + 1],
+            current: None,
+        }
+    }
+
+    /// Charges the time since the last switch to the current bucket and starts `bucket`.
+    fn switch(&mut self, bucket: Option<usize>) -> Option<usize> {
+        let now = Instant::now();
+        let previous = self.current.take().map(|(b, since)| {
+            self.times[b] += now - since;
+            b
+        });
+        self.current = bucket.map(|b| (b, now));
+        previous
+    }
+
+    /// Stops the clock (after the run).
+    pub fn finish(&mut self) {
+        self.switch(None);
+    }
+
+    /// Time in each pipeline stage, then in drawing.
+    pub fn stage_times(&self) -> Vec<(&'static str, Duration)> {
+        let names = Stage::ALL.iter().map(|s| s.name()).chain(["draw"]);
+        names.zip(self.times).collect()
+    }
+
+    /// Draws one token row (disparity in Q8 patch columns, 1 = passed the left-right check).
+    fn draw_row(&mut self, row: usize, disparity_q8: &[u16], consistent: &[u8]) {
+        let previous = self.switch(Some(Stage::ALL.len()));
+        let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
+        let values: Vec<f32> = disparity_q8.iter().map(|&d| d as f32 / unit).collect();
+        let colours = colourise(&values, self.max_disparity);
+        let cell = crate::eval::PIXELS_PER_PATCH_COLUMN;
+        for (c, rgb) in colours.chunks_exact(3).enumerate() {
+            let colour = if consistent.get(c) == Some(&1) {
+                Rgb565::from(Rgb888::new(rgb[0], rgb[1], rgb[2]))
+            } else {
+                REJECTED
+            };
+            self.panel.fill(
+                self.fb,
+                (c * cell, (c + 1) * cell),
+                (row * cell, (row + 1) * cell),
+                colour,
+            );
+        }
+        self.rows_drawn += 1;
+        self.switch(previous);
+    }
+}
+
+impl Sink for DisplaySink<'_> {
+    fn stage(&mut self, stage: Stage) {
+        let bucket = Stage::ALL.iter().position(|&s| s == stage);
+        self.switch(bucket);
+    }
+
+    fn matched(&mut self, row: &MatchedRow<'_>) {
+        match self.readout {
+            Readout::Nolink => self.draw_row(row.row, row.wta_q8, row.wta_consistent),
+            Readout::Sgm => self.draw_row(row.row, row.sgm_q8, row.sgm_consistent),
+            Readout::Head => self.pending_masks.push((row.row, row.sgm_consistent.to_vec())),
+        }
+    }
+
+    fn head(&mut self, row: HeadRow<'_>) {
+        if self.readout != Readout::Head {
+            return;
+        }
+        let at = self.pending_masks.iter().position(|(r, _)| *r == row.row);
+        let mask = at.map(|i| self.pending_masks.remove(i).1).unwrap_or_default();
+        self.draw_row(row.row, row.disparity_q8, &mask);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_default_pair_fills_the_width_of_a_qvga_display_twice_stacked() {
+        let layout = Layout::new(DisplaySize::QVGA, 320, 96).unwrap();
+        // 240 - 23 status rows = 217; two 96-row pictures at scale 1 fit above each other,
+        // each centred in its 107-row half.
+        assert_eq!(layout.status_y, 217);
+        assert_eq!(
+            (
+                layout.camera.x,
+                layout.camera.y,
+                layout.camera.width,
+                layout.camera.height
+            ),
+            (0, 5, 320, 96)
+        );
+        assert_eq!(layout.disparity.width, 320);
+        assert_eq!(layout.disparity.height, 96);
+        assert_eq!(layout.disparity.y, 107 + 2 + 5);
+        assert!(layout.disparity.y + 96 <= layout.status_y);
+    }
+
+    #[test]
+    fn tall_images_go_side_by_side_and_tiny_displays_are_refused() {
+        let layout = Layout::new(DisplaySize::QVGA, 320, 320).unwrap();
+        assert_eq!(layout.camera.y, layout.disparity.y, "{layout:?}");
+        assert!(layout.disparity.x >= layout.camera.x + layout.camera.width);
+        assert!(layout.disparity.x + layout.disparity.width <= 320);
+        let tiny = DisplaySize { width: 32, height: 24 };
+        assert!(Layout::new(tiny, 320, 96).is_err());
+    }
+
+    #[test]
+    fn a_row_is_drawn_into_its_cells_and_rejected_cells_are_dark() {
+        let size = DisplaySize { width: 64, height: 48 };
+        let mut fb = Framebuffer::new(size);
+        // A 16x8 image (4 patch columns, 2 token rows) at scale 2 from (10, 4).
+        let panel = Panel::fit(10, 4, 32, 16, 16, 8);
+        assert_eq!((panel.x, panel.y, panel.width, panel.height), (10, 4, 32, 16));
+        let mut sink = DisplaySink::new(&mut fb, panel, Readout::Sgm, 4);
+        sink.draw_row(1, &[0, 256, 512, 768], &[1, 1, 0, 1]);
+        assert_eq!(sink.rows_drawn, 1);
+        // Token row 1 is image rows 4..8, display rows 4 + 8..4 + 16; each cell 8 px wide.
+        for (c, expected_dark) in [false, false, true, false].into_iter().enumerate() {
+            let x = 10 + 8 * c;
+            let colour = fb.pixel(x + 3, 12 + 5).unwrap();
+            assert_eq!(colour == REJECTED, expected_dark, "cell {c}: {colour:?}");
+            assert_eq!(fb.pixel(x, 12), fb.pixel(x + 7, 19), "cell {c} is one colour");
+        }
+        assert_ne!(fb.pixel(10, 12), fb.pixel(18, 12), "disparity 0 and 1 differ in colour");
+        // Nothing outside the row's cells.
+        let lit = fb.raw().iter().filter(|&&w| w != 0).count();
+        assert_eq!(lit, 4 * 8 * 8);
+        assert_eq!(fb.pixel(10, 11), Some(Rgb565::BLACK));
+        assert_eq!(fb.pixel(42, 12), Some(Rgb565::BLACK));
+    }
+}
