@@ -21,6 +21,11 @@ for target in $THUMB_TARGETS; do
   cargo build -p bino-core --locked --release --target "$target"
 done
 
+step "firmware under QEMU: both cores, outputs bit-identical to the host, instruction counts"
+# Cortex-M55 (mps3-an547) and Cortex-M7 (mps2-an500), one 48x160 band pair each (~4 min);
+# results in out/firmware/ (see README, "Firmware").
+scripts/firmware.sh
+
 step "python: format, lints, types, tests"
 cd train
 "$BINO_VENV/bin/ruff" format --check .

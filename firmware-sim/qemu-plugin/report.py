@@ -1,0 +1,170 @@
+#!/usr/bin/env python3
+"""One firmware run under QEMU -> out/firmware/<core>.json (stdlib only; scripts/firmware.sh).
+
+Reads the decoded defmt log (lines "bino key=value ..."), the instruction-count plugin's table,
+the ELF's section sizes (llvm-size -A) and, with --profile, the plugin's per-block counts, which
+it maps to functions with llvm-nm into a per-function profile. Instruction counts are executed
+instructions counted by the plugin, not cycles.
+"""
+
+import argparse
+import bisect
+import json
+import re
+import subprocess
+import sys
+
+NOTE = (
+    "instructions are executed instructions counted by a QEMU TCG plugin (qemu-plugin/insn_count.c) "
+    "between the firmware's stage markers; they are not cycles"
+)
+KV = re.compile(r"(\w+)=(\S+)")
+
+
+def number(v):
+    try:
+        return int(v)
+    except ValueError:
+        return {"true": True, "false": False}.get(v, v)
+
+
+def parse_log(path):
+    """Every 'bino ...' line as a dict of its key=value pairs."""
+    lines = []
+    with open(path, encoding="utf-8", errors="replace") as f:
+        for line in f:
+            at = line.find("bino ")
+            if at >= 0:
+                lines.append({k: number(v) for k, v in KV.findall(line[at + 5 :])})
+    return lines
+
+
+def parse_counts(path):
+    counts = {}
+    with open(path) as f:
+        for line in f:
+            if line.startswith("#") or not line.strip():
+                continue
+            name, insns, entered = line.split("\t")
+            counts[name] = (int(insns), int(entered))
+    return counts
+
+
+def elf_sections(llvm_size, elf):
+    out = subprocess.run([llvm_size, "-A", elf], check=True, capture_output=True, text=True).stdout
+    sections = {}
+    for line in out.splitlines():
+        parts = line.split()
+        if len(parts) == 3 and parts[0].startswith(".") and not parts[0].startswith(".debug"):
+            sections[parts[0]] = {"size": int(parts[1]), "addr": int(parts[2])}
+    return sections
+
+
+def profile(llvm_nm, elf, blocks_path, top):
+    """Instructions per function: each block's count goes to the symbol it starts in."""
+    out = subprocess.run(
+        [llvm_nm, "--defined-only", "-n", "-C", elf], check=True, capture_output=True, text=True
+    ).stdout
+    starts, names = [], []
+    for line in out.splitlines():
+        parts = line.split(None, 2)
+        if len(parts) == 3 and parts[1] in "tTwW":
+            starts.append(int(parts[0], 16) & ~1)
+            names.append(parts[2])
+    per = {}
+    total = 0
+    with open(blocks_path) as f:
+        for line in f:
+            if line.startswith("#"):
+                continue
+            vaddr, n, executed = line.split("\t")
+            insns = int(n) * int(executed)
+            i = bisect.bisect_right(starts, int(vaddr, 16)) - 1
+            name = names[i] if i >= 0 else "?"
+            per[name] = per.get(name, 0) + insns
+            total += insns
+    ranked = sorted(per.items(), key=lambda kv: -kv[1])[:top]
+    return total, [{"function": k, "instructions": v, "share": v / total} for k, v in ranked]
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__)
+    for a in ("core", "cpu", "board", "target", "elf", "log", "counts", "llvm-size", "llvm-nm", "out", "qemu"):
+        ap.add_argument("--" + a, required=True)
+    ap.add_argument("--wall", type=float, required=True)
+    ap.add_argument("--exit-status", type=int, required=True)
+    ap.add_argument("--profile")
+    ap.add_argument("--profile-out")
+    args = ap.parse_args()
+
+    lines = parse_log(args.log)
+    header = next((l for l in lines if "band" in l), {})
+    stage_lines = [l for l in lines if "stage" in l]
+    outputs = [l for l in lines if "output" in l]
+    arena = next((l for l in lines if "arena_used" in l), {})
+    result = next((l.get("result") for l in lines if "result" in l), "none")
+    counts = parse_counts(args.counts)
+
+    height, width = (int(x) for x in str(header.get("band", "0x0")).split("x"))
+    stages = []
+    for l in stage_lines:
+        insns, entered = counts.get(l["stage"], (0, 0))
+        stages.append(
+            {
+                "name": l["stage"],
+                "instructions": insns,
+                "marker_hits": entered,
+                "arena_in_use": l["arena_in_use"],
+                "stack_peak": l["stack_peak"],
+            }
+        )
+    report = {
+        "schema": "bino-firmware-run/1",
+        "core": args.core,
+        "cpu": args.cpu,
+        "board": args.board,
+        "target": args.target,
+        "qemu": args.qemu,
+        "band": {"height": height, "width": width},
+        "exit_status": args.exit_status,
+        "passed": args.exit_status == 0 and result == "pass",
+        "result": result,
+        "qemu_wall_seconds": round(args.wall, 1),
+        "elf": args.elf,
+        "elf_sections": elf_sections(args.llvm_size, args.elf),
+        "blob_bytes": header.get("blob_bytes"),
+        "arena_bytes": header.get("arena_bytes"),
+        "arena_used": arena.get("arena_used"),
+        "arena_painted_high_water": arena.get("painted_high_water"),
+        "arena_breakdown": {k: arena.get(k) for k in ("pixels", "descriptors", "encoder", "streams")},
+        "stack_bytes": header.get("stack_bytes"),
+        "stack_peak": max((s["stack_peak"] for s in stages), default=None),
+        "stages": stages,
+        "startup_instructions": counts.get("startup", (0, 0))[0],
+        "outside_instructions": counts.get("outside", (0, 0))[0],
+        "total_instructions": counts.get("total", (0, 0))[0],
+        "outputs": [
+            {"name": o["output"], "digest": o["digest"], "expected": o["expected"], "match": o["match"]}
+            for o in outputs
+        ],
+        "wta_kept": arena.get("wta_kept"),
+        "sgm_kept": arena.get("sgm_kept"),
+        "note": NOTE,
+    }
+    if args.profile:
+        total, top = profile(args.llvm_nm, args.elf, args.profile, 40)
+        report["profile_top_functions"] = top[:15]
+        if args.profile_out:
+            with open(args.profile_out, "w") as f:
+                f.write(f"# {args.core}: executed instructions per function (top {len(top)}; not cycles)\n")
+                for t in top:
+                    f.write(f"{t['instructions']:>14,}  {100 * t['share']:5.1f}%  {t['function']}\n")
+                f.write(f"{total:>14,}  100.0%  total\n")
+    with open(args.out, "w") as f:
+        json.dump(report, f, indent=2)
+        f.write("\n")
+    return 0 if report["passed"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

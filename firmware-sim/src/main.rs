@@ -1,0 +1,278 @@
+//! BINO edge firmware for QEMU's Cortex-M55 (`mps3-an547`) and Cortex-M7 (`mps2-an500`) boards.
+//!
+//! Runs the embedded band pair through `bino_core::pipeline` from a static arena, logs each
+//! stage's arena use and stack peak and each output's digest with `defmt` over semihosting, and
+//! exits 0 only if every digest equals the host's (baked in by `build.rs`), non-zero otherwise or
+//! on any error.
+//!
+//! Each stage starts with a call to its marker function `bino_mark_<stage>`, whose address the
+//! QEMU instruction-count plugin (`qemu-plugin/`) watches; `bino_mark_end` starts work outside
+//! the stages (digests, stack scans, logging), which the plugin counts apart.
+#![no_std]
+#![no_main]
+
+mod workload;
+
+use core::mem::MaybeUninit;
+use core::ptr::{addr_of, addr_of_mut};
+
+use bino_core::pipeline;
+// The critical-section implementation (single core) that defmt's logger needs.
+use cortex_m as _;
+use cortex_m_rt::entry;
+use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
+use defmt_semihosting as _;
+use workload::{BandPair, Hooks, Stage, OUTPUTS};
+
+mod expected {
+    include!(concat!(env!("OUT_DIR"), "/expected.rs"));
+}
+
+/// The board this build is for.
+#[cfg(board = "an547")]
+const BOARD: &str = "mps3-an547 (Cortex-M55)";
+#[cfg(board = "an500")]
+const BOARD: &str = "mps2-an500 (Cortex-M7)";
+
+/// Arena bytes, from the core's `const fn`.
+const ARENA_BYTES: usize = workload::arena_bytes(expected::HEIGHT, expected::WIDTH);
+/// Byte the arena is painted with before the run, so its high-water mark can be read back.
+const ARENA_PAINT: u8 = 0xA5;
+/// What cortex-m-rt's `paint-stack` writes over the stack before `main` (and this firmware
+/// again below the stack pointer after each stage).
+const STACK_PAINT: u32 = 0xCCCC_CCCC;
+
+#[repr(C, align(16))]
+struct Aligned<T>(T);
+
+/// The weight blob, in the board's read-only flash-like region (see `memory/`).
+#[link_section = ".weights"]
+#[used]
+static BLOB: Aligned<[u8; expected::BLOB_LEN]> = Aligned(*expected::BLOB_BYTES);
+
+/// The arena: not zeroed at reset (`.uninit`), painted by `main`.
+#[link_section = ".uninit.bino_arena"]
+static mut ARENA: MaybeUninit<Aligned<[u8; ARENA_BYTES]>> = MaybeUninit::uninit();
+
+/// The stage the firmware is in (written by the markers, which also keeps them distinct).
+static mut CURRENT: u32 = u32::MAX;
+
+macro_rules! markers {
+    ($($name:ident = $id:expr;)*) => {
+        $(
+            #[no_mangle]
+            #[inline(never)]
+            #[doc = "Marker the instruction-count plugin watches."]
+            pub extern "C" fn $name() {
+                // SAFETY: single-threaded firmware; no interrupt touches CURRENT.
+                unsafe { core::ptr::write_volatile(addr_of_mut!(CURRENT), $id) };
+            }
+        )*
+    };
+}
+
+markers! {
+    bino_mark_load = 0;
+    bino_mark_rows = 1;
+    bino_mark_encode_left = 2;
+    bino_mark_encode_right = 3;
+    bino_mark_match = 4;
+    bino_mark_sgm = 5;
+    bino_mark_left_right = 6;
+    bino_mark_head = 7;
+    bino_mark_end = 0xFFFF;
+}
+
+fn mark(stage: Stage) {
+    use pipeline::Stage as P;
+    match stage {
+        Stage::Load => bino_mark_load(),
+        Stage::Pipeline(P::Rows) => bino_mark_rows(),
+        Stage::Pipeline(P::EncodeLeft) => bino_mark_encode_left(),
+        Stage::Pipeline(P::EncodeRight) => bino_mark_encode_right(),
+        Stage::Pipeline(P::Match) => bino_mark_match(),
+        Stage::Pipeline(P::Sgm) => bino_mark_sgm(),
+        Stage::Pipeline(P::LeftRight) => bino_mark_left_right(),
+        Stage::Pipeline(P::Head) => bino_mark_head(),
+    }
+}
+
+extern "C" {
+    static _stack_end: u32;
+    static _stack_start: u32;
+}
+
+/// The stack region, `[bottom, top)`.
+fn stack_bounds() -> (usize, usize) {
+    // Only the linker symbols' addresses are taken.
+    (addr_of!(_stack_end) as usize, addr_of!(_stack_start) as usize)
+}
+
+/// Bytes of stack used since the last [`repaint_stack`]: from the top down to the lowest word
+/// that no longer holds the paint.
+fn stack_peak() -> usize {
+    let (bottom, top) = stack_bounds();
+    let mut p = bottom;
+    // SAFETY: p is a word-aligned address inside the stack region.
+    while p < top && unsafe { core::ptr::read_volatile(p as *const u32) } == STACK_PAINT {
+        p += 4;
+    }
+    top - p
+}
+
+/// Paints the free stack again, from the bottom to well below the stack pointer.
+#[inline(never)]
+fn repaint_stack() {
+    let (bottom, _) = stack_bounds();
+    let sp = cortex_m::register::msp::read() as usize;
+    let end = sp.saturating_sub(256) & !3;
+    let mut p = bottom;
+    while p < end {
+        // SAFETY: [bottom, sp - 256) is free stack below every live frame; nothing interrupts.
+        unsafe { core::ptr::write_volatile(p as *mut u32, STACK_PAINT) };
+        p += 4;
+    }
+}
+
+/// Highest arena byte written since painting, plus one.
+fn arena_high_water(arena: &[u8]) -> usize {
+    arena.iter().rposition(|&b| b != ARENA_PAINT).map_or(0, |i| i + 1)
+}
+
+struct Firmware {
+    current: Option<Stage>,
+    /// Deepest stack use seen in each stage.
+    stack: [usize; Stage::COUNT],
+}
+
+impl Firmware {
+    /// Closes the current stage's stack measurement and starts a fresh one.
+    fn close_stage(&mut self) {
+        bino_mark_end();
+        if let Some(stage) = self.current.take() {
+            let peak = &mut self.stack[stage.index()];
+            *peak = (*peak).max(stack_peak());
+        }
+        repaint_stack();
+    }
+}
+
+impl Hooks for Firmware {
+    fn enter(&mut self, stage: Stage) {
+        self.close_stage();
+        self.current = Some(stage);
+        mark(stage);
+    }
+
+    fn pause(&mut self) {
+        bino_mark_end();
+    }
+
+    fn resume(&mut self, stage: Stage) {
+        mark(stage);
+    }
+
+    fn finish(&mut self) {
+        self.close_stage();
+    }
+}
+
+#[entry]
+fn main() -> ! {
+    // SAFETY: main runs once and makes the only reference to ARENA; painting it first makes
+    // every byte initialised.
+    let arena = unsafe {
+        let arena = addr_of_mut!(ARENA).cast::<u8>();
+        core::ptr::write_bytes(arena, ARENA_PAINT, ARENA_BYTES);
+        core::slice::from_raw_parts_mut(arena, ARENA_BYTES)
+    };
+    let (stack_bottom, stack_top) = stack_bounds();
+    defmt::println!(
+        "bino board={=str} band={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} stack_bytes={=usize}",
+        BOARD,
+        expected::HEIGHT,
+        expected::WIDTH,
+        ARENA_BYTES,
+        expected::BLOB_LEN,
+        stack_top - stack_bottom
+    );
+    let pair = BandPair {
+        left: &expected::LEFT,
+        right: &expected::RIGHT,
+        width: expected::WIDTH,
+        height: expected::HEIGHT,
+    };
+    let mut fw = Firmware {
+        current: None,
+        stack: [0; Stage::COUNT],
+    };
+    // SAFETY: BLOB is immutable; reading its address through a volatile load keeps the
+    // optimiser from folding the blob's contents into the code.
+    let blob: &[u8] = unsafe { &*core::ptr::read_volatile(&addr_of!(BLOB.0)) };
+    let result = workload::run(blob, pair, arena, &mut fw);
+    let painted = arena_high_water(arena);
+    let code = match result {
+        Ok(outcome) => {
+            let per_stage = workload::arena_per_stage(&outcome.report);
+            for (i, (&arena_in_use, &stack)) in per_stage.iter().zip(&fw.stack).enumerate() {
+                defmt::println!(
+                    "bino stage={=str} arena_in_use={=usize} stack_peak={=usize}",
+                    Stage::at(i).name(),
+                    arena_in_use,
+                    stack
+                );
+            }
+            let mut mismatches = 0;
+            for ((name, &got), &want) in OUTPUTS.iter().zip(&outcome.digests).zip(&expected::DIGESTS) {
+                mismatches += usize::from(got != want);
+                defmt::println!(
+                    "bino output={=str} digest={=u32:08x} expected={=u32:08x} match={=bool}",
+                    name,
+                    got,
+                    want,
+                    got == want
+                );
+            }
+            let r = &outcome.report;
+            let arena_ok = r.arena_used == expected::ARENA_USED && painted <= r.arena_used;
+            defmt::println!(
+                "bino arena_used={=usize} expected={=usize} painted_high_water={=usize} pixels={=usize} descriptors={=usize} encoder={=usize} streams={=usize} wta_kept={=usize} sgm_kept={=usize}",
+                r.arena_used,
+                expected::ARENA_USED,
+                painted,
+                r.pixels,
+                r.descriptors,
+                r.encoder,
+                r.streams,
+                r.wta_kept,
+                r.sgm_kept
+            );
+            if mismatches == 0 && arena_ok {
+                defmt::println!("bino result=pass outputs={=usize}", OUTPUTS.len());
+                EXIT_SUCCESS
+            } else {
+                defmt::println!(
+                    "bino result=fail mismatched_outputs={=usize} arena_ok={=bool}",
+                    mismatches,
+                    arena_ok
+                );
+                EXIT_FAILURE
+            }
+        }
+        Err(e) => {
+            defmt::println!("bino result=error error={}", defmt::Display2Format(&e));
+            EXIT_FAILURE
+        }
+    };
+    exit(code);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    defmt::println!("bino result=panic {}", defmt::Display2Format(info));
+    exit(EXIT_FAILURE);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}

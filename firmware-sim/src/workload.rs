@@ -1,0 +1,212 @@
+//! The firmware's workload, shared word for word by the firmware and by `build.rs` (which runs it
+//! on the host to bake the expected digests in): one band pair through
+//! `bino_core::pipeline` — both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the
+//! left-right check and the shared head, row by row — with a CRC-32 digest of every output.
+
+use bino_core::band::Band;
+use bino_core::blob::Blob;
+use bino_core::crc32::Crc32;
+use bino_core::model::head::HeadRow;
+use bino_core::pipeline::{self, MatchedRow, Options, Pipeline, Report, Sink, SlicePair};
+use bino_core::sgm::Penalties;
+use bino_core::Error;
+
+/// Readout options: the `bino` CLI's defaults (16 candidates, SGM penalties 8 / 32, left-right
+/// tolerance one patch column, head on).
+pub const OPTIONS: Options = Options {
+    max_cols: 16,
+    penalties: Penalties { p1: 8, p2: 32 },
+    lr_max_diff_q8: 256,
+    head: true,
+};
+
+/// Arena bytes the workload needs for a `height x width` band pair.
+pub const fn arena_bytes(height: usize, width: usize) -> usize {
+    pipeline::arena_bytes(height, width, OPTIONS.max_cols)
+}
+
+/// The stages the firmware reports: blob loading, then the pipeline's own.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Stage {
+    /// Blob header, CRC over the whole blob, tensor table, weights.
+    Load,
+    /// A stage of `bino_core::pipeline`.
+    Pipeline(pipeline::Stage),
+}
+
+impl Stage {
+    /// Number of stages.
+    pub const COUNT: usize = 1 + pipeline::Stage::ALL.len();
+
+    /// Stage `i` in run order.
+    pub const fn at(i: usize) -> Stage {
+        if i == 0 {
+            Stage::Load
+        } else {
+            Stage::Pipeline(pipeline::Stage::ALL[i - 1])
+        }
+    }
+
+    /// The stage's name in logs, JSON and its marker symbol `bino_mark_<name>`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Stage::Load => "load",
+            Stage::Pipeline(s) => s.name(),
+        }
+    }
+
+    /// Index in run order (`Stage::at(s.index()) == s`).
+    pub fn index(self) -> usize {
+        match self {
+            Stage::Load => 0,
+            Stage::Pipeline(s) => 1 + pipeline::Stage::ALL.iter().position(|&x| x == s).unwrap_or(0),
+        }
+    }
+}
+
+/// The outputs the firmware digests, in order.
+pub const OUTPUTS: [&str; 6] = [
+    "descriptors_left",
+    "descriptors_right",
+    "wta",
+    "sgm",
+    "left_right",
+    "head",
+];
+
+/// What the workload tells its caller about where it is.
+pub trait Hooks {
+    /// `stage` starts now (the previous one, if any, is over).
+    fn enter(&mut self, stage: Stage);
+    /// Work outside the stages starts (digests); `resume` follows.
+    fn pause(&mut self);
+    /// The stage that was paused goes on.
+    fn resume(&mut self, stage: Stage);
+    /// The last stage is over.
+    fn finish(&mut self);
+}
+
+/// What a run produced: a digest per output, the pipeline's report.
+#[derive(Debug, Clone, Copy)]
+pub struct Outcome {
+    /// CRC-32 of each of [`OUTPUTS`], over all its rows in order.
+    pub digests: [u32; OUTPUTS.len()],
+    /// Arena use and left-right counts, from the pipeline.
+    pub report: Report,
+}
+
+struct Recorder<'h, H> {
+    hooks: &'h mut H,
+    current: Stage,
+    crcs: [Crc32; OUTPUTS.len()],
+}
+
+impl<H: Hooks> Recorder<'_, H> {
+    /// Digests `f`'s updates outside the current stage.
+    fn digest(&mut self, f: impl FnOnce(&mut [Crc32; OUTPUTS.len()])) {
+        self.hooks.pause();
+        f(&mut self.crcs);
+        self.hooks.resume(self.current);
+    }
+}
+
+impl<H: Hooks> Sink for Recorder<'_, H> {
+    fn stage(&mut self, stage: pipeline::Stage) {
+        self.current = Stage::Pipeline(stage);
+        self.hooks.enter(self.current);
+    }
+
+    fn band(&mut self, band: Band, left: &[i8], right: &[i8]) {
+        // The rows this band provides (one band here: all of them).
+        let row_len = left.len() / band.rows.max(1);
+        let rows = (band.keep_from - band.start) * row_len..(band.keep_to - band.start) * row_len;
+        self.digest(|c| {
+            update_i8(&mut c[0], left.get(rows.clone()).unwrap_or_default());
+            update_i8(&mut c[1], right.get(rows).unwrap_or_default());
+        });
+    }
+
+    fn matched(&mut self, row: &MatchedRow<'_>) {
+        self.digest(|c| {
+            update_u16(&mut c[2], row.wta_q8);
+            update_u16(&mut c[3], row.sgm_q8);
+            c[4].update(row.wta_consistent).update(row.sgm_consistent);
+        });
+    }
+
+    fn head(&mut self, row: HeadRow<'_>) {
+        self.digest(|c| {
+            update_u16(&mut c[5], row.disparity_q8);
+            update_u16(&mut c[5], row.confidence_q8);
+            for &l in row.logits {
+                c[5].update(&l.to_le_bytes());
+            }
+        });
+    }
+}
+
+/// A band pair and its size.
+#[derive(Clone, Copy)]
+pub struct BandPair<'a> {
+    /// Left view, `height x width` gray pixels.
+    pub left: &'a [u8],
+    /// Right view.
+    pub right: &'a [u8],
+    /// Width in pixels.
+    pub width: usize,
+    /// Height in pixels.
+    pub height: usize,
+}
+
+/// Runs every stage on `pair` in `arena`.
+pub fn run(blob: &[u8], pair: BandPair<'_>, arena: &mut [u8], hooks: &mut impl Hooks) -> Result<Outcome, Error> {
+    hooks.enter(Stage::Load);
+    let blob = Blob::parse(blob)?;
+    let pipeline = Pipeline::new(blob)?;
+    let mut source = SlicePair::new(pair.left, pair.right, pair.width, pair.height)?;
+    let mut recorder = Recorder {
+        hooks,
+        current: Stage::Load,
+        crcs: [Crc32::new(); OUTPUTS.len()],
+    };
+    let report = pipeline.run(&mut source, &OPTIONS, arena, &mut recorder);
+    recorder.hooks.finish();
+    Ok(Outcome {
+        digests: recorder.crcs.map(|c| c.finish()),
+        report: report?,
+    })
+}
+
+/// Arena bytes in use during each stage (index as [`Stage::index`]) of a one-band run, from the
+/// pipeline's report: the pixel band, plus the left descriptors and the encoder's scratch while
+/// encoding, plus both descriptor maps and the readout streams afterwards.
+pub fn arena_per_stage(r: &Report) -> [usize; Stage::COUNT] {
+    let mut out = [0; Stage::COUNT];
+    for (i, o) in out.iter_mut().enumerate() {
+        *o = match Stage::at(i) {
+            Stage::Load => 0,
+            Stage::Pipeline(pipeline::Stage::Rows) => r.pixels,
+            Stage::Pipeline(pipeline::Stage::EncodeLeft | pipeline::Stage::EncodeRight) => {
+                r.pixels + r.descriptors + r.encoder
+            }
+            Stage::Pipeline(_) => r.pixels + 2 * r.descriptors + r.streams,
+        };
+    }
+    out
+}
+
+fn update_i8(crc: &mut Crc32, codes: &[i8]) {
+    let mut buf = [0u8; 64];
+    for chunk in codes.chunks(buf.len()) {
+        for (b, &c) in buf.iter_mut().zip(chunk) {
+            *b = c as u8;
+        }
+        crc.update(&buf[..chunk.len()]);
+    }
+}
+
+fn update_u16(crc: &mut Crc32, values: &[u16]) {
+    for &v in values {
+        crc.update(&v.to_le_bytes());
+    }
+}

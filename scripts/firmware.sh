@@ -1,0 +1,119 @@
+#!/usr/bin/env bash
+# Builds the BINO firmware for both Cortex-M boards and runs each under QEMU: the band pair
+# through the int8 pipeline, bit-identical to the host (the firmware exits non-zero otherwise),
+# with executed-instruction counts per stage from the TCG plugin in firmware-sim/qemu-plugin/.
+#
+#   scripts/firmware.sh [--band full|small] [--out DIR] [--profile] [--core m55|m7]
+#
+#   --band full    one 48x160 band pair, the issue's target size (default; about 2.5 min of QEMU
+#                  for the M55 and 1 min for the M7 on a 2-core EPYC VM)
+#   --band small   a 48x32 band pair: the same code, bit-identity only, 20 s
+#   --out DIR      where the results go (default out/firmware)
+#   --profile      also a per-function instruction profile (<core>-profile.txt)
+#
+# Writes <out>/<core>.json (stages, instructions, arena, stack, digests, ELF sections) and
+# <out>/<core>.log (the decoded defmt log) per core; `bino budget --firmware <out>` reports them.
+# Installs what is missing first: qemu-system-arm (apt), defmt-print (cargo install), the Rust
+# targets and llvm-tools.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+cd "$BINO_ROOT"
+
+band=full out="out/firmware" want_profile=0 cores="m55 m7"
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --band) band="$2"; shift 2 ;;
+    --out) out="$2"; shift 2 ;;
+    --profile) want_profile=1; shift ;;
+    --core) cores="$2"; shift 2 ;;
+    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    *) echo "unknown argument $1" >&2; exit 2 ;;
+  esac
+done
+case "$band" in
+  full) features=() ;;
+  small) features=(--features small-band) ;;
+  *) echo "--band must be full or small" >&2; exit 2 ;;
+esac
+mkdir -p "$out"
+out="$(cd "$out" && pwd)"
+
+# The firmware is its own workspace with its own target directory: sharing the host's would
+# make each build wait on the other's lock.
+export CARGO_TARGET_DIR="$BINO_CACHE/firmware-target"
+
+# ---- what a fresh machine lacks
+as_root() { if [ "$(id -u)" = 0 ]; then "$@"; else sudo "$@"; fi; }
+if ! command -v qemu-system-arm >/dev/null; then
+  echo "installing qemu-system-arm"
+  as_root apt-get update -q
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q qemu-system-arm
+fi
+if ! command -v defmt-print >/dev/null; then
+  echo "installing defmt-print (a few minutes)"
+  cargo install defmt-print --version 1.2.0 --locked
+fi
+installed="$(rustup target list --installed)"
+for target in $THUMB_TARGETS; do
+  grep -qx "$target" <<<"$installed" || rustup target add "$target"
+done
+rustup component list --installed | grep -q '^llvm-tools' || rustup component add llvm-tools
+llvm_bin="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
+
+# ---- the instruction-count plugin
+plugin_dir="$BINO_CACHE/qemu-plugin"
+plugin="$plugin_dir/libinsn_count.so"
+src="firmware-sim/qemu-plugin/insn_count.c"
+if [ ! -f "$plugin" ] || [ "$src" -nt "$plugin" ] || [ firmware-sim/qemu-plugin/qemu-plugin-v1.h -nt "$plugin" ]; then
+  mkdir -p "$plugin_dir"
+  cc -O2 -Wall -Wextra -Werror -shared -fPIC -fvisibility=hidden -o "$plugin" "$src"
+fi
+
+# ---- format and lints of the firmware workspace (both targets)
+(cd firmware-sim && cargo fmt --check)
+for target in $THUMB_TARGETS; do
+  (cd firmware-sim && cargo clippy --locked --release --target "$target" "${features[@]}" -- -D warnings)
+done
+
+qemu_version="$(qemu-system-arm --version | head -1)"
+status=0
+for core in $cores; do
+  case "$core" in
+    m55) target=thumbv8m.main-none-eabihf machine=mps3-an547 cpu=cortex-m55 ;;
+    m7) target=thumbv7em-none-eabihf machine=mps2-an500 cpu=cortex-m7 ;;
+    *) echo "unknown core $core" >&2; exit 2 ;;
+  esac
+  echo "== firmware: $core ($machine, $band band)"
+  (cd firmware-sim && cargo build --locked --release --target "$target" "${features[@]}")
+  elf="$CARGO_TARGET_DIR/$target/release/bino-firmware"
+  marks="$("$llvm_bin/llvm-nm" "$elf" | awk '$3 ~ /^bino_mark_/ {
+    n = substr($3, 11); if (n == "end") n = "outside"; printf ",mark=%s:0x%s", n, $1 }')"
+  [ -n "$marks" ] || { echo "no bino_mark_ symbols in $elf" >&2; exit 1; }
+  profile_args=() report_profile=()
+  if [ "$want_profile" = 1 ]; then
+    profile_args=(",profile=$out/$core-blocks.tsv")
+    report_profile=(--profile "$out/$core-blocks.tsv" --profile-out "$out/$core-profile.txt")
+  fi
+  start=$(date +%s.%N)
+  set +e
+  qemu-system-arm -machine "$machine" -cpu "$cpu" -display none -monitor none -serial null \
+    -semihosting-config enable=on,target=native \
+    -plugin "$plugin,out=$out/$core-counts.tsv$marks$(printf %s "${profile_args[@]}")" \
+    -kernel "$elf" | defmt-print -e "$elf" | tee "$out/$core.log"
+  codes=("${PIPESTATUS[@]}")
+  set -e
+  end=$(date +%s.%N)
+  wall=$(awk -v a="$start" -v b="$end" 'BEGIN { print b - a }')
+  [ "${codes[1]}" = 0 ] || { echo "defmt-print failed (${codes[1]})" >&2; status=1; }
+  if ! python3 firmware-sim/qemu-plugin/report.py --core "$core" --cpu "$cpu" --board "$machine" \
+    --target "$target" --elf "$elf" --log "$out/$core.log" --counts "$out/$core-counts.tsv" \
+    --llvm-size "$llvm_bin/llvm-size" --llvm-nm "$llvm_bin/llvm-nm" --qemu "$qemu_version" \
+    --wall "$wall" --exit-status "${codes[0]}" --out "$out/$core.json" "${report_profile[@]}"; then
+    echo "firmware $core: FAILED (QEMU exit ${codes[0]}; see $out/$core.log)" >&2
+    status=1
+  else
+    echo "firmware $core: outputs bit-identical to the host; $(printf '%.0f' "$wall") s under QEMU; $out/$core.json"
+  fi
+  rm -f "$out/$core-blocks.tsv"
+done
+exit "$status"
