@@ -87,6 +87,18 @@ def profile(llvm_nm, elf, blocks_path, top):
     return total, [{"function": k, "instructions": v, "share": v / total} for k, v in ranked]
 
 
+def source_state():
+    """The commit measured, and whether core/ or firmware-sim/ differed from it."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "core", "firmware-sim", "weights"], capture_output=True, text=True
+        ).stdout
+        return {"commit": head.strip() or None, "core_or_firmware_modified": bool(dirty.strip())}
+    except OSError:
+        return {"commit": None, "core_or_firmware_modified": None}
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
     for a in ("core", "cpu", "board", "target", "elf", "log", "counts", "llvm-size", "llvm-nm", "out", "qemu"):
@@ -125,6 +137,7 @@ def main():
         "board": args.board,
         "target": args.target,
         "qemu": args.qemu,
+        "source": source_state(),
         "band": {"height": height, "width": width},
         "exit_status": args.exit_status,
         "passed": args.exit_status == 0 and result == "pass",
