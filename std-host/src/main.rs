@@ -222,9 +222,25 @@ enum Command {
         /// Int8 weight blob.
         #[arg(long, default_value = "weights/bino_int8.bin")]
         blob: PathBuf,
+        /// Float encoder (ONNX), for --precision f32.
+        #[arg(long, default_value = "weights/bino_encoder.onnx")]
+        onnx: PathBuf,
+        /// Float shared head (ONNX), for --precision f32 with the head readout.
+        #[arg(long, default_value = "weights/bino_head.onnx")]
+        head_onnx: PathBuf,
+        /// Precisions (repeat or comma-separate): int8 (the core pipeline), f32 (tract and the
+        /// float twins of the readouts).
+        #[arg(long, value_delimiter = ',', default_value = "int8,f32")]
+        precision: Vec<bino_host::readout_eval::Precision>,
         /// Readouts to score (repeat or comma-separate): nolink, sgm, head.
         #[arg(long, value_delimiter = ',', default_value = "nolink,sgm,head")]
         readout: Vec<bino_host::readout_eval::Readout>,
+        /// Left-right check tolerance, in patch columns.
+        #[arg(long, default_value_t = 1.0)]
+        lr_max_diff: f32,
+        /// Skip StereoSGBM (it runs in the project's Python environment, OpenCV).
+        #[arg(long)]
+        no_sgbm: bool,
         /// Disparity candidates of nolink and sgm, in patch columns.
         #[arg(long, default_value_t = DEFAULT_MAX_COLS)]
         max_cols: usize,
@@ -382,7 +398,12 @@ fn run(cli: Cli) -> Result<()> {
             split,
             profile,
             blob,
+            onnx,
+            head_onnx,
+            precision,
             readout,
+            lr_max_diff,
+            no_sgbm,
             max_cols,
             sgm_p1,
             sgm_p2,
@@ -394,9 +415,14 @@ fn run(cli: Cli) -> Result<()> {
                 split,
                 profile,
                 blob,
+                onnx,
+                head_onnx,
+                precisions: precision,
                 readouts: readout,
                 max_cols,
                 penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
+                lr_max_diff,
+                sgbm: !no_sgbm,
                 limit,
             },
             json.as_deref(),
@@ -582,12 +608,15 @@ fn run_command(opts: &bino_host::run::RunOptions) -> Result<()> {
 
 fn eval_command(opts: &bino_host::readout_eval::EvalOptions, json: Option<&Path>) -> Result<()> {
     let report = bino_host::readout_eval::evaluate(opts, |done, total, pair| {
-        let epe: Vec<String> = opts
-            .readouts
+        let mut epe: Vec<String> = opts
+            .rows()
             .iter()
-            .zip(&pair.metrics)
-            .map(|(r, m)| format!("{} {:.3}", r.name(), m.epe))
+            .zip(&pair.scores)
+            .map(|((p, r), s)| format!("{} {} {:.3}", p.name(), r.name(), s.metrics.epe))
             .collect();
+        if let Some(m) = pair.sgbm {
+            epe.push(format!("SGBM {:.3}", m.epe));
+        }
         eprintln!(
             "[{done}/{total}] {}: epe {} ({:.1} s)",
             pair.pair_id,

@@ -1,24 +1,33 @@
-//! `bino eval`: the int8 pipeline's readouts on every pair of a split that has ground truth,
-//! scored with EVAL.md's metrics per pair and on average.
+//! `bino eval`: BINO's readouts on every pair of a split that has ground truth, in int8 (the
+//! core pipeline) and in float (tract descriptors through the float twins of the same
+//! readouts), next to OpenCV StereoSGBM on the same profile images, scored with EVAL.md's
+//! metrics per pair and on average.
 //!
-//! Each readout turns the same int8 descriptor codes into a token-grid disparity: `nolink`
-//! (integer cosine WTA + parabola, `bino_core::matching`), `sgm` (`bino_core::sgm`, 4 streaming
-//! paths) and `head` (the int8 shared head). StereoSGBM is not run here: `python -m
-//! bino_train.head_eval` reports it in the same EVAL.md setting.
+//! Readouts: `nolink` (cosine WTA + parabola), `sgm` (4 streaming paths + parabola) and `head`
+//! (the shared head). For `nolink` and `sgm` the left-right check also gives `LRkeep` (% of
+//! ground-truth pixels whose cell passes it) and the error on those pixels only (`GT+LR`).
 
 use std::path::PathBuf;
 use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
+use bino_core::pipeline::Options as PipelineOptions;
 use bino_core::sgm::Penalties;
 
-use crate::eval::{load_eval_item, mean_metrics, score, upsample_disparity, DisparityMap, Metrics};
-use crate::int8::{match_rows, sgm_rows, Int8Model};
+use crate::compare::head::FloatHeadRunner;
+use crate::eval::float_twins::{consistent, right_view, sgm};
+use crate::eval::{
+    density, load_eval_item, mean_metrics, score, score_sparse, similarity_volume, upsample_disparity, wta_subtoken,
+    DisparityMap, EvalItem, GroundTruthMap, Metrics, PIXELS_PER_PATCH_COLUMN,
+};
+use crate::int8::{to_u8, Int8Model};
 use crate::json::Object;
 use crate::pairs::{read_index, Split};
+use crate::pipeline_maps::run_pipeline;
 use crate::profile::Profile;
-
+use crate::reference::ReferenceEncoder;
+use crate::sgbm::{GrayPair, SgbmRunner};
 /// A way of reading disparity out of the descriptor maps.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Readout {
@@ -54,6 +63,37 @@ impl FromStr for Readout {
     }
 }
 
+/// The arithmetic a readout runs in.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Precision {
+    /// The int8 engine and the core's integer readouts.
+    Int8,
+    /// tract on the float ONNX models and the float twins of the readouts.
+    F32,
+}
+
+impl Precision {
+    /// Its name on the command line and in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::Int8 => "int8",
+            Precision::F32 => "f32",
+        }
+    }
+}
+
+impl FromStr for Precision {
+    type Err = anyhow::Error;
+
+    fn from_str(s: &str) -> Result<Self> {
+        match s {
+            "int8" => Ok(Precision::Int8),
+            "f32" => Ok(Precision::F32),
+            other => bail!("unknown precision {other:?} (expected int8 or f32)"),
+        }
+    }
+}
+
 /// What `bino eval` runs.
 #[derive(Debug, Clone)]
 pub struct EvalOptions {
@@ -65,24 +105,57 @@ pub struct EvalOptions {
     pub profile: Profile,
     /// Int8 weight blob.
     pub blob: PathBuf,
+    /// Float encoder (ONNX), for `f32`.
+    pub onnx: PathBuf,
+    /// Float head (ONNX), for `f32` with the `head` readout.
+    pub head_onnx: PathBuf,
+    /// Precisions to run, in order.
+    pub precisions: Vec<Precision>,
     /// Readouts to score, in order.
     pub readouts: Vec<Readout>,
     /// Disparity candidates of `nolink` and `sgm`, in patch columns.
     pub max_cols: usize,
     /// SGM penalties.
     pub penalties: Penalties,
+    /// Left-right check tolerance, patch columns.
+    pub lr_max_diff: f32,
+    /// Run StereoSGBM (Python, OpenCV) on the same pairs.
+    pub sgbm: bool,
     /// Only the first this many pairs.
     pub limit: Option<usize>,
 }
 
-/// One pair's metrics, a readout each (in the options' order).
+impl EvalOptions {
+    /// The table's rows: every precision with every readout.
+    pub fn rows(&self) -> Vec<(Precision, Readout)> {
+        self.precisions
+            .iter()
+            .flat_map(|&p| self.readouts.iter().map(move |&r| (p, r)))
+            .collect()
+    }
+}
+
+/// One readout's scores on one pair (or their mean).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ReadoutScore {
+    /// EVAL.md metrics over every ground-truth pixel (the readout is dense).
+    pub metrics: Metrics,
+    /// % of ground-truth pixels whose cell passes the left-right check (`nolink`, `sgm`).
+    pub lr_keep: Option<f64>,
+    /// epe over the ground-truth pixels that pass the left-right check.
+    pub gt_lr_epe: Option<f64>,
+}
+
+/// One pair's scores, a row each (in [`EvalOptions::rows`] order), and SGBM's.
 #[derive(Debug, Clone)]
 pub struct PairEval {
     /// The pair's id.
     pub pair_id: String,
-    /// Metrics per readout.
-    pub metrics: Vec<Metrics>,
-    /// Wall time for the pair (encoder on both views and every readout).
+    /// Scores per row.
+    pub scores: Vec<ReadoutScore>,
+    /// StereoSGBM on the same images (its invalid pixels filled as EVAL.md says).
+    pub sgbm: Option<Metrics>,
+    /// Wall time for the pair (every precision and readout).
     pub elapsed: Duration,
 }
 
@@ -93,116 +166,302 @@ pub struct EvalReport {
     pub options: EvalOptions,
     /// Per pair.
     pub pairs: Vec<PairEval>,
-    /// Mean per readout.
-    pub mean: Vec<Metrics>,
+    /// Mean per row.
+    pub mean: Vec<ReadoutScore>,
+    /// SGBM's mean.
+    pub sgbm_mean: Option<Metrics>,
 }
 
 /// Runs the readouts over the split; `progress(done, total, pair)` after each pair.
 pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &PairEval)) -> Result<EvalReport> {
     ensure!(!opts.readouts.is_empty(), "no readout to evaluate");
+    ensure!(!opts.precisions.is_empty(), "no precision to evaluate");
     ensure!(opts.limit != Some(0), "--limit must be at least 1");
     let split = match opts.split.as_str() {
         "eval" => Split::Eval,
         other => bail!("split {other:?}: only eval pairs carry ground truth here (use --split eval)"),
     };
-    let model = Int8Model::load(&opts.blob)?;
-    ensure!(
-        !opts.readouts.contains(&Readout::Head) || model.has_head(),
-        "blob {} holds no shared head: drop --readout head or quantise with --head",
-        opts.blob.display()
-    );
+    let wants = |p: Precision| opts.precisions.contains(&p);
+    let head = opts.readouts.contains(&Readout::Head);
+    let model = if wants(Precision::Int8) {
+        let model = Int8Model::load(&opts.blob)?;
+        ensure!(
+            !head || model.has_head(),
+            "blob {} holds no shared head: drop --readout head or quantise with --head",
+            opts.blob.display()
+        );
+        Some(model)
+    } else {
+        None
+    };
+    let mut float = if wants(Precision::F32) {
+        let encoder = ReferenceEncoder::load(&opts.onnx)?;
+        let head = if head {
+            Some(FloatHeadRunner::load(&opts.head_onnx)?)
+        } else {
+            None
+        };
+        Some((encoder, head))
+    } else {
+        None
+    };
+    let sgbm = if opts.sgbm { Some(SgbmRunner::locate()?) } else { None };
     let records: Vec<_> = read_index(&opts.data)?
         .into_iter()
         .filter(|r| r.split == split)
         .take(opts.limit.unwrap_or(usize::MAX))
         .collect();
     ensure!(!records.is_empty(), "no {split} pairs in {}", opts.data.display());
-    let mut pairs = Vec::with_capacity(records.len());
-    for (i, record) in records.iter().enumerate() {
+    let items = records
+        .iter()
+        .map(|r| load_eval_item(r, opts.profile))
+        .collect::<Result<Vec<_>>>()?;
+    let sgbm_scores = match &sgbm {
+        Some(runner) => Some(sgbm_metrics(runner, &items)?),
+        None => None,
+    };
+    let mut pairs = Vec::with_capacity(items.len());
+    for (i, item) in items.iter().enumerate() {
         let started = Instant::now();
-        let item = load_eval_item(record, opts.profile)?;
-        let (rows, cols, left) = model.descriptor_codes(&item.left).context("left view")?;
-        let (_, _, right) = model.descriptor_codes(&item.right).context("right view")?;
-        let mut metrics = Vec::with_capacity(opts.readouts.len());
-        for &readout in &opts.readouts {
-            let tokens = match readout {
-                Readout::Nolink => match_rows(&left, &right, rows, cols, opts.max_cols)?,
-                Readout::Sgm => sgm_rows(&left, &right, rows, cols, opts.max_cols, opts.penalties)?,
-                Readout::Head => {
-                    let maps = model.head(&left, &right, rows, cols)?;
-                    DisparityMap {
-                        width: cols,
-                        height: rows,
-                        values: maps.disparity,
-                    }
+        let mut scores = Vec::new();
+        for &precision in &opts.precisions {
+            let maps = match precision {
+                Precision::Int8 => int8_maps(opts, model.as_ref().context("int8 model")?, item)?,
+                Precision::F32 => {
+                    let (encoder, head) = float.as_mut().context("float model")?;
+                    float_maps(opts, encoder, head.as_mut(), item)?
                 }
             };
-            metrics.push(
-                score(&upsample_disparity(&tokens), &item.gt)
-                    .with_context(|| format!("pair {}: {} readout", record.pair_id, readout.name()))?,
-            );
+            for &readout in &opts.readouts {
+                scores.push(
+                    maps.score(readout, &item.gt)
+                        .with_context(|| format!("pair {}: {} {}", item.pair_id, precision.name(), readout.name()))?,
+                );
+            }
         }
         let pair = PairEval {
-            pair_id: record.pair_id.clone(),
-            metrics,
+            pair_id: item.pair_id.clone(),
+            scores,
+            sgbm: sgbm_scores.as_ref().map(|s| s[i]),
             elapsed: started.elapsed(),
         };
-        progress(i + 1, records.len(), &pair);
+        progress(i + 1, items.len(), &pair);
         pairs.push(pair);
     }
-    let mean = (0..opts.readouts.len())
-        .map(|r| mean_metrics(&pairs.iter().map(|p| p.metrics[r]).collect::<Vec<_>>()))
+    let mean = (0..opts.rows().len())
+        .map(|r| mean_score(&pairs.iter().map(|p| p.scores[r]).collect::<Vec<_>>()))
         .collect::<Result<Vec<_>>>()?;
+    let sgbm_mean = match &sgbm_scores {
+        Some(s) => Some(mean_metrics(s)?),
+        None => None,
+    };
     Ok(EvalReport {
         options: opts.clone(),
         pairs,
         mean,
+        sgbm_mean,
+    })
+}
+
+/// Token-grid readouts of one pair in one precision, with their left-right masks.
+struct ReadoutMaps {
+    wta: DisparityMap,
+    sgm: DisparityMap,
+    head: Option<DisparityMap>,
+    wta_consistent: Vec<bool>,
+    sgm_consistent: Vec<bool>,
+}
+
+impl ReadoutMaps {
+    fn score(&self, readout: Readout, gt: &GroundTruthMap) -> Result<ReadoutScore> {
+        let (tokens, mask) = match readout {
+            Readout::Nolink => (&self.wta, Some(&self.wta_consistent)),
+            Readout::Sgm => (&self.sgm, Some(&self.sgm_consistent)),
+            Readout::Head => (self.head.as_ref().context("no head output")?, None),
+        };
+        let pixels = upsample_disparity(tokens);
+        let metrics = score(&pixels, gt)?;
+        let (lr_keep, gt_lr_epe) = match mask {
+            Some(mask) => {
+                let keep = pixel_mask(mask, tokens.width, pixels.width, pixels.height);
+                let restricted = GroundTruthMap {
+                    valid: gt.valid.iter().zip(&keep).map(|(&g, &k)| g && k).collect(),
+                    ..gt.clone()
+                };
+                let gt_lr = score(&pixels, &restricted).map(|m| m.epe).unwrap_or(f64::NAN);
+                (Some(density(&keep, gt)?), Some(gt_lr))
+            }
+            None => (None, None),
+        };
+        Ok(ReadoutScore {
+            metrics,
+            lr_keep,
+            gt_lr_epe,
+        })
+    }
+}
+
+fn int8_maps(opts: &EvalOptions, model: &Int8Model, item: &EvalItem) -> Result<ReadoutMaps> {
+    let pipeline = PipelineOptions {
+        max_cols: opts.max_cols,
+        penalties: opts.penalties,
+        lr_max_diff_q8: (opts.lr_max_diff.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16,
+        head: opts.readouts.contains(&Readout::Head),
+    };
+    let maps = run_pipeline(model, &item.left, &item.right, &pipeline, &mut |_, _| {})?;
+    Ok(ReadoutMaps {
+        head: (!maps.head.values.is_empty()).then_some(maps.head),
+        wta: maps.wta,
+        sgm: maps.sgm,
+        wta_consistent: maps.wta_consistent,
+        sgm_consistent: maps.sgm_consistent,
+    })
+}
+
+fn float_maps(
+    opts: &EvalOptions,
+    encoder: &mut ReferenceEncoder,
+    head: Option<&mut FloatHeadRunner>,
+    item: &EvalItem,
+) -> Result<ReadoutMaps> {
+    let left = encoder.descriptors(&item.left).context("left view")?;
+    let right = encoder.descriptors(&item.right).context("right view")?;
+    let volume = similarity_volume(&left, &right, opts.max_cols)?;
+    let volume_right = right_view(&volume);
+    let wta = wta_subtoken(&volume);
+    let sgm_left = sgm(&volume, opts.penalties);
+    let wta_consistent = consistent(&wta, &wta_subtoken(&volume_right), opts.lr_max_diff);
+    let sgm_consistent = consistent(&sgm_left, &sgm(&volume_right, opts.penalties), opts.lr_max_diff);
+    let head = match head {
+        Some(h) => Some(DisparityMap {
+            width: left.cols,
+            height: left.rows,
+            values: h.run(&left, &right)?.disparity,
+        }),
+        None => None,
+    };
+    Ok(ReadoutMaps {
+        wta,
+        sgm: sgm_left,
+        head,
+        wta_consistent,
+        sgm_consistent,
+    })
+}
+
+fn sgbm_metrics(runner: &SgbmRunner, items: &[EvalItem]) -> Result<Vec<Metrics>> {
+    let views: Vec<(Vec<u8>, Vec<u8>)> = items
+        .iter()
+        .map(|i| (to_u8(&i.left.pixels), to_u8(&i.right.pixels)))
+        .collect();
+    let pairs: Vec<GrayPair<'_>> = items
+        .iter()
+        .zip(&views)
+        .map(|(item, (l, r))| GrayPair {
+            left: l,
+            right: r,
+            width: item.left.width,
+            height: item.left.height,
+        })
+        .collect();
+    runner
+        .run(&pairs)?
+        .iter()
+        .zip(items)
+        .map(|((disparity, valid), item)| {
+            score_sparse(disparity, valid, &item.gt).with_context(|| format!("pair {}: SGBM", item.pair_id))
+        })
+        .collect()
+}
+
+/// Token-grid validity to pixels (each cell covers a 4x4 block).
+fn pixel_mask(tokens: &[bool], cols: usize, width: usize, height: usize) -> Vec<bool> {
+    let cell = PIXELS_PER_PATCH_COLUMN;
+    (0..width * height)
+        .map(|i| {
+            let (y, x) = (i / width, i % width);
+            tokens
+                .get((y / cell) * cols + (x / cell).min(cols.saturating_sub(1)))
+                .copied()
+                .unwrap_or(false)
+        })
+        .collect()
+}
+
+fn mean_score(scores: &[ReadoutScore]) -> Result<ReadoutScore> {
+    let metrics = mean_metrics(&scores.iter().map(|s| s.metrics).collect::<Vec<_>>())?;
+    let mean_of = |f: fn(&ReadoutScore) -> Option<f64>| -> Option<f64> {
+        let values: Option<Vec<f64>> = scores.iter().map(f).collect();
+        values.map(|v| v.iter().sum::<f64>() / v.len().max(1) as f64)
+    };
+    Ok(ReadoutScore {
+        metrics,
+        lr_keep: mean_of(|s| s.lr_keep),
+        gt_lr_epe: mean_of(|s| s.gt_lr_epe),
     })
 }
 
 impl EvalReport {
-    /// The human-readable table: one row per readout (mean), then per pair epe.
+    /// The human-readable table: one row per precision and readout (mean), SGBM, then per
+    /// pair epe.
     pub fn table(&self) -> String {
         use std::fmt::Write;
         let o = &self.options;
         let mut t = String::new();
         let _ = writeln!(
             t,
-            "bino {} eval: int8 blob {}, {} {} pairs of {} at {}, {} candidates, SGM p1 {} p2 {}",
+            "bino {} eval: {} {} pairs of {} at {}, {} candidates, SGM p1 {} p2 {}, LR tolerance {} col",
             env!("CARGO_PKG_VERSION"),
-            o.blob.display(),
             self.pairs.len(),
             o.split,
             o.data.display(),
             o.profile,
             o.max_cols,
             o.penalties.p1,
-            o.penalties.p2
+            o.penalties.p2,
+            o.lr_max_diff
         );
         let _ = writeln!(
             t,
-            "\n{:<8} {:>8} {:>10} {:>8} {:>9}",
-            "readout", "epe px", "bad1tok %", "bad2 %", "density"
+            "\n{:<14} {:>8} {:>10} {:>8} {:>8} {:>8} {:>10}",
+            "readout", "epe px", "bad1tok %", "bad2 %", "density", "LRkeep", "GT+LR epe"
         );
-        for (r, m) in o.readouts.iter().zip(&self.mean) {
+        let opt = |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
+        for ((p, r), s) in o.rows().iter().zip(&self.mean) {
+            let m = s.metrics;
             let _ = writeln!(
                 t,
-                "{:<8} {:>8.3} {:>10.2} {:>8.2} {:>9.1}",
-                r.name(),
+                "{:<14} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10}",
+                format!("{} {}", p.name(), r.name()),
                 m.epe,
                 m.bad1tok,
                 m.bad2,
-                m.density
+                m.density,
+                opt(s.lr_keep, 1),
+                opt(s.gt_lr_epe, 3)
+            );
+        }
+        if let Some(m) = self.sgbm_mean {
+            let _ = writeln!(
+                t,
+                "{:<14} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10}",
+                "StereoSGBM", m.epe, m.bad1tok, m.bad2, m.density, "-", "-"
             );
         }
         let _ = write!(t, "\n{:<24}", "pair (epe px)");
-        for r in &o.readouts {
-            let _ = write!(t, " {:>8}", r.name());
+        for (p, r) in o.rows() {
+            let _ = write!(t, " {:>12}", format!("{} {}", p.name(), r.name()));
         }
-        for p in &self.pairs {
-            let _ = write!(t, "\n{:<24}", p.pair_id);
-            for m in &p.metrics {
-                let _ = write!(t, " {:>8.3}", m.epe);
+        if self.sgbm_mean.is_some() {
+            let _ = write!(t, " {:>12}", "SGBM");
+        }
+        for pair in &self.pairs {
+            let _ = write!(t, "\n{:<24}", pair.pair_id);
+            for s in &pair.scores {
+                let _ = write!(t, " {:>12.3}", s.metrics.epe);
+            }
+            if let Some(m) = pair.sgbm {
+                let _ = write!(t, " {:>12.3}", m.epe);
             }
         }
         t
@@ -211,12 +470,20 @@ impl EvalReport {
     /// Every number as JSON.
     pub fn to_json(&self) -> String {
         let o = &self.options;
-        let readouts = |metrics: &[Metrics]| {
-            o.readouts
-                .iter()
-                .zip(metrics)
-                .fold(Object::new(), |obj, (r, m)| obj.raw(r.name(), m.to_json()))
-                .render()
+        let rows = o.rows();
+        let readouts = |scores: &[ReadoutScore], sgbm: Option<Metrics>| {
+            let obj = rows.iter().zip(scores).fold(Object::new(), |obj, ((p, r), s)| {
+                let mut entry = Object::new().raw("metrics", s.metrics.to_json());
+                if let (Some(keep), Some(epe)) = (s.lr_keep, s.gt_lr_epe) {
+                    entry = entry.num("lr_keep", keep).num("gt_lr_epe", epe);
+                }
+                obj.raw(&format!("{}_{}", p.name(), r.name()), entry.render())
+            });
+            match sgbm {
+                Some(m) => obj.raw("sgbm", m.to_json()),
+                None => obj,
+            }
+            .render()
         };
         let pairs: Vec<String> = self
             .pairs
@@ -224,7 +491,7 @@ impl EvalReport {
             .map(|p| {
                 Object::new()
                     .str("pair_id", &p.pair_id)
-                    .raw("readouts", readouts(&p.metrics))
+                    .raw("readouts", readouts(&p.scores, p.sgbm))
                     .num("seconds", p.elapsed.as_secs_f64())
                     .render()
             })
@@ -233,14 +500,17 @@ impl EvalReport {
             .str("tool", "bino eval")
             .str("version", env!("CARGO_PKG_VERSION"))
             .str("blob", &o.blob.display().to_string())
+            .str("onnx", &o.onnx.display().to_string())
+            .str("head_onnx", &o.head_onnx.display().to_string())
             .str("data", &o.data.display().to_string())
             .str("split", &o.split)
             .str("profile", &o.profile.to_string())
             .int("max_cols", o.max_cols as u64)
             .int("sgm_p1", o.penalties.p1 as u64)
             .int("sgm_p2", o.penalties.p2 as u64)
+            .num("lr_max_diff", o.lr_max_diff as f64)
             .int("pairs", self.pairs.len() as u64)
-            .raw("mean", readouts(&self.mean))
+            .raw("mean", readouts(&self.mean, self.sgbm_mean))
             .raw("per_pair", format!("[{}]", pairs.join(",")))
             .render()
     }
@@ -269,9 +539,14 @@ mod tests {
             split: "train".into(),
             profile: Profile::W160,
             blob: PathBuf::from("/nonexistent/blob.bin"),
+            onnx: PathBuf::from("/nonexistent/encoder.onnx"),
+            head_onnx: PathBuf::from("/nonexistent/head.onnx"),
+            precisions: vec![Precision::Int8],
             readouts: vec![Readout::Nolink],
             max_cols: 10,
             penalties: Penalties { p1: 8, p2: 32 },
+            lr_max_diff: 1.0,
+            sgbm: false,
             limit: None,
         };
         let err = evaluate(&opts, |_, _, _| {}).unwrap_err().to_string();

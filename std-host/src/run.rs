@@ -6,17 +6,14 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
-use bino_core::matching::DISPARITY_FRAC_BITS;
-use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{
-    self, MatchedRow, Options as PipelineOptions, Pipeline, Report as PipelineReport, Sink, SlicePair, Stage,
-};
+use bino_core::pipeline::{Options as PipelineOptions, Report as PipelineReport, Stage};
 use bino_core::sgm::Penalties;
 
 use crate::colour::colourise;
 use crate::eval::{fill_invalid, upsample_disparity, DisparityMap, PIXELS_PER_PATCH_COLUMN};
 use crate::image_io::load_gray;
-use crate::int8::{to_u8, Int8Model};
+use crate::int8::Int8Model;
+use crate::pipeline_maps::run_pipeline;
 use crate::profile::Profile;
 use crate::readout_eval::Readout;
 
@@ -93,7 +90,6 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         .apply(&right_image)
         .with_context(|| format!("{}", opts.right.display()))?;
     let model = Int8Model::load(&opts.blob)?;
-    let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
     finish(&mut timings, started);
 
     let started = step(
@@ -107,42 +103,23 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         lr_max_diff_q8: (opts.lr_max_diff.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16,
         head: opts.readout == Readout::Head,
     };
-    let (w, h) = (left.width, left.height);
-    let (lp, rp) = (to_u8(&left.pixels), to_u8(&right.pixels));
-    let mut source = SlicePair::new(&lp, &rp, w, h).map_err(anyhow::Error::msg)?;
-    let arena_bytes = pipeline::arena_bytes(h, w, opts.max_cols);
-    let mut arena = vec![0u8; arena_bytes];
-    let bands = bino_core::band::BandPlan::new(h / bino_core::config::PATCH_H)
-        .map_err(anyhow::Error::msg)?
-        .len();
-    let mut maps = MapSink::new(opts.readout, bands, &mut progress);
-    let report = pipeline
-        .run(&mut source, &pipeline_opts, &mut arena, &mut maps)
-        .map_err(anyhow::Error::msg)?;
-    maps.stage_done();
-    let MapSink {
-        disparity,
-        consistent,
-        stage_times,
-        ..
-    } = maps;
+    let mut on_band = |i: usize, n: usize| {
+        if n > 1 {
+            progress(&format!("  band {i} of {n}"));
+        }
+    };
+    let maps = run_pipeline(&model, &left, &right, &pipeline_opts, &mut on_band)?;
     finish(&mut timings, started);
 
     let started = step("pixels, left-right mask", &mut timings, &mut progress);
-    let cols = report.cols;
-    let tokens = DisparityMap {
-        width: cols,
-        height: report.rows,
-        values: disparity,
+    // The head has no right-view twin: its cells take the SGM readout's check.
+    let (tokens, consistent) = match opts.readout {
+        Readout::Nolink => (&maps.wta, &maps.wta_consistent),
+        Readout::Sgm => (&maps.sgm, &maps.sgm_consistent),
+        Readout::Head => (&maps.head, &maps.sgm_consistent),
     };
-    ensure!(
-        tokens.values.len() == cols * report.rows && consistent.len() == tokens.values.len(),
-        "the pipeline emitted {} of {} cells",
-        tokens.values.len(),
-        cols * report.rows
-    );
-    let disparity = upsample_disparity(&tokens);
-    let valid = pixel_mask(&consistent, cols, disparity.width, disparity.height);
+    let disparity = upsample_disparity(tokens);
+    let valid = pixel_mask(consistent, tokens.width, disparity.width, disparity.height);
     let filled = fill_invalid(&disparity, &valid);
     finish(&mut timings, started);
 
@@ -151,13 +128,13 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
     finish(&mut timings, started);
     let density = 100.0 * valid.iter().filter(|&&v| v).count() as f64 / valid.len().max(1) as f64;
     Ok(RunReport {
-        width: w,
-        height: h,
+        width: left.width,
+        height: left.height,
         density,
         timings,
-        stage_times,
-        pipeline: report,
-        arena_bytes,
+        stage_times: maps.stage_times,
+        pipeline: maps.report,
+        arena_bytes: maps.arena_bytes,
         files,
     })
 }
@@ -165,71 +142,6 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
 fn finish(timings: &mut [(&'static str, Duration)], started: Instant) {
     if let Some(last) = timings.last_mut() {
         last.1 = started.elapsed();
-    }
-}
-
-/// Gathers the chosen readout's rows and left-right mask, and the time spent in each stage;
-/// reports each band as it starts.
-struct MapSink<'p> {
-    readout: Readout,
-    bands: usize,
-    bands_started: usize,
-    progress: &'p mut dyn FnMut(&str),
-    disparity: Vec<f32>,
-    consistent: Vec<bool>,
-    stage_times: Vec<(Stage, Duration)>,
-    current: Option<(Stage, Instant)>,
-}
-
-impl<'p> MapSink<'p> {
-    fn new(readout: Readout, bands: usize, progress: &'p mut dyn FnMut(&str)) -> Self {
-        Self {
-            readout,
-            bands,
-            bands_started: 0,
-            progress,
-            disparity: Vec::new(),
-            consistent: Vec::new(),
-            stage_times: Stage::ALL.iter().map(|&s| (s, Duration::ZERO)).collect(),
-            current: None,
-        }
-    }
-
-    /// Charges the time since the last stage change to that stage.
-    fn stage_done(&mut self) {
-        if let Some((stage, since)) = self.current.take() {
-            if let Some(entry) = self.stage_times.iter_mut().find(|(s, _)| *s == stage) {
-                entry.1 += since.elapsed();
-            }
-        }
-    }
-}
-
-impl Sink for MapSink<'_> {
-    fn stage(&mut self, stage: Stage) {
-        self.stage_done();
-        if stage == Stage::EncodeLeft && self.bands > 1 {
-            self.bands_started += 1;
-            (self.progress)(&format!("  band {} of {}", self.bands_started, self.bands));
-        }
-        self.current = Some((stage, Instant::now()));
-    }
-
-    fn matched(&mut self, row: &MatchedRow<'_>) {
-        let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
-        // The head has no right-view twin: its cells take the SGM readout's check.
-        let (values, mask) = match self.readout {
-            Readout::Nolink => (row.wta_q8, row.wta_consistent),
-            Readout::Sgm => (row.sgm_q8, row.sgm_consistent),
-            Readout::Head => (&[][..], row.sgm_consistent),
-        };
-        self.disparity.extend(values.iter().map(|&d| d as f32 / unit));
-        self.consistent.extend(mask.iter().map(|&m| m != 0));
-    }
-
-    fn head(&mut self, row: HeadRow<'_>) {
-        let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
-        self.disparity.extend(row.disparity_q8.iter().map(|&d| d as f32 / unit));
     }
 }
 

@@ -155,16 +155,23 @@ fn integer_row_matching_agrees_with_the_float_readout() {
 }
 
 #[test]
-fn eval_scores_every_readout_on_eval_pairs() {
-    use bino_host::readout_eval::{evaluate, EvalOptions, Readout};
+fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
+    use bino_host::readout_eval::{evaluate, EvalOptions, Precision, Readout};
+    let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("../weights");
+    let sgbm = bino_host::sgbm::SgbmRunner::locate().is_ok();
     let opts = EvalOptions {
         data: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
         split: "eval".into(),
         profile: bino_host::profile::Profile::W160,
         blob: PathBuf::from(DEFAULT_BLOB),
+        onnx: weights.join("bino_encoder.onnx"),
+        head_onnx: weights.join("bino_head.onnx"),
+        precisions: vec![Precision::Int8, Precision::F32],
         readouts: vec![Readout::Nolink, Readout::Sgm, Readout::Head],
         max_cols: DEFAULT_MAX_COLS,
         penalties: bino_host::demo::DEFAULT_PENALTIES,
+        lr_max_diff: 1.0,
+        sgbm,
         limit: Some(2),
     };
     let mut seen = 0;
@@ -172,13 +179,32 @@ fn eval_scores_every_readout_on_eval_pairs() {
         seen = done;
         assert_eq!(total, 2);
     })
-    .expect("eval runs on the shipped blob");
-    assert_eq!((seen, report.pairs.len(), report.mean.len()), (2, 2, 3));
-    for m in &report.mean {
-        assert!(m.epe.is_finite() && m.epe > 0.0 && m.epe < 10.0, "{m:?}");
+    .expect("eval runs on the shipped weights");
+    assert_eq!((seen, report.pairs.len(), report.mean.len()), (2, 2, 6));
+    let (int8, float) = report.mean.split_at(3);
+    for (i, f) in int8.iter().zip(float) {
+        let (ei, ef) = (i.metrics.epe, f.metrics.epe);
+        assert!(ei.is_finite() && ei > 0.0 && ei < 10.0, "{i:?}");
+        // The int8 readouts are twins of the float ones: within 10 % on two pairs.
+        assert!((ei - ef).abs() <= 0.1 * ef, "int8 {ei} vs f32 {ef}");
+    }
+    for s in [int8[0], int8[1], float[0], float[1]] {
+        let (keep, gt_lr) = (s.lr_keep.unwrap(), s.gt_lr_epe.unwrap());
+        assert!(keep > 50.0 && keep < 100.0, "LRkeep {keep}");
+        // The left-right check removes worse than average matches.
+        assert!(gt_lr < s.metrics.epe, "GT+LR epe {gt_lr} vs {}", s.metrics.epe);
+    }
+    assert!(int8[2].lr_keep.is_none(), "the head has no left-right check");
+    if sgbm {
+        let m = report.sgbm_mean.expect("SGBM ran");
+        assert!(m.density > 50.0 && m.density < 100.0 && m.epe < 2.0, "{m:?}");
     }
     let json: serde_json::Value = serde_json::from_str(&report.to_json()).unwrap();
     assert_eq!(json["pairs"], 2);
-    assert!(json["mean"]["sgm"]["bad1tok"].as_f64().is_some(), "{json}");
-    assert!(report.table().contains("sgm"));
+    assert!(
+        json["mean"]["int8_sgm"]["metrics"]["bad1tok"].as_f64().is_some(),
+        "{json}"
+    );
+    assert!(json["mean"]["f32_head"]["metrics"]["epe"].as_f64().is_some(), "{json}");
+    assert!(report.table().contains("f32 sgm"));
 }

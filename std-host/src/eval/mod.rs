@@ -4,6 +4,7 @@
 //! Every function mirrors `train/bino_train/probe.py` (and `pairs.py` / `profile.py` for the
 //! ground truth), so that the Rust CLI and the Python training code report the same numbers.
 
+pub mod float_twins;
 pub mod gt;
 pub mod metrics;
 pub mod nearest;

@@ -1,0 +1,155 @@
+//! The core pipeline (`bino_core::pipeline`) on a host pair, its rows gathered into whole
+//! token-grid maps: what `bino run` and `bino eval` read their int8 readouts from.
+
+use std::time::{Duration, Instant};
+
+use anyhow::{ensure, Result};
+use bino_core::band::BandPlan;
+use bino_core::config::PATCH_H;
+use bino_core::matching::DISPARITY_FRAC_BITS;
+use bino_core::model::head::HeadRow;
+use bino_core::pipeline::{self, MatchedRow, Options, Pipeline, Report, Sink, SlicePair, Stage};
+
+use crate::eval::DisparityMap;
+use crate::int8::{to_u8, Int8Model};
+use crate::profile::View;
+
+/// Every readout of one run as token-grid maps (patch columns), with the left-right masks.
+#[derive(Debug, Clone)]
+pub struct PipelineMaps {
+    /// No-linkage WTA.
+    pub wta: DisparityMap,
+    /// SGM.
+    pub sgm: DisparityMap,
+    /// The shared head (empty values when the run had no head).
+    pub head: DisparityMap,
+    /// Cells whose WTA passed the left-right check.
+    pub wta_consistent: Vec<bool>,
+    /// Cells whose SGM passed the left-right check.
+    pub sgm_consistent: Vec<bool>,
+    /// Wall time inside the pipeline, per stage.
+    pub stage_times: Vec<(Stage, Duration)>,
+    /// The core's report (arena by part, bands, kept counts).
+    pub report: Report,
+    /// Arena bytes allocated for the run.
+    pub arena_bytes: usize,
+}
+
+/// Runs the int8 pipeline on two views of the same size; `on_band(i, n)` as band `i` of `n`
+/// starts encoding.
+pub fn run_pipeline(
+    model: &Int8Model,
+    left: &View,
+    right: &View,
+    opts: &Options,
+    on_band: &mut dyn FnMut(usize, usize),
+) -> Result<PipelineMaps> {
+    ensure!(
+        (left.width, left.height) == (right.width, right.height),
+        "the views differ in size: {}x{} and {}x{}",
+        left.width,
+        left.height,
+        right.width,
+        right.height
+    );
+    let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
+    let (w, h) = (left.width, left.height);
+    let (lp, rp) = (to_u8(&left.pixels), to_u8(&right.pixels));
+    let mut source = SlicePair::new(&lp, &rp, w, h).map_err(anyhow::Error::msg)?;
+    let arena_bytes = pipeline::arena_bytes(h, w, opts.max_cols);
+    let mut arena = vec![0u8; arena_bytes];
+    let bands = BandPlan::new(h / PATCH_H).map_err(anyhow::Error::msg)?.len();
+    let mut sink = Collect {
+        bands,
+        bands_started: 0,
+        on_band,
+        maps: Default::default(),
+        stage_times: Stage::ALL.iter().map(|&s| (s, Duration::ZERO)).collect(),
+        current: None,
+    };
+    let report = pipeline
+        .run(&mut source, opts, &mut arena, &mut sink)
+        .map_err(anyhow::Error::msg)?;
+    sink.stage_done();
+    let (rows, cols) = (report.rows, report.cols);
+    let m = sink.maps;
+    let cells = rows * cols;
+    ensure!(
+        m.wta.len() == cells && m.sgm.len() == cells && (m.head.is_empty() || m.head.len() == cells),
+        "the pipeline emitted {} WTA, {} SGM and {} head cells for {rows}x{cols}",
+        m.wta.len(),
+        m.sgm.len(),
+        m.head.len()
+    );
+    let map = |values: Vec<f32>| DisparityMap {
+        width: cols,
+        height: rows,
+        values,
+    };
+    Ok(PipelineMaps {
+        wta: map(m.wta),
+        sgm: map(m.sgm),
+        head: map(m.head),
+        wta_consistent: m.wta_mask,
+        sgm_consistent: m.sgm_mask,
+        stage_times: sink.stage_times,
+        report,
+        arena_bytes,
+    })
+}
+
+#[derive(Default)]
+struct Rows {
+    wta: Vec<f32>,
+    sgm: Vec<f32>,
+    head: Vec<f32>,
+    wta_mask: Vec<bool>,
+    sgm_mask: Vec<bool>,
+}
+
+struct Collect<'p> {
+    bands: usize,
+    bands_started: usize,
+    on_band: &'p mut dyn FnMut(usize, usize),
+    maps: Rows,
+    stage_times: Vec<(Stage, Duration)>,
+    current: Option<(Stage, Instant)>,
+}
+
+impl Collect<'_> {
+    /// Charges the time since the last stage change to that stage.
+    fn stage_done(&mut self) {
+        if let Some((stage, since)) = self.current.take() {
+            if let Some(entry) = self.stage_times.iter_mut().find(|(s, _)| *s == stage) {
+                entry.1 += since.elapsed();
+            }
+        }
+    }
+}
+
+fn q8(values: &[u16]) -> impl Iterator<Item = f32> + '_ {
+    let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
+    values.iter().map(move |&d| d as f32 / unit)
+}
+
+impl Sink for Collect<'_> {
+    fn stage(&mut self, stage: Stage) {
+        self.stage_done();
+        if stage == Stage::EncodeLeft {
+            self.bands_started += 1;
+            (self.on_band)(self.bands_started, self.bands);
+        }
+        self.current = Some((stage, Instant::now()));
+    }
+
+    fn matched(&mut self, row: &MatchedRow<'_>) {
+        self.maps.wta.extend(q8(row.wta_q8));
+        self.maps.sgm.extend(q8(row.sgm_q8));
+        self.maps.wta_mask.extend(row.wta_consistent.iter().map(|&m| m != 0));
+        self.maps.sgm_mask.extend(row.sgm_consistent.iter().map(|&m| m != 0));
+    }
+
+    fn head(&mut self, row: HeadRow<'_>) {
+        self.maps.head.extend(q8(row.disparity_q8));
+    }
+}
