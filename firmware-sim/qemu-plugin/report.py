@@ -9,6 +9,7 @@ instructions counted by the plugin, not cycles.
 
 import argparse
 import bisect
+import hashlib
 import json
 import re
 import subprocess
@@ -92,7 +93,7 @@ def source_state():
     try:
         head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "core", "firmware-sim", "weights"], capture_output=True, text=True
+            ["git", "status", "--porcelain", "--untracked-files=no", "core", "firmware-sim", "weights"], capture_output=True, text=True
         ).stdout
         return {"commit": head.strip() or None, "core_or_firmware_modified": bool(dirty.strip())}
     except OSError:
@@ -144,6 +145,7 @@ def main():
         "result": result,
         "qemu_wall_seconds": round(args.wall, 1),
         "elf": args.elf,
+        "elf_sha256": hashlib.sha256(open(args.elf, "rb").read()).hexdigest(),
         "elf_sections": elf_sections(args.llvm_size, args.elf),
         "blob_bytes": header.get("blob_bytes"),
         "arena_bytes": header.get("arena_bytes"),

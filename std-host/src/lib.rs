@@ -5,6 +5,7 @@
 
 pub mod bench;
 pub mod blob_writer;
+pub mod budget;
 pub mod colour;
 pub mod compare;
 pub mod demo;

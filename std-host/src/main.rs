@@ -316,6 +316,24 @@ enum Command {
         #[arg(long)]
         json: Option<PathBuf>,
     },
+    /// The firmware's memory and compute budget (STM32Cube.AI / TFLite Micro style): weights and
+    /// code flash, arena per stage, stack peak, RAM, executed instructions per stage per core and
+    /// milliseconds at a stated clock (M55 400 MHz, M7 480 MHz, 1 instruction per cycle assumed),
+    /// against the targets. Reads the runs of `scripts/firmware.sh` and the firmware ELF.
+    Budget {
+        /// Folder with the firmware runs (m55.json, m7.json).
+        #[arg(long, default_value = "firmware-sim/measured")]
+        firmware: PathBuf,
+        /// Also write the report as JSON.
+        #[arg(long)]
+        json: Option<PathBuf>,
+        /// Also write the report as Markdown.
+        #[arg(long)]
+        md: Option<PathBuf>,
+        /// Also draw a bar chart of memory and instructions per stage (PNG).
+        #[arg(long)]
+        png: Option<PathBuf>,
+    },
 }
 
 fn main() -> ExitCode {
@@ -476,6 +494,21 @@ fn run(cli: Cli) -> Result<()> {
             out,
         } => reference(left.zip(right), profile, &onnx, head.as_deref(), &out),
         Command::Pairs { data, split } => list_pairs(&data, split.as_deref()),
+        Command::Budget {
+            firmware,
+            json,
+            md,
+            png,
+        } => {
+            let report = bino_host::budget::run_budget(&bino_host::budget::BudgetOptions {
+                firmware,
+                json,
+                md,
+                png,
+            })?;
+            print!("{report}");
+            Ok(())
+        }
         Command::Quantize {
             onnx,
             head,

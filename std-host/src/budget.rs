@@ -1,0 +1,960 @@
+//! `bino budget`: the firmware's memory and compute budget, in the manner of STM32Cube.AI's and
+//! TFLite Micro's reports — flash for weights and code, RAM (arena per stage, stack), executed
+//! instructions per stage per core and the time they would take at a stated clock.
+//!
+//! Every number comes from the firmware runs (`scripts/firmware.sh` writes `<core>.json` per
+//! core: the QEMU plugin's instruction counts, the firmware's own arena and stack measurements)
+//! and from the firmware ELF's section headers (read here when the ELF the run used is still
+//! there, same SHA-256, else the sizes the run recorded from it with `llvm-size`). Nothing is estimated except the time,
+//! which assumes a stated number of instructions per cycle: instructions are not cycles.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use anyhow::{bail, ensure, Context, Result};
+use serde_json::{json, Value};
+
+/// Bytes in a KiB.
+const KIB: f64 = 1024.0;
+
+/// The issue's targets.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Targets {
+    /// Arena, bytes (the AN547's 512 KiB DTCM).
+    pub arena_bytes: u64,
+    /// Weight blob, bytes.
+    pub weights_bytes: u64,
+    /// Cortex-M55: executed instructions per band pair.
+    pub m55_instructions: u64,
+    /// Cortex-M7: seconds per band pair at its clock.
+    pub m7_seconds: f64,
+}
+
+/// 512 KiB arena, 1.5 MiB weights, 800M M55 instructions, 8 s on the M7.
+pub const TARGETS: Targets = Targets {
+    arena_bytes: 512 * 1024,
+    weights_bytes: 3 * 512 * 1024,
+    m55_instructions: 800_000_000,
+    m7_seconds: 8.0,
+};
+
+/// A core's clock and the instructions-per-cycle assumption that turns counts into time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Clock {
+    /// Clock in MHz.
+    pub mhz: f64,
+    /// Instructions retired per cycle, assumed.
+    pub ipc: f64,
+}
+
+impl Clock {
+    /// Milliseconds `instructions` take at this clock.
+    pub fn ms(&self, instructions: u64) -> f64 {
+        instructions as f64 / (self.mhz * 1e3 * self.ipc)
+    }
+}
+
+/// The clock a core is reported at: M55 400 MHz, M7 480 MHz, both at 1 instruction per cycle.
+pub fn clock(core: &str) -> Clock {
+    match core {
+        "m7" => Clock { mhz: 480.0, ipc: 1.0 },
+        _ => Clock { mhz: 400.0, ipc: 1.0 },
+    }
+}
+
+/// One stage of a firmware run.
+#[derive(Debug, Clone, PartialEq)]
+pub struct StageRun {
+    /// Stage name (`load`, `rows`, `encode_left`, ...).
+    pub name: String,
+    /// Executed instructions.
+    pub instructions: u64,
+    /// Arena bytes in use during the stage.
+    pub arena_in_use: u64,
+    /// Deepest stack use during the stage, bytes.
+    pub stack_peak: u64,
+}
+
+/// Section sizes of the firmware ELF that the budget needs.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct Sections {
+    /// `.vector_table + .text + .rodata + .gnu.sgstubs`: code and constants in flash.
+    pub code: u64,
+    /// `.data`: initialised data (its image in flash, the data in RAM).
+    pub data: u64,
+    /// `.bss`.
+    pub bss: u64,
+    /// `.uninit`: the arena (and nothing else in this firmware).
+    pub uninit: u64,
+    /// `.weights`: the blob in the flash-like region.
+    pub weights: u64,
+}
+
+impl Sections {
+    /// From `(name, size)` pairs.
+    pub fn from_named(sections: impl IntoIterator<Item = (String, u64)>) -> Self {
+        let mut s = Sections::default();
+        for (name, size) in sections {
+            match name.as_str() {
+                ".vector_table" | ".text" | ".rodata" | ".gnu.sgstubs" => s.code += size,
+                ".data" => s.data = size,
+                ".bss" => s.bss = size,
+                ".uninit" => s.uninit = size,
+                ".weights" => s.weights = size,
+                _ => {}
+            }
+        }
+        s
+    }
+
+    /// Flash for code: code, constants and the `.data` image.
+    pub fn code_flash(&self) -> u64 {
+        self.code + self.data
+    }
+}
+
+/// Where the section sizes came from.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum SectionSource {
+    /// Read from this ELF now.
+    Elf(PathBuf),
+    /// Recorded in the run's JSON (the ELF is gone).
+    Recorded,
+}
+
+/// One core's firmware run (`<core>.json`).
+#[derive(Debug, Clone, PartialEq)]
+pub struct CoreRun {
+    /// `m55` or `m7`.
+    pub core: String,
+    /// QEMU CPU model.
+    pub cpu: String,
+    /// QEMU board.
+    pub board: String,
+    /// Band height and width in pixels.
+    pub band: (u64, u64),
+    /// Whether every output was bit-identical to the host's.
+    pub passed: bool,
+    /// QEMU wall time, seconds.
+    pub qemu_wall_seconds: f64,
+    /// ELF section sizes.
+    pub sections: Sections,
+    /// Where they came from.
+    pub section_source: SectionSource,
+    /// Static arena, bytes (the core's `const fn`).
+    pub arena_bytes: u64,
+    /// Arena high-water reported by the pipeline.
+    pub arena_used: u64,
+    /// Stack reserved by the linker script, bytes.
+    pub stack_bytes: u64,
+    /// Stages in run order.
+    pub stages: Vec<StageRun>,
+    /// Instructions before the first stage (reset, arena painting).
+    pub startup_instructions: u64,
+    /// Instructions outside the stages (digests, stack scans, logging).
+    pub outside_instructions: u64,
+}
+
+/// Stages that run once at boot, not per band pair.
+const BOOT_STAGES: [&str; 1] = ["load"];
+
+impl CoreRun {
+    /// Parses a run's JSON; the ELF it names is read when it still exists.
+    pub fn parse(text: &str) -> Result<Self> {
+        let v: Value = serde_json::from_str(text).context("not JSON")?;
+        let str_of = |k: &str| -> Result<String> {
+            Ok(v.get(k)
+                .and_then(Value::as_str)
+                .with_context(|| format!("missing string {k:?}"))?
+                .to_string())
+        };
+        let u = |v: &Value, k: &str| -> Result<u64> {
+            v.get(k)
+                .and_then(Value::as_u64)
+                .with_context(|| format!("missing number {k:?}"))
+        };
+        let schema = str_of("schema")?;
+        ensure!(schema == "bino-firmware-run/1", "unknown schema {schema:?}");
+        let band = v.get("band").context("missing \"band\"")?;
+        let stages = v
+            .get("stages")
+            .and_then(Value::as_array)
+            .context("missing \"stages\"")?
+            .iter()
+            .map(|s| {
+                Ok(StageRun {
+                    name: s
+                        .get("name")
+                        .and_then(Value::as_str)
+                        .context("stage without a name")?
+                        .to_string(),
+                    instructions: u(s, "instructions")?,
+                    arena_in_use: u(s, "arena_in_use")?,
+                    stack_peak: u(s, "stack_peak")?,
+                })
+            })
+            .collect::<Result<Vec<_>>>()?;
+        ensure!(!stages.is_empty(), "no stages");
+        let recorded = v
+            .get("elf_sections")
+            .and_then(Value::as_object)
+            .context("missing \"elf_sections\"")?
+            .iter()
+            .map(|(name, s)| Ok((name.clone(), u(s, "size")?)))
+            .collect::<Result<Vec<_>>>()?;
+        // The ELF the run used, if it is still there and unchanged (a later build overwrites it).
+        let elf = v.get("elf").and_then(Value::as_str).map(PathBuf::from);
+        let sha = v.get("elf_sha256").and_then(Value::as_str);
+        let same_elf = elf.and_then(|path| {
+            let bytes = std::fs::read(&path).ok()?;
+            (Some(crate::sha256::sha256_hex(&bytes).as_str()) == sha).then_some((path, bytes))
+        });
+        let (sections, section_source) = match same_elf {
+            Some((path, bytes)) => {
+                let named = elf_sections(&bytes).with_context(|| format!("{}", path.display()))?;
+                (Sections::from_named(named), SectionSource::Elf(path))
+            }
+            None => (Sections::from_named(recorded), SectionSource::Recorded),
+        };
+        Ok(Self {
+            core: str_of("core")?,
+            cpu: str_of("cpu")?,
+            board: str_of("board")?,
+            band: (u(band, "height")?, u(band, "width")?),
+            passed: v.get("passed").and_then(Value::as_bool).unwrap_or(false),
+            qemu_wall_seconds: v.get("qemu_wall_seconds").and_then(Value::as_f64).unwrap_or(f64::NAN),
+            sections,
+            section_source,
+            arena_bytes: u(&v, "arena_bytes")?,
+            arena_used: u(&v, "arena_used")?,
+            stack_bytes: u(&v, "stack_bytes")?,
+            stages,
+            startup_instructions: u(&v, "startup_instructions")?,
+            outside_instructions: u(&v, "outside_instructions")?,
+        })
+    }
+
+    /// Executed instructions of one band pair: every stage but blob loading.
+    pub fn band_pair_instructions(&self) -> u64 {
+        self.stages
+            .iter()
+            .filter(|s| !BOOT_STAGES.contains(&s.name.as_str()))
+            .map(|s| s.instructions)
+            .sum()
+    }
+
+    /// Deepest stack use of any stage.
+    pub fn stack_peak(&self) -> u64 {
+        self.stages.iter().map(|s| s.stack_peak).max().unwrap_or(0)
+    }
+
+    /// Highest arena use of any stage.
+    pub fn arena_high_water(&self) -> u64 {
+        self.stages.iter().map(|s| s.arena_in_use).max().unwrap_or(0)
+    }
+
+    /// RAM the link reserves: `.data + .bss + .uninit` (the arena) and the stack budget.
+    pub fn ram_reserved(&self) -> u64 {
+        self.sections.data + self.sections.bss + self.sections.uninit + self.stack_bytes
+    }
+
+    /// RAM measured in use: `.data + .bss`, the arena's high-water and the stack's peak.
+    pub fn ram_used(&self) -> u64 {
+        self.sections.data + self.sections.bss + self.arena_used + self.stack_peak()
+    }
+}
+
+/// `(name, size)` of every section of a 32-bit little-endian ELF, from its section headers.
+pub fn elf_sections(elf: &[u8]) -> Result<Vec<(String, u64)>> {
+    ensure!(elf.get(..4) == Some(b"\x7fELF".as_slice()), "not an ELF file");
+    ensure!(
+        elf.get(4) == Some(&1) && elf.get(5) == Some(&1),
+        "not a 32-bit little-endian ELF"
+    );
+    let u16_at = |at: usize| -> Result<usize> {
+        let b = elf.get(at..at + 2).context("truncated ELF")?;
+        Ok(u16::from_le_bytes([b[0], b[1]]) as usize)
+    };
+    let u32_at = |at: usize| -> Result<usize> {
+        let b = elf.get(at..at + 4).context("truncated ELF")?;
+        Ok(u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as usize)
+    };
+    let (shoff, shentsize, shnum, shstrndx) = (u32_at(0x20)?, u16_at(0x2E)?, u16_at(0x30)?, u16_at(0x32)?);
+    ensure!(shentsize >= 40, "section header entries of {shentsize} bytes");
+    let header = |i: usize| shoff + i * shentsize;
+    let names_at = u32_at(header(shstrndx) + 16)?;
+    let mut out = Vec::with_capacity(shnum);
+    for i in 1..shnum {
+        let h = header(i);
+        let name_at = names_at + u32_at(h)?;
+        let name = elf.get(name_at..).context("section name outside the file")?;
+        let end = name.iter().position(|&b| b == 0).context("unterminated section name")?;
+        out.push((
+            String::from_utf8_lossy(&name[..end]).into_owned(),
+            u32_at(h + 20)? as u64,
+        ));
+    }
+    Ok(out)
+}
+
+/// The runs in a firmware result folder (`m55.json`, `m7.json`; at least one).
+pub fn load_runs(dir: &Path) -> Result<Vec<CoreRun>> {
+    let mut runs = Vec::new();
+    for core in ["m55", "m7"] {
+        let path = dir.join(format!("{core}.json"));
+        if !path.exists() {
+            continue;
+        }
+        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        runs.push(CoreRun::parse(&text).with_context(|| format!("{}", path.display()))?);
+    }
+    if runs.is_empty() {
+        bail!(
+            "no firmware results (m55.json, m7.json) in {}; run scripts/firmware.sh first",
+            dir.display()
+        );
+    }
+    Ok(runs)
+}
+
+/// Whether a target is met, with the figure it was judged on.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Verdict {
+    /// What the target is.
+    pub target: String,
+    /// What was measured.
+    pub measured: String,
+    /// Met or not.
+    pub met: bool,
+}
+
+/// The targets judged on the runs.
+pub fn verdicts(runs: &[CoreRun]) -> Vec<Verdict> {
+    let mut out = Vec::new();
+    if let Some(r) = runs.first() {
+        out.push(Verdict {
+            target: format!("weights <= {:.1} MiB", TARGETS.weights_bytes as f64 / KIB / KIB),
+            measured: kib(r.sections.weights),
+            met: r.sections.weights <= TARGETS.weights_bytes,
+        });
+        out.push(Verdict {
+            target: format!("arena <= {}", kib(TARGETS.arena_bytes)),
+            measured: format!("{} (static {})", kib(r.arena_used), kib(r.arena_bytes)),
+            met: r.arena_bytes <= TARGETS.arena_bytes,
+        });
+    }
+    for r in runs {
+        let n = r.band_pair_instructions();
+        let c = clock(&r.core);
+        match r.core.as_str() {
+            "m55" => out.push(Verdict {
+                target: format!(
+                    "Cortex-M55 <= {}M instructions per band pair ({:.1} s at {} MHz, IPC {})",
+                    TARGETS.m55_instructions / 1_000_000,
+                    Clock::ms(&c, TARGETS.m55_instructions) / 1e3,
+                    c.mhz,
+                    c.ipc
+                ),
+                measured: format!(
+                    "{:.0}M ({:.1}x the target; {:.2} s)",
+                    n as f64 / 1e6,
+                    n as f64 / TARGETS.m55_instructions as f64,
+                    c.ms(n) / 1e3
+                ),
+                met: n <= TARGETS.m55_instructions,
+            }),
+            "m7" => out.push(Verdict {
+                target: format!(
+                    "Cortex-M7 <= {} s per band pair at {} MHz, IPC {}",
+                    TARGETS.m7_seconds, c.mhz, c.ipc
+                ),
+                measured: format!(
+                    "{:.2} s ({:.0}M instructions; {:.1}x the target)",
+                    c.ms(n) / 1e3,
+                    n as f64 / 1e6,
+                    c.ms(n) / 1e3 / TARGETS.m7_seconds
+                ),
+                met: c.ms(n) / 1e3 <= TARGETS.m7_seconds,
+            }),
+            _ => {}
+        }
+    }
+    out
+}
+
+fn kib(bytes: u64) -> String {
+    format!("{:.1} KiB", bytes as f64 / KIB)
+}
+
+/// `1234567` as `1,234,567`.
+pub fn grouped(n: u64) -> String {
+    let digits = n.to_string();
+    let mut out = String::new();
+    for (i, c) in digits.chars().enumerate() {
+        if i > 0 && (digits.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+/// The report as Markdown tables.
+pub fn markdown(runs: &[CoreRun]) -> String {
+    let mut md = String::new();
+    let cores: Vec<String> = runs
+        .iter()
+        .map(|r| format!("{} ({}, {})", r.core.to_uppercase(), r.cpu, r.board))
+        .collect();
+    let first = &runs[0];
+    let _ = writeln!(
+        md,
+        "Band pair {}x{} (height x width); numbers from the firmware runs under QEMU and the firmware ELF.\n",
+        first.band.0, first.band.1
+    );
+    let _ = writeln!(md, "| memory | {} |", cores.join(" | "));
+    let _ = writeln!(md, "|---|{}", "---:|".repeat(runs.len()));
+    let row = |md: &mut String, label: &str, f: &dyn Fn(&CoreRun) -> String| {
+        let cells: Vec<String> = runs.iter().map(f).collect();
+        let _ = writeln!(md, "| {label} | {} |", cells.join(" | "));
+    };
+    let b = |n: u64| format!("{} B", grouped(n));
+    row(&mut md, "weights flash (`.weights`)", &|r| b(r.sections.weights));
+    row(&mut md, "code flash (`.text .rodata .vector_table .data`)", &|r| {
+        b(r.sections.code_flash())
+    });
+    row(
+        &mut md,
+        "arena, static (`pipeline::arena_bytes`)",
+        &|r| b(r.arena_bytes),
+    );
+    row(&mut md, "arena high-water (measured)", &|r| b(r.arena_used));
+    row(&mut md, "stack peak / reserved", &|r| {
+        format!("{} / {}", b(r.stack_peak()), b(r.stack_bytes))
+    });
+    row(&mut md, "RAM reserved (`.data .bss .uninit` + stack)", &|r| {
+        b(r.ram_reserved())
+    });
+    row(&mut md, "RAM used (`.data .bss` + arena + stack peak)", &|r| {
+        b(r.ram_used())
+    });
+    row(&mut md, "QEMU wall time", &|r| format!("{:.0} s", r.qemu_wall_seconds));
+    row(&mut md, "outputs bit-identical to the host", &|r| {
+        if r.passed { "yes" } else { "**no**" }.to_string()
+    });
+
+    let _ = writeln!(md);
+    let mut header = String::from("| stage | arena in use |");
+    let mut rule = String::from("|---|---:|");
+    for r in runs {
+        let c = clock(&r.core);
+        let _ = write!(
+            header,
+            " {0} stack | {0} instructions | {0} ms at {1} MHz |",
+            r.core.to_uppercase(),
+            c.mhz
+        );
+        rule.push_str("---:|---:|---:|");
+    }
+    let _ = writeln!(md, "{header}\n{rule}");
+    for (i, s) in first.stages.iter().enumerate() {
+        let _ = write!(md, "| {} | {} |", s.name, b(s.arena_in_use));
+        for r in runs {
+            let c = clock(&r.core);
+            match r.stages.get(i).filter(|t| t.name == s.name) {
+                Some(t) => {
+                    let _ = write!(
+                        md,
+                        " {} | {} | {:.1} |",
+                        b(t.stack_peak),
+                        grouped(t.instructions),
+                        c.ms(t.instructions)
+                    );
+                }
+                None => md.push_str(" - | - | - |"),
+            }
+        }
+        md.push('\n');
+    }
+    let _ = write!(md, "| **band pair** (all but load) | {} |", b(first.arena_high_water()));
+    for r in runs {
+        let n = r.band_pair_instructions();
+        let _ = write!(
+            md,
+            " {} | **{}** | **{:.0}** |",
+            b(r.stack_peak()),
+            grouped(n),
+            clock(&r.core).ms(n)
+        );
+    }
+    md.push('\n');
+    let _ = write!(md, "| outside the stages (digests, logging) | |");
+    for r in runs {
+        let _ = write!(
+            md,
+            " | {} | |",
+            grouped(r.outside_instructions + r.startup_instructions)
+        );
+    }
+    md.push('\n');
+    let _ = writeln!(
+        md,
+        "\nInstructions are executed instructions counted by a QEMU TCG plugin, not cycles. The \
+         milliseconds assume {}; real parts differ (memory wait states, the M7's dual issue, \
+         the M55's MVE beats). `load` (blob CRC and parsing) runs once at boot.\n",
+        runs.iter()
+            .map(|r| {
+                let c = clock(&r.core);
+                format!(
+                    "{} at {} MHz and {} instruction per cycle",
+                    r.core.to_uppercase(),
+                    c.mhz,
+                    c.ipc
+                )
+            })
+            .collect::<Vec<_>>()
+            .join(", ")
+    );
+    let _ = writeln!(md, "| target | measured | state |\n|---|---|---|");
+    for v in verdicts(runs) {
+        let _ = writeln!(
+            md,
+            "| {} | {} | {} |",
+            v.target,
+            v.measured,
+            if v.met { "met" } else { "**missed**" }
+        );
+    }
+    md
+}
+
+/// The report as JSON.
+pub fn to_json(runs: &[CoreRun]) -> Value {
+    let cores: Vec<Value> = runs
+        .iter()
+        .map(|r| {
+            let c = clock(&r.core);
+            json!({
+                "core": r.core,
+                "cpu": r.cpu,
+                "board": r.board,
+                "band": {"height": r.band.0, "width": r.band.1},
+                "outputs_bit_identical": r.passed,
+                "qemu_wall_seconds": r.qemu_wall_seconds,
+                "sections_from": match &r.section_source {
+                    SectionSource::Elf(p) => p.display().to_string(),
+                    SectionSource::Recorded => "recorded in the run's JSON".to_string(),
+                },
+                "weights_flash_bytes": r.sections.weights,
+                "code_flash_bytes": r.sections.code_flash(),
+                "arena_static_bytes": r.arena_bytes,
+                "arena_high_water_bytes": r.arena_used,
+                "stack_peak_bytes": r.stack_peak(),
+                "stack_reserved_bytes": r.stack_bytes,
+                "ram_reserved_bytes": r.ram_reserved(),
+                "ram_used_bytes": r.ram_used(),
+                "clock_mhz": c.mhz,
+                "assumed_instructions_per_cycle": c.ipc,
+                "band_pair_instructions": r.band_pair_instructions(),
+                "band_pair_estimated_ms": c.ms(r.band_pair_instructions()),
+                "stages": r.stages.iter().map(|s| json!({
+                    "name": s.name,
+                    "instructions": s.instructions,
+                    "estimated_ms": c.ms(s.instructions),
+                    "arena_in_use_bytes": s.arena_in_use,
+                    "stack_peak_bytes": s.stack_peak,
+                })).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    json!({
+        "schema": "bino-budget/1",
+        "note": "instructions are executed instructions counted under QEMU, not cycles; estimated_ms assumes the stated clock and instructions per cycle",
+        "cores": cores,
+        "targets": verdicts(runs).iter().map(|v| json!({"target": v.target, "measured": v.measured, "met": v.met})).collect::<Vec<_>>(),
+    })
+}
+
+/// Options of `bino budget`.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BudgetOptions {
+    /// Folder with the runs' `<core>.json`.
+    pub firmware: PathBuf,
+    /// Write the JSON report here.
+    pub json: Option<PathBuf>,
+    /// Write the Markdown report here.
+    pub md: Option<PathBuf>,
+    /// Write the bar chart here.
+    pub png: Option<PathBuf>,
+}
+
+/// Runs `bino budget`: returns the Markdown report after writing the files asked for.
+pub fn run_budget(opts: &BudgetOptions) -> Result<String> {
+    let runs = load_runs(&opts.firmware)?;
+    let md = markdown(&runs);
+    if let Some(path) = &opts.json {
+        let text = serde_json::to_string_pretty(&to_json(&runs))? + "\n";
+        write_file(path, text.as_bytes())?;
+    }
+    if let Some(path) = &opts.md {
+        write_file(path, md.as_bytes())?;
+    }
+    if let Some(path) = &opts.png {
+        chart::draw(&runs).save_png(path)?;
+    }
+    Ok(md)
+}
+
+fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create folder {}", dir.display()))?;
+    }
+    let tmp = path.with_extension("partial");
+    std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
+    std::fs::rename(&tmp, path).with_context(|| format!("cannot move output into {}", path.display()))
+}
+
+/// The bar chart: memory per stage (arena in use, stack peak) and instructions per stage per
+/// core (log scale: the encoder passes are 10^4 times the smallest stages).
+mod chart {
+    use embedded_graphics::mono_font::ascii::FONT_6X10;
+    use embedded_graphics::mono_font::MonoTextStyle;
+    use embedded_graphics::pixelcolor::Rgb565;
+    use embedded_graphics::prelude::*;
+    use embedded_graphics::primitives::{PrimitiveStyle, Rectangle};
+    use embedded_graphics::text::{Alignment, Text};
+
+    use super::{grouped, CoreRun};
+    use crate::sim::display::{DisplaySize, Framebuffer};
+
+    const W: usize = 960;
+    const H: usize = 600;
+    const BAR_COLOURS: [Rgb565; 3] = [
+        Rgb565::new(4, 40, 28),  // blue-ish
+        Rgb565::new(30, 30, 4),  // orange
+        Rgb565::new(10, 50, 10), // green
+    ];
+
+    fn text(fb: &mut Framebuffer, s: &str, x: i32, y: i32, align: Alignment) {
+        let style = MonoTextStyle::new(&FONT_6X10, Rgb565::BLACK);
+        let _ = Text::with_alignment(s, Point::new(x, y), style, align).draw(fb);
+    }
+
+    fn bar(fb: &mut Framebuffer, x: i32, y_base: i32, w: u32, h: u32, c: Rgb565) {
+        let _ = Rectangle::new(Point::new(x, y_base - h as i32), Size::new(w, h.max(1)))
+            .into_styled(PrimitiveStyle::with_fill(c))
+            .draw(fb);
+    }
+
+    /// One panel of grouped bars; `series` are (label, values per stage).
+    #[allow(clippy::too_many_arguments)]
+    fn panel(
+        fb: &mut Framebuffer,
+        top: i32,
+        height: i32,
+        title: &str,
+        stages: &[String],
+        series: &[(String, Vec<f64>)],
+        log: bool,
+        limit: Option<(f64, &str)>,
+        label: &dyn Fn(f64) -> String,
+    ) {
+        let (left, right) = (50, W as i32 - 20);
+        let base = top + height - 30;
+        let plot_h = (height - 80) as f64;
+        text(fb, title, left, top + 12, Alignment::Left);
+        let max = series
+            .iter()
+            .flat_map(|(_, v)| v.iter().copied())
+            .chain(limit.map(|(v, _)| v))
+            .fold(1.0f64, f64::max);
+        let scale = |v: f64| -> u32 {
+            let f = if log {
+                if v < 1.0 {
+                    0.0
+                } else {
+                    v.log10() / max.log10().max(1.0)
+                }
+            } else {
+                v / max
+            };
+            (f.clamp(0.0, 1.0) * plot_h) as u32
+        };
+        let _ = Rectangle::new(Point::new(left, base), Size::new((right - left) as u32, 1))
+            .into_styled(PrimitiveStyle::with_fill(Rgb565::BLACK))
+            .draw(fb);
+        if let Some((v, name)) = limit {
+            let y = base - scale(v) as i32;
+            let red = Rgb565::new(28, 8, 4);
+            for x in (left..right).step_by(8) {
+                let _ = Rectangle::new(Point::new(x, y), Size::new(5, 1))
+                    .into_styled(PrimitiveStyle::with_fill(red))
+                    .draw(fb);
+            }
+            text(fb, name, left - 4, y + 3, Alignment::Right);
+        }
+        let group_w = (right - left) / stages.len().max(1) as i32;
+        let bar_w = ((group_w - 16) / series.len().max(1) as i32).max(2);
+        for (i, stage) in stages.iter().enumerate() {
+            let gx = left + i as i32 * group_w + 8;
+            for (k, (_, values)) in series.iter().enumerate() {
+                let v = values.get(i).copied().unwrap_or(0.0);
+                let h = scale(v);
+                let x = gx + k as i32 * bar_w;
+                bar(fb, x, base, bar_w as u32 - 2, h, BAR_COLOURS[k % BAR_COLOURS.len()]);
+                text(
+                    fb,
+                    &label(v),
+                    x + bar_w / 2,
+                    base - h as i32 - 3 - 10 * (k as i32 % 2),
+                    Alignment::Center,
+                );
+            }
+            text(fb, stage, gx + group_w / 2 - 8, base + 14, Alignment::Center);
+        }
+        for (k, (name, _)) in series.iter().enumerate() {
+            let x = right - 160 * (series.len() - k) as i32;
+            bar(fb, x, top + 14, 10, 10, BAR_COLOURS[k % BAR_COLOURS.len()]);
+            text(fb, name, x + 14, top + 12, Alignment::Left);
+        }
+    }
+
+    fn si(v: f64) -> String {
+        if v >= 1e9 {
+            format!("{:.2}G", v / 1e9)
+        } else if v >= 1e6 {
+            format!("{:.1}M", v / 1e6)
+        } else if v >= 1e3 {
+            format!("{:.0}k", v / 1e3)
+        } else {
+            format!("{v:.0}")
+        }
+    }
+
+    pub fn draw(runs: &[CoreRun]) -> Framebuffer {
+        let mut fb = Framebuffer::new(DisplaySize { width: W, height: H });
+        let _ = fb.clear(Rgb565::WHITE);
+        let first = &runs[0];
+        let stages: Vec<String> = first.stages.iter().map(|s| s.name.clone()).collect();
+        let kib = |v: f64| format!("{:.0}K", v / 1024.0);
+        let memory = vec![
+            (
+                "arena in use".to_string(),
+                first.stages.iter().map(|s| s.arena_in_use as f64).collect(),
+            ),
+            (
+                format!("stack peak ({})", first.core.to_uppercase()),
+                first.stages.iter().map(|s| s.stack_peak as f64).collect(),
+            ),
+        ];
+        let title = format!(
+            "BINO firmware, {}x{} band pair: memory per stage (bytes; weights {} B in flash)",
+            first.band.0,
+            first.band.1,
+            grouped(first.sections.weights)
+        );
+        let arena_limit = Some((super::TARGETS.arena_bytes as f64, "512K"));
+        panel(&mut fb, 10, 280, &title, &stages, &memory, false, arena_limit, &kib);
+        let instructions: Vec<(String, Vec<f64>)> = runs
+            .iter()
+            .map(|r| {
+                let values = stages
+                    .iter()
+                    .map(|name| {
+                        r.stages
+                            .iter()
+                            .find(|s| &s.name == name)
+                            .map_or(0.0, |s| s.instructions as f64)
+                    })
+                    .collect();
+                (format!("{} instructions", r.core.to_uppercase()), values)
+            })
+            .collect();
+        panel(
+            &mut fb,
+            300,
+            290,
+            "executed instructions per stage (log scale; QEMU counts, not cycles)",
+            &stages,
+            &instructions,
+            true,
+            None,
+            &si,
+        );
+        fb
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A minimal 32-bit little-endian ELF with the given sections (names and sizes only).
+    fn tiny_elf(sections: &[(&str, u32)]) -> Vec<u8> {
+        let mut names = vec![0u8];
+        let mut name_at = Vec::new();
+        for (n, _) in sections.iter().chain([(".shstrtab", 0)].iter()) {
+            name_at.push(names.len() as u32);
+            names.extend_from_slice(n.as_bytes());
+            names.push(0);
+        }
+        let shoff = 52 + names.len();
+        let shnum = sections.len() + 2;
+        let mut elf = vec![0u8; 52];
+        elf[..6].copy_from_slice(b"\x7fELF\x01\x01");
+        elf[0x20..0x24].copy_from_slice(&(shoff as u32).to_le_bytes());
+        elf[0x2E..0x30].copy_from_slice(&40u16.to_le_bytes());
+        elf[0x30..0x32].copy_from_slice(&(shnum as u16).to_le_bytes());
+        elf[0x32..0x34].copy_from_slice(&((shnum - 1) as u16).to_le_bytes());
+        elf.extend_from_slice(&names);
+        elf.extend_from_slice(&[0u8; 40]); // the null section
+        for (i, (_, size)) in sections
+            .iter()
+            .chain([(".shstrtab", names.len() as u32)].iter())
+            .enumerate()
+        {
+            let mut h = [0u8; 40];
+            h[..4].copy_from_slice(&name_at[i].to_le_bytes());
+            h[16..20].copy_from_slice(&(if i == sections.len() { 52u32 } else { 0 }).to_le_bytes());
+            h[20..24].copy_from_slice(&size.to_le_bytes());
+            elf.extend_from_slice(&h);
+        }
+        elf
+    }
+
+    #[test]
+    fn elf_section_headers_are_read() {
+        let elf = tiny_elf(&[(".text", 43756), (".weights", 1537200), (".uninit", 486928)]);
+        let got = elf_sections(&elf).unwrap();
+        assert_eq!(
+            got,
+            vec![
+                (".text".to_string(), 43756),
+                (".weights".to_string(), 1537200),
+                (".uninit".to_string(), 486928),
+                (".shstrtab".to_string(), 34),
+            ]
+        );
+        assert!(elf_sections(b"not an elf").is_err());
+        assert!(
+            elf_sections(&elf[..60]).is_err(),
+            "truncated headers are an error, not a panic"
+        );
+    }
+
+    #[test]
+    fn sections_are_grouped_into_flash_and_ram() {
+        let s = Sections::from_named(
+            [
+                (".vector_table", 100),
+                (".text", 1000),
+                (".rodata", 50),
+                (".data", 4),
+                (".bss", 16),
+            ]
+            .map(|(n, v)| (n.to_string(), v)),
+        );
+        assert_eq!((s.code, s.code_flash(), s.bss, s.weights), (1150, 1154, 16, 0));
+    }
+
+    fn run_json(core: &str, encode: u64) -> String {
+        json!({
+            "schema": "bino-firmware-run/1", "core": core, "cpu": "cpu", "board": "board",
+            "band": {"height": 48, "width": 160}, "passed": true, "qemu_wall_seconds": 10.0,
+            "elf": "/nonexistent/bino-firmware",
+            "elf_sections": {".text": {"size": 40000, "addr": 0}, ".rodata": {"size": 2000, "addr": 0},
+                             ".data": {"size": 4, "addr": 0}, ".bss": {"size": 16, "addr": 0},
+                             ".uninit": {"size": 486928, "addr": 0}, ".weights": {"size": 1537200, "addr": 0}},
+            "arena_bytes": 486918, "arena_used": 486912, "stack_bytes": 32768,
+            "stages": [
+                {"name": "load", "instructions": 8_000_000u64, "arena_in_use": 0, "stack_peak": 1784},
+                {"name": "encode_left", "instructions": encode, "arena_in_use": 486912, "stack_peak": 7360},
+                {"name": "head", "instructions": 100u64, "arena_in_use": 369256, "stack_peak": 6852},
+            ],
+            "startup_instructions": 5, "outside_instructions": 7,
+        })
+        .to_string()
+    }
+
+    #[test]
+    fn runs_parse_and_add_up() {
+        let r = CoreRun::parse(&run_json("m55", 700_000_000)).unwrap();
+        assert_eq!(r.section_source, SectionSource::Recorded);
+        assert_eq!(
+            r.band_pair_instructions(),
+            700_000_100,
+            "load is a boot cost, not per band pair"
+        );
+        assert_eq!((r.stack_peak(), r.arena_high_water()), (7360, 486912));
+        assert_eq!(r.ram_reserved(), 4 + 16 + 486928 + 32768);
+        assert_eq!(r.ram_used(), 4 + 16 + 486912 + 7360);
+        assert!(CoreRun::parse("{}").is_err());
+        assert!(CoreRun::parse(&run_json("m55", 1).replace("bino-firmware-run/1", "other")).is_err());
+    }
+
+    #[test]
+    fn the_elf_is_read_only_when_it_is_the_one_measured() {
+        let dir = std::env::temp_dir().join(format!("bino-budget-elf-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("bino-firmware");
+        let elf = tiny_elf(&[(".text", 1000), (".weights", 77), (".uninit", 5)]);
+        std::fs::write(&path, &elf).unwrap();
+        let with = |sha: &str| {
+            let mut v: Value = serde_json::from_str(&run_json("m55", 1)).unwrap();
+            v["elf"] = json!(path.to_str().unwrap());
+            v["elf_sha256"] = json!(sha);
+            CoreRun::parse(&v.to_string()).unwrap()
+        };
+        let same = with(&crate::sha256::sha256_hex(&elf));
+        assert_eq!(same.section_source, SectionSource::Elf(path.clone()));
+        assert_eq!(
+            (same.sections.code, same.sections.weights, same.sections.uninit),
+            (1000, 77, 5)
+        );
+        let rebuilt = with("0000");
+        assert_eq!(rebuilt.section_source, SectionSource::Recorded);
+        assert_eq!(rebuilt.sections.weights, 1537200, "the sizes recorded at the run");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn verdicts_judge_the_targets() {
+        let m55 = CoreRun::parse(&run_json("m55", 700_000_000)).unwrap();
+        let m7 = CoreRun::parse(&run_json("m7", 4_800_000_000)).unwrap();
+        let v = verdicts(&[m55.clone(), m7]);
+        let met: Vec<bool> = v.iter().map(|v| v.met).collect();
+        // weights 1,537,200 B <= 1.5 MiB; arena 486,918 <= 512 KiB; M55 700M <= 800M; M7 10 s > 8 s.
+        assert_eq!(met, [true, true, true, false], "{v:#?}");
+        assert!(v[3].measured.starts_with("10.00 s"), "{}", v[3].measured);
+        let slow = CoreRun::parse(&run_json("m55", 900_000_000)).unwrap();
+        assert!(!verdicts(&[slow])[2].met);
+        assert!((clock("m55").ms(400_000_000) - 1000.0).abs() < 1e-9);
+        assert!((clock("m7").ms(480_000_000) - 1000.0).abs() < 1e-9);
+    }
+
+    #[test]
+    fn markdown_and_json_carry_the_numbers() {
+        let runs = [CoreRun::parse(&run_json("m55", 700_000_000)).unwrap()];
+        let md = markdown(&runs);
+        assert!(md.contains("| weights flash (`.weights`) | 1,537,200 B |"), "{md}");
+        assert!(
+            md.contains("| encode_left | 486,912 B | 7,360 B | 700,000,000 | 1750.0 |"),
+            "{md}"
+        );
+        assert!(md.contains("not cycles"), "{md}");
+        let j = to_json(&runs);
+        assert_eq!(j["cores"][0]["band_pair_instructions"], 700_000_100u64);
+        assert_eq!(j["cores"][0]["assumed_instructions_per_cycle"], 1.0);
+        assert_eq!(grouped(1234567), "1,234,567");
+        assert_eq!(grouped(12), "12");
+    }
+
+    #[test]
+    fn the_chart_draws_bars() {
+        let runs = [CoreRun::parse(&run_json("m55", 700_000_000)).unwrap()];
+        let fb = chart::draw(&runs);
+        let white = fb.raw()[0];
+        let coloured = fb.raw().iter().filter(|&&p| p != white).count();
+        assert!(coloured > 5_000, "{coloured} non-background pixels");
+    }
+}

@@ -1,0 +1,90 @@
+//! `bino budget` end to end on the committed firmware measurements (`firmware-sim/measured/`,
+//! written by `scripts/firmware.sh --out firmware-sim/measured --profile`).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde_json::Value;
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
+}
+
+fn measured(core: &str) -> Value {
+    let path = repo().join(format!("firmware-sim/measured/{core}.json"));
+    serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap()
+}
+
+#[test]
+fn budget_reports_the_committed_runs() {
+    let out = std::env::temp_dir().join(format!("bino-budget-cli-{}", std::process::id()));
+    let (json, md, png) = (out.join("budget.json"), out.join("budget.md"), out.join("budget.png"));
+    let run = Command::new(env!("CARGO_BIN_EXE_bino"))
+        .args(["budget", "--firmware", "firmware-sim/measured", "--json"])
+        .arg(&json)
+        .arg("--md")
+        .arg(&md)
+        .arg("--png")
+        .arg(&png)
+        .current_dir(repo())
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(
+        run.status.success(),
+        "{stdout}\n{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    assert_eq!(
+        std::fs::read_to_string(&md).unwrap(),
+        stdout,
+        "--md holds what was printed"
+    );
+    assert!(stdout.contains("not cycles"), "{stdout}");
+
+    let report: Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    for (i, core) in ["m55", "m7"].iter().enumerate() {
+        let run = measured(core);
+        let got = &report["cores"][i];
+        assert_eq!(got["core"], *core);
+        // The band pair is every stage the plugin counted except blob loading at boot.
+        let stages = run["stages"].as_array().unwrap();
+        let band_pair: u64 = stages
+            .iter()
+            .filter(|s| s["name"] != "load")
+            .map(|s| s["instructions"].as_u64().unwrap())
+            .sum();
+        assert_eq!(got["band_pair_instructions"], band_pair);
+        let mhz = if *core == "m55" { 400.0 } else { 480.0 };
+        let ms = got["band_pair_estimated_ms"].as_f64().unwrap();
+        assert!((ms - band_pair as f64 / (mhz * 1e3)).abs() < 1e-6, "{core}: {ms} ms");
+        assert_eq!(got["weights_flash_bytes"], run["elf_sections"][".weights"]["size"]);
+        assert_eq!(got["arena_high_water_bytes"], run["arena_used"]);
+        assert_eq!(got["outputs_bit_identical"], true, "{core}: the committed run passed");
+        assert!(
+            stdout.contains(&bino_host::budget::grouped(band_pair)),
+            "{core}: {stdout}"
+        );
+    }
+    let targets = report["targets"].as_array().unwrap();
+    assert_eq!(targets.len(), 4);
+    let png_bytes = std::fs::read(&png).unwrap();
+    assert_eq!(&png_bytes[1..4], b"PNG");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn budget_without_runs_is_a_clear_error() {
+    let empty = std::env::temp_dir().join(format!("bino-budget-empty-{}", std::process::id()));
+    std::fs::create_dir_all(&empty).unwrap();
+    let run = Command::new(env!("CARGO_BIN_EXE_bino"))
+        .args(["budget", "--firmware"])
+        .arg(&empty)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success());
+    assert!(stderr.contains("scripts/firmware.sh"), "{stderr}");
+    assert!(!stderr.contains("panicked"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&empty);
+}
