@@ -23,8 +23,10 @@ done
 
 step "firmware under QEMU: both cores, outputs bit-identical to the host, instruction counts"
 # Cortex-M55 (mps3-an547) and Cortex-M7 (mps2-an500), one 48x160 band pair each (~4 min);
-# results in out/firmware/ (see README, "Firmware").
+# results in out/firmware/ (see README, "Firmware"), then the budget report of these runs.
 scripts/firmware.sh
+cargo run -q --locked -p bino-host --bin bino -- budget --firmware out/firmware \
+  --json out/firmware/budget.json --md out/firmware/budget.md --png out/firmware/budget.png
 
 step "python: format, lints, types, tests"
 cd train

@@ -73,6 +73,7 @@ def profile(llvm_nm, elf, blocks_path, top):
             starts.append(int(parts[0], 16) & ~1)
             names.append(parts[2])
     per = {}
+    blocks = []
     total = 0
     with open(blocks_path) as f:
         for line in f:
@@ -83,17 +84,42 @@ def profile(llvm_nm, elf, blocks_path, top):
             i = bisect.bisect_right(starts, int(vaddr, 16)) - 1
             name = names[i] if i >= 0 else "?"
             per[name] = per.get(name, 0) + insns
+            blocks.append((insns, vaddr, int(n), int(executed), name))
             total += insns
     ranked = sorted(per.items(), key=lambda kv: -kv[1])[:top]
-    return total, [{"function": k, "instructions": v, "share": v / total} for k, v in ranked]
+    hot = sorted(blocks, reverse=True)[:top]
+    return (
+        total,
+        [{"function": k, "instructions": v, "share": v / total} for k, v in ranked],
+        [
+            {
+                "address": b[1],
+                "block_instructions": b[2],
+                "executions": b[3],
+                "instructions": b[0],
+                "function": b[4],
+            }
+            for b in hot
+        ],
+    )
+
+
+def sha256_file(path):
+    with open(path, "rb") as f:
+        return hashlib.sha256(f.read()).hexdigest()
 
 
 def source_state():
     """The commit measured, and whether core/ or firmware-sim/ differed from it."""
     try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], check=False, capture_output=True, text=True
+        ).stdout
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no", "core", "firmware-sim", "weights"], capture_output=True, text=True
+            ["git", "status", "--porcelain", "--untracked-files=no", "core", "firmware-sim", "weights"],
+            check=False,
+            capture_output=True,
+            text=True,
         ).stdout
         return {"commit": head.strip() or None, "core_or_firmware_modified": bool(dirty.strip())}
     except OSError:
@@ -102,7 +128,19 @@ def source_state():
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__)
-    for a in ("core", "cpu", "board", "target", "elf", "log", "counts", "llvm-size", "llvm-nm", "out", "qemu"):
+    for a in (
+        "core",
+        "cpu",
+        "board",
+        "target",
+        "elf",
+        "log",
+        "counts",
+        "llvm-size",
+        "llvm-nm",
+        "out",
+        "qemu",
+    ):
         ap.add_argument("--" + a, required=True)
     ap.add_argument("--wall", type=float, required=True)
     ap.add_argument("--exit-status", type=int, required=True)
@@ -145,7 +183,7 @@ def main():
         "result": result,
         "qemu_wall_seconds": round(args.wall, 1),
         "elf": args.elf,
-        "elf_sha256": hashlib.sha256(open(args.elf, "rb").read()).hexdigest(),
+        "elf_sha256": sha256_file(args.elf),
         "elf_sections": elf_sections(args.llvm_size, args.elf),
         "blob_bytes": header.get("blob_bytes"),
         "arena_bytes": header.get("arena_bytes"),
@@ -167,14 +205,24 @@ def main():
         "note": NOTE,
     }
     if args.profile:
-        total, top = profile(args.llvm_nm, args.elf, args.profile, 40)
+        total, top, hot = profile(args.llvm_nm, args.elf, args.profile, 40)
         report["profile_top_functions"] = top[:15]
         if args.profile_out:
             with open(args.profile_out, "w") as f:
                 f.write(f"# {args.core}: executed instructions per function (top {len(top)}; not cycles)\n")
-                for t in top:
-                    f.write(f"{t['instructions']:>14,}  {100 * t['share']:5.1f}%  {t['function']}\n")
+                f.writelines(
+                    f"{t['instructions']:>14,}  {100 * t['share']:5.1f}%  {t['function']}\n" for t in top
+                )
                 f.write(f"{total:>14,}  100.0%  total\n")
+                f.write(
+                    "\n# hottest translation blocks (llvm-objdump -d --start-address=ADDR to read them)\n"
+                )
+                f.write("#  instructions  share  address  insns/exec  executions  function\n")
+                f.writelines(
+                    f"{b['instructions']:>14,}  {100 * b['instructions'] / total:5.1f}%  {b['address']}  "
+                    f"{b['block_instructions']:>4}  {b['executions']:>12,}  {b['function']}\n"
+                    for b in hot
+                )
     with open(args.out, "w") as f:
         json.dump(report, f, indent=2)
         f.write("\n")
