@@ -110,13 +110,23 @@ def sha256_file(path):
 
 
 def source_state():
-    """The commit measured, and whether core/ or firmware-sim/ differed from it."""
+    """The commit measured, and whether core/, firmware-sim/ (but its results) or weights/ differed."""
     try:
         head = subprocess.run(
             ["git", "rev-parse", "--short", "HEAD"], check=False, capture_output=True, text=True
         ).stdout
         dirty = subprocess.run(
-            ["git", "status", "--porcelain", "--untracked-files=no", "core", "firmware-sim", "weights"],
+            [
+                "git",
+                "status",
+                "--porcelain",
+                "--untracked-files=no",
+                "--",
+                "core",
+                "firmware-sim",
+                "weights",
+                ":!firmware-sim/measured",
+            ],
             check=False,
             capture_output=True,
             text=True,
