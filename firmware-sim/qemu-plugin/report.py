@@ -165,6 +165,14 @@ def main():
     arena = next((l for l in lines if "arena_used" in l), {})
     result = next((l.get("result") for l in lines if "result" in l), "none")
     counts = parse_counts(args.counts)
+    # The plugin's buckets (startup, each stage, outside) partition every executed instruction.
+    buckets = sum(n for name, (n, _) in counts.items() if name != "total")
+    if buckets != counts.get("total", (None, 0))[0]:
+        print(
+            f"report.py: stage counts add up to {buckets}, plugin total {counts.get('total')}",
+            file=sys.stderr,
+        )
+        return 1
 
     height, width = (int(x) for x in str(header.get("band", "0x0")).split("x"))
     stages = []
