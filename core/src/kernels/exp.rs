@@ -76,6 +76,60 @@ pub fn exp_neg_u8_u32(gap: u32, to_log2_q8: Requant) -> u8 {
     exp2_neg_u8_q8(x.min(EXP2_ZERO_FROM as u64) as u32)
 }
 
+/// Largest score gap [`ExpQ32`] accepts: twice the largest `|q . k|` of `HEAD_DIM` int8 pairs.
+pub const EXP_Q32_MAX_GAP: u32 = 1 << 20;
+
+/// [`exp_neg_u8_u32`] prepared for gaps up to [`EXP_Q32_MAX_GAP`], in 32-bit arithmetic only
+/// (one high-half multiply), so a softmax row vectorises on cores without 64-bit lanes (MVE).
+///
+/// With `P = (gap << pre) * mult` and `s = shift + pre >= 33`, `(gap * mult + 2^(shift-1)) >>
+/// shift` equals `(P + 2^(s-1)) >> s` (numerator and denominator scaled by `2^pre`), and that
+/// equals `(hi(P) + 2^(s-33)) >> (s-32)` because the low word of `P` only adds a fraction below
+/// one to an integer numerator. `gap << pre < 2^32` needs `pre <= 11`: shifts from 22 up.
+/// `hi(P)` is assembled from 16-bit halves (no partial sum reaches 2^32), because LLVM's loop
+/// vectoriser does not vectorise a 64-bit product (MVE has no 64-bit lanes).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct ExpQ32 {
+    pre: u32,
+    mult_hi: u32,
+    mult_lo: u32,
+    round: u32,
+    post: u32,
+}
+
+impl ExpQ32 {
+    /// The prepared factor, or `None` for shifts below 22 (callers use [`exp_neg_u8_u32`]).
+    pub fn new(to_log2_q8: Requant) -> Option<Self> {
+        let shift = to_log2_q8.shift;
+        if !(22..=crate::fixed::MAX_SHIFT).contains(&shift) {
+            return None;
+        }
+        let pre = 33u32.saturating_sub(shift);
+        let s = shift + pre;
+        let mult = to_log2_q8.mult.max(0) as u32;
+        Some(Self {
+            pre,
+            mult_hi: mult >> 16,
+            mult_lo: mult & 0xFFFF,
+            round: 1 << (s - 33),
+            post: s - 32,
+        })
+    }
+
+    /// `exp_neg_u8_u32(gap, to_log2_q8)` for `gap <= EXP_Q32_MAX_GAP` (larger gaps are clamped
+    /// there, which only the exact path could tell apart).
+    #[inline(always)]
+    pub fn weight(&self, gap: u32) -> u8 {
+        let g = gap.min(EXP_Q32_MAX_GAP) << (self.pre & 15);
+        // g <= 2^31 and mult < 2^31: g_hi <= 2^15, mult_hi < 2^15, so `mid` <= 2^32 - 2^16.
+        let (g_hi, g_lo) = (g >> 16, g & 0xFFFF);
+        let mid = g_hi * self.mult_lo + g_lo * self.mult_hi + ((g_lo * self.mult_lo) >> 16);
+        let hi = g_hi * self.mult_hi + (mid >> 16);
+        let x = (hi + self.round) >> (self.post & 31);
+        exp2_neg_u8_q8(x.min(EXP2_ZERO_FROM))
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -109,6 +163,33 @@ mod tests {
             }
             assert_eq!(exp_neg_u8_u32(u32::MAX, r), exp_neg_u8(u32::MAX as i64, r));
         }
+    }
+
+    #[test]
+    fn q32_path_equals_the_u64_one() {
+        let mut rng = crate::testutil::Rng::new(17);
+        for shift in 22..=62u32 {
+            for mult in [1 << 30, 1_433_499_224, 1_997_098_146, i32::MAX, 1, 0] {
+                let r = Requant { mult, shift };
+                let Some(e) = ExpQ32::new(r) else {
+                    panic!("shift {shift} rejected")
+                };
+                for i in 0..300u32 {
+                    let gap = match i {
+                        0 => 0,
+                        1 => EXP_Q32_MAX_GAP,
+                        2 => EXP_Q32_MAX_GAP - 1,
+                        _ => (rng.next_u64() as u32) >> (12 + i % 20),
+                    };
+                    assert_eq!(e.weight(gap), exp_neg_u8_u32(gap, r), "{gap} {r:?}");
+                }
+            }
+        }
+        assert!(ExpQ32::new(Requant {
+            mult: 1 << 30,
+            shift: 21
+        })
+        .is_none());
     }
 
     #[test]

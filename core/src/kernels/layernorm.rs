@@ -39,8 +39,103 @@ pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
     if dim == 0 {
         return;
     }
+    if let Some(narrow) = NarrowParams::decode(p, dim) {
+        for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
+            narrow.row(row, out_row);
+        }
+        return;
+    }
     for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
         layernorm_row(row, p, out_row);
+    }
+}
+
+/// A LayerNorm's per-channel parameters decoded once into plain arrays, for formats whose
+/// values `(q - zero) * rel` fit 32 bits (`|zero|, |rel| <= 2^15`: quantiser-made formats
+/// have `|zero| < 2^9` and `rel <= 2^15`) and rows of at most [`BUFFERED_DIM`] channels. Gives
+/// the codes of [`layernorm_row`] bit for bit, with 32-bit values and one 32 x 32 -> 64-bit
+/// product per step where 64 bits are needed (the bounds are at each step).
+struct NarrowParams {
+    zero: [i32; BUFFERED_DIM],
+    rel: [i32; BUFFERED_DIM],
+    dim: usize,
+    eps: i64,
+    out: Requant,
+}
+
+/// Bound on `|zero|` and `|rel|` of [`NarrowParams`].
+const NARROW_LIMIT: u32 = 1 << 15;
+
+impl NarrowParams {
+    fn decode<Z: I32s + ?Sized, R: I32s + ?Sized>(p: &LayerNormQ<'_, Z, R>, dim: usize) -> Option<Self> {
+        if dim > BUFFERED_DIM || p.eps < 0 || !(1..=crate::fixed::MAX_SHIFT).contains(&p.out.shift) {
+            return None;
+        }
+        let mut n = NarrowParams {
+            zero: [0; BUFFERED_DIM],
+            rel: [0; BUFFERED_DIM],
+            dim,
+            eps: p.eps,
+            out: p.out,
+        };
+        for c in 0..dim {
+            let (zero, rel) = (p.zero.at(c), p.rel.at(c));
+            if zero.unsigned_abs() > NARROW_LIMIT || rel.unsigned_abs() > NARROW_LIMIT {
+                return None;
+            }
+            (n.zero[c], n.rel[c]) = (zero, rel);
+        }
+        Some(n)
+    }
+
+    /// [`layernorm_row`] of one row (`dim` codes).
+    fn row(&self, row: &[i8], out: &mut [i8]) {
+        let dim = self.dim.min(row.len()).min(out.len());
+        if dim == 0 {
+            return;
+        }
+        let (row, out) = (&row[..dim], &mut out[..dim]);
+        let d = dim as i64;
+        // |q - zero| <= 2^15 + 128 and |rel| <= 2^15: every value fits 31 bits.
+        let mut v = [0i32; BUFFERED_DIM];
+        let v = &mut v[..dim];
+        for (((x, &q), &zero), &rel) in v.iter_mut().zip(row).zip(&self.zero).zip(&self.rel) {
+            *x = (q as i32 - zero).wrapping_mul(rel);
+        }
+        let sum = v.iter().fold(0i64, |a, &x| a + x as i64);
+        let (lo, hi) = v
+            .iter()
+            .fold((i32::MAX, i32::MIN), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+        // d * v - sum grows with v: its largest magnitude is at the smallest or largest value.
+        let max_dev = (hi as i64 * d - sum).max(sum - lo as i64 * d) as u64;
+        let shift = bit_length(max_dev) as i32 - WORK_BITS;
+        // Normalised values have at most 24 significant bits (one more after rounding up).
+        let mut n = [0i32; BUFFERED_DIM];
+        let n = &mut n[..dim];
+        if shift > 0 {
+            let (half, s) = ((1i64 << (shift - 1)) - sum, shift as u32 & 63);
+            for (y, &x) in n.iter_mut().zip(v.iter()) {
+                *y = ((x as i64 * d + half) >> s) as i32;
+            }
+        } else {
+            let s = (-shift) as u32 & 63;
+            for (y, &x) in n.iter_mut().zip(v.iter()) {
+                *y = ((x as i64 * d - sum) << s) as i32;
+            }
+        }
+        // Squares < 2^50 each, at most 2^58 summed.
+        let sum_sq = n.iter().fold(0i64, |a, &y| a + y as i64 * y as i64);
+        // At most 2^21 whenever some value is non-zero (see layernorm_row); when all are zero
+        // the product is zero whatever the reciprocal, so clamping it changes nothing.
+        let recip = reciprocal_std(sum_sq / d, self.eps, d, shift).min(i32::MAX as i64);
+        let z_half = 1i64 << (RECIP_BITS - Z_FRAC_BITS - 1);
+        let (mult, out_shift) = (self.out.mult as i64, self.out.shift & 63);
+        let out_half = 1i64 << (out_shift.wrapping_sub(1) & 63);
+        for (o, &y) in out.iter_mut().zip(n.iter()) {
+            // |z| <= 2^21 and |mult| < 2^31: the output product never saturates.
+            let z = (y as i64 * recip + z_half) >> (RECIP_BITS - Z_FRAC_BITS);
+            *o = sat_i8_i64((z * mult + out_half) >> out_shift);
+        }
     }
 }
 
@@ -202,6 +297,52 @@ mod tests {
             layernorm_row(&x, &p, &mut fast);
             layernorm_row_unbuffered(&x, &p, &mut slow);
             assert_eq!(fast, slow, "trial {trial}");
+        }
+    }
+
+    #[test]
+    fn narrow_rows_equal_the_unbuffered_path() {
+        const D: usize = 128;
+        const ROWS: usize = 6;
+        let mut rng = Rng::new(29);
+        for trial in 0..60 {
+            let limit = NARROW_LIMIT as i64;
+            // Quantiser-like formats, then the largest the narrow path accepts.
+            let (zero_max, rel_lo) = if trial < 30 { (600, 1) } else { (limit, limit - 50) };
+            let zero: [i32; D] = core::array::from_fn(|_| rng.range(-zero_max, zero_max) as i32);
+            let rel: [i32; D] = core::array::from_fn(|c| {
+                if trial % 7 == 3 {
+                    rng.range(1, 4) as i32 // small scales: left shifts
+                } else if trial % 5 == 1 && c % 3 == 0 {
+                    -(rng.range(rel_lo, limit) as i32)
+                } else {
+                    rng.range(rel_lo, limit) as i32
+                }
+            });
+            let p = LayerNormQ {
+                zero: &zero,
+                rel: &rel,
+                eps: if trial % 4 == 0 { 0 } else { rng.range(0, 1 << 40) },
+                out: Requant {
+                    mult: rng.range(1 << 30, i32::MAX as i64) as i32,
+                    shift: rng.range(20, 62) as u32,
+                },
+            };
+            assert!(NarrowParams::decode(&p, D).is_some());
+            let mut x = [0i8; D * ROWS];
+            rng.fill_i8(&mut x);
+            x[..D].fill(if trial % 2 == 0 { -128 } else { 127 }); // a constant row
+            x[D..2 * D]
+                .iter_mut()
+                .enumerate()
+                .for_each(|(c, v)| *v = if c % 2 == 0 { -128 } else { 127 });
+            let mut fast = [0i8; D * ROWS];
+            layernorm_rows(&x, D, &p, &mut fast);
+            for r in 0..ROWS {
+                let mut slow = [0i8; D];
+                layernorm_row_unbuffered(&x[r * D..(r + 1) * D], &p, &mut slow);
+                assert_eq!(fast[r * D..(r + 1) * D], slow, "trial {trial} row {r}");
+            }
         }
     }
 

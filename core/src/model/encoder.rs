@@ -19,7 +19,7 @@ use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::Blob;
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
-use crate::kernels::attention::{attend_block, QUERY_BLOCK};
+use crate::kernels::attention::{attend_block, value_sums, QUERY_BLOCK};
 use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant};
 use crate::kernels::layernorm::layernorm_rows;
 use crate::kernels::lut::apply_lut;
@@ -514,6 +514,10 @@ impl AttentionPass<'_, '_> {
         let proj = &self.w.proj;
         let carry = self.w.carry_attention.from_format(self.input);
         let head_len = self.grid.tokens() * HEAD_DIM;
+        let mut sums = [[0i32; HEAD_DIM]; HEADS];
+        for (s, v_head) in sums.iter_mut().zip(values.chunks_exact(head_len)) {
+            *s = value_sums(v_head, self.grid.tokens());
+        }
         for (block, x_block) in x.chunks_mut(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
             layernorm_rows(x_block, DIM, &ln, normed);
@@ -529,7 +533,7 @@ impl AttentionPass<'_, '_> {
                 rope_token(q_acc, &query_rq, &row_angles, &col_angles, query);
             }
             let kv = keys.chunks_exact(head_len).zip(values.chunks_exact(head_len));
-            for (head, ((k_head, v_head), p)) in kv.zip(self.w.attention.iter()).enumerate() {
+            for (head, (((k_head, v_head), p), sums)) in kv.zip(self.w.attention.iter()).zip(&sums).enumerate() {
                 let part = head * HEAD_DIM..(head + 1) * HEAD_DIM;
                 let query_tokens = queries.get(..count * DIM).unwrap_or_default().chunks(QUERY_BLOCK * DIM);
                 let out_tokens = attended
@@ -542,7 +546,7 @@ impl AttentionPass<'_, '_> {
                         q.copy_from_slice(&token[part.clone()]);
                     }
                     let mut out_block = [[0i8; HEAD_DIM]; QUERY_BLOCK];
-                    attend_block(&q_block, k_head, v_head, p, scores, softmax, &mut out_block);
+                    attend_block(&q_block, k_head, v_head, sums, p, scores, softmax, &mut out_block);
                     for (o, token) in out_block.iter().zip(o_tokens.chunks_exact_mut(DIM)) {
                         token[part.clone()].copy_from_slice(o);
                     }
