@@ -5,7 +5,7 @@
 #
 #   scripts/firmware.sh [--band full|small] [--out DIR] [--profile] [--core m55|m7]
 #
-#   --band full    one 48x160 band pair, the target size (default; about 2.5 min of QEMU
+#   --band full    one 48x160 band pair, the target size (default; about 2 min of QEMU
 #                  for the M55 and 1 min for the M7 on a 2-core EPYC VM)
 #   --band small   a 48x32 band pair: the same code, bit-identity only, 20 s
 #   --out DIR      where the results go (default out/firmware)
@@ -26,7 +26,7 @@ while [ $# -gt 0 ]; do
     --out) out="$2"; shift 2 ;;
     --profile) want_profile=1; shift ;;
     --core) cores="$2"; shift 2 ;;
-    -h|--help) sed -n '2,18p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
     *) echo "unknown argument $1" >&2; exit 2 ;;
   esac
 done
