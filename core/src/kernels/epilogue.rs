@@ -166,11 +166,84 @@ pub fn residual_add<Z, M, B, M2, Z2>(
     if n == 0 {
         return;
     }
-    for (x_row, acc_row) in x.chunks_exact_mut(n).zip(acc.chunks_exact(n)) {
-        for (c, (xq, &a)) in x_row.iter_mut().zip(acc_row).enumerate() {
-            let value = carry.apply(c, *xq) + delta.apply(c, a) + new_zero.at(c) as i64;
-            *xq = sat_i8_i64(value);
+    let rows = x.len().min(acc.len()) / n;
+    let mut start = 0;
+    while start < n {
+        let len = (n - start).min(CHANNEL_CHUNK);
+        match (
+            ChunkParams::decode(delta, start, len),
+            CarryParams::decode(carry, start, len),
+        ) {
+            (Some(d), Some(k)) => {
+                let mut zeros = [0i64; CHANNEL_CHUNK];
+                for (i, z) in zeros[..len].iter_mut().enumerate() {
+                    *z = new_zero.at(start + i) as i64;
+                }
+                for r in 0..rows {
+                    let at = r * n + start..r * n + start + len;
+                    let (Some(x_part), Some(acc_part)) = (x.get_mut(at.clone()), acc.get(at)) else {
+                        break;
+                    };
+                    for (i, (xq, &a)) in x_part.iter_mut().zip(acc_part).enumerate() {
+                        *xq = sat_i8_i64(k.apply(i, *xq) + d.apply(i, a) + zeros[i % CHANNEL_CHUNK]);
+                    }
+                }
+            }
+            _ => {
+                for r in 0..rows {
+                    for c in start..start + len {
+                        let i = r * n + c;
+                        if let (Some(xq), Some(&a)) = (x.get_mut(i), acc.get(i)) {
+                            let value = carry.apply(c, *xq) + delta.apply(c, a) + new_zero.at(c) as i64;
+                            *xq = sat_i8_i64(value);
+                        }
+                    }
+                }
+            }
         }
+        start += len;
+    }
+}
+
+/// One chunk of a [`ChannelRescale`] decoded into plain arrays, for zero points within
+/// `2^15` (quantiser-made formats: below `2^9`): `|q - zero| < 2^16` and `|mult| <= 2^31` keep
+/// the product below `2^47`, so no saturation is reachable and plain arithmetic equals
+/// [`ChannelRescale::apply`] bit for bit.
+struct CarryParams {
+    zero: [i32; CHANNEL_CHUNK],
+    mult: [i32; CHANNEL_CHUNK],
+    shift: [u32; CHANNEL_CHUNK],
+}
+
+impl CarryParams {
+    fn decode<Z: I32s + ?Sized, M: I32s + ?Sized>(
+        carry: &ChannelRescale<'_, Z, M>,
+        start: usize,
+        len: usize,
+    ) -> Option<Self> {
+        let mut p = CarryParams {
+            zero: [0; CHANNEL_CHUNK],
+            mult: [0; CHANNEL_CHUNK],
+            shift: [1; CHANNEL_CHUNK],
+        };
+        for i in 0..len.min(CHANNEL_CHUNK) {
+            let c = start + i;
+            let (zero, shift) = (carry.zero.at(c), carry.shift.get(c).copied().unwrap_or(1) as u32);
+            if zero.unsigned_abs() > 1 << 15 || !(1..=62).contains(&shift) {
+                return None;
+            }
+            (p.zero[i], p.mult[i], p.shift[i]) = (zero, carry.mult.at(c), shift);
+        }
+        Some(p)
+    }
+
+    /// [`ChannelRescale::apply`] for channel `start + i`, without saturation (see the type).
+    #[inline(always)]
+    fn apply(&self, i: usize, q: i8) -> i64 {
+        let i = i % CHANNEL_CHUNK;
+        let product = (q as i32 - self.zero[i]) as i64 * self.mult[i] as i64;
+        let shift = self.shift[i] & 63;
+        (product + (1i64 << (shift.wrapping_sub(1) & 63))) >> shift
     }
 }
 
@@ -247,6 +320,52 @@ mod tests {
                     sat_i8_i64(rq.apply(c, a) + zero[c] as i64),
                     "trial {trial} index {i}"
                 );
+            }
+        }
+    }
+
+    #[test]
+    fn residual_add_equals_the_per_channel_formula_across_chunks() {
+        const N: usize = 130;
+        let mut rng = Rng::new(13);
+        for trial in 0..6 {
+            let mult: [i32; N] = core::array::from_fn(|_| rng.range(1 << 30, i32::MAX as i64) as i32);
+            let shift: [u8; N] = core::array::from_fn(|_| rng.range(20, 45) as u8);
+            let cmult: [i32; N] = core::array::from_fn(|_| rng.range(1 << 30, i32::MAX as i64) as i32);
+            let cshift: [u8; N] = core::array::from_fn(|_| rng.range(28, 34) as u8);
+            let mut bias: [i32; N] = core::array::from_fn(|_| rng.range(-1 << 20, 1 << 20) as i32);
+            let mut zero: [i32; N] = core::array::from_fn(|_| rng.range(-300, 300) as i32);
+            if trial >= 3 {
+                // Parameters no quantiser makes: those chunks take the saturating path.
+                bias[70] = i32::MIN;
+                zero[5] = i32::MAX;
+            }
+            let new_zero: [i32; N] = core::array::from_fn(|_| rng.range(-128, 127) as i32);
+            let delta = ChannelRequant {
+                bias: &bias,
+                mult: &mult,
+                shift: &shift,
+            };
+            let carry = ChannelRescale {
+                zero: &zero,
+                mult: &cmult,
+                shift: &cshift,
+            };
+            let acc: [i32; 3 * N] = core::array::from_fn(|_| {
+                if trial % 3 == 2 {
+                    rng.range(i32::MIN as i64, i32::MAX as i64) as i32
+                } else {
+                    rng.range(-1 << 24, 1 << 24) as i32
+                }
+            });
+            let mut x = [0i8; 3 * N];
+            rng.fill_i8(&mut x);
+            let before = x;
+            residual_add(&mut x, &carry, &acc, &delta, &new_zero);
+            for i in 0..3 * N {
+                let c = i % N;
+                let want = sat_i8_i64(carry.apply(c, before[i]) + delta.apply(c, acc[i]) + new_zero[c] as i64);
+                assert_eq!(x[i], want, "trial {trial} index {i}");
             }
         }
     }

@@ -447,27 +447,16 @@ impl AttentionPass<'_, '_> {
         let ln = self.w.norm1.with_input(self.input);
         let qkv = &self.w.qkv;
         let kv_weights = qkv.weight.get(DIM * DIM..3 * DIM * DIM).unwrap_or(&[]);
-        let key_bias = Offset {
-            inner: &qkv.bias,
-            start: DIM,
-        };
-        let key_mult = Offset {
-            inner: &qkv.mult,
-            start: DIM,
-        };
+        // Per-channel parameters decoded from the blob once per pass, not once per token.
+        let key_bias = decode_channels(&qkv.bias, DIM);
+        let key_mult = decode_channels(&qkv.mult, DIM);
         let key_rq = ChannelRequant {
             bias: &key_bias,
             mult: &key_mult,
             shift: qkv.shift.get(DIM..2 * DIM).unwrap_or(&[]),
         };
-        let value_bias = Offset {
-            inner: &qkv.bias,
-            start: 2 * DIM,
-        };
-        let value_mult = Offset {
-            inner: &qkv.mult,
-            start: 2 * DIM,
-        };
+        let value_bias = decode_channels(&qkv.bias, 2 * DIM);
+        let value_mult = decode_channels(&qkv.mult, 2 * DIM);
         let value_rq = ChannelRequant {
             bias: &value_bias,
             mult: &value_mult,
@@ -510,7 +499,12 @@ impl AttentionPass<'_, '_> {
         let ln = self.w.norm1.with_input(self.input);
         let qkv = &self.w.qkv;
         let q_weights = qkv.weight.get(..DIM * DIM).unwrap_or(&[]);
-        let query_rq = qkv.requant();
+        let (query_bias, query_mult) = (decode_channels(&qkv.bias, 0), decode_channels(&qkv.mult, 0));
+        let query_rq = ChannelRequant {
+            bias: &query_bias,
+            mult: &query_mult,
+            shift: qkv.shift.get(..DIM).unwrap_or(&[]),
+        };
         let proj = &self.w.proj;
         let carry = self.w.carry_attention.from_format(self.input);
         let head_len = self.grid.tokens() * HEAD_DIM;
@@ -599,6 +593,11 @@ fn mlp(
         apply_lut(hidden, w.gelu);
         project_add(&w.fc2, hidden, acc, x_block, &carry, &output.zero);
     }
+}
+
+/// `DIM` per-channel values of a blob array from `start` on (zeros past its end).
+fn decode_channels(values: &crate::blob::Le<'_, i32>, start: usize) -> [i32; DIM] {
+    core::array::from_fn(|c| values.at(start + c))
 }
 
 /// Writes one token's `DIM` codes into a `[head][token][HEAD_DIM]` store.
