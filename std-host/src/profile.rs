@@ -190,6 +190,26 @@ pub fn resize_nearest<T: Copy>(src: &[T], sw: usize, sh: usize, dw: usize, dh: u
         .collect()
 }
 
+/// Loads a stereo pair and applies `profile` to both views; views of different sizes, or a size
+/// the profile cannot take, are errors naming the files.
+pub fn load_profiled_pair(left: &std::path::Path, right: &std::path::Path, profile: Profile) -> Result<(View, View)> {
+    use anyhow::Context;
+    let (l, r) = (crate::image_io::load_gray(left)?, crate::image_io::load_gray(right)?);
+    ensure!(
+        (l.width, l.height) == (r.width, r.height),
+        "the views differ in size: {} is {}x{}, {} is {}x{}",
+        left.display(),
+        l.width,
+        l.height,
+        right.display(),
+        r.width,
+        r.height
+    );
+    let apply =
+        |image: &GrayImage, path: &std::path::Path| profile.apply(image).with_context(|| format!("{}", path.display()));
+    Ok((apply(&l, left)?, apply(&r, right)?))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -18,8 +18,8 @@ use bino_core::sgm::Penalties;
 use crate::compare::head::FloatHeadRunner;
 use crate::eval::float_twins::{consistent, right_view, sgm};
 use crate::eval::{
-    density, load_eval_item, mean_metrics, score, score_sparse, similarity_volume, upsample_disparity, wta_subtoken,
-    DisparityMap, EvalItem, GroundTruthMap, Metrics, PIXELS_PER_PATCH_COLUMN,
+    density, load_eval_item, mean_metrics, score, score_sparse, similarity_volume, upsample_disparity, upsample_mask,
+    wta_subtoken, DisparityMap, EvalItem, GroundTruthMap, Metrics,
 };
 use crate::int8::{to_u8, Int8Model};
 use crate::json::Object;
@@ -283,7 +283,7 @@ impl ReadoutMaps {
         let metrics = score(&pixels, gt)?;
         let (lr_keep, gt_lr_epe) = match mask {
             Some(mask) => {
-                let keep = pixel_mask(mask, tokens.width, pixels.width, pixels.height);
+                let keep = upsample_mask(mask, tokens.width, pixels.width, pixels.height);
                 let restricted = GroundTruthMap {
                     valid: gt.valid.iter().zip(&keep).map(|(&g, &k)| g && k).collect(),
                     ..gt.clone()
@@ -370,20 +370,6 @@ fn sgbm_metrics(runner: &SgbmRunner, items: &[EvalItem]) -> Result<Vec<Metrics>>
         .zip(items)
         .map(|((disparity, valid), item)| {
             score_sparse(disparity, valid, &item.gt).with_context(|| format!("pair {}: SGBM", item.pair_id))
-        })
-        .collect()
-}
-
-/// Token-grid validity to pixels (each cell covers a 4x4 block).
-fn pixel_mask(tokens: &[bool], cols: usize, width: usize, height: usize) -> Vec<bool> {
-    let cell = PIXELS_PER_PATCH_COLUMN;
-    (0..width * height)
-        .map(|i| {
-            let (y, x) = (i / width, i % width);
-            tokens
-                .get((y / cell) * cols + (x / cell).min(cols.saturating_sub(1)))
-                .copied()
-                .unwrap_or(false)
         })
         .collect()
 }

@@ -5,15 +5,15 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{Context, Result};
 use bino_core::pipeline::{Options as PipelineOptions, Report as PipelineReport, Stage};
 use bino_core::sgm::Penalties;
 
 use crate::colour::colourise;
-use crate::eval::{fill_invalid, upsample_disparity, DisparityMap, PIXELS_PER_PATCH_COLUMN};
-use crate::image_io::load_gray;
+use crate::eval::{fill_invalid, upsample_disparity, upsample_mask, DisparityMap};
 use crate::int8::Int8Model;
 use crate::pipeline_maps::run_pipeline;
+use crate::profile::load_profiled_pair;
 use crate::profile::Profile;
 use crate::readout_eval::Readout;
 
@@ -70,25 +70,7 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         Instant::now()
     };
     let started = step("loading the pair and the blob", &mut timings, &mut progress);
-    let (left_image, right_image) = (load_gray(&opts.left)?, load_gray(&opts.right)?);
-    ensure!(
-        (left_image.width, left_image.height) == (right_image.width, right_image.height),
-        "the views differ in size: {} is {}x{}, {} is {}x{}",
-        opts.left.display(),
-        left_image.width,
-        left_image.height,
-        opts.right.display(),
-        right_image.width,
-        right_image.height
-    );
-    let left = opts
-        .profile
-        .apply(&left_image)
-        .with_context(|| format!("{}", opts.left.display()))?;
-    let right = opts
-        .profile
-        .apply(&right_image)
-        .with_context(|| format!("{}", opts.right.display()))?;
+    let (left, right) = load_profiled_pair(&opts.left, &opts.right, opts.profile)?;
     let model = Int8Model::load(&opts.blob)?;
     finish(&mut timings, started);
 
@@ -119,7 +101,7 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         Readout::Head => (&maps.head, &maps.sgm_consistent),
     };
     let disparity = upsample_disparity(tokens);
-    let valid = pixel_mask(consistent, tokens.width, disparity.width, disparity.height);
+    let valid = upsample_mask(consistent, tokens.width, disparity.width, disparity.height);
     let filled = fill_invalid(&disparity, &valid);
     finish(&mut timings, started);
 
@@ -143,20 +125,6 @@ fn finish(timings: &mut [(&'static str, Duration)], started: Instant) {
     if let Some(last) = timings.last_mut() {
         last.1 = started.elapsed();
     }
-}
-
-/// Token-grid validity to pixels (each cell covers a 4x4 block).
-fn pixel_mask(tokens: &[bool], cols: usize, width: usize, height: usize) -> Vec<bool> {
-    let cell = PIXELS_PER_PATCH_COLUMN;
-    (0..width * height)
-        .map(|i| {
-            let (y, x) = (i / width, i % width);
-            tokens
-                .get((y / cell) * cols + (x / cell).min(cols.saturating_sub(1)))
-                .copied()
-                .unwrap_or(false)
-        })
-        .collect()
 }
 
 fn write_outputs(out: &Path, disparity: &DisparityMap, valid: &[bool]) -> Result<Vec<PathBuf>> {

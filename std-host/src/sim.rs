@@ -13,7 +13,7 @@ pub mod sensor;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{ensure, Result};
 use bino_core::config::HEAD_MAX_DISP;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
@@ -27,9 +27,9 @@ use embedded_graphics::primitives::Rectangle;
 use embedded_graphics::text::{Baseline, Text};
 
 use crate::colour::colourise;
-use crate::image_io::{load_gray, GrayImage};
+use crate::image_io::GrayImage;
 use crate::int8::{to_u8, Int8Model};
-use crate::profile::Profile;
+use crate::profile::{load_profiled_pair, Profile, View};
 use crate::readout_eval::Readout;
 use crate::synthetic::default_scene;
 use display::{DisplaySize, Framebuffer};
@@ -198,26 +198,10 @@ fn load_pair(opts: &SimOptions) -> Result<(String, GrayImage, GrayImage)> {
         let scene = default_scene(w, h);
         return Ok(("built-in scene".to_string(), scene.left, scene.right));
     };
-    let (left, right) = (load_gray(left_path)?, load_gray(right_path)?);
-    ensure!(
-        (left.width, left.height) == (right.width, right.height),
-        "the views differ in size: {} is {}x{}, {} is {}x{}",
-        left_path.display(),
-        left.width,
-        left.height,
-        right_path.display(),
-        right.width,
-        right.height
-    );
-    let apply = |image: &GrayImage, path: &PathBuf| -> Result<GrayImage> {
-        let view = opts
-            .profile
-            .apply(image)
-            .with_context(|| format!("{}", path.display()))?;
-        GrayImage::new(view.width, view.height, to_u8(&view.pixels))
-    };
+    let (left, right) = load_profiled_pair(left_path, right_path, opts.profile)?;
+    let gray = |view: &View| GrayImage::new(view.width, view.height, to_u8(&view.pixels));
     let source = format!("{} + {} ({})", left_path.display(), right_path.display(), opts.profile);
-    Ok((source, apply(&left, left_path)?, apply(&right, right_path)?))
+    Ok((source, gray(&left)?, gray(&right)?))
 }
 
 fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {

@@ -20,7 +20,7 @@ pub use metrics::{density, fill_invalid, mean_metrics, score, score_sparse, Metr
 pub use nearest::resize_nearest_exact;
 pub use nolink::{no_linkage_disparity, similarity_volume, wta_subtoken, SimilarityVolume, DEFAULT_MAX_COLS};
 pub use set::{load_eval_item, load_eval_set, EvalItem};
-pub use upsample::{resize_bilinear, upsample_disparity, PIXELS_PER_PATCH_COLUMN};
+pub use upsample::{resize_bilinear, upsample_disparity, upsample_mask, PIXELS_PER_PATCH_COLUMN};
 
 /// A row-major map of disparities: one value per token (in patch columns) for a token grid,
 /// or one per pixel (in pixels) for a view; the producing function says which.

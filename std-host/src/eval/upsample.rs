@@ -20,6 +20,21 @@ pub fn upsample_disparity(tokens: &DisparityMap) -> DisparityMap {
     }
 }
 
+/// Token-grid validity (`cols` per row) to pixels of a `width` x `height` view: each cell
+/// covers its 4x4 block; pixels right of the last cell take the last cell's flag.
+pub fn upsample_mask(tokens: &[bool], cols: usize, width: usize, height: usize) -> Vec<bool> {
+    let cell = PIXELS_PER_PATCH_COLUMN;
+    (0..width * height)
+        .map(|i| {
+            let (y, x) = (i / width, i % width);
+            tokens
+                .get((y / cell) * cols + (x / cell).min(cols.saturating_sub(1)))
+                .copied()
+                .unwrap_or(false)
+        })
+        .collect()
+}
+
 /// Resizes a row-major `sw` x `sh` image to `dw` x `dh` like `cv2.resize(..., INTER_LINEAR)` on
 /// float32 input: pixel-centre alignment, edge pixels clamped, rows interpolated first.
 pub fn resize_bilinear(src: &[f32], sw: usize, sh: usize, dw: usize, dh: usize) -> Vec<f32> {
@@ -76,6 +91,16 @@ fn linear_taps(src: usize, dst: usize) -> Vec<Taps> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_cell_flag_covers_its_four_by_four_block() {
+        // 2 x 2 cells over an 10 x 8 view: columns 8 and 9 take the last cell's flag.
+        let mask = upsample_mask(&[true, false, false, true], 2, 10, 8);
+        let at = |x: usize, y: usize| mask[y * 10 + x];
+        assert!(at(0, 0) && at(3, 3) && !at(4, 0) && !at(9, 3));
+        assert!(!at(0, 4) && !at(3, 7) && at(4, 4) && at(9, 7));
+        assert_eq!(mask.iter().filter(|&&m| m).count(), 4 * 4 + 6 * 4);
+    }
 
     #[test]
     fn constant_grid_stays_constant_in_pixels() {
