@@ -127,7 +127,13 @@ pub fn attend_block(
     // The head size as an opaque run-time value: with a constant 32, LLVM unrolls each dot
     // product and vectorises it over 32-bit lanes; a loop of unknown length becomes a
     // tail-predicated 16-lane `vmladav.s8` loop on MVE, as in the matrix multiply.
-    let hd = core::hint::black_box(HEAD_DIM);
+    // On Cortex-M7 (`bino_dsp`, no vector unit) the constant size is the better one: the
+    // unrolled two-row products address keys and queries by constant offsets.
+    let hd = if cfg!(bino_dsp) {
+        HEAD_DIM
+    } else {
+        core::hint::black_box(HEAD_DIM)
+    };
     let [q0, q1, q2, q3] = queries.each_ref().map(|q| q.get(..hd).unwrap_or(&[]));
     let score_slots = s0.iter_mut().zip(s1.iter_mut()).zip(s2.iter_mut()).zip(s3.iter_mut());
     for ((((x0, x1), x2), x3), k) in score_slots.zip(keys.chunks_exact(hd)) {
