@@ -10,6 +10,19 @@
 /// `m = a.len() / k`, `n = w.len() / k`; `out` should hold `m * n` values (a shorter `out`
 /// gets fewer rows). `k` must be at most 2^17 so sums of int8 products cannot overflow.
 pub fn matmul_i8(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
+    // Cortex-M7 (`bino_dsp`): the model width as a constant, so the two-row products unroll
+    // with constant offsets.
+    if cfg!(bino_dsp) && k == crate::config::DIM {
+        matmul_body(a, w, crate::config::DIM, out)
+    } else if cfg!(bino_dsp) && k == crate::config::MLP_HIDDEN {
+        matmul_body(a, w, crate::config::MLP_HIDDEN, out)
+    } else {
+        matmul_body(a, w, k, out)
+    }
+}
+
+#[inline(always)]
+fn matmul_body(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     if k == 0 || w.len() < k {
         out.fill(0);
         return;
