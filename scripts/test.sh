@@ -12,6 +12,8 @@ scripts/setup.sh
 step "rust: format and lints"
 cargo fmt --all --check
 cargo clippy --workspace --all-targets --locked -- -D warnings
+# The engine's API documentation must build without broken links.
+RUSTDOCFLAGS="-D warnings" cargo doc -p bino-core --no-deps --locked -q
 
 step "rust: tests"
 cargo test --workspace --locked

@@ -1,7 +1,7 @@
 //! Carving a caller-provided byte arena into the typed buffers of a run.
 //!
 //! The engine never allocates: firmware declares a `static` arena of the size a `const fn`
-//! gives (e.g. [`crate::encoder::arena_bytes`]) and passes it in; host code passes a `Vec`.
+//! gives (e.g. [`crate::model::encoder::arena_bytes`]) and passes it in; host code passes a `Vec`.
 //! Buffers are cut from the front in a fixed order, so the bytes used are known before the
 //! run and the high-water mark is exactly what was cut.
 

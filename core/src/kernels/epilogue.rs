@@ -123,7 +123,7 @@ impl ChunkParams {
     }
 }
 
-/// The residual stream's per-channel int8 format: real value = scale[c] * (q - zero[c]).
+/// The residual stream's per-channel int8 format: real value = `scale[c] * (q - zero[c])`.
 /// The scales themselves never appear in the int8 path: only ratios between formats do.
 #[derive(Clone, Copy)]
 pub struct ChannelRescale<'p, Z: I32s + ?Sized, M: I32s + ?Sized> {

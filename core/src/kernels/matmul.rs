@@ -124,7 +124,7 @@ pub fn dot4<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 
 /// `bino_dsp`): four accumulators, five row pointers and the loop state do not fit the
 /// registers of Armv7E-M, and LLVM spills in the four-row loop (66 instructions per 16
 /// products in the matrix multiply, 59 as two two-row passes that read `w` twice). Same sums
-/// as [`dot4_portable`], over the common length of the rows.
+/// as `dot4_portable`, over the common length of the rows.
 #[inline(always)]
 pub fn dot4_pairs<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
     let len = w.len().min(a0.len()).min(a1.len()).min(a2.len()).min(a3.len());
