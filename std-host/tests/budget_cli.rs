@@ -1,14 +1,12 @@
 //! `bino budget` end to end on the committed firmware measurements (`firmware-sim/measured/`,
 //! written by `scripts/firmware.sh --out firmware-sim/measured --profile`).
 
-use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use serde_json::Value;
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
+mod common;
+use common::repo;
 
 fn measured(core: &str) -> Value {
     let path = repo().join(format!("firmware-sim/measured/{core}.json"));

@@ -2,34 +2,19 @@
 //! clear error naming the file, a non-zero exit and no panic.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
 use bino_host::npz;
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
+mod common;
+use common::{bino, repo, s, scratch_dir};
 
 fn random_onnx() -> PathBuf {
     repo().join("tests/fixtures/encoder_random_seed0.onnx")
 }
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("bino-cli-{}-{name}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn bino(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bino"))
-        .args(args)
-        .current_dir(repo())
-        .output()
-        .unwrap()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
+    scratch_dir(&format!("cli-{name}"))
 }
 
 fn assert_fails_with(out: &Output, needles: &[&str]) {

@@ -3,14 +3,13 @@
 //! run and write sane JSON, not how fast or how close the engines are.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 use std::sync::OnceLock;
 
 use serde_json::Value;
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
+mod common;
+use common::{bino, repo, s, scratch_dir};
 
 fn fixture_onnx() -> PathBuf {
     repo().join("tests/fixtures/encoder_random_seed0.onnx")
@@ -21,21 +20,7 @@ fn data_dir() -> PathBuf {
 }
 
 fn scratch() -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("bino-compare-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
-}
-
-fn bino(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bino"))
-        .args(args)
-        .current_dir(repo())
-        .output()
-        .unwrap()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
+    scratch_dir("compare-bench")
 }
 
 fn assert_ok(out: &Output) {

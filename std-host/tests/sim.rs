@@ -3,33 +3,19 @@
 //! a clear error and a non-zero exit.
 
 use std::collections::HashSet;
-use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::path::PathBuf;
 
 use bino_host::sim::display::DisplaySize;
 use bino_host::sim::{Layout, DEFAULT_SCENE, REJECTED};
 
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).parent().unwrap().to_path_buf()
-}
+mod common;
+use common::{bino, s, scratch_dir};
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("bino-sim-{}-{name}", std::process::id()));
+    let dir = scratch_dir(&format!("sim-{name}"));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     dir
-}
-
-fn bino(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_bino"))
-        .args(args)
-        .current_dir(repo())
-        .output()
-        .unwrap()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 #[test]
