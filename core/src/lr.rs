@@ -6,7 +6,7 @@
 //! right cell it lands on reads (nearly) the same disparity; the kept fraction is the paper's
 //! `LRkeep`.
 
-use crate::matching::{DISPARITY_FRAC_BITS, MAX_CANDIDATES};
+use crate::matching::{check_candidates, DISPARITY_FRAC_BITS, MAX_CANDIDATES};
 use crate::sgm::{refine_min, COST_EXCLUDED};
 use crate::Error;
 
@@ -80,12 +80,7 @@ pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [
 }
 
 fn check_costs(costs: &[u16], candidates: usize) -> Result<usize, Error> {
-    if !(1..=MAX_CANDIDATES).contains(&candidates) {
-        return Err(Error::Candidates {
-            requested: candidates,
-            max: MAX_CANDIDATES,
-        });
-    }
+    check_candidates(candidates)?;
     if costs.is_empty() {
         return Err(Error::EmptyImage);
     }

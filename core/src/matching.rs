@@ -43,18 +43,8 @@ pub fn match_row(
     max_cols: usize,
     out: &mut [u16],
 ) -> Result<(), Error> {
-    let cells = check_row(left, dim)?;
-    if right.len() != left.len() {
-        return Err(Error::PairMismatch);
-    }
-    check_len("right inverse norms", right_inv_norms.len(), cells)?;
+    let cells = check_pair(left, right, right_inv_norms, dim, max_cols)?;
     check_len("disparity row", out.len(), cells)?;
-    if !(1..=MAX_CANDIDATES).contains(&max_cols) {
-        return Err(Error::Candidates {
-            requested: max_cols,
-            max: MAX_CANDIDATES,
-        });
-    }
     let mut sims = [0i64; MAX_CANDIDATES];
     for (p, (l, o)) in left.chunks_exact(dim).zip(out.iter_mut()).enumerate() {
         let candidates = max_cols.min(p + 1);
@@ -82,18 +72,8 @@ pub fn cost_row(
     out: &mut [u16],
 ) -> Result<(), Error> {
     use crate::sgm::{COST_EXCLUDED, COST_ONE};
-    let cells = check_row(left, dim)?;
-    if right.len() != left.len() {
-        return Err(Error::PairMismatch);
-    }
+    let cells = check_pair(left, right, right_inv_norms, dim, max_cols)?;
     check_len("left inverse norms", left_inv_norms.len(), cells)?;
-    check_len("right inverse norms", right_inv_norms.len(), cells)?;
-    if !(1..=MAX_CANDIDATES).contains(&max_cols) {
-        return Err(Error::Candidates {
-            requested: max_cols,
-            max: MAX_CANDIDATES,
-        });
-    }
     check_len("cost row", out.len(), cells * max_cols)?;
     for (p, (l, costs)) in left.chunks_exact(dim).zip(out.chunks_exact_mut(max_cols)).enumerate() {
         let inv_l = left_inv_norms.get(p).copied().unwrap_or(0) as i64;
@@ -144,6 +124,30 @@ fn refine(sims: &[i64], max_cols: usize) -> u16 {
         _ => 0,
     };
     (base + step).clamp(0, u16::MAX as i64) as u16
+}
+
+/// What [`match_row`] and [`cost_row`] both need: a well-formed left row, a right row of the
+/// same length with its inverse norms, and a supported candidate count; returns the cells.
+fn check_pair(left: &[i8], right: &[i8], right_inv_norms: &[u32], dim: usize, max_cols: usize) -> Result<usize, Error> {
+    let cells = check_row(left, dim)?;
+    if right.len() != left.len() {
+        return Err(Error::PairMismatch);
+    }
+    check_len("right inverse norms", right_inv_norms.len(), cells)?;
+    check_candidates(max_cols)?;
+    Ok(cells)
+}
+
+/// `1..=MAX_CANDIDATES` disparity candidates.
+pub(crate) fn check_candidates(candidates: usize) -> Result<(), Error> {
+    if (1..=MAX_CANDIDATES).contains(&candidates) {
+        Ok(())
+    } else {
+        Err(Error::Candidates {
+            requested: candidates,
+            max: MAX_CANDIDATES,
+        })
+    }
 }
 
 fn check_row(row: &[i8], dim: usize) -> Result<usize, Error> {

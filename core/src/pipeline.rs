@@ -19,7 +19,7 @@ use crate::arena::{Carver, ALIGN_SLACK};
 use crate::band::{Band, BandPlan};
 use crate::config::{check_view_size, BAND_TOKEN_ROWS, CELL_W, DIM, PATCH_H};
 use crate::lr::{consistent_row, right_view_costs, wta_costs};
-use crate::matching::{cost_row, inverse_norms, match_row, MAX_CANDIDATES};
+use crate::matching::{check_candidates, cost_row, inverse_norms, match_row};
 use crate::model::encoder::{self, Encoder, GrayBand};
 use crate::model::head::{self, HeadRow, HeadSink, HeadStream, HeadWeights};
 use crate::model::probe::NoProbe;
@@ -307,12 +307,7 @@ impl<'w> Pipeline<'w> {
                 max: self.encoder.max_width(),
             });
         }
-        if !(1..=MAX_CANDIDATES).contains(&opts.max_cols) {
-            return Err(Error::Candidates {
-                requested: opts.max_cols,
-                max: MAX_CANDIDATES,
-            });
-        }
+        check_candidates(opts.max_cols)?;
         let head = match (opts.head, self.head) {
             (true, Some(w)) => Some(w),
             (true, None) => return Err(Error::Blob(crate::blob::BlobError::MissingTensor { id: head_id() })),

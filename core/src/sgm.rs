@@ -7,7 +7,7 @@
 //! Memory: the previous row's vertical and diagonal aggregates and the current row's cost and
 //! sum (`cols x candidates` each); never the cost volume of the image.
 
-use crate::matching::{DISPARITY_FRAC_BITS, MAX_CANDIDATES};
+use crate::matching::{check_candidates, DISPARITY_FRAC_BITS, MAX_CANDIDATES};
 use crate::Error;
 
 /// Cosine similarity unit of the costs: `cost = COST_ONE * (1 - cos)`, in `0..=2 * COST_ONE`.
@@ -55,12 +55,7 @@ impl<'a> SgmStream<'a> {
         if cols == 0 {
             return Err(Error::EmptyImage);
         }
-        if !(1..=MAX_CANDIDATES).contains(&candidates) {
-            return Err(Error::Candidates {
-                requested: candidates,
-                max: MAX_CANDIDATES,
-            });
-        }
+        check_candidates(candidates)?;
         let len = state_len(cols, candidates);
         for (what, found) in [
             ("SGM vertical state", vertical.len()),
