@@ -14,7 +14,7 @@
 //! # Ok::<(), bino_core::Error>(())
 //! ```
 
-use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS};
+use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS, MAX_HEIGHT, MAX_TOKEN_ROWS, PATCH_H};
 use crate::Error;
 
 /// One band, in token rows of the whole image.
@@ -38,10 +38,17 @@ pub struct BandPlan {
 }
 
 impl BandPlan {
-    /// Plans the bands of an image with `token_rows` token rows (image rows / 4).
+    /// Plans the bands of an image with `token_rows` token rows (image rows / 4), at most
+    /// [`MAX_TOKEN_ROWS`]: beyond it the plan is [`Error::TooTall`], so band starts never wrap.
     pub fn new(token_rows: usize) -> Result<Self, Error> {
         if token_rows == 0 {
             return Err(Error::EmptyImage);
+        }
+        if token_rows > MAX_TOKEN_ROWS {
+            return Err(Error::TooTall {
+                height: token_rows.saturating_mul(PATCH_H),
+                max: MAX_HEIGHT,
+            });
         }
         let count = if token_rows <= BAND_TOKEN_ROWS {
             1
@@ -62,11 +69,13 @@ impl BandPlan {
     }
 
     fn start(&self, index: usize) -> usize {
-        if self.count == 1 {
-            0
-        } else {
-            index * (self.token_rows - BAND_TOKEN_ROWS) / (self.count - 1)
-        }
+        // index < count <= MAX_TOKEN_ROWS and the span is below MAX_TOKEN_ROWS, so the product
+        // stays below 2^28; checked all the same, a wrap would end the plan (`get` gives None).
+        let span = self.token_rows.saturating_sub(BAND_TOKEN_ROWS);
+        index
+            .checked_mul(span)
+            .and_then(|x| x.checked_div(self.count - 1))
+            .unwrap_or(0)
     }
 
     fn cut(&self, index: usize) -> usize {
@@ -145,6 +154,24 @@ mod tests {
             })
         );
         assert_eq!(BandPlan::new(0), Err(Error::EmptyImage));
+    }
+
+    /// Regression (fuzzing, issue 12): `index * (token_rows - 12)` overflowed for
+    /// token_rows near 2^34, and in release builds the band loop ran for ~2^59 bands.
+    #[test]
+    fn absurd_heights_are_errors_not_endless_plans() -> Result<(), Error> {
+        for rows in [MAX_TOKEN_ROWS + 1, 1 << 34, usize::MAX] {
+            assert!(matches!(
+                BandPlan::new(rows),
+                Err(Error::TooTall { max: MAX_HEIGHT, .. })
+            ));
+        }
+        let plan = BandPlan::new(MAX_TOKEN_ROWS)?;
+        let last = plan.get(plan.len() - 1).ok_or(Error::EmptyImage)?;
+        assert_eq!(last.keep_to, MAX_TOKEN_ROWS);
+        assert_eq!(last.start + last.rows, MAX_TOKEN_ROWS);
+        assert_eq!(plan.iter().count(), plan.len());
+        Ok(())
     }
 
     mod heapless_free {

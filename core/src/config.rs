@@ -24,6 +24,12 @@ pub const BAND_ROWS: usize = 48;
 pub const BAND_TOKEN_ROWS: usize = BAND_ROWS / PATCH_H;
 /// Token rows between the starts of consecutive bands of a tall image.
 pub const BAND_STRIDE_TOKEN_ROWS: usize = 8;
+/// Tallest image the engine takes, in pixels (65,536 rows, far beyond any sensor). The bound
+/// keeps every row and band index, and every product of them, far inside `usize` on 32-bit
+/// cores, so no band plan or row count can wrap.
+pub const MAX_HEIGHT: usize = 1 << 16;
+/// [`MAX_HEIGHT`] in token rows.
+pub const MAX_TOKEN_ROWS: usize = MAX_HEIGHT / PATCH_H;
 
 /// Channels of the shared head's L/R projection.
 pub const HEAD_PROJ_DIM: usize = 96;
@@ -41,10 +47,17 @@ pub const fn token_grid(height: usize, width: usize) -> (usize, usize, usize) {
     (height / PATCH_H, width / CELL_W, 2 * (width / CELL_W))
 }
 
-/// Checks that a view size fits the token grid; returns (token rows, patch columns).
+/// Checks that a view size fits the token grid and is at most [`MAX_HEIGHT`] rows; returns
+/// (token rows, patch columns). The width's limit is the blob's ([`crate::Error::TooWide`]).
 pub fn check_view_size(height: usize, width: usize) -> Result<(usize, usize), crate::Error> {
     if height == 0 || width == 0 {
         return Err(crate::Error::EmptyImage);
+    }
+    if height > MAX_HEIGHT {
+        return Err(crate::Error::TooTall {
+            height,
+            max: MAX_HEIGHT,
+        });
     }
     if !height.is_multiple_of(PATCH_H) {
         return Err(crate::Error::NotMultiple {
@@ -84,5 +97,13 @@ mod tests {
             check_view_size(48, 10),
             Err(crate::Error::NotMultiple { what: "width", .. })
         ));
+        assert_eq!(check_view_size(MAX_HEIGHT, 8), Ok((MAX_TOKEN_ROWS, 2)));
+        assert_eq!(
+            check_view_size(MAX_HEIGHT + 4, 8),
+            Err(crate::Error::TooTall {
+                height: MAX_HEIGHT + 4,
+                max: MAX_HEIGHT
+            })
+        );
     }
 }

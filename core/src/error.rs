@@ -24,6 +24,13 @@ pub enum Error {
         /// Configured maximum.
         max: usize,
     },
+    /// The image is taller than [`crate::config::MAX_HEIGHT`].
+    TooTall {
+        /// Height in pixels.
+        height: usize,
+        /// The most the engine takes.
+        max: usize,
+    },
     /// The left and right views have different sizes.
     PairMismatch,
     /// A band is taller than the encoder's band.
@@ -86,6 +93,9 @@ impl fmt::Display for Error {
             }
             Error::TooWide { width, max } => {
                 write!(f, "image width {width} exceeds the configured maximum {max}")
+            }
+            Error::TooTall { height, max } => {
+                write!(f, "image height {height} exceeds the maximum {max}")
             }
             Error::PairMismatch => write!(f, "left and right views differ in size"),
             Error::BandTooTall { rows, max } => write!(f, "band of {rows} rows is taller than the encoder's {max}"),

@@ -7,6 +7,7 @@
 //! emits it; the similarity volume is never stored. The left cell's norm is a common factor of
 //! its candidates, so it changes neither the winner nor the parabola and is not computed.
 
+use crate::config::DIM;
 use crate::fixed::isqrt_u64;
 use crate::Error;
 
@@ -17,14 +18,14 @@ pub const DISPARITY_FRAC_BITS: u32 = 8;
 /// `2^INV_NORM_BITS / |r|` is the fixed-point inverse norm of a right descriptor.
 const INV_NORM_BITS: u32 = 30;
 
-/// `round(2^30 / |d|)` for each `dim`-code descriptor of `row` into `out` (0 for an all-zero
+/// `round(2^30 / |d|)` for each [`DIM`]-code descriptor of `row` into `out` (0 for an all-zero
 /// descriptor, whose similarities are then 0, as with `F.normalize`).
-pub fn inverse_norms(row: &[i8], dim: usize, out: &mut [u32]) -> Result<(), Error> {
-    let cells = check_row(row, dim)?;
+pub fn inverse_norms(row: &[i8], out: &mut [u32]) -> Result<(), Error> {
+    let cells = check_row(row)?;
     check_len("inverse norms", out.len(), cells)?;
-    for (d, o) in row.chunks_exact(dim).zip(out.iter_mut()) {
+    for (d, o) in row.chunks_exact(DIM).zip(out.iter_mut()) {
         let sum_sq: u64 = d.iter().map(|&x| (x as i32 * x as i32) as u64).sum();
-        // |d|^2 <= dim * 2^14; the square root keeps 16 fraction bits via a 2^32 prescale.
+        // |d|^2 <= DIM * 2^14; the square root keeps 16 fraction bits via a 2^32 prescale.
         let norm_q16 = isqrt_u64(sum_sq << 32) as u64;
         let scaled = (1u64 << (INV_NORM_BITS + 16)) + norm_q16 / 2;
         *o = scaled.checked_div(norm_q16).map_or(0, |inv| inv as u32);
@@ -32,25 +33,27 @@ pub fn inverse_norms(row: &[i8], dim: usize, out: &mut [u32]) -> Result<(), Erro
     Ok(())
 }
 
-/// Matches one row: `left` and `right` are `cols x dim` codes of the same token row,
+/// Matches one row: `left` and `right` are `cols x DIM` codes of the same token row,
 /// `right_inv_norms` comes from [`inverse_norms`] of `right`; writes each left cell's
 /// disparity in Q8 patch columns to `out` (`cols` entries).
+///
+/// No value overflows for any codes and norms: `|dot| <= DIM * 2^14 = 2^21`, so each
+/// similarity is below `2^53` and the parabola's terms below `2^63`.
 pub fn match_row(
     left: &[i8],
     right: &[i8],
     right_inv_norms: &[u32],
-    dim: usize,
     max_cols: usize,
     out: &mut [u16],
 ) -> Result<(), Error> {
-    let cells = check_pair(left, right, right_inv_norms, dim, max_cols)?;
+    let cells = check_pair(left, right, right_inv_norms, max_cols)?;
     check_len("disparity row", out.len(), cells)?;
     let mut sims = [0i64; MAX_CANDIDATES];
-    for (p, (l, o)) in left.chunks_exact(dim).zip(out.iter_mut()).enumerate() {
+    for (p, (l, o)) in left.chunks_exact(DIM).zip(out.iter_mut()).enumerate() {
         let candidates = max_cols.min(p + 1);
         for (k, s) in sims.iter_mut().enumerate().take(candidates) {
             let q = p - k;
-            let r = right.get(q * dim..(q + 1) * dim).unwrap_or_default();
+            let r = right.get(q * DIM..(q + 1) * DIM).unwrap_or_default();
             let dot: i32 = l.iter().zip(r).map(|(&a, &b)| a as i32 * b as i32).sum();
             *s = dot as i64 * right_inv_norms.get(q).copied().unwrap_or(0) as i64;
         }
@@ -61,28 +64,28 @@ pub fn match_row(
 
 /// One row of SGM costs (`cols x max_cols`, candidates fastest): `COST_ONE * (1 - cos)` of
 /// each left cell against the right cell `k` columns to its left, `COST_EXCLUDED` where that
-/// is outside the view. Both rows' inverse norms come from [`inverse_norms`].
+/// is outside the view. Both rows' inverse norms come from [`inverse_norms`]; any `u32` norms
+/// are safe (`|dot| <= 2^21`, so the products below stay under `2^62`).
 pub fn cost_row(
     left: &[i8],
     right: &[i8],
     left_inv_norms: &[u32],
     right_inv_norms: &[u32],
-    dim: usize,
     max_cols: usize,
     out: &mut [u16],
 ) -> Result<(), Error> {
     use crate::sgm::{COST_EXCLUDED, COST_ONE};
-    let cells = check_pair(left, right, right_inv_norms, dim, max_cols)?;
+    let cells = check_pair(left, right, right_inv_norms, max_cols)?;
     check_len("left inverse norms", left_inv_norms.len(), cells)?;
-    check_len("cost row", out.len(), cells * max_cols)?;
-    for (p, (l, costs)) in left.chunks_exact(dim).zip(out.chunks_exact_mut(max_cols)).enumerate() {
+    check_len("cost row", out.len(), cells.saturating_mul(max_cols))?;
+    for (p, (l, costs)) in left.chunks_exact(DIM).zip(out.chunks_exact_mut(max_cols)).enumerate() {
         let inv_l = left_inv_norms.get(p).copied().unwrap_or(0) as i64;
         for (k, c) in costs.iter_mut().enumerate() {
             let Some(q) = p.checked_sub(k) else {
                 *c = COST_EXCLUDED;
                 continue;
             };
-            let r = right.get(q * dim..(q + 1) * dim).unwrap_or_default();
+            let r = right.get(q * DIM..(q + 1) * DIM).unwrap_or_default();
             let dot: i32 = l.iter().zip(r).map(|(&a, &b)| a as i32 * b as i32).sum();
             let inv_r = right_inv_norms.get(q).copied().unwrap_or(0) as i64;
             // dot * 2^60 / (|l| |r|) taken down to Q12 in two steps that stay below 2^52.
@@ -128,8 +131,8 @@ fn refine(sims: &[i64], max_cols: usize) -> u16 {
 
 /// What [`match_row`] and [`cost_row`] both need: a well-formed left row, a right row of the
 /// same length with its inverse norms, and a supported candidate count; returns the cells.
-fn check_pair(left: &[i8], right: &[i8], right_inv_norms: &[u32], dim: usize, max_cols: usize) -> Result<usize, Error> {
-    let cells = check_row(left, dim)?;
+fn check_pair(left: &[i8], right: &[i8], right_inv_norms: &[u32], max_cols: usize) -> Result<usize, Error> {
+    let cells = check_row(left)?;
     if right.len() != left.len() {
         return Err(Error::PairMismatch);
     }
@@ -150,18 +153,19 @@ pub(crate) fn check_candidates(candidates: usize) -> Result<(), Error> {
     }
 }
 
-fn check_row(row: &[i8], dim: usize) -> Result<usize, Error> {
-    if dim == 0 || row.is_empty() {
+/// A row of whole [`DIM`]-code descriptors (the model's length: the bounds above rely on it).
+fn check_row(row: &[i8]) -> Result<usize, Error> {
+    if row.is_empty() {
         return Err(Error::EmptyImage);
     }
-    if !row.len().is_multiple_of(dim) {
+    if !row.len().is_multiple_of(DIM) {
         return Err(Error::BufferSize {
             what: "descriptor row",
-            expected: row.len() / dim * dim,
+            expected: row.len() / DIM * DIM,
             found: row.len(),
         });
     }
-    Ok(row.len() / dim)
+    Ok(row.len() / DIM)
 }
 
 fn check_len(what: &'static str, found: usize, expected: usize) -> Result<(), Error> {
@@ -177,8 +181,6 @@ mod tests {
     use super::*;
     use crate::testutil::Rng;
 
-    const DIM: usize = 16;
-
     /// Right row = left row shifted by `shift` cells (new cells random): matches find it.
     #[test]
     fn recovers_a_known_shift_exactly() {
@@ -193,9 +195,9 @@ mod tests {
             left[p * DIM..(p + 1) * DIM].copy_from_slice(&right[(p - shift) * DIM..(p - shift + 1) * DIM]);
         }
         let mut norms = [0u32; 20];
-        inverse_norms(&right, DIM, &mut norms).unwrap();
+        inverse_norms(&right, &mut norms).unwrap();
         let mut out = [0u16; 20];
-        match_row(&left, &right, &norms, DIM, 8, &mut out).unwrap();
+        match_row(&left, &right, &norms, 8, &mut out).unwrap();
         for (p, &d) in out.iter().enumerate().skip(shift) {
             // The winner is exact; random neighbours may pull the parabola a little.
             assert_eq!((d as i64 + 128) >> 8, shift as i64, "cell {p}: {d}");
@@ -227,10 +229,10 @@ mod tests {
         let mut right = left;
         right[DIM..2 * DIM].iter_mut().for_each(|x| *x = x.saturating_neg()); // cell 1 opposite
         let (mut nl, mut nr) = ([0u32; 3], [0u32; 3]);
-        inverse_norms(&left, DIM, &mut nl).unwrap();
-        inverse_norms(&right, DIM, &mut nr).unwrap();
+        inverse_norms(&left, &mut nl).unwrap();
+        inverse_norms(&right, &mut nr).unwrap();
         let mut cost = [0u16; 3 * 2];
-        cost_row(&left, &right, &nl, &nr, DIM, 2, &mut cost).unwrap();
+        cost_row(&left, &right, &nl, &nr, 2, &mut cost).unwrap();
         use crate::sgm::{COST_EXCLUDED, COST_ONE};
         assert!(cost[0] <= 2, "identical cells cost ~0: {cost:?}");
         assert_eq!(cost[1], COST_EXCLUDED, "cell 0 has no candidate 1");
@@ -242,7 +244,7 @@ mod tests {
     fn zero_descriptors_have_zero_similarity() {
         let right = [0i8; 2 * DIM];
         let mut norms = [7u32; 2];
-        inverse_norms(&right, DIM, &mut norms).unwrap();
+        inverse_norms(&right, &mut norms).unwrap();
         assert_eq!(norms, [0, 0]);
     }
 
@@ -252,28 +254,56 @@ mod tests {
         let mut norms = [0u32; 4];
         let mut out = [0u16; 4];
         assert!(matches!(
-            inverse_norms(&row[..DIM + 1], DIM, &mut norms),
+            inverse_norms(&row[..DIM + 1], &mut norms),
             Err(Error::BufferSize { .. })
         ));
         assert!(matches!(
-            inverse_norms(&row, DIM, &mut norms[..3]),
+            inverse_norms(&row, &mut norms[..3]),
             Err(Error::BufferSize { .. })
         ));
-        assert!(matches!(inverse_norms(&[], DIM, &mut norms), Err(Error::EmptyImage)));
+        assert!(matches!(inverse_norms(&[], &mut norms), Err(Error::EmptyImage)));
         assert!(matches!(
-            match_row(&row, &row[..2 * DIM], &norms, DIM, 4, &mut out),
+            match_row(&row, &row[..2 * DIM], &norms, 4, &mut out),
             Err(Error::PairMismatch)
         ));
         assert!(matches!(
-            match_row(&row, &row, &norms, DIM, 0, &mut out),
+            match_row(&row, &row, &norms, 0, &mut out),
             Err(Error::Candidates { .. })
         ));
         assert!(matches!(
-            match_row(&row, &row, &norms, DIM, MAX_CANDIDATES + 1, &mut out),
+            match_row(&row, &row, &norms, MAX_CANDIDATES + 1, &mut out),
             Err(Error::Candidates { .. })
         ));
         assert!(matches!(
-            match_row(&row, &row, &norms, DIM, 4, &mut out[..2]),
+            match_row(&row, &row, &norms, 4, &mut out[..2]),
+            Err(Error::BufferSize { .. })
+        ));
+    }
+
+    /// Regression (fuzzing, issue 12): with a caller-chosen descriptor length the i32 dot
+    /// product overflowed at 2^17 codes, and `cost_row` / the parabola overflowed for inverse
+    /// norms `inverse_norms` never makes. The length is now the model's, and the extremes of
+    /// codes and norms run through.
+    #[test]
+    fn extreme_codes_and_norms_do_not_overflow() {
+        let mut left = [-128i8; 3 * DIM];
+        let right = [-128i8; 3 * DIM];
+        left[DIM..2 * DIM].fill(127);
+        let norms = [u32::MAX; 3];
+        let mut out = [0u16; 3];
+        assert_eq!(match_row(&left, &right, &norms, 3, &mut out), Ok(()));
+        let mut cost = [0u16; 3 * 3];
+        assert_eq!(cost_row(&left, &right, &norms, &norms, 3, &mut cost), Ok(()));
+        // Cell 0 is identical to right cell 0: any cosine above 1 saturates to cost 0.
+        assert_eq!(cost[0], 0);
+        assert!(cost.iter().all(|&c| c <= crate::sgm::COST_EXCLUDED));
+        // Parabola through the largest similarities these inputs can make.
+        let big = (1i64 << 21) * u32::MAX as i64;
+        assert!(refine(&[-big, big, -big], 3) <= 256 + 128);
+        // Rows off the model's descriptor length are errors.
+        let mut short_norms = [0u32; 1];
+        assert!(matches!(
+            inverse_norms(&left[..DIM / 2], &mut short_norms),
             Err(Error::BufferSize { .. })
         ));
     }

@@ -239,34 +239,57 @@ const fn band_pixel_rows(height: usize) -> usize {
     rows * PATCH_H
 }
 
-/// Arena bytes of the matching, SGM and left-right state for `cols` patch columns.
+/// Arena bytes of the matching, SGM and left-right state for `cols` patch columns
+/// (saturating, like every sizing helper here).
 const fn matching_bytes(cols: usize, max_cols: usize) -> usize {
     let volume_row = state_len(cols, max_cols);
-    2 * (cols * 4 + ALIGN_SLACK) // inverse norms, left and right
-        + 2 * (volume_row * 2 + 1) // cost rows, left and right view
-        + 2 * (2 * (volume_row * 2 + 1) + volume_row * 4 + ALIGN_SLACK) // two SGM streams
-        + 4 * (cols * 2 + 1) // WTA and SGM rows, both views
-        + 2 * cols // left-right masks
+    let words = cols.saturating_mul(4).saturating_add(ALIGN_SLACK); // one u32 row
+    let halves = volume_row.saturating_mul(2).saturating_add(1); // one u16 cost row
+    let sums = volume_row.saturating_mul(4).saturating_add(ALIGN_SLACK); // one u32 cost row
+    let disparity = cols.saturating_mul(2).saturating_add(1); // one u16 disparity row
+    sum(&[
+        words.saturating_mul(2),                                         // inverse norms, left and right
+        halves.saturating_mul(2),                                        // cost rows, left and right view
+        halves.saturating_mul(2).saturating_add(sums).saturating_mul(2), // two SGM streams
+        disparity.saturating_mul(4),                                     // WTA and SGM rows, both views
+        cols.saturating_mul(2),                                          // left-right masks
+    ])
+}
+
+/// Saturating sum (a `const fn` cannot use `Iterator::sum`).
+const fn sum(terms: &[usize]) -> usize {
+    let mut total = 0usize;
+    let mut i = 0;
+    while i < terms.len() {
+        total = total.saturating_add(terms[i]);
+        i += 1;
+    }
+    total
 }
 
 /// Arena bytes of the readout streams (with the head).
 const fn stream_bytes(cols: usize, max_cols: usize) -> usize {
-    matching_bytes(cols, max_cols) + head::arena_bytes(cols)
+    matching_bytes(cols, max_cols).saturating_add(head::arena_bytes(cols))
 }
 
 /// Arena bytes the pipeline needs for a `height x width` pair with `max_cols` candidates
 /// (the head included). Firmware sizes its static arena with it.
+///
+/// Saturates at `usize::MAX` where the size does not fit a `usize` (absurd widths or candidate
+/// counts): no arena is that large, so [`Pipeline::run`] rejects such a run as
+/// [`Error::ArenaTooSmall`] (or earlier, as [`Error::TooWide`] / [`Error::Candidates`]); the
+/// result is never a small wrong size.
 pub const fn arena_bytes(height: usize, width: usize, max_cols: usize) -> usize {
     let band_rows = band_pixel_rows(height);
     let cols = width / CELL_W;
-    let pixels = 2 * band_rows * width;
-    let descriptors = (band_rows / PATCH_H) * cols * DIM;
+    let pixels = band_rows.saturating_mul(width).saturating_mul(2);
+    let descriptors = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(DIM);
     let encoder = encoder::arena_bytes(band_rows, width);
     let streams = stream_bytes(cols, max_cols);
     if height <= band_rows {
-        pixels + descriptors + max(encoder, descriptors + streams)
+        sum(&[pixels, descriptors, max(encoder, descriptors.saturating_add(streams))])
     } else {
-        pixels + descriptors + streams + encoder
+        sum(&[pixels, descriptors, streams, encoder])
     }
 }
 
@@ -587,10 +610,10 @@ impl<'a, 'w> Streams<'a, 'w> {
     fn push_row(&mut self, row: usize, left: &[i8], right: &[i8], sink: &mut impl Sink) -> Result<(), Error> {
         let mc = self.max_cols;
         sink.stage(Stage::Match);
-        inverse_norms(left, DIM, self.inv_left)?;
-        inverse_norms(right, DIM, self.inv_right)?;
-        match_row(left, right, self.inv_right, DIM, mc, self.wta)?;
-        cost_row(left, right, self.inv_left, self.inv_right, DIM, mc, self.cost)?;
+        inverse_norms(left, self.inv_left)?;
+        inverse_norms(right, self.inv_right)?;
+        match_row(left, right, self.inv_right, mc, self.wta)?;
+        cost_row(left, right, self.inv_left, self.inv_right, mc, self.cost)?;
         right_view_costs(self.cost, mc, self.cost_right)?;
         sink.stage(Stage::Sgm);
         self.sgm.push_row(self.cost, self.sgm_out)?;

@@ -36,9 +36,10 @@ pub struct SgmStream<'a> {
     rows_seen: usize,
 }
 
-/// `u16` values the state keeps (`vertical` and `diagonal`), and `u32` values of `sum`.
+/// `u16` values the state keeps (`vertical` and `diagonal`), and `u32` values of `sum`;
+/// saturates at `usize::MAX` for sizes no memory holds, which [`SgmStream::new`] then rejects.
 pub const fn state_len(cols: usize, candidates: usize) -> usize {
-    cols * candidates
+    cols.saturating_mul(candidates)
 }
 
 impl<'a> SgmStream<'a> {
@@ -265,6 +266,12 @@ mod tests {
         assert!(matches!(
             SgmStream::new(4, 0, PEN, &mut v, &mut g, &mut s),
             Err(Error::Candidates { .. })
+        ));
+        // Regression (fuzzing, issue 12): `cols * candidates` overflowed before any check.
+        assert_eq!(state_len(usize::MAX, 3), usize::MAX);
+        assert!(matches!(
+            SgmStream::new(usize::MAX / 2, 3, PEN, &mut v, &mut g, &mut s),
+            Err(Error::BufferSize { .. })
         ));
         let mut sgm = SgmStream::new(4, 3, PEN, &mut v, &mut g, &mut s).unwrap();
         let mut out = [0u16; 4];

@@ -275,8 +275,8 @@ pub fn match_rows(left: &[i8], right: &[i8], rows: usize, cols: usize, max_cols:
     let mut row_out = vec![0u16; cols];
     let mut values = Vec::with_capacity(rows * cols);
     for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
-        matching::inverse_norms(r, DIM, &mut norms).map_err(anyhow::Error::msg)?;
-        matching::match_row(l, r, &norms, DIM, max_cols, &mut row_out).map_err(anyhow::Error::msg)?;
+        matching::inverse_norms(r, &mut norms).map_err(anyhow::Error::msg)?;
+        matching::match_row(l, r, &norms, max_cols, &mut row_out).map_err(anyhow::Error::msg)?;
         let unit = (1u32 << matching::DISPARITY_FRAC_BITS) as f32;
         values.extend(row_out.iter().map(|&d| d as f32 / unit));
     }
@@ -311,9 +311,9 @@ pub fn sgm_rows(
     let mut values = Vec::with_capacity(rows * cols);
     let unit = (1u32 << matching::DISPARITY_FRAC_BITS) as f32;
     for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
-        matching::inverse_norms(l, DIM, &mut norms_l).map_err(anyhow::Error::msg)?;
-        matching::inverse_norms(r, DIM, &mut norms_r).map_err(anyhow::Error::msg)?;
-        matching::cost_row(l, r, &norms_l, &norms_r, DIM, max_cols, &mut cost).map_err(anyhow::Error::msg)?;
+        matching::inverse_norms(l, &mut norms_l).map_err(anyhow::Error::msg)?;
+        matching::inverse_norms(r, &mut norms_r).map_err(anyhow::Error::msg)?;
+        matching::cost_row(l, r, &norms_l, &norms_r, max_cols, &mut cost).map_err(anyhow::Error::msg)?;
         stream.push_row(&cost, &mut row_out).map_err(anyhow::Error::msg)?;
         values.extend(row_out.iter().map(|&d| d as f32 / unit));
     }

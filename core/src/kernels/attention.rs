@@ -13,6 +13,9 @@ use crate::fixed::{round_shift, sat_i8_i64, Requant};
 
 /// Fraction bits of the normalised weighted average before the output factor.
 pub const AVG_FRAC_BITS: u32 = 16;
+/// Most keys one query attends to (a band has 960); keys beyond it are ignored, so the 8-bit
+/// weights' 32-bit sum (`255 * MAX_KEYS < 2^32`) cannot wrap for any buffer lengths.
+pub const MAX_KEYS: usize = 1 << 24;
 
 /// Quantisation parameters of one head's attention.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -38,7 +41,8 @@ pub fn attend(
     let n = (keys.len() / HEAD_DIM)
         .min(values.len() / HEAD_DIM)
         .min(scores.len())
-        .min(weights.len());
+        .min(weights.len())
+        .min(MAX_KEYS);
     let (scores, weights) = (&mut scores[..n], &mut weights[..n]);
     let mut max = i32::MIN;
     for (s, k) in scores.iter_mut().zip(keys.chunks_exact(HEAD_DIM)) {
@@ -100,7 +104,8 @@ pub fn attend_block(
     let n = (keys.len() / HEAD_DIM)
         .min(values_t.len() / HEAD_DIM)
         .min(scores.len() / QUERY_BLOCK)
-        .min(weights.len() / QUERY_BLOCK);
+        .min(weights.len() / QUERY_BLOCK)
+        .min(MAX_KEYS);
     if n == 0 {
         *out = [[0; HEAD_DIM]; QUERY_BLOCK];
         return;

@@ -28,8 +28,9 @@ fn matmul_body(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
         return;
     }
     let n = w.len() / k;
-    let mut a_quads = a.chunks_exact(4 * k);
-    let mut out_quads = out.chunks_exact_mut(4 * n);
+    // Saturating: a `k` or `n` too large for four rows simply leaves no four-row block.
+    let mut a_quads = a.chunks_exact(k.saturating_mul(4));
+    let mut out_quads = out.chunks_exact_mut(n.saturating_mul(4));
     for (a4, o4) in (&mut a_quads).zip(&mut out_quads) {
         let (a01, a23) = a4.split_at(2 * k);
         let (a0, a1) = a01.split_at(k);

@@ -48,13 +48,17 @@ const ACC_WIDTH: usize = max(MLP_HIDDEN, 2 * DIM);
 
 /// Arena bytes the encoder needs for a band of `band_rows` image rows and `width` pixels.
 /// Firmware sizes its static arena with it: `static ARENA: [u8; arena_bytes(48, 160)]`.
+/// Saturates at `usize::MAX` for sizes no memory holds (so such a run is
+/// [`Error::ArenaTooSmall`], never a small wrong size).
 pub const fn arena_bytes(band_rows: usize, width: usize) -> usize {
-    let tokens = (band_rows / PATCH_H) * 2 * (width / CELL_W);
-    3 * tokens * DIM // residual stream, keys, values
-        + QUERY_BLOCK * tokens * 4 + ALIGN_SLACK // attention scores of one query block
-        + QUERY_BLOCK * tokens // softmax weights
+    let tokens = (band_rows / PATCH_H).saturating_mul(2 * (width / CELL_W));
+    // Bytes per token: residual stream, keys, values; attention scores (i32) and softmax
+    // weights of one query block.
+    let per_token = 3 * DIM + QUERY_BLOCK * 4 + QUERY_BLOCK;
+    let fixed = 2 * ALIGN_SLACK
         + TOKEN_BLOCK * (3 * DIM + MLP_HIDDEN) // normalised, queries, attention output, hidden
-        + TOKEN_BLOCK * ACC_WIDTH * 4 + ALIGN_SLACK // accumulators
+        + TOKEN_BLOCK * ACC_WIDTH * 4; // accumulators
+    tokens.saturating_mul(per_token).saturating_add(fixed)
 }
 
 /// One grayscale view of a band: `height x width` pixels, row-major.
@@ -75,7 +79,8 @@ impl<'a> GrayBand<'a> {
                 max: BAND_ROWS,
             });
         }
-        let expected = width * height;
+        // height <= BAND_ROWS: only an absurd width can overflow, and no slice is that long.
+        let expected = width.saturating_mul(height);
         if pixels.len() != expected {
             return Err(Error::BufferSize {
                 what: "band pixels",

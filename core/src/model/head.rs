@@ -60,25 +60,34 @@ const fn conv_outputs(layer: usize) -> usize {
 
 /// Bytes of one ring row of convolution `layer`'s input, for `cols` patch columns.
 const fn ring_row(layer: usize, cols: usize) -> usize {
-    cols * HEAD_MAX_DISP * conv_inputs(layer)
+    cols.saturating_mul(HEAD_MAX_DISP * conv_inputs(layer))
 }
 
-/// Arena bytes of a head stream over `cols` patch columns (descriptor map width).
-pub const fn arena_bytes(cols: usize) -> usize {
-    let mut rings = 0;
+/// Bytes per patch column of every ring (three rows per convolution).
+const fn ring_bytes_per_col() -> usize {
+    let mut bytes = 0;
     let mut layer = 0;
     while layer < HEAD_CONVS {
-        rings += 3 * ring_row(layer, cols);
+        bytes += 3 * HEAD_MAX_DISP * conv_inputs(layer);
         layer += 1;
     }
+    bytes
+}
+
+/// Arena bytes of a head stream over `cols` patch columns (descriptor map width). Saturates at
+/// `usize::MAX` for widths no memory holds, so such a stream is [`Error::ArenaTooSmall`].
+pub const fn arena_bytes(cols: usize) -> usize {
     let acc = max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * HEAD_PROJ_DIM);
-    rings
-        + 2 * cols * HEAD_PROJ_DIM // projected left and right rows
-        + CELL_BLOCK * DIM // normalised descriptors
+    let per_col = ring_bytes_per_col()
+        + 2 * HEAD_PROJ_DIM // projected left and right rows
+        + HEAD_MAX_DISP * 4 // output logits
+        + 2 * 2; // disparity and confidence (u16)
+    let fixed = CELL_BLOCK * DIM // normalised descriptors
         + HEAD_MAX_DISP * TAPS * HEAD_HIDDEN // one column's gathered kernel inputs
-        + acc * 4 + ALIGN_SLACK
-        + cols * HEAD_MAX_DISP * 4 + ALIGN_SLACK // output logits
-        + 2 * (cols * 2 + 1) // disparity and confidence (u16, aligned)
+        + acc * 4
+        + 2 * ALIGN_SLACK // accumulators and logits (i32, aligned)
+        + 2; // disparity and confidence (u16, aligned)
+    cols.saturating_mul(per_col).saturating_add(fixed)
 }
 
 /// The head's weights in a blob, validated once.
@@ -201,7 +210,8 @@ impl<'a, 'w> HeadStream<'a, 'w> {
             return Err(Error::EmptyImage);
         }
         let mut carver = Carver::new(arena, arena_bytes(cols))?;
-        let rings_len = (0..HEAD_CONVS).map(|l| 3 * ring_row(l, cols)).sum();
+        // Carver::new took arena_bytes(cols) <= arena.len(): these products cannot overflow.
+        let rings_len = cols * ring_bytes_per_col();
         let rings = carver.i8s(rings_len)?;
         let f_left = carver.i8s(cols * HEAD_PROJ_DIM)?;
         let f_right = carver.i8s(cols * HEAD_PROJ_DIM)?;
