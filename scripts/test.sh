@@ -18,6 +18,9 @@ RUSTDOCFLAGS="-D warnings" cargo doc -p bino-core --no-deps --locked -q
 step "rust: tests"
 cargo test --workspace --locked
 
+step "fuzzing: every target of fuzz/ for 30 s (cargo-fuzz, nightly), failing on any crash"
+scripts/fuzz.sh --seconds "${BINO_FUZZ_SECONDS:-30}"
+
 step "bino-core for the Cortex-M targets (no_std, no alloc)"
 for target in $THUMB_TARGETS; do
   cargo build -p bino-core --locked --release --target "$target"

@@ -305,7 +305,7 @@ pub fn load_runs(dir: &Path) -> Result<Vec<CoreRun>> {
         if !path.exists() {
             continue;
         }
-        let text = std::fs::read_to_string(&path).with_context(|| format!("cannot read {}", path.display()))?;
+        let text = crate::files::read_text(&path, "firmware result")?;
         runs.push(CoreRun::parse(&text).with_context(|| format!("{}", path.display()))?);
     }
     if runs.is_empty() {
@@ -606,12 +606,7 @@ pub fn run_budget(opts: &BudgetOptions) -> Result<String> {
 }
 
 fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create folder {}", dir.display()))?;
-    }
-    let tmp = path.with_extension("partial");
-    std::fs::write(&tmp, bytes).with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot move output into {}", path.display()))
+    crate::files::write_bytes(path, bytes)
 }
 
 /// The bar chart: memory per stage (arena in use, stack peak) and instructions per stage per

@@ -2,7 +2,7 @@
 //! files: encoder on both views (descriptor pathway), the no-linkage readout and the shared
 //! head, scored against the scene's known disparity, written as pictures and a report.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
@@ -181,13 +181,13 @@ fn write_outputs(
     right: &View,
     readouts: &[ReadoutResult],
 ) -> Result<Vec<PathBuf>> {
-    std::fs::create_dir_all(&opts.out).with_context(|| format!("cannot create {}", opts.out.display()))?;
+    crate::files::create_dir(&opts.out)?;
     let (w, h) = (scene.left.width, scene.left.height);
     let max_disparity = scene.disparity.iter().cloned().fold(1.0f32, f32::max);
     let mut files = Vec::new();
     let mut save = |name: &str, image: image::DynamicImage| -> Result<()> {
         let path = opts.out.join(name);
-        save_png(&image, &path)?;
+        crate::files::save_png(&image, &path)?;
         files.push(path);
         Ok(())
     };
@@ -211,8 +211,7 @@ fn write_outputs(
         )?;
     }
     let report = opts.out.join("report.json");
-    std::fs::write(&report, report_json(opts, readouts) + "\n")
-        .with_context(|| format!("cannot write {}", report.display()))?;
+    crate::files::write_bytes(&report, (report_json(opts, readouts) + "\n").as_bytes())?;
     files.push(report);
     Ok(files)
 }
@@ -244,15 +243,6 @@ fn rgb(width: usize, height: usize, pixels: Vec<u8>) -> Result<image::DynamicIma
     let image = image::RgbImage::from_raw(width as u32, height as u32, pixels)
         .context("picture size does not match its pixels")?;
     Ok(image.into())
-}
-
-/// Writes through a temporary file, so an interrupted run never leaves a partial picture.
-fn save_png(image: &image::DynamicImage, path: &Path) -> Result<()> {
-    let tmp = path.with_extension("png.partial");
-    image
-        .save_with_format(&tmp, image::ImageFormat::Png)
-        .with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot write {}", path.display()))
 }
 
 #[cfg(test)]

@@ -3,9 +3,17 @@
 //! Colour goes to gray with OpenCV's fixed-point BT.601 rule, so the Rust CLI and the Python
 //! training code (which uses `cv2.cvtColor`) see the same pixels.
 
+use std::io::Cursor;
 use std::path::Path;
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
+
+/// Widest and tallest image any command decodes (EVAL.md's largest pairs are under 3,000
+/// pixels wide); a file declaring more is refused from its header, before any pixel buffer
+/// is allocated (a decompression bomb).
+pub const MAX_IMAGE_SIDE: u32 = 16_384;
+/// Most bytes one decoded image may take (the `image` crate's allocation limit).
+pub const MAX_IMAGE_BYTES: u64 = 1 << 30;
 
 /// An 8-bit grayscale image, row-major.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -37,15 +45,45 @@ pub fn rgb_to_gray(r: u8, g: u8, b: u8) -> u8 {
     ((4899 * r as u32 + 9617 * g as u32 + 1868 * b as u32 + (1 << 13)) >> 14) as u8
 }
 
+/// Decodes the image file `path` (the command's `what`: "image", "ground truth"): a regular,
+/// non-empty file whose header declares at most [`MAX_IMAGE_SIDE`] pixels a side, decoded
+/// under the `image` crate's allocation limit. Every error names the file.
+pub fn decode(path: &Path, what: &str) -> Result<image::DynamicImage> {
+    let bytes = crate::files::read(path, what)?;
+    let reader = || {
+        image::ImageReader::new(Cursor::new(bytes.as_slice()))
+            .with_guessed_format()
+            .with_context(|| format!("cannot read {what} {}", path.display()))
+    };
+    let (width, height) = reader()?.into_dimensions().with_context(|| {
+        format!(
+            "cannot decode {what} {} (PNG, PPM/PGM or JPEG expected)",
+            path.display()
+        )
+    })?;
+    if width > MAX_IMAGE_SIDE || height > MAX_IMAGE_SIDE {
+        bail!(
+            "{what} {} declares {width}x{height} pixels, more than the {MAX_IMAGE_SIDE}x{MAX_IMAGE_SIDE} limit",
+            path.display()
+        );
+    }
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE);
+    limits.max_alloc = Some(MAX_IMAGE_BYTES);
+    let mut decoder = reader()?;
+    decoder.limits(limits);
+    decoder.decode().with_context(|| {
+        format!(
+            "cannot decode {what} {} (PNG, PPM/PGM or JPEG expected)",
+            path.display()
+        )
+    })
+}
+
 /// Loads an image file as 8-bit gray. The error names the file and what is wrong with it.
 pub fn load_gray(path: &Path) -> Result<GrayImage> {
-    ensure!(path.exists(), "image {} does not exist", path.display());
-    let decoded = image::ImageReader::open(path)
-        .with_context(|| format!("cannot open image {}", path.display()))?
-        .with_guessed_format()
-        .with_context(|| format!("cannot read image {}", path.display()))?
-        .decode()
-        .with_context(|| format!("cannot decode image {} (PNG, PPM/PGM or JPEG expected)", path.display()))?;
+    let decoded = decode(path, "image")?;
     let (width, height) = (decoded.width() as usize, decoded.height() as usize);
     let pixels = if decoded.color().has_color() {
         decoded

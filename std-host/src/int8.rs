@@ -29,7 +29,7 @@ pub struct Int8Model {
 impl Int8Model {
     /// Reads and validates `path` (made by `bino quantize`).
     pub fn load(path: &Path) -> Result<Self> {
-        let bytes = std::fs::read(path).with_context(|| format!("cannot read weight blob {}", path.display()))?;
+        let bytes = crate::files::read(path, "weight blob")?;
         let model = Self {
             path: path.to_path_buf(),
             bytes,

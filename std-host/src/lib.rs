@@ -10,6 +10,7 @@ pub mod colour;
 pub mod compare;
 pub mod demo;
 pub mod eval;
+pub mod files;
 pub mod float_head;
 pub mod float_weights;
 pub mod image_io;

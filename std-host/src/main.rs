@@ -659,7 +659,7 @@ fn eval_command(opts: &bino_host::readout_eval::EvalOptions, json: Option<&Path>
     })?;
     println!("{}", report.table());
     if let Some(path) = json {
-        write_atomically(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
         println!("wrote {}", path.display());
     }
     Ok(())
@@ -681,7 +681,7 @@ fn compare_command(opts: &CompareOptions, json: Option<&Path>) -> Result<()> {
     })?;
     println!("{}", report.table());
     if let Some(path) = json {
-        write_atomically(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
         println!("wrote {}", path.display());
     }
     Ok(())
@@ -694,7 +694,7 @@ fn bench_command(opts: &BenchOptions, json: Option<&Path>) -> Result<()> {
     }
     println!("{}", report.text());
     if let Some(path) = json {
-        write_atomically(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
         println!("wrote {}", path.display());
     }
     Ok(())
@@ -717,7 +717,7 @@ fn quantize_command(opts: &QuantizeOptions, out: &Path) -> Result<()> {
     }
     // The blob must load in the engine before it is written.
     Int8Model::from_bytes(blob.clone(), &out.display().to_string())?;
-    write_atomically(out, |file| Ok(file.write_all(&blob)?))?;
+    bino_host::files::write_atomic(out, |file| Ok(file.write_all(&blob)?))?;
     println!(
         "{}: {} bytes from {} ({} calibration bands, {:.1} s)",
         out.display(),
@@ -778,7 +778,7 @@ fn reference(
         arrays.push(("disparity", Array::new(vec![d.rows, d.cols], d.data.clone())?));
     }
     let named: Vec<(&str, &Array)> = arrays.iter().map(|(n, a)| (*n, a)).collect();
-    write_atomically(out, |file| npz::write(file, &named))?;
+    bino_host::files::write_atomic(out, |file| npz::write(file, &named))?;
     println!(
         "{source}: {}x{} at profile {profile}; tokens {}x{}x{}, descriptors {}x{}x{}; \
          3 encoder passes in {:.2} s (tract-onnx, {})",
@@ -809,29 +809,6 @@ fn apply_profile(left: &GrayImage, right: &GrayImage, profile: Profile, source: 
     }
     let apply = |v: &GrayImage| profile.apply(v).with_context(|| source.to_string());
     Ok((apply(left)?, apply(right)?))
-}
-
-// Writes through a temporary file and renames, so a failure never leaves a half-written output.
-fn write_atomically(
-    path: &Path,
-    write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> Result<()>,
-) -> Result<()> {
-    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create folder {}", dir.display()))?;
-    }
-    let extension = path
-        .extension()
-        .map(|e| e.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    let tmp = path.with_extension(format!("{extension}.partial"));
-    let file = std::fs::File::create(&tmp).with_context(|| format!("cannot create {}", tmp.display()))?;
-    let mut writer = std::io::BufWriter::new(file);
-    write(&mut writer).with_context(|| format!("cannot write {}", tmp.display()))?;
-    writer
-        .into_inner()
-        .map_err(|e| e.into_error())
-        .with_context(|| format!("cannot write {}", tmp.display()))?;
-    std::fs::rename(&tmp, path).with_context(|| format!("cannot move output into {}", path.display()))
 }
 
 fn list_pairs(data: &Path, split: Option<&str>) -> Result<()> {

@@ -79,13 +79,21 @@ pub fn read_index(path: &Path) -> Result<Vec<PairRecord>> {
     } else {
         path.to_path_buf()
     };
-    let text = std::fs::read_to_string(&file).with_context(|| format!("cannot read pair index {}", file.display()))?;
+    let text = crate::files::read_text(&file, "pair index")?;
     let root = file.parent().unwrap_or(Path::new("."));
     parse_index(&text, root).with_context(|| format!("pair index {}", file.display()))
 }
 
-/// Parses the text of a `PAIRS.tsv`, resolving paths against `root`.
+/// Parses the text of a `PAIRS.tsv`, resolving paths against `root`. Lines end in LF (a CR LF
+/// line is refused rather than read with a stray carriage return), every row has the
+/// header's number of fields, and every path stays inside `root`.
 pub fn parse_index(text: &str, root: &Path) -> Result<Vec<PairRecord>> {
+    if let Some(number) = text.split('\n').position(|l| l.contains('\r')) {
+        bail!(
+            "line {} ends in CR LF or holds a carriage return (Windows line ends?): save the index with LF line ends",
+            number + 1
+        );
+    }
     let mut lines = text.lines().enumerate().filter(|(_, l)| !l.trim().is_empty());
     let (_, header) = lines.next().context("empty index (no header line)")?;
     let names: Vec<&str> = header.split('\t').map(str::trim).collect();
@@ -99,6 +107,13 @@ pub fn parse_index(text: &str, root: &Path) -> Result<Vec<PairRecord>> {
     let mut records = Vec::new();
     for (number, line) in lines {
         let fields: Vec<&str> = line.split('\t').map(str::trim).collect();
+        ensure!(
+            fields.len() == names.len(),
+            "line {}: {} tab-separated fields, the header has {}",
+            number + 1,
+            fields.len(),
+            names.len()
+        );
         let field = |i: usize| fields.get(index[i]).copied().unwrap_or("");
         let record = parse_record(&field, root).with_context(|| format!("line {}", number + 1))?;
         records.push(record);
@@ -122,7 +137,7 @@ fn parse_record<'a>(field: &dyn Fn(usize) -> &'a str, root: &Path) -> Result<Pai
     let path = |i: usize, what: &str| -> Result<PathBuf> {
         let value = field(i);
         ensure!(!value.is_empty(), "pair {pair_id}: no {what} image");
-        Ok(root.join(value))
+        inside(root, value).with_context(|| format!("pair {pair_id}: {what} image"))
     };
     let gt = match field(5) {
         "" => None,
@@ -140,7 +155,7 @@ fn parse_record<'a>(field: &dyn Fn(usize) -> &'a str, root: &Path) -> Result<Pai
                 .parse()
                 .with_context(|| format!("pair {pair_id}: bad gt_invalid {:?}", field(8)))?;
             Some(GroundTruth {
-                path: root.join(gt),
+                path: inside(root, gt).with_context(|| format!("pair {pair_id}: ground truth"))?,
                 scale,
                 invalid,
             })
@@ -165,6 +180,23 @@ fn parse_record<'a>(field: &dyn Fn(usize) -> &'a str, root: &Path) -> Result<Pai
         width: size(9, "width")?,
         height: size(10, "height")?,
     })
+}
+
+/// `root/value`, refusing a `value` that is absolute or climbs out of `root` with `..`: an
+/// index names files of its own folder only.
+fn inside(root: &Path, value: &str) -> Result<PathBuf> {
+    use std::path::Component;
+    let relative = Path::new(value);
+    let mut depth = 0usize;
+    for component in relative.components() {
+        match component {
+            Component::Normal(_) => depth += 1,
+            Component::CurDir => {}
+            Component::ParentDir if depth > 0 => depth -= 1,
+            _ => bail!("path {value:?} leaves the index's folder"),
+        }
+    }
+    Ok(root.join(relative))
 }
 
 #[cfg(test)]
@@ -205,6 +237,30 @@ mod tests {
         assert!(
             parse_index("pair_id\tsplit\n", Path::new(".")).is_err(),
             "missing columns"
+        );
+    }
+
+    #[test]
+    fn hostile_indexes_are_refused_with_the_line() {
+        let err = |text: String| format!("{:#}", parse_index(&text, Path::new("/data")).unwrap_err());
+        let row = "a\ttrain\tk\tl.png\tr.png\t\t\t\t\t4\t4";
+        let e = err(format!("{HEADER}{row}\r\n"));
+        assert!(e.contains("line 2 ends in CR LF"), "{e}");
+        let e = err(format!("{HEADER}a\ttrain\tk\tl.png\tr.png\n"));
+        assert!(e.contains("line 2: 5 tab-separated fields, the header has 11"), "{e}");
+        for bad in ["../../etc/passwd", "/etc/passwd", "x/../../y.png"] {
+            let e = err(format!("{HEADER}a\ttrain\tk\t{bad}\tr.png\t\t\t\t\t4\t4\n"));
+            assert!(e.contains("leaves the index's folder"), "{bad}: {e}");
+        }
+        let e = err(format!(
+            "{HEADER}a\teval\tk\tl.png\tr.png\t../gt.pgm\tpgm_u8\t1\t0\t4\t4\n"
+        ));
+        assert!(e.contains("ground truth") && e.contains("leaves"), "{e}");
+        // Paths that stay inside, however spelled, are fine.
+        let ok = format!("{HEADER}a\ttrain\tk\t./x/../l.png\tr.png\t\t\t\t\t4\t4\n");
+        assert_eq!(
+            parse_index(&ok, Path::new("/data")).unwrap()[0].left,
+            Path::new("/data/./x/../l.png")
         );
     }
 }

@@ -128,15 +128,13 @@ fn finish(timings: &mut [(&'static str, Duration)], started: Instant) {
 }
 
 fn write_outputs(out: &Path, disparity: &DisparityMap, valid: &[bool]) -> Result<Vec<PathBuf>> {
-    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    crate::files::create_dir(out)?;
     let (w, h) = (disparity.width, disparity.height);
     let max = disparity.values.iter().cloned().fold(1.0f32, f32::max);
     let colour = image::RgbImage::from_raw(w as u32, h as u32, colourise(&disparity.values, max))
         .context("disparity picture size")?;
     let png = out.join("disparity.png");
-    colour
-        .save(&png)
-        .with_context(|| format!("cannot write {}", png.display()))?;
+    crate::files::save_png(&colour.into(), &png)?;
     let mask = image::GrayImage::from_raw(
         w as u32,
         h as u32,
@@ -144,10 +142,9 @@ fn write_outputs(out: &Path, disparity: &DisparityMap, valid: &[bool]) -> Result
     )
     .context("mask size")?;
     let mask_path = out.join("lr_mask.png");
-    mask.save(&mask_path)
-        .with_context(|| format!("cannot write {}", mask_path.display()))?;
+    crate::files::save_png(&mask.into(), &mask_path)?;
     let pfm = out.join("disparity.pfm");
-    std::fs::write(&pfm, pfm_bytes(disparity)).with_context(|| format!("cannot write {}", pfm.display()))?;
+    crate::files::write_bytes(&pfm, &pfm_bytes(disparity))?;
     Ok(vec![png, pfm, mask_path])
 }
 

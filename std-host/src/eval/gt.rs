@@ -4,7 +4,7 @@
 //! the stored value `gt_invalid` marks a pixel without ground truth, and the profile resize is
 //! OpenCV's `INTER_NEAREST_EXACT` for disparity and mask alike, disparity times `P / W`.
 
-use anyhow::{bail, ensure, Context, Result};
+use anyhow::{bail, ensure, Result};
 use image::DynamicImage;
 
 use super::nearest::resize_nearest_exact;
@@ -34,12 +34,7 @@ impl GroundTruthMap {
 /// Loads an 8-bit single-channel disparity image (PGM or PNG) at its stored resolution.
 pub fn load_ground_truth(gt: &GroundTruth) -> Result<GroundTruthMap> {
     let path = &gt.path;
-    let decoded = image::ImageReader::open(path)
-        .with_context(|| format!("cannot open ground truth {}", path.display()))?
-        .with_guessed_format()
-        .with_context(|| format!("cannot read ground truth {}", path.display()))?
-        .decode()
-        .with_context(|| format!("cannot decode ground truth {}", path.display()))?;
+    let decoded = crate::image_io::decode(path, "ground truth")?;
     // Like the Python loader, refuse colour or 16-bit maps instead of converting them.
     let stored = match decoded {
         DynamicImage::ImageLuma8(buffer) => buffer,

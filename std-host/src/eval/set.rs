@@ -29,14 +29,26 @@ pub fn load_eval_item(record: &PairRecord, profile: Profile) -> Result<EvalItem>
         .gt
         .as_ref()
         .with_context(|| format!("pair {id} has no ground truth"))?;
-    let view = |path: &Path| -> Result<View> {
+    let view = |path: &Path| -> Result<(View, (usize, usize))> {
         let image = load_gray(path)?;
-        profile
+        let view = profile
             .apply(&image)
-            .with_context(|| format!("pair {id}: image {}", path.display()))
+            .with_context(|| format!("pair {id}: image {}", path.display()))?;
+        Ok((view, (image.width, image.height)))
     };
-    let (left, right) = (view(&record.left)?, view(&record.right)?);
+    let ((left, stored_size), (right, _)) = (view(&record.left)?, view(&record.right)?);
     let stored = load_ground_truth(gt)?;
+    // At the stored resolution: a map of another size may still resize to the profile's.
+    ensure!(
+        (stored.width, stored.height) == stored_size,
+        "pair {id}: ground truth {} is {}x{}, its left image {} is {}x{}",
+        gt.path.display(),
+        stored.width,
+        stored.height,
+        record.left.display(),
+        stored_size.0,
+        stored_size.1
+    );
     let gt_map = resize_ground_truth(&stored, profile)
         .with_context(|| format!("pair {id}: ground truth {}", gt.path.display()))?;
     ensure!(

@@ -6,7 +6,7 @@ use std::fmt;
 use std::path::Path;
 use std::str::FromStr;
 
-use anyhow::{bail, ensure, Context, Result};
+use anyhow::{bail, ensure, Result};
 use embedded_graphics::draw_target::DrawTarget;
 use embedded_graphics::geometry::{Dimensions, OriginDimensions, Size};
 use embedded_graphics::pixelcolor::raw::{RawData, RawU16};
@@ -114,14 +114,7 @@ impl Framebuffer {
 
     /// Writes the picture as PNG through a temporary file (no partial file on failure).
     pub fn save_png(&self, path: &Path) -> Result<()> {
-        if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
-            std::fs::create_dir_all(dir).with_context(|| format!("cannot create folder {}", dir.display()))?;
-        }
-        let tmp = path.with_extension("png.partial");
-        self.to_rgb888()
-            .save_with_format(&tmp, image::ImageFormat::Png)
-            .with_context(|| format!("cannot write {}", tmp.display()))?;
-        std::fs::rename(&tmp, path).with_context(|| format!("cannot move output into {}", path.display()))
+        crate::files::save_png(&self.to_rgb888().into(), path)
     }
 
     fn index(&self, x: i32, y: i32) -> Option<usize> {

@@ -1,0 +1,88 @@
+//! Determinism (issue 12): the firmware's own workload (`firmware-sim/src/workload.rs`, the
+//! shipped blob, the embedded 48x160 band pair) gives bit-identical outputs run after run and
+//! on several threads at once on the host, and the same digests the Cortex-M55 and Cortex-M7
+//! firmwares computed under QEMU (`firmware-sim/measured/*.json`, written by
+//! `scripts/firmware.sh --profile --out firmware-sim/measured`).
+
+use std::path::{Path, PathBuf};
+
+#[path = "../../firmware-sim/src/workload.rs"]
+#[allow(dead_code)]
+mod workload;
+
+use workload::{BandPair, Hooks, Stage, OUTPUTS};
+
+struct Quiet;
+
+impl Hooks for Quiet {
+    fn enter(&mut self, _: Stage) {}
+    fn pause(&mut self) {}
+    fn resume(&mut self, _: Stage) {}
+    fn finish(&mut self) {}
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The workload's digests on the committed band, in a fresh arena each time.
+fn digests(blob: &[u8], left: &[u8], right: &[u8]) -> [u32; OUTPUTS.len()] {
+    let (height, width) = (48, 160);
+    let mut arena = vec![0xA5u8; workload::arena_bytes(height, width)];
+    let pair = BandPair {
+        left,
+        right,
+        width,
+        height,
+    };
+    workload::run(blob, pair, &mut arena, &mut Quiet).unwrap().digests
+}
+
+/// The digests a firmware run recorded, by output name.
+fn firmware_digests(core: &str) -> Vec<(String, u32)> {
+    let path = repo().join(format!("firmware-sim/measured/{core}.json"));
+    let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let run: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(run["band"]["width"], 160, "{}: the 48x160 band", path.display());
+    assert_eq!(run["passed"], true, "{}", path.display());
+    run["outputs"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|o| {
+            let name = o["name"].as_str().unwrap().to_string();
+            let digest = u32::from_str_radix(o["digest"].as_str().unwrap(), 16).unwrap();
+            (name, digest)
+        })
+        .collect()
+}
+
+#[test]
+fn outputs_are_bit_identical_across_runs_threads_and_targets() {
+    let blob = std::fs::read(repo().join("weights/bino_int8.bin")).unwrap();
+    let assets = repo().join("firmware-sim/assets");
+    let left = std::fs::read(assets.join("band_48x160_left.gray")).unwrap();
+    let right = std::fs::read(assets.join("band_48x160_right.gray")).unwrap();
+
+    let first = digests(&blob, &left, &right);
+    assert_eq!(digests(&blob, &left, &right), first, "a second run on the host");
+    let threads: Vec<[u32; OUTPUTS.len()]> = std::thread::scope(|scope| {
+        let handles: Vec<_> = (0..3).map(|_| scope.spawn(|| digests(&blob, &left, &right))).collect();
+        handles.into_iter().map(|h| h.join().unwrap()).collect()
+    });
+    for (i, d) in threads.iter().enumerate() {
+        assert_eq!(d, &first, "thread {i} of three running at once");
+    }
+
+    for core in ["m55", "m7"] {
+        let recorded = firmware_digests(core);
+        let names: Vec<&str> = recorded.iter().map(|(n, _)| n.as_str()).collect();
+        assert_eq!(names, OUTPUTS, "{core}: the workload's outputs");
+        for ((name, digest), host) in recorded.iter().zip(first) {
+            assert_eq!(
+                *digest, host,
+                "{core} {name}: firmware {digest:08x}, host {host:08x} (re-measure with scripts/firmware.sh --profile --out firmware-sim/measured after changing the blob or the engine)"
+            );
+        }
+    }
+}
