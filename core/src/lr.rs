@@ -79,6 +79,32 @@ pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [
     Ok(kept)
 }
 
+/// The `+lr` readouts' dense output: each cell the left-right check rejected (`consistent`
+/// 0) takes the disparity of the nearest kept cell to its left; rejected cells before the
+/// first kept one take that one's; a row with no kept cell is all 0. In place.
+pub fn fill_rejected(row_q8: &mut [u16], consistent: &[u8]) -> Result<(), Error> {
+    if consistent.len() != row_q8.len() {
+        return Err(Error::BufferSize {
+            what: "left-right mask row",
+            expected: row_q8.len(),
+            found: consistent.len(),
+        });
+    }
+    let Some(first) = consistent.iter().position(|&k| k != 0) else {
+        row_q8.fill(0);
+        return Ok(());
+    };
+    let mut carried = row_q8.get(first).copied().unwrap_or(0);
+    for (value, &kept) in row_q8.iter_mut().zip(consistent) {
+        if kept != 0 {
+            carried = *value;
+        } else {
+            *value = carried;
+        }
+    }
+    Ok(())
+}
+
 fn check_costs(costs: &[u16], candidates: usize) -> Result<usize, Error> {
     check_candidates(candidates)?;
     if costs.is_empty() {
@@ -124,6 +150,17 @@ mod tests {
         assert_eq!(consistent_row(&left, &right, 256, &mut mask), Ok(4));
         // A disparity pointing outside the view is never kept.
         assert_eq!(consistent_row(&[768], &[768], 128, &mut mask[..1]), Ok(0));
+    }
+
+    #[test]
+    fn rejected_cells_take_the_nearest_kept_value_to_their_left() {
+        let mut row = [10, 20, 30, 40, 50];
+        fill_rejected(&mut row, &[0, 1, 0, 0, 1]).unwrap();
+        assert_eq!(row, [20, 20, 20, 20, 50]);
+        let mut none = [7, 8];
+        fill_rejected(&mut none, &[0, 0]).unwrap();
+        assert_eq!(none, [0, 0]);
+        assert!(matches!(fill_rejected(&mut none, &[1]), Err(Error::BufferSize { .. })));
     }
 
     #[test]

@@ -21,7 +21,8 @@ use crate::config::{check_view_size, BAND_TOKEN_ROWS, CELL_W, DIM, PATCH_H};
 use crate::lr::{consistent_row, right_view_costs, wta_costs};
 use crate::matching::{check_candidates, cost_row, inverse_norms, match_row};
 use crate::model::encoder::{self, Encoder, GrayBand};
-use crate::model::head::{self, HeadRow, HeadSink, HeadStream, HeadWeights};
+use crate::model::head::{self, HeadRow, HeadSink, HeadStream, HeadView, HeadWeights};
+use crate::model::ids::HEAD_CONVS;
 use crate::model::probe::NoProbe;
 use crate::sgm::{state_len, Penalties, SgmStream};
 use crate::Error;
@@ -159,6 +160,10 @@ pub struct Options {
     pub lr_max_diff_q8: u16,
     /// Run the shared head too.
     pub head: bool,
+    /// With `head`: run it on the mirrored pair as well, for the head's own left-right check
+    /// ([`Sink::head_checked`]); a second head stream, so the arena is
+    /// [`arena_bytes_head_lr`]. Ignored without `head`.
+    pub head_lr: bool,
 }
 
 /// One token row of the matching readouts.
@@ -176,6 +181,19 @@ pub struct MatchedRow<'r> {
     pub sgm_consistent: &'r [u8],
 }
 
+/// The head's left-right check of one token row: the right view's head disparity (the head on
+/// the mirrored pair) and which left cells it confirms.
+#[derive(Debug, Clone, Copy)]
+pub struct HeadChecked<'r> {
+    /// Token row.
+    pub row: usize,
+    /// The right view's head disparity per patch column, Q8 patch columns.
+    pub right_q8: &'r [u16],
+    /// 1 where the left head disparity (the [`Sink::head`] row of the same index) passes the
+    /// left-right check, else 0.
+    pub consistent: &'r [u8],
+}
+
 /// Receives what the pipeline produces, in order.
 pub trait Sink {
     /// The pipeline enters `stage`.
@@ -190,6 +208,11 @@ pub trait Sink {
     fn matched(&mut self, row: &MatchedRow<'_>);
     /// One token row of the head, top to bottom (a few rows behind the matching).
     fn head(&mut self, row: HeadRow<'_>) {
+        let _ = row;
+    }
+    /// With [`Options::head_lr`]: the head's left-right check of a row, after its
+    /// [`Sink::head`] row.
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
         let _ = row;
     }
 }
@@ -218,6 +241,8 @@ pub struct Report {
     pub wta_kept: usize,
     /// Cells whose SGM disparity passed the left-right check.
     pub sgm_kept: usize,
+    /// Cells whose head disparity passed the head's left-right check ([`Options::head_lr`]).
+    pub head_kept: usize,
 }
 
 const fn max(a: usize, b: usize) -> usize {
@@ -267,9 +292,24 @@ const fn sum(terms: &[usize]) -> usize {
     total
 }
 
-/// Arena bytes of the readout streams (with the head).
-const fn stream_bytes(cols: usize, max_cols: usize) -> usize {
-    matching_bytes(cols, max_cols).saturating_add(head::arena_bytes(cols))
+/// Rows of left head disparities kept until the mirrored head's row of the same index comes:
+/// it trails by at most the head's latency (one row per convolution).
+const HEAD_CHECK_ROWS: usize = HEAD_CONVS + 1;
+
+/// Arena bytes of the head's left-right check: the mirrored head stream, the left rows it
+/// trails, one mask row.
+const fn head_check_bytes(cols: usize) -> usize {
+    sum(&[
+        head::arena_bytes(cols),
+        cols.saturating_mul(2 * HEAD_CHECK_ROWS).saturating_add(1),
+        cols,
+    ])
+}
+
+/// Arena bytes of the readout streams (with the head, and its check when `head_lr`).
+const fn stream_bytes(cols: usize, max_cols: usize, head_lr: bool) -> usize {
+    let check = if head_lr { head_check_bytes(cols) } else { 0 };
+    sum(&[matching_bytes(cols, max_cols), head::arena_bytes(cols), check])
 }
 
 /// Arena bytes the pipeline needs for a `height x width` pair with `max_cols` candidates
@@ -280,12 +320,27 @@ const fn stream_bytes(cols: usize, max_cols: usize) -> usize {
 /// [`Error::ArenaTooSmall`] (or earlier, as [`Error::TooWide`] / [`Error::Candidates`]); the
 /// result is never a small wrong size.
 pub const fn arena_bytes(height: usize, width: usize, max_cols: usize) -> usize {
+    arena_bytes_of(height, width, max_cols, false)
+}
+
+/// [`arena_bytes`] with the head's left-right check ([`Options::head_lr`]): a second head
+/// stream.
+pub const fn arena_bytes_head_lr(height: usize, width: usize, max_cols: usize) -> usize {
+    arena_bytes_of(height, width, max_cols, true)
+}
+
+/// The arena bytes a run with `opts` needs ([`arena_bytes`] or [`arena_bytes_head_lr`]).
+pub const fn arena_bytes_for(height: usize, width: usize, opts: &Options) -> usize {
+    arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr)
+}
+
+const fn arena_bytes_of(height: usize, width: usize, max_cols: usize, head_lr: bool) -> usize {
     let band_rows = band_pixel_rows(height);
     let cols = width / CELL_W;
     let pixels = band_rows.saturating_mul(width).saturating_mul(2);
     let descriptors = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(DIM);
     let encoder = encoder::arena_bytes(band_rows, width);
-    let streams = stream_bytes(cols, max_cols);
+    let streams = stream_bytes(cols, max_cols, head_lr);
     if height <= band_rows {
         sum(&[pixels, descriptors, max(encoder, descriptors.saturating_add(streams))])
     } else {
@@ -336,7 +391,7 @@ impl<'w> Pipeline<'w> {
             (true, None) => return Err(Error::Blob(crate::blob::BlobError::MissingTensor { id: head_id() })),
             (false, _) => None,
         };
-        let needed = arena_bytes(height, width, opts.max_cols);
+        let needed = arena_bytes_for(height, width, opts);
         if arena.len() < needed {
             return Err(Error::ArenaTooSmall {
                 needed,
@@ -383,9 +438,11 @@ impl<'w> Pipeline<'w> {
             report.encoder = encoder_used;
             report.streams = streams.used;
             (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
+            report.head_kept = streams.head_kept();
             report.arena_used = report.pixels + desc_len + max(encoder_used, desc_len + streams.used);
         } else {
-            let (stream_arena, scratch) = scratch.split_at_mut(stream_bytes(cols, opts.max_cols));
+            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_lr());
+            let (stream_arena, scratch) = scratch.split_at_mut(stream_len);
             let mut streams = Streams::new(&ctx, stream_arena)?;
             for band in plan.iter() {
                 rows.load(band, left_px, right_px, sink)?;
@@ -397,7 +454,8 @@ impl<'w> Pipeline<'w> {
             streams.finish(sink)?;
             report.streams = streams.used;
             (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
-            report.arena_used = report.pixels + desc_len + stream_bytes(cols, opts.max_cols) + report.encoder;
+            report.head_kept = streams.head_kept();
+            report.arena_used = report.pixels + desc_len + stream_len + report.encoder;
         }
         Ok(report)
     }
@@ -419,6 +477,11 @@ struct Context<'p, 'w> {
 }
 
 impl Context<'_, '_> {
+    /// Whether this run checks the head left against right.
+    fn head_lr(&self) -> bool {
+        self.head.is_some() && self.opts.head_lr
+    }
+
     /// Both encoder passes over the band in the pixel buffers: the left descriptors are copied
     /// to `desc_left`, the right ones stay at the front of `scratch`. Returns the encoder's
     /// high-water, the right descriptors and the rest of `scratch`.
@@ -493,12 +556,71 @@ impl<S: RowSource> BandRows<'_, S> {
     }
 }
 
-/// Forwards the head's rows to the pipeline's sink.
-struct HeadRows<'k, K>(&'k mut K);
+/// Forwards the left head's rows to the pipeline's sink, keeping their disparities for the
+/// check when there is one.
+struct HeadRows<'k, 'c, 'a, K> {
+    sink: &'k mut K,
+    check: Option<&'c mut HeadCheck<'a>>,
+}
 
-impl<K: Sink> HeadSink for HeadRows<'_, K> {
+impl<K: Sink> HeadSink for HeadRows<'_, '_, '_, K> {
     fn row(&mut self, row: HeadRow<'_>) {
-        self.0.head(row);
+        if let Some(check) = self.check.as_deref_mut() {
+            check.keep_left(row.row, row.disparity_q8);
+        }
+        self.sink.head(row);
+    }
+}
+
+/// The head's left-right check: the mirrored head stream and the left rows it trails.
+struct HeadCheck<'a> {
+    cols: usize,
+    lr_max_diff_q8: u16,
+    /// [`HEAD_CHECK_ROWS`] rows of left disparities, row `r` in slot `r % HEAD_CHECK_ROWS`.
+    left_rows: &'a mut [u16],
+    mask: &'a mut [u8],
+    kept: usize,
+}
+
+impl HeadCheck<'_> {
+    fn slot(&mut self, row: usize) -> Option<&mut [u16]> {
+        let at = (row % HEAD_CHECK_ROWS) * self.cols;
+        self.left_rows.get_mut(at..at + self.cols)
+    }
+
+    fn keep_left(&mut self, row: usize, disparity_q8: &[u16]) {
+        if let Some(slot) = self.slot(row) {
+            if slot.len() == disparity_q8.len() {
+                slot.copy_from_slice(disparity_q8);
+            }
+        }
+    }
+}
+
+/// Checks the mirrored head's rows against the left rows kept for them.
+struct CheckedRows<'k, 'c, 'a, K> {
+    sink: &'k mut K,
+    check: &'c mut HeadCheck<'a>,
+}
+
+impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
+    fn row(&mut self, row: HeadRow<'_>) {
+        let check = &mut *self.check;
+        let tolerance = check.lr_max_diff_q8;
+        let at = (row.row % HEAD_CHECK_ROWS) * check.cols;
+        let Some(left) = check.left_rows.get(at..at + check.cols) else {
+            return;
+        };
+        // Equal lengths by construction (both streams are `cols` wide); a mismatch emits nothing.
+        let Ok(kept) = consistent_row(left, row.disparity_q8, tolerance, check.mask) else {
+            return;
+        };
+        check.kept += kept;
+        self.sink.head_checked(&HeadChecked {
+            row: row.row,
+            right_q8: row.disparity_q8,
+            consistent: check.mask,
+        });
     }
 }
 
@@ -520,6 +642,8 @@ struct Streams<'a, 'w> {
     wta_mask: &'a mut [u8],
     sgm_mask: &'a mut [u8],
     head: Option<HeadStream<'a, 'w>>,
+    /// With `head_lr`: the mirrored head and the check.
+    check: Option<(HeadStream<'a, 'w>, HeadCheck<'a>)>,
     used: usize,
     wta_kept: usize,
     sgm_kept: usize,
@@ -559,13 +683,30 @@ impl<'a, 'w> Streams<'a, 'w> {
         let wta_mask = carver.u8s(cols)?;
         let sgm_mask = carver.u8s(cols)?;
         let mut used = carver.used();
-        let head = match ctx.head {
+        let (head, check) = match ctx.head {
             Some(w) => {
-                let stream = HeadStream::new(w, cols, head_arena)?;
+                let (left_arena, check_arena) = head_arena.split_at_mut(head::arena_bytes(cols).min(head_arena.len()));
+                let stream = HeadStream::new(w, cols, left_arena)?;
                 used = matching + stream.arena_used();
-                Some(stream)
+                let check = if ctx.head_lr() {
+                    let (mirror_arena, rest) = check_arena.split_at_mut(head::arena_bytes(cols).min(check_arena.len()));
+                    let mirror = HeadStream::for_view(w, cols, HeadView::Right, mirror_arena)?;
+                    let mut carver = Carver::new(rest, head_check_bytes(cols) - head::arena_bytes(cols))?;
+                    let check = HeadCheck {
+                        cols,
+                        lr_max_diff_q8: ctx.opts.lr_max_diff_q8,
+                        left_rows: carver.u16s(cols * HEAD_CHECK_ROWS)?,
+                        mask: carver.u8s(cols)?,
+                        kept: 0,
+                    };
+                    used += mirror.arena_used() + carver.used();
+                    Some((mirror, check))
+                } else {
+                    None
+                };
+                (Some(stream), check)
             }
-            None => None,
+            None => (None, None),
         };
         Ok(Self {
             cols,
@@ -584,10 +725,16 @@ impl<'a, 'w> Streams<'a, 'w> {
             wta_mask,
             sgm_mask,
             head,
+            check,
             used,
             wta_kept: 0,
             sgm_kept: 0,
         })
+    }
+
+    /// Cells the head's left-right check kept (0 without it).
+    fn head_kept(&self) -> usize {
+        self.check.as_ref().map_or(0, |(_, check)| check.kept)
     }
 
     /// Feeds the rows `band` keeps.
@@ -631,7 +778,20 @@ impl<'a, 'w> Streams<'a, 'w> {
         });
         if let Some(head) = self.head.as_mut() {
             sink.stage(Stage::Head);
-            head.push_row(left, right, &mut HeadRows(sink))?;
+            match self.check.as_mut() {
+                Some((mirror, check)) => {
+                    head.push_row(
+                        left,
+                        right,
+                        &mut HeadRows {
+                            sink,
+                            check: Some(check),
+                        },
+                    )?;
+                    mirror.push_row(left, right, &mut CheckedRows { sink, check })?;
+                }
+                None => head.push_row(left, right, &mut HeadRows { sink, check: None })?,
+            }
         }
         Ok(())
     }
@@ -639,7 +799,16 @@ impl<'a, 'w> Streams<'a, 'w> {
     fn finish(&mut self, sink: &mut impl Sink) -> Result<(), Error> {
         if let Some(head) = self.head.as_mut() {
             sink.stage(Stage::Head);
-            head.finish(&mut HeadRows(sink))?;
+            match self.check.as_mut() {
+                Some((mirror, check)) => {
+                    head.finish(&mut HeadRows {
+                        sink,
+                        check: Some(check),
+                    })?;
+                    mirror.finish(&mut CheckedRows { sink, check })?;
+                }
+                None => head.finish(&mut HeadRows { sink, check: None })?,
+            }
         }
         Ok(())
     }

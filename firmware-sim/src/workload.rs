@@ -18,6 +18,7 @@ pub const OPTIONS: Options = Options {
     penalties: Penalties { p1: 8, p2: 32 },
     lr_max_diff_q8: 256,
     head: true,
+    head_lr: false,
 };
 
 /// Arena bytes the workload needs for a `height x width` band pair.

@@ -52,6 +52,8 @@ pub struct Run {
     pub lr_max_diff_q8: u16,
     /// Run the head.
     pub head: bool,
+    /// With the head: its left-right check (a second, mirrored head stream).
+    pub head_lr: bool,
     /// Arena bytes relative to what `arena_bytes` asks for.
     pub arena_delta: i16,
     /// Pixel values, cycled over both views.
@@ -118,6 +120,7 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
         penalties: Penalties { p1: run.p1, p2: run.p2 },
         lr_max_diff_q8: run.lr_max_diff_q8,
         head: run.head,
+        head_lr: run.head_lr,
     };
     // A lying source reports a size of its own: small ones are run (the pipeline then asks
     // for rows the source may not have), absurd ones must be refused before any row is read.
@@ -134,7 +137,7 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
     };
     // The arena a caller would size from the reported shape, nudged by the fuzzer; capped so
     // an absurd (saturated) size is not allocated: the pipeline must reject it anyway.
-    let wanted = pipeline::arena_bytes(reported_height, reported_width, opts.max_cols);
+    let wanted = pipeline::arena_bytes_for(reported_height, reported_width, &opts);
     let len = (wanted as i64 + i64::from(run.arena_delta)).clamp(0, 1 << 22) as usize;
     let mut arena = vec![0u8; len];
     let mut source = FuzzSource {

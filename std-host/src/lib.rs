@@ -24,6 +24,7 @@ pub mod pairs;
 pub mod pipeline_maps;
 pub mod profile;
 pub mod quantize;
+pub mod readout;
 pub mod readout_eval;
 pub mod reference;
 pub mod reference_head;

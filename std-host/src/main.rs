@@ -103,9 +103,10 @@ enum Command {
         /// Int8 weight blob.
         #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
         blob: PathBuf,
-        /// Readout drawn: sgm, nolink or head (left-right rejected cells are dark).
+        /// Readout drawn: nolink, sgm or head (cells their left-right check rejects are dark),
+        /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval` scores).
         #[arg(long, default_value = "sgm")]
-        readout: bino_host::readout_eval::Readout,
+        readout: bino_host::readout::Readout,
         /// Disparity candidates of nolink and sgm, in patch columns.
         #[arg(long, default_value_t = 16)]
         max_cols: usize,
@@ -207,8 +208,8 @@ enum Command {
         #[arg(long)]
         limit: Option<usize>,
     },
-    /// Score the int8 pipeline's readouts (nolink, sgm, head) on the eval split, EVAL.md metrics
-    /// per pair and mean. StereoSGBM in the same setting: `python -m bino_train.head_eval`.
+    /// Score the readouts (nolink, sgm, head, each also +lr) on the eval split, int8 (the core
+    /// pipeline) and f32, EVAL.md metrics per pair and mean, StereoSGBM in the same run.
     Eval {
         /// Folder with PAIRS.tsv.
         #[arg(long, default_value = "../shared/data")]
@@ -232,9 +233,14 @@ enum Command {
         /// float twins of the readouts).
         #[arg(long, value_delimiter = ',', default_value = "int8,f32")]
         precision: Vec<bino_host::readout_eval::Precision>,
-        /// Readouts to score (repeat or comma-separate): nolink, sgm, head.
-        #[arg(long, value_delimiter = ',', default_value = "nolink,sgm,head")]
-        readout: Vec<bino_host::readout_eval::Readout>,
+        /// Readouts to score (repeat or comma-separate): nolink, sgm, head, each optionally
+        /// with +lr (cells the method's own left-right check rejects filled from the left).
+        #[arg(
+            long,
+            value_delimiter = ',',
+            default_value = "nolink,nolink+lr,sgm,sgm+lr,head,head+lr"
+        )]
+        readout: Vec<bino_host::readout::Readout>,
         /// Left-right check tolerance, in patch columns.
         #[arg(long, default_value_t = 1.0)]
         lr_max_diff: f32,
@@ -258,7 +264,8 @@ enum Command {
         limit: Option<usize>,
     },
     /// The int8 pipeline on a rectified pair of any size: writes disparity.png (colour),
-    /// disparity.pfm (float32 pixels) and lr_mask.png (left-right consistent pixels) to --out.
+    /// disparity.pfm (float32 pixel disparities, the readout exactly as `bino eval` scores it)
+    /// and lr_mask.png (pixels the readout's method keeps in its left-right check) to --out.
     Run {
         /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
         #[arg(long)]
@@ -272,9 +279,11 @@ enum Command {
         /// Int8 weight blob.
         #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
         blob: PathBuf,
-        /// Readout: nolink, sgm or head.
-        #[arg(long, default_value = "sgm")]
-        readout: bino_host::readout_eval::Readout,
+        /// Readout: nolink, sgm or head, each optionally with +lr (cells the method's own
+        /// left-right check rejects filled from the nearest kept cell to their left). The
+        /// default, head+lr, is the readout with the lowest eval-split error (README).
+        #[arg(long, default_value = "head+lr")]
+        readout: bino_host::readout::Readout,
         /// Disparity candidates of nolink and sgm, in patch columns.
         #[arg(long, default_value_t = 16)]
         max_cols: usize,

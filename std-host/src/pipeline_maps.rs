@@ -8,25 +8,18 @@ use bino_core::band::BandPlan;
 use bino_core::config::PATCH_H;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, MatchedRow, Options, Pipeline, Report, Sink, SlicePair, Stage};
+use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Report, Sink, SlicePair, Stage};
 
 use crate::eval::DisparityMap;
 use crate::int8::{to_u8, Int8Model};
 use crate::profile::View;
+use crate::readout::MethodMaps;
 
-/// Every readout of one run as token-grid maps (patch columns), with the left-right masks.
+/// Every method of one run as token-grid maps (patch columns), with their left-right masks.
 #[derive(Debug, Clone)]
 pub struct PipelineMaps {
-    /// No-linkage WTA.
-    pub wta: DisparityMap,
-    /// SGM.
-    pub sgm: DisparityMap,
-    /// The shared head (empty values when the run had no head).
-    pub head: DisparityMap,
-    /// Cells whose WTA passed the left-right check.
-    pub wta_consistent: Vec<bool>,
-    /// Cells whose SGM passed the left-right check.
-    pub sgm_consistent: Vec<bool>,
+    /// The methods' maps and masks (the head's when the options asked for it).
+    pub methods: MethodMaps,
     /// Wall time inside the pipeline, per stage.
     pub stage_times: Vec<(Stage, Duration)>,
     /// The core's report (arena by part, bands, kept counts).
@@ -56,7 +49,7 @@ pub fn run_pipeline(
     let (w, h) = (left.width, left.height);
     let (lp, rp) = (to_u8(&left.pixels), to_u8(&right.pixels));
     let mut source = SlicePair::new(&lp, &rp, w, h).map_err(anyhow::Error::msg)?;
-    let arena_bytes = pipeline::arena_bytes(h, w, opts.max_cols);
+    let arena_bytes = pipeline::arena_bytes_for(h, w, opts);
     let mut arena = vec![0u8; arena_bytes];
     let bands = BandPlan::new(h / PATCH_H).map_err(anyhow::Error::msg)?.len();
     let mut sink = Collect {
@@ -75,23 +68,32 @@ pub fn run_pipeline(
     let m = sink.maps;
     let cells = rows * cols;
     ensure!(
-        m.wta.len() == cells && m.sgm.len() == cells && (m.head.is_empty() || m.head.len() == cells),
-        "the pipeline emitted {} WTA, {} SGM and {} head cells for {rows}x{cols}",
+        m.wta.len() == cells
+            && m.sgm.len() == cells
+            && (m.head.is_empty() || m.head.len() == cells)
+            && (m.head_mask.is_empty() || m.head_mask.len() == cells),
+        "the pipeline emitted {} WTA, {} SGM, {} head and {} head check cells for {rows}x{cols}",
         m.wta.len(),
         m.sgm.len(),
-        m.head.len()
+        m.head.len(),
+        m.head_mask.len()
     );
     let map = |values: Vec<f32>| DisparityMap {
         width: cols,
         height: rows,
         values,
     };
+    let head_ran = opts.head && !m.head.is_empty();
+    let check_ran = head_ran && opts.head_lr;
     Ok(PipelineMaps {
-        wta: map(m.wta),
-        sgm: map(m.sgm),
-        head: map(m.head),
-        wta_consistent: m.wta_mask,
-        sgm_consistent: m.sgm_mask,
+        methods: MethodMaps {
+            nolink: map(m.wta),
+            sgm: map(m.sgm),
+            head: head_ran.then(|| map(m.head)),
+            nolink_consistent: m.wta_mask,
+            sgm_consistent: m.sgm_mask,
+            head_consistent: check_ran.then_some(m.head_mask),
+        },
         stage_times: sink.stage_times,
         report,
         arena_bytes,
@@ -105,6 +107,7 @@ struct Rows {
     head: Vec<f32>,
     wta_mask: Vec<bool>,
     sgm_mask: Vec<bool>,
+    head_mask: Vec<bool>,
 }
 
 struct Collect<'p> {
@@ -151,5 +154,9 @@ impl Sink for Collect<'_> {
 
     fn head(&mut self, row: HeadRow<'_>) {
         self.maps.head.extend(q8(row.disparity_q8));
+    }
+
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        self.maps.head_mask.extend(row.consistent.iter().map(|&m| m != 0));
     }
 }

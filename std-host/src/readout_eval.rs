@@ -18,50 +18,18 @@ use bino_core::sgm::Penalties;
 use crate::compare::head::FloatHeadRunner;
 use crate::eval::float_twins::{consistent, right_view, sgm};
 use crate::eval::{
-    density, load_eval_item, mean_metrics, score, score_sparse, similarity_volume, upsample_disparity, upsample_mask,
-    wta_subtoken, DisparityMap, EvalItem, GroundTruthMap, Metrics,
+    density, load_eval_item, mean_metrics, score, score_sparse, similarity_volume, upsample_mask, wta_subtoken,
+    DisparityMap, EvalItem, GroundTruthMap, Metrics,
 };
 use crate::int8::{to_u8, Int8Model};
 use crate::json::Object;
 use crate::pairs::{read_index, Split};
 use crate::pipeline_maps::run_pipeline;
 use crate::profile::Profile;
+use crate::readout::MethodMaps;
+pub use crate::readout::Readout;
 use crate::reference::ReferenceEncoder;
 use crate::sgbm::{GrayPair, SgbmRunner};
-/// A way of reading disparity out of the descriptor maps.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum Readout {
-    /// Cosine WTA with the parabola step.
-    Nolink,
-    /// SGM over the cosine costs, then the parabola step.
-    Sgm,
-    /// The int8 shared head.
-    Head,
-}
-
-impl Readout {
-    /// Its name on the command line and in reports.
-    pub fn name(self) -> &'static str {
-        match self {
-            Readout::Nolink => "nolink",
-            Readout::Sgm => "sgm",
-            Readout::Head => "head",
-        }
-    }
-}
-
-impl FromStr for Readout {
-    type Err = anyhow::Error;
-
-    fn from_str(s: &str) -> Result<Self> {
-        match s {
-            "nolink" => Ok(Readout::Nolink),
-            "sgm" => Ok(Readout::Sgm),
-            "head" => Ok(Readout::Head),
-            other => bail!("unknown readout {other:?} (expected nolink, sgm or head)"),
-        }
-    }
-}
 
 /// The arithmetic a readout runs in.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -182,7 +150,7 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
         other => bail!("split {other:?}: only eval pairs carry ground truth here (use --split eval)"),
     };
     let wants = |p: Precision| opts.precisions.contains(&p);
-    let head = opts.readouts.contains(&Readout::Head);
+    let head = opts.readouts.iter().any(|r| r.uses_head());
     let model = if wants(Precision::Int8) {
         let model = Int8Model::load(&opts.blob)?;
         ensure!(
@@ -234,7 +202,7 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
             };
             for &readout in &opts.readouts {
                 scores.push(
-                    maps.score(readout, &item.gt)
+                    score_readout(&maps, readout, &item.gt)
                         .with_context(|| format!("pair {}: {} {}", item.pair_id, precision.name(), readout.name()))?,
                 );
             }
@@ -263,59 +231,47 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
     })
 }
 
-/// Token-grid readouts of one pair in one precision, with their left-right masks.
-struct ReadoutMaps {
-    wta: DisparityMap,
-    sgm: DisparityMap,
-    head: Option<DisparityMap>,
-    wta_consistent: Vec<bool>,
-    sgm_consistent: Vec<bool>,
+/// Scores `readout` of `maps` against `gt`: the metrics of its pixel disparity, and the
+/// method's left-right keep rate and the error on the pixels it keeps.
+fn score_readout(maps: &MethodMaps, readout: Readout, gt: &GroundTruthMap) -> Result<ReadoutScore> {
+    let (tokens, mask) = maps.method(readout.method)?;
+    let pixels = maps.pixels(readout)?;
+    let metrics = score(&pixels, gt)?;
+    let (lr_keep, gt_lr_epe) = match mask {
+        Some(mask) => {
+            let keep = upsample_mask(mask, tokens.width, pixels.width, pixels.height);
+            let restricted = GroundTruthMap {
+                valid: gt.valid.iter().zip(&keep).map(|(&g, &k)| g && k).collect(),
+                ..gt.clone()
+            };
+            let gt_lr = score(&pixels, &restricted).map(|m| m.epe).unwrap_or(f64::NAN);
+            (Some(density(&keep, gt)?), Some(gt_lr))
+        }
+        None => (None, None),
+    };
+    Ok(ReadoutScore {
+        metrics,
+        lr_keep,
+        gt_lr_epe,
+    })
 }
 
-impl ReadoutMaps {
-    fn score(&self, readout: Readout, gt: &GroundTruthMap) -> Result<ReadoutScore> {
-        let (tokens, mask) = match readout {
-            Readout::Nolink => (&self.wta, Some(&self.wta_consistent)),
-            Readout::Sgm => (&self.sgm, Some(&self.sgm_consistent)),
-            Readout::Head => (self.head.as_ref().context("no head output")?, None),
-        };
-        let pixels = upsample_disparity(tokens);
-        let metrics = score(&pixels, gt)?;
-        let (lr_keep, gt_lr_epe) = match mask {
-            Some(mask) => {
-                let keep = upsample_mask(mask, tokens.width, pixels.width, pixels.height);
-                let restricted = GroundTruthMap {
-                    valid: gt.valid.iter().zip(&keep).map(|(&g, &k)| g && k).collect(),
-                    ..gt.clone()
-                };
-                let gt_lr = score(&pixels, &restricted).map(|m| m.epe).unwrap_or(f64::NAN);
-                (Some(density(&keep, gt)?), Some(gt_lr))
-            }
-            None => (None, None),
-        };
-        Ok(ReadoutScore {
-            metrics,
-            lr_keep,
-            gt_lr_epe,
-        })
-    }
-}
-
-fn int8_maps(opts: &EvalOptions, model: &Int8Model, item: &EvalItem) -> Result<ReadoutMaps> {
+fn int8_maps(opts: &EvalOptions, model: &Int8Model, item: &EvalItem) -> Result<MethodMaps> {
+    let head = opts.readouts.iter().any(|r| r.uses_head());
     let pipeline = PipelineOptions {
         max_cols: opts.max_cols,
         penalties: opts.penalties,
-        lr_max_diff_q8: (opts.lr_max_diff.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16,
-        head: opts.readouts.contains(&Readout::Head),
+        lr_max_diff_q8: lr_tolerance_q8(opts.lr_max_diff),
+        head,
+        // The head's own check: for head+lr, and for head's LRkeep column.
+        head_lr: head,
     };
-    let maps = run_pipeline(model, &item.left, &item.right, &pipeline, &mut |_, _| {})?;
-    Ok(ReadoutMaps {
-        head: (!maps.head.values.is_empty()).then_some(maps.head),
-        wta: maps.wta,
-        sgm: maps.sgm,
-        wta_consistent: maps.wta_consistent,
-        sgm_consistent: maps.sgm_consistent,
-    })
+    Ok(run_pipeline(model, &item.left, &item.right, &pipeline, &mut |_, _| {})?.methods)
+}
+
+/// A left-right tolerance in patch columns as the core's Q8.
+pub fn lr_tolerance_q8(columns: f32) -> u16 {
+    (columns.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16
 }
 
 fn float_maps(
@@ -323,7 +279,7 @@ fn float_maps(
     encoder: &mut ReferenceEncoder,
     head: Option<&mut FloatHeadRunner>,
     item: &EvalItem,
-) -> Result<ReadoutMaps> {
+) -> Result<MethodMaps> {
     let left = encoder.descriptors(&item.left).context("left view")?;
     let right = encoder.descriptors(&item.right).context("right view")?;
     let volume = similarity_volume(&left, &right, opts.max_cols)?;
@@ -332,21 +288,38 @@ fn float_maps(
     let sgm_left = sgm(&volume, opts.penalties);
     let wta_consistent = consistent(&wta, &wta_subtoken(&volume_right), opts.lr_max_diff);
     let sgm_consistent = consistent(&sgm_left, &sgm(&volume_right, opts.penalties), opts.lr_max_diff);
-    let head = match head {
-        Some(h) => Some(DisparityMap {
-            width: left.cols,
-            height: left.rows,
-            values: h.run(&left, &right)?.disparity,
-        }),
-        None => None,
+    let (head, head_consistent) = match head {
+        Some(h) => {
+            let map = |values: Vec<f32>| DisparityMap {
+                width: left.cols,
+                height: left.rows,
+                values,
+            };
+            let head_left = map(h.run(&left, &right)?.disparity);
+            // The right view: the head on the mirrored pair, mirrored back.
+            let head_right = mirror(&map(h.run(&right.mirrored(), &left.mirrored())?.disparity));
+            let mask = consistent(&head_left, &head_right, opts.lr_max_diff);
+            (Some(head_left), Some(mask))
+        }
+        None => (None, None),
     };
-    Ok(ReadoutMaps {
-        wta,
+    Ok(MethodMaps {
+        nolink: wta,
         sgm: sgm_left,
         head,
-        wta_consistent,
+        nolink_consistent: wta_consistent,
         sgm_consistent,
+        head_consistent,
     })
+}
+
+/// A token map with each row's columns reversed.
+fn mirror(map: &DisparityMap) -> DisparityMap {
+    let mut values = map.values.clone();
+    for row in values.chunks_exact_mut(map.width.max(1)) {
+        row.reverse();
+    }
+    DisparityMap { values, ..*map }
 }
 
 fn sgbm_metrics(runner: &SgbmRunner, items: &[EvalItem]) -> Result<Vec<Metrics>> {
@@ -507,18 +480,6 @@ mod tests {
     use super::*;
 
     #[test]
-    fn readouts_parse_by_name() {
-        for r in [Readout::Nolink, Readout::Sgm, Readout::Head] {
-            assert_eq!(r.name().parse::<Readout>().unwrap(), r);
-        }
-        assert!("sgbm"
-            .parse::<Readout>()
-            .unwrap_err()
-            .to_string()
-            .contains("nolink, sgm or head"));
-    }
-
-    #[test]
     fn bad_options_are_errors() {
         let opts = EvalOptions {
             data: PathBuf::from("/nonexistent"),
@@ -528,7 +489,7 @@ mod tests {
             onnx: PathBuf::from("/nonexistent/encoder.onnx"),
             head_onnx: PathBuf::from("/nonexistent/head.onnx"),
             precisions: vec![Precision::Int8],
-            readouts: vec![Readout::Nolink],
+            readouts: vec![Readout::NOLINK],
             max_cols: 10,
             penalties: Penalties { p1: 8, p2: 32 },
             lr_max_diff: 1.0,

@@ -29,6 +29,17 @@ pub struct FeatureMap {
 }
 
 impl FeatureMap {
+    /// The map with each row's columns in reverse order (a mirrored view's map).
+    pub fn mirrored(&self) -> FeatureMap {
+        let mut data = Vec::with_capacity(self.data.len());
+        for row in self.data.chunks_exact((self.cols * self.dim).max(1)) {
+            for cell in row.chunks_exact(self.dim.max(1)).rev() {
+                data.extend_from_slice(cell);
+            }
+        }
+        FeatureMap { data, ..*self }
+    }
+
     /// The `dim` channels at (`row`, `col`).
     pub fn at(&self, row: usize, col: usize) -> &[f32] {
         let start = (row * self.cols + col) * self.dim;

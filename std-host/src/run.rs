@@ -10,12 +10,13 @@ use bino_core::pipeline::{Options as PipelineOptions, Report as PipelineReport, 
 use bino_core::sgm::Penalties;
 
 use crate::colour::colourise;
-use crate::eval::{fill_invalid, upsample_disparity, upsample_mask, DisparityMap};
+use crate::eval::{upsample_mask, DisparityMap};
 use crate::int8::Int8Model;
 use crate::pipeline_maps::run_pipeline;
 use crate::profile::load_profiled_pair;
 use crate::profile::Profile;
-use crate::readout_eval::Readout;
+use crate::readout::Readout;
+use crate::readout_eval::lr_tolerance_q8;
 
 /// What `bino run` runs on and where it writes.
 #[derive(Debug, Clone)]
@@ -79,11 +80,14 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         &mut timings,
         &mut progress,
     );
+    let head = opts.readout.uses_head();
     let pipeline_opts = PipelineOptions {
         max_cols: opts.max_cols,
         penalties: opts.penalties,
-        lr_max_diff_q8: (opts.lr_max_diff.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16,
-        head: opts.readout == Readout::Head,
+        lr_max_diff_q8: lr_tolerance_q8(opts.lr_max_diff),
+        head,
+        // The head's own left-right check (lr_mask.png, and the fill of head+lr).
+        head_lr: head,
     };
     let mut on_band = |i: usize, n: usize| {
         if n > 1 {
@@ -94,19 +98,15 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
     finish(&mut timings, started);
 
     let started = step("pixels, left-right mask", &mut timings, &mut progress);
-    // The head has no right-view twin: its cells take the SGM readout's check.
-    let (tokens, consistent) = match opts.readout {
-        Readout::Nolink => (&maps.wta, &maps.wta_consistent),
-        Readout::Sgm => (&maps.sgm, &maps.sgm_consistent),
-        Readout::Head => (&maps.head, &maps.sgm_consistent),
-    };
-    let disparity = upsample_disparity(tokens);
+    // The readout exactly as `bino eval` scores it; the mask is its method's own check.
+    let disparity = maps.methods.pixels(opts.readout)?;
+    let (tokens, consistent) = maps.methods.method(opts.readout.method)?;
+    let consistent = consistent.context("the method's left-right check did not run")?;
     let valid = upsample_mask(consistent, tokens.width, disparity.width, disparity.height);
-    let filled = fill_invalid(&disparity, &valid);
     finish(&mut timings, started);
 
     let started = step("writing outputs", &mut timings, &mut progress);
-    let files = write_outputs(&opts.out, &filled, &valid)?;
+    let files = write_outputs(&opts.out, &disparity, &valid)?;
     finish(&mut timings, started);
     let density = 100.0 * valid.iter().filter(|&&v| v).count() as f64 / valid.len().max(1) as f64;
     Ok(RunReport {

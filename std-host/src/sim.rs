@@ -17,7 +17,7 @@ use anyhow::{ensure, Result};
 use bino_core::config::HEAD_MAX_DISP;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, MatchedRow, Options as PipelineOptions, Pipeline, Report, Sink, Stage};
+use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options as PipelineOptions, Pipeline, Report, Sink, Stage};
 use bino_core::sgm::Penalties;
 use embedded_graphics::mono_font::ascii::FONT_6X10;
 use embedded_graphics::mono_font::MonoTextStyle;
@@ -30,7 +30,7 @@ use crate::colour::colourise;
 use crate::image_io::GrayImage;
 use crate::int8::{to_u8, Int8Model};
 use crate::profile::{load_profiled_pair, Profile, View};
-use crate::readout_eval::Readout;
+use crate::readout::{Method, Readout};
 use crate::synthetic::default_scene;
 use display::{DisplaySize, Framebuffer};
 use sensor::SensorSource;
@@ -126,18 +126,21 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     let model = Int8Model::load(&opts.blob)?;
     let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
     ensure!(
-        opts.readout != Readout::Head || pipeline.has_head(),
+        !opts.readout.uses_head() || pipeline.has_head(),
         "the blob {} has no shared head; use --readout sgm or nolink",
         opts.blob.display()
     );
     let pipeline_opts = PipelineOptions {
         max_cols: opts.max_cols,
         penalties: opts.penalties,
-        lr_max_diff_q8: (opts.lr_max_diff.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16,
-        head: opts.readout == Readout::Head,
+        lr_max_diff_q8: crate::readout_eval::lr_tolerance_q8(opts.lr_max_diff),
+        head: opts.readout.uses_head(),
+        // The head's own left-right check: the display darkens (or, for head+lr, fills) the
+        // cells it rejects, as for the other methods.
+        head_lr: opts.readout.uses_head(),
     };
     let layout = Layout::new(opts.display, width, height)?;
-    let arena_bytes = pipeline::arena_bytes(height, width, opts.max_cols);
+    let arena_bytes = pipeline::arena_bytes_for(height, width, &pipeline_opts);
     let mut arena = vec![0u8; arena_bytes];
 
     let mut frame_times = Vec::with_capacity(opts.frames);
@@ -205,9 +208,10 @@ fn load_pair(opts: &SimOptions) -> Result<(String, GrayImage, GrayImage)> {
 }
 
 fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
-    let kept = match readout {
-        Readout::Nolink => sim.pipeline.wta_kept,
-        Readout::Sgm | Readout::Head => sim.pipeline.sgm_kept,
+    let kept = match readout.method {
+        Method::Nolink => sim.pipeline.wta_kept,
+        Method::Sgm => sim.pipeline.sgm_kept,
+        Method::Head => sim.pipeline.head_kept,
     };
     let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
     vec![
@@ -372,9 +376,8 @@ pub struct DisplaySink<'f> {
     readout: Readout,
     /// Colour scale: this many patch columns is the far end of the map.
     max_disparity: f32,
-    /// SGM left-right masks of rows the head has not reached yet (the head has no right-view
-    /// twin: its cells take the SGM readout's check, as in `bino run`).
-    pending_masks: Vec<(usize, Vec<u8>)>,
+    /// Head rows waiting for their left-right check (it comes a row of the mirrored head later).
+    pending_heads: Vec<(usize, Vec<u16>)>,
     /// Token rows drawn.
     pub rows_drawn: usize,
     times: [Duration; Stage::ALL.len() + 1],
@@ -384,17 +387,13 @@ pub struct DisplaySink<'f> {
 impl<'f> DisplaySink<'f> {
     /// A sink drawing `readout` into `panel` of `fb`; `max_cols` candidates of nolink and sgm.
     pub fn new(fb: &'f mut Framebuffer, panel: Panel, readout: Readout, max_cols: usize) -> Self {
-        let candidates = if readout == Readout::Head {
-            HEAD_MAX_DISP
-        } else {
-            max_cols
-        };
+        let candidates = if readout.uses_head() { HEAD_MAX_DISP } else { max_cols };
         Self {
             fb,
             panel,
             readout,
             max_disparity: candidates.saturating_sub(1).max(1) as f32,
-            pending_masks: Vec::new(),
+            pending_heads: Vec::new(),
             rows_drawn: 0,
             times: [Duration::ZERO; Stage::ALL.len() + 1],
             current: None,
@@ -421,6 +420,19 @@ impl<'f> DisplaySink<'f> {
     pub fn stage_times(&self) -> Vec<(&'static str, Duration)> {
         let names = Stage::ALL.iter().map(|s| s.name()).chain(["draw"]);
         names.zip(self.times).collect()
+    }
+
+    /// Draws one token row of the readout: a `+lr` readout's rejected cells filled
+    /// (`bino_core::lr::fill_rejected`), the others' shown dark.
+    fn show_row(&mut self, row: usize, disparity_q8: &[u16], consistent: &[u8]) {
+        if self.readout.lr {
+            let mut filled = disparity_q8.to_vec();
+            if bino_core::lr::fill_rejected(&mut filled, consistent).is_ok() {
+                self.draw_row(row, &filled, &vec![1; filled.len()]);
+            }
+        } else {
+            self.draw_row(row, disparity_q8, consistent);
+        }
     }
 
     /// Draws one token row (disparity in Q8 patch columns, 1 = passed the left-right check).
@@ -455,20 +467,25 @@ impl Sink for DisplaySink<'_> {
     }
 
     fn matched(&mut self, row: &MatchedRow<'_>) {
-        match self.readout {
-            Readout::Nolink => self.draw_row(row.row, row.wta_q8, row.wta_consistent),
-            Readout::Sgm => self.draw_row(row.row, row.sgm_q8, row.sgm_consistent),
-            Readout::Head => self.pending_masks.push((row.row, row.sgm_consistent.to_vec())),
+        match self.readout.method {
+            Method::Nolink => self.show_row(row.row, row.wta_q8, row.wta_consistent),
+            Method::Sgm => self.show_row(row.row, row.sgm_q8, row.sgm_consistent),
+            Method::Head => {}
         }
     }
 
     fn head(&mut self, row: HeadRow<'_>) {
-        if self.readout != Readout::Head {
-            return;
+        if self.readout.uses_head() {
+            self.pending_heads.push((row.row, row.disparity_q8.to_vec()));
         }
-        let at = self.pending_masks.iter().position(|(r, _)| *r == row.row);
-        let mask = at.map(|i| self.pending_masks.remove(i).1).unwrap_or_default();
-        self.draw_row(row.row, row.disparity_q8, &mask);
+    }
+
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        let Some(at) = self.pending_heads.iter().position(|(r, _)| *r == row.row) else {
+            return;
+        };
+        let (_, disparity) = self.pending_heads.remove(at);
+        self.show_row(row.row, &disparity, row.consistent);
     }
 }
 
@@ -514,7 +531,7 @@ mod tests {
         // A 16x8 image (4 patch columns, 2 token rows) at scale 2 from (10, 4).
         let panel = Panel::fit(10, 4, 32, 16, 16, 8);
         assert_eq!((panel.x, panel.y, panel.width, panel.height), (10, 4, 32, 16));
-        let mut sink = DisplaySink::new(&mut fb, panel, Readout::Sgm, 4);
+        let mut sink = DisplaySink::new(&mut fb, panel, Readout::SGM, 4);
         sink.draw_row(1, &[0, 256, 512, 768], &[1, 1, 0, 1]);
         assert_eq!(sink.rows_drawn, 1);
         // Token row 1 is image rows 4..8, display rows 4 + 8..4 + 16; each cell 8 px wide.

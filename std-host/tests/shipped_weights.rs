@@ -167,7 +167,7 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
         onnx: weights.join("bino_encoder.onnx"),
         head_onnx: weights.join("bino_head.onnx"),
         precisions: vec![Precision::Int8, Precision::F32],
-        readouts: vec![Readout::Nolink, Readout::Sgm, Readout::Head],
+        readouts: vec![Readout::NOLINK, Readout::SGM, Readout::HEAD, Readout::HEAD_LR],
         max_cols: DEFAULT_MAX_COLS,
         penalties: bino_host::demo::DEFAULT_PENALTIES,
         lr_max_diff: 1.0,
@@ -180,21 +180,24 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
         assert_eq!(total, 2);
     })
     .expect("eval runs on the shipped weights");
-    assert_eq!((seen, report.pairs.len(), report.mean.len()), (2, 2, 6));
-    let (int8, float) = report.mean.split_at(3);
+    assert_eq!((seen, report.pairs.len(), report.mean.len()), (2, 2, 8));
+    let (int8, float) = report.mean.split_at(4);
     for (i, f) in int8.iter().zip(float) {
         let (ei, ef) = (i.metrics.epe, f.metrics.epe);
         assert!(ei.is_finite() && ei > 0.0 && ei < 10.0, "{i:?}");
         // The int8 readouts are twins of the float ones: within 10 % on two pairs.
         assert!((ei - ef).abs() <= 0.1 * ef, "int8 {ei} vs f32 {ef}");
     }
-    for s in [int8[0], int8[1], float[0], float[1]] {
+    // Every method has its own check, the head's from the head on the mirrored pair.
+    for s in [int8[0], int8[1], int8[2], float[0], float[1], float[2]] {
         let (keep, gt_lr) = (s.lr_keep.unwrap(), s.gt_lr_epe.unwrap());
         assert!(keep > 50.0 && keep < 100.0, "LRkeep {keep}");
         // The left-right check removes worse than average matches.
         assert!(gt_lr < s.metrics.epe, "GT+LR epe {gt_lr} vs {}", s.metrics.epe);
     }
-    assert!(int8[2].lr_keep.is_none(), "the head has no left-right check");
+    // head+lr keeps the head's check and fills what it rejects: the same keep rate.
+    assert_eq!(int8[3].lr_keep, int8[2].lr_keep);
+    assert_ne!(int8[3].metrics.epe, int8[2].metrics.epe, "the fill changes the map");
     if sgbm {
         let m = report.sgbm_mean.expect("SGBM ran");
         assert!(m.density > 50.0 && m.density < 100.0 && m.epe < 2.0, "{m:?}");
@@ -206,5 +209,6 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
         "{json}"
     );
     assert!(json["mean"]["f32_head"]["metrics"]["epe"].as_f64().is_some(), "{json}");
+    assert!(json["mean"]["int8_head+lr"]["lr_keep"].as_f64().is_some(), "{json}");
     assert!(report.table().contains("f32 sgm"));
 }

@@ -3,8 +3,11 @@
 //! same descriptors, WTA, SGM and head outputs, for one band and for images taller than one.
 
 use bino_core::band::Band;
+use bino_core::lr::consistent_row;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{arena_bytes, MatchedRow, Options, Pipeline, RowSource, Sink, SlicePair, Stage};
+use bino_core::pipeline::{
+    arena_bytes, arena_bytes_head_lr, HeadChecked, MatchedRow, Options, Pipeline, RowSource, Sink, SlicePair, Stage,
+};
 use bino_core::Error;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
 use bino_host::int8::{match_rows, sgm_rows, Int8Model};
@@ -19,6 +22,7 @@ fn options() -> Options {
         penalties: DEFAULT_PENALTIES,
         lr_max_diff_q8: 256,
         head: true,
+        head_lr: false,
     }
 }
 
@@ -35,6 +39,9 @@ struct Collect {
     wta_mask: Vec<u8>,
     head_rows: Vec<usize>,
     head: Vec<u16>,
+    checked_rows: Vec<usize>,
+    head_right: Vec<u16>,
+    head_mask: Vec<u8>,
     cols: usize,
 }
 
@@ -62,6 +69,12 @@ impl Sink for Collect {
     fn head(&mut self, row: HeadRow<'_>) {
         self.head_rows.push(row.row);
         self.head.extend_from_slice(row.disparity_q8);
+    }
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        assert!(self.head_rows.contains(&row.row), "a check comes after its head row");
+        self.checked_rows.push(row.row);
+        self.head_right.extend_from_slice(row.right_q8);
+        self.head_mask.extend_from_slice(row.consistent);
     }
 }
 
@@ -260,4 +273,78 @@ fn bad_inputs_are_errors() {
         SlicePair::new(&px, &px, 160, 47),
         Err(Error::BufferSize { .. })
     ));
+}
+
+/// Each row's cells in reverse order: the descriptor map of the mirrored view.
+fn mirror_rows(map: &[i8], cols: usize) -> Vec<i8> {
+    let dim = bino_core::config::DIM;
+    map.chunks_exact(cols * dim)
+        .flat_map(|row| row.chunks_exact(dim).rev().flatten().copied().collect::<Vec<_>>())
+        .collect()
+}
+
+/// `head_lr`: the head on the mirrored pair gives the right view (the left head's output is
+/// untouched), and the check is `consistent_row` of the two, row by row, for one band and many.
+#[test]
+fn the_heads_left_right_check_is_the_head_on_the_mirrored_pair() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let opts = Options {
+        head_lr: true,
+        ..options()
+    };
+    for (width, height) in [(160, 48), (64, 112)] {
+        let scene = synthetic::default_scene(width, height);
+        let (l, r) = (&scene.left.pixels, &scene.right.pixels);
+        let needed = arena_bytes_head_lr(height, width, MAX_COLS);
+        assert!(needed > arena_bytes(height, width, MAX_COLS));
+        let mut arena = vec![0u8; needed];
+        let err = pipeline.run(
+            &mut SlicePair::new(l, r, width, height).unwrap(),
+            &opts,
+            &mut arena[..needed - 1],
+            &mut Collect::default(),
+        );
+        assert!(matches!(err, Err(Error::ArenaTooSmall { .. })), "{err:?}");
+        let mut out = Collect::default();
+        let report = pipeline
+            .run(
+                &mut SlicePair::new(l, r, width, height).unwrap(),
+                &opts,
+                &mut arena,
+                &mut out,
+            )
+            .unwrap();
+        assert!(report.arena_used <= needed);
+        let (rows, cols, left) = model.descriptor_codes(&view(l, width, height)).unwrap();
+        let (_, _, right) = model.descriptor_codes(&view(r, width, height)).unwrap();
+        assert_eq!(out.checked_rows, (0..rows).collect::<Vec<_>>(), "{width}x{height}");
+        let head = model.head(&left, &right, rows, cols).unwrap();
+        assert_eq!(q8(&out.head), head.disparity, "the left head is unchanged");
+        let mirrored = model
+            .head(&mirror_rows(&right, cols), &mirror_rows(&left, cols), rows, cols)
+            .unwrap();
+        let right_view: Vec<f32> = mirrored
+            .disparity
+            .chunks_exact(cols)
+            .flat_map(|row| row.iter().rev().copied().collect::<Vec<_>>())
+            .collect();
+        assert_eq!(q8(&out.head_right), right_view, "{width}x{height}: right view");
+        let mut expected = vec![0u8; rows * cols];
+        let mut kept = 0;
+        for ((left_row, right_row), mask) in out
+            .head
+            .chunks_exact(cols)
+            .zip(out.head_right.chunks_exact(cols))
+            .zip(expected.chunks_exact_mut(cols))
+        {
+            kept += consistent_row(left_row, right_row, opts.lr_max_diff_q8, mask).unwrap();
+        }
+        assert_eq!(out.head_mask, expected);
+        assert_eq!(report.head_kept, kept);
+        assert!(
+            kept > rows * cols / 2,
+            "{width}x{height}: the head mostly agrees with itself ({kept})"
+        );
+    }
 }

@@ -46,6 +46,7 @@ fn options(max_cols: usize) -> Options {
         penalties: DEFAULT_PENALTIES,
         lr_max_diff_q8: 256,
         head: false,
+        head_lr: false,
     }
 }
 

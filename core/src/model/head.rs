@@ -184,9 +184,21 @@ pub trait HeadSink {
     fn row(&mut self, row: HeadRow<'_>);
 }
 
+/// Which view's disparity a head stream reads out.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum HeadView {
+    /// The left view's: the head on (left, right), as trained.
+    Left,
+    /// The right view's: the head on the mirrored pair (mirror(right), mirror(left)), each
+    /// descriptor row's cells in reverse order, its output mirrored back, so cell `q` of an
+    /// output row is right cell `q`. The left-right check of the head compares the two.
+    Right,
+}
+
 /// Streaming state of the head over one descriptor map (any number of rows, fixed width).
 pub struct HeadStream<'a, 'w> {
     w: HeadWeights<'w>,
+    view: HeadView,
     cols: usize,
     rings: &'a mut [i8],
     pushed: [usize; HEAD_CONVS],
@@ -204,8 +216,14 @@ pub struct HeadStream<'a, 'w> {
 }
 
 impl<'a, 'w> HeadStream<'a, 'w> {
-    /// A stream over descriptor rows of `cols` patch columns, its buffers cut from `arena`.
+    /// A stream over descriptor rows of `cols` patch columns, its buffers cut from `arena`;
+    /// it reads out the left view.
     pub fn new(weights: HeadWeights<'w>, cols: usize, arena: &'a mut [u8]) -> Result<Self, Error> {
+        Self::for_view(weights, cols, HeadView::Left, arena)
+    }
+
+    /// [`HeadStream::new`] reading out `view`; it takes the same (left, right) rows.
+    pub fn for_view(weights: HeadWeights<'w>, cols: usize, view: HeadView, arena: &'a mut [u8]) -> Result<Self, Error> {
         if cols == 0 {
             return Err(Error::EmptyImage);
         }
@@ -224,6 +242,7 @@ impl<'a, 'w> HeadStream<'a, 'w> {
         let arena_used = carver.used();
         Ok(Self {
             w: weights,
+            view,
             cols,
             rings,
             pushed: [0; HEAD_CONVS],
@@ -269,8 +288,20 @@ impl<'a, 'w> HeadStream<'a, 'w> {
             eps: self.w.norm.eps,
             out: self.w.norm.out,
         };
-        project(desc_left, &norm, &proj, self.normed, self.acc, self.f_left);
-        project(desc_right, &norm, &proj, self.normed, self.acc, self.f_right);
+        match self.view {
+            HeadView::Left => {
+                project(desc_left, &norm, &proj, self.normed, self.acc, self.f_left);
+                project(desc_right, &norm, &proj, self.normed, self.acc, self.f_right);
+            }
+            HeadView::Right => {
+                // The mirrored pair: the projections are per cell, so projecting first and
+                // reversing the cells after is the same as projecting reversed rows.
+                project(desc_right, &norm, &proj, self.normed, self.acc, self.f_left);
+                project(desc_left, &norm, &proj, self.normed, self.acc, self.f_right);
+                reverse_cells(self.f_left, HEAD_PROJ_DIM);
+                reverse_cells(self.f_right, HEAD_PROJ_DIM);
+            }
+        }
         let row = self.pushed[0];
         let slot = ring_slot_mut(self.rings, self.cols, 0, row);
         correlate(self.f_left, self.f_right, self.w.correlation, slot);
@@ -405,6 +436,12 @@ impl<'a, 'w> HeadStream<'a, 'w> {
                 (*d, *c) = (disparity, confidence);
             }
         }
+        if self.view == HeadView::Right {
+            // Back from the mirrored pair's cell order to the right view's.
+            self.disparity.reverse();
+            self.confidence.reverse();
+            reverse_cells(self.logits, HEAD_MAX_DISP);
+        }
         sink.row(HeadRow {
             row,
             disparity_q8: self.disparity,
@@ -439,6 +476,20 @@ fn soft_argmin(logits: &[i32], to_log2_q8: Requant) -> (u16, u16) {
 }
 
 /// LayerNorm + projection of one descriptor row, `CELL_BLOCK` cells at a time.
+/// Reverses the order of the `len`-value cells of `row` (a tail shorter than a cell stays).
+fn reverse_cells<T>(row: &mut [T], len: usize) {
+    if len == 0 {
+        return;
+    }
+    let cells = row.len() / len;
+    for i in 0..cells / 2 {
+        let (front, back) = row.split_at_mut((cells - 1 - i) * len);
+        if let (Some(a), Some(b)) = (front.get_mut(i * len..(i + 1) * len), back.get_mut(..len)) {
+            a.swap_with_slice(b);
+        }
+    }
+}
+
 fn project(
     desc: &[i8],
     norm: &LayerNormQ<'_, Uniform, Uniform>,

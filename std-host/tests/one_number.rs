@@ -1,0 +1,119 @@
+//! One readout, one number (issue 13): `bino run` writes a readout's pixel disparities exactly
+//! as `bino eval` scores them. On a multi-band eval pair (mb2005_Art at w160: 31 token rows,
+//! three bands), the EVAL.md epe of run's `disparity.pfm` equals eval's per-pair epe for the
+//! same readout and options.
+
+use std::path::{Path, PathBuf};
+
+use bino_host::eval::{load_eval_item, score, DisparityMap};
+use bino_host::pairs::read_index;
+use bino_host::profile::Profile;
+
+mod common;
+use common::{bino, repo, s, scratch_dir};
+
+/// Reads a grayscale PFM (`Pf`, little-endian, rows bottom-up) as a map.
+fn read_pfm(path: &Path) -> DisparityMap {
+    let bytes = std::fs::read(path).unwrap();
+    let mut fields = Vec::new();
+    let mut at = 0;
+    while fields.len() < 4 {
+        let end = at + bytes[at..].iter().position(|b| b.is_ascii_whitespace()).unwrap();
+        if end > at {
+            fields.push(std::str::from_utf8(&bytes[at..end]).unwrap().to_string());
+        }
+        at = end + 1;
+    }
+    assert_eq!(fields[0], "Pf");
+    let (width, height): (usize, usize) = (fields[1].parse().unwrap(), fields[2].parse().unwrap());
+    assert_eq!(fields[3], "-1.0", "little-endian");
+    let floats: Vec<f32> = bytes[at..]
+        .chunks_exact(4)
+        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+        .collect();
+    assert_eq!(floats.len(), width * height);
+    let values = floats.chunks_exact(width).rev().flatten().copied().collect();
+    DisparityMap { width, height, values }
+}
+
+#[test]
+fn run_writes_what_eval_scores_on_a_multi_band_pair() {
+    let data = repo().join("../shared/data");
+    let record = read_index(&data)
+        .unwrap()
+        .into_iter()
+        .find(|r| r.pair_id == "mb2005_Art")
+        .expect("mb2005_Art in the eval split");
+    let item = load_eval_item(&record, Profile::W160).unwrap();
+    assert!(item.left.height / 4 > 12, "more than one band");
+
+    // A data folder holding only this pair (links to the shared files), for `bino eval`.
+    let dir = scratch_dir("one-number");
+    let link = |name: &str, target: &Path| -> PathBuf {
+        let path = dir.join(name);
+        let _ = std::fs::remove_file(&path);
+        std::os::unix::fs::symlink(target, &path).unwrap();
+        path
+    };
+    let gt = record.gt.as_ref().unwrap();
+    let (left, right) = (link("l.png", &record.left), link("r.png", &record.right));
+    link("gt.pgm", &gt.path);
+    std::fs::write(
+        dir.join("PAIRS.tsv"),
+        format!(
+            "pair_id\tsplit\tdataset\tleft\tright\tgt\tgt_format\tgt_scale\tgt_invalid\twidth\theight\n\
+             mb2005_Art\teval\tmiddlebury2005\tl.png\tr.png\tgt.pgm\tpgm_u8\t{}\t{}\t{}\t{}\n",
+            gt.scale, gt.invalid, record.width, record.height
+        ),
+    )
+    .unwrap();
+    let readouts = ["nolink+lr", "sgm", "head", "head+lr"];
+    let json = dir.join("eval.json");
+    let eval = bino(&[
+        "eval",
+        "--data",
+        s(&dir),
+        "--profile",
+        "w160",
+        "--precision",
+        "int8",
+        "--readout",
+        &readouts.join(","),
+        "--no-sgbm",
+        "--json",
+        s(&json),
+    ]);
+    assert!(eval.status.success(), "{}", String::from_utf8_lossy(&eval.stderr));
+    let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let max_cols = report["max_cols"].as_u64().unwrap().to_string();
+
+    for readout in readouts {
+        let out = dir.join(format!("run-{readout}"));
+        let run = bino(&[
+            "run",
+            "--left",
+            s(&left),
+            "--right",
+            s(&right),
+            "--profile",
+            "w160",
+            "--readout",
+            readout,
+            "--max-cols",
+            &max_cols,
+            "--out",
+            s(&out),
+        ]);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let written = read_pfm(&out.join("disparity.pfm"));
+        assert!(written.values.iter().all(|v| v.is_finite()), "{readout}: a dense map");
+        let run_epe = score(&written, &item.gt).unwrap().epe;
+        let eval_epe = report["per_pair"][0]["readouts"][format!("int8_{readout}")]["metrics"]["epe"]
+            .as_f64()
+            .unwrap();
+        assert!(
+            (run_epe - eval_epe).abs() < 1e-9,
+            "{readout}: run {run_epe} vs eval {eval_epe}"
+        );
+    }
+}
