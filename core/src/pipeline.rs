@@ -292,23 +292,22 @@ const fn sum(terms: &[usize]) -> usize {
     total
 }
 
-/// Rows of left head disparities kept until the mirrored head's row of the same index comes:
-/// it trails by at most the head's latency (one row per convolution).
-const HEAD_CHECK_ROWS: usize = HEAD_CONVS + 1;
+/// Rows of left head disparities kept for the check: a whole band (one band: the mirrored
+/// head runs after the left one, on the same arena), or more than the mirrored head trails
+/// the left one by when both stream side by side (several bands: one row per convolution).
+const HEAD_CHECK_ROWS: usize = max(BAND_TOKEN_ROWS, HEAD_CONVS + 1);
 
-/// Arena bytes of the head's left-right check: the mirrored head stream, the left rows it
-/// trails, one mask row.
-const fn head_check_bytes(cols: usize) -> usize {
-    sum(&[
-        head::arena_bytes(cols),
-        cols.saturating_mul(2 * HEAD_CHECK_ROWS).saturating_add(1),
-        cols,
-    ])
+/// Arena bytes of the head's left-right check: the left rows kept, one mask row, and for
+/// several bands (`streaming`) the mirrored head's own stream.
+const fn head_check_bytes(cols: usize, streaming: bool) -> usize {
+    let mirror = if streaming { head::arena_bytes(cols) } else { 0 };
+    sum(&[mirror, cols.saturating_mul(2 * HEAD_CHECK_ROWS).saturating_add(1), cols])
 }
 
-/// Arena bytes of the readout streams (with the head, and its check when `head_lr`).
-const fn stream_bytes(cols: usize, max_cols: usize, head_lr: bool) -> usize {
-    let check = if head_lr { head_check_bytes(cols) } else { 0 };
+/// Arena bytes of the readout streams (with the head, and its check when `head_lr`; the check
+/// needs a second head stream only when `streaming` several bands).
+const fn stream_bytes(cols: usize, max_cols: usize, head_lr: bool, streaming: bool) -> usize {
+    let check = if head_lr { head_check_bytes(cols, streaming) } else { 0 };
     sum(&[matching_bytes(cols, max_cols), head::arena_bytes(cols), check])
 }
 
@@ -340,10 +339,11 @@ const fn arena_bytes_of(height: usize, width: usize, max_cols: usize, head_lr: b
     let pixels = band_rows.saturating_mul(width).saturating_mul(2);
     let descriptors = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(DIM);
     let encoder = encoder::arena_bytes(band_rows, width);
-    let streams = stream_bytes(cols, max_cols, head_lr);
     if height <= band_rows {
+        let streams = stream_bytes(cols, max_cols, head_lr, false);
         sum(&[pixels, descriptors, max(encoder, descriptors.saturating_add(streams))])
     } else {
+        let streams = stream_bytes(cols, max_cols, head_lr, true);
         sum(&[pixels, descriptors, streams, encoder])
     }
 }
@@ -432,18 +432,20 @@ impl<'w> Pipeline<'w> {
             rows.load(band, left_px, right_px, sink)?;
             let (encoder_used, right_desc, rest) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
             sink.band(band, desc_left, right_desc);
-            let mut streams = Streams::new(&ctx, rest)?;
+            let mut streams = Streams::new(&ctx, rest, false)?;
             streams.push_band(band, desc_left, right_desc, sink)?;
             streams.finish(sink)?;
+            // The whole map is here: the mirrored head reruns the band on the left head's arena.
+            streams.check_head_band(band, desc_left, right_desc, sink)?;
             report.encoder = encoder_used;
             report.streams = streams.used;
             (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
             report.head_kept = streams.head_kept();
             report.arena_used = report.pixels + desc_len + max(encoder_used, desc_len + streams.used);
         } else {
-            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_lr());
+            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_lr(), true);
             let (stream_arena, scratch) = scratch.split_at_mut(stream_len);
-            let mut streams = Streams::new(&ctx, stream_arena)?;
+            let mut streams = Streams::new(&ctx, stream_arena, true)?;
             for band in plan.iter() {
                 rows.load(band, left_px, right_px, sink)?;
                 let (encoder_used, right_desc, _) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
@@ -572,11 +574,12 @@ impl<K: Sink> HeadSink for HeadRows<'_, '_, '_, K> {
     }
 }
 
-/// The head's left-right check: the mirrored head stream and the left rows it trails.
+/// The head's left-right check: the left rows kept for it, its mask row, what it kept.
 struct HeadCheck<'a> {
     cols: usize,
     lr_max_diff_q8: u16,
-    /// [`HEAD_CHECK_ROWS`] rows of left disparities, row `r` in slot `r % HEAD_CHECK_ROWS`.
+    /// [`HEAD_CHECK_ROWS`] rows of left disparities, row `r` in slot `r % HEAD_CHECK_ROWS`
+    /// (one band: every row of it, so the mirrored head can run afterwards).
     left_rows: &'a mut [u16],
     mask: &'a mut [u8],
     kept: usize,
@@ -643,14 +646,16 @@ struct Streams<'a, 'w> {
     sgm_mask: &'a mut [u8],
     head: Option<HeadStream<'a, 'w>>,
     /// With `head_lr`: the mirrored head and the check.
-    check: Option<(HeadStream<'a, 'w>, HeadCheck<'a>)>,
+    check: Option<(Option<HeadStream<'a, 'w>>, HeadCheck<'a>)>,
     used: usize,
     wta_kept: usize,
     sgm_kept: usize,
 }
 
 impl<'a, 'w> Streams<'a, 'w> {
-    fn new(ctx: &Context<'_, 'w>, arena: &'a mut [u8]) -> Result<Self, Error> {
+    /// The streams of a run; `streaming`: several bands, so the head's check (if any) streams
+    /// a mirrored head beside the left one instead of rerunning the band after it.
+    fn new(ctx: &Context<'_, 'w>, arena: &'a mut [u8], streaming: bool) -> Result<Self, Error> {
         let (cols, max_cols) = (ctx.cols, ctx.opts.max_cols);
         let volume_row = state_len(cols, max_cols);
         let matching = matching_bytes(cols, max_cols);
@@ -689,9 +694,16 @@ impl<'a, 'w> Streams<'a, 'w> {
                 let stream = HeadStream::new(w, cols, left_arena)?;
                 used = matching + stream.arena_used();
                 let check = if ctx.head_lr() {
-                    let (mirror_arena, rest) = check_arena.split_at_mut(head::arena_bytes(cols).min(check_arena.len()));
-                    let mirror = HeadStream::for_view(w, cols, HeadView::Right, mirror_arena)?;
-                    let mut carver = Carver::new(rest, head_check_bytes(cols) - head::arena_bytes(cols))?;
+                    let (mirror, rest) = if streaming {
+                        let len = head::arena_bytes(cols).min(check_arena.len());
+                        let (mirror_arena, rest) = check_arena.split_at_mut(len);
+                        let mirror = HeadStream::for_view(w, cols, HeadView::Right, mirror_arena)?;
+                        used += mirror.arena_used();
+                        (Some(mirror), rest)
+                    } else {
+                        (None, check_arena)
+                    };
+                    let mut carver = Carver::new(rest, head_check_bytes(cols, false))?;
                     let check = HeadCheck {
                         cols,
                         lr_max_diff_q8: ctx.opts.lr_max_diff_q8,
@@ -699,7 +711,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                         mask: carver.u8s(cols)?,
                         kept: 0,
                     };
-                    used += mirror.arena_used() + carver.used();
+                    used += carver.used();
                     Some((mirror, check))
                 } else {
                     None
@@ -788,7 +800,9 @@ impl<'a, 'w> Streams<'a, 'w> {
                             check: Some(check),
                         },
                     )?;
-                    mirror.push_row(left, right, &mut CheckedRows { sink, check })?;
+                    if let Some(mirror) = mirror {
+                        mirror.push_row(left, right, &mut CheckedRows { sink, check })?;
+                    }
                 }
                 None => head.push_row(left, right, &mut HeadRows { sink, check: None })?,
             }
@@ -805,11 +819,37 @@ impl<'a, 'w> Streams<'a, 'w> {
                         sink,
                         check: Some(check),
                     })?;
-                    mirror.finish(&mut CheckedRows { sink, check })?;
+                    if let Some(mirror) = mirror {
+                        mirror.finish(&mut CheckedRows { sink, check })?;
+                    }
                 }
                 None => head.finish(&mut HeadRows { sink, check: None })?,
             }
         }
         Ok(())
+    }
+
+    /// One band, after [`Streams::finish`]: the mirrored head over the band's rows on the left
+    /// head's arena, checked against the left rows it kept (a no-op unless the check is on and
+    /// not already streamed).
+    fn check_head_band(&mut self, band: Band, left: &[i8], right: &[i8], sink: &mut impl Sink) -> Result<(), Error> {
+        let (Some(head), Some((None, check))) = (self.head.as_mut(), self.check.as_mut()) else {
+            return Ok(());
+        };
+        sink.stage(Stage::Head);
+        head.restart(HeadView::Right);
+        let row_len = self.cols * DIM;
+        for row in band.keep_from..band.keep_to {
+            let at = (row - band.start) * row_len;
+            let (Some(l), Some(r)) = (left.get(at..at + row_len), right.get(at..at + row_len)) else {
+                return Err(Error::BufferSize {
+                    what: "descriptor band",
+                    expected: (band.keep_to - band.start) * row_len,
+                    found: left.len().min(right.len()),
+                });
+            };
+            head.push_row(l, r, &mut CheckedRows { sink, check })?;
+        }
+        head.finish(&mut CheckedRows { sink, check })
     }
 }

@@ -1,29 +1,31 @@
 //! The firmware's workload, shared word for word by the firmware and by `build.rs` (which runs it
 //! on the host to bake the expected digests in): one band pair through
 //! `bino_core::pipeline` — both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the
-//! left-right check and the shared head, row by row — with a CRC-32 digest of every output.
+//! left-right check, the shared head and its own left-right check (the head on the mirrored
+//! pair, rerun on the head's arena), row by row — with a CRC-32 digest of every output.
 
 use bino_core::band::Band;
 use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, MatchedRow, Options, Pipeline, Report, Sink, SlicePair};
+use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Report, Sink, SlicePair};
 use bino_core::sgm::Penalties;
 use bino_core::Error;
 
 /// Readout options: the `bino` CLI's defaults (16 candidates, SGM penalties 8 / 32, left-right
-/// tolerance one patch column, head on).
+/// tolerance one patch column, head on with its left-right check: the default readout of
+/// `bino run` is head+lr).
 pub const OPTIONS: Options = Options {
     max_cols: 16,
     penalties: Penalties { p1: 8, p2: 32 },
     lr_max_diff_q8: 256,
     head: true,
-    head_lr: false,
+    head_lr: true,
 };
 
 /// Arena bytes the workload needs for a `height x width` band pair.
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes(height, width, OPTIONS.max_cols)
+    pipeline::arena_bytes_for(height, width, &OPTIONS)
 }
 
 /// The stages the firmware reports: blob loading, then the pipeline's own.
@@ -66,13 +68,14 @@ impl Stage {
 }
 
 /// The outputs the firmware digests, in order.
-pub const OUTPUTS: [&str; 6] = [
+pub const OUTPUTS: [&str; 7] = [
     "descriptors_left",
     "descriptors_right",
     "wta",
     "sgm",
     "left_right",
     "head",
+    "head_left_right",
 ];
 
 /// What the workload tells its caller about where it is.
@@ -142,6 +145,13 @@ impl<H: Hooks> Sink for Recorder<'_, H> {
             for &l in row.logits {
                 c[5].update(&l.to_le_bytes());
             }
+        });
+    }
+
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        self.digest(|c| {
+            update_u16(&mut c[6], row.right_q8);
+            c[6].update(row.consistent);
         });
     }
 }

@@ -297,7 +297,14 @@ fn the_heads_left_right_check_is_the_head_on_the_mirrored_pair() {
         let scene = synthetic::default_scene(width, height);
         let (l, r) = (&scene.left.pixels, &scene.right.pixels);
         let needed = arena_bytes_head_lr(height, width, MAX_COLS);
-        assert!(needed > arena_bytes(height, width, MAX_COLS));
+        if height <= 48 {
+            // One band: the mirrored head reruns it on the left head's arena, inside the
+            // encoder's scratch; the board's arena does not grow.
+            assert_eq!(needed, arena_bytes(height, width, MAX_COLS));
+        } else {
+            // Several bands: a second head streams beside the first.
+            assert!(needed > arena_bytes(height, width, MAX_COLS));
+        }
         let mut arena = vec![0u8; needed];
         let err = pipeline.run(
             &mut SlicePair::new(l, r, width, height).unwrap(),

@@ -9,6 +9,11 @@ convolutional in rows and columns). Head disparity in patch columns x 4 = px on 
 bilinearly upsampled to pixels, then epe / bad1tok / bad2 per pair and the mean over pairs.
 The no-linkage probe (cosine WTA, 10 columns) on the same descriptors is reported alongside.
 The head predicts every pixel: density 100.
+
+`head+lr` is the Rust CLI's readout of that name (`bino_host::readout`): the head's own
+left-right check (the head on the mirrored pair gives the right view's disparity; a left cell
+is kept when the right cell it lands on reads the same disparity within one column), and each
+rejected cell takes the disparity of the nearest kept cell to its left, before upsampling.
 """
 
 from __future__ import annotations
@@ -21,6 +26,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import torch
 
 from .head import StereoHead, load_head
@@ -40,25 +46,61 @@ from .profile import profile_width
 
 PROBE_COLS = 10
 """The probe's default candidate count (probe.py)."""
+LR_MAX_DIFF = 1.0
+"""Left-right tolerance in patch columns (the CLI's default `--lr-max-diff`)."""
+
+
+def consistent(left: np.ndarray, right: np.ndarray, max_diff: float = LR_MAX_DIFF) -> np.ndarray:
+    """Left cells whose disparity `d` lands on a right cell `p - round(d)` inside the view that
+    reads a disparity within `max_diff` of it (token grids in patch columns, `d >= 0`)."""
+    rows, cols = left.shape
+    target = np.arange(cols)[None, :] - np.floor(left + 0.5).astype(np.int64)
+    inside = target >= 0
+    landed = np.take_along_axis(right, np.clip(target, 0, cols - 1), axis=1)
+    return inside & (np.abs(landed - left) <= max_diff)
+
+
+def fill_rejected(disparity: np.ndarray, kept: np.ndarray) -> np.ndarray:
+    """Each rejected cell takes the nearest kept value to its left (the first kept value for
+    those before it); a row with nothing kept is 0 (`bino_core::lr::fill_rejected`)."""
+    out = np.zeros_like(disparity)
+    for r, (row, mask) in enumerate(zip(disparity, kept, strict=True)):
+        if not mask.any():
+            continue
+        carried = row[int(np.argmax(mask))]
+        for c, (value, ok) in enumerate(zip(row, mask, strict=True)):
+            if ok:
+                carried = value
+            out[r, c] = carried
+    return out
+
+
+def head_lr(head: StereoHead, dl: torch.Tensor, dr: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
+    """(left disparity, kept mask) of the head and its check, descriptor maps (rows, cols, C)."""
+    device = next(head.parameters()).device
+    left = head(dl[None].to(device), dr[None].to(device)).disparity[0].float().cpu().numpy()
+    mirrored = head(dr.flip(1)[None].to(device), dl.flip(1)[None].to(device))
+    right = mirrored.disparity[0].float().cpu().numpy()[:, ::-1]
+    return left, consistent(left, right)
 
 
 @torch.no_grad()
 def head_scores(
     encoder: BinoEncoder, head: StereoHead, items: Sequence[ProbeItem]
-) -> tuple[list[dict[str, float]], list[dict[str, float]]]:
-    """Per-pair EVAL.md metrics of the head and of the probe, from one set of descriptors."""
+) -> tuple[list[dict[str, float]], list[dict[str, float]], list[dict[str, float]]]:
+    """Per-pair EVAL.md metrics of the head, of head+lr and of the probe, from one set of
+    descriptors."""
     describe = encoder_describe(encoder)
     head = head.eval()
-    device = next(head.parameters()).device
-    heads, probes = [], []
+    heads, checked, probes = [], [], []
     for item in items:
         dl, dr = describe([item.left, item.right])
-        out = head(dl[None].to(device), dr[None].to(device))
-        disp = upsample_disparity(out.disparity[0].float().cpu().numpy())
-        heads.append(score(disp, item.gt, item.valid))
+        left, kept = head_lr(head, dl, dr)
+        heads.append(score(upsample_disparity(left), item.gt, item.valid))
+        checked.append(score(upsample_disparity(fill_rejected(left, kept)), item.gt, item.valid))
         probe = wta_subtoken(similarity_volume(dl, dr, PROBE_COLS))
         probes.append(score(upsample_disparity(probe), item.gt, item.valid))
-    return heads, probes
+    return heads, checked, probes
 
 
 def evaluate_head(
@@ -68,18 +110,22 @@ def evaluate_head(
     profile: str = "w160",
     per_pair: bool = False,
 ) -> dict[str, Any]:
-    """{"head": metrics, "probe": metrics, "sgbm": metrics} (means over the eval pairs)."""
+    """{"head", "head+lr", "probe", "sgbm": metrics} (means over the eval pairs)."""
     items = load_probe_set(data_dir, profile)
-    heads, probes = head_scores(encoder, head, items)
+    heads, checked, probes = head_scores(encoder, head, items)
     out: dict[str, Any] = {
         "profile": profile,
         "pairs": len(items),
         "head": {**mean_metrics(heads), "density": 100.0},
+        "head+lr": {**mean_metrics(checked), "density": 100.0},
         "probe": {**mean_metrics(probes), "density": 100.0},
         "sgbm": run_sgbm(items, profile_width(profile)),
     }
     if per_pair:
-        out["per_pair"] = {it.pair_id: m for it, m in zip(items, heads, strict=True)}
+        out["per_pair"] = {
+            it.pair_id: {"head": h, "head+lr": c}
+            for it, h, c in zip(items, heads, checked, strict=True)
+        }
     return out
 
 

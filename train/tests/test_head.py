@@ -35,7 +35,7 @@ from bino_train.head_data import (
     sgbm_disparity,
     synthetic_sample,
 )
-from bino_train.head_eval import evaluate_head
+from bino_train.head_eval import consistent, evaluate_head, fill_rejected, head_lr
 from bino_train.head_train import (
     SMOKE_ENCODER,
     SMOKE_HEAD,
@@ -281,10 +281,34 @@ def test_evaluation_scores_head_probe_and_sgbm(data_dir: Path) -> None:
     head = StereoHead(replace(SMOKE_HEAD, desc_dim=SMOKE_ENCODER.dim))
     result = evaluate_head(encoder, head, data_dir, per_pair=True)
     assert result["pairs"] == 2 and set(result["per_pair"]) == {"e0", "e1"}
-    for name in ("head", "probe", "sgbm"):
+    for name in ("head", "head+lr", "probe", "sgbm"):
         assert {"epe", "bad1tok", "bad2", "density"} <= set(result[name])
         assert np.isfinite(result[name]["epe"])
     assert result["head"]["density"] == 100.0
+    assert set(result["per_pair"]["e0"]) == {"head", "head+lr"}
+
+
+def test_left_right_check_and_fill_follow_the_core_rules() -> None:
+    # The examples of bino_core::lr's tests: cells 2..4 read 2 columns and land on right cells
+    # 0..2, which agree; cells 0 and 1 land on right cell 0, which reads 2.
+    left = np.array([[0.0, 1.0, 2.0, 2.0, 2.0]])
+    right = np.array([[2.0, 2.0, 2.0, 0.0, 0.0]])
+    assert consistent(left, right, 0.5).tolist() == [[False, False, True, True, True]]
+    assert consistent(left, right, 1.0)[0].sum() == 4
+    assert not consistent(np.array([[3.0]]), np.array([[3.0]]))[0, 0], "lands outside the view"
+    row = np.array([[10.0, 20.0, 30.0, 40.0, 50.0], [7.0, 8.0, 9.0, 1.0, 2.0]])
+    kept = np.array([[False, True, False, False, True], [False] * 5])
+    assert fill_rejected(row, kept).tolist() == [[20, 20, 20, 20, 50], [0, 0, 0, 0, 0]]
+
+
+def test_the_mirrored_head_reads_the_right_view() -> None:
+    head = StereoHead(replace(SMOKE_HEAD, desc_dim=8)).eval()
+    dl, dr = torch.randn(6, 10, 8), torch.randn(6, 10, 8)
+    with torch.no_grad():
+        left, kept = head_lr(head, dl, dr)
+        direct = head(dr.flip(1)[None], dl.flip(1)[None]).disparity[0].numpy()[:, ::-1]
+        assert np.allclose(left, head(dl[None], dr[None]).disparity[0].numpy())
+    assert kept.tolist() == consistent(left, direct).tolist()
 
 
 def test_head_is_fully_convolutional() -> None:

@@ -315,6 +315,29 @@ impl<'a, 'w> HeadStream<'a, 'w> {
         self.pump(sink)
     }
 
+    /// Starts the stream over, reading out `view`: every buffer as a new stream's, so the next
+    /// rows give what a fresh [`HeadStream::for_view`] on the same arena would. Lets one arena
+    /// serve the left head and then the mirrored one when the whole map is at hand.
+    pub fn restart(&mut self, view: HeadView) {
+        self.view = view;
+        self.pushed = [0; HEAD_CONVS];
+        self.produced = [0; HEAD_CONVS];
+        self.input_done = false;
+        for buffer in [
+            &mut *self.rings,
+            &mut *self.f_left,
+            &mut *self.f_right,
+            &mut *self.normed,
+            &mut *self.gathered,
+        ] {
+            buffer.fill(0);
+        }
+        self.acc.fill(0);
+        self.logits.fill(0);
+        self.disparity.fill(0);
+        self.confidence.fill(0);
+    }
+
     /// Rows emitted so far.
     pub fn rows_out(&self) -> usize {
         self.produced[HEAD_CONVS - 1]
