@@ -11,7 +11,7 @@ use bino_core::model::{encoder, head};
 use bino_core::sgm::Penalties;
 
 use crate::colour::{colourise, error_colour};
-use crate::eval::{score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
+use crate::eval::{fill_invalid, score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
 use crate::int8::{match_rows, sgm_rows, Int8Model};
 use crate::json::Object;
 use crate::profile::{Profile, View};
@@ -22,6 +22,8 @@ pub const DEFAULT_BLOB: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/
 
 /// Errors above this many pixels are drawn at full strength in the error maps.
 const ERROR_MAP_MAX_PX: f32 = 8.0;
+/// Left-right tolerance of head+lr: one patch column, the CLI's `--lr-max-diff` default.
+const DEMO_LR_MAX_DIFF_Q8: u16 = 256;
 
 /// What the demo runs on and where it writes.
 #[derive(Debug, Clone)]
@@ -113,15 +115,21 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         scored("sgm", &tokens, &truth)
     })?);
     if model.has_head() {
-        readouts.push(steps.run("shared head (int8, streamed row by row)", || {
-            let maps = model.head(&codes_left, &codes_right, rows, cols)?;
-            let tokens = DisparityMap {
-                width: cols,
-                height: rows,
-                values: maps.disparity,
-            };
-            scored("head", &tokens, &truth)
-        })?);
+        let maps = steps.run("shared head (int8, streamed row by row)", || {
+            model.head(&codes_left, &codes_right, rows, cols)
+        })?;
+        let tokens = DisparityMap {
+            width: cols,
+            height: rows,
+            values: maps.disparity.clone(),
+        };
+        readouts.push(scored("head", &tokens, &truth)?);
+        readouts.push(
+            steps.run("head+lr: the head on the mirrored pair, left-right fill", || {
+                let kept = model.head_check(&codes_left, &codes_right, &maps, DEMO_LR_MAX_DIFF_Q8)?;
+                scored("head+lr", &fill_invalid(&tokens, &kept), &truth)
+            })?,
+        );
     }
     let files = steps.run("writing pictures and report", || {
         write_outputs(opts, &scene, &left, &right, &readouts)

@@ -150,6 +150,42 @@ pub struct HeadMaps {
     pub logits: Vec<f32>,
 }
 
+impl Int8Model {
+    /// The head's own left-right check on whole descriptor maps (`rows x cols x DIM` codes):
+    /// the head on the mirrored pair (each row's cells reversed, views swapped) gives the right
+    /// view, and `bino_core::lr::consistent_row` compares it with `left_head` (the head's
+    /// left-view output), row by row — what the core pipeline's `head_lr` streams. True = kept.
+    pub fn head_check(
+        &self,
+        left: &[i8],
+        right: &[i8],
+        left_head: &HeadMaps,
+        lr_max_diff_q8: u16,
+    ) -> Result<Vec<bool>> {
+        let (rows, cols) = (left_head.rows, left_head.cols);
+        let mirror = |map: &[i8]| -> Vec<i8> {
+            map.chunks_exact(cols * DIM)
+                .flat_map(|row| row.chunks_exact(DIM).rev().flatten().copied().collect::<Vec<_>>())
+                .collect()
+        };
+        let mirrored = self.head(&mirror(right), &mirror(left), rows, cols)?;
+        let q8 = |d: f32| (d * (1u32 << bino_core::matching::DISPARITY_FRAC_BITS) as f32).round() as u16;
+        let mut kept = Vec::with_capacity(rows * cols);
+        let mut mask = vec![0u8; cols];
+        for (l, r) in left_head
+            .disparity
+            .chunks_exact(cols)
+            .zip(mirrored.disparity.chunks_exact(cols))
+        {
+            let l: Vec<u16> = l.iter().map(|&d| q8(d)).collect();
+            let r: Vec<u16> = r.iter().rev().map(|&d| q8(d)).collect();
+            bino_core::lr::consistent_row(&l, &r, lr_max_diff_q8, &mut mask).map_err(anyhow::Error::msg)?;
+            kept.extend(mask.iter().map(|&m| m != 0));
+        }
+        Ok(kept)
+    }
+}
+
 struct CollectRows<'m> {
     out: &'m mut HeadMaps,
     logit_scale: f32,

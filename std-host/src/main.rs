@@ -104,8 +104,9 @@ enum Command {
         #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
         blob: PathBuf,
         /// Readout drawn: nolink, sgm or head (cells their left-right check rejects are dark),
-        /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval` scores).
-        #[arg(long, default_value = "sgm")]
+        /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval`
+        /// scores); the default is `bino run`'s.
+        #[arg(long, default_value = "head+lr")]
         readout: bino_host::readout::Readout,
         /// Disparity candidates of nolink and sgm, in patch columns.
         #[arg(long, default_value_t = 16)]

@@ -348,6 +348,9 @@ fn the_heads_left_right_check_is_the_head_on_the_mirrored_pair() {
             kept += consistent_row(left_row, right_row, opts.lr_max_diff_q8, mask).unwrap();
         }
         assert_eq!(out.head_mask, expected);
+        // The whole-map helper the demo uses computes the same check.
+        let whole = model.head_check(&left, &right, &head, opts.lr_max_diff_q8).unwrap();
+        assert_eq!(whole, out.head_mask.iter().map(|&m| m != 0).collect::<Vec<_>>());
         assert_eq!(report.head_kept, kept);
         assert!(
             kept > rows * cols / 2,
