@@ -11,6 +11,19 @@ use crate::config::DIM;
 use crate::fixed::isqrt_u64;
 use crate::Error;
 
+/// The descriptor length as the loops see it: on Cortex-M55 (MVE) an opaque run-time value, so
+/// LLVM emits one tail-predicated 16-lane `vmladav.s8` loop per dot product rather than
+/// unrolling a constant 128 into 32-bit lanes (as in the attention kernel); the value is [`DIM`]
+/// either way, which every bound below relies on.
+#[inline(always)]
+fn dim() -> usize {
+    if cfg!(bino_dsp) {
+        DIM
+    } else {
+        core::hint::black_box(DIM)
+    }
+}
+
 /// Most disparity candidates one cell may have.
 pub const MAX_CANDIDATES: usize = 64;
 /// Fraction bits of the matched disparity (patch columns, Q8).
@@ -23,7 +36,7 @@ const INV_NORM_BITS: u32 = 30;
 pub fn inverse_norms(row: &[i8], out: &mut [u32]) -> Result<(), Error> {
     let cells = check_row(row)?;
     check_len("inverse norms", out.len(), cells)?;
-    for (d, o) in row.chunks_exact(DIM).zip(out.iter_mut()) {
+    for (d, o) in row.chunks_exact(dim()).zip(out.iter_mut()) {
         let sum_sq: u64 = d.iter().map(|&x| (x as i32 * x as i32) as u64).sum();
         // |d|^2 <= DIM * 2^14; the square root keeps 16 fraction bits via a 2^32 prescale.
         let norm_q16 = isqrt_u64(sum_sq << 32) as u64;
@@ -49,11 +62,12 @@ pub fn match_row(
     let cells = check_pair(left, right, right_inv_norms, max_cols)?;
     check_len("disparity row", out.len(), cells)?;
     let mut sims = [0i64; MAX_CANDIDATES];
-    for (p, (l, o)) in left.chunks_exact(DIM).zip(out.iter_mut()).enumerate() {
+    let dim = dim();
+    for (p, (l, o)) in left.chunks_exact(dim).zip(out.iter_mut()).enumerate() {
         let candidates = max_cols.min(p + 1);
         for (k, s) in sims.iter_mut().enumerate().take(candidates) {
             let q = p - k;
-            let r = right.get(q * DIM..(q + 1) * DIM).unwrap_or_default();
+            let r = right.get(q * dim..(q + 1) * dim).unwrap_or_default();
             let dot: i32 = l.iter().zip(r).map(|(&a, &b)| a as i32 * b as i32).sum();
             *s = dot as i64 * right_inv_norms.get(q).copied().unwrap_or(0) as i64;
         }
@@ -78,14 +92,15 @@ pub fn cost_row(
     let cells = check_pair(left, right, right_inv_norms, max_cols)?;
     check_len("left inverse norms", left_inv_norms.len(), cells)?;
     check_len("cost row", out.len(), cells.saturating_mul(max_cols))?;
-    for (p, (l, costs)) in left.chunks_exact(DIM).zip(out.chunks_exact_mut(max_cols)).enumerate() {
+    let dim = dim();
+    for (p, (l, costs)) in left.chunks_exact(dim).zip(out.chunks_exact_mut(max_cols)).enumerate() {
         let inv_l = left_inv_norms.get(p).copied().unwrap_or(0) as i64;
         for (k, c) in costs.iter_mut().enumerate() {
             let Some(q) = p.checked_sub(k) else {
                 *c = COST_EXCLUDED;
                 continue;
             };
-            let r = right.get(q * DIM..(q + 1) * DIM).unwrap_or_default();
+            let r = right.get(q * dim..(q + 1) * dim).unwrap_or_default();
             let dot: i32 = l.iter().zip(r).map(|(&a, &b)| a as i32 * b as i32).sum();
             let inv_r = right_inv_norms.get(q).copied().unwrap_or(0) as i64;
             // dot * 2^60 / (|l| |r|) taken down to Q12 in two steps that stay below 2^52.

@@ -106,7 +106,7 @@ enum Command {
         /// Readout drawn: nolink, sgm or head (cells their left-right check rejects are dark),
         /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval`
         /// scores); the default is `bino run`'s.
-        #[arg(long, default_value = "head+lr")]
+        #[arg(long, default_value = "sgm+lr")]
         readout: bino_host::readout::Readout,
         /// Disparity candidates of nolink and sgm, in patch columns.
         #[arg(long, default_value_t = 16)]
@@ -282,8 +282,9 @@ enum Command {
         blob: PathBuf,
         /// Readout: nolink, sgm or head, each optionally with +lr (cells the method's own
         /// left-right check rejects filled from the nearest kept cell to their left). The
-        /// default, head+lr, is the readout with the lowest eval-split error (README).
-        #[arg(long, default_value = "head+lr")]
+        /// default, sgm+lr, has the lowest eval-split error at the default profile, w320
+        /// (head+lr at w160; README).
+        #[arg(long, default_value = "sgm+lr")]
         readout: bino_host::readout::Readout,
         /// Disparity candidates of nolink and sgm, in patch columns.
         #[arg(long, default_value_t = 16)]

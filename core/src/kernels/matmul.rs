@@ -28,9 +28,14 @@ fn matmul_body(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
         return;
     }
     let n = w.len() / k;
-    // Saturating: a `k` or `n` too large for four rows simply leaves no four-row block.
-    let mut a_quads = a.chunks_exact(k.saturating_mul(4));
-    let mut out_quads = out.chunks_exact_mut(n.saturating_mul(4));
+    // Checked rather than saturating: LLVM then still knows a block is exactly four rows of
+    // `k` (no per-block bounds checks); sizes that overflow compute nothing.
+    let (Some(quad_in), Some(quad_out)) = (k.checked_mul(4), n.checked_mul(4)) else {
+        out.fill(0);
+        return;
+    };
+    let mut a_quads = a.chunks_exact(quad_in);
+    let mut out_quads = out.chunks_exact_mut(quad_out);
     for (a4, o4) in (&mut a_quads).zip(&mut out_quads) {
         let (a01, a23) = a4.split_at(2 * k);
         let (a0, a1) = a01.split_at(k);
