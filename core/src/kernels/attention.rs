@@ -13,8 +13,11 @@ use crate::fixed::{round_shift, sat_i8_i64, Requant};
 
 /// Fraction bits of the normalised weighted average before the output factor.
 pub const AVG_FRAC_BITS: u32 = 16;
-/// Most keys one query attends to (a band has 960); keys beyond it are ignored, so the 8-bit
-/// weights' 32-bit sum (`255 * MAX_KEYS < 2^32`) cannot wrap for any buffer lengths.
+/// Most keys whose 8-bit weights a 32-bit sum holds exactly (`255 * MAX_KEYS < 2^32`; a band
+/// has 960). [`attend`] ignores keys beyond it; [`attend_block`], the engine's kernel, sums with
+/// wrapping adds instead (the same code as plain adds in release builds: a bound there cost
+/// 13M instructions per encoder pass on Cortex-M55), so lengths beyond it give a wrong average
+/// but never a panic.
 pub const MAX_KEYS: usize = 1 << 24;
 
 /// Quantisation parameters of one head's attention.
@@ -104,8 +107,7 @@ pub fn attend_block(
     let n = (keys.len() / HEAD_DIM)
         .min(values_t.len() / HEAD_DIM)
         .min(scores.len() / QUERY_BLOCK)
-        .min(weights.len() / QUERY_BLOCK)
-        .min(MAX_KEYS);
+        .min(weights.len() / QUERY_BLOCK);
     if n == 0 {
         *out = [[0; HEAD_DIM]; QUERY_BLOCK];
         return;
@@ -156,14 +158,14 @@ pub fn attend_block(
                 for (w, &s) in w_row.iter_mut().zip(s_row.iter()) {
                     let x = e.weight(m.wrapping_sub(s) as u32);
                     *w = x ^ 0x80;
-                    sum += x as u32;
+                    sum = sum.wrapping_add(x as u32);
                 }
             }
             None => {
                 for (w, &s) in w_row.iter_mut().zip(s_row.iter()) {
                     let x = softmax_weight(m, s, p);
                     *w = x ^ 0x80;
-                    sum += x as u32;
+                    sum = sum.wrapping_add(x as u32);
                 }
             }
         }
