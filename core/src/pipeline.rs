@@ -751,16 +751,8 @@ impl<'a, 'w> Streams<'a, 'w> {
 
     /// Feeds the rows `band` keeps.
     fn push_band(&mut self, band: Band, left: &[i8], right: &[i8], sink: &mut impl Sink) -> Result<(), Error> {
-        let row_len = self.cols * DIM;
         for row in band.keep_from..band.keep_to {
-            let at = (row - band.start) * row_len;
-            let (Some(l), Some(r)) = (left.get(at..at + row_len), right.get(at..at + row_len)) else {
-                return Err(Error::BufferSize {
-                    what: "descriptor band",
-                    expected: (band.keep_to - band.start) * row_len,
-                    found: left.len().min(right.len()),
-                });
-            };
+            let (l, r) = kept_row(band, row, self.cols, left, right)?;
             self.push_row(row, l, r, sink)?;
         }
         Ok(())
@@ -838,18 +830,30 @@ impl<'a, 'w> Streams<'a, 'w> {
         };
         sink.stage(Stage::Head);
         head.restart(HeadView::Right);
-        let row_len = self.cols * DIM;
         for row in band.keep_from..band.keep_to {
-            let at = (row - band.start) * row_len;
-            let (Some(l), Some(r)) = (left.get(at..at + row_len), right.get(at..at + row_len)) else {
-                return Err(Error::BufferSize {
-                    what: "descriptor band",
-                    expected: (band.keep_to - band.start) * row_len,
-                    found: left.len().min(right.len()),
-                });
-            };
+            let (l, r) = kept_row(band, row, self.cols, left, right)?;
             head.push_row(l, r, &mut CheckedRows { sink, check })?;
         }
         head.finish(&mut CheckedRows { sink, check })
+    }
+}
+
+/// Token row `row` of both descriptor maps of `band` (`cols x DIM` codes each).
+fn kept_row<'d>(
+    band: Band,
+    row: usize,
+    cols: usize,
+    left: &'d [i8],
+    right: &'d [i8],
+) -> Result<(&'d [i8], &'d [i8]), Error> {
+    let row_len = cols * DIM;
+    let at = (row - band.start) * row_len;
+    match (left.get(at..at + row_len), right.get(at..at + row_len)) {
+        (Some(l), Some(r)) => Ok((l, r)),
+        _ => Err(Error::BufferSize {
+            what: "descriptor band",
+            expected: (band.keep_to - band.start) * row_len,
+            found: left.len().min(right.len()),
+        }),
     }
 }

@@ -209,6 +209,22 @@ fn data_folder(name: &str, index: &[u8], gt_size: (u32, u32)) -> PathBuf {
     dir
 }
 
+/// `bino eval` (int8 nolink, no SGBM) on the folder `dir`, its JSON to `json`.
+fn eval_into(dir: &Path, json: &Path) -> Output {
+    bino(&[
+        "eval",
+        "--data",
+        s(dir),
+        "--readout",
+        "nolink",
+        "--precision",
+        "int8",
+        "--no-sgbm",
+        "--json",
+        s(json),
+    ])
+}
+
 fn eval_row() -> String {
     "p\teval\tsynthetic\tl.png\tr.png\tgt.png\tpng_u8\t4\t0\t200\t60\n".to_string()
 }
@@ -256,18 +272,7 @@ fn malformed_pair_indexes_are_refused_with_file_and_line() {
         all.extend_from_slice(needles);
         assert_refused(&bino(&["pairs", "--data", s(&dir)]), &all);
         let json = dir.join("eval.json");
-        let eval = bino(&[
-            "eval",
-            "--data",
-            s(&dir),
-            "--readout",
-            "nolink",
-            "--precision",
-            "int8",
-            "--no-sgbm",
-            "--json",
-            s(&json),
-        ]);
+        let eval = eval_into(&dir, &json);
         assert_refused(&eval, &all);
         assert_eq!(listing(&dir), before, "{name}: no output");
     }
@@ -280,18 +285,7 @@ fn ground_truth_of_the_wrong_size_is_refused() {
     for (name, size) in [("gt-small", (100, 30)), ("gt-scaled", (400, 120))] {
         let dir = data_folder(name, format!("{HEADER}{}", eval_row()).as_bytes(), size);
         let before = listing(&dir);
-        let eval = bino(&[
-            "eval",
-            "--data",
-            s(&dir),
-            "--readout",
-            "nolink",
-            "--precision",
-            "int8",
-            "--no-sgbm",
-            "--json",
-            s(&dir.join("eval.json")),
-        ]);
+        let eval = eval_into(&dir, &dir.join("eval.json"));
         let stated = format!("{}x{}", size.0, size.1);
         assert_refused(&eval, &["ground truth", "gt.png", &stated, "200x60"]);
         assert_eq!(listing(&dir), before, "{name}: no output");
@@ -303,18 +297,7 @@ fn a_well_formed_index_of_the_same_shape_is_accepted() {
     // The control for the cases above: the same folder with a sound index evaluates.
     let dir = data_folder("sound", format!("{HEADER}{}", eval_row()).as_bytes(), (200, 60));
     let json = dir.join("eval.json");
-    let eval = bino(&[
-        "eval",
-        "--data",
-        s(&dir),
-        "--readout",
-        "nolink",
-        "--precision",
-        "int8",
-        "--no-sgbm",
-        "--json",
-        s(&json),
-    ]);
+    let eval = eval_into(&dir, &json);
     assert!(eval.status.success(), "{}", String::from_utf8_lossy(&eval.stderr));
     assert!(json.is_file());
 }
