@@ -53,7 +53,11 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     let constant_epe = truth.iter().map(|d| (d - median).abs()).sum::<f32>() / truth.len() as f32;
 
     let names: Vec<&str> = report.readouts.iter().map(|r| r.name).collect();
-    assert_eq!(names, ["nolink", "sgm", "head"], "the shipped blob carries the head");
+    assert_eq!(
+        names,
+        ["nolink", "sgm", "head", "head+lr"],
+        "the shipped blob carries the head"
+    );
     let epe: Vec<f32> = report.readouts.iter().map(|r| r.metrics.epe as f32).collect();
     eprintln!(
         "epe nolink {} sgm {} head {} constant guess {constant_epe}",
@@ -67,10 +71,14 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     // SGM and the head regularise over the volume: both should beat winner-take-all.
     assert!(epe[1] < epe[0], "sgm epe {} vs nolink {}", epe[1], epe[0]);
     assert!(epe[2] < epe[0], "head epe {} vs nolink {}", epe[2], epe[0]);
+    // The head's own left-right check and fill only replaces cells it rejects.
+    assert!(epe[3] < epe[0], "head+lr epe {} vs nolink {}", epe[3], epe[0]);
+    assert_ne!(epe[3], epe[2], "head+lr fills some cells");
     for name in [
         "left.png",
         "disparity_true.png",
         "disparity_head.png",
+        "disparity_head+lr.png",
         "error_nolink.png",
     ] {
         let picture = image::open(out.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -83,6 +91,7 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     let report_json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert!(report_json["head"]["epe"].as_f64().is_some(), "{report_json}");
+    assert!(report_json["head+lr"]["epe"].as_f64().is_some(), "{report_json}");
     std::fs::remove_dir_all(&out).ok();
 }
 
