@@ -170,7 +170,7 @@ enum Command {
         data: PathBuf,
         /// Only this split (train or eval).
         #[arg(long)]
-        split: Option<String>,
+        split: Option<Split>,
     },
     /// Compare the float encoder (tract-onnx) with the int8 engine on eval pairs.
     ///
@@ -504,7 +504,7 @@ fn run(cli: Cli) -> Result<()> {
             head,
             out,
         } => reference(left.zip(right), profile, &onnx, head.as_deref(), &out),
-        Command::Pairs { data, split } => list_pairs(&data, split.as_deref()),
+        Command::Pairs { data, split } => list_pairs(&data, split),
         Command::Budget {
             firmware,
             json,
@@ -822,13 +822,7 @@ fn apply_profile(left: &GrayImage, right: &GrayImage, profile: Profile, source: 
     Ok((apply(left)?, apply(right)?))
 }
 
-fn list_pairs(data: &Path, split: Option<&str>) -> Result<()> {
-    let wanted = match split {
-        None => None,
-        Some("train") => Some(Split::Train),
-        Some("eval") => Some(Split::Eval),
-        Some(other) => bail!("unknown split {other:?} (expected train or eval)"),
-    };
+fn list_pairs(data: &Path, wanted: Option<Split>) -> Result<()> {
     let pairs = read_index(data)?;
     let mut out = std::io::stdout().lock();
     for pair in pairs.iter().filter(|p| wanted.is_none_or(|s| p.split == s)) {
