@@ -186,20 +186,27 @@ def supervised_cells(target: Tensor, max_disp: int) -> Tensor:
     return finite & (safe >= 0) & (safe <= max_disp - 1) & (torch.round(safe) <= cols)
 
 
-def head_loss(out: HeadOutput, target: Tensor, ce_weight: float = 1.0) -> LossParts:
+def head_loss(
+    out: HeadOutput, target: Tensor, ce_weight: float = 1.0, weight: Tensor | None = None
+) -> LossParts:
     """Smooth L1 on the soft disparity + cross-entropy on the rounded target, supervised cells
-    only. target: (B, T, P) patch columns, NaN where unknown."""
+    only, each cell weighted by `weight` (B, T, P) (None: 1). target: (B, T, P) patch columns,
+    NaN where unknown."""
     d = out.logits.shape[1]
     mask = supervised_cells(target, d)
+    if weight is not None:
+        mask = mask & (weight > 0)
     n = int(mask.sum())
     if n == 0:
         zero = out.disparity.sum() * 0.0  # keeps the graph: backward() still works
         return LossParts(zero, 0.0, 0.0, 0.0, 0)
     tgt = target[mask]
+    w = weight[mask] if weight is not None else torch.ones_like(tgt)
+    w = w / w.sum()
     pred = out.disparity[mask]
-    sl1 = F.smooth_l1_loss(pred, tgt, beta=1.0)
+    sl1 = (F.smooth_l1_loss(pred, tgt, beta=1.0, reduction="none") * w).sum()
     logits = out.logits.permute(0, 2, 3, 1)[mask]  # (n, D)
-    ce = F.cross_entropy(logits, torch.round(tgt).long())
+    ce = (F.cross_entropy(logits, torch.round(tgt).long(), reduction="none") * w).sum()
     loss = sl1 + ce_weight * ce
     epe = float((pred.detach() - tgt).abs().mean())
     return LossParts(loss, float(sl1.detach()), float(ce.detach()), epe, n)

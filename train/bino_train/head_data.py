@@ -67,6 +67,10 @@ class DataConfig:
     """Pick datasets uniformly: the driving sequence holds most of the train pairs."""
     min_valid: int = 12
     max_spread: float = 2.0
+    label_weighting: str = "binary"
+    """"binary": every labelled cell weighs 1. "lr": SGBM is also run on the mirrored pair (the
+    right view's disparity), and a cell weighs the mean over its valid pixels of
+    exp(-(lr_diff / LR_SCALE_PX)^2) times its valid fraction (synthetic cells weigh 1)."""
     augment: AugmentConfig = field(default_factory=lambda: HEAD_AUGMENT)
     sgbm_cache_mb: int = 256
 
@@ -86,6 +90,15 @@ class Sample:
     label: NDArray[np.float32]
     """(crop_h / 4, crop_w / 4) patch columns, NaN where unknown."""
     synthetic: bool
+    weight: NDArray[np.float32] | None = None
+    """(crop_h / 4, crop_w / 4) confidence of each label in [0, 1] (None: 1 where labelled)."""
+    clean: tuple[Gray, Gray] | None = None
+    """The crops before the nuisances (photometric terms compare these; None: left, right)."""
+
+    def label_weight(self) -> NDArray[np.float32]:
+        if self.weight is not None:
+            return self.weight
+        return np.isfinite(self.label).astype(np.float32)
 
 
 def cell_labels(
@@ -111,6 +124,27 @@ def cell_labels(
 
 
 # --- synthetic scenes ---------------------------------------------------------------------
+
+
+LR_SCALE_PX = 0.5
+"""Left-right disagreement (px) at which an SGBM pixel's confidence falls to exp(-1)."""
+
+LR_LIMIT_PX = 1.0
+"""SGBM pixels whose left and right disparities differ by more are not labels (SGBM's own
+disp12MaxDiff=1 works on integer pixels; this works on its 1/16 px output)."""
+
+
+def cell_weights(
+    confidence: NDArray[np.float32], valid: NDArray[np.bool_], label: NDArray[np.float32]
+) -> NDArray[np.float32]:
+    """Per-cell weight: mean pixel confidence over the valid pixels x valid fraction; 0 where the
+    cell has no label."""
+    h, w = confidence.shape
+    cells = (h // CELL, CELL, w // CELL, CELL)
+    c = confidence.reshape(cells).transpose(0, 2, 1, 3).reshape(h // CELL, w // CELL, -1)
+    v = valid.reshape(cells).transpose(0, 2, 1, 3).reshape(h // CELL, w // CELL, -1)
+    weight = np.where(v, c, 0.0).sum(-1) / float(CELL * CELL)
+    return np.where(np.isfinite(label), weight, 0.0).astype(np.float32)
 
 
 def _texture(rng: np.random.Generator, h: int, w: int) -> Gray:
@@ -205,8 +239,9 @@ def synthetic_sample(rng: np.random.Generator, cfg: DataConfig) -> Sample:
     textures = [_texture(rng, h, w + margin + 2) for _ in range(2)]
     left, right, disparity = render_scene(scene, textures[0], textures[1], h, w, margin)
     label = cell_labels(disparity, np.ones_like(disparity, dtype=bool), cfg.min_valid, 2.0)
+    clean = (left, right)
     left, right = nuisances(left, right, rng, cfg.augment)
-    return Sample(left, right, label, synthetic=True)
+    return Sample(left, right, label, synthetic=True, clean=clean)
 
 
 # --- SGBM pseudo-labels -------------------------------------------------------------------
@@ -236,6 +271,34 @@ def sgbm_disparity(
     return raw.astype(np.float32) / np.float32(16.0), raw >= 0
 
 
+def lr_disagreement(
+    left: NDArray[np.uint8], right: NDArray[np.uint8], disparity: NDArray[np.float32]
+) -> NDArray[np.float32]:
+    """|d_L(x) - d_R(x - d_L(x))| in px from SGBM on the mirrored pair (inf where the right
+    view has no value or x - d_L falls outside it)."""
+    mirrored, ok = sgbm_disparity(
+        np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1])
+    )
+    right_disp = np.where(ok, mirrored, np.inf)[:, ::-1]
+    h, w = disparity.shape
+    target = np.arange(w)[None, :] - np.floor(disparity + 0.5).astype(np.int64)
+    inside = (target >= 0) & (target < w)
+    landed = np.take_along_axis(right_disp, np.clip(target, 0, w - 1), axis=1)
+    return np.where(inside, np.abs(landed - disparity), np.inf).astype(np.float32)
+
+
+def consistent_sgbm(
+    left: NDArray[np.uint8], right: NDArray[np.uint8]
+) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float32]]:
+    """SGBM kept pixels that also pass the sub-pixel left-right check: (disparity px, valid,
+    confidence exp(-(lr_diff / LR_SCALE_PX)^2))."""
+    disp, valid = sgbm_disparity(left, right)
+    diff = lr_disagreement(left, right, disp)
+    valid = valid & (diff <= LR_LIMIT_PX)
+    confidence = np.exp(-np.square(np.where(valid, diff, 0.0) / LR_SCALE_PX))
+    return disp, valid, confidence.astype(np.float32)
+
+
 class PseudoLabelSource:
     """Crops of resized train pairs with SGBM labels; SGBM maps cached per (pair, width)."""
 
@@ -255,15 +318,25 @@ class PseudoLabelSource:
         self._bytes = 0
 
     def sgbm(self, index: int, width: int) -> NDArray[np.int16]:
-        """Disparity x 16 (SGBM's own fixed point), -16 where invalid; LRU-cached."""
+        """(2, H, W): disparity x 16 (SGBM's own fixed point), -16 where invalid, and the
+        confidence x 4096 (4096 under binary weighting); LRU-cached."""
         key = (index, width)
         hit = self._sgbm.get(key)
         if hit is not None:
             self._sgbm.move_to_end(key)
             return hit
         left, right = (self.store.resized(index, v, width) for v in (0, 1))
-        disp, valid = sgbm_disparity(left, right)
-        packed = np.where(valid, np.rint(disp * 16.0), -16).astype(np.int16)
+        if self.cfg.label_weighting == "lr":
+            disp, valid, confidence = consistent_sgbm(left, right)
+        else:
+            disp, valid = sgbm_disparity(left, right)
+            confidence = np.ones_like(disp)
+        packed = np.stack(
+            [
+                np.where(valid, np.rint(disp * 16.0), -16),
+                np.rint(np.where(valid, confidence, 0.0) * 4096.0),
+            ]
+        ).astype(np.int16)
         self._sgbm[key] = packed
         self._bytes += packed.nbytes
         while self._bytes > self.cfg.sgbm_cache_mb * 1024 * 1024 and len(self._sgbm) > 1:
@@ -285,12 +358,43 @@ class PseudoLabelSource:
         x = int(rng.integers(0, w - cfg.crop_w + 1))
         window = (slice(y, y + cfg.crop_h), slice(x, x + cfg.crop_w))
         left, right = (v[window].astype(np.float32) / np.float32(255.0) for v in views)
-        crop = packed[window]
+        crop = packed[0][window]
+        valid = crop >= 0
         label = cell_labels(
-            crop.astype(np.float32) / np.float32(16.0), crop >= 0, cfg.min_valid, cfg.max_spread
+            crop.astype(np.float32) / np.float32(16.0), valid, cfg.min_valid, cfg.max_spread
         )
+        confidence = packed[1][window].astype(np.float32) / np.float32(4096.0)
+        weight = cell_weights(confidence, valid, label)
+        clean = (left, right)
         left, right = nuisances(left, right, rng, cfg.augment)
-        return Sample(left, right, label, synthetic=False)
+        return Sample(left, right, label, synthetic=False, weight=weight, clean=clean)
+
+
+LABEL_WEIGHTINGS = ("binary", "lr")
+
+VALIDATION_SHARE = 8
+"""One pair in this many of each dataset (at least 4 pairs) is held out of head training."""
+
+
+def validation_pairs(data_dir: Path | None = None) -> list[Pair]:
+    """Train-split pairs held out of head training to choose recipes (never the eval split):
+    per dataset of at least 4 pairs, the last ceil(n / VALIDATION_SHARE) by pair id (a
+    contiguous block, so a held-out video frame has few training neighbours)."""
+    by_dataset: dict[str, list[Pair]] = {}
+    for pair in training_pairs(data_dir):
+        by_dataset.setdefault(pair.dataset, []).append(pair)
+    held = []
+    for dataset in sorted(by_dataset):
+        pairs = sorted(by_dataset[dataset], key=lambda p: p.pair_id)
+        if len(pairs) >= 4:
+            held.extend(pairs[-math.ceil(len(pairs) / VALIDATION_SHARE) :])
+    return held
+
+
+def head_training_pairs(data_dir: Path | None = None) -> list[Pair]:
+    """The train split without the validation pairs."""
+    held = {p.pair_id for p in validation_pairs(data_dir)}
+    return [p for p in training_pairs(data_dir) if p.pair_id not in held]
 
 
 class HeadSampler:
@@ -299,8 +403,10 @@ class HeadSampler:
     def __init__(self, cfg: DataConfig, seed: int, data_dir: Path | None) -> None:
         self.cfg = cfg
         self.seed = seed
+        if cfg.label_weighting not in LABEL_WEIGHTINGS:
+            raise ValueError(f"label_weighting {cfg.label_weighting!r} not in {LABEL_WEIGHTINGS}")
         real = cfg.synthetic_fraction < 1.0
-        self.real = PseudoLabelSource(training_pairs(data_dir), cfg) if real else None
+        self.real = PseudoLabelSource(head_training_pairs(data_dir), cfg) if real else None
 
     def sample(self, index: int) -> Sample:
         rng = np.random.default_rng([self.seed, index])
@@ -324,6 +430,10 @@ class DescBatch:
     """(B, T, P) patch columns, NaN where unknown."""
     synthetic: Tensor
     """(B,) bool."""
+    weight: Tensor | None = None
+    """(B, T, P) label confidence (None: 1 where labelled)."""
+    images: Tensor | None = None
+    """(B, 2, H, W) the clean crops (left, right), for photometric terms."""
 
 
 ENCODE_CHUNK = 32
@@ -332,7 +442,8 @@ ENCODE_CHUNK = 32
 
 @torch.no_grad()
 def encode(encoder: BinoEncoder, samples: Sequence[Sample], device: torch.device) -> DescBatch:
-    """Descriptors of both views of each crop under no_grad (the encoder is frozen)."""
+    """Descriptors of both views of each crop under no_grad (the encoder is frozen), with the
+    labels, their weights and the crops themselves."""
     images = [s.left for s in samples] + [s.right for s in samples]
     descs = []
     for i in range(0, len(images), ENCODE_CHUNK):
@@ -341,8 +452,41 @@ def encode(encoder: BinoEncoder, samples: Sequence[Sample], device: torch.device
     d = torch.cat(descs)
     n = len(samples)
     label = torch.from_numpy(np.stack([s.label for s in samples])).to(device)
+    weight = torch.from_numpy(np.stack([s.label_weight() for s in samples])).to(device)
     synthetic = torch.tensor([s.synthetic for s in samples], device=device)
-    return DescBatch(d[:n], d[n:], label, synthetic)
+    crops = torch.from_numpy(
+        np.stack([np.stack(s.clean or (s.left, s.right)) for s in samples])
+    ).to(device)
+    return DescBatch(d[:n], d[n:], label, synthetic, weight, crops)
+
+
+def batch_fields(batch: DescBatch) -> list[Tensor]:
+    out = [batch.left, batch.right, batch.label, batch.synthetic, batch.weight, batch.images]
+    if any(t is None for t in out):
+        raise ValueError("a descriptor batch without weights or images")
+    return [t for t in out if t is not None]
+
+
+STORED_DTYPES = (
+    torch.float16,
+    torch.float16,
+    torch.float32,
+    torch.bool,
+    torch.float16,
+    torch.float16,
+)
+"""How a pool or cache keeps each field of DescBatch (descriptors and crops at half precision)."""
+
+
+def stored_batch(batch: DescBatch) -> DescBatch:
+    """A batch in the storage dtypes (a cache file holds this)."""
+    return DescBatch(*(t.to(d) for t, d in zip(batch_fields(batch), STORED_DTYPES, strict=True)))
+
+
+def gather(stored: DescBatch, idx: Tensor) -> DescBatch:
+    """Rows `idx` of a stored batch, in float32 (bool flags kept)."""
+    out = [t[idx] if t.dtype == torch.bool else t[idx].float() for t in batch_fields(stored)]
+    return DescBatch(*out)
 
 
 class DescriptorPool:
@@ -354,32 +498,25 @@ class DescriptorPool:
     With size == refresh == batch every step trains on fresh samples.
     """
 
-    def __init__(self, size: int, refresh: int, dtype: torch.dtype = torch.float16) -> None:
+    def __init__(self, size: int, refresh: int) -> None:
         if size < refresh or size % refresh:
             raise ValueError(f"pool size {size} must be a multiple of refresh {refresh}")
-        self.size, self.refresh, self.dtype = size, refresh, dtype
+        self.size, self.refresh = size, refresh
         self.groups = size // refresh
         self.data: DescBatch | None = None
         self.filled = 0
 
     def insert(self, step: int, batch: DescBatch) -> None:
+        fields = batch_fields(batch)
         if self.data is None:
-
-            def alloc(t: Tensor, dtype: torch.dtype) -> Tensor:
-                return torch.empty((self.size, *t.shape[1:]), dtype=dtype, device=t.device)
-
             self.data = DescBatch(
-                alloc(batch.left, self.dtype),
-                alloc(batch.right, self.dtype),
-                alloc(batch.label, torch.float32),
-                alloc(batch.synthetic, torch.bool),
+                *(
+                    torch.empty((self.size, *t.shape[1:]), dtype=d, device=t.device)
+                    for t, d in zip(fields, STORED_DTYPES, strict=True)
+                )
             )
         at = (step % self.groups) * self.refresh
-        for dst, src in zip(
-            (self.data.left, self.data.right, self.data.label, self.data.synthetic),
-            (batch.left, batch.right, batch.label, batch.synthetic),
-            strict=True,
-        ):
+        for dst, src in zip(batch_fields(self.data), fields, strict=True):
             dst[at : at + self.refresh] = src.to(dst.dtype)
         self.filled = min(self.size, max(self.filled, at + self.refresh))
 
@@ -388,10 +525,4 @@ class DescriptorPool:
             raise RuntimeError("empty pool")
         replace_ = self.filled < batch
         idx = torch.from_numpy(rng.choice(self.filled, size=batch, replace=replace_))
-        idx = idx.to(self.data.left.device)
-        return DescBatch(
-            self.data.left[idx].float(),
-            self.data.right[idx].float(),
-            self.data.label[idx],
-            self.data.synthetic[idx],
-        )
+        return gather(self.data, idx.to(self.data.left.device))

@@ -4,11 +4,17 @@
     python -m bino_train.head_train --out runs/NAME --resume --minutes 30   # continue exactly
     python -m bino_train.head_train --random-init-seed 0 --out runs/NAME --steps 200
     python -m bino_train.head_train --random-init-seed 0 --out runs/smoke --smoke  # seconds
+    python -m bino_train.head_train --encoder E --cache runs/headcache/C.pt --out runs/NAME \
+        --steps 20000 --batch 8 --val-every 1000 [--photometric 1 --smoothness 0.05]
 
 Supervision (head_data.py): synthetic scenes with known sub-pixel disparity and StereoSGBM
 pseudo-labels on train-split crops (48 x 160 after resizing to 160 .. 320 px wide); never the
 eval split. The encoder is frozen: descriptors are computed under no_grad and kept in a
-descriptor pool (`--pool`, `--refresh`), so one encoder pass serves several head steps.
+descriptor pool (`--pool`, `--refresh`), so one encoder pass serves several head steps; or, with `--cache` (head_cache.py), every crop
+is encoded once before training and a step costs only the head. Labels carry a confidence
+(`--label-weighting lr`: SGBM's sub-pixel left-right agreement; `--uniform-weights` ignores it);
+`--photometric` / `--smoothness` add the self-supervised terms of photometric.py. The head
+trains on the train split less the validation pairs, which `--val-every` scores (head_val.py).
 AdamW with linear warm-up then cosine decay over `--schedule-steps` (fixed at the start).
 
 The run folder holds `last.pt` (head, optimiser, step, encoder reference; written atomically,
@@ -36,8 +42,11 @@ from torch import nn
 
 from .config import EncoderConfig
 from .head import HeadConfig, StereoHead, head_loss
-from .head_data import DataConfig, DescBatch, DescriptorPool, HeadSampler, encode
+from .head_cache import DescriptorCache, load_cache, load_cache_meta
+from .head_data import DataConfig, DescBatch, DescriptorPool, HeadSampler, encode, gather
+from .head_val import ValidationSet
 from .model import BinoEncoder, parameter_count
+from .photometric import photometric_terms
 from .pretrain import StopFlag, param_groups, rng_states, save_atomic, set_rng_states
 
 ASSUMED_STEPS_PER_S = {"cpu": 0.5, "cuda": 10.0}
@@ -66,6 +75,16 @@ class HeadTrainConfig:
     ce_weight: float = 1.0
     schedule_steps: int = 5000
     seed: int = 0
+    cache: str = ""
+    """Descriptor cache file (head_cache.py); empty: encode into the pool as the run goes."""
+    uniform_weights: bool = False
+    """Every labelled cell weighs 1 (ignore the label confidence the data carries)."""
+    photometric: float = 0.0
+    """Weight of the self-supervised reconstruction term (photometric.py)."""
+    smoothness: float = 0.0
+    """Weight of the edge-aware smoothness term."""
+    val_every: int = 0
+    """Steps between validations (head_val.py, never the eval split); 0: none."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -145,8 +164,19 @@ class HeadTrainer:
         torch.manual_seed(cfg.seed)
         self.head = StereoHead(cfg.head).to(device)
         self.opt = torch.optim.AdamW(param_groups([self.head], cfg.weight_decay), lr=cfg.lr)
-        self.sampler = HeadSampler(cfg.data, cfg.seed, data_dir)
+        self.cache: DescriptorCache | None = None
+        if cfg.cache:
+            self.cache = load_cache(Path(cfg.cache))
+            if self.cache.meta["encoder_sha256"] != source.sha256:
+                raise ValueError(f"descriptor cache {cfg.cache} was made by another encoder")
+            if DataConfig.from_dict(self.cache.meta["data"]) != cfg.data:
+                raise ValueError(f"descriptor cache {cfg.cache} holds other data ({cfg.data})")
+        else:
+            self.sampler = HeadSampler(cfg.data, cfg.seed, data_dir)
         self.pool = DescriptorPool(cfg.pool, cfg.refresh)
+        self.validation: ValidationSet | None = None
+        if cfg.val_every > 0:
+            self.validation = ValidationSet.build(self.encoder, data_dir, cfg.data, device=device)
         self.step = 0
         self.train_seconds = 0.0
         self.encode_seconds = 0.0
@@ -159,10 +189,20 @@ class HeadTrainer:
 
     def rebuild_pool(self) -> None:
         """The pool as it was after step `self.step - 1` (used on resume)."""
+        if self.cache is not None:
+            return
         for s in range(max(0, self.step - self.pool.groups), self.step):
             self.refill(s)
 
     def batch(self) -> DescBatch:
+        rng = np.random.default_rng([self.cfg.seed, 1, self.step])
+        if self.cache is not None:
+            data = self.cache.data
+            if self.step == 0:
+                n = min(self.cfg.refresh, self.cache.count)
+                self.head.init_projection(torch.cat([data.left[:n], data.right[:n]]).float())
+            idx = torch.from_numpy(rng.choice(self.cache.count, size=self.cfg.batch))
+            return gather(data, idx)
         t0 = time.perf_counter()
         self.refill(self.step)
         self.encode_seconds += time.perf_counter() - t0
@@ -170,9 +210,8 @@ class HeadTrainer:
             # Fresh run: start the projection from the descriptor statistics (head.py).
             n = self.cfg.refresh
             self.head.init_projection(
-                torch.cat([self.pool.data.left[:n], self.pool.data.right[:n]])
+                torch.cat([self.pool.data.left[:n], self.pool.data.right[:n]]).float()
             )
-        rng = np.random.default_rng([self.cfg.seed, 1, self.step])
         return self.pool.draw(rng, self.cfg.batch)
 
     def train_step(self) -> dict[str, Any]:
@@ -183,15 +222,26 @@ class HeadTrainer:
             group["lr"] = lr
         self.head.train()
         out = self.head(data.left, data.right)
-        parts = head_loss(out, data.label, cfg.ce_weight)
+        weight = None if cfg.uniform_weights else data.weight
+        parts = head_loss(out, data.label, cfg.ce_weight, weight)
+        loss = parts.loss
+        extra: dict[str, float] = {}
+        if (cfg.photometric > 0 or cfg.smoothness > 0) and data.images is not None:
+            photo = photometric_terms(out.disparity, data.images)
+            loss = loss + cfg.photometric * photo.reconstruction + cfg.smoothness * photo.smoothness
+            extra = {
+                "photometric": float(photo.reconstruction.detach()),
+                "smoothness": float(photo.smoothness.detach()),
+            }
         self.opt.zero_grad(set_to_none=True)
-        parts.loss.backward()
+        loss.backward()
         grad_norm = float(nn.utils.clip_grad_norm_(self.head.parameters(), cfg.clip_grad))
         self.opt.step()
         self.step += 1
         return {
             "step": self.step,
-            "loss": float(parts.loss.detach()),
+            "loss": float(loss.detach()),
+            **extra,
             "smooth_l1": parts.smooth_l1,
             "ce": parts.ce,
             "epe_cols": parts.epe_cols,
@@ -274,6 +324,15 @@ def run(trainer: HeadTrainer, opts: RunOptions) -> list[dict[str, Any]]:
                     f"{record['wall_s']:.0f}s (encode {record['encode_s']:.0f}s)",
                     flush=True,
                 )
+            every = trainer.cfg.val_every
+            if trainer.validation is not None and every > 0 and trainer.step % every == 0:
+                val = {
+                    "kind": "val",
+                    "step": trainer.step,
+                    **trainer.validation.score(trainer.head),
+                }
+                log(val)
+                print(f"val step {trainer.step}: {json.dumps(val)}", flush=True)
             if time.perf_counter() - last_ckpt >= 60.0 * opts.checkpoint_minutes:
                 save_atomic(trainer.state_dict(), opts.out / "last.pt")
                 last_ckpt = time.perf_counter()
@@ -327,6 +386,14 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--widths", type=int, nargs=2, metavar=("MIN", "MAX"), help="resize widths")
     p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
     p.add_argument("--synthetic-only", action="store_true", help="no SGBM pseudo-labels")
+    p.add_argument("--cache", type=Path, help="descriptor cache (head_cache.py): no encoding")
+    p.add_argument(
+        "--label-weighting", choices=("binary", "lr"), help="SGBM label confidence (no --cache)"
+    )
+    p.add_argument("--uniform-weights", action="store_true", help="ignore label confidence")
+    p.add_argument("--photometric", type=float, help="weight of the photometric term")
+    p.add_argument("--smoothness", type=float, help="weight of the edge-aware smoothness term")
+    p.add_argument("--val-every", type=int, help="steps between validations (0: none)")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     p.add_argument("--checkpoint-minutes", type=float, default=5.0)
@@ -352,7 +419,14 @@ def _given(**values: Any) -> dict[str, Any]:
 
 def build_config(args: argparse.Namespace, desc_dim: int, device: torch.device) -> HeadTrainConfig:
     fraction = 1.0 if args.synthetic_only else args.synthetic_fraction
-    data = DataConfig(**_given(synthetic_fraction=fraction))
+    if args.cache is not None:
+        if fraction is not None or args.widths is not None or args.label_weighting is not None:
+            sys.exit("error: with --cache the data comes from the cache")
+        data = DataConfig.from_dict(load_cache_meta(args.cache)["data"])
+    else:
+        data = DataConfig(
+            **_given(synthetic_fraction=fraction, label_weighting=args.label_weighting)
+        )
     if args.widths is not None:
         data = replace(data, min_width=args.widths[0], max_width=args.widths[1])
     schedule = args.schedule_steps or args.steps
@@ -363,7 +437,17 @@ def build_config(args: argparse.Namespace, desc_dim: int, device: torch.device) 
         data=data,
         seed=args.seed,
         schedule_steps=schedule,
-        **_given(batch=args.batch, pool=args.pool, refresh=args.refresh, lr=args.lr),
+        cache=str(args.cache.resolve()) if args.cache is not None else "",
+        uniform_weights=args.uniform_weights,
+        **_given(
+            batch=args.batch,
+            pool=args.pool,
+            refresh=args.refresh,
+            lr=args.lr,
+            photometric=args.photometric,
+            smoothness=args.smoothness,
+            val_every=args.val_every,
+        ),
     )
     if args.smoke:
         # Tiny encoder, head and crops: CPU seconds, still the full data and loss path.

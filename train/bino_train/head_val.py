@@ -1,0 +1,114 @@
+"""Validation for head recipes, never on the eval split (issue 13: choose recipes elsewhere).
+
+Two sets, both fixed for a run:
+- held-out train pairs (`head_data.validation_pairs`, never trained on by the head) at w160,
+  scored like EVAL.md (token disparity upsampled bilinearly, epe / bad1tok / bad2 per pair, mean
+  over pairs) against StereoSGBM's pixels that pass its own checks and the sub-pixel left-right
+  check (`head_data.consistent_sgbm`): agreement with confident SGBM, a proxy, not accuracy;
+- synthetic crops with exact disparity (`head_data.synthetic_sample`, seeds apart from any
+  training seed), scored on their labelled cells in px.
+
+Descriptors are computed once (`ValidationSet.build`); scoring a head costs only the head.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+from torch import Tensor
+
+from .head import StereoHead
+from .head_data import (
+    DataConfig,
+    DescBatch,
+    consistent_sgbm,
+    encode,
+    synthetic_sample,
+    validation_pairs,
+)
+from .head_eval import fill_rejected, head_lr
+from .model import BinoEncoder
+from .pairs import load_gray
+from .probe import CELL, encoder_describe, mean_metrics, score, upsample_disparity
+from .profile import resize_image
+
+VAL_WIDTH = 160
+SYNTHETIC_SEED = 1_000_003
+"""Seeds of the synthetic validation crops: [SYNTHETIC_SEED, i], no training run uses it."""
+
+
+@dataclass(frozen=True)
+class HeldOutPair:
+    pair_id: str
+    desc_left: Tensor
+    desc_right: Tensor
+    disparity: NDArray[np.float32]
+    valid: NDArray[np.bool_]
+
+
+def _u8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
+    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+
+
+@dataclass(frozen=True)
+class ValidationSet:
+    pairs: list[HeldOutPair]
+    synthetic: DescBatch
+
+    @staticmethod
+    @torch.no_grad()
+    def build(
+        encoder: BinoEncoder,
+        data_dir: Path | None,
+        data: DataConfig,
+        synthetic_count: int = 96,
+        device: torch.device | None = None,
+    ) -> ValidationSet:
+        describe = encoder_describe(encoder)
+        pairs = []
+        for pair in validation_pairs(data_dir):
+            left = resize_image(load_gray(pair.left), VAL_WIDTH)
+            right = resize_image(load_gray(pair.right), VAL_WIDTH)
+            disparity, valid, _ = consistent_sgbm(_u8(left), _u8(right))
+            dl, dr = describe([left, right])
+            pairs.append(HeldOutPair(pair.pair_id, dl, dr, disparity, valid))
+        samples = [
+            synthetic_sample(np.random.default_rng([SYNTHETIC_SEED, i]), data)
+            for i in range(synthetic_count)
+        ]
+        synthetic = encode(encoder, samples, device or torch.device("cpu"))
+        return ValidationSet(pairs, synthetic)
+
+    @torch.no_grad()
+    def score(self, head: StereoHead) -> dict[str, Any]:
+        """{"val_sgbm": head vs confident SGBM, "val_sgbm_lr": head+lr, "val_synthetic"}."""
+        was_training = head.training
+        head.eval()
+        raw, checked = [], []
+        for item in self.pairs:
+            left, kept = head_lr(head, item.desc_left, item.desc_right)
+            raw.append(score(upsample_disparity(left), item.disparity, item.valid))
+            filled = upsample_disparity(fill_rejected(left, kept))
+            checked.append(score(filled, item.disparity, item.valid))
+        device = next(head.parameters()).device
+        syn = self.synthetic
+        pred = head(syn.left.to(device), syn.right.to(device)).disparity.cpu()
+        label = syn.label.cpu()
+        known = torch.isfinite(label)
+        err = (pred[known] - label[known]).abs() * CELL
+        head.train(was_training)
+        return {
+            "val_sgbm": mean_metrics(raw) if raw else None,
+            "val_sgbm_lr": mean_metrics(checked) if checked else None,
+            "val_synthetic": {
+                "epe": float(err.mean()),
+                "bad1tok": float(100.0 * (err > CELL).float().mean()),
+                "bad2": float(100.0 * (err > 2.0).float().mean()),
+            },
+            "val_pairs": len(self.pairs),
+        }
