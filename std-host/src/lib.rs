@@ -21,6 +21,7 @@ pub mod npz;
 pub mod onnx;
 pub mod onnx_params;
 pub mod pairs;
+pub mod pfm;
 pub mod pipeline_maps;
 pub mod profile;
 pub mod quantize;

@@ -26,15 +26,68 @@ impl fmt::Display for Split {
     }
 }
 
-/// Ground truth of a labeled pair: disparity of the left image = stored value / `scale`.
+/// How a ground-truth file stores disparity: the `gt_format` column.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum GtFormat {
+    /// `pgm_u8`: 8-bit single-channel PGM (Middlebury 2001-2005).
+    PgmU8,
+    /// `png_u8`: 8-bit single-channel PNG.
+    PngU8,
+    /// `png_u16`: 16-bit single-channel PNG (KITTI: `gt_scale` 256, `gt_invalid` 0).
+    PngU16,
+    /// `pfm`: one-channel float32 PFM in pixels (Middlebury 2014, ETH3D: `gt_scale` 1);
+    /// non-finite values (`inf`, NaN) mean "no ground truth".
+    Pfm,
+}
+
+impl GtFormat {
+    /// Every format, in the order the error for an unknown one lists them.
+    pub const ALL: [GtFormat; 4] = [GtFormat::PgmU8, GtFormat::PngU8, GtFormat::PngU16, GtFormat::Pfm];
+
+    /// The name `PAIRS.tsv` uses.
+    pub fn name(self) -> &'static str {
+        match self {
+            GtFormat::PgmU8 => "pgm_u8",
+            GtFormat::PngU8 => "png_u8",
+            GtFormat::PngU16 => "png_u16",
+            GtFormat::Pfm => "pfm",
+        }
+    }
+
+    /// The format called `name` in `PAIRS.tsv`.
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|f| f.name() == name)
+    }
+
+    /// The largest `gt_invalid` the format can store (`None`: it stores floats).
+    fn max_invalid(self) -> Option<u16> {
+        match self {
+            GtFormat::PgmU8 | GtFormat::PngU8 => Some(u8::MAX.into()),
+            GtFormat::PngU16 => Some(u16::MAX),
+            GtFormat::Pfm => None,
+        }
+    }
+}
+
+impl fmt::Display for GtFormat {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// Ground truth of a labeled pair: disparity of the left image = stored value / `scale`, for
+/// every format (so a PFM in pixels has `gt_scale` 1, a KITTI PNG 256).
 #[derive(Debug, Clone, PartialEq)]
 pub struct GroundTruth {
-    /// 8-bit disparity image (PGM or PNG).
+    /// Disparity image file.
     pub path: PathBuf,
+    /// How the file stores disparity.
+    pub format: GtFormat,
     /// Divisor from stored value to disparity in pixels.
     pub scale: f32,
-    /// Stored value that means "no ground truth".
-    pub invalid: u8,
+    /// Stored value that means "no ground truth". Required for the integer formats (within
+    /// their range); optional for `pfm`, whose non-finite values always mean it.
+    pub invalid: Option<u16>,
 }
 
 /// One row of `PAIRS.tsv`, paths resolved against the index's folder.
@@ -142,20 +195,26 @@ fn parse_record<'a>(field: &dyn Fn(usize) -> &'a str, root: &Path) -> Result<Pai
     let gt = match field(5) {
         "" => None,
         gt => {
-            ensure!(
-                matches!(field(6), "pgm_u8" | "png_u8"),
-                "pair {pair_id}: unknown gt_format {:?}",
-                field(6)
-            );
+            let format = GtFormat::from_name(field(6)).with_context(|| {
+                let known: Vec<&str> = GtFormat::ALL.iter().map(|f| f.name()).collect();
+                format!(
+                    "pair {pair_id}: unknown gt_format {:?} (known: {})",
+                    field(6),
+                    known.join(", ")
+                )
+            })?;
             let scale: f32 = field(7)
                 .parse()
                 .with_context(|| format!("pair {pair_id}: bad gt_scale {:?}", field(7)))?;
-            ensure!(scale > 0.0, "pair {pair_id}: gt_scale must be positive");
-            let invalid = field(8)
-                .parse()
-                .with_context(|| format!("pair {pair_id}: bad gt_invalid {:?}", field(8)))?;
+            ensure!(
+                scale.is_finite() && scale > 0.0,
+                "pair {pair_id}: gt_scale must be positive and finite"
+            );
+            let invalid = parse_invalid(field(8), format)
+                .with_context(|| format!("pair {pair_id}: bad gt_invalid {:?} for {format}", field(8)))?;
             Some(GroundTruth {
                 path: inside(root, gt).with_context(|| format!("pair {pair_id}: ground truth"))?,
+                format,
                 scale,
                 invalid,
             })
@@ -180,6 +239,18 @@ fn parse_record<'a>(field: &dyn Fn(usize) -> &'a str, root: &Path) -> Result<Pai
         width: size(9, "width")?,
         height: size(10, "height")?,
     })
+}
+
+/// The `gt_invalid` column: an integer within the format's range, or, for `pfm` only, empty.
+fn parse_invalid(value: &str, format: GtFormat) -> Result<Option<u16>> {
+    if value.is_empty() && format == GtFormat::Pfm {
+        return Ok(None);
+    }
+    let invalid: u16 = value.parse().context("not a whole number from 0 to 65535")?;
+    if let Some(max) = format.max_invalid() {
+        ensure!(invalid <= max, "above {max}, the format's largest value");
+    }
+    Ok(Some(invalid))
 }
 
 /// `root/value`, refusing a `value` that is absolute or climbs out of `root` with `..`: an
@@ -262,5 +333,42 @@ mod tests {
             parse_index(&ok, Path::new("/data")).unwrap()[0].left,
             Path::new("/data/./x/../l.png")
         );
+    }
+
+    #[test]
+    fn every_gt_format_with_its_gt_invalid_rule() {
+        let row = |format: &str, invalid: &str| {
+            format!("{HEADER}a\teval\tk\tl.png\tr.png\td.x\t{format}\t256\t{invalid}\t4\t4\n")
+        };
+        let gt = |format: &str, invalid: &str| {
+            let pairs = parse_index(&row(format, invalid), Path::new("/data")).map_err(|e| format!("{e:#}"));
+            pairs.map(|p| p[0].gt.clone().unwrap())
+        };
+        for format in GtFormat::ALL {
+            assert_eq!(gt(format.name(), "0").unwrap().format, format);
+            assert_eq!(gt(format.name(), "0").unwrap().invalid, Some(0));
+        }
+        assert_eq!(gt("png_u16", "65535").unwrap().invalid, Some(65535));
+        // Only a float format may leave gt_invalid empty: its unknowns are the non-finite values.
+        assert_eq!(gt("pfm", "").unwrap().invalid, None);
+        for (format, invalid, needle) in [
+            ("png_u8", "", "bad gt_invalid \"\" for png_u8"),
+            ("pgm_u8", "256", "above 255"),
+            ("png_u16", "65536", "not a whole number"),
+            ("png_u16", "-1", "not a whole number"),
+            (
+                "exr",
+                "0",
+                "unknown gt_format \"exr\" (known: pgm_u8, png_u8, png_u16, pfm)",
+            ),
+        ] {
+            let e = gt(format, invalid).unwrap_err();
+            assert!(e.contains("line 2") && e.contains(needle), "{format} {invalid}: {e}");
+        }
+        let e = format!(
+            "{:#}",
+            parse_index(&row("pfm", "").replace("\t256\t", "\tinf\t"), Path::new(".")).unwrap_err()
+        );
+        assert!(e.contains("gt_scale must be positive and finite"), "{e}");
     }
 }

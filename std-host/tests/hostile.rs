@@ -303,3 +303,125 @@ fn a_well_formed_index_of_the_same_shape_is_accepted() {
     assert!(eval.status.success(), "{}", String::from_utf8_lossy(&eval.stderr));
     assert!(json.is_file());
 }
+
+/// A little-endian grayscale PFM of `values` (top row first), as Middlebury 2014 writes it.
+fn pfm_bytes(width: usize, values: &[f32]) -> Vec<u8> {
+    let mut bytes = format!("Pf\n{width} {}\n-1\n", values.len() / width).into_bytes();
+    for row in values.chunks_exact(width).rev() {
+        for v in row {
+            bytes.extend_from_slice(&v.to_le_bytes());
+        }
+    }
+    bytes
+}
+
+/// `eval_row` with the ground truth `gt` in `format`, `scale` and `invalid`.
+fn eval_row_with(gt: &str, format: &str, scale: &str, invalid: &str) -> String {
+    format!("p\teval\tsynthetic\tl.png\tr.png\t{gt}\t{format}\t{scale}\t{invalid}\t200\t60\n")
+}
+
+#[test]
+fn hostile_pfm_ground_truth_is_refused_before_allocating() {
+    let sound = pfm_bytes(200, &[10.0; 200 * 60]);
+    let cases: [(&str, Vec<u8>, &[&str]); 4] = [
+        (
+            "pfm-truncated",
+            sound[..sound.len() / 2].to_vec(),
+            &["truncated", "200x60 needs 48000"],
+        ),
+        // 40 GB of floats if believed: refused from the header (the file is 24 bytes).
+        (
+            "pfm-bomb",
+            b"Pf\n100000 100000\n-1\n\0\0\0\0".to_vec(),
+            &["100000x100000", "limit"],
+        ),
+        (
+            "pfm-colour",
+            [b"PF\n200 60\n-1\n".as_slice(), &[0; 12 * 200 * 60]].concat(),
+            &["colour PFM"],
+        ),
+        ("pfm-small", pfm_bytes(100, &[10.0; 100 * 30]), &["is 100x30", "200x60"]),
+    ];
+    for (name, pfm, needles) in cases {
+        let row = eval_row_with("gt.pfm", "pfm", "1", "");
+        let dir = data_folder(name, format!("{HEADER}{row}").as_bytes(), (200, 60));
+        std::fs::write(dir.join("gt.pfm"), pfm).unwrap();
+        let before = listing(&dir);
+        let mut all = vec!["ground truth", "gt.pfm"];
+        all.extend_from_slice(needles);
+        assert_refused(&eval_into(&dir, &dir.join("eval.json")), &all);
+        assert_eq!(listing(&dir), before, "{name}: no output");
+    }
+}
+
+#[test]
+fn the_same_ground_truth_in_every_format_scores_the_same() {
+    // End to end, the formats' scale and unknown-value rules agree: one map stored four ways
+    // scores the same. (Row order is checked by the unit tests of `pfm` and `eval::gt`: these
+    // views give every row the same prediction, so a row flip would not show here.)
+    let (w, h) = (200usize, 60usize);
+    let quarter = |i: usize| -> u8 {
+        let (x, y) = (i % w, i / w);
+        if y < 15 && x % 3 == 0 {
+            0
+        } else {
+            1 + (y * 39 / (h - 1)) as u8 + (x % 2) as u8
+        }
+    };
+    let stored: Vec<u8> = (0..w * h).map(quarter).collect();
+    let pixels: Vec<f32> = stored
+        .iter()
+        .map(|&v| if v == 0 { f32::INFINITY } else { f32::from(v) / 4.0 })
+        .collect();
+    // (case, file, gt_format, gt_scale, gt_invalid).
+    let cases = [
+        ("pgm", "gt.pgm", "pgm_u8", "4", "0"),
+        ("png8", "gt.png", "png_u8", "4", "0"),
+        ("png16", "gt16.png", "png_u16", "256", "0"),
+        ("pfm", "gt.pfm", "pfm", "1", ""),
+    ];
+    let mut means = Vec::new();
+    for (case, file, format, scale, invalid) in cases {
+        let row = eval_row_with(file, format, scale, invalid);
+        let dir = data_folder(
+            &format!("formats-{case}"),
+            format!("{HEADER}{row}").as_bytes(),
+            (200, 60),
+        );
+        let path = dir.join(file);
+        match case {
+            "pgm" | "png8" => image::GrayImage::from_raw(w as u32, h as u32, stored.clone())
+                .unwrap()
+                .save(&path)
+                .unwrap(),
+            "png16" => {
+                let wide: Vec<u16> = stored.iter().map(|&v| u16::from(v) * 64).collect();
+                image::ImageBuffer::<image::Luma<u16>, _>::from_raw(w as u32, h as u32, wide)
+                    .unwrap()
+                    .save(&path)
+                    .unwrap()
+            }
+            _ => std::fs::write(&path, pfm_bytes(w, &pixels)).unwrap(),
+        }
+        let json = dir.join("eval.json");
+        let eval = eval_into(&dir, &json);
+        assert!(
+            eval.status.success(),
+            "{case}: {}",
+            String::from_utf8_lossy(&eval.stderr)
+        );
+        let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+        means.push((case, report["mean"].clone()));
+    }
+    for (case, mean) in &means[1..] {
+        assert_eq!(mean, &means[0].1, "{case} against {}", means[0].0);
+    }
+    // The control: the same PFM read with another gt_scale scores otherwise.
+    let row = eval_row_with("gt.pfm", "pfm", "2", "");
+    let dir = data_folder("formats-pfm-scale-2", format!("{HEADER}{row}").as_bytes(), (200, 60));
+    std::fs::write(dir.join("gt.pfm"), pfm_bytes(w, &pixels)).unwrap();
+    let json = dir.join("eval.json");
+    assert!(eval_into(&dir, &json).status.success());
+    let report: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    assert_ne!(report["mean"], means[0].1, "gt_scale must divide a PFM too");
+}

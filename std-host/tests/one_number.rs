@@ -62,8 +62,12 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
         dir.join("PAIRS.tsv"),
         format!(
             "pair_id\tsplit\tdataset\tleft\tright\tgt\tgt_format\tgt_scale\tgt_invalid\twidth\theight\n\
-             mb2005_Art\teval\tmiddlebury2005\tl.png\tr.png\tgt.pgm\tpgm_u8\t{}\t{}\t{}\t{}\n",
-            gt.scale, gt.invalid, record.width, record.height
+             mb2005_Art\teval\tmiddlebury2005\tl.png\tr.png\tgt.pgm\t{}\t{}\t{}\t{}\t{}\n",
+            gt.format,
+            gt.scale,
+            gt.invalid.map_or(String::new(), |v| v.to_string()),
+            record.width,
+            record.height
         ),
     )
     .unwrap();

@@ -18,6 +18,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from .pfm import read_pfm
+
 DEFAULT_DATA_DIR = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 """`../shared/data` relative to the repository root."""
 
@@ -25,6 +27,10 @@ INDEX_NAME = "PAIRS.tsv"
 TRAIN_SPLIT = "train"
 EVAL_SPLIT = "eval"
 COLUMNS = ("pair_id split dataset left right gt gt_format gt_scale gt_invalid width height").split()
+GT_DTYPES = {"pgm_u8": np.uint8, "png_u8": np.uint8, "png_u16": np.uint16}
+"""The integer `gt_format`s and the pixel type each stores (KITTI's png_u16: `gt_scale` 256)."""
+GT_FORMATS = (*GT_DTYPES, "pfm")
+"""Every `gt_format`; `pfm` (Middlebury 2014, ETH3D) stores float32 pixels, non-finite = unknown."""
 
 
 class SplitError(RuntimeError):
@@ -43,7 +49,7 @@ class Pair:
     gt: Path | None
     gt_format: str
     gt_scale: float
-    gt_invalid: int
+    gt_invalid: int | None
     width: int
     height: int
 
@@ -59,7 +65,7 @@ def _parse_row(row: dict[str, str], folder: Path) -> Pair:
         gt=folder / gt if gt else None,
         gt_format=row["gt_format"],
         gt_scale=float(row["gt_scale"]) if row["gt_scale"].strip() else 1.0,
-        gt_invalid=int(row["gt_invalid"]) if row["gt_invalid"].strip() else 0,
+        gt_invalid=int(row["gt_invalid"]) if row["gt_invalid"].strip() else None,
         width=int(row["width"]),
         height=int(row["height"]),
     )
@@ -105,13 +111,18 @@ def training_pairs(data_dir: Path | None = None) -> list[Pair]:
     return pairs
 
 
-def _imread(path: Path) -> NDArray[np.uint8]:
+def _imread_unchanged(path: Path) -> NDArray[np.generic]:
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise FileNotFoundError(f"cannot read image {path}")
+    return np.asarray(image)
+
+
+def _imread(path: Path) -> NDArray[np.uint8]:
+    image = _imread_unchanged(path)
     if image.dtype != np.uint8:
         raise ValueError(f"{path}: expected 8-bit pixels, got {image.dtype}")
-    return np.asarray(image)
+    return image.astype(np.uint8, copy=False)
 
 
 def load_gray_u8(path: Path) -> NDArray[np.uint8]:
@@ -130,12 +141,36 @@ def load_gray(path: Path) -> NDArray[np.float32]:
 
 
 def load_gt(pair: Pair) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
-    """Left-image disparity in pixels and its validity mask (stored value != gt_invalid)."""
+    """Left-image disparity in pixels and its validity mask, as `eval::gt` loads it in Rust.
+
+    In every `gt_format` the disparity is stored value / gt_scale. A pixel is unknown where the
+    stored value is gt_invalid (required for the integer formats, optional for pfm) and, in a
+    PFM, where it is not finite; a PFM's unknown pixels get disparity 0, so no `inf` goes on.
+    """
     if pair.gt is None:
         raise ValueError(f"pair {pair.pair_id} has no ground truth")
-    stored = _imread(pair.gt)
-    if stored.ndim != 2:
-        raise ValueError(f"{pair.gt}: expected a single-channel disparity map")
-    valid = stored != pair.gt_invalid
-    disparity = stored.astype(np.float32) / np.float32(pair.gt_scale)
+    scale = np.float32(pair.gt_scale)
+    if pair.gt_format == "pfm":
+        stored = read_pfm(pair.gt)
+        valid = np.isfinite(stored)
+        if pair.gt_invalid is not None:
+            valid &= stored != np.float32(pair.gt_invalid)
+        return np.where(valid, stored / scale, np.float32(0)).astype(np.float32), valid
+    dtype = GT_DTYPES.get(pair.gt_format)
+    if dtype is None:
+        known = ", ".join(GT_FORMATS)
+        raise ValueError(
+            f"pair {pair.pair_id}: unknown gt_format {pair.gt_format!r} (known: {known})"
+        )
+    if pair.gt_invalid is None:
+        raise ValueError(f"pair {pair.pair_id}: gt_format {pair.gt_format} needs a gt_invalid")
+    image = _imread_unchanged(pair.gt)
+    if image.ndim != 2 or image.dtype != dtype:
+        depth = "a 16-bit" if dtype == np.uint16 else "an 8-bit"
+        raise ValueError(
+            f"{pair.gt}: expected {depth} single-channel disparity map "
+            f"(gt_format {pair.gt_format}), got {image.dtype} with shape {image.shape}"
+        )
+    valid = image != pair.gt_invalid
+    disparity = image.astype(np.float32) / scale
     return disparity, valid

@@ -1,14 +1,15 @@
 //! Ground-truth disparity of a labeled pair, at its stored resolution and at a profile.
 //!
-//! Mirrors `pairs.load_gt` and `profile.resize_gt`: stored value / `gt_scale` is the disparity,
-//! the stored value `gt_invalid` marks a pixel without ground truth, and the profile resize is
-//! OpenCV's `INTER_NEAREST_EXACT` for disparity and mask alike, disparity times `P / W`.
+//! Mirrors `pairs.load_gt` and `profile.resize_gt`: stored value / `gt_scale` is the disparity
+//! in every `gt_format`, the stored value `gt_invalid` marks a pixel without ground truth (and,
+//! in a PFM, so does any non-finite value), and the profile resize is OpenCV's
+//! `INTER_NEAREST_EXACT` for disparity and mask alike, disparity times `P / W`.
 
 use anyhow::{bail, ensure, Result};
 use image::DynamicImage;
 
 use super::nearest::resize_nearest_exact;
-use crate::pairs::GroundTruth;
+use crate::pairs::{GroundTruth, GtFormat};
 use crate::profile::Profile;
 
 /// Left-image disparity in pixels with its validity mask, row-major.
@@ -31,27 +32,59 @@ impl GroundTruthMap {
     }
 }
 
-/// Loads an 8-bit single-channel disparity image (PGM or PNG) at its stored resolution.
+/// Loads a disparity map in its `gt_format` at its stored resolution: 8-bit PGM or PNG, 16-bit
+/// PNG, or float32 PFM, always one channel.
 pub fn load_ground_truth(gt: &GroundTruth) -> Result<GroundTruthMap> {
     let path = &gt.path;
-    let decoded = crate::image_io::decode(path, "ground truth")?;
-    // Like the Python loader, refuse colour or 16-bit maps instead of converting them.
-    let stored = match decoded {
-        DynamicImage::ImageLuma8(buffer) => buffer,
-        other => bail!(
-            "{}: expected an 8-bit single-channel disparity map, got {:?}",
-            path.display(),
-            other.color()
-        ),
+    let (width, height, disparity, valid) = match gt.format {
+        GtFormat::Pfm => {
+            let stored = crate::pfm::load(path, "ground truth")?;
+            let valid: Vec<bool> = stored
+                .values
+                .iter()
+                .map(|&v| v.is_finite() && gt.invalid.is_none_or(|i| v != f32::from(i)))
+                .collect();
+            // 0 where invalid, so no `inf` reaches a resize or a metric.
+            let disparity = stored
+                .values
+                .iter()
+                .zip(&valid)
+                .map(|(&v, &ok)| if ok { v / gt.scale } else { 0.0 })
+                .collect();
+            (stored.width, stored.height, disparity, valid)
+        }
+        format => {
+            let decoded = crate::image_io::decode(path, "ground truth")?;
+            let (width, height) = (decoded.width() as usize, decoded.height() as usize);
+            // Like the Python loader, refuse colour or another bit depth instead of converting.
+            let raw: Vec<u16> = match (format, decoded) {
+                (GtFormat::PgmU8 | GtFormat::PngU8, DynamicImage::ImageLuma8(b)) => {
+                    b.into_raw().into_iter().map(u16::from).collect()
+                }
+                (GtFormat::PngU16, DynamicImage::ImageLuma16(b)) => b.into_raw(),
+                (format, other) => bail!(
+                    "{}: expected {} single-channel disparity map (gt_format {format}), got {:?}",
+                    path.display(),
+                    if format == GtFormat::PngU16 {
+                        "a 16-bit"
+                    } else {
+                        "an 8-bit"
+                    },
+                    other.color()
+                ),
+            };
+            let invalid = gt.invalid;
+            let disparity = raw.iter().map(|&v| f32::from(v) / gt.scale).collect();
+            let valid = raw.iter().map(|&v| Some(v) != invalid).collect();
+            (width, height, disparity, valid)
+        }
     };
-    let (width, height) = (stored.width() as usize, stored.height() as usize);
     ensure!(width > 0 && height > 0, "{}: empty disparity map", path.display());
-    let raw = stored.into_raw();
     Ok(GroundTruthMap {
         width,
         height,
-        disparity: raw.iter().map(|&v| v as f32 / gt.scale).collect(),
-        valid: raw.iter().map(|&v| v != gt.invalid).collect(),
+        disparity,
+        valid,
     })
 }
 
@@ -119,8 +152,9 @@ mod tests {
         std::fs::write(&path, bytes).unwrap();
         let gt = GroundTruth {
             path: path.clone(),
+            format: GtFormat::PgmU8,
             scale: 8.0,
-            invalid: 0,
+            invalid: Some(0),
         };
         let loaded = load_ground_truth(&gt).unwrap();
         assert_eq!((loaded.width, loaded.height), (3, 1));
@@ -132,6 +166,77 @@ mod tests {
         };
         let err = format!("{:#}", load_ground_truth(&missing).unwrap_err());
         assert!(err.contains("missing.pgm"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A fresh scratch folder for one test.
+    fn scratch(name: &str) -> std::path::PathBuf {
+        let dir = std::env::temp_dir().join(format!("bino-eval-gt-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&dir);
+        std::fs::create_dir_all(&dir).unwrap();
+        dir
+    }
+
+    #[test]
+    fn loads_pfm_of_either_byte_order_top_row_first_with_unknowns_masked() {
+        let dir = scratch("pfm");
+        // Asymmetric, so a missed row flip shows; inf and NaN are unknown, 0 is a disparity.
+        let rows: [&[f32]; 2] = [&[1.0, 2.0, f32::INFINITY], &[0.0, f32::NAN, 12.0]];
+        for little_endian in [true, false] {
+            let path = dir.join(format!("disp-{little_endian}.pfm"));
+            std::fs::write(&path, crate::pfm::encode(&rows, little_endian)).unwrap();
+            let gt = GroundTruth {
+                path,
+                format: GtFormat::Pfm,
+                scale: 2.0,
+                invalid: None,
+            };
+            let loaded = load_ground_truth(&gt).unwrap();
+            assert_eq!((loaded.width, loaded.height), (3, 2));
+            assert_eq!(loaded.disparity, vec![0.5, 1.0, 0.0, 0.0, 0.0, 6.0]);
+            assert_eq!(loaded.valid, vec![true, true, false, true, false, true]);
+            // A stated gt_invalid masks that value too.
+            let zero_unknown = GroundTruth { invalid: Some(0), ..gt };
+            let loaded = load_ground_truth(&zero_unknown).unwrap();
+            assert_eq!(loaded.valid, vec![true, true, false, false, false, true]);
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn loads_png_u16_as_value_over_scale_with_zero_unknown() {
+        let dir = scratch("png16");
+        let path = dir.join("disp.png");
+        // KITTI's encoding: disparity * 256, 0 where unknown; 65535 = 255.996 px.
+        image::ImageBuffer::<image::Luma<u16>, _>::from_raw(2, 2, vec![0u16, 256, 2560 + 128, 65535])
+            .unwrap()
+            .save(&path)
+            .unwrap();
+        let gt = GroundTruth {
+            path,
+            format: GtFormat::PngU16,
+            scale: 256.0,
+            invalid: Some(0),
+        };
+        let loaded = load_ground_truth(&gt).unwrap();
+        assert_eq!((loaded.width, loaded.height), (2, 2));
+        assert_eq!(loaded.disparity, vec![0.0, 1.0, 10.5, 65535.0 / 256.0]);
+        assert_eq!(loaded.valid, vec![false, true, true, true]);
+        // The bit depth must match the format, either way round.
+        let as_u8 = GroundTruth {
+            format: GtFormat::PngU8,
+            scale: 1.0,
+            ..gt.clone()
+        };
+        let err = format!("{:#}", load_ground_truth(&as_u8).unwrap_err());
+        assert!(err.contains("disp.png") && err.contains("expected an 8-bit"), "{err}");
+        let u8_path = dir.join("u8.png");
+        image::GrayImage::from_pixel(2, 2, image::Luma([9]))
+            .save(&u8_path)
+            .unwrap();
+        let u8_as_u16 = GroundTruth { path: u8_path, ..gt };
+        let err = format!("{:#}", load_ground_truth(&u8_as_u16).unwrap_err());
+        assert!(err.contains("u8.png") && err.contains("16-bit"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
