@@ -4,6 +4,9 @@
     python -m bino_train.pretrain --out runs/NAME --resume --minutes 9 # continue it exactly
     python -m bino_train.pretrain --out runs/NAME --pairs 16000 --config paper --seed 0
     python -m bino_train.pretrain --out runs/smoke --smoke             # seconds, for CI
+    python -m bino_train.pretrain --out runs/NAME --resume --device cuda --bf16 \
+        --batch-multiplier 4 --minutes 8 --weights-out OUT                # a GPU leg
+    python -m bino_train.pretrain --out runs/NAME2 --init-from OUT --minutes 9  # back on CPU
 
 The EMA teacher sees the full pair, the student the pair with one view masked. `--pairs N`
 is a cumulative target over all invocations of a run; `--minutes M` bounds this invocation.
@@ -15,6 +18,15 @@ The run folder holds `last.pt` (everything needed to resume exactly; also loadab
 encoder), `log.jsonl` (one record per logged step, plus `"kind": "eval"` records with the
 no-linkage probe and the controlled benchmark of the teacher), and a `teacher_<pairs>.pt`
 snapshot at each evaluation. Ctrl-C or SIGTERM stops after the current step and checkpoints.
+
+Schedules are functions of the pair count: the schedule step is `pairs // batch` (the
+configured batch), which is the step itself in a run at that batch. `--batch-multiplier M`
+trains a leg at M times the batch (a GPU's large batch) on the same schedules, scaling the LR
+by sqrt(M) (Adam's square-root rule; `--lr-scale` overrides) and raising the teacher's EMA
+momentum and the centre momentum to the power M (the EMA scaling rule), so the averages span
+the same number of pairs. `--weights-out DIR` writes fp16 teacher and student weights and the
+log at each checkpoint (pretrain_weights.py); `--init-from DIR` starts a run folder from them,
+not exactly (fresh optimiser): see pretrain_weights.py.
 """
 
 from __future__ import annotations
@@ -51,6 +63,7 @@ from .dino import (
 from .masking import MaskConfig, OneViewMasker, mask_ratio
 from .model import BinoEncoder
 from .pairs import training_pairs
+from .pretrain_weights import init_from, load_weights, save_weights, start_log
 from .probe import ProbeItem, encoder_describe, load_probe_set, run_probe
 
 ASSUMED_PAIRS_PER_S = {"cpu": 6.9, "cuda": 150.0}
@@ -150,15 +163,35 @@ def set_rng_states(states: dict[str, Any]) -> None:
 class Trainer:
     """Student, EMA teacher, heads, optimiser, data and mask streams: the whole run state."""
 
-    def __init__(self, cfg: TrainConfig, data_dir: Path | None, device: torch.device) -> None:
+    def __init__(
+        self,
+        cfg: TrainConfig,
+        data_dir: Path | None,
+        device: torch.device,
+        *,
+        batch_multiplier: int = 1,
+        lr_scale: float | None = None,
+        chunk_tokens: int | None = None,
+    ) -> None:
+        if batch_multiplier < 1:
+            raise ValueError(f"batch multiplier {batch_multiplier} < 1")
         self.cfg = cfg
         self.device = device
+        self.batch_multiplier = batch_multiplier
+        self.lr_scale = math.sqrt(batch_multiplier) if lr_scale is None else lr_scale
         torch.manual_seed(cfg.seed)
         self.student = BinoEncoder(cfg.encoder).to(device)
         self.student_head = DinoHead(cfg.encoder.dim, cfg.dino).to(device)
         self.teacher = copy.deepcopy(self.student).requires_grad_(False)
         self.teacher_head = copy.deepcopy(self.student_head).requires_grad_(False)
         self.loss = TokenDistillLoss(cfg.dino).to(device)
+        if batch_multiplier != 1 or chunk_tokens is not None:
+            # Run-time only: the configuration saved with the run keeps its own values.
+            self.loss.cfg = replace(
+                cfg.dino,
+                center_momentum=cfg.dino.center_momentum**batch_multiplier,
+                chunk_tokens=chunk_tokens or cfg.dino.chunk_tokens,
+            )
         self.opt = torch.optim.AdamW(
             param_groups([self.student, self.student_head], cfg.weight_decay), lr=cfg.lr
         )
@@ -170,14 +203,27 @@ class Trainer:
         self.pairs_seen = 0
         self.train_seconds = 0.0
 
+    @property
+    def batch_size(self) -> int:
+        """Pairs per optimiser step."""
+        return self.cfg.batch * self.batch_multiplier
+
+    @property
+    def schedule_step(self) -> int:
+        """Position on the schedules in steps of the configured batch (= step at that batch)."""
+        return self.pairs_seen // self.cfg.batch
+
     def train_step(self) -> dict[str, Any]:
-        cfg, step, dev = self.cfg, self.step, self.device
-        clean_left, clean_right, left, right = self.sampler.next_batch_with_clean(cfg.batch)
+        cfg, step, dev = self.cfg, self.schedule_step, self.device
+        multiplier = self.batch_multiplier
+        clean_left, clean_right, left, right = self.sampler.next_batch_with_clean(self.batch_size)
         if not cfg.augment.teacher_clean:
             clean_left, clean_right = left, right
         ratio = mask_ratio(step, cfg.total_steps, cfg.mask)
         masked = self.masker(left, right, ratio)
         lr = learning_rate(step, cfg)
+        if self.lr_scale != 1.0:
+            lr *= self.lr_scale
         for group in self.opt.param_groups:
             group["lr"] = lr
         temp = teacher_temperature(
@@ -209,11 +255,13 @@ class Trainer:
         grad_norm = float(nn.utils.clip_grad_norm_(params, cfg.clip_grad))
         self.opt.step()
         momentum = ema_momentum(step, cfg.total_steps, cfg.dino.momentum_start)
+        if multiplier != 1:
+            momentum **= multiplier
         ema_update(self.teacher, self.student, momentum)
         ema_update(self.teacher_head, self.student_head, momentum)
         self.step += 1
-        self.pairs_seen += cfg.batch
-        return {
+        self.pairs_seen += self.batch_size
+        record: dict[str, Any] = {
             "step": self.step,
             "pairs": self.pairs_seen,
             "loss": float(out.loss.detach()),
@@ -229,6 +277,9 @@ class Trainer:
             "momentum": momentum,
             "grad_norm": grad_norm,
         }
+        if multiplier != 1:
+            record["batch"] = self.batch_size
+        return record
 
     def state_dict(self) -> dict[str, Any]:
         return {
@@ -310,6 +361,8 @@ class RunOptions:
     log_every: int = 5
     eval_student: bool = False
     """Also evaluate the student: the EMA teacher lags it, so short runs show trends earlier."""
+    weights_out: Path | None = None
+    """Also write fp16 teacher/student weights and the log here at each checkpoint."""
 
 
 class StopFlag:
@@ -359,6 +412,13 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
             return True
         return opts.minutes is not None and time.perf_counter() - start >= 60.0 * opts.minutes
 
+    def checkpoint() -> None:
+        save_atomic(trainer.state_dict(), opts.out / "last.pt")
+        if opts.weights_out is not None:
+            log({"kind": "weights", "step": trainer.step, "pairs": trainer.pairs_seen})
+            sizes = save_weights(trainer, opts.weights_out, log_path)
+            print(f"weights at {trainer.pairs_seen} pairs: {opts.weights_out} {sizes}", flush=True)
+
     log({"kind": "start", "step": trainer.step, "pairs": trainer.pairs_seen, "time": time.time()})
     try:
         while not done():
@@ -366,7 +426,7 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
             record = trainer.train_step()
             trainer.train_seconds += time.perf_counter() - t0
             record["wall_s"] = round(trainer.train_seconds, 3)
-            record["pairs_per_s"] = round(trainer.cfg.batch / (time.perf_counter() - t0), 3)
+            record["pairs_per_s"] = round(trainer.batch_size / (time.perf_counter() - t0), 3)
             records.append(record)
             if trainer.step % opts.log_every == 0:
                 log(record)
@@ -381,9 +441,9 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
                 evaluate()
                 last_eval = time.perf_counter()
             if now - last_ckpt >= 60.0 * opts.checkpoint_minutes:
-                save_atomic(trainer.state_dict(), opts.out / "last.pt")
+                checkpoint()
                 last_ckpt = time.perf_counter()
-        save_atomic(trainer.state_dict(), opts.out / "last.pt")
+        checkpoint()
         if opts.eval_at_end and (opts.probe or opts.bench_pairs > 0):
             evaluate()
     finally:
@@ -464,7 +524,28 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--unmasked-weight", type=float, help="loss weight of other tokens")
     p.add_argument("--teacher-temp", type=float, nargs=2, metavar=("START", "END"))
     p.add_argument("--momentum", type=float, help="EMA momentum at step 0")
-    p.add_argument("--precision", choices=("auto", "bf16", "fp32"), help="default auto")
+    p.add_argument(
+        "--precision",
+        choices=("auto", "bf16", "fp32"),
+        help="default auto; with --resume/--init-from it overrides the run's setting",
+    )
+    p.add_argument("--bf16", action="store_true", help="same as --precision bf16")
+    p.add_argument(
+        "--batch-multiplier",
+        type=int,
+        default=1,
+        help="pairs per step = M x the run's batch; schedules stay in pairs (a GPU leg)",
+    )
+    p.add_argument("--lr-scale", type=float, help="LR factor (default sqrt(batch multiplier))")
+    p.add_argument("--chunk-tokens", type=int, help="loss chunk size (run-time; GPU: large)")
+    p.add_argument(
+        "--weights-out", type=Path, help="write fp16 teacher/student + log here at checkpoints"
+    )
+    p.add_argument(
+        "--init-from",
+        type=Path,
+        help="start OUT from a --weights-out folder (config, weights, pair count; fresh optimiser)",
+    )
     p.add_argument(
         "--crop-widths",
         type=int,
@@ -492,6 +573,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--smoke", action="store_true", help="tiny CPU-seconds run; checks the loss falls"
     )
     args = p.parse_args(argv)
+    if args.bf16:
+        if args.precision not in (None, "bf16"):
+            p.error("--bf16 contradicts --precision " + args.precision)
+        args.precision = "bf16"
+    if args.resume and args.init_from is not None:
+        p.error("--resume and --init-from exclude each other")
     if args.smoke:
         args.config, args.pairs, args.no_eval, args.log_every = "small", 80, True, 5
         args.schedule_pairs = args.schedule_pairs or 400
@@ -504,13 +591,17 @@ def main(argv: list[str] | None = None) -> None:
     args = parse_args(argv)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
-    use_cuda = args.device == "cuda" or (args.device == "auto" and torch.cuda.is_available())
-    device = torch.device("cuda" if use_cuda else "cpu")
+    device = pick_device(args.device)
     ckpt = args.out / "last.pt"
+    scaling: dict[str, Any] = {
+        "batch_multiplier": args.batch_multiplier,
+        "lr_scale": args.lr_scale,
+        "chunk_tokens": args.chunk_tokens,
+    }
     if args.resume:
         state = torch.load(ckpt, map_location="cpu", weights_only=False)  # RNG states stay on CPU
-        cfg = TrainConfig.from_dict(state["train_config"])
-        trainer = Trainer(cfg, args.data, device)
+        cfg = with_precision(TrainConfig.from_dict(state["train_config"]), args.precision)
+        trainer = Trainer(cfg, args.data, device, **scaling)
         trainer.load_state_dict(state)
         print(f"resumed {ckpt} at step {trainer.step} ({trainer.pairs_seen} pairs)")
     else:
@@ -518,8 +609,16 @@ def main(argv: list[str] | None = None) -> None:
             sys.exit(f"error: {ckpt} exists; pass --resume or choose another --out")
         if args.smoke and (args.out / "log.jsonl").exists():
             (args.out / "log.jsonl").unlink()
-        cfg = replace(build_config(args), schedule_pairs=schedule_length(args, device))
-        trainer = Trainer(cfg, args.data, device)
+        if args.init_from is not None:
+            trainer = initialised_trainer(args, device, scaling)
+        else:
+            cfg = replace(build_config(args), schedule_pairs=schedule_length(args, device))
+            trainer = Trainer(cfg, args.data, device, **scaling)
+    print(
+        f"device {device}, bf16 {trainer.bf16}, {trainer.batch_size} pairs/step, "
+        f"lr x{trainer.lr_scale:.3g}",
+        flush=True,
+    )
     opts = RunOptions(
         out=args.out,
         data_dir=args.data,
@@ -532,11 +631,49 @@ def main(argv: list[str] | None = None) -> None:
         bench_pairs=args.bench_pairs,
         log_every=args.log_every,
         eval_student=args.eval_student,
+        weights_out=args.weights_out,
     )
     records = run(trainer, opts)
     print(f"done: step {trainer.step}, {trainer.pairs_seen} pairs, checkpoint {ckpt}")
     if args.smoke:
         sys.exit(0 if smoke_report(records) else 1)
+
+
+def pick_device(name: str) -> torch.device:
+    """auto: CUDA where torch sees a GPU, else the CPU; cuda without a GPU is an error."""
+    if name == "cuda" and not torch.cuda.is_available():
+        sys.exit("error: --device cuda, but torch sees no CUDA GPU")
+    if name == "cuda" or (name == "auto" and torch.cuda.is_available()):
+        # TF32 stays off (PyTorch's default for matmuls): the head's cosine logits, kept out of
+        # bf16 on purpose, are divided by temperatures of ~0.05.
+        return torch.device("cuda")
+    return torch.device("cpu")
+
+
+def with_precision(cfg: TrainConfig, precision: str | None) -> TrainConfig:
+    return cfg if precision is None else replace(cfg, precision=precision)
+
+
+def initialised_trainer(
+    args: argparse.Namespace, device: torch.device, scaling: dict[str, Any]
+) -> Trainer:
+    """--init-from: the snapshot's configuration and weights, its log continued in OUT."""
+    states = load_weights(args.init_from)
+    cfg = TrainConfig.from_dict(states["teacher"]["train_config"])
+    trainer = Trainer(with_precision(cfg, args.precision), args.data, device, **scaling)
+    init_from(trainer, states)
+    log_path = start_log(args.init_from, args.out, trainer.pairs_seen)
+    record = {
+        "kind": "init",
+        "from": str(args.init_from),
+        "step": trainer.step,
+        "pairs": trainer.pairs_seen,
+        "exact": False,
+    }
+    with log_path.open("a") as f:
+        f.write(json.dumps(record) + "\n")
+    print(f"initialised from {args.init_from} at step {trainer.step} ({trainer.pairs_seen} pairs)")
+    return trainer
 
 
 def smoke_report(records: list[dict[str, Any]]) -> bool:
