@@ -10,9 +10,10 @@
 Supervision (head_data.py): synthetic scenes with known sub-pixel disparity and StereoSGBM
 pseudo-labels on train-split crops (48 x 160 after resizing to 160 .. 320 px wide); never the
 eval split. The encoder is frozen: descriptors are computed under no_grad and kept in a
-descriptor pool (`--pool`, `--refresh`), so one encoder pass serves several head steps; or, with `--cache` (head_cache.py), every crop
-is encoded once before training and a step costs only the head. Labels carry a confidence
-(`--label-weighting lr`: SGBM's sub-pixel left-right agreement; `--uniform-weights` ignores it);
+descriptor pool (`--pool`, `--refresh`), so one encoder pass serves several head steps; or,
+with `--cache` (head_cache.py), every crop is encoded once before training and a step costs
+only the head. Labels carry a confidence (`--label-weighting lr`: SGBM's sub-pixel left-right
+agreement; `--uniform-weights` ignores it);
 `--photometric` / `--smoothness` add the self-supervised terms of photometric.py. The head
 trains on the train split less the validation pairs, which `--val-every` scores (head_val.py).
 AdamW with linear warm-up then cosine decay over `--schedule-steps` (fixed at the start).
