@@ -21,11 +21,11 @@ use bino_core::model::encoder::{arena_bytes, GrayBand};
 use bino_core::model::probe::NoProbe;
 use tract_onnx::prelude::{tract_ndarray, Tensor};
 
+use crate::files::sha256_hex;
 use crate::int8::Int8Model;
 use crate::json::{self, Object};
 use crate::onnx::OnnxModel;
 use crate::profile::Profile;
-use crate::sha256::sha256_hex;
 use crate::synthetic;
 
 /// What to time.

@@ -207,7 +207,7 @@ impl CoreRun {
         let sha = v.get("elf_sha256").and_then(Value::as_str);
         let same_elf = elf.and_then(|path| {
             let bytes = std::fs::read(&path).ok()?;
-            (Some(crate::sha256::sha256_hex(&bytes).as_str()) == sha).then_some((path, bytes))
+            (Some(crate::files::sha256_hex(&bytes).as_str()) == sha).then_some((path, bytes))
         });
         let (sections, section_source) = match same_elf {
             Some((path, bytes)) => {
@@ -733,7 +733,7 @@ mod tests {
             v["elf_sha256"] = json!(sha);
             CoreRun::parse(&v.to_string()).unwrap()
         };
-        let same = with(&crate::sha256::sha256_hex(&elf));
+        let same = with(&crate::files::sha256_hex(&elf));
         assert_eq!(same.section_source, SectionSource::Elf(path.clone()));
         assert_eq!(
             (same.sections.code, same.sections.weights, same.sections.uninit),

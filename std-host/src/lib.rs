@@ -30,7 +30,6 @@ pub mod reference;
 pub mod reference_head;
 pub mod run;
 pub mod sgbm;
-pub mod sha256;
 pub mod sim;
 pub mod synthetic;
 pub mod taps;
