@@ -15,7 +15,7 @@ pub mod float_head;
 pub mod float_weights;
 pub mod image_io;
 pub mod int8;
-pub mod json;
+mod keyed;
 pub mod npy;
 pub mod npz;
 pub mod onnx;
