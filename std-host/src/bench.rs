@@ -19,13 +19,13 @@ use anyhow::{ensure, Context, Result};
 use bino_core::config::{BAND_ROWS, DEPTH, DIM, MLP_HIDDEN, PATCH_H, PATCH_W};
 use bino_core::model::encoder::{arena_bytes, GrayBand};
 use bino_core::model::probe::NoProbe;
+use serde::Serialize;
 use tract_onnx::prelude::{tract_ndarray, Tensor};
 
+use crate::files::sha256_hex;
 use crate::int8::Int8Model;
-use crate::json::{self, Object};
 use crate::onnx::OnnxModel;
 use crate::profile::Profile;
-use crate::sha256::sha256_hex;
 use crate::synthetic;
 
 /// What to time.
@@ -70,14 +70,23 @@ impl Timing {
         self.runs.iter().copied().fold(f64::INFINITY, f64::min)
     }
 
-    fn json(&self, macs: u64) -> String {
-        Object::new()
-            .num("median_s", self.median())
-            .num("min_s", self.min())
-            .num("gmac_per_s", macs as f64 / self.median() / 1e9)
-            .raw("runs_s", json::array(self.runs.iter().map(|&r| json::number(r))))
-            .render()
+    fn json(&self, macs: u64) -> TimingJson<'_> {
+        TimingJson {
+            median_s: self.median(),
+            min_s: self.min(),
+            gmac_per_s: macs as f64 / self.median() / 1e9,
+            runs_s: &self.runs,
+        }
     }
+}
+
+// The JSON of a timing: the runs with what is derived from them.
+#[derive(Serialize)]
+struct TimingJson<'a> {
+    median_s: f64,
+    min_s: f64,
+    gmac_per_s: f64,
+    runs_s: &'a [f64],
 }
 
 /// Multiply-accumulates of one encoder pass over a band of `tokens` tokens: the embedding
@@ -173,30 +182,51 @@ impl BenchReport {
 
     /// The report as JSON.
     pub fn to_json(&self) -> String {
-        Object::new()
-            .str("tool", "bino bench")
-            .str("version", &self.version)
-            .str("onnx", &self.onnx.display().to_string())
-            .str("blob", &self.blob.display().to_string())
-            .str("blob_sha256", &self.blob_sha256)
-            .int("width", self.width as u64)
-            .int("height", self.height as u64)
-            .int("tokens", self.tokens as u64)
-            .int("macs", self.macs)
-            .raw("cpu", self.cpu.as_deref().map_or("null".to_string(), json::string))
-            .bool("built_with_avx2", self.built_with_avx2)
-            .bool("cpu_has_avx2", self.cpu_has_avx2)
-            .bool("debug_build", self.debug_build)
-            .int("threads", 1)
-            .raw(
-                "process_threads",
-                self.process_threads.map_or("null".to_string(), |n| n.to_string()),
-            )
-            .raw("tract_f32", self.tract.json(self.macs))
-            .raw("int8", self.int8.json(self.macs))
-            .num("tract_over_int8", self.speedup())
-            .render()
+        let json = BenchJson {
+            tool: "bino bench",
+            version: &self.version,
+            onnx: self.onnx.display().to_string(),
+            blob: self.blob.display().to_string(),
+            blob_sha256: &self.blob_sha256,
+            width: self.width,
+            height: self.height,
+            tokens: self.tokens,
+            macs: self.macs,
+            cpu: self.cpu.as_deref(),
+            built_with_avx2: self.built_with_avx2,
+            cpu_has_avx2: self.cpu_has_avx2,
+            debug_build: self.debug_build,
+            threads: 1,
+            process_threads: self.process_threads,
+            tract_f32: self.tract.json(self.macs),
+            int8: self.int8.json(self.macs),
+            tract_over_int8: self.speedup(),
+        };
+        serde_json::to_string_pretty(&json).expect("plain structs serialise")
     }
+}
+
+// The report's JSON: provenance, then each engine's timing (field order is the file's order).
+#[derive(Serialize)]
+struct BenchJson<'a> {
+    tool: &'static str,
+    version: &'a str,
+    onnx: String,
+    blob: String,
+    blob_sha256: &'a str,
+    width: usize,
+    height: usize,
+    tokens: usize,
+    macs: u64,
+    cpu: Option<&'a str>,
+    built_with_avx2: bool,
+    cpu_has_avx2: bool,
+    debug_build: bool,
+    threads: usize,
+    process_threads: Option<usize>,
+    tract_f32: TimingJson<'a>,
+    int8: TimingJson<'a>,
+    tract_over_int8: f64,
 }
 
 fn yes_no(v: bool) -> &'static str {

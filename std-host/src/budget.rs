@@ -8,10 +8,12 @@
 //! there, same SHA-256, else the sizes the run recorded from it with `llvm-size`). Nothing is estimated except the time,
 //! which assumes a stated number of instructions per cycle: instructions are not cycles.
 
+use std::collections::BTreeMap;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context, Result};
+use serde::Deserialize;
 use serde_json::{json, Value};
 
 /// Bytes in a KiB.
@@ -62,8 +64,8 @@ pub fn clock(core: &str) -> Clock {
     }
 }
 
-/// One stage of a firmware run.
-#[derive(Debug, Clone, PartialEq)]
+/// One stage of a firmware run, as the run's JSON lists it.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 pub struct StageRun {
     /// Stage name (`load`, `rows`, `encode_left`, ...).
     pub name: String,
@@ -155,6 +157,38 @@ pub struct CoreRun {
     pub outside_instructions: u64,
 }
 
+// What the budget reads of a `bino-firmware-run/1` file (`firmware-sim/qemu-plugin/report.py`
+// writes it); other fields are ignored.
+#[derive(Deserialize)]
+struct RunJson {
+    core: String,
+    cpu: String,
+    board: String,
+    band: BandJson,
+    passed: Option<bool>,
+    qemu_wall_seconds: Option<f64>,
+    elf: Option<PathBuf>,
+    elf_sha256: Option<String>,
+    elf_sections: BTreeMap<String, SectionJson>,
+    arena_bytes: u64,
+    arena_used: u64,
+    stack_bytes: u64,
+    stages: Vec<StageRun>,
+    startup_instructions: u64,
+    outside_instructions: u64,
+}
+
+#[derive(Deserialize)]
+struct BandJson {
+    height: u64,
+    width: u64,
+}
+
+#[derive(Deserialize)]
+struct SectionJson {
+    size: u64,
+}
+
 /// Stages that run once at boot, not per band pair.
 const BOOT_STAGES: [&str; 1] = ["load"];
 
@@ -162,75 +196,43 @@ impl CoreRun {
     /// Parses a run's JSON; the ELF it names is read when it still exists.
     pub fn parse(text: &str) -> Result<Self> {
         let v: Value = serde_json::from_str(text).context("not JSON")?;
-        let str_of = |k: &str| -> Result<String> {
-            Ok(v.get(k)
-                .and_then(Value::as_str)
-                .with_context(|| format!("missing string {k:?}"))?
-                .to_string())
-        };
-        let u = |v: &Value, k: &str| -> Result<u64> {
-            v.get(k)
-                .and_then(Value::as_u64)
-                .with_context(|| format!("missing number {k:?}"))
-        };
-        let schema = str_of("schema")?;
+        let schema = v
+            .get("schema")
+            .and_then(Value::as_str)
+            .context("missing string \"schema\"")?;
         ensure!(schema == "bino-firmware-run/1", "unknown schema {schema:?}");
-        let band = v.get("band").context("missing \"band\"")?;
-        let stages = v
-            .get("stages")
-            .and_then(Value::as_array)
-            .context("missing \"stages\"")?
-            .iter()
-            .map(|s| {
-                Ok(StageRun {
-                    name: s
-                        .get("name")
-                        .and_then(Value::as_str)
-                        .context("stage without a name")?
-                        .to_string(),
-                    instructions: u(s, "instructions")?,
-                    arena_in_use: u(s, "arena_in_use")?,
-                    stack_peak: u(s, "stack_peak")?,
-                })
-            })
-            .collect::<Result<Vec<_>>>()?;
-        ensure!(!stages.is_empty(), "no stages");
-        let recorded = v
-            .get("elf_sections")
-            .and_then(Value::as_object)
-            .context("missing \"elf_sections\"")?
-            .iter()
-            .map(|(name, s)| Ok((name.clone(), u(s, "size")?)))
-            .collect::<Result<Vec<_>>>()?;
+        let run = RunJson::deserialize(&v).context("not a firmware run")?;
+        ensure!(!run.stages.is_empty(), "no stages");
         // The ELF the run used, if it is still there and unchanged (a later build overwrites it).
-        let elf = v.get("elf").and_then(Value::as_str).map(PathBuf::from);
-        let sha = v.get("elf_sha256").and_then(Value::as_str);
-        let same_elf = elf.and_then(|path| {
+        let same_elf = run.elf.and_then(|path| {
             let bytes = std::fs::read(&path).ok()?;
-            (Some(crate::sha256::sha256_hex(&bytes).as_str()) == sha).then_some((path, bytes))
+            (Some(crate::files::sha256_hex(&bytes)) == run.elf_sha256).then_some((path, bytes))
         });
         let (sections, section_source) = match same_elf {
             Some((path, bytes)) => {
                 let named = elf_sections(&bytes).with_context(|| format!("{}", path.display()))?;
                 (Sections::from_named(named), SectionSource::Elf(path))
             }
-            None => (Sections::from_named(recorded), SectionSource::Recorded),
+            None => {
+                let recorded = run.elf_sections.into_iter().map(|(name, s)| (name, s.size));
+                (Sections::from_named(recorded), SectionSource::Recorded)
+            }
         };
         Ok(Self {
-            core: str_of("core")?,
-            cpu: str_of("cpu")?,
-            board: str_of("board")?,
-            band: (u(band, "height")?, u(band, "width")?),
-            passed: v.get("passed").and_then(Value::as_bool).unwrap_or(false),
-            qemu_wall_seconds: v.get("qemu_wall_seconds").and_then(Value::as_f64).unwrap_or(f64::NAN),
+            core: run.core,
+            cpu: run.cpu,
+            board: run.board,
+            band: (run.band.height, run.band.width),
+            passed: run.passed.unwrap_or(false),
+            qemu_wall_seconds: run.qemu_wall_seconds.unwrap_or(f64::NAN),
             sections,
             section_source,
-            arena_bytes: u(&v, "arena_bytes")?,
-            arena_used: u(&v, "arena_used")?,
-            stack_bytes: u(&v, "stack_bytes")?,
-            stages,
-            startup_instructions: u(&v, "startup_instructions")?,
-            outside_instructions: u(&v, "outside_instructions")?,
+            arena_bytes: run.arena_bytes,
+            arena_used: run.arena_used,
+            stack_bytes: run.stack_bytes,
+            stages: run.stages,
+            startup_instructions: run.startup_instructions,
+            outside_instructions: run.outside_instructions,
         })
     }
 
@@ -733,7 +735,7 @@ mod tests {
             v["elf_sha256"] = json!(sha);
             CoreRun::parse(&v.to_string()).unwrap()
         };
-        let same = with(&crate::sha256::sha256_hex(&elf));
+        let same = with(&crate::files::sha256_hex(&elf));
         assert_eq!(same.section_source, SectionSource::Elf(path.clone()));
         assert_eq!(
             (same.sections.code, same.sections.weights, same.sections.uninit),

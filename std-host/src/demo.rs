@@ -9,11 +9,12 @@ use anyhow::{ensure, Context, Result};
 use bino_core::config::BAND_ROWS;
 use bino_core::model::{encoder, head};
 use bino_core::sgm::Penalties;
+use serde::Serialize;
 
 use crate::colour::{colourise, error_colour};
 use crate::eval::{fill_invalid, score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
 use crate::int8::{match_rows, sgm_rows, Int8Model};
-use crate::json::Object;
+use crate::keyed::Keyed;
 use crate::profile::{Profile, View};
 use crate::synthetic::{default_scene, SyntheticPair};
 
@@ -225,19 +226,27 @@ fn write_outputs(
 }
 
 fn report_json(opts: &DemoOptions, readouts: &[ReadoutResult]) -> String {
-    let mut object = Object::new()
-        .str("tool", "bino demo")
-        .str("blob", &opts.blob.display().to_string())
-        .int("width", opts.width as u64)
-        .int("height", opts.height as u64)
-        .str(
-            "scene",
-            "built-in procedural planes: background d=4 px, boxes d=10 and 16 px",
-        );
-    for r in readouts {
-        object = object.raw(r.name, r.metrics.to_json());
-    }
-    object.render()
+    let json = DemoJson {
+        tool: "bino demo",
+        blob: opts.blob.display().to_string(),
+        width: opts.width,
+        height: opts.height,
+        scene: "built-in procedural planes: background d=4 px, boxes d=10 and 16 px",
+        readouts: Keyed(readouts.iter().map(|r| (r.name.to_string(), r.metrics)).collect()),
+    };
+    serde_json::to_string_pretty(&json).expect("plain structs serialise")
+}
+
+// `report.json`: what ran on what, then each readout's metrics keyed by its name.
+#[derive(Serialize)]
+struct DemoJson {
+    tool: &'static str,
+    blob: String,
+    width: usize,
+    height: usize,
+    scene: &'static str,
+    #[serde(flatten)]
+    readouts: Keyed<Metrics>,
 }
 
 fn gray(view: &View) -> Result<image::DynamicImage> {

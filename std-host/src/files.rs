@@ -108,6 +108,13 @@ pub fn write_bytes(path: &Path, bytes: &[u8]) -> Result<()> {
     write_atomic(path, |w| Ok(w.write_all(bytes)?))
 }
 
+/// The SHA-256 of `bytes` as 64 lowercase hex digits: how reports and the manifest name the
+/// exact blob or ELF they were made with.
+pub fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes).iter().map(|b| format!("{b:02x}")).collect()
+}
+
 /// [`write_atomic`] of a picture as PNG.
 pub fn save_png(image: &image::DynamicImage, path: &Path) -> Result<()> {
     write_atomic(path, |w| Ok(image.write_to(w, image::ImageFormat::Png)?))
@@ -122,6 +129,18 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
         std::fs::create_dir_all(&dir).unwrap();
         dir
+    }
+
+    #[test]
+    fn sha256_matches_the_fips_180_examples() {
+        assert_eq!(
+            sha256_hex(b"abc"),
+            "ba7816bf8f01cfea414140de5dae2223b00361a396177a9cb410ff61f20015ad"
+        );
+        assert_eq!(
+            sha256_hex(b""),
+            "e3b0c44298fc1c149afbf4c8996fb92427ae41e4649b934ca495991b7852b855"
+        );
     }
 
     #[test]

@@ -1,9 +1,8 @@
-//! `.npy` arrays (format version 1.0, little-endian `f32`, C order): the one array format
-//! the CLI writes, so every output opens with `numpy.load`.
+//! `.npy` arrays of `f32` in C order, through `npyz`: the one array format the CLI writes, so
+//! every output opens with `numpy.load`.
 
-use anyhow::{bail, ensure, Context, Result};
-
-const MAGIC: &[u8] = b"\x93NUMPY";
+use anyhow::{ensure, Context, Result};
+use npyz::{NpyFile, Order, WriterBuilder};
 
 /// A dense `f32` array with its shape, in C (row-major) order.
 #[derive(Debug, Clone, PartialEq)]
@@ -27,81 +26,42 @@ impl Array {
     }
 }
 
-/// Encodes `array` as the bytes of a `.npy` file.
+/// Encodes `array` as the bytes of a `.npy` file (little-endian `f32`, format 1.0).
 pub fn encode(array: &Array) -> Vec<u8> {
-    let dims: Vec<String> = array.shape.iter().map(|d| d.to_string()).collect();
-    let shape = match dims.len() {
-        1 => format!("({},)", dims[0]),
-        _ => format!("({})", dims.join(", ")),
-    };
-    let mut header = format!("{{'descr': '<f4', 'fortran_order': False, 'shape': {shape}, }}");
-    // The data must start on a 64-byte boundary: pad with spaces, end with a newline.
-    let unpadded = MAGIC.len() + 4 + header.len() + 1;
-    header.push_str(&" ".repeat((64 - unpadded % 64) % 64));
-    header.push('\n');
-    let mut out = Vec::with_capacity(MAGIC.len() + 4 + header.len() + 4 * array.data.len());
-    out.extend_from_slice(MAGIC);
-    out.extend_from_slice(&[1, 0]);
-    out.extend_from_slice(&(header.len() as u16).to_le_bytes());
-    out.extend_from_slice(header.as_bytes());
-    for value in &array.data {
-        out.extend_from_slice(&value.to_le_bytes());
-    }
+    let mut out = Vec::new();
+    write(&mut out, array).expect("writing to memory cannot fail");
     out
 }
 
-/// Decodes a `.npy` file holding little-endian `f32` values in C order.
-pub fn decode(bytes: &[u8]) -> Result<Array> {
-    ensure!(
-        bytes.len() >= 10 && bytes.starts_with(MAGIC),
-        "not a .npy file (bad magic)"
-    );
-    let (header_len, header_start) = match bytes[6] {
-        1 => (u16::from_le_bytes([bytes[8], bytes[9]]) as usize, 10),
-        2 | 3 => {
-            ensure!(bytes.len() >= 12, "truncated .npy header");
-            let len = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]) as usize;
-            (len, 12)
-        }
-        v => bail!("unsupported .npy format version {v}"),
-    };
-    let header = bytes
-        .get(header_start..header_start + header_len)
-        .context("truncated .npy header")?;
-    let header = std::str::from_utf8(header).context(".npy header is not text")?;
-    ensure!(
-        header.contains("'descr': '<f4'"),
-        "only little-endian f32 arrays are supported: {header}"
-    );
-    ensure!(
-        header.contains("'fortran_order': False"),
-        "only C-order arrays are supported"
-    );
-    let shape = parse_shape(header)?;
-    let count: usize = shape.iter().product();
-    let payload = &bytes[header_start + header_len..];
-    ensure!(
-        payload.len() == 4 * count,
-        ".npy payload holds {} bytes, shape {shape:?} needs {}",
-        payload.len(),
-        4 * count
-    );
-    let data = payload
-        .chunks_exact(4)
-        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
-        .collect();
-    Array::new(shape, data)
+/// Writes `array` as a `.npy` file to `out`.
+pub fn write<W: std::io::Write>(out: W, array: &Array) -> std::io::Result<()> {
+    let shape: Vec<u64> = array.shape.iter().map(|&d| d as u64).collect();
+    let mut writer = npyz::WriteOptions::new()
+        .default_dtype()
+        .shape(&shape)
+        .writer(out)
+        .begin_nd()?;
+    writer.extend(array.data.iter().copied())?;
+    writer.finish()
 }
 
-fn parse_shape(header: &str) -> Result<Vec<usize>> {
-    let start = header.find("'shape': (").context(".npy header has no shape")? + "'shape': (".len();
-    let end = start + header[start..].find(')').context(".npy shape is not closed")?;
-    header[start..end]
-        .split(',')
-        .map(str::trim)
-        .filter(|s| !s.is_empty())
-        .map(|s| s.parse::<usize>().with_context(|| format!("bad .npy dimension {s:?}")))
-        .collect()
+/// Decodes a `.npy` file of `f32` values in C order; the payload must be exactly the shape's.
+pub fn decode(bytes: &[u8]) -> Result<Array> {
+    let file = NpyFile::new(bytes).context("not a .npy file")?;
+    ensure!(file.order() == Order::C, "only C-order arrays are supported");
+    let shape = (file.shape().iter())
+        .map(|&d| usize::try_from(d).context("bad .npy dimension"))
+        .collect::<Result<Vec<_>>>()?;
+    // npyz reads the elements it needs and ignores the rest: a longer file is not ours.
+    let payload = file.clone().into_inner().len() as u64;
+    let wanted = file.len().checked_mul(4).context(".npy shape too large")?;
+    ensure!(
+        payload == wanted,
+        ".npy payload holds {payload} bytes, shape {shape:?} needs {wanted}"
+    );
+    let dtype = file.dtype().descr();
+    let data = (file.into_vec::<f32>()).with_context(|| format!("only f32 arrays are supported, found {dtype}"))?;
+    Array::new(shape, data)
 }
 
 #[cfg(test)]
@@ -114,7 +74,7 @@ mod tests {
             let n = shape.iter().product();
             let array = Array::new(shape, (0..n).map(|i| i as f32 * 0.5 - 1.0).collect()).unwrap();
             let bytes = encode(&array);
-            assert_eq!((bytes.len() - 4 * n) % 64, 0, "data must start 64-byte aligned");
+            assert_eq!((bytes.len() - 4 * n) % 16, 0, "data must start 16-byte aligned");
             assert_eq!(decode(&bytes).unwrap(), array);
         }
     }

@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context, Result};
 use bino_core::pipeline::Options as PipelineOptions;
 use bino_core::sgm::Penalties;
+use serde::Serialize;
 
 use crate::compare::head::FloatHeadRunner;
 use crate::eval::float_twins::{consistent, right_view, sgm};
@@ -22,7 +23,7 @@ use crate::eval::{
     DisparityMap, EvalItem, GroundTruthMap, Metrics,
 };
 use crate::int8::{to_u8, Int8Model};
-use crate::json::Object;
+use crate::keyed::Keyed;
 use crate::pairs::{read_index, Split};
 use crate::pipeline_maps::run_pipeline;
 use crate::profile::Profile;
@@ -104,13 +105,15 @@ impl EvalOptions {
 }
 
 /// One readout's scores on one pair (or their mean).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct ReadoutScore {
     /// EVAL.md metrics over every ground-truth pixel (the readout is dense).
     pub metrics: Metrics,
     /// % of ground-truth pixels whose cell passes the left-right check (`nolink`, `sgm`).
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub lr_keep: Option<f64>,
     /// epe over the ground-truth pixels that pass the left-right check.
+    #[serde(skip_serializing_if = "Option::is_none")]
     pub gt_lr_epe: Option<f64>,
 }
 
@@ -430,49 +433,75 @@ impl EvalReport {
     pub fn to_json(&self) -> String {
         let o = &self.options;
         let rows = o.rows();
-        let readouts = |scores: &[ReadoutScore], sgbm: Option<Metrics>| {
-            let obj = rows.iter().zip(scores).fold(Object::new(), |obj, ((p, r), s)| {
-                let mut entry = Object::new().raw("metrics", s.metrics.to_json());
-                if let (Some(keep), Some(epe)) = (s.lr_keep, s.gt_lr_epe) {
-                    entry = entry.num("lr_keep", keep).num("gt_lr_epe", epe);
-                }
-                obj.raw(&format!("{}_{}", p.name(), r.name()), entry.render())
-            });
-            match sgbm {
-                Some(m) => obj.raw("sgbm", m.to_json()),
-                None => obj,
-            }
-            .render()
+        let readouts = |scores: &[ReadoutScore], sgbm: Option<Metrics>| ReadoutsJson {
+            rows: Keyed(
+                (rows.iter().zip(scores))
+                    .map(|((p, r), s)| (format!("{}_{}", p.name(), r.name()), *s))
+                    .collect(),
+            ),
+            sgbm,
         };
-        let pairs: Vec<String> = self
-            .pairs
-            .iter()
-            .map(|p| {
-                Object::new()
-                    .str("pair_id", &p.pair_id)
-                    .raw("readouts", readouts(&p.scores, p.sgbm))
-                    .num("seconds", p.elapsed.as_secs_f64())
-                    .render()
-            })
-            .collect();
-        Object::new()
-            .str("tool", "bino eval")
-            .str("version", env!("CARGO_PKG_VERSION"))
-            .str("blob", &o.blob.display().to_string())
-            .str("onnx", &o.onnx.display().to_string())
-            .str("head_onnx", &o.head_onnx.display().to_string())
-            .str("data", &o.data.display().to_string())
-            .str("split", &o.split)
-            .str("profile", &o.profile.to_string())
-            .int("max_cols", o.max_cols as u64)
-            .int("sgm_p1", o.penalties.p1 as u64)
-            .int("sgm_p2", o.penalties.p2 as u64)
-            .num("lr_max_diff", o.lr_max_diff as f64)
-            .int("pairs", self.pairs.len() as u64)
-            .raw("mean", readouts(&self.mean, self.sgbm_mean))
-            .raw("per_pair", format!("[{}]", pairs.join(",")))
-            .render()
+        let json = EvalJson {
+            tool: "bino eval",
+            version: env!("CARGO_PKG_VERSION"),
+            blob: o.blob.display().to_string(),
+            onnx: o.onnx.display().to_string(),
+            head_onnx: o.head_onnx.display().to_string(),
+            data: o.data.display().to_string(),
+            split: &o.split,
+            profile: o.profile.to_string(),
+            max_cols: o.max_cols,
+            sgm_p1: o.penalties.p1,
+            sgm_p2: o.penalties.p2,
+            lr_max_diff: o.lr_max_diff as f64,
+            pairs: self.pairs.len(),
+            mean: readouts(&self.mean, self.sgbm_mean),
+            per_pair: (self.pairs.iter())
+                .map(|p| PairJson {
+                    pair_id: &p.pair_id,
+                    readouts: readouts(&p.scores, p.sgbm),
+                    seconds: p.elapsed.as_secs_f64(),
+                })
+                .collect(),
+        };
+        serde_json::to_string_pretty(&json).expect("plain structs serialise")
     }
+}
+
+// The report's JSON, in the file's field order.
+#[derive(Serialize)]
+struct EvalJson<'a> {
+    tool: &'static str,
+    version: &'static str,
+    blob: String,
+    onnx: String,
+    head_onnx: String,
+    data: String,
+    split: &'a str,
+    profile: String,
+    max_cols: usize,
+    sgm_p1: u16,
+    sgm_p2: u16,
+    lr_max_diff: f64,
+    pairs: usize,
+    mean: ReadoutsJson,
+    per_pair: Vec<PairJson<'a>>,
+}
+
+#[derive(Serialize)]
+struct PairJson<'a> {
+    pair_id: &'a str,
+    readouts: ReadoutsJson,
+    seconds: f64,
+}
+
+// Scores keyed `<precision>_<readout>` in row order, then SGBM's when it ran.
+#[derive(Serialize)]
+struct ReadoutsJson {
+    #[serde(flatten)]
+    rows: Keyed<ReadoutScore>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sgbm: Option<Metrics>,
 }
 
 #[cfg(test)]

@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 
 use bino_host::demo::{run_demo, DemoOptions, DEFAULT_BLOB};
 use bino_host::eval::DEFAULT_MAX_COLS;
-use bino_host::sha256::sha256_hex;
+use bino_host::files::sha256_hex;
 use bino_host::synthetic::default_scene;
 
 fn weights() -> PathBuf {

@@ -28,11 +28,11 @@ use crate::eval::{
     load_eval_item, mean_metrics, score, similarity_volume, upsample_disparity, wta_subtoken, DisparityMap, EvalItem,
     Metrics, SimilarityVolume,
 };
+use crate::files::sha256_hex;
 use crate::int8::{dequantise_residual, to_u8, Int8Model, StageRecorder};
 use crate::pairs::{read_index, Split};
 use crate::profile::{Profile, View};
 use crate::reference::{FeatureMap, ReferenceEncoder};
-use crate::sha256::sha256_hex;
 use stages::{mean_token_cosine, EmbedSource, FloatStages, STAGE_COUNT};
 
 /// What to compare, and on which pairs.

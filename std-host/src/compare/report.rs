@@ -3,8 +3,11 @@
 use std::fmt::Write;
 
 use super::stages::{stage_label, EmbedSource, STAGE_COUNT};
+use serde::Serialize;
+
 use super::{CompareReport, Comparison, HeadComparison, PairComparison};
-use crate::json::{self, Object};
+use crate::eval::Metrics;
+use crate::keyed::Keyed;
 
 /// Target: mean per-cell descriptor cosine at least this.
 pub const DESCRIPTOR_COSINE_TARGET: f64 = 0.99;
@@ -14,7 +17,7 @@ pub const WTA_AGREEMENT_TARGET: f64 = 98.0;
 pub const EPE_CHANGE_TARGET_PCT: f64 = 3.0;
 
 /// One of the acceptance targets, evaluated on the mean over pairs.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Check {
     /// Machine name (JSON key).
     pub name: &'static str,
@@ -179,93 +182,136 @@ impl CompareReport {
 
     /// The report as JSON: provenance, the mean, the targets and every pair.
     pub fn to_json(&self) -> String {
-        let checks = self.checks().into_iter().map(|c| {
-            Object::new()
-                .str("name", c.name)
-                .str("target", &c.target)
-                .num("value", c.value)
-                .bool("pass", c.pass)
-                .render()
-        });
-        Object::new()
-            .str("tool", "bino compare")
-            .str("version", &self.version)
-            .str("onnx", &self.onnx.display().to_string())
-            .str("blob", &self.blob.display().to_string())
-            .raw(
-                "head_onnx",
-                self.head
-                    .as_ref()
-                    .map_or("null".to_string(), |h| crate::json::string(&h.display().to_string())),
-            )
-            .str("blob_sha256", &self.blob_sha256)
-            .str("data", &self.data.display().to_string())
-            .str("split", &self.split.to_string())
-            .str("profile", &self.profile.to_string())
-            .int("max_cols", self.max_cols as u64)
-            .str(
-                "stage_pixels",
+        let json = CompareJson {
+            tool: "bino compare",
+            version: &self.version,
+            onnx: self.onnx.display().to_string(),
+            blob: self.blob.display().to_string(),
+            head_onnx: self.head.as_ref().map(|h| h.display().to_string()),
+            blob_sha256: &self.blob_sha256,
+            data: self.data.display().to_string(),
+            split: self.split.to_string(),
+            profile: self.profile.to_string(),
+            max_cols: self.max_cols,
+            stage_pixels:
                 "float stages run on the int8 engine's u8 pixels / 255; descriptors and metrics on the exact views",
-            )
-            .str(
-                "embed_value",
-                match self.embed_source {
-                    EmbedSource::GraphOutput => "embed",
-                    EmbedSource::InternalValue => "/Add_output_0",
-                },
-            )
-            .raw(
-                "stages",
-                json::array((0..STAGE_COUNT).map(|s| json::string(&stage_label(s)))),
-            )
-            .raw(
-                "mean",
-                comparison_json(&self.mean)
-                    .int("pairs", self.pairs.len() as u64)
-                    .render(),
-            )
-            .raw("targets", json::array(checks))
-            .raw("pairs", json::array(self.pairs.iter().map(pair_json)))
-            .render()
+            embed_value: match self.embed_source {
+                EmbedSource::GraphOutput => "embed",
+                EmbedSource::InternalValue => "/Add_output_0",
+            },
+            stages: (0..STAGE_COUNT).map(stage_label).collect(),
+            mean: MeanJson {
+                values: ComparisonJson::new(&self.mean),
+                pairs: self.pairs.len(),
+            },
+            targets: self.checks(),
+            pairs: self.pairs.iter().map(PairJson::new).collect(),
+        };
+        serde_json::to_string_pretty(&json).expect("plain structs serialise")
     }
 }
 
-fn pair_json(p: &PairComparison) -> String {
-    let fields = Object::new()
-        .str("pair_id", &p.pair_id)
-        .int("width", p.width as u64)
-        .int("height", p.height as u64)
-        .int("bands_per_view", p.bands as u64)
-        .num("seconds", p.elapsed.as_secs_f64());
-    comparison_fields(fields, &p.values).render()
+// The report's JSON, in the file's field order; paths as `Path::display` shows them.
+#[derive(Serialize)]
+struct CompareJson<'a> {
+    tool: &'static str,
+    version: &'a str,
+    onnx: String,
+    blob: String,
+    head_onnx: Option<String>,
+    blob_sha256: &'a str,
+    data: String,
+    split: String,
+    profile: String,
+    max_cols: usize,
+    stage_pixels: &'static str,
+    embed_value: &'static str,
+    stages: Vec<String>,
+    mean: MeanJson,
+    targets: Vec<Check>,
+    pairs: Vec<PairJson<'a>>,
 }
 
-fn comparison_json(c: &Comparison) -> Object {
-    comparison_fields(Object::new(), c)
+#[derive(Serialize)]
+struct MeanJson {
+    #[serde(flatten)]
+    values: ComparisonJson,
+    pairs: usize,
 }
 
-fn comparison_fields(object: Object, c: &Comparison) -> Object {
-    let stages = (0..STAGE_COUNT).fold(Object::new(), |o, s| o.num(&stage_label(s), c.stage_cosine[s]));
-    object
-        .raw("stage_cosine", stages.render())
-        .num("descriptor_cosine", c.descriptor_cosine)
-        .num("wta_agreement_pct", c.wta_agreement)
-        .num("wta_flip_loss", c.wta_flip_loss)
-        .num("wta_top2_gap", c.wta_top2_gap)
-        .raw("float", c.float.to_json())
-        .raw("int8", c.int8.to_json())
-        .num("epe_change_pct", c.epe_change_pct())
-        .raw("head", c.head.as_ref().map_or("null".to_string(), head_json))
+#[derive(Serialize)]
+struct PairJson<'a> {
+    pair_id: &'a str,
+    width: usize,
+    height: usize,
+    bands_per_view: usize,
+    seconds: f64,
+    #[serde(flatten)]
+    values: ComparisonJson,
 }
 
-fn head_json(h: &HeadComparison) -> String {
-    Object::new()
-        .num("logit_cosine", h.logit_cosine)
-        .num("disparity_mean_abs", h.disparity_mean_abs)
-        .raw("float", h.float.to_json())
-        .raw("int8", h.int8.to_json())
-        .num("epe_change_pct", h.epe_change_pct())
-        .render()
+impl<'a> PairJson<'a> {
+    fn new(p: &'a PairComparison) -> Self {
+        Self {
+            pair_id: &p.pair_id,
+            width: p.width,
+            height: p.height,
+            bands_per_view: p.bands,
+            seconds: p.elapsed.as_secs_f64(),
+            values: ComparisonJson::new(&p.values),
+        }
+    }
+}
+
+// A comparison with its derived numbers, stage cosines keyed by stage label.
+#[derive(Serialize)]
+struct ComparisonJson {
+    stage_cosine: Keyed<f64>,
+    descriptor_cosine: f64,
+    wta_agreement_pct: f64,
+    wta_flip_loss: f64,
+    wta_top2_gap: f64,
+    float: Metrics,
+    int8: Metrics,
+    epe_change_pct: f64,
+    head: Option<HeadJson>,
+}
+
+impl ComparisonJson {
+    fn new(c: &Comparison) -> Self {
+        Self {
+            stage_cosine: Keyed((0..STAGE_COUNT).map(|s| (stage_label(s), c.stage_cosine[s])).collect()),
+            descriptor_cosine: c.descriptor_cosine,
+            wta_agreement_pct: c.wta_agreement,
+            wta_flip_loss: c.wta_flip_loss,
+            wta_top2_gap: c.wta_top2_gap,
+            float: c.float,
+            int8: c.int8,
+            epe_change_pct: c.epe_change_pct(),
+            head: c.head.as_ref().map(HeadJson::new),
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct HeadJson {
+    logit_cosine: f64,
+    disparity_mean_abs: f64,
+    float: Metrics,
+    int8: Metrics,
+    epe_change_pct: f64,
+}
+
+impl HeadJson {
+    fn new(h: &HeadComparison) -> Self {
+        Self {
+            logit_cosine: h.logit_cosine,
+            disparity_mean_abs: h.disparity_mean_abs,
+            float: h.float,
+            int8: h.int8,
+            epe_change_pct: h.epe_change_pct(),
+        }
+    }
 }
 
 #[cfg(test)]
@@ -274,7 +320,6 @@ mod tests {
     use std::time::Duration;
 
     use super::*;
-    use crate::eval::Metrics;
     use crate::pairs::Split;
     use crate::profile::Profile;
 

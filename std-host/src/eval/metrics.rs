@@ -2,6 +2,7 @@
 //! over ground-truth-valid pixels of one pair, then the unweighted mean over pairs.
 
 use anyhow::{ensure, Result};
+use serde::Serialize;
 
 use super::gt::GroundTruthMap;
 use super::DisparityMap;
@@ -11,8 +12,8 @@ const BAD1TOK_PX: f32 = 4.0;
 /// Errors above this many pixels count towards `bad2`.
 const BAD2_PX: f32 = 2.0;
 
-/// Scores of one pair, or their mean over pairs.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Scores of one pair, or their mean over pairs; in JSON a non-finite value is `null`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize)]
 pub struct Metrics {
     /// Mean absolute disparity error in pixels at the profile's resolution.
     pub epe: f64,
@@ -22,26 +23,6 @@ pub struct Metrics {
     pub bad2: f64,
     /// % of pixels with a valid prediction before filling.
     pub density: f64,
-}
-
-impl Metrics {
-    /// `{"epe": .., "bad1tok": .., "bad2": .., "density": ..}`; a non-finite value is `null`.
-    pub fn to_json(&self) -> String {
-        let field = |v: f64| {
-            if v.is_finite() {
-                format!("{v}")
-            } else {
-                "null".to_string()
-            }
-        };
-        format!(
-            "{{\"epe\": {}, \"bad1tok\": {}, \"bad2\": {}, \"density\": {}}}",
-            field(self.epe),
-            field(self.bad1tok),
-            field(self.bad2),
-            field(self.density)
-        )
-    }
 }
 
 /// Scores a dense per-pixel prediction (in pixels) against ground truth; density 100.
@@ -204,7 +185,12 @@ mod tests {
         };
         let m = mean_metrics(&[a, b]).unwrap();
         assert_eq!((m.epe, m.bad1tok, m.density), (2.0, 2.0, 75.0));
-        assert_eq!(m.to_json(), r#"{"epe": 2, "bad1tok": 2, "bad2": 4, "density": 75}"#);
+        assert_eq!(
+            serde_json::to_string(&m).unwrap(),
+            r#"{"epe":2.0,"bad1tok":2.0,"bad2":4.0,"density":75.0}"#
+        );
+        let nan = Metrics { epe: f64::NAN, ..m };
+        assert!(serde_json::to_string(&nan).unwrap().starts_with(r#"{"epe":null,"#));
         assert!(mean_metrics(&[]).is_err());
     }
 }
