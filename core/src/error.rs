@@ -80,6 +80,17 @@ pub enum Error {
         /// The most supported.
         max: usize,
     },
+    /// A parameter or index is outside the range the operation takes.
+    OutOfRange {
+        /// Which parameter.
+        what: &'static str,
+        /// Its value.
+        value: usize,
+        /// The least allowed.
+        min: usize,
+        /// The most allowed.
+        max: usize,
+    },
     /// The weight blob is malformed or lacks a tensor the model needs.
     Blob(crate::blob::BlobError),
 }
@@ -117,6 +128,9 @@ impl fmt::Display for Error {
                     f,
                     "{requested} disparity candidates requested; row matching supports 1 to {max}"
                 )
+            }
+            Error::OutOfRange { what, value, min, max } => {
+                write!(f, "{what} {value} is outside {min}..={max}")
             }
             Error::Blob(e) => write!(f, "{e}"),
         }

@@ -3,7 +3,8 @@
 //! BINO is a 1.34M-parameter binocular ViT encoder that fuses a rectified stereo pair by
 //! pixel interleaving. This crate holds what every target shares: the model configuration
 //! ([`config`]) and the band plan that lets a fixed-size encoder cover images of any height
-//! ([`band`]). It never allocates and never panics on input: bad input is an [`Error`].
+//! ([`band`]); after the readouts, [`refine`] turns a token-grid disparity into pixels. It never
+//! allocates and never panics on input: bad input is an [`Error`].
 //!
 //! ```
 //! use bino_core::band::BandPlan;
@@ -29,6 +30,7 @@ pub mod lr;
 pub mod matching;
 pub mod model;
 pub mod pipeline;
+pub mod refine;
 pub mod sgm;
 #[cfg(test)]
 mod testutil;
