@@ -6,7 +6,8 @@ Two sets, both fixed for a run:
   over pairs) against StereoSGBM's pixels that pass its own checks and the sub-pixel left-right
   check (`head_data.consistent_sgbm`): agreement with confident SGBM, a proxy, not accuracy;
 - synthetic crops with exact disparity (`head_data.synthetic_sample`, seeds apart from any
-  training seed), scored on their labelled cells in px.
+  training seed), scored in px on the labelled cells whose match lies inside the right crop
+  (`head.supervised_cells`: the others have no candidate).
 
 Descriptors are computed once (`ValidationSet.build`); scoring a head costs only the head.
 """
@@ -22,7 +23,7 @@ import torch
 from numpy.typing import NDArray
 from torch import Tensor
 
-from .head import StereoHead
+from .head import StereoHead, supervised_cells
 from .head_data import (
     DataConfig,
     DescBatch,
@@ -99,7 +100,8 @@ class ValidationSet:
         syn = self.synthetic
         pred = head(syn.left.to(device), syn.right.to(device)).disparity.cpu()
         label = syn.label.cpu()
-        known = torch.isfinite(label)
+        # Cells whose true match lies outside the right crop have no candidate: not scored.
+        known = supervised_cells(label, head.cfg.max_disp)
         err = (pred[known] - label[known]).abs() * CELL
         head.train(was_training)
         return {
@@ -112,3 +114,30 @@ class ValidationSet:
             },
             "val_pairs": len(self.pairs),
         }
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Score head checkpoints on the validation sets (one set of descriptors for all)."""
+    import argparse
+    import json
+
+    from .export import load_encoder
+    from .head import load_head
+
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--encoder", type=Path, required=True, help="encoder the heads were trained on")
+    p.add_argument("--heads", type=Path, nargs="+", required=True, help="head checkpoints")
+    p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    args = p.parse_args(argv)
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+    encoder = load_encoder(args.encoder)
+    heads = {str(path): load_head(path) for path in args.heads}
+    data = DataConfig(crop_h=48, crop_w=160, max_disp=next(iter(heads.values())).cfg.max_disp)
+    val = ValidationSet.build(encoder, args.data, data)
+    print(json.dumps({name: val.score(head) for name, head in heads.items()}, indent=1))
+
+
+if __name__ == "__main__":
+    main()
