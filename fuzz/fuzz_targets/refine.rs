@@ -1,0 +1,87 @@
+//! The pixel refinement with arbitrary sizes, parameters, views, token grids and buffer
+//! lengths: `refine_map` over whole maps and `refine_row` with arbitrary windows and rows.
+#![no_main]
+
+use arbitrary::Arbitrary;
+use bino_core::refine::{refine_map, refine_row, scratch_len, RefineParams, TokenRows, ViewRows};
+use libfuzzer_sys::fuzz_target;
+
+#[derive(Debug, Arbitrary)]
+struct Input {
+    width: u8,
+    height: u8,
+    /// Parameters as given (out-of-range values included).
+    census_radius: u8,
+    search: u8,
+    lambda: u16,
+    box_radius: u8,
+    /// Length changes of the buffers (0: the right length).
+    tokens_delta: i8,
+    scratch_delta: i8,
+    out_delta: i8,
+    right_delta: i8,
+    pixels: Vec<u8>,
+    tokens: Vec<u16>,
+    /// refine_row: the row asked for, and the window's rows as indices into the view.
+    row: u16,
+    window: Vec<u8>,
+}
+
+fn resized<T: Copy + Default>(values: &[T], len: usize) -> Vec<T> {
+    (0..len)
+        .map(|i| values.get(i % values.len().max(1)).copied().unwrap_or_default())
+        .collect()
+}
+
+fn adjust(len: usize, delta: i8) -> usize {
+    (len as isize + delta as isize).max(0) as usize
+}
+
+fuzz_target!(|input: Input| {
+    let (w, h) = (usize::from(input.width % 64), usize::from(input.height % 40));
+    let params = RefineParams {
+        census_radius: usize::from(input.census_radius % 4),
+        search: usize::from(input.search % 11),
+        lambda: u32::from(input.lambda),
+        box_radius: usize::from(input.box_radius % 5),
+    };
+    let left = resized(&input.pixels, w * h);
+    let right: Vec<u8> = resized(&input.pixels, adjust(w * h, input.right_delta))
+        .iter()
+        .map(|p| p.wrapping_mul(7))
+        .collect();
+    let grid = w.div_ceil(4) * h.div_ceil(4);
+    let tokens = resized(&input.tokens, adjust(grid, input.tokens_delta));
+    let mut scratch = vec![0u32; adjust(scratch_len(w, &params), input.scratch_delta)];
+    let mut out = vec![0u16; adjust(w * h, input.out_delta)];
+    let _ = refine_map(&left, &right, w, &tokens, &params, &mut scratch, &mut out);
+
+    let rows: Vec<&[u8]> = input
+        .window
+        .iter()
+        .take(16)
+        .map(|&i| {
+            let y = usize::from(i) % h.max(1);
+            left.get(y * w..(y + 1) * w).unwrap_or(&[])
+        })
+        .collect();
+    let view = ViewRows {
+        height: h,
+        left: &rows,
+        right: &rows,
+    };
+    let cols = w.div_ceil(4);
+    let token_rows = TokenRows {
+        first: tokens.get(..cols).unwrap_or(&[]),
+        second: tokens.get(cols..2 * cols).unwrap_or(&tokens),
+    };
+    let mut row_out = vec![0u16; adjust(w, input.out_delta)];
+    let _ = refine_row(
+        usize::from(input.row),
+        &view,
+        &token_rows,
+        &params,
+        &mut scratch,
+        &mut row_out,
+    );
+});
