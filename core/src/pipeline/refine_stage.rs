@@ -31,7 +31,7 @@ use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS, CELL_W, PATCH_H};
 use crate::lr::fill_rejected;
 use crate::model::ids::HEAD_CONVS;
 use crate::refine::{
-    refine_row, scratch_len, token_rows, window_row, RefineParams, TokenRows, ViewRows, MAX_WINDOW_ROWS,
+    scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows, MAX_WINDOW_ROWS,
 };
 use crate::Error;
 
@@ -101,9 +101,10 @@ impl<'b> BandView<'b> {
     }
 }
 
-/// The scratch of one pixel row.
+/// The scratch of the pixel rows: the refiner's ring of census rows (valid while the scratch
+/// is not lent to the encoder: a new one per band) and the output row.
 pub(super) struct Scratch<'s> {
-    census: &'s mut [u32],
+    refiner: Option<RowRefiner<'s>>,
     out: &'s mut [u16],
     used: usize,
 }
@@ -115,7 +116,7 @@ impl<'s> Scratch<'s> {
         let census = carver.u32s(scratch_len(width, params))?;
         let out = carver.u16s(width)?;
         Ok(Self {
-            census,
+            refiner: Some(RowRefiner::new(census, width, params)?),
             out,
             used: carver.used(),
         })
@@ -124,7 +125,7 @@ impl<'s> Scratch<'s> {
     /// No scratch (a run without the refinement).
     pub fn none() -> Self {
         Self {
-            census: &mut [],
+            refiner: None,
             out: &mut [],
             used: 0,
         }
@@ -375,7 +376,14 @@ impl<'a> RefineStage<'a> {
                 second: self.token_row(second)?,
             };
             let scratch = &mut io.scratch;
-            refine_row(y, &rows, &tokens, &self.params, scratch.census, scratch.out)?;
+            let Some(refiner) = scratch.refiner.as_mut() else {
+                return Err(Error::BufferSize {
+                    what: "refinement scratch",
+                    expected: scratch_len(self.width, &self.params),
+                    found: 0,
+                });
+            };
+            refiner.refine_row(y, &rows, &tokens, scratch.out)?;
             sink.refined(y, scratch.out);
             self.next_y += 1;
         }
