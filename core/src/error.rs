@@ -91,6 +91,12 @@ pub enum Error {
         /// The most allowed.
         max: usize,
     },
+    /// A stage asked for a readout the run does not produce (the refinement of a head readout
+    /// without the head, or of head+lr without the head's left-right check).
+    MissingReadout {
+        /// The readout, as the host names it (`head+lr`, ...).
+        readout: &'static str,
+    },
     /// The weight blob is malformed or lacks a tensor the model needs.
     Blob(crate::blob::BlobError),
 }
@@ -131,6 +137,9 @@ impl fmt::Display for Error {
             }
             Error::OutOfRange { what, value, min, max } => {
                 write!(f, "{what} {value} is outside {min}..={max}")
+            }
+            Error::MissingReadout { readout } => {
+                write!(f, "the {readout} readout is not produced by this run")
             }
             Error::Blob(e) => write!(f, "{e}"),
         }

@@ -6,14 +6,29 @@
 //! - the no-linkage readout: cosine WTA + parabola ([`crate::matching`]),
 //! - streaming 4-path SGM on the same cosine costs ([`crate::sgm`]),
 //! - the left-right check of both, from the reindexed cost row ([`crate::lr`]),
-//! - the shared head, when asked for ([`crate::model::head`]).
+//! - the shared head, when asked for ([`crate::model::head`]);
+//!
+//! and, with [`Pipeline::run_refined`], one readout's token rows go on to the pixel
+//! refinement ([`crate::refine`]), which emits pixel rows ([`Sink::refined`]).
 //!
 //! Memory depends on the band and the width, never on the image height. Arena layout, in
 //! order: the two views' pixel band, the left descriptors of the band, then
 //! - one band (images up to 48 rows): the encoder's scratch, reused after both passes for the
-//!   right descriptors (written in place) and the readout streams;
-//! - several bands: the readout streams (they carry state from band to band), then the
-//!   encoder's scratch.
+//!   right descriptors (written in place), the readout streams and the refinement's state and
+//!   row scratch;
+//! - several bands: the readout streams and the refinement's state (they carry state from band
+//!   to band), then the encoder's scratch, which between passes holds the right descriptors and
+//!   the refinement's row scratch.
+//!
+//! # The refinement
+//! [`Refine`] names the readout whose token grid is refined ([`RefineInput`]; the rule of
+//! [`Refine::for_options`]: head+lr when the run checks the head, else sgm+lr) and the
+//! parameters. A `+lr` input is the readout's row filled by its own left-right check
+//! ([`crate::lr::fill_rejected`], as the host fills), so the pixel rows equal
+//! [`crate::refine::refine_map`] on the filled token map. The stage reads the view rows from the
+//! band buffer; only the head's rows, which trail the band by six token rows, need a small
+//! ring of view rows with several bands (see `refine_stage.rs`). For a 48x160 band pair the
+//! arena does not grow: the refinement fits beside the streams in the encoder's scratch.
 
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::band::{Band, BandPlan};
@@ -24,8 +39,13 @@ use crate::model::encoder::{self, Encoder, GrayBand};
 use crate::model::head::{self, HeadRow, HeadSink, HeadStream, HeadView, HeadWeights};
 use crate::model::ids::HEAD_CONVS;
 use crate::model::probe::NoProbe;
+use crate::refine::RefineParams;
 use crate::sgm::{state_len, Penalties, SgmStream};
 use crate::Error;
+
+mod refine_stage;
+
+use refine_stage::{BandView, RefineIo, RefineStage, Scratch, HEAD_LAG};
 
 /// Where the pipeline is; a [`Sink`] hears of every change (firmware marks stages with it).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -44,11 +64,14 @@ pub enum Stage {
     LeftRight,
     /// The shared head on one descriptor row.
     Head,
+    /// The pixel refinement of the rows one token row made computable (and the copy of view
+    /// rows it still needs before a band load).
+    Refine,
 }
 
 impl Stage {
     /// Every stage, in pipeline order.
-    pub const ALL: [Stage; 7] = [
+    pub const ALL: [Stage; 8] = [
         Stage::Rows,
         Stage::EncodeLeft,
         Stage::EncodeRight,
@@ -56,6 +79,7 @@ impl Stage {
         Stage::Sgm,
         Stage::LeftRight,
         Stage::Head,
+        Stage::Refine,
     ];
 
     /// A short lower-case name (reports, firmware logs).
@@ -68,6 +92,7 @@ impl Stage {
             Stage::Sgm => "sgm",
             Stage::LeftRight => "left_right",
             Stage::Head => "head",
+            Stage::Refine => "refine",
         }
     }
 }
@@ -166,6 +191,84 @@ pub struct Options {
     pub head_lr: bool,
 }
 
+/// The readout whose token grid the refinement reads, named as the host names readouts. A
+/// `+lr` input is the readout's disparity with the cells its left-right check rejects filled
+/// ([`crate::lr::fill_rejected`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RefineInput {
+    /// No-linkage WTA.
+    Nolink,
+    /// No-linkage WTA, filled by its left-right check.
+    NolinkLr,
+    /// SGM.
+    Sgm,
+    /// SGM, filled by its left-right check.
+    SgmLr,
+    /// The shared head (needs [`Options::head`]).
+    Head,
+    /// The shared head, filled by its own left-right check (needs [`Options::head`] and
+    /// [`Options::head_lr`]).
+    HeadLr,
+}
+
+impl RefineInput {
+    /// The rule: [`RefineInput::HeadLr`] when the run checks the head ([`Options::head`] and
+    /// [`Options::head_lr`]), else [`RefineInput::SgmLr`] — the best readout each run has
+    /// (README: head+lr at w160, sgm+lr the default of `bino run`).
+    pub const fn for_options(opts: &Options) -> Self {
+        if opts.head && opts.head_lr {
+            RefineInput::HeadLr
+        } else {
+            RefineInput::SgmLr
+        }
+    }
+
+    /// The host's name of the readout (`sgm+lr`, ...).
+    pub const fn name(self) -> &'static str {
+        match self {
+            RefineInput::Nolink => "nolink",
+            RefineInput::NolinkLr => "nolink+lr",
+            RefineInput::Sgm => "sgm",
+            RefineInput::SgmLr => "sgm+lr",
+            RefineInput::Head => "head",
+            RefineInput::HeadLr => "head+lr",
+        }
+    }
+
+    /// Whether it is one of the head's.
+    pub const fn uses_head(self) -> bool {
+        matches!(self, RefineInput::Head | RefineInput::HeadLr)
+    }
+
+    /// Token rows its rows trail the band's kept rows by.
+    const fn lag(self) -> usize {
+        if self.uses_head() {
+            HEAD_LAG
+        } else {
+            0
+        }
+    }
+}
+
+/// The pixel refinement as a pipeline stage: which readout it refines, with which parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Refine {
+    /// The readout whose token grid is refined.
+    pub input: RefineInput,
+    /// The refinement's parameters.
+    pub params: RefineParams,
+}
+
+impl Refine {
+    /// The default parameters on the readout [`RefineInput::for_options`] picks.
+    pub const fn for_options(opts: &Options) -> Self {
+        Self {
+            input: RefineInput::for_options(opts),
+            params: RefineParams::DEFAULT,
+        }
+    }
+}
+
 /// One token row of the matching readouts.
 #[derive(Debug, Clone, Copy)]
 pub struct MatchedRow<'r> {
@@ -215,6 +318,11 @@ pub trait Sink {
     fn head_checked(&mut self, row: &HeadChecked<'_>) {
         let _ = row;
     }
+    /// With [`Pipeline::run_refined`]: pixel row `row` of the refined disparity (`width`
+    /// values, Q8 px), top to bottom, every row once.
+    fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
+        let _ = (row, disparity_q8);
+    }
 }
 
 /// What a run used and kept.
@@ -237,6 +345,8 @@ pub struct Report {
     pub encoder: usize,
     /// Of which: the readout streams (matching, SGM, left-right, head).
     pub streams: usize,
+    /// Of which: the refinement's state and row scratch (0 without it).
+    pub refine: usize,
     /// Cells whose WTA disparity passed the left-right check.
     pub wta_kept: usize,
     /// Cells whose SGM disparity passed the left-right check.
@@ -319,32 +429,73 @@ const fn stream_bytes(cols: usize, max_cols: usize, head_lr: bool, streaming: bo
 /// [`Error::ArenaTooSmall`] (or earlier, as [`Error::TooWide`] / [`Error::Candidates`]); the
 /// result is never a small wrong size.
 pub const fn arena_bytes(height: usize, width: usize, max_cols: usize) -> usize {
-    arena_bytes_of(height, width, max_cols, false)
+    arena_bytes_of(height, width, max_cols, false, None)
 }
 
 /// [`arena_bytes`] with the head's left-right check ([`Options::head_lr`]): a second head
 /// stream.
 pub const fn arena_bytes_head_lr(height: usize, width: usize, max_cols: usize) -> usize {
-    arena_bytes_of(height, width, max_cols, true)
+    arena_bytes_of(height, width, max_cols, true, None)
 }
 
 /// The arena bytes a run with `opts` needs ([`arena_bytes`] or [`arena_bytes_head_lr`]).
 pub const fn arena_bytes_for(height: usize, width: usize, opts: &Options) -> usize {
-    arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr)
+    arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr, None)
 }
 
-const fn arena_bytes_of(height: usize, width: usize, max_cols: usize, head_lr: bool) -> usize {
+/// The arena bytes [`Pipeline::run_refined`] needs with `opts` and `refine`. For one band
+/// (images up to 48 rows) it equals [`arena_bytes_for`] wherever the refinement fits in the
+/// encoder's scratch beside the streams, as at 48x160; with several bands it adds
+/// [`refine_bytes`].
+pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, refine: &Refine) -> usize {
+    arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr, Some(refine))
+}
+
+/// Bytes of the refinement's buffers in a run of a `height x width` pair: its state kept
+/// across bands (two token rows; with several bands and a head input a ring of view rows) and
+/// its row scratch (census codes and the output row). 6,885 at 48x160 with the defaults;
+/// 13,925 for a taller image at width 160 refining a head readout (the 22-row view ring).
+pub const fn refine_bytes(height: usize, width: usize, refine: &Refine) -> usize {
+    let (state, scratch) = refine_parts(height, width, refine);
+    state.saturating_add(scratch)
+}
+
+/// The refinement's (state, row scratch) bytes.
+const fn refine_parts(height: usize, width: usize, refine: &Refine) -> (usize, usize) {
+    let ring = if height <= band_pixel_rows(height) {
+        0
+    } else {
+        refine_stage::ring_rows(refine.params.reach(), refine.input.lag())
+    };
+    (
+        refine_stage::state_bytes(width, ring),
+        refine_stage::scratch_bytes(width, &refine.params),
+    )
+}
+
+const fn arena_bytes_of(height: usize, width: usize, max_cols: usize, head_lr: bool, refine: Option<&Refine>) -> usize {
     let band_rows = band_pixel_rows(height);
     let cols = width / CELL_W;
     let pixels = band_rows.saturating_mul(width).saturating_mul(2);
     let descriptors = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(DIM);
     let encoder = encoder::arena_bytes(band_rows, width);
+    let (state, scratch) = match refine {
+        Some(r) => refine_parts(height, width, r),
+        None => (0, 0),
+    };
     if height <= band_rows {
         let streams = stream_bytes(cols, max_cols, head_lr, false);
-        sum(&[pixels, descriptors, max(encoder, descriptors.saturating_add(streams))])
+        let after = sum(&[descriptors, streams, state, scratch]);
+        sum(&[pixels, descriptors, max(encoder, after)])
     } else {
         let streams = stream_bytes(cols, max_cols, head_lr, true);
-        sum(&[pixels, descriptors, streams, encoder])
+        sum(&[
+            pixels,
+            descriptors,
+            streams,
+            state,
+            max(encoder, descriptors.saturating_add(scratch)),
+        ])
     }
 }
 
@@ -369,11 +520,40 @@ impl<'w> Pipeline<'w> {
         self.head.is_some()
     }
 
-    /// Runs the pair `source` delivers through every readout, in `arena`.
+    /// Runs the pair `source` delivers through every readout, in `arena`
+    /// ([`arena_bytes_for`] bytes at least).
     pub fn run(
         &self,
         source: &mut impl RowSource,
         opts: &Options,
+        arena: &mut [u8],
+        sink: &mut impl Sink,
+    ) -> Result<Report, Error> {
+        self.run_with(source, opts, None, arena, sink)
+    }
+
+    /// [`Pipeline::run`] with the pixel refinement of `refine.input`'s token grid: pixel rows
+    /// go to [`Sink::refined`]. The arena must hold [`arena_bytes_refined`] bytes.
+    ///
+    /// Errors as [`Pipeline::run`], and [`Error::MissingReadout`] for a head input of a run
+    /// without the head (or, for [`RefineInput::HeadLr`], without its check),
+    /// [`Error::OutOfRange`] for bad [`RefineParams`].
+    pub fn run_refined(
+        &self,
+        source: &mut impl RowSource,
+        opts: &Options,
+        refine: &Refine,
+        arena: &mut [u8],
+        sink: &mut impl Sink,
+    ) -> Result<Report, Error> {
+        self.run_with(source, opts, Some(refine), arena, sink)
+    }
+
+    fn run_with(
+        &self,
+        source: &mut impl RowSource,
+        opts: &Options,
+        refine: Option<&Refine>,
         arena: &mut [u8],
         sink: &mut impl Sink,
     ) -> Result<Report, Error> {
@@ -391,7 +571,20 @@ impl<'w> Pipeline<'w> {
             (true, None) => return Err(Error::Blob(crate::blob::BlobError::MissingTensor { id: head_id() })),
             (false, _) => None,
         };
-        let needed = arena_bytes_for(height, width, opts);
+        if let Some(r) = refine {
+            r.params.check()?;
+            let missing = match r.input {
+                RefineInput::Head => !opts.head,
+                RefineInput::HeadLr => !(opts.head && opts.head_lr),
+                _ => false,
+            };
+            if missing {
+                return Err(Error::MissingReadout {
+                    readout: r.input.name(),
+                });
+            }
+        }
+        let needed = arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr, refine);
         if arena.len() < needed {
             return Err(Error::ArenaTooSmall {
                 needed,
@@ -423,41 +616,74 @@ impl<'w> Pipeline<'w> {
             pipeline: self,
             head,
             opts,
+            refine,
             cols,
             width,
+            height,
             band_px,
+        };
+        let state_len = match refine {
+            Some(r) => refine_parts(height, width, r).0,
+            None => 0,
         };
         if plan.len() == 1 {
             let band = plan.get(0).ok_or(Error::EmptyImage)?;
             rows.load(band, left_px, right_px, sink)?;
             let (encoder_used, right_desc, rest) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
             sink.band(band, desc_left, right_desc);
-            let mut streams = Streams::new(&ctx, rest, false)?;
-            streams.push_band(band, desc_left, right_desc, sink)?;
-            streams.finish(sink)?;
+            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_lr(), false) + state_len;
+            let (stream_arena, rest) = rest.split_at_mut(stream_len.min(rest.len()));
+            let mut streams = Streams::new(&ctx, stream_arena, false)?;
+            let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
+            streams.push_band(band, desc_left, right_desc, &mut io, sink)?;
+            streams.finish(&mut io, sink)?;
             // The whole map is here: the mirrored head reruns the band on the left head's arena.
-            streams.check_head_band(band, desc_left, right_desc, sink)?;
+            streams.check_head_band(band, desc_left, right_desc, &mut io, sink)?;
+            streams.refine_done()?;
             report.encoder = encoder_used;
             report.streams = streams.used;
+            report.refine = streams.refine_used() + io.scratch.used();
             (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
             report.head_kept = streams.head_kept();
-            report.arena_used = report.pixels + desc_len + max(encoder_used, desc_len + streams.used);
+            let after = match refine {
+                // The refinement's state sits at a fixed offset after the streams' region.
+                Some(_) => stream_len - state_len + streams.refine_used() + io.scratch.used(),
+                None => streams.used,
+            };
+            report.arena_used = report.pixels + desc_len + max(encoder_used, desc_len + after);
         } else {
             let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_lr(), true);
-            let (stream_arena, scratch) = scratch.split_at_mut(stream_len);
+            let (stream_arena, scratch) = scratch.split_at_mut((stream_len + state_len).min(scratch.len()));
             let mut streams = Streams::new(&ctx, stream_arena, true)?;
-            for band in plan.iter() {
+            let mut scratch_used = 0;
+            for (i, band) in plan.iter().enumerate() {
+                if i > 0 {
+                    // Rows the refinement still needs that the load drops go to its ring.
+                    streams.keep_view_rows(&rows.view(left_px, right_px), band.start * PATCH_H, sink)?;
+                }
                 rows.load(band, left_px, right_px, sink)?;
-                let (encoder_used, right_desc, _) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
+                let (encoder_used, right_desc, rest) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
                 sink.band(band, desc_left, right_desc);
-                streams.push_band(band, desc_left, right_desc, sink)?;
+                let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
+                streams.push_band(band, desc_left, right_desc, &mut io, sink)?;
+                scratch_used = io.scratch.used();
                 report.encoder = report.encoder.max(encoder_used);
             }
-            streams.finish(sink)?;
+            // The encoder's scratch is free now: the last rows' refinement uses it from the
+            // same offset as between passes.
+            let rest = scratch.get_mut(desc_len..).unwrap_or_default();
+            let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
+            streams.finish(&mut io, sink)?;
+            streams.refine_done()?;
             report.streams = streams.used;
+            report.refine = streams.refine_used() + scratch_used.max(io.scratch.used());
             (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
             report.head_kept = streams.head_kept();
-            report.arena_used = report.pixels + desc_len + stream_len + report.encoder;
+            let refine_scratch = match refine {
+                Some(_) => desc_len + scratch_used.max(io.scratch.used()),
+                None => 0,
+            };
+            report.arena_used = report.pixels + desc_len + stream_len + state_len + report.encoder.max(refine_scratch);
         }
         Ok(report)
     }
@@ -473,8 +699,10 @@ struct Context<'p, 'w> {
     pipeline: &'p Pipeline<'w>,
     head: Option<HeadWeights<'w>>,
     opts: &'p Options,
+    refine: Option<&'p Refine>,
     cols: usize,
     width: usize,
+    height: usize,
     band_px: usize,
 }
 
@@ -482,6 +710,16 @@ impl Context<'_, '_> {
     /// Whether this run checks the head left against right.
     fn head_lr(&self) -> bool {
         self.head.is_some() && self.opts.head_lr
+    }
+
+    /// The refinement's view of the band buffer and its row scratch, cut from `arena` (none
+    /// without the refinement).
+    fn refine_io<'b>(&self, view: BandView<'b>, arena: &'b mut [u8]) -> Result<RefineIo<'b>, Error> {
+        let scratch = match self.refine {
+            Some(r) => Scratch::new(arena, self.width, &r.params)?,
+            None => Scratch::none(),
+        };
+        Ok(RefineIo { view, scratch })
     }
 
     /// Both encoder passes over the band in the pixel buffers: the left descriptors are copied
@@ -528,6 +766,17 @@ struct BandRows<'s, S> {
 }
 
 impl<S: RowSource> BandRows<'_, S> {
+    /// The rows the buffers `left` and `right` hold now.
+    fn view<'b>(&self, left: &'b [u8], right: &'b [u8]) -> BandView<'b> {
+        BandView {
+            first: self.first,
+            rows: self.loaded - self.first,
+            width: self.width,
+            left,
+            right,
+        }
+    }
+
     /// Makes the buffers hold `band`'s pixel rows: keeps the overlap with the previous band,
     /// reads the rest.
     fn load(&mut self, band: Band, left: &mut [u8], right: &mut [u8], sink: &mut impl Sink) -> Result<(), Error> {
@@ -558,11 +807,39 @@ impl<S: RowSource> BandRows<'_, S> {
     }
 }
 
+/// The refinement fed from inside a head stream's callback.
+struct Feed<'k, 'a, 'b> {
+    stage: &'k mut RefineStage<'a>,
+    io: &'k mut RefineIo<'b>,
+}
+
+impl Feed<'_, '_, '_> {
+    /// The refinement's input `want`, when it is the run's.
+    fn of<'k, 'a, 'b>(
+        refine: &'k mut Option<(RefineInput, RefineStage<'a>)>,
+        io: &'k mut RefineIo<'b>,
+        want: RefineInput,
+    ) -> Option<Feed<'k, 'a, 'b>> {
+        match refine {
+            Some((input, stage)) if *input == want => Some(Feed { stage, io }),
+            _ => None,
+        }
+    }
+
+    /// Pushes a head row (errors kept for [`RefineStage::check`]), back in the head stage after.
+    fn push(&mut self, row: usize, disparity_q8: &[u16], mask: Option<&[u8]>, sink: &mut impl Sink) {
+        sink.stage(Stage::Refine);
+        self.stage.push_or_keep(row, disparity_q8, mask, self.io, sink);
+        sink.stage(Stage::Head);
+    }
+}
+
 /// Forwards the left head's rows to the pipeline's sink, keeping their disparities for the
-/// check when there is one.
-struct HeadRows<'k, 'c, 'a, K> {
+/// check when there is one, and to the refinement when it reads the head unchecked.
+struct HeadRows<'k, 'a, 'b, K> {
     sink: &'k mut K,
-    check: Option<&'c mut HeadCheck<'a>>,
+    check: Option<&'k mut HeadCheck<'a>>,
+    refine: Option<Feed<'k, 'a, 'b>>,
 }
 
 impl<K: Sink> HeadSink for HeadRows<'_, '_, '_, K> {
@@ -570,7 +847,11 @@ impl<K: Sink> HeadSink for HeadRows<'_, '_, '_, K> {
         if let Some(check) = self.check.as_deref_mut() {
             check.keep_left(row.row, row.disparity_q8);
         }
+        let (index, disparity) = (row.row, row.disparity_q8);
         self.sink.head(row);
+        if let Some(feed) = self.refine.as_mut() {
+            feed.push(index, disparity, None, self.sink);
+        }
     }
 }
 
@@ -600,10 +881,12 @@ impl HeadCheck<'_> {
     }
 }
 
-/// Checks the mirrored head's rows against the left rows kept for them.
-struct CheckedRows<'k, 'c, 'a, K> {
+/// Checks the mirrored head's rows against the left rows kept for them; feeds the refinement
+/// the filled left row when it reads head+lr.
+struct CheckedRows<'k, 'a, 'b, K> {
     sink: &'k mut K,
-    check: &'c mut HeadCheck<'a>,
+    check: &'k mut HeadCheck<'a>,
+    refine: Option<Feed<'k, 'a, 'b>>,
 }
 
 impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
@@ -624,6 +907,9 @@ impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
             right_q8: row.disparity_q8,
             consistent: check.mask,
         });
+        if let Some(feed) = self.refine.as_mut() {
+            feed.push(row.row, left, Some(check.mask), self.sink);
+        }
     }
 }
 
@@ -647,6 +933,8 @@ struct Streams<'a, 'w> {
     head: Option<HeadStream<'a, 'w>>,
     /// With `head_lr`: the mirrored head and the check.
     check: Option<(Option<HeadStream<'a, 'w>>, HeadCheck<'a>)>,
+    /// With the refinement: the readout it reads and its state.
+    refine: Option<(RefineInput, RefineStage<'a>)>,
     used: usize,
     wta_kept: usize,
     sgm_kept: usize,
@@ -657,6 +945,25 @@ impl<'a, 'w> Streams<'a, 'w> {
     /// a mirrored head beside the left one instead of rerunning the band after it.
     fn new(ctx: &Context<'_, 'w>, arena: &'a mut [u8], streaming: bool) -> Result<Self, Error> {
         let (cols, max_cols) = (ctx.cols, ctx.opts.max_cols);
+        let streams = stream_bytes(cols, max_cols, ctx.head_lr(), streaming);
+        let (arena, refine_arena) = arena.split_at_mut(streams.min(arena.len()));
+        let refine = match ctx.refine {
+            Some(r) => {
+                let (state, _) = refine_parts(ctx.height, ctx.width, r);
+                let ring = if streaming {
+                    refine_stage::ring_rows(r.params.reach(), r.input.lag())
+                } else {
+                    0
+                };
+                let available = streams.saturating_add(refine_arena.len());
+                let arena = refine_arena.get_mut(..state).ok_or(Error::ArenaTooSmall {
+                    needed: streams.saturating_add(state),
+                    available,
+                })?;
+                Some((r.input, RefineStage::new(r.params, ctx.width, ctx.height, ring, arena)?))
+            }
+            None => None,
+        };
         let volume_row = state_len(cols, max_cols);
         let matching = matching_bytes(cols, max_cols);
         let (matching_arena, head_arena) = arena.split_at_mut(matching.min(arena.len()));
@@ -738,10 +1045,35 @@ impl<'a, 'w> Streams<'a, 'w> {
             sgm_mask,
             head,
             check,
+            refine,
             used,
             wta_kept: 0,
             sgm_kept: 0,
         })
+    }
+
+    /// Arena bytes of the refinement's state (0 without it).
+    fn refine_used(&self) -> usize {
+        self.refine.as_ref().map_or(0, |(_, stage)| stage.used())
+    }
+
+    /// Before a band load that drops the rows above `new_first`.
+    fn keep_view_rows(&mut self, view: &BandView<'_>, new_first: usize, sink: &mut impl Sink) -> Result<(), Error> {
+        let Some((_, stage)) = self.refine.as_mut() else {
+            return Ok(());
+        };
+        sink.stage(Stage::Refine);
+        stage.keep_before(view, new_first)
+    }
+
+    /// After the last row: the refinement emitted every pixel row and kept no error.
+    fn refine_done(&self) -> Result<(), Error> {
+        self.refine.as_ref().map_or(Ok(()), |(_, stage)| stage.done())
+    }
+
+    /// Errors a head callback kept.
+    fn refine_check(&self) -> Result<(), Error> {
+        self.refine.as_ref().map_or(Ok(()), |(_, stage)| stage.check())
     }
 
     /// Cells the head's left-right check kept (0 without it).
@@ -750,15 +1082,29 @@ impl<'a, 'w> Streams<'a, 'w> {
     }
 
     /// Feeds the rows `band` keeps.
-    fn push_band(&mut self, band: Band, left: &[i8], right: &[i8], sink: &mut impl Sink) -> Result<(), Error> {
+    fn push_band(
+        &mut self,
+        band: Band,
+        left: &[i8],
+        right: &[i8],
+        io: &mut RefineIo<'_>,
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
         for row in band.keep_from..band.keep_to {
             let (l, r) = kept_row(band, row, self.cols, left, right)?;
-            self.push_row(row, l, r, sink)?;
+            self.push_row(row, l, r, io, sink)?;
         }
         Ok(())
     }
 
-    fn push_row(&mut self, row: usize, left: &[i8], right: &[i8], sink: &mut impl Sink) -> Result<(), Error> {
+    fn push_row(
+        &mut self,
+        row: usize,
+        left: &[i8],
+        right: &[i8],
+        io: &mut RefineIo<'_>,
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
         let mc = self.max_cols;
         sink.stage(Stage::Match);
         inverse_norms(left, self.inv_left)?;
@@ -780,61 +1126,105 @@ impl<'a, 'w> Streams<'a, 'w> {
             wta_consistent: self.wta_mask,
             sgm_consistent: self.sgm_mask,
         });
-        if let Some(head) = self.head.as_mut() {
-            sink.stage(Stage::Head);
-            match self.check.as_mut() {
-                Some((mirror, check)) => {
-                    head.push_row(
-                        left,
-                        right,
-                        &mut HeadRows {
-                            sink,
-                            check: Some(check),
-                        },
-                    )?;
-                    if let Some(mirror) = mirror {
-                        mirror.push_row(left, right, &mut CheckedRows { sink, check })?;
-                    }
-                }
-                None => head.push_row(left, right, &mut HeadRows { sink, check: None })?,
+        if let Some((input, stage)) = self.refine.as_mut() {
+            let matched = match *input {
+                RefineInput::Nolink => Some((&*self.wta, None)),
+                RefineInput::NolinkLr => Some((&*self.wta, Some(&*self.wta_mask))),
+                RefineInput::Sgm => Some((&*self.sgm_out, None)),
+                RefineInput::SgmLr => Some((&*self.sgm_out, Some(&*self.sgm_mask))),
+                RefineInput::Head | RefineInput::HeadLr => None,
+            };
+            if let Some((disparity, mask)) = matched {
+                sink.stage(Stage::Refine);
+                stage.push(row, disparity, mask, io, sink)?;
             }
         }
-        Ok(())
+        self.head_rows(Some((left, right)), io, sink)
     }
 
-    fn finish(&mut self, sink: &mut impl Sink) -> Result<(), Error> {
-        if let Some(head) = self.head.as_mut() {
-            sink.stage(Stage::Head);
-            match self.check.as_mut() {
-                Some((mirror, check)) => {
-                    head.finish(&mut HeadRows {
-                        sink,
-                        check: Some(check),
-                    })?;
-                    if let Some(mirror) = mirror {
-                        mirror.finish(&mut CheckedRows { sink, check })?;
-                    }
+    /// The head streams on the next descriptor row, or (`None`) at the end of the input.
+    fn head_rows(
+        &mut self,
+        input: Option<(&[i8], &[i8])>,
+        io: &mut RefineIo<'_>,
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
+        let Some(head) = self.head.as_mut() else {
+            return Ok(());
+        };
+        sink.stage(Stage::Head);
+        match self.check.as_mut() {
+            Some((mirror, check)) => {
+                let mut rows = HeadRows {
+                    sink: &mut *sink,
+                    check: Some(&mut *check),
+                    refine: Feed::of(&mut self.refine, io, RefineInput::Head),
+                };
+                head_step(head, input, &mut rows)?;
+                if let Some(mirror) = mirror {
+                    let mut rows = CheckedRows {
+                        sink: &mut *sink,
+                        check,
+                        refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr),
+                    };
+                    head_step(mirror, input, &mut rows)?;
                 }
-                None => head.finish(&mut HeadRows { sink, check: None })?,
+            }
+            None => {
+                let mut rows = HeadRows {
+                    sink: &mut *sink,
+                    check: None,
+                    refine: Feed::of(&mut self.refine, io, RefineInput::Head),
+                };
+                head_step(head, input, &mut rows)?;
             }
         }
-        Ok(())
+        self.refine_check()
+    }
+
+    fn finish(&mut self, io: &mut RefineIo<'_>, sink: &mut impl Sink) -> Result<(), Error> {
+        self.head_rows(None, io, sink)
     }
 
     /// One band, after [`Streams::finish`]: the mirrored head over the band's rows on the left
     /// head's arena, checked against the left rows it kept (a no-op unless the check is on and
     /// not already streamed).
-    fn check_head_band(&mut self, band: Band, left: &[i8], right: &[i8], sink: &mut impl Sink) -> Result<(), Error> {
+    fn check_head_band(
+        &mut self,
+        band: Band,
+        left: &[i8],
+        right: &[i8],
+        io: &mut RefineIo<'_>,
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
         let (Some(head), Some((None, check))) = (self.head.as_mut(), self.check.as_mut()) else {
             return Ok(());
         };
         sink.stage(Stage::Head);
         head.restart(HeadView::Right);
+        let mut rows = CheckedRows {
+            sink,
+            check,
+            refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr),
+        };
         for row in band.keep_from..band.keep_to {
             let (l, r) = kept_row(band, row, self.cols, left, right)?;
-            head.push_row(l, r, &mut CheckedRows { sink, check })?;
+            head.push_row(l, r, &mut rows)?;
         }
-        head.finish(&mut CheckedRows { sink, check })
+        head.finish(&mut rows)?;
+        self.refine_check()
+    }
+}
+
+/// One step of a head stream: the next descriptor row, or (`None`) the end of the input.
+fn head_step(
+    stream: &mut HeadStream<'_, '_>,
+    input: Option<(&[i8], &[i8])>,
+    rows: &mut impl HeadSink,
+) -> Result<(), Error> {
+    match input {
+        Some((left, right)) => stream.push_row(left, right, rows),
+        None => stream.finish(rows),
     }
 }
 

@@ -207,7 +207,7 @@ def main():
         "arena_bytes": header.get("arena_bytes"),
         "arena_used": arena.get("arena_used"),
         "arena_painted_high_water": arena.get("painted_high_water"),
-        "arena_breakdown": {k: arena.get(k) for k in ("pixels", "descriptors", "encoder", "streams")},
+        "arena_breakdown": {k: arena.get(k) for k in ("pixels", "descriptors", "encoder", "streams", "refine")},
         "stack_bytes": header.get("stack_bytes"),
         "stack_peak": max((s["stack_peak"] for s in stages), default=None),
         "stages": stages,

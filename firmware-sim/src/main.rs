@@ -80,6 +80,7 @@ markers! {
     bino_mark_sgm = 5;
     bino_mark_left_right = 6;
     bino_mark_head = 7;
+    bino_mark_refine = 8;
     bino_mark_end = 0xFFFF;
 }
 
@@ -94,6 +95,7 @@ fn mark(stage: Stage) {
         Stage::Pipeline(P::Sgm) => bino_mark_sgm(),
         Stage::Pipeline(P::LeftRight) => bino_mark_left_right(),
         Stage::Pipeline(P::Head) => bino_mark_head(),
+        Stage::Pipeline(P::Refine) => bino_mark_refine(),
     }
 }
 
@@ -236,7 +238,7 @@ fn main() -> ! {
             let r = &outcome.report;
             let arena_ok = r.arena_used == expected::ARENA_USED && painted <= r.arena_used;
             defmt::println!(
-                "bino arena_used={=usize} expected={=usize} painted_high_water={=usize} pixels={=usize} descriptors={=usize} encoder={=usize} streams={=usize} wta_kept={=usize} sgm_kept={=usize}",
+                "bino arena_used={=usize} expected={=usize} painted_high_water={=usize} pixels={=usize} descriptors={=usize} encoder={=usize} streams={=usize} refine={=usize} wta_kept={=usize} sgm_kept={=usize}",
                 r.arena_used,
                 expected::ARENA_USED,
                 painted,
@@ -244,6 +246,7 @@ fn main() -> ! {
                 r.descriptors,
                 r.encoder,
                 r.streams,
+                r.refine,
                 r.wta_kept,
                 r.sgm_kept
             );

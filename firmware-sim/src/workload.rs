@@ -2,13 +2,14 @@
 //! on the host to bake the expected digests in): one band pair through
 //! `bino_core::pipeline` — both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the
 //! left-right check, the shared head and its own left-right check (the head on the mirrored
-//! pair, rerun on the head's arena), row by row — with a CRC-32 digest of every output.
+//! pair, rerun on the head's arena), row by row, and the pixel refinement of the head+lr grid —
+//! with a CRC-32 digest of every output.
 
 use bino_core::band::Band;
 use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Report, Sink, SlicePair};
+use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Refine, Report, Sink, SlicePair};
 use bino_core::sgm::Penalties;
 use bino_core::Error;
 
@@ -23,9 +24,13 @@ pub const OPTIONS: Options = Options {
     head_lr: true,
 };
 
+/// The pixel refinement: the default parameters on the readout the pipeline's rule picks for
+/// [`OPTIONS`] (head+lr, the readout `bino run` shows at w160).
+pub const REFINE: Refine = Refine::for_options(&OPTIONS);
+
 /// Arena bytes the workload needs for a `height x width` band pair.
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes_for(height, width, &OPTIONS)
+    pipeline::arena_bytes_refined(height, width, &OPTIONS, &REFINE)
 }
 
 /// The stages the firmware reports: blob loading, then the pipeline's own.
@@ -68,7 +73,7 @@ impl Stage {
 }
 
 /// The outputs the firmware digests, in order.
-pub const OUTPUTS: [&str; 7] = [
+pub const OUTPUTS: [&str; 8] = [
     "descriptors_left",
     "descriptors_right",
     "wta",
@@ -76,6 +81,7 @@ pub const OUTPUTS: [&str; 7] = [
     "left_right",
     "head",
     "head_left_right",
+    "refined",
 ];
 
 /// What the workload tells its caller about where it is.
@@ -154,6 +160,10 @@ impl<H: Hooks> Sink for Recorder<'_, H> {
             c[6].update(row.consistent);
         });
     }
+
+    fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
+        self.digest(|c| update_u16(&mut c[7], disparity_q8));
+    }
 }
 
 /// A band pair and its size.
@@ -180,7 +190,7 @@ pub fn run(blob: &[u8], pair: BandPair<'_>, arena: &mut [u8], hooks: &mut impl H
         current: Stage::Load,
         crcs: [Crc32::new(); OUTPUTS.len()],
     };
-    let report = pipeline.run(&mut source, &OPTIONS, arena, &mut recorder);
+    let report = pipeline.run_refined(&mut source, &OPTIONS, &REFINE, arena, &mut recorder);
     recorder.hooks.finish();
     Ok(Outcome {
         digests: recorder.crcs.map(|c| c.finish()),
@@ -190,7 +200,8 @@ pub fn run(blob: &[u8], pair: BandPair<'_>, arena: &mut [u8], hooks: &mut impl H
 
 /// Arena bytes in use during each stage (index as [`Stage::index`]) of a one-band run, from the
 /// pipeline's report: the pixel band, plus the left descriptors and the encoder's scratch while
-/// encoding, plus both descriptor maps and the readout streams afterwards.
+/// encoding, plus both descriptor maps and the readout streams afterwards, and the
+/// refinement's buffers while it refines.
 pub fn arena_per_stage(r: &Report) -> [usize; Stage::COUNT] {
     let mut out = [0; Stage::COUNT];
     for (i, o) in out.iter_mut().enumerate() {
@@ -200,6 +211,7 @@ pub fn arena_per_stage(r: &Report) -> [usize; Stage::COUNT] {
             Stage::Pipeline(pipeline::Stage::EncodeLeft | pipeline::Stage::EncodeRight) => {
                 r.pixels + r.descriptors + r.encoder
             }
+            Stage::Pipeline(pipeline::Stage::Refine) => r.pixels + 2 * r.descriptors + r.streams + r.refine,
             Stage::Pipeline(_) => r.pixels + 2 * r.descriptors + r.streams,
         };
     }

@@ -2,7 +2,9 @@
 //! shipped blob, the embedded 48x160 band pair) gives bit-identical outputs run after run and
 //! on several threads at once on the host, and the same digests the Cortex-M55 and Cortex-M7
 //! firmwares computed under QEMU (`firmware-sim/measured/*.json`, written by
-//! `scripts/firmware.sh --profile --out firmware-sim/measured`).
+//! `scripts/firmware.sh --profile --out firmware-sim/measured`). The refined rows' digest is
+//! also recomputed from the specification: `refine::refine_map` on the whole head+lr token map
+//! of a plain pipeline run.
 
 use std::path::{Path, PathBuf};
 
@@ -10,7 +12,13 @@ use std::path::{Path, PathBuf};
 #[allow(dead_code)]
 mod workload;
 
-use workload::{BandPair, Hooks, Stage, OUTPUTS};
+use bino_core::blob::Blob;
+use bino_core::crc32::Crc32;
+use bino_core::lr::fill_rejected;
+use bino_core::model::head::HeadRow;
+use bino_core::pipeline::{HeadChecked, MatchedRow, Pipeline, RefineInput, Sink, SlicePair};
+use bino_core::refine::{refine_map, scratch_len};
+use workload::{BandPair, Hooks, Stage, OPTIONS, OUTPUTS, REFINE};
 
 struct Quiet;
 
@@ -57,6 +65,55 @@ fn firmware_digests(core: &str) -> Vec<(String, u32)> {
         .collect()
 }
 
+/// The head's rows and its check's masks of a run, by token row.
+struct HeadMaps {
+    cols: usize,
+    head: Vec<u16>,
+    mask: Vec<u8>,
+}
+
+impl Sink for HeadMaps {
+    fn matched(&mut self, _: &MatchedRow<'_>) {}
+    fn head(&mut self, row: HeadRow<'_>) {
+        let c = self.cols;
+        self.head[row.row * c..(row.row + 1) * c].copy_from_slice(row.disparity_q8);
+    }
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        let c = self.cols;
+        self.mask[row.row * c..(row.row + 1) * c].copy_from_slice(row.consistent);
+    }
+}
+
+/// CRC-32 of `refine_map` on the filled head+lr grid of a run without the refinement stage,
+/// rows top to bottom, values little-endian: what the workload's `refined` digest must be.
+fn refined_digest_from_the_whole_map(blob: &[u8], left: &[u8], right: &[u8]) -> u32 {
+    let (height, width) = (48, 160);
+    assert_eq!(REFINE.input, RefineInput::HeadLr);
+    let pipeline = Pipeline::new(Blob::parse(blob).unwrap()).unwrap();
+    let cols = width / 4;
+    let cells = height / 4 * cols;
+    let mut maps = HeadMaps {
+        cols,
+        head: vec![0; cells],
+        mask: vec![0; cells],
+    };
+    let mut arena = vec![0u8; bino_core::pipeline::arena_bytes_for(height, width, &OPTIONS)];
+    let mut source = SlicePair::new(left, right, width, height).unwrap();
+    pipeline.run(&mut source, &OPTIONS, &mut arena, &mut maps).unwrap();
+    let mut grid = maps.head.clone();
+    for (row, m) in grid.chunks_exact_mut(cols).zip(maps.mask.chunks_exact(cols)) {
+        fill_rejected(row, m).unwrap();
+    }
+    let mut scratch = vec![0u32; scratch_len(width, &REFINE.params)];
+    let mut refined = vec![0u16; width * height];
+    refine_map(left, right, width, &grid, &REFINE.params, &mut scratch, &mut refined).unwrap();
+    let mut crc = Crc32::new();
+    for v in refined {
+        crc.update(&v.to_le_bytes());
+    }
+    crc.finish()
+}
+
 #[test]
 fn outputs_are_bit_identical_across_runs_threads_and_targets() {
     let blob = std::fs::read(repo().join("weights/bino_int8.bin")).unwrap();
@@ -65,6 +122,12 @@ fn outputs_are_bit_identical_across_runs_threads_and_targets() {
     let right = std::fs::read(assets.join("band_48x160_right.gray")).unwrap();
 
     let first = digests(&blob, &left, &right);
+    let refined = OUTPUTS.iter().position(|&n| n == "refined").unwrap();
+    assert_eq!(
+        first[refined],
+        refined_digest_from_the_whole_map(&blob, &left, &right),
+        "the streamed refinement against refine_map on the whole head+lr map"
+    );
     assert_eq!(digests(&blob, &left, &right), first, "a second run on the host");
     let threads: Vec<[u32; OUTPUTS.len()]> = std::thread::scope(|scope| {
         let handles: Vec<_> = (0..3).map(|_| scope.spawn(|| digests(&blob, &left, &right))).collect();

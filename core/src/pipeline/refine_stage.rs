@@ -1,0 +1,616 @@
+//! The pixel refinement ([`crate::refine`]) as a stage of the pipeline: token rows of one
+//! readout in (as the readouts emit them), refined pixel rows out through [`Sink::refined`],
+//! top to bottom, each image row once.
+//!
+//! # When a pixel row is made
+//! Pixel row `y` reads the token rows [`token_rows`]`(y)` (`c - 1, c` or `c, c + 1`, `c = y / 4`)
+//! and the view rows `y - reach ..= y + reach` ([`RefineParams::reach`], 4 for the defaults).
+//! Token row `t` arriving makes pixel rows `4t - 2 ..= 4t + 1` computable (the last token row
+//! also the two below it), so two token rows are all the stage keeps, filled by the readout's
+//! left-right check when the readout is a `+lr` one ([`fill_rejected`], as the host fills).
+//!
+//! # Where the view rows come from
+//! From the pipeline's own band buffer whenever they are still there: the matching readouts
+//! (nolink, sgm) emit token row `t` while the band holding it is in the buffer, and the rows
+//! `t` needs lie at least [`CUT_MARGIN`] token rows inside that band (the band plan cuts in the
+//! middle of each overlap), so they never need a copy. The head's rows trail its input by
+//! [`HEAD_LAG`] token rows: some arrive after the next band was loaded over the rows they
+//! need. Before each band load the stage copies the rows it still needs and the load would
+//! drop into a small ring ([`ring_rows`]: 22 rows of each view for the head with the default
+//! reach, none for the matching readouts or one band).
+//!
+//! # Memory
+//! State kept across bands ([`state_bytes`]): two token rows and the ring. Scratch used only
+//! inside a row ([`scratch_bytes`]): the census codes of [`crate::refine::scratch_len`] and the
+//! output row; with several bands it lives in the encoder's scratch (free between passes), with
+//! one band beside the readout streams (which share the encoder's scratch after both passes).
+
+use super::{sum, Sink};
+use crate::arena::{Carver, ALIGN_SLACK};
+use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS, CELL_W, PATCH_H};
+use crate::lr::fill_rejected;
+use crate::model::ids::HEAD_CONVS;
+use crate::refine::{
+    scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows, MAX_WINDOW_ROWS,
+};
+use crate::Error;
+
+/// Token rows the head's output trails its input by (one per convolution).
+pub(super) const HEAD_LAG: usize = HEAD_CONVS;
+
+/// Token rows a band's kept rows stay clear of the next band's first row: the plan cuts in the
+/// middle of an overlap of at least `BAND_TOKEN_ROWS - BAND_STRIDE_TOKEN_ROWS` rows.
+pub(super) const CUT_MARGIN: usize = (BAND_TOKEN_ROWS - BAND_STRIDE_TOKEN_ROWS) / 2;
+
+/// View rows of each view the ring holds for a readout whose rows trail the band's by `lag`
+/// token rows, with several bands.
+///
+/// At a band load the last token row received is at most `keep_to - 1 - lag`, so the next pixel
+/// row is `y = 4 (keep_to - lag) - 2` and the oldest row still needed `y - reach`; the next band
+/// starts at least [`CUT_MARGIN`] token rows above `keep_to`. The rows in between:
+/// `4 lag + 2 + reach - 4 CUT_MARGIN` (22 for the head with the default reach of 4; none for
+/// `lag` 0 and any reach up to 6).
+pub(super) const fn ring_rows(reach: usize, lag: usize) -> usize {
+    PATCH_H
+        .saturating_mul(lag)
+        .saturating_add(PATCH_H / 2)
+        .saturating_add(reach)
+        .saturating_sub(PATCH_H * CUT_MARGIN)
+}
+
+/// Arena bytes of the state kept across bands: two token rows (`u16`) and `ring` rows of both
+/// views (`u8`).
+pub(super) const fn state_bytes(width: usize, ring: usize) -> usize {
+    let cols = width / CELL_W;
+    sum(&[
+        cols.saturating_mul(2 * 2).saturating_add(1),
+        ring.saturating_mul(width).saturating_mul(2),
+    ])
+}
+
+/// Arena bytes of the scratch one pixel row uses: the census codes (`u32`) and the output row
+/// (`u16`).
+pub(super) const fn scratch_bytes(width: usize, params: &RefineParams) -> usize {
+    sum(&[
+        scratch_len(width, params).saturating_mul(4).saturating_add(ALIGN_SLACK),
+        width.saturating_mul(2).saturating_add(1),
+    ])
+}
+
+/// The pixel rows the band buffer holds now.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct BandView<'b> {
+    /// Image row of buffer row 0.
+    pub first: usize,
+    /// Rows held.
+    pub rows: usize,
+    /// Width of a row.
+    pub width: usize,
+    /// Left-view rows (at least `rows x width` pixels).
+    pub left: &'b [u8],
+    /// Right-view rows.
+    pub right: &'b [u8],
+}
+
+impl<'b> BandView<'b> {
+    /// Image row `v` of both views, when the buffer holds it.
+    fn row(&self, v: usize) -> Option<(&'b [u8], &'b [u8])> {
+        let i = v.checked_sub(self.first).filter(|&i| i < self.rows)?;
+        let range = i * self.width..(i + 1) * self.width;
+        Some((self.left.get(range.clone())?, self.right.get(range)?))
+    }
+}
+
+/// The scratch of the pixel rows: the refiner's ring of census rows (valid while the scratch
+/// is not lent to the encoder: a new one per band) and the output row.
+pub(super) struct Scratch<'s> {
+    refiner: Option<RowRefiner<'s>>,
+    out: &'s mut [u16],
+    used: usize,
+}
+
+impl<'s> Scratch<'s> {
+    /// Cuts the scratch for rows of `width` from the front of `arena`.
+    pub fn new(arena: &'s mut [u8], width: usize, params: &RefineParams) -> Result<Self, Error> {
+        let mut carver = Carver::new(arena, scratch_bytes(width, params))?;
+        let census = carver.u32s(scratch_len(width, params))?;
+        let out = carver.u16s(width)?;
+        Ok(Self {
+            refiner: Some(RowRefiner::new(census, width, params)?),
+            out,
+            used: carver.used(),
+        })
+    }
+
+    /// No scratch (a run without the refinement).
+    pub fn none() -> Self {
+        Self {
+            refiner: None,
+            out: &mut [],
+            used: 0,
+        }
+    }
+
+    /// Arena bytes it took.
+    pub fn used(&self) -> usize {
+        self.used
+    }
+}
+
+/// What a call into the stage reads and writes besides its state.
+pub(super) struct RefineIo<'b> {
+    /// The band buffer.
+    pub view: BandView<'b>,
+    /// The row scratch.
+    pub scratch: Scratch<'b>,
+}
+
+/// The stage's state across bands.
+pub(super) struct RefineStage<'a> {
+    params: RefineParams,
+    width: usize,
+    height: usize,
+    cols: usize,
+    grid_rows: usize,
+    /// Token row `t` in slot `t % 2`.
+    tokens: &'a mut [u16],
+    /// Token rows received.
+    received: usize,
+    /// Next pixel row to emit.
+    next_y: usize,
+    /// Image row `v` in slot `v % ring_rows`, for `v` in `ring_from..ring_to`.
+    ring_left: &'a mut [u8],
+    ring_right: &'a mut [u8],
+    ring_rows: usize,
+    ring_from: usize,
+    ring_to: usize,
+    used: usize,
+    /// The first error of a push from inside a head callback (which cannot return one).
+    failed: Option<Error>,
+}
+
+impl<'a> RefineStage<'a> {
+    /// The stage for `height x width` views, its state cut from `arena`, with a ring of
+    /// `ring_rows` rows.
+    pub fn new(
+        params: RefineParams,
+        width: usize,
+        height: usize,
+        ring_rows: usize,
+        arena: &'a mut [u8],
+    ) -> Result<Self, Error> {
+        params.check()?;
+        let cols = width / CELL_W;
+        let mut carver = Carver::new(arena, state_bytes(width, ring_rows))?;
+        let tokens = carver.u16s(2 * cols)?;
+        let ring_left = carver.u8s(ring_rows * width)?;
+        let ring_right = carver.u8s(ring_rows * width)?;
+        Ok(Self {
+            params,
+            width,
+            height,
+            cols,
+            grid_rows: height / PATCH_H,
+            tokens,
+            received: 0,
+            next_y: 0,
+            ring_left,
+            ring_right,
+            ring_rows,
+            ring_from: 0,
+            ring_to: 0,
+            used: carver.used(),
+            failed: None,
+        })
+    }
+
+    /// Arena bytes of its state.
+    pub fn used(&self) -> usize {
+        self.used
+    }
+
+    /// Takes token row `row` (the next one) of the readout, `cols` Q8 patch columns, filled by
+    /// `mask` (its left-right check) when given; emits every pixel row that became computable.
+    pub fn push(
+        &mut self,
+        row: usize,
+        disparity_q8: &[u16],
+        mask: Option<&[u8]>,
+        io: &mut RefineIo<'_>,
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
+        if row != self.received || row >= self.grid_rows {
+            return Err(Error::OutOfRange {
+                what: "refined token row",
+                value: row,
+                min: self.received,
+                max: self.received,
+            });
+        }
+        let cols = self.cols;
+        let slot = self
+            .tokens
+            .get_mut((row % 2) * cols..(row % 2 + 1) * cols)
+            .unwrap_or_default();
+        if disparity_q8.len() != slot.len() {
+            return Err(Error::BufferSize {
+                what: "refined token row",
+                expected: slot.len(),
+                found: disparity_q8.len(),
+            });
+        }
+        slot.copy_from_slice(disparity_q8);
+        if let Some(mask) = mask {
+            fill_rejected(slot, mask)?;
+        }
+        self.received += 1;
+        self.emit(io, sink)
+    }
+
+    /// [`RefineStage::push`] from a callback that cannot return an error: keeps the first one
+    /// for [`RefineStage::done`].
+    pub fn push_or_keep(
+        &mut self,
+        row: usize,
+        disparity_q8: &[u16],
+        mask: Option<&[u8]>,
+        io: &mut RefineIo<'_>,
+        sink: &mut impl Sink,
+    ) {
+        if self.failed.is_none() {
+            if let Err(e) = self.push(row, disparity_q8, mask, io, sink) {
+                self.failed = Some(e);
+            }
+        }
+    }
+
+    /// The first error kept by [`RefineStage::push_or_keep`].
+    pub fn check(&self) -> Result<(), Error> {
+        self.failed.map_or(Ok(()), Err)
+    }
+
+    /// After the last token row: every pixel row must have been emitted.
+    pub fn done(&self) -> Result<(), Error> {
+        self.check()?;
+        if self.next_y == self.height {
+            Ok(())
+        } else {
+            Err(Error::BufferSize {
+                what: "refined rows",
+                expected: self.height,
+                found: self.next_y,
+            })
+        }
+    }
+
+    /// Before the band buffer drops its rows above `new_first`: copies the rows the stage still
+    /// needs from there into the ring.
+    pub fn keep_before(&mut self, view: &BandView<'_>, new_first: usize) -> Result<(), Error> {
+        let need_from = self.next_y.saturating_sub(self.params.reach());
+        if need_from >= new_first {
+            (self.ring_from, self.ring_to) = (new_first, new_first);
+            return Ok(());
+        }
+        // Rows need_from..new_first: those below the buffer are in the ring already.
+        let too_small = Error::BufferSize {
+            what: "refinement view ring",
+            expected: new_first - need_from,
+            found: self.ring_rows,
+        };
+        if new_first - need_from > self.ring_rows || (need_from < view.first && need_from < self.ring_from) {
+            return Err(too_small);
+        }
+        let w = self.width;
+        for v in need_from.max(view.first)..new_first {
+            let (Some((l, r)), Some(slot)) = (view.row(v), v.checked_rem(self.ring_rows)) else {
+                return Err(too_small);
+            };
+            let at = slot * w..(slot + 1) * w;
+            let (Some(dl), Some(dr)) = (self.ring_left.get_mut(at.clone()), self.ring_right.get_mut(at)) else {
+                return Err(too_small);
+            };
+            dl.copy_from_slice(l);
+            dr.copy_from_slice(r);
+        }
+        (self.ring_from, self.ring_to) = (need_from, new_first);
+        Ok(())
+    }
+
+    /// Image row `v` of both views, from the band buffer or the ring.
+    fn view_row<'s>(&'s self, view: &BandView<'s>, v: usize) -> Option<(&'s [u8], &'s [u8])> {
+        if let Some(rows) = view.row(v) {
+            return Some(rows);
+        }
+        if !(self.ring_from..self.ring_to).contains(&v) {
+            return None;
+        }
+        let slot = v.checked_rem(self.ring_rows)?;
+        let at = slot * self.width..(slot + 1) * self.width;
+        Some((self.ring_left.get(at.clone())?, self.ring_right.get(at)?))
+    }
+
+    fn token_row(&self, t: usize) -> Result<&[u16], Error> {
+        // Only the last two rows received are kept.
+        if t >= self.received || t + 2 < self.received {
+            return Err(Error::OutOfRange {
+                what: "token row kept for the refinement",
+                value: t,
+                min: self.received.saturating_sub(2),
+                max: self.received.saturating_sub(1),
+            });
+        }
+        let cols = self.cols;
+        Ok(self.tokens.get((t % 2) * cols..(t % 2 + 1) * cols).unwrap_or_default())
+    }
+
+    /// Emits pixel rows while their token rows and view rows are at hand.
+    fn emit(&mut self, io: &mut RefineIo<'_>, sink: &mut impl Sink) -> Result<(), Error> {
+        let (reach, window, height) = (self.params.reach(), self.params.window_rows(), self.height);
+        while self.next_y < height {
+            let y = self.next_y;
+            let (first, second) = token_rows(y, self.grid_rows);
+            if second >= self.received || self.view_row(&io.view, (y + reach).min(height - 1)).is_none() {
+                break;
+            }
+            let mut left: [&[u8]; MAX_WINDOW_ROWS] = [&[]; MAX_WINDOW_ROWS];
+            let mut right: [&[u8]; MAX_WINDOW_ROWS] = [&[]; MAX_WINDOW_ROWS];
+            for (e, (l, r)) in left.iter_mut().zip(right.iter_mut()).take(window).enumerate() {
+                let v = window_row(y, e, reach, height);
+                let Some(rows) = self.view_row(&io.view, v) else {
+                    return Err(Error::OutOfRange {
+                        what: "view row kept for the refinement",
+                        value: v,
+                        min: self.ring_from.min(io.view.first),
+                        max: io.view.first + io.view.rows,
+                    });
+                };
+                (*l, *r) = rows;
+            }
+            let rows = ViewRows {
+                height,
+                left: left.get(..window).unwrap_or_default(),
+                right: right.get(..window).unwrap_or_default(),
+            };
+            let tokens = TokenRows {
+                first: self.token_row(first)?,
+                second: self.token_row(second)?,
+            };
+            let scratch = &mut io.scratch;
+            let Some(refiner) = scratch.refiner.as_mut() else {
+                return Err(Error::BufferSize {
+                    what: "refinement scratch",
+                    expected: scratch_len(self.width, &self.params),
+                    found: 0,
+                });
+            };
+            refiner.refine_row(y, &rows, &tokens, scratch.out)?;
+            sink.refined(y, scratch.out);
+            self.next_y += 1;
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::band::BandPlan;
+    use crate::refine::refine_map;
+    use crate::testutil::Rng;
+
+    const W: usize = 16;
+    const MAX_H: usize = 400;
+    const BAND_PX: usize = BAND_TOKEN_ROWS * PATCH_H;
+
+    struct Rows<'o> {
+        out: &'o mut [u16],
+        next: usize,
+        out_of_order: bool,
+    }
+
+    impl Sink for Rows<'_> {
+        fn matched(&mut self, _: &super::super::MatchedRow<'_>) {}
+        fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
+            self.out_of_order |= row != self.next || disparity_q8.len() != W;
+            if let Some(dst) = self.out.get_mut(row * W..(row + 1) * W) {
+                dst.copy_from_slice(disparity_q8);
+            }
+            self.next += 1;
+        }
+    }
+
+    fn band_view<'b>(left: &'b [u8], right: &'b [u8], first: usize, loaded: usize) -> BandView<'b> {
+        BandView {
+            first,
+            rows: loaded - first,
+            width: W,
+            left,
+            right,
+        }
+    }
+
+    /// The pipeline's order of events for an image of `height` rows whose readout trails the
+    /// bands by `lag` token rows: band loads (after the stage saved what they drop), the token
+    /// rows each band's push makes, the rest at the end. The pixel rows must equal
+    /// `refine_map` on the filled grid, and the ring must be large enough.
+    fn streams_like_the_whole_map(height: usize, lag: usize, params: &RefineParams, seed: u64) {
+        let mut rng = Rng::new(seed);
+        let (t_rows, cols) = (height / PATCH_H, W / CELL_W);
+        let (mut left, mut right) = ([0u8; MAX_H * W], [0u8; MAX_H * W]);
+        let n = height * W;
+        for (l, r) in left.iter_mut().zip(right.iter_mut()).take(n) {
+            (*l, *r) = (rng.range(0, 255) as u8, rng.range(0, 255) as u8);
+        }
+        let mut grid = [0u16; MAX_H / PATCH_H * W / CELL_W];
+        let mut mask = [0u8; MAX_H / PATCH_H * W / CELL_W];
+        for (g, m) in grid.iter_mut().zip(mask.iter_mut()).take(t_rows * cols) {
+            (*g, *m) = (rng.range(0, 3 * 256) as u16, (rng.range(0, 3) > 0) as u8);
+        }
+        let mut filled = grid;
+        for (row, m) in filled[..t_rows * cols]
+            .chunks_exact_mut(cols)
+            .zip(mask.chunks_exact(cols))
+        {
+            fill_rejected(row, m).unwrap();
+        }
+        let mut scratch = [0u32; 2 * 7 * W];
+        let mut expected = [0u16; MAX_H * W];
+        let len = scratch_len(W, params);
+        refine_map(
+            &left[..n],
+            &right[..n],
+            W,
+            &filled[..t_rows * cols],
+            params,
+            &mut scratch[..len],
+            &mut expected[..n],
+        )
+        .unwrap();
+
+        let plan = BandPlan::new(t_rows).unwrap();
+        let ring = if plan.len() > 1 {
+            ring_rows(params.reach(), lag)
+        } else {
+            0
+        };
+        let mut state = [0u8; 4096];
+        let mut stage = RefineStage::new(*params, W, height, ring, &mut state).unwrap();
+        let mut row_arena = [0u8; 2048];
+        let mut got = [0u16; MAX_H * W];
+        let mut sink = Rows {
+            out: &mut got,
+            next: 0,
+            out_of_order: false,
+        };
+        let (mut buf_l, mut buf_r) = ([0u8; BAND_PX * W], [0u8; BAND_PX * W]);
+        let (mut first, mut loaded) = (0usize, 0usize);
+        let mut pushed = 0usize;
+        let band_px = BAND_PX.min(height);
+        for (i, band) in plan.iter().enumerate() {
+            let start = band.start * PATCH_H;
+            if i > 0 {
+                let v = band_view(&buf_l, &buf_r, first, loaded);
+                stage
+                    .keep_before(&v, start)
+                    .unwrap_or_else(|e| panic!("h {height} lag {lag}: {e}"));
+            }
+            // As BandRows::load: keep the overlap, read the rest.
+            let keep = loaded.saturating_sub(start.max(first));
+            let drop = loaded - first - keep;
+            buf_l.copy_within(drop * W..(drop + keep) * W, 0);
+            buf_r.copy_within(drop * W..(drop + keep) * W, 0);
+            first = start;
+            while loaded < (band.start + band.rows) * PATCH_H {
+                let at = (loaded - first) * W;
+                buf_l[at..at + W].copy_from_slice(&left[loaded * W..(loaded + 1) * W]);
+                buf_r[at..at + W].copy_from_slice(&right[loaded * W..(loaded + 1) * W]);
+                loaded += 1;
+            }
+            assert!(loaded - first <= band_px);
+            let mut io = RefineIo {
+                view: band_view(&buf_l, &buf_r, first, loaded),
+                scratch: Scratch::new(&mut row_arena, W, params).unwrap(),
+            };
+            for row in band.keep_from..band.keep_to {
+                if row >= lag {
+                    let t = row - lag;
+                    let at = t * cols..(t + 1) * cols;
+                    stage
+                        .push(t, &grid[at.clone()], Some(&mask[at]), &mut io, &mut sink)
+                        .unwrap_or_else(|e| panic!("h {height} lag {lag} row {t}: {e}"));
+                    pushed += 1;
+                }
+            }
+        }
+        let mut io = RefineIo {
+            view: BandView {
+                first,
+                rows: loaded - first,
+                width: W,
+                left: &buf_l,
+                right: &buf_r,
+            },
+            scratch: Scratch::new(&mut row_arena, W, params).unwrap(),
+        };
+        for t in pushed..t_rows {
+            let at = t * cols..(t + 1) * cols;
+            stage
+                .push(t, &grid[at.clone()], Some(&mask[at]), &mut io, &mut sink)
+                .unwrap();
+        }
+        stage.done().unwrap_or_else(|e| panic!("h {height} lag {lag}: {e}"));
+        assert!(!sink.out_of_order, "h {height} lag {lag}");
+        for y in 0..height {
+            assert_eq!(
+                got[y * W..(y + 1) * W],
+                expected[y * W..(y + 1) * W],
+                "h {height} lag {lag} row {y}"
+            );
+        }
+    }
+
+    #[test]
+    fn every_height_streams_like_the_whole_map_with_a_ring_just_large_enough() {
+        let wide = RefineParams {
+            box_radius: 3,
+            ..RefineParams::DEFAULT
+        };
+        for height in (4..=MAX_H).step_by(4) {
+            for lag in [0, 1, HEAD_LAG] {
+                streams_like_the_whole_map(height, lag, &RefineParams::DEFAULT, height as u64);
+            }
+            if height % 20 == 0 {
+                streams_like_the_whole_map(height, HEAD_LAG, &wide, 7);
+                streams_like_the_whole_map(height, 0, &wide, 7);
+            }
+        }
+        // The sizes the budget quotes.
+        assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), HEAD_LAG), 22);
+        assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), 0), 0);
+        assert_eq!(ring_rows(5, 0), 0);
+    }
+
+    #[test]
+    fn a_ring_one_row_short_is_an_error_not_a_wrong_row() {
+        // 80 rows: three bands 32 rows apart (stride 8), the worst case of the ring.
+        let params = RefineParams::DEFAULT;
+        let ring = ring_rows(params.reach(), HEAD_LAG) - 1;
+        let mut state = [0u8; 4096];
+        let mut stage = RefineStage::new(params, W, 80, ring, &mut state).unwrap();
+        let (buf_l, buf_r) = ([0u8; BAND_PX * W], [0u8; BAND_PX * W]);
+        let view = BandView {
+            first: 0,
+            rows: BAND_PX,
+            width: W,
+            left: &buf_l,
+            right: &buf_r,
+        };
+        let mut row_arena = [0u8; 2048];
+        let mut io = RefineIo {
+            view,
+            scratch: Scratch::new(&mut row_arena, W, &params).unwrap(),
+        };
+        let mut out = [0u16; 80 * W];
+        let mut sink = Rows {
+            out: &mut out,
+            next: 0,
+            out_of_order: false,
+        };
+        // Band 0 keeps token rows 0..10; the head has given 0..4 when band 1 (start 8) loads.
+        for t in 0..4 {
+            stage.push(t, &[256; W / CELL_W], None, &mut io, &mut sink).unwrap();
+        }
+        assert!(matches!(
+            stage.keep_before(&view, 32),
+            Err(Error::BufferSize {
+                what: "refinement view ring",
+                ..
+            })
+        ));
+        assert!(
+            stage.push(5, &[0; W / CELL_W], None, &mut io, &mut sink).is_err(),
+            "rows in order"
+        );
+        assert!(stage.done().is_err(), "rows missing");
+    }
+}

@@ -1,0 +1,324 @@
+//! The pixel refinement as a stage of `bino_core::pipeline` (issue 14): for every readout it can
+//! refine, on one band and on images of several bands, with and without the head and its
+//! left-right check, the pixel rows it streams equal `refine::refine_map` on the whole token map
+//! of that readout (filled by its left-right check for the `+lr` ones), computed from the same
+//! run's token rows; the other outputs do not change, and the arena grows as documented.
+
+use bino_core::lr::fill_rejected;
+use bino_core::model::head::HeadRow;
+use bino_core::pipeline::{
+    arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes, HeadChecked, MatchedRow, Options,
+    Pipeline, Refine, RefineInput, Sink, SlicePair, Stage,
+};
+use bino_core::refine::{refine_map, scratch_len, RefineParams};
+use bino_core::Error;
+use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
+use bino_host::int8::Int8Model;
+use bino_host::synthetic;
+
+const MAX_COLS: usize = 16;
+
+const INPUTS: [RefineInput; 6] = [
+    RefineInput::Nolink,
+    RefineInput::NolinkLr,
+    RefineInput::Sgm,
+    RefineInput::SgmLr,
+    RefineInput::Head,
+    RefineInput::HeadLr,
+];
+
+fn options(head: bool, head_lr: bool) -> Options {
+    Options {
+        max_cols: MAX_COLS,
+        penalties: DEFAULT_PENALTIES,
+        lr_max_diff_q8: 256,
+        head,
+        head_lr,
+    }
+}
+
+/// Every token row by index, and the refined rows in arrival order.
+#[derive(Default, PartialEq, Debug)]
+struct Collect {
+    width: usize,
+    cols: usize,
+    wta: Vec<u16>,
+    wta_mask: Vec<u8>,
+    sgm: Vec<u16>,
+    sgm_mask: Vec<u8>,
+    head: Vec<u16>,
+    head_mask: Vec<u8>,
+    refined_rows: Vec<usize>,
+    refined: Vec<u16>,
+    /// The stage of each refined row's arrival.
+    refine_stage_ok: bool,
+    stage: Option<Stage>,
+}
+
+impl Collect {
+    fn new(width: usize, height: usize) -> Self {
+        let cells = (height / 4) * (width / 4);
+        Self {
+            width,
+            cols: width / 4,
+            wta: vec![0; cells],
+            wta_mask: vec![0; cells],
+            sgm: vec![0; cells],
+            sgm_mask: vec![0; cells],
+            head: vec![0; cells],
+            head_mask: vec![0; cells],
+            refine_stage_ok: true,
+            ..Self::default()
+        }
+    }
+
+    fn put<T: Copy>(map: &mut [T], cols: usize, row: usize, values: &[T]) {
+        map[row * cols..(row + 1) * cols].copy_from_slice(values);
+    }
+
+    /// The token grid `input` reads, filled where it is a `+lr` one.
+    fn grid(&self, input: RefineInput) -> Vec<u16> {
+        let (map, mask) = match input {
+            RefineInput::Nolink | RefineInput::NolinkLr => (&self.wta, &self.wta_mask),
+            RefineInput::Sgm | RefineInput::SgmLr => (&self.sgm, &self.sgm_mask),
+            RefineInput::Head | RefineInput::HeadLr => (&self.head, &self.head_mask),
+        };
+        let mut grid = map.clone();
+        if matches!(input, RefineInput::NolinkLr | RefineInput::SgmLr | RefineInput::HeadLr) {
+            for (row, m) in grid.chunks_exact_mut(self.cols).zip(mask.chunks_exact(self.cols)) {
+                fill_rejected(row, m).unwrap();
+            }
+        }
+        grid
+    }
+}
+
+impl Sink for Collect {
+    fn stage(&mut self, stage: Stage) {
+        self.stage = Some(stage);
+    }
+    fn matched(&mut self, row: &MatchedRow<'_>) {
+        let c = self.cols;
+        Self::put(&mut self.wta, c, row.row, row.wta_q8);
+        Self::put(&mut self.wta_mask, c, row.row, row.wta_consistent);
+        Self::put(&mut self.sgm, c, row.row, row.sgm_q8);
+        Self::put(&mut self.sgm_mask, c, row.row, row.sgm_consistent);
+    }
+    fn head(&mut self, row: HeadRow<'_>) {
+        let c = self.cols;
+        Self::put(&mut self.head, c, row.row, row.disparity_q8);
+    }
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        let c = self.cols;
+        Self::put(&mut self.head_mask, c, row.row, row.consistent);
+    }
+    fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
+        assert_eq!(disparity_q8.len(), self.width);
+        self.refine_stage_ok &= self.stage == Some(Stage::Refine);
+        self.refined_rows.push(row);
+        self.refined.extend_from_slice(disparity_q8);
+    }
+}
+
+struct Scene {
+    width: usize,
+    height: usize,
+    left: Vec<u8>,
+    right: Vec<u8>,
+}
+
+fn scene(width: usize, height: usize) -> Scene {
+    let s = synthetic::default_scene(width, height);
+    Scene {
+        width,
+        height,
+        left: s.left.pixels,
+        right: s.right.pixels,
+    }
+}
+
+fn run(pipeline: &Pipeline<'_>, s: &Scene, opts: &Options, refine: Option<&Refine>) -> Result<Collect, Error> {
+    let mut out = Collect::new(s.width, s.height);
+    let mut source = SlicePair::new(&s.left, &s.right, s.width, s.height)?;
+    let report = match refine {
+        Some(r) => {
+            let needed = arena_bytes_refined(s.height, s.width, opts, r);
+            let mut arena = vec![0u8; needed];
+            let report = pipeline.run_refined(&mut source, opts, r, &mut arena, &mut out)?;
+            assert!(report.arena_used <= needed, "{report:?} needed {needed}");
+            // The sizing counts alignment slack the carving may not need.
+            let sized = refine_bytes(s.height, s.width, r);
+            assert!(
+                report.refine <= sized && report.refine + 8 > sized,
+                "{report:?}: {sized}"
+            );
+            report
+        }
+        None => {
+            let mut arena = vec![0u8; arena_bytes_for(s.height, s.width, opts)];
+            pipeline.run(&mut source, opts, &mut arena, &mut out)?
+        }
+    };
+    assert_eq!(report.refine == 0, refine.is_none());
+    Ok(out)
+}
+
+/// The whole-map refinement of `input`'s grid from the run's own token rows.
+fn whole_map(s: &Scene, out: &Collect, input: RefineInput, params: &RefineParams) -> Vec<u16> {
+    let mut scratch = vec![0u32; scratch_len(s.width, params)];
+    let mut expected = vec![0u16; s.width * s.height];
+    refine_map(
+        &s.left,
+        &s.right,
+        s.width,
+        &out.grid(input),
+        params,
+        &mut scratch,
+        &mut expected,
+    )
+    .unwrap();
+    expected
+}
+
+fn first_difference(got: &[u16], want: &[u16], width: usize) -> String {
+    match got.iter().zip(want).position(|(a, b)| a != b) {
+        Some(i) => format!(
+            "first difference at row {} col {}: streamed {}, whole map {}",
+            i / width,
+            i % width,
+            got[i],
+            want[i]
+        ),
+        None => format!("lengths {} and {}", got.len(), want.len()),
+    }
+}
+
+#[test]
+fn every_readout_refines_as_the_whole_map_on_one_band_and_many() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let opts = options(true, true);
+    // One band; 2 bands; 3 bands 8 token rows apart (the ring's worst case); an odd stride; 4.
+    for (width, height) in [(160, 48), (32, 56), (32, 80), (48, 100), (32, 144)] {
+        let s = scene(width, height);
+        let plain = run(&pipeline, &s, &opts, None).unwrap();
+        for input in INPUTS {
+            let refine = Refine {
+                input,
+                params: RefineParams::DEFAULT,
+            };
+            let what = format!("{width}x{height} {}", input.name());
+            let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
+            assert_eq!(
+                out.refined_rows,
+                (0..height).collect::<Vec<_>>(),
+                "{what}: rows in order, once"
+            );
+            assert!(out.refine_stage_ok, "{what}: refined rows come in the refine stage");
+            let want = whole_map(&s, &out, input, &refine.params);
+            assert!(
+                out.refined == want,
+                "{what}: {}",
+                first_difference(&out.refined, &want, width)
+            );
+            // The readouts themselves are untouched by the refinement.
+            let Collect {
+                wta,
+                sgm,
+                head,
+                head_mask,
+                ..
+            } = &out;
+            assert!(
+                (wta, sgm, head, head_mask) == (&plain.wta, &plain.sgm, &plain.head, &plain.head_mask),
+                "{what}"
+            );
+        }
+    }
+}
+
+#[test]
+fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let s = scene(32, 80);
+    let opts = options(false, false);
+    let refine = Refine::for_options(&opts);
+    assert_eq!(refine.input, RefineInput::SgmLr);
+    assert_eq!(Refine::for_options(&options(true, true)).input, RefineInput::HeadLr);
+    assert_eq!(Refine::for_options(&options(true, false)).input, RefineInput::SgmLr);
+    let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap();
+    assert_eq!(out.refined, whole_map(&s, &out, RefineInput::SgmLr, &refine.params));
+    // The head alone (no check): head is refinable, head+lr is not.
+    let head_only = options(true, false);
+    let out = run(
+        &pipeline,
+        &s,
+        &head_only,
+        Some(&Refine {
+            input: RefineInput::Head,
+            params: RefineParams::DEFAULT,
+        }),
+    )
+    .unwrap();
+    assert_eq!(
+        out.refined,
+        whole_map(&s, &out, RefineInput::Head, &RefineParams::DEFAULT)
+    );
+    for (opts, input) in [
+        (opts, RefineInput::Head),
+        (opts, RefineInput::HeadLr),
+        (head_only, RefineInput::HeadLr),
+    ] {
+        let refine = Refine {
+            input,
+            params: RefineParams::DEFAULT,
+        };
+        let err = run(&pipeline, &s, &opts, Some(&refine)).err();
+        assert_eq!(err, Some(Error::MissingReadout { readout: input.name() }));
+    }
+    let bad = Refine {
+        input: RefineInput::Sgm,
+        params: RefineParams {
+            search: 99,
+            ..RefineParams::DEFAULT
+        },
+    };
+    assert!(matches!(
+        run(&pipeline, &s, &opts, Some(&bad)),
+        Err(Error::OutOfRange { what: "search", .. })
+    ));
+}
+
+#[test]
+fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let head_lr = options(true, true);
+    let refine = Refine::for_options(&head_lr);
+    // One band: the refinement fits beside the streams in the encoder's scratch.
+    assert_eq!(arena_bytes_head_lr(48, 160, MAX_COLS), 486_918);
+    assert_eq!(arena_bytes_refined(48, 160, &head_lr, &refine), 486_918);
+    let sgm = options(false, false);
+    assert_eq!(
+        arena_bytes_refined(48, 160, &sgm, &Refine::for_options(&sgm)),
+        arena_bytes_for(48, 160, &sgm)
+    );
+    assert_eq!(refine_bytes(48, 160, &refine), 6_885);
+    // Several bands: the state (and for a head input the view ring) adds to the streams; the
+    // row scratch lives in the encoder's.
+    for (height, opts) in [(96, head_lr), (96, sgm), (480, head_lr)] {
+        let r = Refine::for_options(&opts);
+        let growth = arena_bytes_refined(height, 160, &opts, &r) - arena_bytes_for(height, 160, &opts);
+        let state = refine_bytes(height, 160, &r) - refine_bytes(48, 160, &r) + 161;
+        assert_eq!(growth, state, "{height} {}", r.input.name());
+    }
+    assert_eq!(refine_bytes(96, 160, &refine), 6_885 + 22 * 160 * 2);
+    // Too small by a byte is an error, not a wrong row.
+    let s = scene(32, 80);
+    let needed = arena_bytes_refined(80, 32, &head_lr, &refine);
+    let mut arena = vec![0u8; needed - 1];
+    let mut source = SlicePair::new(&s.left, &s.right, 32, 80).unwrap();
+    let err = pipeline.run_refined(&mut source, &head_lr, &refine, &mut arena, &mut Collect::new(32, 80));
+    assert!(matches!(err, Err(Error::ArenaTooSmall { .. })), "{err:?}");
+}
