@@ -1,9 +1,12 @@
 //! The pixel refinement with arbitrary sizes, parameters, views, token grids and buffer
-//! lengths: `refine_map` over whole maps and `refine_row` with arbitrary windows and rows.
+//! lengths: `refine_map` over whole maps and `refine_row` with arbitrary windows and rows; and,
+//! on well-formed inputs, `RowRefiner` against the reference `refine_row`, rows in any order.
 #![no_main]
 
 use arbitrary::Arbitrary;
-use bino_core::refine::{refine_map, refine_row, scratch_len, RefineParams, TokenRows, ViewRows};
+use bino_core::refine::{
+    refine_map, refine_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
+};
 use libfuzzer_sys::fuzz_target;
 
 #[derive(Debug, Arbitrary)]
@@ -54,7 +57,10 @@ fuzz_target!(|input: Input| {
     let tokens = resized(&input.tokens, adjust(grid, input.tokens_delta));
     let mut scratch = vec![0u32; adjust(scratch_len(w, &params), input.scratch_delta)];
     let mut out = vec![0u16; adjust(w * h, input.out_delta)];
-    let _ = refine_map(&left, &right, w, &tokens, &params, &mut scratch, &mut out);
+    let whole = refine_map(&left, &right, w, &tokens, &params, &mut scratch, &mut out);
+    if whole.is_ok() {
+        faster_equals_reference(&input, &left, &right, &tokens, w, h, &params);
+    }
 
     let rows: Vec<&[u8]> = input
         .window
@@ -85,3 +91,53 @@ fuzz_target!(|input: Input| {
         &mut row_out,
     );
 });
+
+/// `RowRefiner` gives the reference's rows bit for bit, for output rows in the order the input
+/// names them (repeats and jumps included) over one image.
+fn faster_equals_reference(
+    input: &Input,
+    left: &[u8],
+    right: &[u8],
+    tokens: &[u16],
+    w: usize,
+    h: usize,
+    params: &RefineParams,
+) {
+    let cols = w.div_ceil(4);
+    let grid_rows = h.div_ceil(4);
+    let mut ring_scratch = vec![0u32; scratch_len(w, params)];
+    let mut reference_scratch = vec![0u32; scratch_len(w, params)];
+    let mut refiner = RowRefiner::new(&mut ring_scratch, w, params).expect("valid sizes");
+    for &pick in input.window.iter().take(24) {
+        let y = usize::from(pick) % h;
+        let reach = params.reach();
+        let (l, r) = (
+            window(left, y, reach, w, h, params),
+            window(right, y, reach, w, h, params),
+        );
+        let rows = ViewRows {
+            height: h,
+            left: &l,
+            right: &r,
+        };
+        let (first, second) = token_rows(y, grid_rows);
+        let toks = TokenRows {
+            first: &tokens[first * cols..(first + 1) * cols],
+            second: &tokens[second * cols..(second + 1) * cols],
+        };
+        let mut fast = vec![0u16; w];
+        let mut slow = vec![0u16; w];
+        refiner.refine_row(y, &rows, &toks, &mut fast).expect("refiner row");
+        refine_row(y, &rows, &toks, params, &mut reference_scratch, &mut slow).expect("reference row");
+        assert_eq!(fast, slow, "row {y}");
+    }
+}
+
+fn window<'v>(view: &'v [u8], y: usize, reach: usize, w: usize, h: usize, params: &RefineParams) -> Vec<&'v [u8]> {
+    (0..params.window_rows())
+        .map(|e| {
+            let v = window_row(y, e, reach, h);
+            &view[v * w..(v + 1) * w]
+        })
+        .collect()
+}
