@@ -181,7 +181,8 @@ enum Command {
     /// block's attention and MLP halves (the float model runs on the engine's own 8-bit pixels
     /// / 255, so only the engines differ). Per view: the descriptor maps' cosine (float on the
     /// exact view). Per pair: integer WTA disparity agreement and the EVAL.md metrics of the
-    /// no-linkage readout of both. Prints the means with the targets (descriptor cosine >= 0.99,
+    /// no-linkage readout of both, upsampled and refined (nolink+ref; with --head also head and
+    /// head+ref). Prints the means with the targets (descriptor cosine >= 0.99,
     /// WTA agreement >= 98 %, int8 epe at most 3 % above float); progress on stderr.
     Compare {
         /// Folder with PAIRS.tsv.
