@@ -430,9 +430,7 @@ fn run(cli: Cli) -> Result<()> {
             right,
             profile,
             blob,
-            readout: refine
-                .apply(readout)
-                .unwrap_or_else(|msg| Cli::command().error(ErrorKind::ArgumentConflict, msg).exit()),
+            readout: refine.apply(readout).unwrap_or_else(|msg| usage_error("run", msg)),
             max_cols,
             penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
             lr_max_diff,
@@ -557,6 +555,16 @@ fn run(cli: Cli) -> Result<()> {
             };
             quantize_command(&opts, &out)
         }
+    }
+}
+
+/// Exits with clap's usage error (code 2) for `subcommand`, as a bad value would.
+fn usage_error(subcommand: &str, msg: String) -> ! {
+    let mut cli = Cli::command().bin_name("bino");
+    cli.build();
+    match cli.find_subcommand_mut(subcommand) {
+        Some(sub) => sub.error(ErrorKind::ArgumentConflict, msg).exit(),
+        None => cli.error(ErrorKind::ArgumentConflict, msg).exit(),
     }
 }
 
