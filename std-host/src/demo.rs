@@ -1,6 +1,7 @@
 //! `bino demo`: the int8 pipeline end to end on the built-in procedural scene, with no data
 //! files: encoder on both views (descriptor pathway), the no-linkage readout and the shared
-//! head, scored against the scene's known disparity, written as pictures and a report.
+//! head (also `head+lr` and its pixel refinement `head+lr+ref`, as `bino_host::readout` defines
+//! them), scored against the scene's known disparity, written as pictures and a report.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -16,6 +17,7 @@ use crate::eval::{fill_invalid, score, upsample_disparity, DisparityMap, GroundT
 use crate::int8::{match_rows, sgm_rows, Int8Model};
 use crate::keyed::Keyed;
 use crate::profile::{Profile, View};
+use crate::refine::{refine_pixels, GrayViews};
 use crate::synthetic::{default_scene, SyntheticPair};
 
 /// The int8 blob shipped with the repository (found from any working directory).
@@ -52,7 +54,7 @@ pub const DEFAULT_PENALTIES: Penalties = Penalties { p1: 8, p2: 32 };
 /// One readout scored against the scene's true disparity.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReadoutResult {
-    /// `nolink` or `head`.
+    /// `nolink`, `sgm`, `head`, `head+lr` or `head+lr+ref`.
     pub name: &'static str,
     /// EVAL.md metrics (pixels at the scene's resolution).
     pub metrics: Metrics,
@@ -125,10 +127,15 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
             values: maps.disparity.clone(),
         };
         readouts.push(scored("head", &tokens, &truth)?);
+        let filled = steps.run("head+lr: the head on the mirrored pair, left-right fill", || {
+            let kept = model.head_check(&codes_left, &codes_right, &maps, DEMO_LR_MAX_DIFF_Q8)?;
+            Ok(fill_invalid(&tokens, &kept))
+        })?;
+        readouts.push(scored("head+lr", &filled, &truth)?);
         readouts.push(
-            steps.run("head+lr: the head on the mirrored pair, left-right fill", || {
-                let kept = model.head_check(&codes_left, &codes_right, &maps, DEMO_LR_MAX_DIFF_Q8)?;
-                scored("head+lr", &fill_invalid(&tokens, &kept), &truth)
+            steps.run("head+lr+ref: integer pixel refinement (census 5x5, +-2 px)", || {
+                let disparity = refine_pixels(&filled, &GrayViews::from_views(&left, &right)?)?;
+                scored_pixels("head+lr+ref", disparity, &truth)
             })?,
         );
     }
@@ -174,7 +181,10 @@ fn ground_truth(scene: &SyntheticPair) -> GroundTruthMap {
 }
 
 fn scored(name: &'static str, tokens: &DisparityMap, truth: &GroundTruthMap) -> Result<ReadoutResult> {
-    let disparity = upsample_disparity(tokens);
+    scored_pixels(name, upsample_disparity(tokens), truth)
+}
+
+fn scored_pixels(name: &'static str, disparity: DisparityMap, truth: &GroundTruthMap) -> Result<ReadoutResult> {
     let metrics = score(&disparity, truth).with_context(|| format!("scoring the {name} readout"))?;
     Ok(ReadoutResult {
         name,

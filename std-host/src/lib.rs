@@ -29,6 +29,7 @@ pub mod readout;
 pub mod readout_eval;
 pub mod reference;
 pub mod reference_head;
+pub mod refine;
 pub mod run;
 pub mod sgbm;
 pub mod sim;

@@ -18,7 +18,8 @@ use bino_host::quantize::{quantize, QuantizeOptions};
 use bino_host::reference::{FeatureMap, ReferenceEncoder};
 use bino_host::reference_head::ReferenceHead;
 use bino_host::{npz, synthetic};
-use clap::{Parser, Subcommand};
+use clap::error::ErrorKind;
+use clap::{CommandFactory, Parser, Subcommand};
 
 /// BINO edge: a binocular ViT stereo encoder for edge boards, host tools.
 #[derive(Parser)]
@@ -60,7 +61,8 @@ enum Command {
         out: PathBuf,
     },
     /// The int8 pipeline on the built-in stereo scene (no data needed): encoder on both views,
-    /// no-linkage matching and the shared head, scored against the scene's known disparity;
+    /// no-linkage matching, SGM and the shared head (also head+lr and head+lr+ref, its pixel
+    /// refinement), scored against the scene's known disparity;
     /// writes the pair, the disparity maps, the error maps and report.json to --out.
     Demo {
         /// Int8 weight blob (default: the one shipped in weights/).
@@ -105,7 +107,8 @@ enum Command {
         blob: PathBuf,
         /// Readout drawn: nolink, sgm or head (cells their left-right check rejects are dark),
         /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval`
-        /// scores); the default is `bino run`'s.
+        /// scores); the default is the token grid of `bino run`'s. The +ref readouts are refused:
+        /// the pixel refinement is not a pipeline stage yet and sim draws token rows as they stream.
         #[arg(long, default_value = "sgm+lr")]
         readout: bino_host::readout::Readout,
         /// Disparity candidates of nolink and sgm, in patch columns.
@@ -178,7 +181,8 @@ enum Command {
     /// block's attention and MLP halves (the float model runs on the engine's own 8-bit pixels
     /// / 255, so only the engines differ). Per view: the descriptor maps' cosine (float on the
     /// exact view). Per pair: integer WTA disparity agreement and the EVAL.md metrics of the
-    /// no-linkage readout of both. Prints the means with the targets (descriptor cosine >= 0.99,
+    /// no-linkage readout of both, upsampled and refined (nolink+ref; with --head also head and
+    /// head+ref). Prints the means with the targets (descriptor cosine >= 0.99,
     /// WTA agreement >= 98 %, int8 epe at most 3 % above float); progress on stderr.
     Compare {
         /// Folder with PAIRS.tsv.
@@ -209,8 +213,9 @@ enum Command {
         #[arg(long)]
         limit: Option<usize>,
     },
-    /// Score the readouts (nolink, sgm, head, each also +lr) on the eval split, int8 (the core
-    /// pipeline) and f32, EVAL.md metrics per pair and mean, StereoSGBM in the same run.
+    /// Score the readouts (nolink, sgm, head, each also +lr, each of those also +ref) on the
+    /// eval split, int8 (the core pipeline) and f32, EVAL.md metrics per pair and mean,
+    /// StereoSGBM in the same run.
     Eval {
         /// Folder with PAIRS.tsv.
         #[arg(long, default_value = "../shared/data")]
@@ -235,11 +240,13 @@ enum Command {
         #[arg(long, value_delimiter = ',', default_value = "int8,f32")]
         precision: Vec<bino_host::readout_eval::Precision>,
         /// Readouts to score (repeat or comma-separate): nolink, sgm, head, each optionally
-        /// with +lr (cells the method's own left-right check rejects filled from the left).
+        /// with +lr (cells the method's own left-right check rejects filled from the left),
+        /// then optionally +ref (pixels by the integer refinement instead of bilinear
+        /// upsampling). Default: all twelve, each unrefined then refined.
         #[arg(
             long,
             value_delimiter = ',',
-            default_value = "nolink,nolink+lr,sgm,sgm+lr,head,head+lr"
+            default_value = "nolink,nolink+ref,nolink+lr,nolink+lr+ref,sgm,sgm+ref,sgm+lr,sgm+lr+ref,head,head+ref,head+lr,head+lr+ref"
         )]
         readout: Vec<bino_host::readout::Readout>,
         /// Left-right check tolerance, in patch columns.
@@ -265,8 +272,9 @@ enum Command {
         limit: Option<usize>,
     },
     /// The int8 pipeline on a rectified pair of any size: writes disparity.png (colour),
-    /// disparity.pfm (float32 pixel disparities, the readout exactly as `bino eval` scores it)
-    /// and lr_mask.png (pixels the readout's method keeps in its left-right check) to --out.
+    /// disparity.pfm (float32 pixel disparities, dense, the readout exactly as `bino eval` scores
+    /// it: refined, the readout's +ref, unless --refine off) and lr_mask.png (pixels the
+    /// readout's method keeps in its left-right check) to --out.
     Run {
         /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
         #[arg(long)]
@@ -281,11 +289,16 @@ enum Command {
         #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
         blob: PathBuf,
         /// Readout: nolink, sgm or head, each optionally with +lr (cells the method's own
-        /// left-right check rejects filled from the nearest kept cell to their left). The
-        /// default, sgm+lr, has the lowest eval-split error at the default profile, w320
-        /// (head+lr at w160; README).
+        /// left-right check rejects filled from the nearest kept cell to their left), then
+        /// optionally +ref (the same as --refine on). The default, sgm+lr, has the lowest
+        /// unrefined eval-split error at the default profile, w320 (head+lr at w160; README).
         #[arg(long, default_value = "sgm+lr")]
         readout: bino_host::readout::Readout,
+        /// Pixel refinement of the readout: on (its +ref: census 5x5 search +-2 px around the
+        /// upsampled token disparity, bino_core::refine) or off (the token grid upsampled
+        /// bilinearly, as before the refinement).
+        #[arg(long, value_enum, default_value = "on")]
+        refine: bino_host::run::Refine,
         /// Disparity candidates of nolink and sgm, in patch columns.
         #[arg(long, default_value_t = 16)]
         max_cols: usize,
@@ -406,6 +419,7 @@ fn run(cli: Cli) -> Result<()> {
             profile,
             blob,
             readout,
+            refine,
             max_cols,
             sgm_p1,
             sgm_p2,
@@ -416,7 +430,7 @@ fn run(cli: Cli) -> Result<()> {
             right,
             profile,
             blob,
-            readout,
+            readout: refine.apply(readout).unwrap_or_else(|msg| usage_error("run", msg)),
             max_cols,
             penalties: bino_core::sgm::Penalties { p1: sgm_p1, p2: sgm_p2 },
             lr_max_diff,
@@ -544,6 +558,16 @@ fn run(cli: Cli) -> Result<()> {
     }
 }
 
+/// Exits with clap's usage error (code 2) for `subcommand`, as a bad value would.
+fn usage_error(subcommand: &str, msg: String) -> ! {
+    let mut cli = Cli::command().bin_name("bino");
+    cli.build();
+    match cli.find_subcommand_mut(subcommand) {
+        Some(sub) => sub.error(ErrorKind::ArgumentConflict, msg).exit(),
+        None => cli.error(ErrorKind::ArgumentConflict, msg).exit(),
+    }
+}
+
 fn demo_command(opts: &bino_host::demo::DemoOptions) -> Result<()> {
     let started = std::time::Instant::now();
     let report = bino_host::demo::run_demo(opts, |step| {
@@ -555,10 +579,10 @@ fn demo_command(opts: &bino_host::demo::DemoOptions) -> Result<()> {
         report.height,
         opts.blob.display()
     );
-    println!("{:<8} {:>9} {:>9} {:>9}", "readout", "epe px", "bad1tok %", "bad2 %");
+    println!("{:<12} {:>9} {:>9} {:>9}", "readout", "epe px", "bad1tok %", "bad2 %");
     for r in &report.readouts {
         println!(
-            "{:<8} {:>9.3} {:>9.2} {:>9.2}",
+            "{:<12} {:>9.3} {:>9.2} {:>9.2}",
             r.name, r.metrics.epe, r.metrics.bad1tok, r.metrics.bad2
         );
     }

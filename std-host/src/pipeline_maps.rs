@@ -11,9 +11,10 @@ use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Report, Sink, SlicePair, Stage};
 
 use crate::eval::DisparityMap;
-use crate::int8::{to_u8, Int8Model};
+use crate::int8::Int8Model;
 use crate::profile::View;
 use crate::readout::MethodMaps;
+use crate::refine::GrayViews;
 
 /// Every method of one run as token-grid maps (patch columns), with their left-right masks.
 #[derive(Debug, Clone)]
@@ -47,8 +48,8 @@ pub fn run_pipeline(
     );
     let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
     let (w, h) = (left.width, left.height);
-    let (lp, rp) = (to_u8(&left.pixels), to_u8(&right.pixels));
-    let mut source = SlicePair::new(&lp, &rp, w, h).map_err(anyhow::Error::msg)?;
+    let views = GrayViews::from_views(left, right)?;
+    let mut source = SlicePair::new(&views.left, &views.right, w, h).map_err(anyhow::Error::msg)?;
     let arena_bytes = pipeline::arena_bytes_for(h, w, opts);
     let mut arena = vec![0u8; arena_bytes];
     let bands = BandPlan::new(h / PATCH_H).map_err(anyhow::Error::msg)?.len();
@@ -93,6 +94,7 @@ pub fn run_pipeline(
             nolink_consistent: m.wta_mask,
             sgm_consistent: m.sgm_mask,
             head_consistent: check_ran.then_some(m.head_mask),
+            views,
         },
         stage_times: sink.stage_times,
         report,

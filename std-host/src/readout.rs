@@ -1,11 +1,20 @@
 //! The readouts, each defined once for every command (`bino run`, `eval`, `sim`, the firmware
 //! through `bino_core::pipeline`): a method's token-grid disparity, optionally with its own
-//! left-right check, then bilinear upsampling to pixels (EVAL.md).
+//! left-right check, then to pixels: bilinear upsampling (EVAL.md), or with `+ref` the integer
+//! pixel refinement (`bino_core::refine`, through [`crate::refine`]).
 //!
 //! | readout | token grid |
 //! |---|---|
 //! | `nolink`, `sgm`, `head` | the method's disparity, every cell |
 //! | `nolink+lr`, `sgm+lr`, `head+lr` | the same, cells the method's own left-right check rejects filled from the nearest kept cell to their left (`bino_core::lr::fill_rejected`) |
+//!
+//! | suffix | pixels |
+//! |---|---|
+//! | (none) | the token grid upsampled bilinearly (EVAL.md) |
+//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::refine_map` (census 5x5, +-2 px, [`bino_core::refine::RefineParams::DEFAULT`]) on the pair's 8-bit gray views, Q8 px / 256 |
+//!
+//! Every pixel gets a value (the maps are dense); the pixels of rejected cells are known from
+//! the method's mask, not from the disparity.
 //!
 //! Each method's check compares its left-view disparity with its right-view one: for `nolink`
 //! and `sgm` the right view comes from the reindexed cost row (`bino_core::lr`), for `head` from
@@ -17,6 +26,7 @@ use std::str::FromStr;
 use anyhow::{bail, ensure, Context, Result};
 
 use crate::eval::{fill_invalid, upsample_disparity, DisparityMap};
+use crate::refine::{refine_pixels, GrayViews};
 
 /// How disparity is read from the descriptors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -29,13 +39,15 @@ pub enum Method {
     Head,
 }
 
-/// A readout: a method, with or without its left-right check and fill.
+/// A readout: a method, with or without its left-right check and fill, upsampled or refined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Readout {
     /// The method.
     pub method: Method,
     /// Fill the cells its left-right check rejects (`+lr`).
     pub lr: bool,
+    /// Pixels by the integer refinement instead of bilinear upsampling (`+ref`).
+    pub refine: bool,
 }
 
 impl Readout {
@@ -47,8 +59,8 @@ impl Readout {
     pub const HEAD: Readout = Readout::new(Method::Head, false);
     /// `head+lr`.
     pub const HEAD_LR: Readout = Readout::new(Method::Head, true);
-    /// Every readout, in the order tables list them.
-    pub const ALL: [Readout; 6] = [
+    /// The token-grid readouts (upsampled bilinearly), in the order tables list them.
+    pub const UNREFINED: [Readout; 6] = [
         Readout::NOLINK,
         Readout::new(Method::Nolink, true),
         Readout::SGM,
@@ -56,21 +68,47 @@ impl Readout {
         Readout::HEAD,
         Readout::HEAD_LR,
     ];
+    /// Every readout, in the order tables list them: each unrefined one, then its `+ref`.
+    pub const ALL: [Readout; 12] = {
+        let mut all = [Readout::NOLINK; 12];
+        let mut i = 0;
+        while i < 6 {
+            all[2 * i] = Readout::UNREFINED[i];
+            all[2 * i + 1] = Readout::UNREFINED[i].refined(true);
+            i += 1;
+        }
+        all
+    };
 
-    /// `method`, with the left-right fill when `lr`.
+    /// `method`, with the left-right fill when `lr`, upsampled bilinearly.
     pub const fn new(method: Method, lr: bool) -> Self {
-        Self { method, lr }
+        Self {
+            method,
+            lr,
+            refine: false,
+        }
+    }
+
+    /// The same readout, its pixels refined (`+ref`) or not.
+    pub const fn refined(self, refine: bool) -> Self {
+        Self { refine, ..self }
     }
 
     /// Its name on the command line and in reports.
     pub fn name(self) -> &'static str {
-        match (self.method, self.lr) {
-            (Method::Nolink, false) => "nolink",
-            (Method::Nolink, true) => "nolink+lr",
-            (Method::Sgm, false) => "sgm",
-            (Method::Sgm, true) => "sgm+lr",
-            (Method::Head, false) => "head",
-            (Method::Head, true) => "head+lr",
+        match (self.method, self.lr, self.refine) {
+            (Method::Nolink, false, false) => "nolink",
+            (Method::Nolink, false, true) => "nolink+ref",
+            (Method::Nolink, true, false) => "nolink+lr",
+            (Method::Nolink, true, true) => "nolink+lr+ref",
+            (Method::Sgm, false, false) => "sgm",
+            (Method::Sgm, false, true) => "sgm+ref",
+            (Method::Sgm, true, false) => "sgm+lr",
+            (Method::Sgm, true, true) => "sgm+lr+ref",
+            (Method::Head, false, false) => "head",
+            (Method::Head, false, true) => "head+ref",
+            (Method::Head, true, false) => "head+lr",
+            (Method::Head, true, true) => "head+lr+ref",
         }
     }
 
@@ -92,7 +130,9 @@ impl FromStr for Readout {
     fn from_str(s: &str) -> Result<Self> {
         match Readout::ALL.iter().find(|r| r.name() == s) {
             Some(&r) => Ok(r),
-            None => bail!("unknown readout {s:?} (expected nolink, sgm or head, each optionally with +lr)"),
+            None => bail!(
+                "unknown readout {s:?} (expected nolink, sgm or head, each optionally with +lr, then optionally +ref)"
+            ),
         }
     }
 }
@@ -112,6 +152,8 @@ pub struct MethodMaps {
     pub sgm_consistent: Vec<bool>,
     /// Cells whose head disparity passes the head's left-right check, when it ran.
     pub head_consistent: Option<Vec<bool>>,
+    /// The pair's views as the pipeline reads them (what `+ref` refines on).
+    pub views: GrayViews,
 }
 
 impl MethodMaps {
@@ -141,10 +183,16 @@ impl MethodMaps {
         Ok(fill_invalid(map, mask))
     }
 
-    /// The readout's pixel disparity: [`MethodMaps::tokens`] upsampled bilinearly (EVAL.md).
+    /// The readout's pixel disparity: [`MethodMaps::tokens`] upsampled bilinearly (EVAL.md),
+    /// or refined on [`MethodMaps::views`] for `+ref` ([`crate::refine::refine_pixels`]).
     /// What `bino run` writes and `bino eval` scores.
     pub fn pixels(&self, readout: Readout) -> Result<DisparityMap> {
-        Ok(upsample_disparity(&self.tokens(readout)?))
+        let tokens = self.tokens(readout)?;
+        if readout.refine {
+            refine_pixels(&tokens, &self.views).with_context(|| format!("{readout}: refinement"))
+        } else {
+            Ok(upsample_disparity(&tokens))
+        }
     }
 }
 
@@ -156,10 +204,35 @@ mod tests {
     fn names_round_trip_and_unknown_ones_are_errors() {
         for r in Readout::ALL {
             assert_eq!(r.name().parse::<Readout>().unwrap(), r);
+            assert_eq!(r.to_string(), r.name());
         }
+        let names: std::collections::BTreeSet<_> = Readout::ALL.iter().map(|r| r.name()).collect();
+        assert_eq!(names.len(), 12, "distinct names");
         assert_eq!("head+lr".parse::<Readout>().unwrap(), Readout::HEAD_LR);
-        let err = format!("{:#}", "head+LR".parse::<Readout>().unwrap_err());
-        assert!(err.contains("optionally with +lr"), "{err}");
+        assert_eq!(
+            "head+lr+ref".parse::<Readout>().unwrap(),
+            Readout::HEAD_LR.refined(true)
+        );
+        assert_eq!(Readout::ALL[1], Readout::NOLINK.refined(true), "each then its +ref");
+        for bad in ["head+LR", "head+ref+lr", "ref", "sgm+ref+ref"] {
+            let err = format!("{:#}", bad.parse::<Readout>().unwrap_err());
+            assert!(err.contains("optionally with +lr, then optionally +ref"), "{err}");
+        }
+    }
+
+    fn views(width: usize, height: usize) -> GrayViews {
+        let left: Vec<u8> = (0..width * height)
+            .map(|i| ((i * 97 + i / width * 31) % 251) as u8)
+            .collect();
+        let right = (0..width * height)
+            .map(|i| left[(i / width) * width + (i % width + 5).min(width - 1)])
+            .collect();
+        GrayViews {
+            width,
+            height,
+            left,
+            right,
+        }
     }
 
     /// The host's fill at the token grid is the core's integer `lr::fill_rejected`, value for
@@ -180,6 +253,7 @@ mod tests {
             nolink_consistent: mask.iter().map(|&m| m != 0).collect(),
             sgm_consistent: vec![true; 24],
             head_consistent: None,
+            views: views(32, 12),
         };
         let host = maps.tokens(Readout::new(Method::Nolink, true)).unwrap();
         let mut core = q8.clone();
@@ -189,5 +263,56 @@ mod tests {
         let core: Vec<f32> = core.iter().map(|&d| d as f32 / 256.0).collect();
         assert_eq!(host.values, core);
         assert!(maps.tokens(Readout::HEAD).is_err(), "no head in this run");
+    }
+
+    /// A `+ref` readout's pixels are `bino_core::refine::refine_map` of the readout's token grid
+    /// (after the fill) in Q8 on the views, Q8 px / 256; without `+ref` the bilinear upsampling.
+    #[test]
+    fn the_refined_pixels_are_the_cores_refine_map() {
+        use bino_core::refine::{refine_map, scratch_len, RefineParams};
+        let q8: Vec<u16> = (0..24).map(|i| 250 + (i * 37 % 11) as u16 * 9).collect();
+        let mask: Vec<bool> = (0..24).map(|i| i % 5 != 2).collect();
+        let map = DisparityMap {
+            width: 8,
+            height: 3,
+            values: q8.iter().map(|&d| d as f32 / 256.0).collect(),
+        };
+        let maps = MethodMaps {
+            nolink: map.clone(),
+            sgm: map.clone(),
+            head: Some(map.clone()),
+            nolink_consistent: mask.clone(),
+            sgm_consistent: mask.clone(),
+            head_consistent: Some(mask.clone()),
+            views: views(32, 12),
+        };
+        let v = &maps.views;
+        for readout in Readout::ALL {
+            let pixels = maps.pixels(readout).unwrap();
+            assert_eq!((pixels.width, pixels.height), (32, 12), "{readout}");
+            let tokens = maps.tokens(readout).unwrap();
+            if !readout.refine {
+                assert_eq!(pixels, upsample_disparity(&tokens), "{readout}");
+                continue;
+            }
+            let mut grid = q8.clone();
+            if readout.lr {
+                let m: Vec<u8> = mask.iter().map(|&k| u8::from(k)).collect();
+                for (row, m) in grid.chunks_exact_mut(8).zip(m.chunks_exact(8)) {
+                    bino_core::lr::fill_rejected(row, m).unwrap();
+                }
+            }
+            let params = RefineParams::DEFAULT;
+            let mut scratch = vec![0u32; scratch_len(32, &params)];
+            let mut out = vec![0u16; 32 * 12];
+            refine_map(&v.left, &v.right, 32, &grid, &params, &mut scratch, &mut out).unwrap();
+            let core: Vec<f32> = out.iter().map(|&d| d as f32 / 256.0).collect();
+            assert_eq!(pixels.values, core, "{readout}");
+        }
+        let refined = maps.pixels(Readout::SGM.refined(true)).unwrap();
+        assert!(
+            refined.values.iter().filter(|&&d| (d - 5.0).abs() < 0.25).count() > 32 * 12 / 2,
+            "the refinement finds the views' 5 px shift"
+        );
     }
 }

@@ -4,8 +4,10 @@
 //! metrics per pair and on average.
 //!
 //! Readouts: `nolink` (cosine WTA + parabola), `sgm` (4 streaming paths + parabola) and `head`
-//! (the shared head). For `nolink` and `sgm` the left-right check also gives `LRkeep` (% of
-//! ground-truth pixels whose cell passes it) and the error on those pixels only (`GT+LR`).
+//! (the shared head), each also `+lr` and each of those also `+ref` (the integer pixel
+//! refinement, the same for both precisions: [`crate::refine`]). Each method's left-right check
+//! also gives `LRkeep` (% of ground-truth pixels whose cell passes it) and the error on those
+//! pixels only (`GT+LR`).
 
 use std::path::PathBuf;
 use std::str::FromStr;
@@ -30,6 +32,7 @@ use crate::profile::Profile;
 use crate::readout::MethodMaps;
 pub use crate::readout::Readout;
 use crate::reference::ReferenceEncoder;
+use crate::refine::GrayViews;
 use crate::sgbm::{GrayPair, SgbmRunner};
 
 /// The arithmetic a readout runs in.
@@ -313,6 +316,8 @@ fn float_maps(
         nolink_consistent: wta_consistent,
         sgm_consistent,
         head_consistent,
+        // The refinement reads the pipeline's 8-bit views in both precisions.
+        views: GrayViews::from_views(&item.left, &item.right)?,
     })
 }
 
@@ -385,7 +390,7 @@ impl EvalReport {
         );
         let _ = writeln!(
             t,
-            "\n{:<14} {:>8} {:>10} {:>8} {:>8} {:>8} {:>10}",
+            "\n{:<18} {:>8} {:>10} {:>8} {:>8} {:>8} {:>10}",
             "readout", "epe px", "bad1tok %", "bad2 %", "density", "LRkeep", "GT+LR epe"
         );
         let opt = |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
@@ -393,7 +398,7 @@ impl EvalReport {
             let m = s.metrics;
             let _ = writeln!(
                 t,
-                "{:<14} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10}",
+                "{:<18} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10}",
                 format!("{} {}", p.name(), r.name()),
                 m.epe,
                 m.bad1tok,
@@ -406,24 +411,24 @@ impl EvalReport {
         if let Some(m) = self.sgbm_mean {
             let _ = writeln!(
                 t,
-                "{:<14} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10}",
+                "{:<18} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10}",
                 "StereoSGBM", m.epe, m.bad1tok, m.bad2, m.density, "-", "-"
             );
         }
         let _ = write!(t, "\n{:<24}", "pair (epe px)");
         for (p, r) in o.rows() {
-            let _ = write!(t, " {:>12}", format!("{} {}", p.name(), r.name()));
+            let _ = write!(t, " {:>18}", format!("{} {}", p.name(), r.name()));
         }
         if self.sgbm_mean.is_some() {
-            let _ = write!(t, " {:>12}", "SGBM");
+            let _ = write!(t, " {:>18}", "SGBM");
         }
         for pair in &self.pairs {
             let _ = write!(t, "\n{:<24}", pair.pair_id);
             for s in &pair.scores {
-                let _ = write!(t, " {:>12.3}", s.metrics.epe);
+                let _ = write!(t, " {:>18.3}", s.metrics.epe);
             }
             if let Some(m) = pair.sgbm {
-                let _ = write!(t, " {:>12.3}", m.epe);
+                let _ = write!(t, " {:>18.3}", m.epe);
             }
         }
         t

@@ -1,5 +1,10 @@
 //! `bino run`: the int8 pipeline on any rectified pair: disparity as a colour picture, as raw
 //! float32 (PFM) and the left-right consistency mask, with timings and arena use.
+//!
+//! The disparity is the readout's pixel map exactly as `bino eval` scores it
+//! ([`crate::readout::MethodMaps::pixels`]): refined (`+ref`) by default, `--refine off` for
+//! the bilinear upsampling of the token grid. Dense either way: every pixel holds a finite
+//! value, the cells the method's left-right check rejects are marked in `lr_mask.png` only.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -18,6 +23,30 @@ use crate::profile::Profile;
 use crate::readout::Readout;
 use crate::readout_eval::lr_tolerance_q8;
 
+/// `bino run --refine`: whether the readout's pixels are refined.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Refine {
+    /// The readout's `+ref` variant: the integer pixel refinement (the default).
+    On,
+    /// The token grid upsampled bilinearly (the output before the refinement existed).
+    Off,
+}
+
+impl Refine {
+    /// The readout `bino run` writes for `--readout readout --refine self`: `readout` refined
+    /// when on; an error message when a `+ref` readout is asked for with `--refine off`.
+    pub fn apply(self, readout: Readout) -> std::result::Result<Readout, String> {
+        match self {
+            Refine::On => Ok(readout.refined(true)),
+            Refine::Off if readout.refine => Err(format!(
+                "--readout {readout} asks for the refinement and --refine off refuses it: use --readout {}",
+                readout.refined(false)
+            )),
+            Refine::Off => Ok(readout),
+        }
+    }
+}
+
 /// What `bino run` runs on and where it writes.
 #[derive(Debug, Clone)]
 pub struct RunOptions {
@@ -29,7 +58,7 @@ pub struct RunOptions {
     pub profile: Profile,
     /// Int8 weight blob.
     pub blob: PathBuf,
-    /// Readout.
+    /// Readout (with `+ref`: refined pixels; see [`Refine::apply`]).
     pub readout: Readout,
     /// Disparity candidates of nolink and sgm, in patch columns.
     pub max_cols: usize,
@@ -97,7 +126,12 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
     let maps = run_pipeline(&model, &left, &right, &pipeline_opts, &mut on_band)?;
     finish(&mut timings, started);
 
-    let started = step("pixels, left-right mask", &mut timings, &mut progress);
+    let pixels = if opts.readout.refine {
+        "pixels (integer refinement), left-right mask"
+    } else {
+        "pixels (bilinear), left-right mask"
+    };
+    let started = step(pixels, &mut timings, &mut progress);
     // The readout exactly as `bino eval` scores it; the mask is its method's own check.
     let disparity = maps.methods.pixels(opts.readout)?;
     let (tokens, consistent) = maps.methods.method(opts.readout.method)?;
@@ -180,5 +214,15 @@ mod tests {
         let first = f32::from_le_bytes(bytes[header.len()..header.len() + 4].try_into().unwrap());
         assert_eq!(first, 3.0, "the bottom row comes first");
         assert_eq!(bytes.len(), header.len() + 16);
+    }
+
+    #[test]
+    fn refine_picks_the_readout() {
+        let sgm_lr = "sgm+lr".parse::<Readout>().unwrap();
+        assert_eq!(Refine::On.apply(sgm_lr).unwrap().name(), "sgm+lr+ref");
+        assert_eq!(Refine::On.apply(sgm_lr.refined(true)).unwrap().name(), "sgm+lr+ref");
+        assert_eq!(Refine::Off.apply(sgm_lr).unwrap(), sgm_lr);
+        let err = Refine::Off.apply(sgm_lr.refined(true)).unwrap_err();
+        assert!(err.contains("--readout sgm+lr"), "{err}");
     }
 }

@@ -120,6 +120,13 @@ impl SimReport {
 /// Runs the simulation; `progress` hears about each step before it starts.
 pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimReport> {
     ensure!(opts.frames >= 1, "--frames must be at least 1");
+    ensure!(
+        !opts.readout.refine,
+        "bino sim draws the token rows as the core pipeline streams them, and the pixel refinement \
+         is not a pipeline stage yet: use --readout {} (bino run and bino eval have {})",
+        opts.readout.refined(false),
+        opts.readout
+    );
     progress("loading the pair and the blob");
     let (source, left, right) = load_pair(opts)?;
     let (width, height) = (left.width, left.height);

@@ -249,3 +249,62 @@ fn run_refuses_views_of_different_sizes() {
     assert_fails_with(&run, &["differ in size", "l.png", "r.png"]);
     assert!(!dir.join("out").exists(), "nothing is written on bad input");
 }
+
+/// `--refine off` writes the readout's token grid upsampled bilinearly, the formula `bino run`
+/// used before the refinement existed; the default writes the readout's `+ref`, the core's
+/// refinement of the same grid on the same 8-bit views. The mask is the method's either way.
+#[test]
+fn run_refine_off_is_the_upsampled_grid_and_the_default_its_refinement() {
+    use bino_core::pipeline::Options;
+    use bino_host::eval::upsample_disparity;
+    use bino_host::int8::Int8Model;
+    use bino_host::pipeline_maps::run_pipeline;
+    use bino_host::profile::{load_profiled_pair, Profile};
+    use bino_host::readout::{Method, Readout};
+    use bino_host::refine::{refine_pixels, GrayViews};
+    use bino_host::run::pfm_bytes;
+
+    let dir = scratch("refine");
+    let scene = bino_host::synthetic::default_scene(160, 48);
+    let (left, right) = (dir.join("l.png"), dir.join("r.png"));
+    for (view, path) in [(&scene.left, &left), (&scene.right, &right)] {
+        image::GrayImage::from_raw(view.width as u32, view.height as u32, view.pixels.clone())
+            .unwrap()
+            .save(path)
+            .unwrap();
+    }
+    let run = |out: &Path, extra: &[&str]| {
+        let mut args = vec!["run", "--left", s(&left), "--right", s(&right), "--profile", "native"];
+        args.extend(["--readout", "sgm+lr", "--out", s(out)]);
+        args.extend(extra);
+        let run = bino(&args);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        String::from_utf8_lossy(&run.stdout).into_owned()
+    };
+    let (on, off) = (dir.join("on"), dir.join("off"));
+    assert!(run(&on, &[]).contains("bino run: sgm+lr+ref readout"));
+    assert!(run(&off, &["--refine", "off"]).contains("bino run: sgm+lr readout"));
+
+    // The same pipeline through the library, with run's defaults.
+    let (l, r) = load_profiled_pair(&left, &right, Profile::Native).unwrap();
+    let model = Int8Model::load(Path::new(bino_host::demo::DEFAULT_BLOB)).unwrap();
+    let opts = Options {
+        max_cols: 16,
+        penalties: bino_host::demo::DEFAULT_PENALTIES,
+        lr_max_diff_q8: 256,
+        head: false,
+        head_lr: false,
+    };
+    let maps = run_pipeline(&model, &l, &r, &opts, &mut |_, _| {}).unwrap().methods;
+    let tokens = maps.tokens(Readout::new(Method::Sgm, true)).unwrap();
+    let pfm = |dir: &Path| std::fs::read(dir.join("disparity.pfm")).unwrap();
+    assert!(
+        pfm(&off) == pfm_bytes(&upsample_disparity(&tokens)),
+        "--refine off: the old output"
+    );
+    let refined = refine_pixels(&tokens, &GrayViews::from_views(&l, &r).unwrap()).unwrap();
+    assert!(pfm(&on) == pfm_bytes(&refined), "default: the refinement");
+    assert!(pfm(&on) != pfm(&off));
+    let mask = |dir: &Path| std::fs::read(dir.join("lr_mask.png")).unwrap();
+    assert!(mask(&on) == mask(&off), "the method's mask either way");
+}

@@ -195,6 +195,25 @@ fn a_usage_error_exits_with_2() {
     assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
     let out = bino(&["pairs", "--split", "test"]);
     assert_eq!(out.status.code(), Some(2), "{}", String::from_utf8_lossy(&out.stderr));
+    let pair = ["--left", "l.png", "--right", "r.png"];
+    for bad in [
+        &["--refine", "maybe"][..],
+        &["--refine", "Off"],
+        &["--readout", "sgm+ref+lr"],
+        &["--readout", "sgm+ref", "--refine", "off"],
+    ] {
+        let out = bino(&[&["run"][..], &pair, bad].concat());
+        assert_eq!(
+            out.status.code(),
+            Some(2),
+            "{bad:?}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let out = bino(&["eval", "--readout", "head,head+lr+ref,head+ref+lr"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("then optionally +ref"), "{stderr}");
 }
 
 const HEADER: &str = "pair_id\tsplit\tdataset\tleft\tright\tgt\tgt_format\tgt_scale\tgt_invalid\twidth\theight\n";

@@ -1,7 +1,8 @@
 //! One readout, one number (issue 13): `bino run` writes a readout's pixel disparities exactly
 //! as `bino eval` scores them. On a multi-band eval pair (mb2005_Art at w160: 31 token rows,
 //! three bands), the EVAL.md epe of run's `disparity.pfm` equals eval's per-pair epe for the
-//! same readout and options.
+//! same readout and options: `run --readout R --refine off` is eval's `R`, `run --readout R`
+//! (refined by default) is eval's `R+ref`.
 
 use std::path::{Path, PathBuf};
 
@@ -71,7 +72,7 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
         ),
     )
     .unwrap();
-    let readouts = ["nolink+lr", "sgm", "head", "head+lr"];
+    let readouts = ["nolink+lr", "sgm", "head", "head+lr", "sgm+ref", "head+lr+ref"];
     let json = dir.join("eval.json");
     let eval = bino(&[
         "eval",
@@ -93,7 +94,12 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
 
     for readout in readouts {
         let out = dir.join(format!("run-{readout}"));
-        let run = bino(&[
+        // The refined readouts by run's default, the others with --refine off.
+        let (name, refine) = match readout.strip_suffix("+ref") {
+            Some(base) => (base, "on"),
+            None => (readout, "off"),
+        };
+        let mut args = vec![
             "run",
             "--left",
             s(&left),
@@ -102,13 +108,19 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
             "--profile",
             "w160",
             "--readout",
-            readout,
+            name,
             "--max-cols",
             &max_cols,
             "--out",
             s(&out),
-        ]);
+        ];
+        if refine == "off" {
+            args.extend(["--refine", "off"]);
+        }
+        let run = bino(&args);
         assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let stdout = String::from_utf8_lossy(&run.stdout);
+        assert!(stdout.contains(&format!("bino run: {readout} readout")), "{stdout}");
         let written = read_pfm(&out.join("disparity.pfm"));
         assert!(written.values.iter().all(|v| v.is_finite()), "{readout}: a dense map");
         let run_epe = score(&written, &item.gt).unwrap().epe;
@@ -120,4 +132,17 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
             "{readout}: run {run_epe} vs eval {eval_epe}"
         );
     }
+    // The refinement changes the map (and, on this pair, lowers the head's error).
+    let epe = |r: &str| {
+        report["per_pair"][0]["readouts"][format!("int8_{r}")]["metrics"]["epe"]
+            .as_f64()
+            .unwrap()
+    };
+    assert_ne!(epe("sgm"), epe("sgm+ref"));
+    assert!(
+        epe("head+lr+ref") < epe("head+lr"),
+        "{} vs {}",
+        epe("head+lr+ref"),
+        epe("head+lr")
+    );
 }

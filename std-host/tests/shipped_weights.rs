@@ -55,7 +55,7 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     let names: Vec<&str> = report.readouts.iter().map(|r| r.name).collect();
     assert_eq!(
         names,
-        ["nolink", "sgm", "head", "head+lr"],
+        ["nolink", "sgm", "head", "head+lr", "head+lr+ref"],
         "the shipped blob carries the head"
     );
     let epe: Vec<f32> = report.readouts.iter().map(|r| r.metrics.epe as f32).collect();
@@ -74,11 +74,14 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     // The head's own left-right check and fill only replaces cells it rejects.
     assert!(epe[3] < epe[0], "head+lr epe {} vs nolink {}", epe[3], epe[0]);
     assert_ne!(epe[3], epe[2], "head+lr fills some cells");
+    // The pixel refinement sharpens the planes' edges the bilinear upsampling blurs.
+    assert!(epe[4] < epe[3], "head+lr+ref epe {} vs head+lr {}", epe[4], epe[3]);
     for name in [
         "left.png",
         "disparity_true.png",
         "disparity_head.png",
         "disparity_head+lr.png",
+        "disparity_head+lr+ref.png",
         "error_nolink.png",
     ] {
         let picture = image::open(out.join(name)).unwrap_or_else(|e| panic!("{name}: {e}"));
@@ -92,6 +95,7 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert!(report_json["head"]["epe"].as_f64().is_some(), "{report_json}");
     assert!(report_json["head+lr"]["epe"].as_f64().is_some(), "{report_json}");
+    assert!(report_json["head+lr+ref"]["epe"].as_f64().is_some(), "{report_json}");
     std::fs::remove_dir_all(&out).ok();
 }
 
@@ -176,7 +180,13 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
         onnx: weights.join("bino_encoder.onnx"),
         head_onnx: weights.join("bino_head.onnx"),
         precisions: vec![Precision::Int8, Precision::F32],
-        readouts: vec![Readout::NOLINK, Readout::SGM, Readout::HEAD, Readout::HEAD_LR],
+        readouts: vec![
+            Readout::NOLINK,
+            Readout::SGM,
+            Readout::HEAD,
+            Readout::HEAD_LR,
+            Readout::HEAD_LR.refined(true),
+        ],
         max_cols: DEFAULT_MAX_COLS,
         penalties: bino_host::demo::DEFAULT_PENALTIES,
         lr_max_diff: 1.0,
@@ -189,8 +199,8 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
         assert_eq!(total, 2);
     })
     .expect("eval runs on the shipped weights");
-    assert_eq!((seen, report.pairs.len(), report.mean.len()), (2, 2, 8));
-    let (int8, float) = report.mean.split_at(4);
+    assert_eq!((seen, report.pairs.len(), report.mean.len()), (2, 2, 10));
+    let (int8, float) = report.mean.split_at(5);
     for (i, f) in int8.iter().zip(float) {
         let (ei, ef) = (i.metrics.epe, f.metrics.epe);
         assert!(ei.is_finite() && ei > 0.0 && ei < 10.0, "{i:?}");
@@ -207,6 +217,11 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
     // head+lr keeps the head's check and fills what it rejects: the same keep rate.
     assert_eq!(int8[3].lr_keep, int8[2].lr_keep);
     assert_ne!(int8[3].metrics.epe, int8[2].metrics.epe, "the fill changes the map");
+    // head+lr+ref refines head+lr's grid: the same cells kept, another map.
+    for p in [int8, float] {
+        assert_eq!(p[4].lr_keep, p[3].lr_keep);
+        assert_ne!(p[4].metrics.epe, p[3].metrics.epe, "the refinement changes the map");
+    }
     if sgbm {
         let m = report.sgbm_mean.expect("SGBM ran");
         assert!(m.density > 50.0 && m.density < 100.0 && m.epe < 2.0, "{m:?}");
@@ -219,5 +234,10 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
     );
     assert!(json["mean"]["f32_head"]["metrics"]["epe"].as_f64().is_some(), "{json}");
     assert!(json["mean"]["int8_head+lr"]["lr_keep"].as_f64().is_some(), "{json}");
+    assert!(
+        json["mean"]["f32_head+lr+ref"]["metrics"]["epe"].as_f64().is_some(),
+        "{json}"
+    );
     assert!(report.table().contains("f32 sgm"));
+    assert!(report.table().contains("int8 head+lr+ref"));
 }

@@ -111,4 +111,9 @@ fn a_bad_display_size_or_a_lone_view_is_refused() {
     let run = bino(&["sim", "--left", "a.png"]);
     assert!(!run.status.success());
     assert!(String::from_utf8_lossy(&run.stderr).contains("--right"));
+    // The board draws token rows as they stream; the refinement is not a pipeline stage yet.
+    let run = bino(&["sim", "--readout", "head+lr+ref", "--out", s(&scratch("refined"))]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(1), "{stderr}");
+    assert!(stderr.contains("use --readout head+lr"), "{stderr}");
 }

@@ -10,7 +10,9 @@
 //!
 //! Per pair, from those descriptor maps: how often the integer winner-take-all disparity
 //! (argmax of the cosine similarity volume) agrees, and the `EVAL.md` metrics of the
-//! no-linkage readout for each model. Pairs are averaged without weights, like the metrics.
+//! no-linkage readout for each model, upsampled (`nolink`) and refined (`nolink+ref`, the
+//! readouts' one refinement, [`crate::refine`]); the same for the head when it runs. Pairs are
+//! averaged without weights, like the metrics.
 
 pub mod head;
 pub mod report;
@@ -33,6 +35,7 @@ use crate::int8::{dequantise_residual, to_u8, Int8Model, StageRecorder};
 use crate::pairs::{read_index, Split};
 use crate::profile::{Profile, View};
 use crate::reference::{FeatureMap, ReferenceEncoder};
+use crate::refine::{refine_pixels, GrayViews};
 use stages::{mean_token_cosine, EmbedSource, FloatStages, STAGE_COUNT};
 
 /// What to compare, and on which pairs.
@@ -67,6 +70,10 @@ pub struct HeadComparison {
     pub float: Metrics,
     /// EVAL.md metrics of the int8 head's disparity.
     pub int8: Metrics,
+    /// The float head's disparity refined (`head+ref`).
+    pub float_ref: Metrics,
+    /// The int8 head's disparity refined (`head+ref`).
+    pub int8_ref: Metrics,
 }
 
 impl HeadComparison {
@@ -95,6 +102,10 @@ pub struct Comparison {
     pub float: Metrics,
     /// Metrics of the no-linkage readout of the int8 descriptors.
     pub int8: Metrics,
+    /// The float no-linkage readout refined (`nolink+ref`).
+    pub float_ref: Metrics,
+    /// The int8 no-linkage readout refined (`nolink+ref`).
+    pub int8_ref: Metrics,
     /// The head comparison, once there is one.
     pub head: Option<HeadComparison>,
 }
@@ -112,22 +123,28 @@ impl Comparison {
         let n = items.len() as f64;
         let mean = |get: &dyn Fn(&Comparison) -> f64| items.iter().map(|c| get(c)).sum::<f64>() / n;
         let heads: Option<Vec<HeadComparison>> = items.iter().map(|c| c.head).collect();
-        let floats: Vec<Metrics> = items.iter().map(|c| c.float).collect();
-        let int8s: Vec<Metrics> = items.iter().map(|c| c.int8).collect();
+        let all = |get: fn(&Comparison) -> Metrics| mean_metrics(&items.iter().map(|c| get(c)).collect::<Vec<_>>());
+        let heads_of = |h: &[HeadComparison], get: fn(&HeadComparison) -> Metrics| {
+            mean_metrics(&h.iter().map(get).collect::<Vec<_>>())
+        };
         Ok(Comparison {
             stage_cosine: (0..STAGE_COUNT).map(|s| mean(&|c| c.stage_cosine[s])).collect(),
             descriptor_cosine: mean(&|c| c.descriptor_cosine),
             wta_agreement: mean(&|c| c.wta_agreement),
             wta_flip_loss: mean(&|c| c.wta_flip_loss),
             wta_top2_gap: mean(&|c| c.wta_top2_gap),
-            float: mean_metrics(&floats)?,
-            int8: mean_metrics(&int8s)?,
+            float: all(|c| c.float)?,
+            int8: all(|c| c.int8)?,
+            float_ref: all(|c| c.float_ref)?,
+            int8_ref: all(|c| c.int8_ref)?,
             head: match heads {
                 Some(h) => Some(HeadComparison {
                     logit_cosine: h.iter().map(|x| x.logit_cosine).sum::<f64>() / n,
                     disparity_mean_abs: h.iter().map(|x| x.disparity_mean_abs).sum::<f64>() / n,
-                    float: mean_metrics(&h.iter().map(|x| x.float).collect::<Vec<_>>())?,
-                    int8: mean_metrics(&h.iter().map(|x| x.int8).collect::<Vec<_>>())?,
+                    float: heads_of(&h, |x| x.float)?,
+                    int8: heads_of(&h, |x| x.int8)?,
+                    float_ref: heads_of(&h, |x| x.float_ref)?,
+                    int8_ref: heads_of(&h, |x| x.int8_ref)?,
                 }),
                 None => None,
             },
@@ -250,6 +267,8 @@ impl Comparer {
         let right = self.compare_view(&item.right).context("right view")?;
         let float_volume = similarity_volume(&left.float, &right.float, self.max_cols)?;
         let int8_volume = similarity_volume(&left.int8, &right.int8, self.max_cols)?;
+        let views = GrayViews::from_views(&item.left, &item.right)?;
+        let (float_wta, int8_wta) = (wta_subtoken(&float_volume), wta_subtoken(&int8_volume));
         let values = Comparison {
             stage_cosine: (0..STAGE_COUNT)
                 .map(|s| 0.5 * (left.stage_cosine[s] + right.stage_cosine[s]))
@@ -258,9 +277,11 @@ impl Comparer {
             wta_agreement: wta_agreement(&float_volume, &int8_volume)?,
             wta_flip_loss: wta_flip_loss(&float_volume, &int8_volume)?,
             wta_top2_gap: top2_gap_median(&float_volume),
-            float: readout_metrics(&float_volume, item).context("float readout")?,
-            int8: readout_metrics(&int8_volume, item).context("int8 readout")?,
-            head: self.compare_head(&left, &right, item).context("shared head")?,
+            float: score(&upsample_disparity(&float_wta), &item.gt).context("float readout")?,
+            int8: score(&upsample_disparity(&int8_wta), &item.gt).context("int8 readout")?,
+            float_ref: refined_metrics(&float_wta, &views, item).context("float nolink+ref")?,
+            int8_ref: refined_metrics(&int8_wta, &views, item).context("int8 nolink+ref")?,
+            head: self.compare_head(&left, &right, &views, item).context("shared head")?,
         };
         Ok(PairComparison {
             pair_id: item.pair_id.clone(),
@@ -276,6 +297,7 @@ impl Comparer {
         &mut self,
         left: &ViewComparison,
         right: &ViewComparison,
+        views: &GrayViews,
         item: &EvalItem,
     ) -> Result<Option<HeadComparison>> {
         let Some(float_head) = self.float_head.as_mut() else {
@@ -284,20 +306,21 @@ impl Comparer {
         let (rows, cols) = (left.int8.rows, left.int8.cols);
         let int8 = self.int8.head(&left.codes, &right.codes, rows, cols)?;
         let float = float_head.run(&left.float, &right.float)?;
-        let scored = |values: &[f32]| {
-            let tokens = DisparityMap {
-                width: cols,
-                height: rows,
-                values: values.to_vec(),
-            };
-            score(&upsample_disparity(&tokens), &item.gt)
+        let tokens = |values: &[f32]| DisparityMap {
+            width: cols,
+            height: rows,
+            values: values.to_vec(),
         };
+        let scored = |values: &[f32]| score(&upsample_disparity(&tokens(values)), &item.gt);
+        let refined = |values: &[f32]| refined_metrics(&tokens(values), views, item);
         let agreement = head::compare_heads(&int8, &float)?;
         Ok(Some(HeadComparison {
             logit_cosine: agreement.logit_cosine,
             disparity_mean_abs: agreement.disparity_mean_abs,
             float: scored(&float.disparity)?,
             int8: scored(&int8.disparity)?,
+            float_ref: refined(&float.disparity)?,
+            int8_ref: refined(&int8.disparity)?,
         }))
     }
 
@@ -450,9 +473,9 @@ pub fn top2_gap_median(volume: &SimilarityVolume) -> f64 {
     gaps[gaps.len() / 2] as f64
 }
 
-// EVAL.md metrics of the no-linkage readout of one similarity volume.
-fn readout_metrics(volume: &SimilarityVolume, item: &EvalItem) -> Result<Metrics> {
-    score(&upsample_disparity(&wta_subtoken(volume)), &item.gt)
+// EVAL.md metrics of a token grid's refined pixels (the `+ref` readouts' rule).
+fn refined_metrics(tokens: &DisparityMap, views: &GrayViews, item: &EvalItem) -> Result<Metrics> {
+    score(&refine_pixels(tokens, views)?, &item.gt)
 }
 
 /// Runs the comparison over the split's pairs; `progress(done, total, pair)` after each pair.
@@ -548,11 +571,15 @@ mod tests {
             wta_top2_gap: 0.1,
             float: metrics(2.0),
             int8: metrics(2.0),
+            float_ref: metrics(1.0),
+            int8_ref: metrics(1.0),
             head: Some(HeadComparison {
                 logit_cosine: 1.0,
                 disparity_mean_abs: 0.0,
                 float: metrics(1.0),
                 int8: metrics(1.5),
+                float_ref: metrics(0.5),
+                int8_ref: metrics(0.75),
             }),
         };
         let b = Comparison {
@@ -560,6 +587,7 @@ mod tests {
             descriptor_cosine: 0.5,
             wta_agreement: 50.0,
             int8: metrics(3.0),
+            int8_ref: metrics(2.0),
             ..a.clone()
         };
         let m = Comparison::mean([&a, &b]).unwrap();
@@ -567,6 +595,7 @@ mod tests {
         assert_eq!((m.descriptor_cosine, m.wta_agreement), (0.75, 75.0));
         assert_eq!((m.float.epe, m.int8.epe), (2.0, 2.5));
         assert_eq!(m.epe_change_pct(), 25.0);
+        assert_eq!((m.float_ref.epe, m.int8_ref.epe), (1.0, 1.5));
         assert_eq!(m.head.map(|h| h.epe_change_pct()), Some(50.0));
         let c = Comparison { head: None, ..b };
         assert!(Comparison::mean([&a, &c]).unwrap().head.is_none());

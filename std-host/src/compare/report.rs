@@ -146,6 +146,10 @@ impl CompareReport {
         );
         metric_row(&mut t, "bad1tok (%)", mean.float.bad1tok, mean.int8.bad1tok, "");
         metric_row(&mut t, "bad2 (%)", mean.float.bad2, mean.int8.bad2, "");
+        let _ = writeln!(t, "  refined (nolink+ref)");
+        metric_row(&mut t, "epe (px)", mean.float_ref.epe, mean.int8_ref.epe, "");
+        metric_row(&mut t, "bad1tok (%)", mean.float_ref.bad1tok, mean.int8_ref.bad1tok, "");
+        metric_row(&mut t, "bad2 (%)", mean.float_ref.bad2, mean.int8_ref.bad2, "");
         if let Some(head) = &mean.head {
             let _ = writeln!(
                 t,
@@ -155,6 +159,10 @@ impl CompareReport {
             metric_row(&mut t, "epe (px)", head.float.epe, head.int8.epe, "");
             metric_row(&mut t, "bad1tok (%)", head.float.bad1tok, head.int8.bad1tok, "");
             metric_row(&mut t, "bad2 (%)", head.float.bad2, head.int8.bad2, "");
+            let _ = writeln!(t, "  refined (head+ref)");
+            metric_row(&mut t, "epe (px)", head.float_ref.epe, head.int8_ref.epe, "");
+            metric_row(&mut t, "bad1tok (%)", head.float_ref.bad1tok, head.int8_ref.bad1tok, "");
+            metric_row(&mut t, "bad2 (%)", head.float_ref.bad2, head.int8_ref.bad2, "");
         }
         let _ = writeln!(
             t,
@@ -274,6 +282,9 @@ struct ComparisonJson {
     float: Metrics,
     int8: Metrics,
     epe_change_pct: f64,
+    /// `nolink+ref`.
+    float_ref: Metrics,
+    int8_ref: Metrics,
     head: Option<HeadJson>,
 }
 
@@ -288,6 +299,8 @@ impl ComparisonJson {
             float: c.float,
             int8: c.int8,
             epe_change_pct: c.epe_change_pct(),
+            float_ref: c.float_ref,
+            int8_ref: c.int8_ref,
             head: c.head.as_ref().map(HeadJson::new),
         }
     }
@@ -300,6 +313,9 @@ struct HeadJson {
     float: Metrics,
     int8: Metrics,
     epe_change_pct: f64,
+    /// `head+ref`.
+    float_ref: Metrics,
+    int8_ref: Metrics,
 }
 
 impl HeadJson {
@@ -310,6 +326,8 @@ impl HeadJson {
             float: h.float,
             int8: h.int8,
             epe_change_pct: h.epe_change_pct(),
+            float_ref: h.float_ref,
+            int8_ref: h.int8_ref,
         }
     }
 }
@@ -338,6 +356,8 @@ mod tests {
             wta_top2_gap: 0.02,
             float: m(epe_float),
             int8: m(epe_int8),
+            float_ref: m(0.6 * epe_float),
+            int8_ref: m(0.6 * epe_int8),
             head: None,
         }
     }
@@ -389,6 +409,7 @@ mod tests {
         );
         assert!(table.contains("block6"), "{table}");
         assert!(table.contains("targets met: 2 of 3"), "{table}");
+        assert!(table.contains("refined (nolink+ref)"), "{table}");
     }
 
     #[test]
@@ -399,6 +420,8 @@ mod tests {
             disparity_mean_abs: 0.1,
             float: Metrics { epe: 1.5, ..mean.float },
             int8: Metrics { epe: 1.6, ..mean.float },
+            float_ref: Metrics { epe: 0.9, ..mean.float },
+            int8_ref: Metrics { epe: 1.0, ..mean.float },
         });
         let text = report(mean).to_json();
         let v: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -409,6 +432,8 @@ mod tests {
         assert_eq!(v["mean"]["stage_cosine"]["embed"], 1.0);
         assert_eq!(v["mean"]["head"]["logit_cosine"], 0.98);
         assert_eq!(v["mean"]["head"]["int8"]["epe"], 1.6);
+        assert_eq!(v["mean"]["head"]["int8_ref"]["epe"], 1.0);
+        assert_eq!(v["mean"]["float_ref"]["epe"], 1.2);
         assert_eq!(v["pairs"][0]["bands_per_view"], 3);
         assert_eq!(v["pairs"][0]["int8"]["epe"], 2.02);
         assert_eq!(v["targets"].as_array().unwrap().len(), 3);
