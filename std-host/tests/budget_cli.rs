@@ -65,7 +65,18 @@ fn budget_reports_the_committed_runs() {
         );
     }
     let targets = report["targets"].as_array().unwrap();
-    assert_eq!(targets.len(), 4);
+    // Weights, arena, then per core its band-pair instructions and its refinement's share.
+    assert_eq!(targets.len(), 6);
+    for core in ["Cortex-M55", "Cortex-M7"] {
+        let refinement = targets
+            .iter()
+            .find(|t| {
+                let name = t["target"].as_str().unwrap();
+                name.starts_with(core) && name.contains("refinement")
+            })
+            .unwrap_or_else(|| panic!("{core}: no refinement target in {targets:?}"));
+        assert_eq!(refinement["met"], true, "{core}: {refinement}");
+    }
     let png_bytes = std::fs::read(&png).unwrap();
     assert_eq!(&png_bytes[1..4], b"PNG");
     let _ = std::fs::remove_dir_all(&out);
