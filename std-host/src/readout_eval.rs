@@ -270,7 +270,7 @@ fn evaluate_set(
     progress: &mut impl FnMut(usize, usize, &PairEval),
 ) -> Result<SetScores> {
     let sgbm_scores = match sgbm {
-        Some(runner) => Some(sgbm_metrics(runner, &items)?),
+        Some(runner) => Some(sgbm_metrics(runner, items)?),
         None => None,
     };
     let mut pairs = Vec::with_capacity(items.len());
