@@ -18,6 +18,7 @@ pub mod int8;
 mod keyed;
 pub mod npy;
 pub mod npz;
+pub mod nuisance;
 pub mod onnx;
 pub mod onnx_params;
 pub mod pairs;

@@ -215,7 +215,7 @@ enum Command {
     },
     /// Score the readouts (nolink, sgm, head, each also +lr, each of those also +ref) on the
     /// eval split, int8 (the core pipeline) and f32, EVAL.md metrics per pair and mean,
-    /// StereoSGBM in the same run.
+    /// StereoSGBM in the same run; with --nuisance also with the right view degraded.
     Eval {
         /// Folder with PAIRS.tsv.
         #[arg(long, default_value = "../shared/data")]
@@ -270,6 +270,18 @@ enum Command {
         /// Only the first N pairs of the split.
         #[arg(long)]
         limit: Option<usize>,
+        /// Also score every readout and StereoSGBM with the RIGHT view degraded (repeat or
+        /// comma-separate; the clean run is always reported too). Applied to the profile's
+        /// 8-bit right view after resizing, the same images for every method: gain (v * 0.7 +
+        /// 20, clamped), gamma (255 (v/255)^0.6), noise (gaussian, sigma 8 grey levels), blur
+        /// (5x5 box, radius 2 px), occlude (mid-grey rectangles, each at most 1/5 of the width
+        /// and height, until at least 20 % of the area is covered). The whole set runs once
+        /// more per nuisance: five nuisances take six times as long.
+        #[arg(long, value_delimiter = ',')]
+        nuisance: Vec<bino_host::nuisance::Nuisance>,
+        /// Seed of the nuisances' noise and occlusions (mixed with each pair's id).
+        #[arg(long, default_value_t = 0)]
+        seed: u64,
     },
     /// The int8 pipeline on a rectified pair of any size: writes disparity.png (colour),
     /// disparity.pfm (float32 pixel disparities, dense, the readout exactly as `bino eval` scores
@@ -452,6 +464,8 @@ fn run(cli: Cli) -> Result<()> {
             sgm_p2,
             json,
             limit,
+            nuisance,
+            seed,
         } => eval_command(
             &bino_host::readout_eval::EvalOptions {
                 data,
@@ -467,6 +481,8 @@ fn run(cli: Cli) -> Result<()> {
                 lr_max_diff,
                 sgbm: !no_sgbm,
                 limit,
+                nuisances: nuisance,
+                seed,
             },
             json.as_deref(),
         ),
@@ -685,8 +701,9 @@ fn eval_command(opts: &bino_host::readout_eval::EvalOptions, json: Option<&Path>
         if let Some(m) = pair.sgbm {
             epe.push(format!("SGBM {:.3}", m.epe));
         }
+        let under = pair.nuisance.map_or(String::new(), |n| format!(" under {}", n.name()));
         eprintln!(
-            "[{done}/{total}] {}: epe {} ({:.1} s)",
+            "[{done}/{total}] {}{under}: epe {} ({:.1} s)",
             pair.pair_id,
             epe.join(", "),
             pair.elapsed.as_secs_f64()

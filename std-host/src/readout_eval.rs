@@ -26,6 +26,7 @@ use crate::eval::{
 };
 use crate::int8::{to_u8, Int8Model};
 use crate::keyed::Keyed;
+use crate::nuisance::{degrade_item, Nuisance};
 use crate::pairs::{read_index, Split};
 use crate::pipeline_maps::run_pipeline;
 use crate::profile::Profile;
@@ -95,6 +96,10 @@ pub struct EvalOptions {
     pub sgbm: bool,
     /// Only the first this many pairs.
     pub limit: Option<usize>,
+    /// Nuisances of the right view, each scored over the whole set after the clean run.
+    pub nuisances: Vec<Nuisance>,
+    /// Seed of the nuisances (with each pair's id).
+    pub seed: u64,
 }
 
 impl EvalOptions {
@@ -131,6 +136,21 @@ pub struct PairEval {
     pub sgbm: Option<Metrics>,
     /// Wall time for the pair (every precision and readout).
     pub elapsed: Duration,
+    /// The nuisance the right view was under (None: clean).
+    pub nuisance: Option<Nuisance>,
+}
+
+/// The whole set under one nuisance.
+#[derive(Debug, Clone)]
+pub struct NuisanceEval {
+    /// The nuisance.
+    pub nuisance: Nuisance,
+    /// Per pair.
+    pub pairs: Vec<PairEval>,
+    /// Mean per row.
+    pub mean: Vec<ReadoutScore>,
+    /// SGBM's mean.
+    pub sgbm_mean: Option<Metrics>,
 }
 
 /// Every pair and the unweighted mean.
@@ -144,6 +164,8 @@ pub struct EvalReport {
     pub mean: Vec<ReadoutScore>,
     /// SGBM's mean.
     pub sgbm_mean: Option<Metrics>,
+    /// The same under each nuisance, in [`EvalOptions::nuisances`] order.
+    pub nuisances: Vec<NuisanceEval>,
 }
 
 /// Runs the readouts over the split; `progress(done, total, pair)` after each pair.
@@ -151,6 +173,13 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
     ensure!(!opts.readouts.is_empty(), "no readout to evaluate");
     ensure!(!opts.precisions.is_empty(), "no precision to evaluate");
     ensure!(opts.limit != Some(0), "--limit must be at least 1");
+    for (i, n) in opts.nuisances.iter().enumerate() {
+        ensure!(
+            !opts.nuisances[..i].contains(n),
+            "--nuisance {} is given twice",
+            n.name()
+        );
+    }
     let split = match opts.split.as_str() {
         "eval" => Split::Eval,
         other => bail!("split {other:?}: only eval pairs carry ground truth here (use --split eval)"),
@@ -190,8 +219,58 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
         .iter()
         .map(|r| load_eval_item(r, opts.profile))
         .collect::<Result<Vec<_>>>()?;
-    let sgbm_scores = match &sgbm {
-        Some(runner) => Some(sgbm_metrics(runner, &items)?),
+    let (pairs, mean, sgbm_mean) = evaluate_set(
+        opts,
+        model.as_ref(),
+        &mut float,
+        sgbm.as_ref(),
+        &items,
+        None,
+        &mut progress,
+    )?;
+    let mut nuisances = Vec::with_capacity(opts.nuisances.len());
+    for &nuisance in &opts.nuisances {
+        let degraded: Vec<EvalItem> = items.iter().map(|i| degrade_item(i, nuisance, opts.seed)).collect();
+        let (pairs, mean, sgbm_mean) = evaluate_set(
+            opts,
+            model.as_ref(),
+            &mut float,
+            sgbm.as_ref(),
+            &degraded,
+            Some(nuisance),
+            &mut progress,
+        )?;
+        nuisances.push(NuisanceEval {
+            nuisance,
+            pairs,
+            mean,
+            sgbm_mean,
+        });
+    }
+    Ok(EvalReport {
+        options: opts.clone(),
+        pairs,
+        mean,
+        sgbm_mean,
+        nuisances,
+    })
+}
+
+type FloatModels = Option<(ReferenceEncoder, Option<FloatHeadRunner>)>;
+type SetScores = (Vec<PairEval>, Vec<ReadoutScore>, Option<Metrics>);
+
+/// Every row and SGBM over `items` (right views under `nuisance`, already applied).
+fn evaluate_set(
+    opts: &EvalOptions,
+    model: Option<&Int8Model>,
+    float: &mut FloatModels,
+    sgbm: Option<&SgbmRunner>,
+    items: &[EvalItem],
+    nuisance: Option<Nuisance>,
+    progress: &mut impl FnMut(usize, usize, &PairEval),
+) -> Result<SetScores> {
+    let sgbm_scores = match sgbm {
+        Some(runner) => Some(sgbm_metrics(runner, items)?),
         None => None,
     };
     let mut pairs = Vec::with_capacity(items.len());
@@ -200,7 +279,7 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
         let mut scores = Vec::new();
         for &precision in &opts.precisions {
             let maps = match precision {
-                Precision::Int8 => int8_maps(opts, model.as_ref().context("int8 model")?, item)?,
+                Precision::Int8 => int8_maps(opts, model.context("int8 model")?, item)?,
                 Precision::F32 => {
                     let (encoder, head) = float.as_mut().context("float model")?;
                     float_maps(opts, encoder, head.as_mut(), item)?
@@ -218,6 +297,7 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
             scores,
             sgbm: sgbm_scores.as_ref().map(|s| s[i]),
             elapsed: started.elapsed(),
+            nuisance,
         };
         progress(i + 1, items.len(), &pair);
         pairs.push(pair);
@@ -229,12 +309,7 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
         Some(s) => Some(mean_metrics(s)?),
         None => None,
     };
-    Ok(EvalReport {
-        options: opts.clone(),
-        pairs,
-        mean,
-        sgbm_mean,
-    })
+    Ok((pairs, mean, sgbm_mean))
 }
 
 /// Scores `readout` of `maps` against `gt`: the metrics of its pixel disparity, and the
@@ -415,6 +490,46 @@ impl EvalReport {
                 "StereoSGBM", m.epe, m.bad1tok, m.bad2, m.density, "-", "-"
             );
         }
+        if !self.nuisances.is_empty() {
+            let _ = writeln!(
+                t,
+                "\nrobust accuracy: right view degraded (seed {}), epe px / bad1tok %, epe rise over clean; \
+                 * = rise below StereoSGBM's",
+                o.seed
+            );
+            let _ = write!(t, "{:<18} {:>14}", "readout", "clean");
+            for n in &self.nuisances {
+                let _ = write!(t, " {:>22}", n.nuisance.name());
+            }
+            let cell = |m: &Metrics| format!("{:.3}/{:.2}", m.epe, m.bad1tok);
+            for (r, ((p, readout), clean)) in o.rows().iter().zip(&self.mean).enumerate() {
+                let _ = write!(
+                    t,
+                    "\n{:<18} {:>14}",
+                    format!("{} {}", p.name(), readout.name()),
+                    cell(&clean.metrics)
+                );
+                for n in &self.nuisances {
+                    let m = n.mean[r].metrics;
+                    let rise = m.epe - clean.metrics.epe;
+                    let below = match self.sgbm_rise(n) {
+                        Some(sgbm) if rise < sgbm => "*",
+                        Some(_) => " ",
+                        None => "",
+                    };
+                    let _ = write!(t, " {:>22}", format!("{} {rise:+.3}{below}", cell(&m)));
+                }
+            }
+            if let Some(clean) = self.sgbm_mean {
+                let _ = write!(t, "\n{:<18} {:>14}", "StereoSGBM", cell(&clean));
+                for n in &self.nuisances {
+                    if let Some(m) = n.sgbm_mean {
+                        let _ = write!(t, " {:>22}", format!("{} {:+.3} ", cell(&m), m.epe - clean.epe));
+                    }
+                }
+            }
+            t.push('\n');
+        }
         let _ = write!(t, "\n{:<24}", "pair (epe px)");
         for (p, r) in o.rows() {
             let _ = write!(t, " {:>18}", format!("{} {}", p.name(), r.name()));
@@ -432,6 +547,11 @@ impl EvalReport {
             }
         }
         t
+    }
+
+    /// StereoSGBM's mean epe rise under `n` over its clean epe, when SGBM ran.
+    pub fn sgbm_rise(&self, n: &NuisanceEval) -> Option<f64> {
+        Some(n.sgbm_mean?.epe - self.sgbm_mean?.epe)
     }
 
     /// Every number as JSON.
@@ -460,6 +580,16 @@ impl EvalReport {
             sgm_p2: o.penalties.p2,
             lr_max_diff: o.lr_max_diff as f64,
             pairs: self.pairs.len(),
+            seed: o.seed,
+            nuisance_params: NuisanceParams {
+                gain: crate::nuisance::GAIN,
+                offset: crate::nuisance::OFFSET,
+                gamma: crate::nuisance::GAMMA,
+                noise_sigma: crate::nuisance::NOISE_SIGMA,
+                blur_radius: crate::nuisance::BLUR_RADIUS,
+                occlude_share: crate::nuisance::OCCLUDE_SHARE,
+                occlude_fill: crate::nuisance::OCCLUDE_FILL,
+            },
             mean: readouts(&self.mean, self.sgbm_mean),
             per_pair: (self.pairs.iter())
                 .map(|p| PairJson {
@@ -468,6 +598,36 @@ impl EvalReport {
                     seconds: p.elapsed.as_secs_f64(),
                 })
                 .collect(),
+            nuisances: Keyed(
+                (self.nuisances.iter())
+                    .map(|n| {
+                        let sgbm_rise = self.sgbm_rise(n);
+                        let rise: Vec<(String, f64)> = (rows.iter().zip(&n.mean).zip(&self.mean))
+                            .map(|(((p, r), s), clean)| {
+                                (format!("{}_{}", p.name(), r.name()), s.metrics.epe - clean.metrics.epe)
+                            })
+                            .collect();
+                        let below =
+                            sgbm_rise.map(|sgbm| Keyed(rise.iter().map(|(k, v)| (k.clone(), *v < sgbm)).collect()));
+                        let json = NuisanceJson {
+                            mean: readouts(&n.mean, n.sgbm_mean),
+                            epe_rise: RiseJson {
+                                rows: Keyed(rise),
+                                sgbm: sgbm_rise,
+                            },
+                            rise_below_sgbm: below,
+                            per_pair: (n.pairs.iter())
+                                .map(|p| PairJson {
+                                    pair_id: &p.pair_id,
+                                    readouts: readouts(&p.scores, p.sgbm),
+                                    seconds: p.elapsed.as_secs_f64(),
+                                })
+                                .collect(),
+                        };
+                        (n.nuisance.name().to_string(), json)
+                    })
+                    .collect(),
+            ),
         };
         serde_json::to_string_pretty(&json).expect("plain structs serialise")
     }
@@ -489,8 +649,44 @@ struct EvalJson<'a> {
     sgm_p2: u16,
     lr_max_diff: f64,
     pairs: usize,
+    seed: u64,
+    nuisance_params: NuisanceParams,
+    // Clean: the right view as loaded.
     mean: ReadoutsJson,
     per_pair: Vec<PairJson<'a>>,
+    // Keyed by nuisance name, in --nuisance order; empty without --nuisance.
+    nuisances: Keyed<NuisanceJson<'a>>,
+}
+
+// The constants of crate::nuisance.
+#[derive(Serialize)]
+struct NuisanceParams {
+    gain: f32,
+    offset: f32,
+    gamma: f32,
+    noise_sigma: f32,
+    blur_radius: usize,
+    occlude_share: f64,
+    occlude_fill: u8,
+}
+
+#[derive(Serialize)]
+struct NuisanceJson<'a> {
+    mean: ReadoutsJson,
+    // Mean epe under the nuisance minus the clean mean epe, per row and SGBM.
+    epe_rise: RiseJson,
+    // Per row: its epe rise is below SGBM's (absent when SGBM did not run).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    rise_below_sgbm: Option<Keyed<bool>>,
+    per_pair: Vec<PairJson<'a>>,
+}
+
+#[derive(Serialize)]
+struct RiseJson {
+    #[serde(flatten)]
+    rows: Keyed<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sgbm: Option<f64>,
 }
 
 #[derive(Serialize)]
@@ -529,6 +725,8 @@ mod tests {
             lr_max_diff: 1.0,
             sgbm: false,
             limit: None,
+            nuisances: vec![],
+            seed: 0,
         };
         let err = evaluate(&opts, |_, _, _| {}).unwrap_err().to_string();
         assert!(err.contains("only eval pairs"), "{err}");

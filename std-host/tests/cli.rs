@@ -308,3 +308,152 @@ fn run_refine_off_is_the_upsampled_grid_and_the_default_its_refinement() {
     let mask = |dir: &Path| std::fs::read(dir.join("lr_mask.png")).unwrap();
     assert!(mask(&on) == mask(&off), "the method's mask either way");
 }
+
+/// A 200x60 textured pair, the right view the left shifted by 8 px, with its ground truth.
+fn shifted_pair_folder(name: &str) -> PathBuf {
+    let dir = scratch(name);
+    let texture = |x: u32, y: u32| -> u8 {
+        let h = (x.wrapping_mul(2_654_435_761) ^ y.wrapping_mul(40_503)).wrapping_mul(2_246_822_519);
+        (h >> 24) as u8 / 2 + ((x / 3 + y / 2) % 2) as u8 * 100
+    };
+    image::GrayImage::from_fn(200, 60, |x, y| image::Luma([texture(x, y)]))
+        .save(dir.join("l.png"))
+        .unwrap();
+    image::GrayImage::from_fn(200, 60, |x, y| image::Luma([texture(x + 8, y)]))
+        .save(dir.join("r.png"))
+        .unwrap();
+    // png_u8 with scale 4: 32 means 8 px.
+    image::GrayImage::from_pixel(200, 60, image::Luma([32]))
+        .save(dir.join("gt.png"))
+        .unwrap();
+    std::fs::write(
+        dir.join("PAIRS.tsv"),
+        "pair_id\tsplit\tdataset\tleft\tright\tgt\tgt_format\tgt_scale\tgt_invalid\twidth\theight\n\
+         p\teval\tsynthetic\tl.png\tr.png\tgt.png\tpng_u8\t4\t0\t200\t60\n",
+    )
+    .unwrap();
+    dir
+}
+
+#[test]
+fn eval_reports_every_readout_and_sgbm_clean_and_under_each_nuisance_reproducibly() {
+    let dir = shifted_pair_folder("nuisance");
+    // StereoSGBM where the project's Python environment is there (as the other eval tests).
+    let sgbm = bino_host::sgbm::SgbmRunner::locate().is_ok();
+    let readouts = ["nolink", "sgm+lr+ref", "head+lr+ref"];
+    let nuisances = ["gain", "gamma", "noise", "blur", "occlude"];
+    let eval = |json: &Path| {
+        let readout = readouts.join(",");
+        let nuisance = nuisances.join(",");
+        let mut args = vec![
+            "eval",
+            "--data",
+            s(&dir),
+            "--precision",
+            "int8",
+            "--readout",
+            &readout,
+            "--nuisance",
+            &nuisance,
+            "--seed",
+            "7",
+            "--json",
+            s(json),
+        ];
+        if !sgbm {
+            args.push("--no-sgbm");
+        }
+        let run = bino(&args);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let stdout = String::from_utf8_lossy(&run.stdout).to_string();
+        let text = std::fs::read_to_string(json).unwrap();
+        (stdout, text)
+    };
+    let (stdout, first) = eval(&dir.join("a.json"));
+    assert!(stdout.contains("robust accuracy"), "{stdout}");
+    for n in nuisances {
+        assert!(stdout.contains(n), "table lacks {n}: {stdout}");
+    }
+    let v: serde_json::Value = serde_json::from_str(&first).unwrap();
+    assert_eq!(v["seed"], 7);
+    let epe = |section: &serde_json::Value, key: &str| -> f64 {
+        let m = if key == "sgbm" {
+            &section[key]
+        } else {
+            &section[key]["metrics"]
+        };
+        m["epe"]
+            .as_f64()
+            .unwrap_or_else(|| panic!("{key}: no epe in {section}"))
+    };
+    let mut keys: Vec<String> = readouts.iter().map(|r| format!("int8_{r}")).collect();
+    if sgbm {
+        keys.push("sgbm".into());
+    }
+    let names: Vec<&str> = v["nuisances"].as_object().unwrap().keys().map(|k| k.as_str()).collect();
+    let mut sorted = nuisances.to_vec();
+    sorted.sort();
+    assert_eq!(names, sorted, "one section per nuisance");
+    for key in &keys {
+        let clean = epe(&v["mean"], key);
+        assert!(clean.is_finite() && clean >= 0.0, "{key} clean epe {clean}");
+        for n in nuisances {
+            let section = &v["nuisances"][n];
+            let under = epe(&section["mean"], key);
+            assert!(under.is_finite() && under >= 0.0, "{key} under {n}: {under}");
+            let rise = section["epe_rise"][key].as_f64().unwrap();
+            assert!((rise - (under - clean)).abs() < 1e-9, "{key} under {n}: rise {rise}");
+            assert_eq!(
+                epe(&section["per_pair"][0]["readouts"], key),
+                under,
+                "one pair: mean = pair"
+            );
+            if sgbm && key != "sgbm" {
+                assert!(section["rise_below_sgbm"][key].is_boolean());
+            }
+        }
+    }
+    // Occlusion of a fifth of the right view must cost something.
+    assert!(epe(&v["nuisances"]["occlude"]["mean"], "int8_nolink") > epe(&v["mean"], "int8_nolink"));
+    // Seeded: a second run gives the same numbers (only the timings may differ).
+    let (_, second) = eval(&dir.join("b.json"));
+    let numbers = |text: &str| -> serde_json::Value {
+        let mut v: serde_json::Value = serde_json::from_str(text).unwrap();
+        fn strip(v: &mut serde_json::Value) {
+            match v {
+                serde_json::Value::Object(map) => {
+                    map.remove("seconds");
+                    map.values_mut().for_each(strip);
+                }
+                serde_json::Value::Array(items) => items.iter_mut().for_each(strip),
+                _ => {}
+            }
+        }
+        strip(&mut v);
+        v
+    };
+    assert_eq!(numbers(&first), numbers(&second));
+}
+
+#[test]
+fn unknown_or_repeated_nuisances_are_refused() {
+    let out = bino(&["eval", "--nuisance", "gain,fog"]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("fog") && stderr.contains("occlude"), "{stderr}");
+    let dir = shifted_pair_folder("nuisance-twice");
+    let out = bino(&[
+        "eval",
+        "--data",
+        s(&dir),
+        "--precision",
+        "int8",
+        "--readout",
+        "nolink",
+        "--no-sgbm",
+        "--nuisance",
+        "blur,blur",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && stderr.contains("given twice"), "{stderr}");
+}

@@ -192,6 +192,8 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
         lr_max_diff: 1.0,
         sgbm,
         limit: Some(2),
+        nuisances: vec![],
+        seed: 0,
     };
     let mut seen = 0;
     let report = evaluate(&opts, |done, total, _| {
