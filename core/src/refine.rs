@@ -221,36 +221,12 @@ pub fn refine_row(
 ) -> Result<(), Error> {
     params.check()?;
     let width = out.len();
-    let height = rows.height;
-    if width == 0 || height == 0 {
+    if width == 0 {
         return Err(Error::EmptyImage);
     }
-    if height > MAX_HEIGHT {
-        return Err(Error::TooTall {
-            height,
-            max: MAX_HEIGHT,
-        });
-    }
-    if y >= height {
-        return Err(Error::OutOfRange {
-            what: "output row",
-            value: y,
-            min: 0,
-            max: height - 1,
-        });
-    }
-    let window = params.window_rows();
-    check_len("left row window", rows.left.len(), window)?;
-    check_len("right row window", rows.right.len(), window)?;
-    for row in rows.left {
-        check_len("left view row", row.len(), width)?;
-    }
-    for row in rows.right {
-        check_len("right view row", row.len(), width)?;
-    }
+    check_row_inputs(y, width, rows, tokens, params)?;
+    let height = rows.height;
     let cells = width.div_ceil(CELL_W);
-    check_len("first token row", tokens.first.len(), cells)?;
-    check_len("second token row", tokens.second.len(), cells)?;
     check_len("refinement scratch", scratch.len(), scratch_len(width, params))?;
 
     let (r, b) = (params.census_radius, params.box_radius);
@@ -304,6 +280,47 @@ pub fn refine_row(
         };
     }
     Ok(())
+}
+
+/// The checks [`refine_row`] and [`RowRefiner::refine_row`] share: the image height, the row
+/// asked for, the row windows and the token rows, for views `width` pixels wide.
+pub(crate) fn check_row_inputs(
+    y: usize,
+    width: usize,
+    rows: &ViewRows<'_>,
+    tokens: &TokenRows<'_>,
+    params: &RefineParams,
+) -> Result<(), Error> {
+    let height = rows.height;
+    if height == 0 {
+        return Err(Error::EmptyImage);
+    }
+    if height > MAX_HEIGHT {
+        return Err(Error::TooTall {
+            height,
+            max: MAX_HEIGHT,
+        });
+    }
+    if y >= height {
+        return Err(Error::OutOfRange {
+            what: "output row",
+            value: y,
+            min: 0,
+            max: height - 1,
+        });
+    }
+    let window = params.window_rows();
+    check_len("left row window", rows.left.len(), window)?;
+    check_len("right row window", rows.right.len(), window)?;
+    for row in rows.left {
+        check_len("left view row", row.len(), width)?;
+    }
+    for row in rows.right {
+        check_len("right view row", row.len(), width)?;
+    }
+    let cells = width.div_ceil(CELL_W);
+    check_len("first token row", tokens.first.len(), cells)?;
+    check_len("second token row", tokens.second.len(), cells)
 }
 
 /// [`refine_row`] over whole maps: `left` and `right` are `H x W` views (`W = width`,

@@ -16,10 +16,10 @@
 //! was used for something else, or for another image, start again with [`RowRefiner::new`].
 
 use super::{
-    bilinear, census_row, check_len, subpixel_step, winner, RefineParams, TokenRows, ViewRows, FRAC_BITS,
-    MAX_BOX_RADIUS, MAX_CANDIDATES, MAX_WINDOW_ROWS,
+    bilinear, census_row, check_len, check_row_inputs, subpixel_step, winner, RefineParams, TokenRows, ViewRows,
+    FRAC_BITS, MAX_BOX_RADIUS, MAX_CANDIDATES, MAX_WINDOW_ROWS,
 };
-use crate::config::{CELL_W, MAX_HEIGHT};
+use crate::config::CELL_W;
 use crate::Error;
 
 /// Most box rows (and columns).
@@ -66,32 +66,8 @@ impl<'s> RowRefiner<'s> {
     ) -> Result<(), Error> {
         let (width, height, params) = (self.width, rows.height, self.params);
         check_len("refined row", out.len(), width)?;
-        if height == 0 {
-            return Err(Error::EmptyImage);
-        }
-        if height > MAX_HEIGHT {
-            return Err(Error::TooTall {
-                height,
-                max: MAX_HEIGHT,
-            });
-        }
-        if y >= height {
-            return Err(Error::OutOfRange {
-                what: "output row",
-                value: y,
-                min: 0,
-                max: height - 1,
-            });
-        }
-        let window = params.window_rows();
-        check_len("left row window", rows.left.len(), window)?;
-        check_len("right row window", rows.right.len(), window)?;
-        for row in rows.left.iter().chain(rows.right) {
-            check_len("view row", row.len(), width)?;
-        }
+        check_row_inputs(y, width, rows, tokens, &params)?;
         let cells = width.div_ceil(CELL_W);
-        check_len("first token row", tokens.first.len(), cells)?;
-        check_len("second token row", tokens.second.len(), cells)?;
 
         let (r, b) = (params.census_radius, params.box_radius);
         let box_rows = 2 * b + 1;
