@@ -107,9 +107,9 @@ enum Command {
         blob: PathBuf,
         /// Readout drawn: nolink, sgm or head (cells their left-right check rejects are dark),
         /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval`
-        /// scores); the default is the token grid of `bino run`'s. The +ref readouts are refused:
-        /// the pixel refinement is not a pipeline stage yet and sim draws token rows as they stream.
-        #[arg(long, default_value = "sgm+lr")]
+        /// scores), each token row as the pipeline streams it; or a +ref readout, its refined
+        /// pixel rows as the pipeline's refinement stage streams them. The default is `bino run`'s.
+        #[arg(long, default_value = "sgm+lr+ref")]
         readout: bino_host::readout::Readout,
         /// Disparity candidates of nolink and sgm, in patch columns.
         #[arg(long, default_value_t = 16)]
@@ -629,7 +629,7 @@ fn sim_command(opts: &bino_host::sim::SimOptions) -> Result<()> {
     eprintln!("last frame, ms by stage: {}", stages.join(", "));
     let p = &report.pipeline;
     println!(
-        "bino sim: {} at {}x{}, {} readout; sensor rows read {}/{} (each once), {} band(s), {} token rows drawn; \
+        "bino sim: {} at {}x{}, {} readout; sensor rows read {}/{} (each once), {} band(s), {} rows drawn; \
          host {:.2} fps ({:.1} ms/frame, median of {}; not a board figure); arena {} of {} bytes; display {} -> {}",
         report.source,
         report.width,

@@ -17,7 +17,10 @@ use anyhow::{ensure, Result};
 use bino_core::config::HEAD_MAX_DISP;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options as PipelineOptions, Pipeline, Report, Sink, Stage};
+use bino_core::pipeline::{
+    self, HeadChecked, MatchedRow, Options as PipelineOptions, Pipeline, Refine, RefineInput, Report, Sink, Stage,
+};
+use bino_core::refine::RefineParams;
 use bino_core::sgm::Penalties;
 use embedded_graphics::mono_font::ascii::FONT_6X10;
 use embedded_graphics::mono_font::MonoTextStyle;
@@ -93,7 +96,7 @@ pub struct SimReport {
     pub pipeline: Report,
     /// Arena bytes allocated (`bino_core::pipeline::arena_bytes`).
     pub arena_bytes: usize,
-    /// Token rows drawn on the display.
+    /// Rows drawn on the display: token rows, or pixel rows for a `+ref` readout.
     pub rows_drawn: usize,
     /// Where things sit on the display.
     pub layout: Layout,
@@ -120,13 +123,6 @@ impl SimReport {
 /// Runs the simulation; `progress` hears about each step before it starts.
 pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimReport> {
     ensure!(opts.frames >= 1, "--frames must be at least 1");
-    ensure!(
-        !opts.readout.refine,
-        "bino sim draws the token rows as the core pipeline streams them, and the pixel refinement \
-         is not a pipeline stage yet: use --readout {} (bino run and bino eval have {})",
-        opts.readout.refined(false),
-        opts.readout
-    );
     progress("loading the pair and the blob");
     let (source, left, right) = load_pair(opts)?;
     let (width, height) = (left.width, left.height);
@@ -146,8 +142,16 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         // cells it rejects, as for the other methods.
         head_lr: opts.readout.uses_head(),
     };
+    // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
+    let refine = opts.readout.refine.then(|| Refine {
+        input: refine_input(opts.readout),
+        params: RefineParams::DEFAULT,
+    });
     let layout = Layout::new(opts.display, width, height)?;
-    let arena_bytes = pipeline::arena_bytes_for(height, width, &pipeline_opts);
+    let arena_bytes = match &refine {
+        Some(r) => pipeline::arena_bytes_refined(height, width, &pipeline_opts, r),
+        None => pipeline::arena_bytes_for(height, width, &pipeline_opts),
+    };
     let mut arena = vec![0u8; arena_bytes];
 
     let mut frame_times = Vec::with_capacity(opts.frames);
@@ -164,9 +168,11 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         let mut sensor = SensorSource::new(&left.pixels, &right.pixels, width, height).map_err(anyhow::Error::msg)?;
         let mut sink = DisplaySink::new(&mut fb, layout.disparity, opts.readout, opts.max_cols);
         let started = Instant::now();
-        let report = pipeline
-            .run(&mut sensor, &pipeline_opts, &mut arena, &mut sink)
-            .map_err(anyhow::Error::msg)?;
+        let report = match &refine {
+            Some(r) => pipeline.run_refined(&mut sensor, &pipeline_opts, r, &mut arena, &mut sink),
+            None => pipeline.run(&mut sensor, &pipeline_opts, &mut arena, &mut sink),
+        }
+        .map_err(anyhow::Error::msg)?;
         sink.finish();
         frame_times.push(started.elapsed());
         let (stage_times, rows_drawn) = (sink.stage_times(), sink.rows_drawn);
@@ -199,6 +205,19 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     progress("writing the display");
     fb.save_png(&sim.png)?;
     Ok(sim)
+}
+
+/// The core pipeline's refinement input for a `+ref` readout: the same token grid `bino run`
+/// and `bino eval` refine.
+fn refine_input(readout: Readout) -> RefineInput {
+    match (readout.method, readout.lr) {
+        (Method::Nolink, false) => RefineInput::Nolink,
+        (Method::Nolink, true) => RefineInput::NolinkLr,
+        (Method::Sgm, false) => RefineInput::Sgm,
+        (Method::Sgm, true) => RefineInput::SgmLr,
+        (Method::Head, false) => RefineInput::Head,
+        (Method::Head, true) => RefineInput::HeadLr,
+    }
 }
 
 /// The pair as the sensor delivers it: gray bytes at the profile's size.
@@ -385,7 +404,7 @@ pub struct DisplaySink<'f> {
     max_disparity: f32,
     /// Head rows waiting for their left-right check (it comes a row of the mirrored head later).
     pending_heads: Vec<(usize, Vec<u16>)>,
-    /// Token rows drawn.
+    /// Rows drawn: token rows, or pixel rows for a `+ref` readout.
     pub rows_drawn: usize,
     times: [Duration; Stage::ALL.len() + 1],
     current: Option<(usize, Instant)>,
@@ -465,6 +484,20 @@ impl<'f> DisplaySink<'f> {
         self.rows_drawn += 1;
         self.switch(previous);
     }
+
+    /// Draws one refined pixel row (Q8 px) on the token rows' colour scale.
+    fn draw_pixel_row(&mut self, row: usize, disparity_q8: &[u16]) {
+        let previous = self.switch(Some(Stage::ALL.len()));
+        let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
+        let values: Vec<f32> = disparity_q8.iter().map(|&d| d as f32 / unit).collect();
+        let max_px = self.max_disparity * crate::eval::PIXELS_PER_PATCH_COLUMN as f32;
+        for (x, rgb) in colourise(&values, max_px).chunks_exact(3).enumerate() {
+            let colour = Rgb565::from(Rgb888::new(rgb[0], rgb[1], rgb[2]));
+            self.panel.fill(self.fb, (x, x + 1), (row, row + 1), colour);
+        }
+        self.rows_drawn += 1;
+        self.switch(previous);
+    }
 }
 
 impl Sink for DisplaySink<'_> {
@@ -474,6 +507,9 @@ impl Sink for DisplaySink<'_> {
     }
 
     fn matched(&mut self, row: &MatchedRow<'_>) {
+        if self.readout.refine {
+            return;
+        }
         match self.readout.method {
             Method::Nolink => self.show_row(row.row, row.wta_q8, row.wta_consistent),
             Method::Sgm => self.show_row(row.row, row.sgm_q8, row.sgm_consistent),
@@ -482,7 +518,7 @@ impl Sink for DisplaySink<'_> {
     }
 
     fn head(&mut self, row: HeadRow<'_>) {
-        if self.readout.uses_head() {
+        if self.readout.uses_head() && !self.readout.refine {
             self.pending_heads.push((row.row, row.disparity_q8.to_vec()));
         }
     }
@@ -493,6 +529,10 @@ impl Sink for DisplaySink<'_> {
         };
         let (_, disparity) = self.pending_heads.remove(at);
         self.show_row(row.row, &disparity, row.consistent);
+    }
+
+    fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
+        self.draw_pixel_row(row, disparity_q8);
     }
 }
 

@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use bino_host::sim::display::DisplaySize;
 use bino_host::sim::{Layout, DEFAULT_SCENE, REJECTED};
+use embedded_graphics::pixelcolor::{Rgb565, Rgb888, RgbColor};
 
 mod common;
 use common::{bino, s, scratch_dir};
@@ -72,8 +73,7 @@ fn sim_on_the_default_pair_draws_a_disparity_map_on_the_display() {
     assert!(lit > 200, "{lit} white pixels in the status bar");
 }
 
-fn rgb888(c: embedded_graphics::pixelcolor::Rgb565) -> [u8; 3] {
-    use embedded_graphics::pixelcolor::{Rgb888, RgbColor};
+fn rgb888(c: Rgb565) -> [u8; 3] {
     let c = Rgb888::from(c);
     [c.r(), c.g(), c.b()]
 }
@@ -111,9 +111,54 @@ fn a_bad_display_size_or_a_lone_view_is_refused() {
     let run = bino(&["sim", "--left", "a.png"]);
     assert!(!run.status.success());
     assert!(String::from_utf8_lossy(&run.stderr).contains("--right"));
-    // The board draws token rows as they stream; the refinement is not a pipeline stage yet.
-    let run = bino(&["sim", "--readout", "head+lr+ref", "--out", s(&scratch("refined"))]);
-    let stderr = String::from_utf8_lossy(&run.stderr);
-    assert_eq!(run.status.code(), Some(1), "{stderr}");
-    assert!(stderr.contains("use --readout head+lr"), "{stderr}");
+}
+
+/// One readout, one number: the refined pixels sim draws as the pipeline streams them are the
+/// pixels `bino run` writes for the same readout (its `disparity.pfm`), colour for colour.
+#[test]
+fn sim_draws_the_refined_pixels_run_writes() {
+    let dir = scratch("refined");
+    let (w, h) = DEFAULT_SCENE;
+    let scene = bino_host::synthetic::default_scene(w, h);
+    for (name, view) in [("l.png", &scene.left), ("r.png", &scene.right)] {
+        image::GrayImage::from_raw(w as u32, h as u32, view.pixels.clone())
+            .unwrap()
+            .save(dir.join(name))
+            .unwrap();
+    }
+    let (left, right) = (dir.join("l.png"), dir.join("r.png"));
+    let pair = ["--left", s(&left), "--right", s(&right), "--profile", "native"];
+    let run_dir = dir.join("run");
+    let run = bino(&[&["run", "--readout", "head+lr", "--out", s(&run_dir)][..], &pair].concat());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let sim = bino(&[&["sim", "--readout", "head+lr+ref", "--out", s(&dir)][..], &pair].concat());
+    let stdout = String::from_utf8_lossy(&sim.stdout);
+    assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
+    assert!(
+        stdout.contains(&format!("{h} rows drawn")),
+        "one drawn row per pixel row: {stdout}"
+    );
+
+    let written = bino_host::pfm::load(&run_dir.join("disparity.pfm"), "run's disparity").unwrap();
+    assert_eq!((written.width, written.height), (w, h));
+    let max_px = (bino_core::config::HEAD_MAX_DISP - 1) as f32 * bino_host::eval::PIXELS_PER_PATCH_COLUMN as f32;
+    let expected = bino_host::colour::colourise(&written.values, max_px);
+    let layout = Layout::new(DisplaySize::QVGA, w, h).unwrap();
+    let p = layout.disparity;
+    assert_eq!((p.width, p.height), (w, h), "the scene is drawn at scale 1");
+    let png = image::open(dir.join("display.png")).unwrap().to_rgb8();
+    let mut differ = 0;
+    for y in 0..h {
+        for x in 0..w {
+            let rgb = &expected[3 * (y * w + x)..3 * (y * w + x) + 3];
+            let want = rgb888(Rgb565::from(Rgb888::new(rgb[0], rgb[1], rgb[2])));
+            differ += usize::from(png.get_pixel((p.x + x) as u32, (p.y + y) as u32).0 != want);
+        }
+    }
+    assert_eq!(
+        differ,
+        0,
+        "{differ} of {} display pixels differ from run's disparity.pfm",
+        w * h
+    );
 }
