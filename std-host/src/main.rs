@@ -282,6 +282,13 @@ enum Command {
         /// Seed of the nuisances' noise and occlusions (mixed with each pair's id).
         #[arg(long, default_value_t = 0)]
         seed: u64,
+        /// Also the one-view occlusion benchmark (the paper's): the RIGHT view covered by
+        /// token-aligned mid-grey blocks over these % of its area (comma-separated, rising,
+        /// nested: each severity's blocks contain the milder ones'), every readout and
+        /// StereoSGBM scored at each; reports clean, each severity, OccAUC and the rise at the
+        /// largest. The whole set runs once more per severity.
+        #[arg(long, value_delimiter = ',')]
+        occlude: Vec<u32>,
     },
     /// The int8 pipeline on a rectified pair of any size: writes disparity.png (colour),
     /// disparity.pfm (float32 pixel disparities, dense, the readout exactly as `bino eval` scores
@@ -466,6 +473,7 @@ fn run(cli: Cli) -> Result<()> {
             limit,
             nuisance,
             seed,
+            occlude,
         } => eval_command(
             &bino_host::readout_eval::EvalOptions {
                 data,
@@ -483,6 +491,7 @@ fn run(cli: Cli) -> Result<()> {
                 limit,
                 nuisances: nuisance,
                 seed,
+                occlusions: occlude,
             },
             json.as_deref(),
         ),

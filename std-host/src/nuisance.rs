@@ -25,6 +25,7 @@
 use crate::eval::EvalItem;
 use crate::int8::to_u8;
 use crate::profile::View;
+use crate::rng::SplitMix64;
 
 /// Exposure gain of `gain`.
 pub const GAIN: f32 = 0.7;
@@ -169,44 +170,9 @@ fn occlude(src: &[u8], width: usize, height: usize, rng: &mut SplitMix64) -> Vec
 
 /// FNV-1a of the pair id, mixed with the seed and the nuisance.
 fn stream_seed(seed: u64, pair_id: &str, nuisance: Nuisance) -> u64 {
-    let mut hash = 0xcbf2_9ce4_8422_2325u64;
-    for &b in pair_id.as_bytes() {
-        hash = (hash ^ b as u64).wrapping_mul(0x0000_0100_0000_01b3);
-    }
-    hash ^ seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) ^ (nuisance as u64 + 1).wrapping_mul(0xbf58_476d_1ce4_e5b9)
-}
-
-/// SplitMix64: a 64-bit state advanced by the golden-ratio increment, output mixed.
-struct SplitMix64(u64);
-
-impl SplitMix64 {
-    fn new(seed: u64) -> Self {
-        Self(seed)
-    }
-
-    fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9e37_79b9_7f4a_7c15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in (0, 1].
-    fn unit(&mut self) -> f64 {
-        ((self.next_u64() >> 11) + 1) as f64 / (1u64 << 53) as f64
-    }
-
-    /// Uniform in 0..n (n > 0; the modulo bias is below 2^-40 for image sizes).
-    fn below(&mut self, n: usize) -> usize {
-        (self.next_u64() % n as u64) as usize
-    }
-
-    /// Standard normal (Box-Muller, one of the pair).
-    fn gaussian(&mut self) -> f32 {
-        let (u1, u2) = (self.unit(), self.unit());
-        ((-2.0 * u1.ln()).sqrt() * (2.0 * std::f64::consts::PI * u2).cos()) as f32
-    }
+    crate::rng::fnv1a(pair_id.as_bytes())
+        ^ seed.wrapping_mul(0x9e37_79b9_7f4a_7c15)
+        ^ (nuisance as u64 + 1).wrapping_mul(0xbf58_476d_1ce4_e5b9)
 }
 
 #[cfg(test)]

@@ -7,7 +7,9 @@
 //! (the shared head), each also `+lr` and each of those also `+ref` (the integer pixel
 //! refinement, the same for both precisions: [`crate::refine`]). Each method's left-right check
 //! also gives `LRkeep` (% of ground-truth pixels whose cell passes it) and the error on those
-//! pixels only (`GT+LR`).
+//! pixels only (`GT+LR`). Every score also exists on the large-disparity subset (`large`: the
+//! top quartile of each pair's ground-truth disparities, the paper's stress test), and
+//! `--occlude` adds the paper's one-view occlusion benchmark ([`crate::occlusion`]).
 
 use std::path::PathBuf;
 use std::str::FromStr;
@@ -27,6 +29,7 @@ use crate::eval::{
 use crate::int8::{to_u8, Int8Model};
 use crate::keyed::Keyed;
 use crate::nuisance::{degrade_item, Nuisance};
+use crate::occlusion::{check_severities, occlude_item};
 use crate::pairs::{read_index, Split};
 use crate::pipeline_maps::run_pipeline;
 use crate::profile::Profile;
@@ -98,8 +101,11 @@ pub struct EvalOptions {
     pub limit: Option<usize>,
     /// Nuisances of the right view, each scored over the whole set after the clean run.
     pub nuisances: Vec<Nuisance>,
-    /// Seed of the nuisances (with each pair's id).
+    /// Seed of the nuisances and occlusions (with each pair's id).
     pub seed: u64,
+    /// One-view occlusion severities, % of the right view's area, rising; each scored over the
+    /// whole set after the clean run ([`crate::occlusion`]).
+    pub occlusions: Vec<u32>,
 }
 
 impl EvalOptions {
@@ -123,6 +129,28 @@ pub struct ReadoutScore {
     /// epe over the ground-truth pixels that pass the left-right check.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gt_lr_epe: Option<f64>,
+    /// The same metrics on the large-disparity subset
+    /// ([`GroundTruthMap::large_disparity_subset`]).
+    pub large: Metrics,
+}
+
+/// How the right view was degraded for a run over the set.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Degradation {
+    /// One of `--nuisance`.
+    Nuisance(Nuisance),
+    /// One-view occlusion of this % of the area (`--occlude`).
+    Occlusion(u32),
+}
+
+impl Degradation {
+    /// Its name in reports: the nuisance's, or `occlusion N%`.
+    pub fn name(self) -> String {
+        match self {
+            Degradation::Nuisance(n) => n.name().to_string(),
+            Degradation::Occlusion(p) => format!("occlusion {p}%"),
+        }
+    }
 }
 
 /// One pair's scores, a row each (in [`EvalOptions::rows`] order), and SGBM's.
@@ -134,10 +162,25 @@ pub struct PairEval {
     pub scores: Vec<ReadoutScore>,
     /// StereoSGBM on the same images (its invalid pixels filled as EVAL.md says).
     pub sgbm: Option<Metrics>,
+    /// StereoSGBM on the large-disparity subset.
+    pub sgbm_large: Option<Metrics>,
     /// Wall time for the pair (every precision and readout).
     pub elapsed: Duration,
-    /// The nuisance the right view was under (None: clean).
-    pub nuisance: Option<Nuisance>,
+    /// How the right view was degraded (None: clean).
+    pub nuisance: Option<Degradation>,
+}
+
+/// The whole set's scores under one condition of the right view.
+#[derive(Debug, Clone)]
+pub struct SetEval {
+    /// Per pair.
+    pub pairs: Vec<PairEval>,
+    /// Mean per row.
+    pub mean: Vec<ReadoutScore>,
+    /// SGBM's mean.
+    pub sgbm_mean: Option<Metrics>,
+    /// SGBM's mean on the large-disparity subsets.
+    pub sgbm_large_mean: Option<Metrics>,
 }
 
 /// The whole set under one nuisance.
@@ -145,12 +188,17 @@ pub struct PairEval {
 pub struct NuisanceEval {
     /// The nuisance.
     pub nuisance: Nuisance,
-    /// Per pair.
-    pub pairs: Vec<PairEval>,
-    /// Mean per row.
-    pub mean: Vec<ReadoutScore>,
-    /// SGBM's mean.
-    pub sgbm_mean: Option<Metrics>,
+    /// Its scores.
+    pub set: SetEval,
+}
+
+/// The whole set with the right view occluded at one severity.
+#[derive(Debug, Clone)]
+pub struct OcclusionEval {
+    /// % of the right view's area covered.
+    pub percent: u32,
+    /// Its scores.
+    pub set: SetEval,
 }
 
 /// Every pair and the unweighted mean.
@@ -164,8 +212,12 @@ pub struct EvalReport {
     pub mean: Vec<ReadoutScore>,
     /// SGBM's mean.
     pub sgbm_mean: Option<Metrics>,
+    /// SGBM's mean on the large-disparity subsets.
+    pub sgbm_large_mean: Option<Metrics>,
     /// The same under each nuisance, in [`EvalOptions::nuisances`] order.
     pub nuisances: Vec<NuisanceEval>,
+    /// The same under each occlusion severity, in [`EvalOptions::occlusions`] order.
+    pub occlusions: Vec<OcclusionEval>,
 }
 
 /// Runs the readouts over the split; `progress(done, total, pair)` after each pair.
@@ -180,6 +232,7 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
             n.name()
         );
     }
+    check_severities(&opts.occlusions)?;
     let split = match opts.split.as_str() {
         "eval" => Split::Eval,
         other => bail!("split {other:?}: only eval pairs carry ground truth here (use --split eval)"),
@@ -219,45 +272,44 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
         .iter()
         .map(|r| load_eval_item(r, opts.profile))
         .collect::<Result<Vec<_>>>()?;
-    let (pairs, mean, sgbm_mean) = evaluate_set(
-        opts,
-        model.as_ref(),
-        &mut float,
-        sgbm.as_ref(),
-        &items,
-        None,
-        &mut progress,
-    )?;
-    let mut nuisances = Vec::with_capacity(opts.nuisances.len());
-    for &nuisance in &opts.nuisances {
-        let degraded: Vec<EvalItem> = items.iter().map(|i| degrade_item(i, nuisance, opts.seed)).collect();
-        let (pairs, mean, sgbm_mean) = evaluate_set(
+    let mut run = |items: &[EvalItem], condition| {
+        evaluate_set(
             opts,
             model.as_ref(),
             &mut float,
             sgbm.as_ref(),
-            &degraded,
-            Some(nuisance),
+            items,
+            condition,
             &mut progress,
-        )?;
-        nuisances.push(NuisanceEval {
-            nuisance,
-            pairs,
-            mean,
-            sgbm_mean,
-        });
+        )
+    };
+    let clean = run(&items, None)?;
+    let mut nuisances = Vec::with_capacity(opts.nuisances.len());
+    for &nuisance in &opts.nuisances {
+        let degraded: Vec<EvalItem> = items.iter().map(|i| degrade_item(i, nuisance, opts.seed)).collect();
+        let set = run(&degraded, Some(Degradation::Nuisance(nuisance)))?;
+        nuisances.push(NuisanceEval { nuisance, set });
+    }
+    let mut occlusions = Vec::with_capacity(opts.occlusions.len());
+    for &percent in &opts.occlusions {
+        let occluded = (items.iter())
+            .map(|i| occlude_item(i, percent, opts.seed))
+            .collect::<Result<Vec<_>>>()?;
+        let set = run(&occluded, Some(Degradation::Occlusion(percent)))?;
+        occlusions.push(OcclusionEval { percent, set });
     }
     Ok(EvalReport {
         options: opts.clone(),
-        pairs,
-        mean,
-        sgbm_mean,
+        pairs: clean.pairs,
+        mean: clean.mean,
+        sgbm_mean: clean.sgbm_mean,
+        sgbm_large_mean: clean.sgbm_large_mean,
         nuisances,
+        occlusions,
     })
 }
 
 type FloatModels = Option<(ReferenceEncoder, Option<FloatHeadRunner>)>;
-type SetScores = (Vec<PairEval>, Vec<ReadoutScore>, Option<Metrics>);
 
 /// Every row and SGBM over `items` (right views under `nuisance`, already applied).
 fn evaluate_set(
@@ -266,9 +318,9 @@ fn evaluate_set(
     float: &mut FloatModels,
     sgbm: Option<&SgbmRunner>,
     items: &[EvalItem],
-    nuisance: Option<Nuisance>,
+    nuisance: Option<Degradation>,
     progress: &mut impl FnMut(usize, usize, &PairEval),
-) -> Result<SetScores> {
+) -> Result<SetEval> {
     let sgbm_scores = match sgbm {
         Some(runner) => Some(sgbm_metrics(runner, items)?),
         None => None,
@@ -295,7 +347,8 @@ fn evaluate_set(
         let pair = PairEval {
             pair_id: item.pair_id.clone(),
             scores,
-            sgbm: sgbm_scores.as_ref().map(|s| s[i]),
+            sgbm: sgbm_scores.as_ref().map(|s| s[i].0),
+            sgbm_large: sgbm_scores.as_ref().map(|s| s[i].1),
             elapsed: started.elapsed(),
             nuisance,
         };
@@ -305,11 +358,16 @@ fn evaluate_set(
     let mean = (0..opts.rows().len())
         .map(|r| mean_score(&pairs.iter().map(|p| p.scores[r]).collect::<Vec<_>>()))
         .collect::<Result<Vec<_>>>()?;
-    let sgbm_mean = match &sgbm_scores {
-        Some(s) => Some(mean_metrics(s)?),
-        None => None,
+    let sgbm_mean_of = |which: fn(&(Metrics, Metrics)) -> Metrics| match &sgbm_scores {
+        Some(s) => mean_metrics(&s.iter().map(which).collect::<Vec<_>>()).map(Some),
+        None => Ok(None),
     };
-    Ok((pairs, mean, sgbm_mean))
+    Ok(SetEval {
+        sgbm_mean: sgbm_mean_of(|s| s.0)?,
+        sgbm_large_mean: sgbm_mean_of(|s| s.1)?,
+        pairs,
+        mean,
+    })
 }
 
 /// Scores `readout` of `maps` against `gt`: the metrics of its pixel disparity, and the
@@ -318,6 +376,7 @@ fn score_readout(maps: &MethodMaps, readout: Readout, gt: &GroundTruthMap) -> Re
     let (tokens, mask) = maps.method(readout.method)?;
     let pixels = maps.pixels(readout)?;
     let metrics = score(&pixels, gt)?;
+    let large = score(&pixels, &gt.large_disparity_subset())?;
     let (lr_keep, gt_lr_epe) = match mask {
         Some(mask) => {
             let keep = upsample_mask(mask, tokens.width, pixels.width, pixels.height);
@@ -334,6 +393,7 @@ fn score_readout(maps: &MethodMaps, readout: Readout, gt: &GroundTruthMap) -> Re
         metrics,
         lr_keep,
         gt_lr_epe,
+        large,
     })
 }
 
@@ -405,7 +465,8 @@ fn mirror(map: &DisparityMap) -> DisparityMap {
     DisparityMap { values, ..*map }
 }
 
-fn sgbm_metrics(runner: &SgbmRunner, items: &[EvalItem]) -> Result<Vec<Metrics>> {
+/// SGBM's metrics per pair: on all ground-truth pixels, and on the large-disparity subset.
+fn sgbm_metrics(runner: &SgbmRunner, items: &[EvalItem]) -> Result<Vec<(Metrics, Metrics)>> {
     let views: Vec<(Vec<u8>, Vec<u8>)> = items
         .iter()
         .map(|i| (to_u8(&i.left.pixels), to_u8(&i.right.pixels)))
@@ -425,13 +486,16 @@ fn sgbm_metrics(runner: &SgbmRunner, items: &[EvalItem]) -> Result<Vec<Metrics>>
         .iter()
         .zip(items)
         .map(|((disparity, valid), item)| {
-            score_sparse(disparity, valid, &item.gt).with_context(|| format!("pair {}: SGBM", item.pair_id))
+            let all = score_sparse(disparity, valid, &item.gt);
+            all.and_then(|all| Ok((all, score_sparse(disparity, valid, &item.gt.large_disparity_subset())?)))
+                .with_context(|| format!("pair {}: SGBM", item.pair_id))
         })
         .collect()
 }
 
 fn mean_score(scores: &[ReadoutScore]) -> Result<ReadoutScore> {
     let metrics = mean_metrics(&scores.iter().map(|s| s.metrics).collect::<Vec<_>>())?;
+    let large = mean_metrics(&scores.iter().map(|s| s.large).collect::<Vec<_>>())?;
     let mean_of = |f: fn(&ReadoutScore) -> Option<f64>| -> Option<f64> {
         let values: Option<Vec<f64>> = scores.iter().map(f).collect();
         values.map(|v| v.iter().sum::<f64>() / v.len().max(1) as f64)
@@ -440,6 +504,7 @@ fn mean_score(scores: &[ReadoutScore]) -> Result<ReadoutScore> {
         metrics,
         lr_keep: mean_of(|s| s.lr_keep),
         gt_lr_epe: mean_of(|s| s.gt_lr_epe),
+        large,
     })
 }
 
@@ -465,29 +530,31 @@ impl EvalReport {
         );
         let _ = writeln!(
             t,
-            "\n{:<18} {:>8} {:>10} {:>8} {:>8} {:>8} {:>10}",
-            "readout", "epe px", "bad1tok %", "bad2 %", "density", "LRkeep", "GT+LR epe"
+            "\n{:<18} {:>8} {:>10} {:>8} {:>8} {:>8} {:>10} {:>10} {:>11}",
+            "readout", "epe px", "bad1tok %", "bad2 %", "density", "LRkeep", "GT+LR epe", "large epe", "large b1t %"
         );
         let opt = |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
         for ((p, r), s) in o.rows().iter().zip(&self.mean) {
             let m = s.metrics;
             let _ = writeln!(
                 t,
-                "{:<18} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10}",
+                "{:<18} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10} {:>10.3} {:>11.2}",
                 format!("{} {}", p.name(), r.name()),
                 m.epe,
                 m.bad1tok,
                 m.bad2,
                 m.density,
                 opt(s.lr_keep, 1),
-                opt(s.gt_lr_epe, 3)
+                opt(s.gt_lr_epe, 3),
+                s.large.epe,
+                s.large.bad1tok
             );
         }
-        if let Some(m) = self.sgbm_mean {
+        if let (Some(m), Some(l)) = (self.sgbm_mean, self.sgbm_large_mean) {
             let _ = writeln!(
                 t,
-                "{:<18} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10}",
-                "StereoSGBM", m.epe, m.bad1tok, m.bad2, m.density, "-", "-"
+                "{:<18} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10} {:>10.3} {:>11.2}",
+                "StereoSGBM", m.epe, m.bad1tok, m.bad2, m.density, "-", "-", l.epe, l.bad1tok
             );
         }
         if !self.nuisances.is_empty() {
@@ -510,7 +577,7 @@ impl EvalReport {
                     cell(&clean.metrics)
                 );
                 for n in &self.nuisances {
-                    let m = n.mean[r].metrics;
+                    let m = n.set.mean[r].metrics;
                     let rise = m.epe - clean.metrics.epe;
                     let below = match self.sgbm_rise(n) {
                         Some(sgbm) if rise < sgbm => "*",
@@ -523,13 +590,14 @@ impl EvalReport {
             if let Some(clean) = self.sgbm_mean {
                 let _ = write!(t, "\n{:<18} {:>14}", "StereoSGBM", cell(&clean));
                 for n in &self.nuisances {
-                    if let Some(m) = n.sgbm_mean {
+                    if let Some(m) = n.set.sgbm_mean {
                         let _ = write!(t, " {:>22}", format!("{} {:+.3} ", cell(&m), m.epe - clean.epe));
                     }
                 }
             }
             t.push('\n');
         }
+        self.occlusion_table(&mut t);
         let _ = write!(t, "\n{:<24}", "pair (epe px)");
         for (p, r) in o.rows() {
             let _ = write!(t, " {:>18}", format!("{} {}", p.name(), r.name()));
@@ -549,22 +617,89 @@ impl EvalReport {
         t
     }
 
+    /// The one-view occlusion section of [`EvalReport::table`] (nothing without `--occlude`):
+    /// epe / bad1tok clean and at each severity, then OccAUC and Δ at the largest.
+    fn occlusion_table(&self, t: &mut String) {
+        use std::fmt::Write;
+        let Some(summary) = self.occlusion_summary() else {
+            return;
+        };
+        let top = self.occlusions.last().map_or(0, |o| o.percent);
+        let _ = writeln!(
+            t,
+            "\none-view occlusion: right view, token-aligned mid-grey blocks (seed {}), epe px / bad1tok %",
+            self.options.seed
+        );
+        let _ = write!(t, "{:<18} {:>14}", "readout", "clean");
+        for o in &self.occlusions {
+            let _ = write!(t, " {:>14}", format!("occ{}", o.percent));
+        }
+        let _ = write!(t, " {:>14} {:>16}", "OccAUC", format!("delta{top}"));
+        let cell = |epe: f64, bad: f64| format!("{epe:.3}/{bad:.2}");
+        for row in &summary {
+            let _ = write!(t, "\n{:<18} {:>14}", row.name, cell(row.clean.epe, row.clean.bad1tok));
+            for m in &row.severities {
+                let _ = write!(t, " {:>14}", cell(m.epe, m.bad1tok));
+            }
+            let _ = write!(
+                t,
+                " {:>14} {:>16}",
+                cell(row.auc_epe, row.auc_bad1tok),
+                format!("{:+.3}/{:+.2}", row.delta_epe, row.delta_bad1tok)
+            );
+        }
+        t.push('\n');
+    }
+
+    /// Per row (and SGBM last, when it ran) the occlusion curve and its summary; `None`
+    /// without `--occlude`.
+    pub fn occlusion_summary(&self) -> Option<Vec<OcclusionSummary>> {
+        if self.occlusions.is_empty() {
+            return None;
+        }
+        let rows = self.options.rows();
+        let mut summary: Vec<OcclusionSummary> = (rows.iter().enumerate())
+            .map(|(r, (p, readout))| {
+                OcclusionSummary::new(
+                    format!("{} {}", p.name(), readout.name()),
+                    self.mean[r].metrics,
+                    self.occlusions.iter().map(|o| o.set.mean[r].metrics).collect(),
+                )
+            })
+            .collect();
+        let sgbm: Option<Vec<Metrics>> = self.occlusions.iter().map(|o| o.set.sgbm_mean).collect();
+        if let (Some(clean), Some(curve)) = (self.sgbm_mean, sgbm) {
+            summary.push(OcclusionSummary::new("StereoSGBM".to_string(), clean, curve));
+        }
+        Some(summary)
+    }
+
     /// StereoSGBM's mean epe rise under `n` over its clean epe, when SGBM ran.
     pub fn sgbm_rise(&self, n: &NuisanceEval) -> Option<f64> {
-        Some(n.sgbm_mean?.epe - self.sgbm_mean?.epe)
+        Some(n.set.sgbm_mean?.epe - self.sgbm_mean?.epe)
     }
 
     /// Every number as JSON.
-    pub fn to_json(&self) -> String {
+    pub fn to_json<'a>(&'a self) -> String {
         let o = &self.options;
         let rows = o.rows();
-        let readouts = |scores: &[ReadoutScore], sgbm: Option<Metrics>| ReadoutsJson {
+        let readouts = |scores: &[ReadoutScore], sgbm: Option<Metrics>, sgbm_large: Option<Metrics>| ReadoutsJson {
             rows: Keyed(
                 (rows.iter().zip(scores))
                     .map(|((p, r), s)| (format!("{}_{}", p.name(), r.name()), *s))
                     .collect(),
             ),
             sgbm,
+            sgbm_large,
+        };
+        let per_pair = |pairs: &'a [PairEval]| -> Vec<PairJson<'a>> {
+            (pairs.iter())
+                .map(|p| PairJson {
+                    pair_id: &p.pair_id,
+                    readouts: readouts(&p.scores, p.sgbm, p.sgbm_large),
+                    seconds: p.elapsed.as_secs_f64(),
+                })
+                .collect()
         };
         let json = EvalJson {
             tool: "bino eval",
@@ -590,19 +725,13 @@ impl EvalReport {
                 occlude_share: crate::nuisance::OCCLUDE_SHARE,
                 occlude_fill: crate::nuisance::OCCLUDE_FILL,
             },
-            mean: readouts(&self.mean, self.sgbm_mean),
-            per_pair: (self.pairs.iter())
-                .map(|p| PairJson {
-                    pair_id: &p.pair_id,
-                    readouts: readouts(&p.scores, p.sgbm),
-                    seconds: p.elapsed.as_secs_f64(),
-                })
-                .collect(),
+            mean: readouts(&self.mean, self.sgbm_mean, self.sgbm_large_mean),
+            per_pair: per_pair(&self.pairs),
             nuisances: Keyed(
                 (self.nuisances.iter())
                     .map(|n| {
                         let sgbm_rise = self.sgbm_rise(n);
-                        let rise: Vec<(String, f64)> = (rows.iter().zip(&n.mean).zip(&self.mean))
+                        let rise: Vec<(String, f64)> = (rows.iter().zip(&n.set.mean).zip(&self.mean))
                             .map(|(((p, r), s), clean)| {
                                 (format!("{}_{}", p.name(), r.name()), s.metrics.epe - clean.metrics.epe)
                             })
@@ -610,24 +739,34 @@ impl EvalReport {
                         let below =
                             sgbm_rise.map(|sgbm| Keyed(rise.iter().map(|(k, v)| (k.clone(), *v < sgbm)).collect()));
                         let json = NuisanceJson {
-                            mean: readouts(&n.mean, n.sgbm_mean),
+                            mean: readouts(&n.set.mean, n.set.sgbm_mean, n.set.sgbm_large_mean),
                             epe_rise: RiseJson {
                                 rows: Keyed(rise),
                                 sgbm: sgbm_rise,
                             },
                             rise_below_sgbm: below,
-                            per_pair: (n.pairs.iter())
-                                .map(|p| PairJson {
-                                    pair_id: &p.pair_id,
-                                    readouts: readouts(&p.scores, p.sgbm),
-                                    seconds: p.elapsed.as_secs_f64(),
-                                })
-                                .collect(),
+                            per_pair: per_pair(&n.set.pairs),
                         };
                         (n.nuisance.name().to_string(), json)
                     })
                     .collect(),
             ),
+            occlusion: self.occlusion_summary().map(|summary| OcclusionJson {
+                fill: crate::nuisance::OCCLUDE_FILL,
+                severities: self.occlusions.iter().map(|o| o.percent).collect(),
+                summary: Keyed(summary.into_iter().map(|s| (s.name.replace(' ', "_"), s)).collect()),
+                per_severity: Keyed(
+                    (self.occlusions.iter())
+                        .map(|o| {
+                            let json = SeverityJson {
+                                mean: readouts(&o.set.mean, o.set.sgbm_mean, o.set.sgbm_large_mean),
+                                per_pair: per_pair(&o.set.pairs),
+                            };
+                            (o.percent.to_string(), json)
+                        })
+                        .collect(),
+                ),
+            }),
         };
         serde_json::to_string_pretty(&json).expect("plain structs serialise")
     }
@@ -656,6 +795,25 @@ struct EvalJson<'a> {
     per_pair: Vec<PairJson<'a>>,
     // Keyed by nuisance name, in --nuisance order; empty without --nuisance.
     nuisances: Keyed<NuisanceJson<'a>>,
+    // The one-view occlusion benchmark; absent without --occlude.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    occlusion: Option<OcclusionJson<'a>>,
+}
+
+#[derive(Serialize)]
+struct OcclusionJson<'a> {
+    fill: u8,
+    severities: Vec<u32>,
+    // Keyed `<precision>_<readout>` and `StereoSGBM`.
+    summary: Keyed<OcclusionSummary>,
+    // Keyed by severity in %.
+    per_severity: Keyed<SeverityJson<'a>>,
+}
+
+#[derive(Serialize)]
+struct SeverityJson<'a> {
+    mean: ReadoutsJson,
+    per_pair: Vec<PairJson<'a>>,
 }
 
 // The constants of crate::nuisance.
@@ -703,6 +861,46 @@ struct ReadoutsJson {
     rows: Keyed<ReadoutScore>,
     #[serde(skip_serializing_if = "Option::is_none")]
     sgbm: Option<Metrics>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    sgbm_large: Option<Metrics>,
+}
+
+/// One row's one-view occlusion curve (means over the set) and its summary, the paper's
+/// columns: `Occ` at the largest severity, `OccAUC` the mean over the non-zero severities,
+/// `Δ` the largest severity minus clean.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct OcclusionSummary {
+    /// `<precision> <readout>` or `StereoSGBM`.
+    #[serde(skip)]
+    pub name: String,
+    /// Clean.
+    pub clean: Metrics,
+    /// At each severity, in order.
+    pub severities: Vec<Metrics>,
+    /// Mean epe over the severities.
+    pub auc_epe: f64,
+    /// Mean bad1tok over the severities.
+    pub auc_bad1tok: f64,
+    /// epe at the largest severity minus clean.
+    pub delta_epe: f64,
+    /// bad1tok at the largest severity minus clean.
+    pub delta_bad1tok: f64,
+}
+
+impl OcclusionSummary {
+    fn new(name: String, clean: Metrics, severities: Vec<Metrics>) -> Self {
+        let n = severities.len().max(1) as f64;
+        let last = severities.last().copied().unwrap_or(clean);
+        Self {
+            name,
+            auc_epe: severities.iter().map(|m| m.epe).sum::<f64>() / n,
+            auc_bad1tok: severities.iter().map(|m| m.bad1tok).sum::<f64>() / n,
+            delta_epe: last.epe - clean.epe,
+            delta_bad1tok: last.bad1tok - clean.bad1tok,
+            clean,
+            severities,
+        }
+    }
 }
 
 #[cfg(test)]
@@ -727,6 +925,7 @@ mod tests {
             limit: None,
             nuisances: vec![],
             seed: 0,
+            occlusions: vec![],
         };
         let err = evaluate(&opts, |_, _, _| {}).unwrap_err().to_string();
         assert!(err.contains("only eval pairs"), "{err}");

@@ -436,6 +436,59 @@ fn eval_reports_every_readout_and_sgbm_clean_and_under_each_nuisance_reproducibl
 }
 
 #[test]
+fn eval_scores_the_one_view_occlusion_benchmark_and_the_large_disparity_subset() {
+    let dir = shifted_pair_folder("occlusion");
+    let json = dir.join("occ.json");
+    let run = bino(&[
+        "eval",
+        "--data",
+        s(&dir),
+        "--precision",
+        "int8",
+        "--readout",
+        "nolink,sgm+lr+ref",
+        "--no-sgbm",
+        "--occlude",
+        "10,40",
+        "--json",
+        s(&json),
+    ]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    for needle in ["one-view occlusion", "occ10", "occ40", "OccAUC", "delta40", "large epe"] {
+        assert!(stdout.contains(needle), "table lacks {needle}: {stdout}");
+    }
+    let v: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let occ = &v["occlusion"];
+    assert_eq!(occ["severities"], serde_json::json!([10, 40]));
+    for key in ["int8_nolink", "int8_sgm+lr+ref"] {
+        let row = &occ["summary"][key];
+        let epe = |m: &serde_json::Value| m["epe"].as_f64().unwrap();
+        let (clean, curve) = (
+            epe(&row["clean"]),
+            [epe(&row["severities"][0]), epe(&row["severities"][1])],
+        );
+        assert_eq!(clean, epe(&v["mean"][key]["metrics"]), "{key}: clean is the clean run");
+        for (i, severity) in ["10", "40"].iter().enumerate() {
+            assert_eq!(curve[i], epe(&occ["per_severity"][severity]["mean"][key]["metrics"]));
+        }
+        assert!((row["auc_epe"].as_f64().unwrap() - (curve[0] + curve[1]) / 2.0).abs() < 1e-9);
+        assert!((row["delta_epe"].as_f64().unwrap() - (curve[1] - clean)).abs() < 1e-9);
+        // The ground truth is 8 px everywhere: its top quartile is every pixel.
+        assert_eq!(v["mean"][key]["large"], v["mean"][key]["metrics"], "{key}");
+    }
+    // Covering 40 % of the right view costs the no-linkage readout something.
+    assert!(occ["summary"]["int8_nolink"]["delta_epe"].as_f64().unwrap() > 0.0);
+
+    for (bad, why) in [("0", "from 1 to 90"), ("40,10", "must rise")] {
+        let out = bino(&["eval", "--data", s(&dir), "--no-sgbm", "--occlude", bad]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{stderr}");
+        assert!(stderr.contains(why), "--occlude {bad}: {stderr}");
+    }
+}
+
+#[test]
 fn unknown_or_repeated_nuisances_are_refused() {
     let out = bino(&["eval", "--nuisance", "gain,fog"]);
     let stderr = String::from_utf8_lossy(&out.stderr);

@@ -194,6 +194,7 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
         limit: Some(2),
         nuisances: vec![],
         seed: 0,
+        occlusions: vec![],
     };
     let mut seen = 0;
     let report = evaluate(&opts, |done, total, _| {

@@ -30,6 +30,28 @@ impl GroundTruthMap {
     pub fn valid_count(&self) -> usize {
         self.valid.iter().filter(|&&v| v).count()
     }
+
+    /// The large-disparity subset (the paper's stress test, section 3.6): the pixels whose
+    /// ground truth is in the pair's top quartile: at or above the smallest of its `ceil(n / 4)`
+    /// largest valid disparities (ties at that threshold are kept, so it may hold a little more
+    /// than a quarter). Token disparities are pixel disparities / 4: the same pixels.
+    pub fn large_disparity_subset(&self) -> GroundTruthMap {
+        let mut values: Vec<f32> = (self.disparity.iter().zip(&self.valid))
+            .filter(|(_, &v)| v)
+            .map(|(&d, _)| d)
+            .collect();
+        values.sort_by(f32::total_cmp);
+        let threshold = match values.len() {
+            0 => f32::INFINITY,
+            n => values[n - n.div_ceil(4)],
+        };
+        GroundTruthMap {
+            valid: (self.disparity.iter().zip(&self.valid))
+                .map(|(&d, &v)| v && d >= threshold)
+                .collect(),
+            ..self.clone()
+        }
+    }
 }
 
 /// Loads a disparity map in its `gt_format` at its stored resolution: 8-bit PGM or PNG, 16-bit
@@ -238,5 +260,30 @@ mod tests {
         let err = format!("{:#}", load_ground_truth(&u8_as_u16).unwrap_err());
         assert!(err.contains("u8.png") && err.contains("16-bit"), "{err}");
         std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn the_large_disparity_subset_is_the_top_quartile_of_valid_pixels() {
+        // Disparities 0..8 on valid pixels, one invalid pixel holding a large value.
+        let mut disparity: Vec<f32> = (0..8).map(|d| d as f32).collect();
+        disparity.push(100.0);
+        let mut valid = vec![true; 8];
+        valid.push(false);
+        let gt = GroundTruthMap {
+            width: 9,
+            height: 1,
+            disparity,
+            valid,
+        };
+        let large = gt.large_disparity_subset();
+        // The two largest of 0..=7 (the invalid 100 does not count).
+        let kept: Vec<usize> = (0..9).filter(|&i| large.valid[i]).collect();
+        assert_eq!(kept, [6, 7]);
+        assert_eq!(large.disparity, gt.disparity);
+        let none = GroundTruthMap {
+            valid: vec![false; 9],
+            ..gt
+        };
+        assert_eq!(none.large_disparity_subset().valid_count(), 0);
     }
 }
