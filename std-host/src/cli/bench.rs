@@ -46,7 +46,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         threads: args.threads,
         runs: args.runs,
     };
-    let progress = Progress::steps(args.json.is_some());
+    let progress = Progress::new(args.json.is_some());
     let report = bench(&opts, |what| progress.note(&format!("timing {what}")))?;
     progress.finish();
     if report.debug_build {

@@ -63,7 +63,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
         max_cols: args.candidates.max_cols,
         limit: args.limit,
     };
-    let progress = Progress::counted(args.json.is_some(), 0);
+    let progress = Progress::new(args.json.is_some());
     progress.status("comparing pairs");
     let report = compare(&opts, |done, total, pair| {
         let v = &pair.values;

@@ -44,7 +44,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         max_cols: args.candidates.max_cols,
         penalties: args.sgm.penalties(),
     };
-    let progress = Progress::steps(false);
+    let progress = Progress::new(false);
     let report = bino_host::demo::run_demo(&opts, |step| progress.step(step))?;
     progress.finish();
     println!(

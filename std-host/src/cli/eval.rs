@@ -96,7 +96,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
         nuisances: args.nuisance,
         seed: args.seed,
     };
-    let progress = Progress::counted(args.json.is_some(), 0);
+    let progress = Progress::new(args.json.is_some());
     progress.status("scoring pairs");
     let report = bino_host::readout_eval::evaluate(&opts, |done, total, pair| {
         let mut epe: Vec<String> = opts

@@ -16,39 +16,45 @@ pub fn wants_bar(json: bool, stderr_is_terminal: bool, ci: Option<OsString>) -> 
     !json && stderr_is_terminal && ci.is_none_or(|v| v.is_empty() || v == "0" || v == "false")
 }
 
-/// A command's progress: steps (a spinner) or counted items (a bar).
+/// A command's progress: a spinner with the current step, which becomes a bar once items are
+/// counted (pairs, bands: their total is known when the first one is done).
 pub struct Progress {
     bar: Option<ProgressBar>,
     started: Instant,
 }
 
+const SPINNER: &str = "{elapsed:>4} {spinner} {msg}";
+const BAR: &str = "{elapsed:>4} [{bar:30}] {pos}/{len} {msg}";
+
+fn style(template: &str) -> ProgressStyle {
+    ProgressStyle::with_template(template)
+        .expect("a valid template")
+        .progress_chars("=> ")
+}
+
 impl Progress {
-    /// Progress of a command that goes through named steps (`[  1.2 s] step ...` in plain).
-    pub fn steps(json: bool) -> Self {
-        Self::new(json, None)
-    }
-
-    /// Progress over `total` items (pairs, bands) known ahead; `total` may be corrected later.
-    pub fn counted(json: bool, total: u64) -> Self {
-        Self::new(json, Some(total))
-    }
-
-    fn new(json: bool, total: Option<u64>) -> Self {
-        let started = Instant::now();
+    /// The progress of one command; `json`: the command was asked for `--json` (no bar).
+    pub fn new(json: bool) -> Self {
         let bar = wants_bar(json, std::io::stderr().is_terminal(), std::env::var_os("CI")).then(|| {
-            let (bar, template) = match total {
-                Some(n) => (ProgressBar::new(n), "{elapsed:>4} [{bar:30}] {pos}/{len} {msg}"),
-                None => (ProgressBar::new_spinner(), "{elapsed:>4} {spinner} {msg}"),
-            };
-            let style = ProgressStyle::with_template(template)
-                .expect("a valid template")
-                .progress_chars("=> ");
             // Cleared on drop too, so an error message starts on a clean line.
-            let bar = bar.with_style(style).with_finish(ProgressFinish::AndClear);
+            let bar = ProgressBar::no_length()
+                .with_style(style(SPINNER))
+                .with_finish(ProgressFinish::AndClear);
             bar.enable_steady_tick(Duration::from_millis(120));
             bar
         });
-        Self { bar, started }
+        Self {
+            bar,
+            started: Instant::now(),
+        }
+    }
+
+    fn count(bar: &ProgressBar, done: usize, total: usize) {
+        if bar.length().is_none() {
+            bar.set_style(style(BAR));
+        }
+        bar.set_length(total as u64);
+        bar.set_position(done as u64);
     }
 
     /// A new step begins: the spinner's message, or the plain `[  t s] step ...` line.
@@ -71,8 +77,7 @@ impl Progress {
     pub fn item(&self, done: usize, total: usize, line: &str) {
         match &self.bar {
             Some(bar) => {
-                bar.set_length(total as u64);
-                bar.set_position(done as u64);
+                Self::count(bar, done, total);
                 bar.println(line);
             }
             None => eprintln!("{line}"),
@@ -83,10 +88,7 @@ impl Progress {
     /// is called to write what the command always wrote (or nothing).
     pub fn tick(&self, done: usize, total: usize, plain: impl FnOnce()) {
         match &self.bar {
-            Some(bar) => {
-                bar.set_length(total as u64);
-                bar.set_position(done as u64);
-            }
+            Some(bar) => Self::count(bar, done, total),
             None => plain(),
         }
     }
@@ -127,7 +129,6 @@ mod tests {
     fn without_a_terminal_there_is_no_bar() {
         // `cargo test` captures stderr; whatever it is, CI=... or a pipe, the decision is the
         // function's above, and a progress made with --json never has a bar.
-        assert!(Progress::counted(true, 3).bar.is_none());
-        assert!(Progress::steps(true).bar.is_none());
+        assert!(Progress::new(true).bar.is_none());
     }
 }

@@ -60,7 +60,7 @@ pub fn run(args: QuantizeArgs) -> Result<()> {
     };
     let out = args.out;
     let started = Instant::now();
-    let progress = Progress::counted(false, 0);
+    let progress = Progress::new(false);
     progress.status("calibrating: bands");
     let (blob, report) = quantize(&opts, |done, total| {
         progress.tick(done, total, || {

@@ -70,7 +70,7 @@ fn reference(
         "output {} must end in .npz (the reference writes a NumPy archive)",
         out.display()
     );
-    let progress = Progress::steps(false);
+    let progress = Progress::new(false);
     progress.status("reading the pair");
     let (left, right, source) = match files {
         Some((l, r)) => {

@@ -67,7 +67,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         lr_max_diff: args.lr.lr_max_diff,
         out: args.out,
     };
-    let progress = Progress::steps(false);
+    let progress = Progress::new(false);
     let report = bino_host::run::run_pair(&opts, |step| progress.step(step))?;
     progress.finish();
     println!(

@@ -66,7 +66,7 @@ pub fn run(args: SimArgs) -> Result<()> {
         frames: args.frames,
         out: args.out,
     };
-    let progress = Progress::steps(false);
+    let progress = Progress::new(false);
     let report = bino_host::sim::run_sim(&opts, |step| progress.step(step))?;
     progress.finish();
     let stages: Vec<String> = report
