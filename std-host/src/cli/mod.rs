@@ -69,3 +69,53 @@ fn usage_error(subcommand: &str, msg: String) -> ! {
         None => cli.error(ErrorKind::ArgumentConflict, msg).exit(),
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `(default, help)` of `--flag` of `bino verb`.
+    fn flag(verb: &str, id: &str) -> (String, String) {
+        let cli = Cli::command();
+        let sub = cli.find_subcommand(verb).unwrap_or_else(|| panic!("no verb {verb}"));
+        let arg = sub
+            .get_arguments()
+            .find(|a| a.get_id() == id)
+            .unwrap_or_else(|| panic!("{verb}: no {id}"));
+        let default: Vec<_> = arg.get_default_values().iter().map(|v| v.to_string_lossy()).collect();
+        (
+            default.join(","),
+            arg.get_help().map(|h| h.to_string()).unwrap_or_default(),
+        )
+    }
+
+    #[test]
+    fn shared_groups_keep_each_verbs_default_and_help() {
+        Cli::command().debug_assert();
+        // run and sim look further than the rest: their own group type (see `PairCandidates`).
+        for verb in ["run", "sim"] {
+            assert_eq!(flag(verb, "max_cols").0, "16", "{verb}");
+        }
+        for verb in ["eval", "compare", "demo"] {
+            assert_eq!(
+                flag(verb, "max_cols").0,
+                bino_host::eval::DEFAULT_MAX_COLS.to_string(),
+                "{verb}"
+            );
+        }
+        for verb in ["demo", "compare"] {
+            assert_eq!(flag(verb, "max_cols").1, args::NOLINK_CANDIDATES_HELP, "{verb}");
+        }
+        assert_eq!(
+            flag("eval", "max_cols").1,
+            "Disparity candidates of nolink and sgm, in patch columns"
+        );
+        for verb in ["demo", "sim", "run", "eval"] {
+            assert_eq!(flag(verb, "sgm_p1").0, "8", "{verb}");
+            assert_eq!(flag(verb, "sgm_p2").0, "32", "{verb}");
+        }
+        for verb in ["sim", "run", "eval"] {
+            assert_eq!(flag(verb, "lr_max_diff").0, "1", "{verb}");
+        }
+    }
+}

@@ -126,9 +126,7 @@ mod tests {
     }
 
     #[test]
-    fn without_a_terminal_there_is_no_bar() {
-        // `cargo test` captures stderr; whatever it is, CI=... or a pipe, the decision is the
-        // function's above, and a progress made with --json never has a bar.
+    fn json_runs_never_draw_a_bar() {
         assert!(Progress::new(true).bar.is_none());
     }
 }
