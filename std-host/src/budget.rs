@@ -17,7 +17,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
 mod report;
-pub use report::{Band, BudgetReport, CoreBudget, StageBudget};
+pub use report::{Band, BudgetReport, CoreBudget, StageBudget, SCHEMA};
 
 /// Bytes in a KiB.
 const KIB: f64 = 1024.0;
