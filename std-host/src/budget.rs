@@ -13,8 +13,11 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use anyhow::{bail, ensure, Context, Result};
-use serde::Deserialize;
-use serde_json::{json, Value};
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+
+mod report;
+pub use report::{Band, BudgetReport, CoreBudget, StageBudget, SCHEMA};
 
 /// Bytes in a KiB.
 const KIB: f64 = 1024.0;
@@ -335,14 +338,15 @@ pub fn load_runs(dir: &Path) -> Result<Vec<CoreRun>> {
 }
 
 /// Whether a target is met, with the figure it was judged on.
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct Verdict {
-    /// What the target is.
-    pub target: String,
+    // Declared in the JSON's key order (alphabetical; see `report`).
     /// What was measured.
     pub measured: String,
     /// Met or not.
     pub met: bool,
+    /// What the target is.
+    pub target: String,
 }
 
 /// The targets judged on the runs.
@@ -576,51 +580,8 @@ pub fn markdown(runs: &[CoreRun]) -> String {
 }
 
 /// The report as JSON.
-pub fn to_json(runs: &[CoreRun]) -> Value {
-    let cores: Vec<Value> = runs
-        .iter()
-        .map(|r| {
-            let c = clock(&r.core);
-            json!({
-                "core": r.core,
-                "cpu": r.cpu,
-                "board": r.board,
-                "band": {"height": r.band.0, "width": r.band.1},
-                "outputs_bit_identical": r.passed,
-                "qemu_wall_seconds": r.qemu_wall_seconds,
-                "sections_from": match &r.section_source {
-                    SectionSource::Elf(p) => p.display().to_string(),
-                    SectionSource::Recorded => "recorded in the run's JSON".to_string(),
-                },
-                "weights_flash_bytes": r.sections.weights,
-                "code_flash_bytes": r.sections.code_flash(),
-                "arena_static_bytes": r.arena_bytes,
-                "arena_high_water_bytes": r.arena_used,
-                "refine_arena_bytes": r.refine_arena,
-                "stack_peak_bytes": r.stack_peak(),
-                "stack_reserved_bytes": r.stack_bytes,
-                "ram_reserved_bytes": r.ram_reserved(),
-                "ram_used_bytes": r.ram_used(),
-                "clock_mhz": c.mhz,
-                "assumed_instructions_per_cycle": c.ipc,
-                "band_pair_instructions": r.band_pair_instructions(),
-                "band_pair_estimated_ms": c.ms(r.band_pair_instructions()),
-                "stages": r.stages.iter().map(|s| json!({
-                    "name": s.name,
-                    "instructions": s.instructions,
-                    "estimated_ms": c.ms(s.instructions),
-                    "arena_in_use_bytes": s.arena_in_use,
-                    "stack_peak_bytes": s.stack_peak,
-                })).collect::<Vec<_>>(),
-            })
-        })
-        .collect();
-    json!({
-        "schema": "bino-budget/1",
-        "note": "instructions are executed instructions counted under QEMU, not cycles; estimated_ms assumes the stated clock and instructions per cycle",
-        "cores": cores,
-        "targets": verdicts(runs).iter().map(|v| json!({"target": v.target, "measured": v.measured, "met": v.met})).collect::<Vec<_>>(),
-    })
+pub fn to_json(runs: &[CoreRun]) -> BudgetReport {
+    BudgetReport::new(runs)
 }
 
 /// Options of `bino budget`.
@@ -648,7 +609,7 @@ pub fn run_budget(opts: &BudgetOptions) -> Result<String> {
         write_file(path, md.as_bytes())?;
     }
     if let Some(path) = &opts.png {
-        chart::draw(&runs).save_png(path)?;
+        crate::files::save_png(&chart::draw(&runs)?.into(), path)?;
     }
     Ok(md)
 }
@@ -663,6 +624,8 @@ mod chart;
 
 #[cfg(test)]
 mod tests {
+    use serde_json::json;
+
     use super::*;
 
     /// A minimal 32-bit little-endian ELF with the given sections (names and sizes only).
@@ -834,19 +797,52 @@ mod tests {
         );
         assert!(md.contains("not cycles"), "{md}");
         let j = to_json(&runs);
-        assert_eq!(j["cores"][0]["band_pair_instructions"], 760_000_100u64);
-        assert_eq!(j["cores"][0]["refine_arena_bytes"], 6881);
-        assert_eq!(j["cores"][0]["assumed_instructions_per_cycle"], 1.0);
+        assert_eq!(j.cores[0].band_pair_instructions, 760_000_100);
+        assert_eq!(j.cores[0].refine_arena_bytes, Some(6881));
+        assert_eq!(j.cores[0].assumed_instructions_per_cycle, 1.0);
+        let text = serde_json::to_string_pretty(&j).unwrap();
+        let v: Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["cores"][0]["band_pair_instructions"], 760_000_100u64);
+        assert_eq!(v["cores"][0]["stages"][3]["name"], "refine");
+        assert_eq!(v["targets"][0]["met"], true);
+        assert_eq!(v["schema"], "bino-budget/1");
+        // Keys sorted at every level, as the file always had them (`Value` maps are sorted).
+        assert_eq!(text, serde_json::to_string_pretty(&v).unwrap());
         assert_eq!(grouped(1234567), "1,234,567");
         assert_eq!(grouped(12), "12");
     }
 
     #[test]
-    fn the_chart_draws_bars() {
-        let runs = [CoreRun::parse(&run_json("m55", 700_000_000)).unwrap()];
-        let fb = chart::draw(&runs);
-        let white = fb.raw()[0];
-        let coloured = fb.raw().iter().filter(|&&p| p != white).count();
-        assert!(coloured > 5_000, "{coloured} non-background pixels");
+    fn the_chart_draws_bars_and_text() {
+        let runs = [
+            CoreRun::parse(&run_json("m55", 700_000_000)).unwrap(),
+            CoreRun::parse(&run_json("m7", 4_740_000_000)).unwrap(),
+        ];
+        let chart = chart::draw(&runs).unwrap();
+        assert_eq!(chart.dimensions(), chart::SIZE);
+        let count = |f: &dyn Fn(&image::Rgb<u8>) -> bool| chart.pixels().filter(|p| f(p)).count();
+        // The two series' colours: blue bars (arena, M55) and orange ones (stack, M7).
+        let blue = count(&|p| p.0 == [33, 150, 228]);
+        let orange = count(&|p| p.0 == [245, 124, 32]);
+        assert!(
+            blue > 5_000 && orange > 5_000,
+            "{blue} blue, {orange} orange bar pixels"
+        );
+        // Text (titles, stage names, value labels) is dark and anti-aliased: many grey levels.
+        let dark = count(&|p| p.0.iter().all(|&c| c < 100));
+        let greys: std::collections::BTreeSet<u8> = chart
+            .pixels()
+            .filter(|p| p.0[0] == p.0[1] && p.0[1] == p.0[2])
+            .map(|p| p.0[0])
+            .collect();
+        assert!(
+            dark > 5_000,
+            "{dark} dark pixels: no text drawn? (the axes alone are about 2,300)"
+        );
+        assert!(greys.len() > 50, "{} grey levels: text not anti-aliased", greys.len());
+        // The caption strip above the first panel holds its title.
+        let title = (0..25).flat_map(|y| (0..chart::SIZE.0).map(move |x| (x, y)));
+        let title_ink = title.filter(|&(x, y)| chart.get_pixel(x, y).0[0] < 128).count();
+        assert!(title_ink > 600, "{title_ink} title pixels");
     }
 }

@@ -1,0 +1,60 @@
+//! Argument groups several verbs share, flattened into each (`#[command(flatten)]`), so a flag
+//! is declared, documented and defaulted once. Each group turns into the library's own type.
+
+use bino_core::sgm::Penalties;
+use bino_host::eval::DEFAULT_MAX_COLS;
+use clap::Args;
+
+/// `--max-cols`: how many disparities the cost-volume readouts (nolink, sgm) try, by default
+/// [`DEFAULT_MAX_COLS`] (the probe's, for the EVAL.md profiles; `bino eval`, `compare`, `demo`).
+#[derive(Args, Debug, Clone, Copy)]
+pub struct Candidates {
+    /// Disparity candidates of nolink and sgm, in patch columns.
+    #[arg(long, default_value_t = DEFAULT_MAX_COLS)]
+    pub max_cols: usize,
+}
+
+/// `--max-cols` for the verbs that run one pair at w320 by default (`bino run`, `bino sim`):
+/// the same flag, 16 candidates by default.
+// Not a const generic of `Candidates`: clap keeps a `default_value_t` string in a static, which
+// every instantiation would share.
+#[derive(Args, Debug, Clone, Copy)]
+pub struct PairCandidates {
+    /// Disparity candidates of nolink and sgm, in patch columns.
+    #[arg(long, default_value_t = 16)]
+    pub max_cols: usize,
+}
+
+/// The help text of `--max-cols` for the verbs that describe it by the no-linkage readout
+/// (`bino demo`, `bino compare`), set with `#[command(mut_arg("max_cols", ...))]`. No final
+/// full stop: clap drops it from a one-line doc comment, and the help must read as before.
+pub const NOLINK_CANDIDATES_HELP: &str = "Disparity candidates of the no-linkage readout, in patch columns";
+
+/// `--sgm-p1`, `--sgm-p2`: the SGM smoothness penalties.
+#[derive(Args, Debug, Clone, Copy)]
+pub struct SgmPenalties {
+    /// SGM penalty for a one-column change (cost units: 4096 = cosine 1).
+    #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p1)]
+    pub sgm_p1: u16,
+    /// SGM penalty for a larger jump.
+    #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p2)]
+    pub sgm_p2: u16,
+}
+
+impl SgmPenalties {
+    /// The penalties as the engine takes them.
+    pub fn penalties(&self) -> Penalties {
+        Penalties {
+            p1: self.sgm_p1,
+            p2: self.sgm_p2,
+        }
+    }
+}
+
+/// `--lr-max-diff`: the left-right check of the `+lr` readouts (and of the LRkeep figures).
+#[derive(Args, Debug, Clone, Copy)]
+pub struct LeftRightCheck {
+    /// Left-right check tolerance, in patch columns.
+    #[arg(long, default_value_t = 1.0)]
+    pub lr_max_diff: f32,
+}

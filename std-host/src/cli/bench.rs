@@ -1,0 +1,61 @@
+//! `bino bench`: tract-onnx (f32) against the int8 engine on one band, single-threaded.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::Result;
+use bino_host::bench::{bench, BenchOptions};
+use bino_host::profile::Profile;
+use clap::Args;
+
+use super::progress::Progress;
+
+/// Time tract-onnx (f32) and the int8 engine on the same band, single-threaded.
+///
+/// One 48-row band of the built-in scene at the profile's width, encoded on (I, I) by both
+/// (the descriptor pathway); one warm-up run, then --runs timed runs each. Prints medians,
+/// minima, GMAC/s and the ratio. Build with --release: a debug build's timings mean little.
+#[derive(Args)]
+pub struct BenchArgs {
+    /// Float encoder (`python -m bino_train.export`).
+    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    onnx: PathBuf,
+    /// Int8 weight blob (`bino quantize`).
+    #[arg(long, default_value = "weights/bino_int8.bin")]
+    blob: PathBuf,
+    /// Profile giving the band width: w160 or w320.
+    #[arg(long, default_value = "w160")]
+    profile: Profile,
+    /// Threads: only 1 (tract is built single-threaded; so is the int8 engine).
+    #[arg(long, default_value_t = 1)]
+    threads: usize,
+    /// Timed runs per engine.
+    #[arg(long, default_value_t = 10)]
+    runs: usize,
+    /// Also write the timings as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+}
+
+/// Runs the verb.
+pub fn run(args: BenchArgs) -> Result<()> {
+    let opts = BenchOptions {
+        onnx: args.onnx,
+        blob: args.blob,
+        profile: args.profile,
+        threads: args.threads,
+        runs: args.runs,
+    };
+    let progress = Progress::new(args.json.is_some());
+    let report = bench(&opts, |what| progress.note(&format!("timing {what}")))?;
+    progress.finish();
+    if report.debug_build {
+        eprintln!("WARNING: debug build: timings are only meaningful with --release");
+    }
+    println!("{}", report.text());
+    if let Some(path) = &args.json {
+        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,92 @@
+//! `bino compare`: the float encoder (tract-onnx) against the int8 engine on eval pairs.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::Result;
+use bino_host::compare::{compare, CompareOptions};
+use bino_host::profile::Profile;
+use clap::Args;
+
+use super::args::{Candidates, NOLINK_CANDIDATES_HELP};
+use super::progress::Progress;
+
+/// Compare the float encoder (tract-onnx) with the int8 engine on eval pairs.
+///
+/// Per view and band: the cosine of the residual stream after the embedding and after each
+/// block's attention and MLP halves (the float model runs on the engine's own 8-bit pixels
+/// / 255, so only the engines differ). Per view: the descriptor maps' cosine (float on the
+/// exact view). Per pair: integer WTA disparity agreement and the EVAL.md metrics of the
+/// no-linkage readout of both, upsampled and refined (nolink+ref; with --head also head and
+/// head+ref). Prints the means with the targets (descriptor cosine >= 0.99,
+/// WTA agreement >= 98 %, int8 epe at most 3 % above float); progress on stderr.
+#[derive(Args)]
+#[command(mut_arg("max_cols", |a| a.help(NOLINK_CANDIDATES_HELP)))]
+pub struct CompareArgs {
+    /// Folder with PAIRS.tsv.
+    #[arg(long, default_value = "../shared/data")]
+    data: PathBuf,
+    /// Split to compare on: only eval (the metrics need ground truth).
+    #[arg(long, default_value = "eval")]
+    split: String,
+    /// Resolution profile of EVAL.md: w160, w320 or native.
+    #[arg(long, default_value = "w160")]
+    profile: Profile,
+    /// Float encoder (`python -m bino_train.export`; `--intermediates` not required).
+    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    onnx: PathBuf,
+    /// Int8 weight blob quantised from it (`bino quantize`).
+    #[arg(long, default_value = "weights/bino_int8.bin")]
+    blob: PathBuf,
+    /// Float shared head: also compare the int8 head's logits and disparity with it.
+    #[arg(long)]
+    head: Option<PathBuf>,
+    /// Also write every number (per pair and mean) and the inputs' provenance as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    #[command(flatten)]
+    candidates: Candidates,
+    /// Only the first N pairs of the split.
+    #[arg(long)]
+    limit: Option<usize>,
+}
+
+/// Runs the verb.
+pub fn run(args: CompareArgs) -> Result<()> {
+    let opts = CompareOptions {
+        onnx: args.onnx,
+        blob: args.blob,
+        head: args.head,
+        data: args.data,
+        split: args.split,
+        profile: args.profile,
+        max_cols: args.candidates.max_cols,
+        limit: args.limit,
+    };
+    let progress = Progress::new(args.json.is_some());
+    progress.status("comparing pairs");
+    let report = compare(&opts, |done, total, pair| {
+        let v = &pair.values;
+        progress.item(
+            done,
+            total,
+            &format!(
+                "[{done}/{total}] {}: descriptor cosine {:.4}, WTA agreement {:.1} %, epe {:.3} float / {:.3} int8 \
+                 ({:.1} s)",
+                pair.pair_id,
+                v.descriptor_cosine,
+                v.wta_agreement,
+                v.float.epe,
+                v.int8.epe,
+                pair.elapsed.as_secs_f64()
+            ),
+        );
+    })?;
+    progress.finish();
+    println!("{}", report.table());
+    if let Some(path) = &args.json {
+        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}

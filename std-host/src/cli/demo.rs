@@ -1,0 +1,74 @@
+//! `bino demo`: the int8 pipeline on the built-in scene, scored against its known disparity.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use bino_host::demo::DemoOptions;
+use clap::Args;
+
+use super::args::{Candidates, SgmPenalties, NOLINK_CANDIDATES_HELP};
+use super::progress::Progress;
+
+/// The int8 pipeline on the built-in stereo scene (no data needed): encoder on both views,
+/// no-linkage matching, SGM and the shared head (also head+lr and head+lr+ref, its pixel
+/// refinement), scored against the scene's known disparity;
+/// writes the pair, the disparity maps, the error maps and report.json to --out.
+#[derive(Args)]
+#[command(mut_arg("max_cols", |a| a.help(NOLINK_CANDIDATES_HELP)))]
+pub struct DemoArgs {
+    /// Int8 weight blob (default: the one shipped in weights/).
+    #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+    blob: PathBuf,
+    /// Output folder.
+    #[arg(long, default_value = "out/demo")]
+    out: PathBuf,
+    /// Scene width in pixels (multiple of 4).
+    #[arg(long, default_value_t = 320)]
+    width: usize,
+    /// Scene height in pixels (multiple of 4; taller than 48 runs overlapping bands).
+    #[arg(long, default_value_t = 96)]
+    height: usize,
+    #[command(flatten)]
+    candidates: Candidates,
+    #[command(flatten)]
+    sgm: SgmPenalties,
+}
+
+/// Runs the verb.
+pub fn run(args: DemoArgs) -> Result<()> {
+    let opts = DemoOptions {
+        blob: args.blob,
+        out: args.out,
+        width: args.width,
+        height: args.height,
+        max_cols: args.candidates.max_cols,
+        penalties: args.sgm.penalties(),
+    };
+    let progress = Progress::new(false);
+    let report = bino_host::demo::run_demo(&opts, |step| progress.step(step))?;
+    progress.finish();
+    println!(
+        "BINO int8 demo: built-in scene {}x{}, blob {}",
+        report.width,
+        report.height,
+        opts.blob.display()
+    );
+    println!("{:<12} {:>9} {:>9} {:>9}", "readout", "epe px", "bad1tok %", "bad2 %");
+    for r in &report.readouts {
+        println!(
+            "{:<12} {:>9.3} {:>9.2} {:>9.2}",
+            r.name, r.metrics.epe, r.metrics.bad1tok, r.metrics.bad2
+        );
+    }
+    for (step, took) in &report.timings {
+        println!("  {step}: {:.1} ms", took.as_secs_f64() * 1e3);
+    }
+    println!(
+        "arena: encoder {} bytes per 48-row band, head {} bytes (both fixed, sized by const fn)",
+        report.encoder_arena_bytes, report.head_arena_bytes
+    );
+    for file in &report.files {
+        println!("wrote {}", file.display());
+    }
+    Ok(())
+}

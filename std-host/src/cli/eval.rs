@@ -1,0 +1,138 @@
+//! `bino eval`: the readouts scored on the eval split, int8 and f32, StereoSGBM beside them.
+
+use std::io::Write;
+use std::path::PathBuf;
+
+use anyhow::Result;
+use bino_host::profile::Profile;
+use bino_host::readout_eval::EvalOptions;
+use clap::Args;
+
+use super::args::{Candidates, LeftRightCheck, SgmPenalties};
+use super::progress::Progress;
+
+/// Score the readouts (nolink, sgm, head, each also +lr, each of those also +ref) on the
+/// eval split, int8 (the core pipeline) and f32, EVAL.md metrics per pair and mean,
+/// StereoSGBM in the same run; with --nuisance also with the right view degraded.
+#[derive(Args)]
+pub struct EvalArgs {
+    /// Folder with PAIRS.tsv.
+    #[arg(long, default_value = "../shared/data")]
+    data: PathBuf,
+    /// Split: eval (the metrics need ground truth).
+    #[arg(long, default_value = "eval")]
+    split: String,
+    /// Resolution profile of EVAL.md: w160, w320 or native.
+    #[arg(long, default_value = "w160")]
+    profile: Profile,
+    /// Int8 weight blob.
+    #[arg(long, default_value = "weights/bino_int8.bin")]
+    blob: PathBuf,
+    /// Float encoder (ONNX), for --precision f32.
+    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    onnx: PathBuf,
+    /// Float shared head (ONNX), for --precision f32 with the head readout.
+    #[arg(long, default_value = "weights/bino_head.onnx")]
+    head_onnx: PathBuf,
+    /// Precisions (repeat or comma-separate): int8 (the core pipeline), f32 (tract and the
+    /// float twins of the readouts).
+    #[arg(long, value_delimiter = ',', default_value = "int8,f32")]
+    precision: Vec<bino_host::readout_eval::Precision>,
+    /// Readouts to score (repeat or comma-separate): nolink, sgm, head, each optionally
+    /// with +lr (cells the method's own left-right check rejects filled from the left),
+    /// then optionally +ref (pixels by the integer refinement instead of bilinear
+    /// upsampling). Default: all twelve, each unrefined then refined.
+    #[arg(
+        long,
+        value_delimiter = ',',
+        default_value = "nolink,nolink+ref,nolink+lr,nolink+lr+ref,sgm,sgm+ref,sgm+lr,sgm+lr+ref,head,head+ref,head+lr,head+lr+ref"
+    )]
+    readout: Vec<bino_host::readout::Readout>,
+    #[command(flatten)]
+    lr: LeftRightCheck,
+    /// Skip StereoSGBM (it runs in the project's Python environment, OpenCV).
+    #[arg(long)]
+    no_sgbm: bool,
+    #[command(flatten)]
+    candidates: Candidates,
+    #[command(flatten)]
+    sgm: SgmPenalties,
+    /// Also write every number as JSON.
+    #[arg(long)]
+    json: Option<PathBuf>,
+    /// Only the first N pairs of the split.
+    #[arg(long)]
+    limit: Option<usize>,
+    /// Also score every readout and StereoSGBM with the RIGHT view degraded (repeat or
+    /// comma-separate; the clean run is always reported too). Applied to the profile's
+    /// 8-bit right view after resizing, the same images for every method: gain (v * 0.7 +
+    /// 20, clamped), gamma (255 (v/255)^0.6), noise (gaussian, sigma 8 grey levels), blur
+    /// (5x5 box, radius 2 px), occlude (mid-grey rectangles, each at most 1/5 of the width
+    /// and height, until at least 20 % of the area is covered). The whole set runs once
+    /// more per nuisance: five nuisances take six times as long.
+    #[arg(long, value_delimiter = ',')]
+    nuisance: Vec<bino_host::nuisance::Nuisance>,
+    /// Seed of the nuisances' noise and occlusions (mixed with each pair's id).
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Also the one-view occlusion benchmark (the paper's): the RIGHT view covered by
+    /// token-aligned mid-grey blocks over these % of its area (comma-separated, rising,
+    /// nested: each severity's blocks contain the milder ones'), every readout and
+    /// StereoSGBM scored at each; reports clean, each severity, OccAUC and the rise at the
+    /// largest. The whole set runs once more per severity.
+    #[arg(long, value_delimiter = ',')]
+    occlude: Vec<u32>,
+}
+
+/// Runs the verb.
+pub fn run(args: EvalArgs) -> Result<()> {
+    let opts = EvalOptions {
+        data: args.data,
+        split: args.split,
+        profile: args.profile,
+        blob: args.blob,
+        onnx: args.onnx,
+        head_onnx: args.head_onnx,
+        precisions: args.precision,
+        readouts: args.readout,
+        max_cols: args.candidates.max_cols,
+        penalties: args.sgm.penalties(),
+        lr_max_diff: args.lr.lr_max_diff,
+        sgbm: !args.no_sgbm,
+        limit: args.limit,
+        nuisances: args.nuisance,
+        seed: args.seed,
+        occlusions: args.occlude,
+    };
+    let progress = Progress::new(args.json.is_some());
+    progress.status("scoring pairs");
+    let report = bino_host::readout_eval::evaluate(&opts, |done, total, pair| {
+        let mut epe: Vec<String> = opts
+            .rows()
+            .iter()
+            .zip(&pair.scores)
+            .map(|((p, r), s)| format!("{} {} {:.3}", p.name(), r.name(), s.metrics.epe))
+            .collect();
+        if let Some(m) = pair.sgbm {
+            epe.push(format!("SGBM {:.3}", m.epe));
+        }
+        let under = pair.nuisance.map_or(String::new(), |n| format!(" under {}", n.name()));
+        progress.item(
+            done,
+            total,
+            &format!(
+                "[{done}/{total}] {}{under}: epe {} ({:.1} s)",
+                pair.pair_id,
+                epe.join(", "),
+                pair.elapsed.as_secs_f64()
+            ),
+        );
+    })?;
+    progress.finish();
+    println!("{}", report.table());
+    if let Some(path) = &args.json {
+        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}

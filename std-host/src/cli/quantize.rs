@@ -1,0 +1,93 @@
+//! `bino quantize`: the float ONNX models into the int8 weight blob.
+
+use std::io::Write;
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Result;
+use bino_host::int8::Int8Model;
+use bino_host::profile::Profile;
+use bino_host::quantize::{quantize, QuantizeOptions};
+use clap::Args;
+
+use super::progress::Progress;
+
+/// Quantise the float ONNX models into the int8 weight blob the engine runs.
+///
+/// Weights: symmetric int8 per output channel. Activation formats come from the float
+/// encoder's intermediate tensors (tract) on bands of train-split pairs only: per-channel
+/// 0.01/99.99 percentiles for the residual stream, MSE-optimal clipping elsewhere
+/// (docs/int8-model.md).
+#[derive(Args)]
+pub struct QuantizeArgs {
+    /// Float encoder (`python -m bino_train.export`, with or without `--intermediates`):
+    /// calibration reads its per-stage tensors by value name.
+    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    onnx: PathBuf,
+    /// Float shared head (`python -m bino_train.head`); quantised into the same blob.
+    #[arg(long)]
+    head: Option<PathBuf>,
+    /// Train pairs whose descriptor maps calibrate the head.
+    #[arg(long, default_value_t = 16)]
+    head_calib_pairs: usize,
+    /// Folder with PAIRS.tsv; only `split = train` pairs are read.
+    #[arg(long, default_value = "../shared/data")]
+    calib: PathBuf,
+    /// Train pairs to calibrate on (both views, one band each; spread over the split).
+    #[arg(long, default_value_t = 64)]
+    calib_pairs: usize,
+    /// Resolution profile of the calibration bands.
+    #[arg(long, default_value = "w160")]
+    profile: Profile,
+    /// Widest band the blob supports, in pixels.
+    #[arg(long, default_value_t = 640)]
+    max_width: usize,
+    /// Output blob.
+    #[arg(long, default_value = "weights/bino_int8.bin")]
+    out: PathBuf,
+}
+
+/// Runs the verb.
+pub fn run(args: QuantizeArgs) -> Result<()> {
+    let opts = QuantizeOptions {
+        encoder: args.onnx,
+        head: args.head,
+        head_calib_pairs: args.head_calib_pairs,
+        data: args.calib,
+        profile: args.profile,
+        calib_pairs: args.calib_pairs,
+        max_width: args.max_width,
+    };
+    let out = args.out;
+    let started = Instant::now();
+    let progress = Progress::new(false);
+    progress.status("calibrating: bands");
+    let (blob, report) = quantize(&opts, |done, total| {
+        progress.tick(done, total, || {
+            eprint!("\rcalibrating: band {done}/{total}");
+            if done == total {
+                eprintln!();
+            }
+        });
+    })?;
+    progress.finish();
+    if let Some(choice) = &report.head_choice {
+        eprintln!("head correlation format, mean |int8 - float| disparity on the calibration maps (train split):");
+        for (i, (label, error)) in choice.tried.iter().enumerate() {
+            let mark = if i == choice.chosen { "  <- chosen" } else { "" };
+            eprintln!("  {label:<20} {error:.4} patch columns{mark}");
+        }
+    }
+    // The blob must load in the engine before it is written.
+    Int8Model::from_bytes(blob.clone(), &out.display().to_string())?;
+    bino_host::files::write_atomic(&out, |file| Ok(file.write_all(&blob)?))?;
+    println!(
+        "{}: {} bytes from {} ({} calibration bands, {:.1} s)",
+        out.display(),
+        blob.len(),
+        opts.encoder.display(),
+        report.bands,
+        started.elapsed().as_secs_f64()
+    );
+    Ok(())
+}

@@ -1,0 +1,106 @@
+//! `bino run`: the int8 pipeline on a rectified pair of any size.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use bino_host::profile::Profile;
+use bino_host::run::RunOptions;
+use clap::Args;
+
+use super::args::{LeftRightCheck, PairCandidates, SgmPenalties};
+use super::progress::Progress;
+
+/// The int8 pipeline on a rectified pair of any size: writes disparity.png (colour),
+/// disparity.pfm (float32 pixel disparities, dense, the readout exactly as `bino eval` scores
+/// it: refined, the readout's +ref, unless --refine off) and lr_mask.png (pixels the
+/// readout's method keeps in its left-right check) to --out.
+#[derive(Args)]
+pub struct RunArgs {
+    /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
+    #[arg(long)]
+    left: PathBuf,
+    /// Right view, same size.
+    #[arg(long)]
+    right: PathBuf,
+    /// Resolution profile: w160, w320 or native (sides must be multiples of 4).
+    #[arg(long, default_value = "w320")]
+    profile: Profile,
+    /// Int8 weight blob.
+    #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+    blob: PathBuf,
+    /// Readout: nolink, sgm or head, each optionally with +lr (cells the method's own
+    /// left-right check rejects filled from the nearest kept cell to their left), then
+    /// optionally +ref (the same as --refine on). The default, sgm+lr, has the lowest
+    /// unrefined eval-split error at the default profile, w320 (head+lr at w160; README).
+    #[arg(long, default_value = "sgm+lr")]
+    readout: bino_host::readout::Readout,
+    /// Pixel refinement of the readout: on (its +ref: census 5x5 search +-2 px around the
+    /// upsampled token disparity, bino_core::refine) or off (the token grid upsampled
+    /// bilinearly, as before the refinement).
+    #[arg(long, value_enum, default_value = "on")]
+    refine: bino_host::run::Refine,
+    #[command(flatten)]
+    candidates: PairCandidates,
+    #[command(flatten)]
+    sgm: SgmPenalties,
+    #[command(flatten)]
+    lr: LeftRightCheck,
+    /// Output folder.
+    #[arg(long, default_value = "out/run")]
+    out: PathBuf,
+}
+
+/// Runs the verb.
+pub fn run(args: RunArgs) -> Result<()> {
+    let readout = args
+        .refine
+        .apply(args.readout)
+        .unwrap_or_else(|msg| super::usage_error("run", msg));
+    let opts = RunOptions {
+        left: args.left,
+        right: args.right,
+        profile: args.profile,
+        blob: args.blob,
+        readout,
+        max_cols: args.candidates.max_cols,
+        penalties: args.sgm.penalties(),
+        lr_max_diff: args.lr.lr_max_diff,
+        out: args.out,
+    };
+    let progress = Progress::new(false);
+    let report = bino_host::run::run_pair(&opts, |step| progress.step(step))?;
+    progress.finish();
+    println!(
+        "bino run: {} readout at {}x{} ({}), {:.1} % of pixels left-right consistent",
+        opts.readout.name(),
+        report.width,
+        report.height,
+        opts.profile,
+        report.density
+    );
+    for (step, took) in &report.timings {
+        println!("  {step}: {:.1} ms", took.as_secs_f64() * 1e3);
+    }
+    let p = &report.pipeline;
+    let kept = |cells: usize| 100.0 * cells as f64 / (p.rows * p.cols).max(1) as f64;
+    println!(
+        "  {} band(s); left-right check keeps {:.1} % of WTA and {:.1} % of SGM cells (LRkeep)",
+        p.bands,
+        kept(p.wta_kept),
+        kept(p.sgm_kept)
+    );
+    println!("  time inside the pipeline by stage:");
+    for (stage, took) in &report.stage_times {
+        if !took.is_zero() {
+            println!("    {:<12} {:8.1} ms", stage.name(), took.as_secs_f64() * 1e3);
+        }
+    }
+    println!(
+        "arena: {} bytes used of {} (pixel band {}, descriptors {}, encoder {}, readout streams {})",
+        p.arena_used, report.arena_bytes, p.pixels, p.descriptors, p.encoder, p.streams
+    );
+    for file in &report.files {
+        println!("wrote {}", file.display());
+    }
+    Ok(())
+}

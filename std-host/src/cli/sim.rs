@@ -1,0 +1,100 @@
+//! `bino sim`: the board simulated on the host, the display saved as a PNG.
+
+use std::path::PathBuf;
+
+use anyhow::Result;
+use bino_host::profile::Profile;
+use bino_host::sim::SimOptions;
+use clap::Args;
+
+use super::args::{LeftRightCheck, PairCandidates, SgmPenalties};
+use super::progress::Progress;
+
+/// The board, simulated: the pair is fed row by row into the band buffer as a camera
+/// delivers it, the int8 pipeline runs in one arena, and each disparity row is drawn
+/// (embedded-graphics) on an RGB565 display with a status line (host fps, arena use, image
+/// size); the display is saved as display.png in --out. Without --left/--right the
+/// built-in 320x96 scene is used.
+#[derive(Args)]
+pub struct SimArgs {
+    /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
+    #[arg(long, requires = "right")]
+    left: Option<PathBuf>,
+    /// Right view, same size.
+    #[arg(long, requires = "left")]
+    right: Option<PathBuf>,
+    /// Resolution profile of --left/--right: w160, w320 or native.
+    #[arg(long, default_value = "w320")]
+    profile: Profile,
+    /// Int8 weight blob.
+    #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+    blob: PathBuf,
+    /// Readout drawn: nolink, sgm or head (cells their left-right check rejects are dark),
+    /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval`
+    /// scores), each token row as the pipeline streams it; or a +ref readout, its refined
+    /// pixel rows as the pipeline's refinement stage streams them. The default is `bino run`'s.
+    #[arg(long, default_value = "sgm+lr+ref")]
+    readout: bino_host::readout::Readout,
+    #[command(flatten)]
+    candidates: PairCandidates,
+    #[command(flatten)]
+    sgm: SgmPenalties,
+    #[command(flatten)]
+    lr: LeftRightCheck,
+    /// Display size, WIDTHxHEIGHT.
+    #[arg(long, default_value = "320x240")]
+    display: bino_host::sim::display::DisplaySize,
+    /// Frames to run (the camera delivers the pair again each time); fps from the median.
+    #[arg(long, default_value_t = 1)]
+    frames: usize,
+    /// Output folder.
+    #[arg(long, default_value = "out/sim")]
+    out: PathBuf,
+}
+
+/// Runs the verb.
+pub fn run(args: SimArgs) -> Result<()> {
+    let opts = SimOptions {
+        pair: args.left.zip(args.right),
+        profile: args.profile,
+        blob: args.blob,
+        readout: args.readout,
+        max_cols: args.candidates.max_cols,
+        penalties: args.sgm.penalties(),
+        lr_max_diff: args.lr.lr_max_diff,
+        display: args.display,
+        frames: args.frames,
+        out: args.out,
+    };
+    let progress = Progress::new(false);
+    let report = bino_host::sim::run_sim(&opts, |step| progress.step(step))?;
+    progress.finish();
+    let stages: Vec<String> = report
+        .stage_times
+        .iter()
+        .filter(|(_, took)| !took.is_zero())
+        .map(|(name, took)| format!("{name} {:.1}", took.as_secs_f64() * 1e3))
+        .collect();
+    eprintln!("last frame, ms by stage: {}", stages.join(", "));
+    let p = &report.pipeline;
+    println!(
+        "bino sim: {} at {}x{}, {} readout; sensor rows read {}/{} (each once), {} band(s), {} rows drawn; \
+         host {:.2} fps ({:.1} ms/frame, median of {}; not a board figure); arena {} of {} bytes; display {} -> {}",
+        report.source,
+        report.width,
+        report.height,
+        opts.readout.name(),
+        report.rows_delivered,
+        report.height,
+        p.bands,
+        report.rows_drawn,
+        report.host_fps(),
+        report.frame_time().as_secs_f64() * 1e3,
+        report.frame_times.len(),
+        p.arena_used,
+        report.arena_bytes,
+        opts.display,
+        report.png.display()
+    );
+    Ok(())
+}
