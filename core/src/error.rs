@@ -4,6 +4,7 @@ use core::fmt;
 
 /// Everything that can go wrong in `bino-core`. Every bad input is one of these, never a panic.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum Error {
     /// An image has no rows or columns.
