@@ -150,6 +150,12 @@ impl DepthModel {
         if disparity_q8 == 0 || disparity_q8 == u16::MAX {
             return None;
         }
+        // A 32-bit division where the numerator allows (one instruction on Cortex-M4 and up;
+        // 64-bit division is a library call there).
+        if self.numerator <= u64::from(u32::MAX - u32::from(u16::MAX)) {
+            let (n, d) = (self.numerator as u32, u32::from(disparity_q8));
+            return Some((n + d / 2) / d);
+        }
         let d = u64::from(disparity_q8);
         let mm = (self.numerator + d / 2) / d;
         Some(u32::try_from(mm).unwrap_or(u32::MAX))
