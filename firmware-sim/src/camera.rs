@@ -70,13 +70,14 @@ struct Sensor {
     queue_high_water: usize,
     /// The timer runs (between `start` and the last row or `stop`).
     running: bool,
-    /// `[slot][view][pixel]`.
-    lines: [[[u8; WIDTH]; 2]; LINES],
 }
 
+/// The line buffers, `[slot][view][pixel]`: what the DMA writes, a zeroed static (`.bss`).
+type Lines = [[[u8; WIDTH]; 2]; LINES];
+
 impl Sensor {
-    /// One row interval: expose the next row, or stop after the last.
-    fn tick(&mut self) {
+    /// One row interval: expose the next row into `lines`, or stop after the last.
+    fn tick(&mut self, lines: &mut Lines) {
         if self.next >= self.rows {
             self.stop();
             return;
@@ -87,8 +88,8 @@ impl Sensor {
         let range = row * WIDTH..(row + 1) * WIDTH;
         match (self.left.get(range.clone()), self.right.get(range)) {
             (Some(l), Some(r)) if self.producer.ready() => {
-                self.lines[slot][0].copy_from_slice(l);
-                self.lines[slot][1].copy_from_slice(r);
+                lines[slot][0].copy_from_slice(l);
+                lines[slot][1].copy_from_slice(r);
                 // Cannot fail: ready() was true and only this interrupt produces.
                 let _ = self.producer.enqueue(Line {
                     row: row as u16,
@@ -115,11 +116,14 @@ impl Sensor {
 /// line buffers), each access in a critical section.
 static SENSOR: Mutex<RefCell<Option<Sensor>>> = Mutex::new(RefCell::new(None));
 
+/// The line buffers, shared the same way.
+static LINE_BUFFERS: Mutex<RefCell<Lines>> = Mutex::new(RefCell::new([[[0; WIDTH]; 2]; LINES]));
+
 #[exception]
 fn SysTick() {
     interrupt::free(|cs| {
         if let Some(sensor) = SENSOR.borrow(cs).borrow_mut().as_mut() {
-            sensor.tick();
+            sensor.tick(&mut LINE_BUFFERS.borrow(cs).borrow_mut());
         }
     });
 }
@@ -145,7 +149,9 @@ pub struct Camera {
 
 impl Camera {
     /// Sets up the sensor on the frame `left`/`right` (`HEIGHT x WIDTH` each) with its timer
-    /// stopped; `None` if called twice (the queue is a singleton).
+    /// stopped; `None` if called twice (the queue is a singleton). Not inlined: its temporaries
+    /// stay out of the caller's frame, which the whole run keeps.
+    #[inline(never)]
     pub fn new(syst: SYST, left: &'static [u8], right: &'static [u8]) -> Option<Self> {
         let queue: &'static mut Queue<Line, { LINES + 1 }> =
             cortex_m::singleton!(: Queue<Line, { LINES + 1 }> = Queue::new())?;
@@ -161,7 +167,6 @@ impl Camera {
             lost: 0,
             queue_high_water: 0,
             running: false,
-            lines: [[[0; WIDTH]; 2]; LINES],
         };
         sensor.syst.disable_counter();
         sensor.syst.set_clock_source(SystClkSource::Core);
@@ -253,7 +258,8 @@ impl Camera {
                 if let Some(line) = self.consumer.dequeue() {
                     // The slot stays ours until this critical section ends: the interrupt can
                     // refill it only after the dequeue, and cannot run before we copied.
-                    let [l, r] = &s.lines[usize::from(line.slot) % LINES];
+                    let lines = LINE_BUFFERS.borrow(cs).borrow();
+                    let [l, r] = &lines[usize::from(line.slot) % LINES];
                     left.copy_from_slice(l);
                     right.copy_from_slice(r);
                     return Some(Some(usize::from(line.row)));

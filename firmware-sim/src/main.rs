@@ -301,6 +301,7 @@ fn main() -> ! {
 
 /// Logs the camera path of the run (the inputs of the sustainable row rate that report.py
 /// derives from the instruction counts); `true` when every row arrived and none was lost.
+#[inline(never)]
 fn report_camera(camera: &Camera) -> bool {
     let stats = camera.stats();
     defmt::println!(
@@ -319,6 +320,7 @@ fn report_camera(camera: &Camera) -> bool {
 /// counts): the sensor runs `EXTRA` rows past the line buffers with nobody reading, so those
 /// rows are lost; the queued rows still come out in order, and the next request is
 /// [`Error::RowsLost`] with the count.
+#[inline(never)]
 fn overflow_check(camera: &mut Camera) -> bool {
     const EXTRA: usize = 3;
     camera.rewind();
