@@ -210,7 +210,7 @@ def main():
     outputs = [l for l in lines if "output" in l]
     arena = next((l for l in lines if "arena_used" in l), {})
     camera = next((l for l in lines if "frame_rows" in l), {})
-    overflow = next((l for l in lines if "camera_overflow_check" in l), {})
+    overflow = next((l for l in lines if "queued_rows_read" in l), {})
     result = next((l.get("result") for l in lines if "result" in l), "none")
     counts = parse_counts(args.counts)
     # The plugin's buckets (startup, each stage, outside) partition every executed instruction.
