@@ -193,35 +193,28 @@ impl Camera {
         self.started = true;
     }
 
-    /// Stops the sensor.
-    pub fn stop(&mut self) {
-        interrupt::free(|cs| {
-            if let Some(s) = SENSOR.borrow(cs).borrow_mut().as_mut() {
-                s.stop();
-            }
-        });
-    }
-
-    /// Stops the sensor and empties the line buffers: the next request starts a new frame.
-    pub fn rewind(&mut self) {
+    /// Stops the sensor and empties the line buffers: the next request starts a new frame of
+    /// `rows` rows (at most the band's), after which the sensor stops by itself.
+    pub fn rewind(&mut self, rows: usize) {
         interrupt::free(|cs| {
             if let Some(s) = SENSOR.borrow(cs).borrow_mut().as_mut() {
                 s.stop();
                 s.syst.clear_current();
                 (s.next, s.filled, s.lost, s.queue_high_water) = (0, 0, 0, 0);
+                s.rows = rows.min(HEIGHT.min(s.left.len().min(s.right.len()) / WIDTH));
             }
             while self.consumer.dequeue().is_some() {}
         });
         (self.next, self.started) = (0, false);
     }
 
-    /// Waits until the sensor has exposed at least `rows` rows of the frame (at once if it is
-    /// not running): lets it run ahead of the pipeline.
-    pub fn wait_exposed(&mut self, rows: usize) {
+    /// Waits until the sensor has stopped (after its frame's last row, or at once if it is not
+    /// running), taking no rows: lets it run ahead of the pipeline.
+    pub fn wait_stopped(&mut self) {
         loop {
             let done = interrupt::free(|cs| {
                 let s = SENSOR.borrow(cs).borrow();
-                let done = s.as_ref().is_none_or(|s| !s.running || s.next >= rows);
+                let done = s.as_ref().is_none_or(|s| !s.running);
                 if !done {
                     // Masked: the tick that is due wakes the core and runs once `free` ends.
                     cortex_m::asm::wfi();
