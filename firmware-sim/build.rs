@@ -13,7 +13,8 @@ use std::path::{Path, PathBuf};
 #[allow(dead_code)]
 mod workload;
 
-use workload::{BandPair, Hooks, Stage, OUTPUTS};
+use bino_core::pipeline::SlicePair;
+use workload::{Hooks, Stage, OUTPUTS};
 
 /// The host run needs no hooks.
 struct Quiet;
@@ -63,13 +64,9 @@ fn main() {
     let right = read(&right_path);
 
     let mut arena = vec![0u8; workload::arena_bytes(height, width)];
-    let pair = BandPair {
-        left: &left,
-        right: &right,
-        width,
-        height,
-    };
-    let outcome = workload::run(&blob, pair, &mut arena, &mut Quiet)
+    let mut source =
+        SlicePair::new(&left, &right, width, height).unwrap_or_else(|e| panic!("{}: {e}", left_path.display()));
+    let outcome = workload::run(&blob, &mut source, &mut arena, &mut Quiet)
         .unwrap_or_else(|e| panic!("the host run of the firmware workload failed: {e}"));
 
     let mut code = String::new();

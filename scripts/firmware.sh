@@ -96,8 +96,11 @@ for core in $cores; do
   fi
   start=$(date +%s.%N)
   set +e
+  # -icount shift=0: one executed instruction is 1 ns of virtual time, so the camera's SysTick
+  # row interval (firmware-sim/src/camera.rs) is a fixed number of instructions and every count
+  # repeats exactly; sleep=off skips the time the core waits for a row (WFI).
   qemu-system-arm -machine "$machine" -cpu "$cpu" -display none -monitor none -serial null \
-    -semihosting-config enable=on,target=native \
+    -semihosting-config enable=on,target=native -icount shift=0,align=off,sleep=off \
     -plugin "$plugin,out=$out/$core-counts.tsv$marks$(printf %s "${profile_args[@]}")" \
     -kernel "$elf" | defmt-print -e "$elf" | tee "$out/$core.log"
   codes=("${PIPESTATUS[@]}")

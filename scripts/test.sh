@@ -24,6 +24,8 @@ scripts/fuzz.sh --seconds "${BINO_FUZZ_SECONDS:-30}"
 step "bino-core for the Cortex-M targets (no_std, no alloc)"
 for target in $THUMB_TARGETS; do
   cargo build -p bino-core --locked --release --target "$target"
+  # The optional integrations (depth, defmt) must build and lint clean there too.
+  cargo clippy -p bino-core --locked --release --target "$target" --features depth,defmt -- -D warnings
 done
 
 step "firmware under QEMU: both cores, outputs bit-identical to the host, instruction counts"

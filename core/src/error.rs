@@ -4,6 +4,7 @@ use core::fmt;
 
 /// Everything that can go wrong in `bino-core`. Every bad input is one of these, never a panic.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum Error {
     /// An image has no rows or columns.
@@ -97,6 +98,14 @@ pub enum Error {
         /// The readout, as the host names it (`head+lr`, ...).
         readout: &'static str,
     },
+    /// A row source lost rows before handing over `row` (a camera whose row queue overflowed:
+    /// the sensor ran further ahead than its line buffers hold).
+    RowsLost {
+        /// The row the pipeline asked for.
+        row: usize,
+        /// Rows lost so far.
+        lost: usize,
+    },
     /// The weight blob is malformed or lacks a tensor the model needs.
     Blob(crate::blob::BlobError),
 }
@@ -140,6 +149,9 @@ impl fmt::Display for Error {
             }
             Error::MissingReadout { readout } => {
                 write!(f, "the {readout} readout is not produced by this run")
+            }
+            Error::RowsLost { row, lost } => {
+                write!(f, "row source lost {lost} rows by row {row} (its row queue overflowed)")
             }
             Error::Blob(e) => write!(f, "{e}"),
         }

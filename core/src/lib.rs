@@ -23,6 +23,8 @@ pub mod band;
 pub mod blob;
 pub mod config;
 pub mod crc32;
+#[cfg(feature = "depth")]
+pub mod depth;
 pub mod error;
 pub mod fixed;
 pub mod kernels;

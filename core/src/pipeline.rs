@@ -49,6 +49,7 @@ use refine_stage::{BandView, RefineIo, RefineStage, Scratch, HEAD_LAG};
 
 /// Where the pipeline is; a [`Sink`] hears of every change (firmware marks stages with it).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Stage {
     /// Reading image rows into the band buffer.
     Rows,
@@ -327,6 +328,7 @@ pub trait Sink {
 
 /// What a run used and kept.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct Report {
     /// Token rows of the image.
     pub rows: usize,

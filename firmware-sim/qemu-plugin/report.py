@@ -20,6 +20,8 @@ NOTE = (
     "between the firmware's stage markers; they are not cycles"
 )
 KV = re.compile(r"(\w+)=(\S+)")
+# The clocks the budget assumes (bino budget): one instruction per cycle at these rates.
+CLOCK_HZ = {"m55": 400_000_000, "m7": 480_000_000}
 
 
 def number(v):
@@ -104,6 +106,50 @@ def profile(llvm_nm, elf, blocks_path, top):
     )
 
 
+def camera_rates(camera, stages, clock_hz):
+    """The sensor row rates the pipeline keeps up with, from the executed instructions (IPC 1).
+
+    The pipeline reads a band's rows in its rows stage, then works on the band without reading
+    any (encoder, readouts, head, refinement). A sensor that never pauses keeps exposing rows
+    meanwhile; they wait in the line buffers, so it may run at most `line_buffers` rows ahead per
+    band's work. A sensor with vertical blanking delivers its frame in a burst and waits; the burst
+    may go as fast as the rows stage drains lines (its instructions per row include the interrupt).
+    """
+    if not camera or not stages or not clock_hz:
+        return None
+    by_name = {s["name"]: s["instructions"] for s in stages}
+    band = sum(n for name, n in by_name.items() if name != "load")
+    rows_insns = by_name.get("rows", 0)
+    work = band - rows_insns
+    frame_rows = camera["frame_rows"]
+    lines = camera["line_buffers"]
+    if band <= 0 or work <= 0 or frame_rows <= 0:
+        return None
+    per_row = rows_insns / frame_rows
+    return {
+        "clock_hz": clock_hz,
+        "frame_rows": frame_rows,
+        "line_buffers": lines,
+        "row_interval_insns": camera["row_interval_insns"],
+        "configured_rows_per_s": clock_hz / camera["row_interval_insns"],
+        "delivered": camera["delivered"],
+        "lost": camera["lost"],
+        "queue_high_water": camera["queue_high_water"],
+        "band_pair_instructions": band,
+        "rows_stage_instructions_per_row": round(per_row, 1),
+        "frames_per_s": clock_hz / band,
+        "framed_rows_per_s": frame_rows * clock_hz / band,
+        "continuous_rows_per_s": min(lines, frame_rows) * clock_hz / work,
+        "burst_rows_per_s": clock_hz / per_row if per_row > 0 else None,
+        "note": (
+            "IPC-1 figures (executed instructions at one per cycle at clock_hz), not cycles. "
+            "framed: a frame of frame_rows rows per band pair, the sensor blanked while the pipeline "
+            "works; continuous: a sensor that never pauses may run line_buffers rows ahead during the "
+            "band's work; burst: the fastest in-frame row rate the rows stage drains"
+        ),
+    }
+
+
 def sha256_file(path):
     with open(path, "rb") as f:
         return hashlib.sha256(f.read()).hexdigest()
@@ -163,6 +209,8 @@ def main():
     stage_lines = [l for l in lines if "stage" in l]
     outputs = [l for l in lines if "output" in l]
     arena = next((l for l in lines if "arena_used" in l), {})
+    camera = next((l for l in lines if "frame_rows" in l), {})
+    overflow = next((l for l in lines if "queued_rows_read" in l), {})
     result = next((l.get("result") for l in lines if "result" in l), "none")
     counts = parse_counts(args.counts)
     # The plugin's buckets (startup, each stage, outside) partition every executed instruction.
@@ -218,6 +266,12 @@ def main():
             {"name": o["output"], "digest": o["digest"], "expected": o["expected"], "match": o["match"]}
             for o in outputs
         ],
+        "camera": camera_rates(camera, stages, CLOCK_HZ.get(args.core)),
+        "camera_overflow_check": {k: overflow.get(k) for k in ("exposed", "lost", "queued_rows_read", "ok")},
+        "nearest_sector": next(
+            ({"sector": l["nearest_sector"], "nearest_mm": l["nearest_mm"]} for l in lines if "nearest_sector" in l),
+            None,
+        ),
         "wta_kept": arena.get("wta_kept"),
         "sgm_kept": arena.get("sgm_kept"),
         "note": NOTE,
@@ -241,6 +295,15 @@ def main():
                     f"{b['block_instructions']:>4}  {b['executions']:>12,}  {b['function']}\n"
                     for b in hot
                 )
+    cam = report["camera"]
+    if cam:
+        print(
+            f"{args.core}: camera {cam['delivered']} rows, {cam['lost']} lost; keeps up (IPC 1, "
+            f"{cam['clock_hz'] / 1e6:.0f} MHz) with {cam['framed_rows_per_s']:.2f} rows/s in "
+            f"{cam['frame_rows']}-row frames ({cam['frames_per_s']:.3f} frames/s), "
+            f"{cam['continuous_rows_per_s']:.2f} rows/s from a sensor that never pauses "
+            f"({cam['line_buffers']} line buffers), bursts up to {cam['burst_rows_per_s']:,.0f} rows/s"
+        )
     with open(args.out, "w") as f:
         json.dump(report, f, indent=2)
         f.write("\n")

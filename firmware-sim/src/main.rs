@@ -1,9 +1,12 @@
 //! BINO edge firmware for QEMU's Cortex-M55 (`mps3-an547`) and Cortex-M7 (`mps2-an500`) boards.
 //!
-//! Runs the embedded band pair through `bino_core::pipeline` from a static arena, logs each
-//! stage's arena use and stack peak and each output's digest with `defmt` over semihosting, and
-//! exits 0 only if every digest equals the host's (baked in by `build.rs`), non-zero otherwise or
-//! on any error.
+//! Runs the embedded band pair through `bino_core::pipeline` from a static arena, its rows fed
+//! by the camera path (`camera.rs`: a SysTick interrupt plays the sensor and fills line buffers,
+//! a `heapless` queue hands them to the pipeline), logs each stage's arena use and stack peak,
+//! each output's digest, the camera's lost rows and the obstacle summary with `defmt` over
+//! semihosting, and exits 0 only if every digest equals the host's (baked in by `build.rs`), no
+//! row was lost and the camera's overflow check reports its lost rows; non-zero otherwise or on
+//! any error.
 //!
 //! Each stage starts with a call to its marker function `bino_mark_<stage>`, whose address the
 //! QEMU instruction-count plugin (`qemu-plugin/`) watches; `bino_mark_end` starts work outside
@@ -11,20 +14,23 @@
 #![no_std]
 #![no_main]
 
+mod camera;
 mod workload;
 
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of, addr_of_mut};
 
-use bino_core::pipeline;
+use bino_core::pipeline::{self, RowSource};
+use bino_core::Error;
+use camera::Camera;
 // The critical-section implementation (single core) that defmt's logger needs.
 use cortex_m as _;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
 use defmt_semihosting as _;
-use workload::{BandPair, Hooks, Stage, OUTPUTS};
+use workload::{Hooks, Stage, OUTPUTS};
 
-mod expected {
+pub(crate) mod expected {
     include!(concat!(env!("OUT_DIR"), "/expected.rs"));
 }
 
@@ -64,7 +70,8 @@ macro_rules! markers {
             #[inline(never)]
             #[doc = "Marker the instruction-count plugin watches."]
             pub extern "C" fn $name() {
-                // SAFETY: single-threaded firmware; no interrupt touches CURRENT.
+                // SAFETY: only the main thread writes CURRENT; the camera's interrupt never
+                // touches it.
                 unsafe { core::ptr::write_volatile(addr_of_mut!(CURRENT), $id) };
             }
         )*
@@ -128,12 +135,16 @@ fn repaint_stack() {
     let (bottom, _) = stack_bounds();
     let sp = cortex_m::register::msp::read() as usize;
     let end = sp.saturating_sub(256) & !3;
-    let mut p = bottom;
-    while p < end {
-        // SAFETY: [bottom, sp - 256) is free stack below every live frame; nothing interrupts.
-        unsafe { core::ptr::write_volatile(p as *mut u32, STACK_PAINT) };
-        p += 4;
-    }
+    // Masked: the camera's interrupt must not push a frame into the stack being painted.
+    cortex_m::interrupt::free(|_| {
+        let mut p = bottom;
+        while p < end {
+            // SAFETY: [bottom, sp - 256) is free stack below every live frame; nothing
+            // interrupts inside this critical section.
+            unsafe { core::ptr::write_volatile(p as *mut u32, STACK_PAINT) };
+            p += 4;
+        }
+    });
 }
 
 /// Highest arena byte written since painting, plus one.
@@ -198,11 +209,17 @@ fn main() -> ! {
         expected::BLOB_LEN,
         stack_top - stack_bottom
     );
-    let pair = BandPair {
-        left: &expected::LEFT,
-        right: &expected::RIGHT,
-        width: expected::WIDTH,
-        height: expected::HEIGHT,
+    let Some(syst) = cortex_m::Peripherals::take().map(|p| p.SYST) else {
+        defmt::println!("bino result=error error=peripherals-taken");
+        exit(EXIT_FAILURE);
+        #[allow(clippy::empty_loop)]
+        loop {}
+    };
+    let Some(mut camera) = Camera::new(syst, &expected::LEFT, &expected::RIGHT) else {
+        defmt::println!("bino result=error error=camera-set-up-twice");
+        exit(EXIT_FAILURE);
+        #[allow(clippy::empty_loop)]
+        loop {}
     };
     let mut fw = Firmware {
         current: None,
@@ -211,8 +228,9 @@ fn main() -> ! {
     // SAFETY: BLOB is immutable; reading its address through a volatile load keeps the
     // optimiser from folding the blob's contents into the code.
     let blob: &[u8] = unsafe { &*core::ptr::read_volatile(&addr_of!(BLOB.0)) };
-    let result = workload::run(blob, pair, arena, &mut fw);
+    let result = workload::run(blob, &mut camera, arena, &mut fw);
     let painted = arena_high_water(arena);
+    let rows_ok = report_camera(&camera);
     let code = match result {
         Ok(outcome) => {
             let per_stage = workload::arena_per_stage(&outcome.report);
@@ -235,6 +253,12 @@ fn main() -> ! {
                     got == want
                 );
             }
+            for (i, sector) in outcome.sectors.sectors().iter().enumerate() {
+                defmt::println!("bino sector={=usize} {}", i, sector);
+            }
+            if let Some((i, mm)) = outcome.sectors.nearest() {
+                defmt::println!("bino nearest_sector={=usize} nearest_mm={=u32}", i, mm);
+            }
             let r = &outcome.report;
             let arena_ok = r.arena_used == expected::ARENA_USED && painted <= r.arena_used;
             defmt::println!(
@@ -250,26 +274,91 @@ fn main() -> ! {
                 r.wta_kept,
                 r.sgm_kept
             );
-            if mismatches == 0 && arena_ok {
+            let overflow_ok = overflow_check(&mut camera);
+            if mismatches == 0 && arena_ok && rows_ok && overflow_ok {
                 defmt::println!("bino result=pass outputs={=usize}", OUTPUTS.len());
                 EXIT_SUCCESS
             } else {
                 defmt::println!(
-                    "bino result=fail mismatched_outputs={=usize} arena_ok={=bool}",
+                    "bino result=fail mismatched_outputs={=usize} arena_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
                     mismatches,
-                    arena_ok
+                    arena_ok,
+                    rows_ok,
+                    overflow_ok
                 );
                 EXIT_FAILURE
             }
         }
         Err(e) => {
-            defmt::println!("bino result=error error={}", defmt::Display2Format(&e));
+            defmt::println!("bino result=error error={}", e);
             EXIT_FAILURE
         }
     };
     exit(code);
     #[allow(clippy::empty_loop)]
     loop {}
+}
+
+/// Logs the camera path of the run (the inputs of the sustainable row rate that report.py
+/// derives from the instruction counts); `true` when every row arrived and none was lost.
+#[inline(never)]
+fn report_camera(camera: &Camera) -> bool {
+    let stats = camera.stats();
+    defmt::println!(
+        "bino camera frame_rows={=usize} line_buffers={=usize} row_interval_insns={=u32} delivered={=usize} lost={=usize} queue_high_water={=usize}",
+        expected::HEIGHT,
+        camera::LINES,
+        camera::ROW_INTERVAL_INSNS,
+        stats.delivered,
+        stats.lost,
+        stats.queue_high_water
+    );
+    stats.lost == 0 && stats.delivered == expected::HEIGHT
+}
+
+/// The camera's overflow path, checked on the target after the run (outside the stage
+/// counts): the sensor exposes a frame `EXTRA` rows longer than the line buffers with nobody
+/// reading, so those rows are lost; the queued rows still come out in order, and the next
+/// request is [`Error::RowsLost`] with the count. The frame's length, not timing, fixes the
+/// count, so it holds with or without QEMU's `-icount`.
+#[inline(never)]
+fn overflow_check(camera: &mut Camera) -> bool {
+    const EXTRA: usize = 3;
+    camera.rewind(camera::LINES + EXTRA);
+    camera.start();
+    camera.wait_stopped();
+    let lost = camera.stats().lost;
+    let (mut left, mut right) = ([0u8; expected::WIDTH], [0u8; expected::WIDTH]);
+    let mut queued_ok = 0;
+    for _ in 0..camera::LINES {
+        queued_ok += usize::from(camera.next_row(&mut left, &mut right).is_ok());
+    }
+    let after = camera.next_row(&mut left, &mut right);
+    let ok = lost == EXTRA
+        && queued_ok == camera::LINES
+        && after
+            == Err(Error::RowsLost {
+                row: camera::LINES,
+                lost: EXTRA,
+            });
+    match after {
+        Err(e) => defmt::println!(
+            "bino camera_overflow_check exposed={=usize} lost={=usize} queued_rows_read={=usize} next_row={} ok={=bool}",
+            camera::LINES + EXTRA,
+            lost,
+            queued_ok,
+            e,
+            ok
+        ),
+        Ok(()) => defmt::println!(
+            "bino camera_overflow_check exposed={=usize} lost={=usize} queued_rows_read={=usize} next_row=ok ok={=bool}",
+            camera::LINES + EXTRA,
+            lost,
+            queued_ok,
+            ok
+        ),
+    }
+    ok
 }
 
 #[panic_handler]

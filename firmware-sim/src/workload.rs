@@ -3,13 +3,18 @@
 //! `bino_core::pipeline` — both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the
 //! left-right check, the shared head and its own left-right check (the head on the mirrored
 //! pair, rerun on the head's arena), row by row, and the pixel refinement of the head+lr grid —
-//! with a CRC-32 digest of every output.
+//! with a CRC-32 digest of every output, and the obstacle summary of the refined rows
+//! (`bino_core::depth`: nearest depth and bearing in [`SECTORS`] column sectors).
+//!
+//! The rows come from any `RowSource`: `build.rs` hands over the embedded band as a
+//! `SlicePair`, the firmware the interrupt-fed camera (`camera.rs`); the digests must agree.
 
 use bino_core::band::Band;
 use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
+use bino_core::depth::{Calibration, DepthModel, DisparityUnit, SectorSummary};
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Refine, Report, Sink, SlicePair};
+use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Refine, Report, RowSource, Sink};
 use bino_core::sgm::Penalties;
 use bino_core::Error;
 
@@ -27,6 +32,19 @@ pub const OPTIONS: Options = Options {
 /// The pixel refinement: the default parameters on the readout the pipeline's rule picks for
 /// [`OPTIONS`] (head+lr, the readout `bino run` shows at w160).
 pub const REFINE: Refine = Refine::for_options(&OPTIONS);
+
+/// The example stereo board: a 640-px-wide sensor read at the band's profile width (160 px:
+/// scale 4), f = 500 px (a 65 degree field of view), principal point at the centre, 60 mm
+/// baseline.
+pub const CALIBRATION: Calibration = Calibration {
+    focal_px: 500.0,
+    principal_x_px: 320.0,
+    baseline_mm: 60.0,
+    sensor_width_px: 640,
+};
+
+/// Column sectors of the obstacle summary.
+pub const SECTORS: usize = 8;
 
 /// Arena bytes the workload needs for a `height x width` band pair.
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
@@ -73,7 +91,7 @@ impl Stage {
 }
 
 /// The outputs the firmware digests, in order.
-pub const OUTPUTS: [&str; 8] = [
+pub const OUTPUTS: [&str; 9] = [
     "descriptors_left",
     "descriptors_right",
     "wta",
@@ -82,6 +100,7 @@ pub const OUTPUTS: [&str; 8] = [
     "head",
     "head_left_right",
     "refined",
+    "sectors",
 ];
 
 /// What the workload tells its caller about where it is.
@@ -103,12 +122,17 @@ pub struct Outcome {
     pub digests: [u32; OUTPUTS.len()],
     /// Arena use and left-right counts, from the pipeline.
     pub report: Report,
+    /// Nearest depth per column sector of the refined rows.
+    pub sectors: SectorSummary<SECTORS>,
 }
 
 struct Recorder<'h, H> {
     hooks: &'h mut H,
     current: Stage,
     crcs: [Crc32; OUTPUTS.len()],
+    sectors: SectorSummary<SECTORS>,
+    /// The first error of the sector summary (a row of the wrong length).
+    depth_error: Option<Error>,
 }
 
 impl<H: Hooks> Recorder<'_, H> {
@@ -162,40 +186,62 @@ impl<H: Hooks> Sink for Recorder<'_, H> {
     }
 
     fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
-        self.digest(|c| update_u16(&mut c[7], disparity_q8));
+        self.hooks.pause();
+        update_u16(&mut self.crcs[7], disparity_q8);
+        if let Err(e) = self.sectors.push_row(disparity_q8, None) {
+            self.depth_error.get_or_insert(e);
+        }
+        self.hooks.resume(self.current);
     }
 }
 
-/// A band pair and its size.
-#[derive(Clone, Copy)]
-pub struct BandPair<'a> {
-    /// Left view, `height x width` gray pixels.
-    pub left: &'a [u8],
-    /// Right view.
-    pub right: &'a [u8],
-    /// Width in pixels.
-    pub width: usize,
-    /// Height in pixels.
-    pub height: usize,
-}
-
-/// Runs every stage on `pair` in `arena`.
-pub fn run(blob: &[u8], pair: BandPair<'_>, arena: &mut [u8], hooks: &mut impl Hooks) -> Result<Outcome, Error> {
+/// Runs every stage on the rows of `source` in `arena`.
+pub fn run(
+    blob: &[u8],
+    source: &mut impl RowSource,
+    arena: &mut [u8],
+    hooks: &mut impl Hooks,
+) -> Result<Outcome, Error> {
     hooks.enter(Stage::Load);
     let blob = Blob::parse(blob)?;
     let pipeline = Pipeline::new(blob)?;
-    let mut source = SlicePair::new(pair.left, pair.right, pair.width, pair.height)?;
+    // Refined rows are Q8 pixels at the band's width.
+    let depth = DepthModel::new(&CALIBRATION, source.width(), DisparityUnit::Pixels)?;
     let mut recorder = Recorder {
         hooks,
         current: Stage::Load,
         crcs: [Crc32::new(); OUTPUTS.len()],
+        sectors: SectorSummary::new(&depth, source.width())?,
+        depth_error: None,
     };
-    let report = pipeline.run_refined(&mut source, &OPTIONS, &REFINE, arena, &mut recorder);
+    let report = pipeline.run_refined(source, &OPTIONS, &REFINE, arena, &mut recorder);
     recorder.hooks.finish();
+    let report = report?;
+    if let Some(e) = recorder.depth_error {
+        return Err(e);
+    }
+    let mut digests = recorder.crcs.map(|c| c.finish());
+    digests[8] = sectors_digest(&recorder.sectors);
     Ok(Outcome {
-        digests: recorder.crcs.map(|c| c.finish()),
-        report: report?,
+        digests,
+        report,
+        sectors: recorder.sectors,
     })
+}
+
+/// CRC-32 of every sector's columns, bearing bits, nearest depth (`u32::MAX` for none), its
+/// row and cell count: the float bearings must agree to the bit as well.
+fn sectors_digest(summary: &SectorSummary<SECTORS>) -> u32 {
+    let mut crc = Crc32::new();
+    for s in summary.sectors() {
+        crc.update(&s.first_col.to_le_bytes())
+            .update(&s.end_col.to_le_bytes())
+            .update(&s.bearing_rad.to_bits().to_le_bytes())
+            .update(&s.nearest_mm.unwrap_or(u32::MAX).to_le_bytes())
+            .update(&s.nearest_row.to_le_bytes())
+            .update(&s.cells.to_le_bytes());
+    }
+    crc.finish()
 }
 
 /// Arena bytes in use during each stage (index as [`Stage::index`]) of a one-band run, from the

@@ -18,7 +18,7 @@ use bino_core::lr::fill_rejected;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{HeadChecked, MatchedRow, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::{refine_map, scratch_len};
-use workload::{BandPair, Hooks, Stage, OPTIONS, OUTPUTS, REFINE};
+use workload::{Hooks, Stage, OPTIONS, OUTPUTS, REFINE};
 
 struct Quiet;
 
@@ -37,13 +37,10 @@ fn repo() -> PathBuf {
 fn digests(blob: &[u8], left: &[u8], right: &[u8]) -> [u32; OUTPUTS.len()] {
     let (height, width) = (48, 160);
     let mut arena = vec![0xA5u8; workload::arena_bytes(height, width)];
-    let pair = BandPair {
-        left,
-        right,
-        width,
-        height,
-    };
-    workload::run(blob, pair, &mut arena, &mut Quiet).unwrap().digests
+    let mut source = SlicePair::new(left, right, width, height).unwrap();
+    workload::run(blob, &mut source, &mut arena, &mut Quiet)
+        .unwrap()
+        .digests
 }
 
 /// The digests a firmware run recorded, by output name.

@@ -7,6 +7,7 @@ use super::tensor::{Dtype, TensorId};
 /// A blob that does not parse (the variants up to [`BlobError::DuplicateTensor`], in the order
 /// [`super::Blob::parse`] checks them) or a lookup that does not match the blob.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[non_exhaustive]
 pub enum BlobError {
     /// Fewer bytes than the 32-byte header.

@@ -5,6 +5,7 @@ use core::fmt;
 /// A tensor's name in a blob: `kind << 16 | index`. Which kinds exist is up to the model that
 /// reads the blob; the container only requires ids to be unique.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct TensorId(pub u32);
 
 impl TensorId {
@@ -32,6 +33,7 @@ impl fmt::Display for TensorId {
 
 /// Element type of a tensor, with its code in the tensor table.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 #[repr(u8)]
 pub enum Dtype {
     /// `i8`.

@@ -134,6 +134,7 @@ impl Fused<'_> {
 
 /// What a run used.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct RunReport {
     /// Token rows of the band.
     pub rows: usize,
