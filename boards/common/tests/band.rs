@@ -92,7 +92,11 @@ fn summary_of_the_test_band_matches_its_refined_rows() {
         sectors.iter().any(|s| s.median_px != sectors[0].median_px),
         "{sectors:?}"
     );
-    println!("test band: {sectors:?} refined_crc={:08x}", tee.summary.refined_crc());
+    println!(
+        "test band: {sectors:?} refined_crc={:08x} arena_used={}",
+        tee.summary.refined_crc(),
+        report.arena_used
+    );
 }
 
 #[test]
