@@ -21,7 +21,8 @@ from dataclasses import dataclass, field
 REGION = re.compile(
     r"^\s*(\w+)\s*(?:\([^)]*\))?\s*:\s*ORIGIN\s*=\s*(\w+)\s*,\s*LENGTH\s*=\s*(\w+)", re.M
 )
-SECTION = re.compile(r"^\s*\d+\s+(\S+)\s+([0-9a-f]{8})\s+([0-9a-f]{8})\s+([0-9a-f]{8})\s+(DATA|TEXT|BSS)\s*$")
+HEX = r"([0-9a-f]{8})"
+SECTION = re.compile(rf"^\s*\d+\s+(\S+)\s+{HEX}\s+{HEX}\s+{HEX}\s+(DATA|TEXT|BSS)\s*$")
 
 
 @dataclass
@@ -68,14 +69,16 @@ def main() -> int:
     args = parser.parse_args()
 
     regions = regions_of(args.memory)
-    table = subprocess.run([args.objdump, "-h", args.elf], check=True, capture_output=True, text=True).stdout
+    dump = [args.objdump, "-h", args.elf]
+    table = subprocess.run(dump, check=True, capture_output=True, text=True).stdout
     status = 0
 
     def place(section: str, address: int, size: int) -> None:
         nonlocal status
         region = next((r for r in regions if r.holds(address)), None)
         if region is None:
-            print(f"  {args.elf}: section {section} at 0x{address:08x} lies in no region of {args.memory}")
+            where = f"0x{address:08x}"
+            print(f"  {args.elf}: section {section} at {where} lies in no region of {args.memory}")
             status = 1
             return
         region.add(section, address, size)
@@ -95,7 +98,8 @@ def main() -> int:
         if r.name == "RAM":
             note = f"; stack {r.origin + r.length - r.top:,} B above them"
         share = 100 * r.used / r.length
-        print(f"  {r.name:<8} 0x{r.origin:08x} {r.used:>11,} {r.length:>11,} {share:>5.1f}%  {' '.join(r.sections)}{note}")
+        figures = f"0x{r.origin:08x} {r.used:>11,} {r.length:>11,} {share:>5.1f}%"
+        print(f"  {r.name:<8} {figures}  {' '.join(r.sections)}{note}")
         if r.used > r.length:
             print(f"  region {r.name} overflows by {r.used - r.length:,} bytes")
             status = 1

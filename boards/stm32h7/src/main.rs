@@ -131,8 +131,12 @@ mod source {
         );
         let mut n = 0u32;
         loop {
+            // No dirty line of the frame may be evicted over what the DMA writes: write back
+            // and drop its lines first (the zeroing above left some dirty).
+            scb.clean_invalidate_dcache_by_address(frame.as_ptr() as usize, FRAME_WORDS * 4);
             let captured = embassy_futures::block_on(dcmi.capture(frame));
-            // The DMA wrote behind the data cache: drop any stale lines before reading.
+            // The DMA wrote behind the data cache: drop the lines speculative reads may have
+            // filled meanwhile, before reading.
             // SAFETY: the buffer is 32-byte aligned and a whole number of cache lines, so no
             // other data shares its lines; nothing else writes it.
             unsafe { scb.invalidate_dcache_by_slice(frame) };
