@@ -8,10 +8,10 @@ use cortex_m::interrupt::{self, Mutex};
 use cortex_m::peripheral::syst::SystClkSource;
 use cortex_m::peripheral::{DCB, DWT, SYST};
 
+use crate::cycles::Extender;
 use crate::summary::Clock;
 
-/// (wraps seen, last counter value).
-static STATE: Mutex<Cell<(u32, u32)>> = Mutex::new(Cell::new((0, 0)));
+static STATE: Mutex<Cell<Extender>> = Mutex::new(Cell::new(Extender::new()));
 
 /// Starts the cycle counter and the SysTick that keeps it extended. Returns whether the core
 /// has a cycle counter (`DWT_CTRL.NOCYCCNT` clear); without one every reading is 0.
@@ -31,13 +31,10 @@ pub fn start(dcb: &mut DCB, dwt: &mut DWT, syst: &mut SYST) -> bool {
 pub fn tick() -> u64 {
     interrupt::free(|cs| {
         let state = STATE.borrow(cs);
-        let now = DWT::cycle_count();
-        let (mut wraps, last) = state.get();
-        if now < last {
-            wraps += 1;
-        }
-        state.set((wraps, now));
-        (u64::from(wraps) << 32) | u64::from(now)
+        let mut e = state.get();
+        let now = e.extend(DWT::cycle_count());
+        state.set(e);
+        now
     })
 }
 

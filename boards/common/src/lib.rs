@@ -8,6 +8,7 @@
 #![no_std]
 #![deny(missing_docs)]
 
+pub mod cycles;
 pub mod options;
 pub mod run;
 pub mod side_by_side;
