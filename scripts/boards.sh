@@ -32,11 +32,15 @@ if [ "$lint" = 1 ]; then
   (cd boards && cargo test -p bino-board --locked -q)
 fi
 
-for board in stm32h7:thumbv7em-none-eabihf alif-e7:thumbv8m.main-none-eabihf; do
-  dir="${board%%:*}" target="${board#*:}"
+# board:target:the features of its other build (linted, not built)
+for board in stm32h7:thumbv7em-none-eabihf:test-band alif-e7:thumbv8m.main-none-eabihf:; do
+  IFS=: read -r dir target other <<<"$board"
   echo "== boards/$dir ($target, release)"
   if [ "$lint" = 1 ]; then
     (cd "boards/$dir" && cargo clippy --locked --release -q -- -D warnings)
+    if [ -n "$other" ]; then
+      (cd "boards/$dir" && cargo clippy --locked --release -q --features "$other" -- -D warnings)
+    fi
   fi
   (cd "boards/$dir" && cargo build --locked --release -q)
   python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \
