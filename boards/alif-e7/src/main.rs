@@ -1,8 +1,8 @@
 //! BINO edge on an Alif Ensemble E7 (Cortex-M55 HP core, 400 MHz, Helium): the int8 weight
 //! blob in MRAM (run in place), the pipeline's arena in SRAM0, the stack in the HP core's DTCM.
 //!
-//! There is no maintained HAL or PAC for the Ensemble family on crates.io (checked
-//! 2026-12-01), so this is `cortex-m-rt` and the core's own peripherals only (caches, DWT,
+//! We found no HAL or PAC for the Ensemble family on crates.io (2026-12-01; see the README,
+//! "Real boards"), so this is `cortex-m-rt` and the core's own peripherals only (caches, DWT,
 //! SysTick); the camera interfaces (CPI, MIPI CSI-2) are not driven. The rows come from the
 //! QEMU firmware's embedded 48x160 test band, a real `RowSource`: the board runs it over and
 //! over, prints the sector summary and the cycles of every stage over defmt-RTT, and reports
