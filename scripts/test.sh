@@ -28,6 +28,11 @@ for target in $THUMB_TARGETS; do
   cargo clippy -p bino-core --locked --release --target "$target" --features depth,defmt -- -D warnings
 done
 
+step "real boards: STM32H743 and Alif E7 firmware, release builds and memory-region use (nothing flashed)"
+# boards/ (README, "Real boards"): fmt, clippy, the host tests of bino-board, both builds,
+# each region's use next to its size; a region that overflows fails.
+scripts/boards.sh
+
 step "firmware under QEMU: both cores, outputs bit-identical to the host, instruction counts"
 # Cortex-M55 (mps3-an547) and Cortex-M7 (mps2-an500), one 48x160 band pair each (~4 min);
 # results in out/firmware/ (see README, "Firmware"), then the budget report of these runs.

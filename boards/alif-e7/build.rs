@@ -1,0 +1,30 @@
+//! Hands the linker the board's memory map and bakes in the summary a host run of the test
+//! band gives (`bino_board::bake`).
+
+use std::env;
+use std::fs;
+use std::path::{Path, PathBuf};
+
+fn main() {
+    let root = PathBuf::from(env::var("CARGO_MANIFEST_DIR").unwrap());
+    let out = PathBuf::from(env::var("OUT_DIR").unwrap());
+    fs::copy(root.join("memory.x"), out.join("memory.x")).unwrap_or_else(|e| panic!("memory.x: {e}"));
+    println!("cargo::rustc-link-search={}", out.display());
+    println!("cargo::rerun-if-changed=memory.x");
+    bake(&root.join("../.."), &out);
+}
+
+/// Writes `OUT_DIR/expected.rs` from a host run of the test band.
+fn bake(repo: &Path, out: &Path) {
+    let read = |rel: &str| {
+        let path = repo.join(rel);
+        println!("cargo::rerun-if-changed={}", path.display());
+        fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+    };
+    let blob = read("weights/bino_int8.bin");
+    let left = read("firmware-sim/assets/band_48x160_left.gray");
+    let right = read("firmware-sim/assets/band_48x160_right.gray");
+    let code = bino_board::bake::expected_rs(&blob, &left, &right)
+        .unwrap_or_else(|e| panic!("the host run of the test band failed: {e}"));
+    fs::write(out.join("expected.rs"), code).unwrap();
+}

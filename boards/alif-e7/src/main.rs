@@ -1,0 +1,108 @@
+//! BINO edge on an Alif Ensemble E7 (Cortex-M55 HP core, 400 MHz, Helium): the int8 weight
+//! blob in MRAM (run in place), the pipeline's arena in SRAM0, the stack in the HP core's DTCM.
+//!
+//! We found no HAL or PAC for the Ensemble family on crates.io (2026-12-01; see the README,
+//! "Real boards"), so this is `cortex-m-rt` and the core's own peripherals only (caches, DWT,
+//! SysTick); the camera interfaces (CPI, MIPI CSI-2) are not driven. The rows come from the
+//! QEMU firmware's embedded 48x160 test band, a real `RowSource`: the board runs it over and
+//! over, prints the sector summary and the cycles of every stage over defmt-RTT, and reports
+//! whether it reproduced the host's result bit for bit.
+#![no_std]
+#![no_main]
+
+use core::mem::MaybeUninit;
+use core::ptr::addr_of_mut;
+
+use bino_board::clock;
+use bino_board::options::{ARENA_BYTES, BAND_HEIGHT, BAND_WIDTH};
+use bino_board::run::load;
+use cortex_m_rt::{entry, exception};
+use defmt_rtt as _;
+
+mod expected {
+    include!(concat!(env!("OUT_DIR"), "/expected.rs"));
+}
+
+/// The HP core's nominal clock (its maximum); only the printed milliseconds assume it, the
+/// cycles are counted.
+const CORE_HZ: u32 = 400_000_000;
+
+#[repr(C, align(32))]
+struct Aligned<T>(T);
+
+const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8.bin").len();
+
+/// The int8 weight blob, in MRAM (`.weights`, see `memory.x`).
+#[link_section = ".weights"]
+#[used]
+static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8.bin"));
+
+static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_left.gray");
+static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_right.gray");
+
+/// The pipeline's arena: SRAM0, not zeroed at reset.
+#[link_section = ".sram0.arena"]
+static mut ARENA: MaybeUninit<Aligned<[u8; ARENA_BYTES]>> = MaybeUninit::uninit();
+
+#[entry]
+fn main() -> ! {
+    let mut cp = cortex_m::Peripherals::take().unwrap();
+    cp.SCB.enable_icache();
+    cp.SCB.enable_dcache(&mut cp.CPUID);
+    let has_cycles = clock::start(&mut cp.DCB, &mut cp.DWT, &mut cp.SYST);
+
+    // SAFETY: main runs once and makes the only reference to ARENA; zeroing it first makes
+    // every byte initialised.
+    let arena = unsafe {
+        let arena = addr_of_mut!(ARENA).cast::<u8>();
+        core::ptr::write_bytes(arena, 0, ARENA_BYTES);
+        core::slice::from_raw_parts_mut(arena, ARENA_BYTES)
+    };
+    // black_box: the blob's bytes must be read from MRAM, never folded into the code.
+    let blob: &[u8] = core::hint::black_box(&BLOB.0);
+    defmt::println!(
+        "bino board=alif-e7 core=cortex-m55-hp core_hz={=u32} band={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
+        CORE_HZ,
+        BAND_HEIGHT,
+        BAND_WIDTH,
+        ARENA_BYTES,
+        BLOB_LEN,
+        has_cycles
+    );
+    defmt::println!("bino source=test-band");
+    match load(blob) {
+        // The band again and again: each run prints its summary and cycles, so the log can be
+        // read whenever the probe attaches.
+        Ok(pipeline) => {
+            for frame in 0u32.. {
+                bino_board::check::test_band(
+                    &pipeline,
+                    frame,
+                    LEFT,
+                    RIGHT,
+                    arena,
+                    expected::REFINED_CRC,
+                    &expected::SECTORS,
+                    CORE_HZ,
+                );
+            }
+        }
+        Err(e) => defmt::println!("bino result=error error={}", defmt::Display2Format(&e)),
+    }
+    loop {
+        cortex_m::asm::wfi();
+    }
+}
+
+#[exception]
+fn SysTick() {
+    clock::tick();
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    defmt::println!("bino result=panic {}", defmt::Display2Format(info));
+    loop {
+        cortex_m::asm::wfi();
+    }
+}

@@ -1,0 +1,48 @@
+#!/usr/bin/env bash
+# Builds the firmware of both real boards (boards/: STM32H743, Alif Ensemble E7) in release
+# and prints each memory region's use next to its size. Nothing is flashed: the QEMU boards
+# (scripts/firmware.sh) stay the ones that run. A region that overflows fails the link; this
+# script checks the sums again from the ELF's section table.
+#
+#   scripts/boards.sh [--no-lint]
+#
+#   --no-lint   skip rustfmt, clippy and the host tests of boards/common
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+cd "$BINO_ROOT"
+
+lint=1
+case "${1:-}" in
+  --no-lint) lint=0 ;;
+  "") ;;
+  *) echo "unknown argument $1" >&2; exit 2 ;;
+esac
+
+# Its own workspace and target directory, like the QEMU firmware's.
+export CARGO_TARGET_DIR="$BINO_CACHE/boards-target"
+installed="$(rustup target list --installed)"
+for target in $THUMB_TARGETS; do
+  grep -qx "$target" <<<"$installed" || rustup target add "$target"
+done
+rustup component list --installed | grep -q '^llvm-tools' || rustup component add llvm-tools
+objdump="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin/llvm-objdump"
+
+if [ "$lint" = 1 ]; then
+  (cd boards && cargo fmt --all --check)
+  (cd boards && cargo test -p bino-board --locked -q)
+fi
+
+# board:target:the features of its other build (linted, not built)
+for board in stm32h7:thumbv7em-none-eabihf:test-band alif-e7:thumbv8m.main-none-eabihf:; do
+  IFS=: read -r dir target other <<<"$board"
+  echo "== boards/$dir ($target, release)"
+  if [ "$lint" = 1 ]; then
+    (cd "boards/$dir" && cargo clippy --locked --release -q -- -D warnings)
+    if [ -n "$other" ]; then
+      (cd "boards/$dir" && cargo clippy --locked --release -q --features "$other" -- -D warnings)
+    fi
+  fi
+  (cd "boards/$dir" && cargo build --locked --release -q)
+  python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \
+    "$CARGO_TARGET_DIR/$target/release/bino-$dir"
+done
