@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# Builds the BINO firmware for both Cortex-M boards and runs each under QEMU: the band pair
+# Builds the BINO firmware for both Cortex-M boards and runs each under QEMU: first the kernel
+# test firmware (src/bin/kernel-tests.rs: the assembly kernels against their references), then the band pair
 # through the int8 pipeline, bit-identical to the host (the firmware exits non-zero otherwise),
 # with executed-instruction counts per stage from the TCG plugin in firmware-sim/qemu-plugin/.
 #
@@ -85,6 +86,18 @@ for core in $cores; do
   esac
   echo "== firmware: $core ($machine, $band band)"
   (cd firmware-sim && cargo build --locked --release --target "$target" "${features[@]}")
+  # The kernel test firmware first: every assembly kernel against its reference, bit for bit.
+  set +e
+  qemu-system-arm -machine "$machine" -cpu "$cpu" -display none -monitor none -serial null \
+    -semihosting-config enable=on,target=native \
+    -kernel "$CARGO_TARGET_DIR/$target/release/kernel-tests" |
+    defmt-print -e "$CARGO_TARGET_DIR/$target/release/kernel-tests" | tee "$out/$core-kernel-tests.log"
+  codes=("${PIPESTATUS[@]}")
+  set -e
+  if [ "${codes[0]}" != 0 ] || [ "${codes[1]}" != 0 ]; then
+    echo "kernel tests $core: FAILED (QEMU exit ${codes[0]}; see $out/$core-kernel-tests.log)" >&2
+    status=1
+  fi
   elf="$CARGO_TARGET_DIR/$target/release/bino-firmware"
   marks="$("$llvm_bin/llvm-nm" "$elf" | awk '$3 ~ /^bino_mark_/ {
     n = substr($3, 11); if (n == "end") n = "outside"; printf ",mark=%s:0x%s", n, $1 }')"

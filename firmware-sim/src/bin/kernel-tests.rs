@@ -1,0 +1,341 @@
+//! Kernel test firmware: property tests of every assembly kernel of `bino_core::kernels::arch`
+//! against its portable reference, on this core under QEMU (`scripts/firmware.sh` runs it on
+//! both), bit for bit.
+//!
+//! Random inputs and shapes (1 to 8 rows, `k` from 1 to 512 including values that are not
+//! multiples of 16, channel counts across the fused epilogue's 128-channel chunks), extreme
+//! values (all -128, all 127, alternating), every rounding case of the requantisation
+//! (`(acc + bias) / 2^s` at, below and above each half, both signs, at the saturation edges),
+//! and parameters the kernels must decline. Prints `index / found / expected` on the first
+//! mismatch of a case and exits non-zero if any case fails.
+#![no_std]
+#![no_main]
+
+use bino_core::kernels::arch::{self, MAX_K};
+use bino_core::kernels::epilogue::ChannelRequant;
+use bino_core::kernels::gemm::{matmul_requant_i8, matmul_requant_reference};
+use bino_core::kernels::matmul::{matmul_i8, matmul_i8_reference};
+use cortex_m as _;
+use cortex_m_rt::entry;
+use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
+use defmt_semihosting as _;
+
+#[cfg(board = "an547")]
+const BOARD: &str = "mps3-an547 (Cortex-M55)";
+#[cfg(board = "an500")]
+const BOARD: &str = "mps2-an500 (Cortex-M7)";
+
+/// Largest shapes of the random cases.
+const MAX_M: usize = 8;
+const MAX_N: usize = 130;
+
+/// Word-aligned buffers (the Cortex-M7 kernel takes word-aligned weights only).
+#[repr(C, align(4))]
+struct Aligned<T>(T);
+
+/// xorshift64: deterministic inputs, so a failure reproduces.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    /// Uniform in `lo..=hi`.
+    fn range(&mut self, lo: i64, hi: i64) -> i64 {
+        lo + (self.next() % (hi - lo + 1) as u64) as i64
+    }
+    /// Random codes, or one of the extreme patterns.
+    fn fill(&mut self, x: &mut [i8], pattern: u32) {
+        for (i, v) in x.iter_mut().enumerate() {
+            *v = match pattern {
+                0 => -128,
+                1 => 127,
+                2 => [-128, 127][i % 2],
+                _ => self.next() as i8,
+            };
+        }
+    }
+}
+
+struct Tally {
+    cases: usize,
+    failed: usize,
+    asm_cases: usize,
+}
+
+impl Tally {
+    /// Compares `found` with `expected`; prints the first difference.
+    fn check<T: PartialEq + Copy + defmt::Format>(
+        &mut self,
+        what: &str,
+        shape: [usize; 3],
+        found: &[T],
+        expected: &[T],
+    ) {
+        self.cases += 1;
+        if let Some(i) = found.iter().zip(expected).position(|(f, e)| f != e) {
+            self.failed += 1;
+            defmt::println!(
+                "kernel-tests mismatch kernel={=str} m={=usize} n={=usize} k={=usize} index={=usize} found={} expected={}",
+                what, shape[0], shape[1], shape[2], i, found[i], expected[i]
+            );
+        }
+    }
+}
+
+/// Per-channel parameters of one fused case.
+struct Params {
+    bias: [i32; MAX_N],
+    mult: [i32; MAX_N],
+    shift: [u8; MAX_N],
+    zero: [i32; MAX_N],
+}
+
+impl Params {
+    /// Random parameters in the fused kernels' range, scaled so that outputs spread over the
+    /// int8 range and past it (`log2_acc`: magnitude of typical accumulators).
+    fn random(rng: &mut Rng, n: usize, log2_acc: i64) -> Params {
+        let mut p = Params {
+            bias: [0; MAX_N],
+            mult: [0; MAX_N],
+            shift: [40; MAX_N],
+            zero: [0; MAX_N],
+        };
+        for c in 0..n {
+            p.mult[c] = match rng.range(0, 9) {
+                0 => i32::MIN,
+                1 => i32::MAX,
+                2 => -(rng.range(1 << 30, i32::MAX as i64) as i32),
+                _ => rng.range(1 << 30, i32::MAX as i64) as i32,
+            };
+            p.shift[c] = (log2_acc + 31 - 7 + rng.range(-3, 3)).clamp(33, 62) as u8;
+            p.bias[c] = match rng.range(0, 9) {
+                0 => (1 << 30) - 1,
+                1 => -(1 << 30) + 1,
+                _ => rng.range(-(1 << log2_acc), 1 << log2_acc) as i32,
+            };
+            p.zero[c] = rng.range(-128, 127) as i32;
+        }
+        p
+    }
+
+    fn requant(&self, n: usize) -> ChannelRequant<'_, [i32], [i32]> {
+        ChannelRequant {
+            bias: &self.bias[..n],
+            mult: &self.mult[..n],
+            shift: &self.shift[..n],
+        }
+    }
+}
+
+/// Whether this core's kernels take `k` with word-aligned weights.
+fn takes(k: usize) -> bool {
+    let m7 = cfg!(board = "an500");
+    (1..=MAX_K).contains(&k) && (!m7 || k.is_multiple_of(4))
+}
+
+/// The random cases' buffers (in `.bss`: too large for the stack).
+struct Buffers {
+    a: Aligned<[i8; MAX_M * MAX_K]>,
+    w: Aligned<[i8; MAX_N * MAX_K]>,
+    found: [i32; MAX_M * MAX_N],
+    expected: [i32; MAX_M * MAX_N],
+    found8: [i8; MAX_M * MAX_N],
+    expected8: [i8; MAX_M * MAX_N],
+    acc: [i32; MAX_M * MAX_N],
+}
+
+fn random_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    let ks = [
+        1, 3, 4, 8, 12, 16, 17, 20, 28, 32, 36, 60, 100, 127, 128, 132, 200, 480, 512,
+    ];
+    for (case, &k) in ks.iter().cycle().take(3 * ks.len()).enumerate() {
+        for m in [1, 2, 3, 4, 5, 8] {
+            let n = [1, 2, 3, 4, 5, 7, 130][(case + m) % 7];
+            let pattern = if case % 5 == 4 { (m % 3) as u32 } else { 3 };
+            rng.fill(&mut b.a.0[..m * k], pattern);
+            rng.fill(&mut b.w.0[..n * k], if pattern == 2 { 1 } else { pattern });
+            let (a, w) = (&b.a.0[..m * k], &b.w.0[..n * k]);
+            let shape = [m, n, k];
+
+            // The i32 kernel against the reference.
+            let (found, expected) = (&mut b.found, &mut b.expected);
+            matmul_i8_reference(a, w, k, &mut expected[..m * n]);
+            let took = arch::matmul_i32(a, w, k, &mut found[..m * n]);
+            if took != takes(k) {
+                defmt::println!(
+                    "kernel-tests wrong-path kernel=matmul_i32 k={=usize} took={=bool}",
+                    k,
+                    took
+                );
+                t.failed += 1;
+            }
+            t.asm_cases += usize::from(took);
+            if took {
+                t.check("matmul_i32", shape, &found[..m * n], &expected[..m * n]);
+            }
+            matmul_i8(a, w, k, &mut found[..m * n]);
+            t.check("matmul_i8", shape, &found[..m * n], &expected[..m * n]);
+
+            // The fused kernel against the reference.
+            let log2_acc = (64 - ((k as u64) << 14).leading_zeros() as i64) / 2 + 7;
+            let p = Params::random(rng, n, log2_acc);
+            let rq = p.requant(n);
+            let (found, expected) = (&mut b.found8, &mut b.expected8);
+            matmul_requant_reference(a, w, k, &rq, &p.zero[..n], &mut expected[..m * n]);
+            let took = arch::matmul_requant(a, w, k, &rq, &p.zero[..n], &mut found[..m * n]);
+            if took != takes(k) {
+                defmt::println!(
+                    "kernel-tests wrong-path kernel=matmul_requant k={=usize} took={=bool}",
+                    k,
+                    took
+                );
+                t.failed += 1;
+            }
+            t.asm_cases += usize::from(took);
+            if took {
+                t.check("matmul_requant", shape, &found[..m * n], &expected[..m * n]);
+            }
+            matmul_requant_i8(a, w, k, &rq, &p.zero[..n], &mut b.acc, &mut found[..m * n]);
+            t.check("matmul_requant_i8", shape, &found[..m * n], &expected[..m * n]);
+        }
+    }
+}
+
+/// Every rounding case: one channel, `k = 4` (`a = [v, 0, 0, 0]`, `w = [1, 0, 0, 0]`), so
+/// `acc = v` for every code `v`; multipliers that make `(v + bias) * mult / 2^shift` land on,
+/// just below and just above each half, both signs, and biases that push results across
+/// the saturation edges.
+fn rounding_cases(t: &mut Tally) {
+    const M: usize = 256;
+    let mut a = Aligned([0i8; M * 4]);
+    for (v, row) in a.0.chunks_exact_mut(4).enumerate() {
+        row[0] = (v as i32 - 128) as i8;
+    }
+    let w = Aligned([1i8, 0, 0, 0]);
+    let mut found = [0i8; M];
+    let mut expected = [0i8; M];
+    for shift in [33u8, 34, 35, 36, 40, 47, 55, 62] {
+        // mult / 2^(shift - 32) = 2^-s * {1/2, 1 - 2^-31 (just below 1), 3/4, -1/2}.
+        for mult in [1 << 30, i32::MAX, 3 << 29, -(1 << 30), i32::MIN] {
+            for bias in [0, 1, -1, 255, -255, 1 << 20, -(1 << 20), (1 << 30) - 1, -(1 << 30) + 1] {
+                for zero in [0, 5, -7, 127, -128] {
+                    let bias_a = [bias];
+                    let mult_a = [mult];
+                    let rq = ChannelRequant {
+                        bias: &bias_a[..],
+                        mult: &mult_a[..],
+                        shift: &[shift][..],
+                    };
+                    let z = [zero];
+                    matmul_requant_reference(&a.0, &w.0, 4, &rq, &z[..], &mut expected);
+                    let took = arch::matmul_requant(&a.0, &w.0, 4, &rq, &z[..], &mut found);
+                    let in_range = (1i64 << (shift - 33)) + ((zero as i64) << (shift - 32));
+                    let should = in_range.abs() < 1 << 30;
+                    if took != should {
+                        defmt::println!(
+                            "kernel-tests wrong-path kernel=matmul_requant shift={=u8} zero={=i32} took={=bool}",
+                            shift,
+                            zero,
+                            took
+                        );
+                        t.failed += 1;
+                    }
+                    t.asm_cases += usize::from(took);
+                    if took {
+                        t.check("matmul_requant/rounding", [M, 1, 4], &found, &expected);
+                    }
+                }
+            }
+        }
+    }
+    // Parameters outside the kernels' range: they decline, the public function still agrees.
+    for (bias, shift) in [(1 << 30, 40u8), (0, 32), (0, 20), (-(1 << 30), 40)] {
+        let (bias_a, mult_a) = ([bias], [1 << 30]);
+        let rq = ChannelRequant {
+            bias: &bias_a[..],
+            mult: &mult_a[..],
+            shift: &[shift][..],
+        };
+        if arch::matmul_requant(&a.0, &w.0, 4, &rq, &[0][..], &mut found) {
+            defmt::println!(
+                "kernel-tests wrong-path kernel=matmul_requant shift={=u8} took=true",
+                shift
+            );
+            t.failed += 1;
+        }
+        matmul_requant_reference(&a.0, &w.0, 4, &rq, &[0][..], &mut expected);
+        let mut acc = [0i32; M];
+        matmul_requant_i8(&a.0, &w.0, 4, &rq, &[0][..], &mut acc, &mut found);
+        t.check("matmul_requant_i8/declined", [M, 1, 4], &found, &expected);
+    }
+}
+
+/// Weights at an odd address: the Cortex-M7 kernel declines, the results still agree.
+fn unaligned_cases(t: &mut Tally, rng: &mut Rng) {
+    let mut a = Aligned([0i8; 4 * 32]);
+    let mut w = Aligned([0i8; 3 * 32 + 1]);
+    rng.fill(&mut a.0, 3);
+    rng.fill(&mut w.0, 3);
+    let w_odd = &w.0[1..];
+    let mut found = [0i32; 12];
+    let mut expected = [0i32; 12];
+    matmul_i8_reference(&a.0, w_odd, 32, &mut expected);
+    let took = arch::matmul_i32(&a.0, w_odd, 32, &mut found);
+    if cfg!(board = "an500") && took {
+        defmt::println!("kernel-tests wrong-path kernel=matmul_i32 unaligned took=true");
+        t.failed += 1;
+    }
+    matmul_i8(&a.0, w_odd, 32, &mut found);
+    t.check("matmul_i8/unaligned", [4, 3, 32], &found, &expected);
+}
+
+#[entry]
+fn main() -> ! {
+    defmt::println!("kernel-tests board={=str}", BOARD);
+    let mut t = Tally {
+        cases: 0,
+        failed: 0,
+        asm_cases: 0,
+    };
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let Some(buffers) = cortex_m::singleton!(: Buffers = Buffers {
+        a: Aligned([0; MAX_M * MAX_K]),
+        w: Aligned([0; MAX_N * MAX_K]),
+        found: [0; MAX_M * MAX_N],
+        expected: [0; MAX_M * MAX_N],
+        found8: [0; MAX_M * MAX_N],
+        expected8: [0; MAX_M * MAX_N],
+        acc: [0; MAX_M * MAX_N],
+    }) else {
+        defmt::println!("kernel-tests result=fail buffers taken");
+        exit(EXIT_FAILURE);
+        #[allow(clippy::empty_loop)]
+        loop {}
+    };
+    random_cases(&mut t, &mut rng, buffers);
+    rounding_cases(&mut t);
+    unaligned_cases(&mut t, &mut rng);
+    let pass = t.failed == 0 && t.asm_cases > 0;
+    defmt::println!(
+        "kernel-tests result={=str} cases={=usize} assembly_cases={=usize} failed={=usize}",
+        if pass { "pass" } else { "fail" },
+        t.cases,
+        t.asm_cases,
+        t.failed
+    );
+    exit(if pass { EXIT_SUCCESS } else { EXIT_FAILURE });
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    defmt::println!("kernel-tests result=panic {}", defmt::Display2Format(info));
+    exit(EXIT_FAILURE);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
