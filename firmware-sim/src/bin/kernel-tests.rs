@@ -12,7 +12,9 @@
 #![no_main]
 
 use bino_core::kernels::arch::{self, MAX_K};
-use bino_core::kernels::epilogue::ChannelRequant;
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use bino_core::kernels::epilogue::{requant_rows, ChannelRequant};
 use bino_core::kernels::gemm::{matmul_requant_i8, matmul_requant_reference};
 use bino_core::kernels::matmul::{matmul_i8, matmul_i8_reference};
 use cortex_m as _;
@@ -28,6 +30,8 @@ const BOARD: &str = "mps2-an500 (Cortex-M7)";
 /// Largest shapes of the random cases.
 const MAX_M: usize = 8;
 const MAX_N: usize = 130;
+/// Outputs of the largest case: the bench's 8 x 480.
+const MAX_OUT: usize = MAX_M * 480;
 
 /// Word-aligned buffers (the Cortex-M7 kernel takes word-aligned weights only).
 #[repr(C, align(4))]
@@ -141,11 +145,11 @@ fn takes(k: usize) -> bool {
 struct Buffers {
     a: Aligned<[i8; MAX_M * MAX_K]>,
     w: Aligned<[i8; MAX_N * MAX_K]>,
-    found: [i32; MAX_M * MAX_N],
-    expected: [i32; MAX_M * MAX_N],
-    found8: [i8; MAX_M * MAX_N],
-    expected8: [i8; MAX_M * MAX_N],
-    acc: [i32; MAX_M * MAX_N],
+    found: [i32; MAX_OUT],
+    expected: [i32; MAX_OUT],
+    found8: [i8; MAX_OUT],
+    expected8: [i8; MAX_OUT],
+    acc: [i32; MAX_OUT],
 }
 
 fn random_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
@@ -293,6 +297,110 @@ fn unaligned_cases(t: &mut Tally, rng: &mut Rng) {
     t.check("matmul_i8/unaligned", [4, 3, 32], &found, &expected);
 }
 
+/// The stage the instruction-count plugin attributes work to (written by the markers).
+static CURRENT: AtomicU32 = AtomicU32::new(0);
+
+macro_rules! markers {
+    ($($name:ident = $id:expr;)*) => {
+        $(
+            #[no_mangle]
+            #[inline(never)]
+            #[doc = "Marker the instruction-count plugin watches (`scripts/firmware.sh --kernels`)."]
+            pub extern "C" fn $name() {
+                CURRENT.store($id, Ordering::SeqCst);
+            }
+        )*
+    };
+}
+
+markers! {
+    bino_mark_qkv_fused = 1;
+    bino_mark_qkv_reference = 2;
+    bino_mark_mlp_up_fused = 3;
+    bino_mark_mlp_up_reference = 4;
+    bino_mark_mlp_down_fused = 5;
+    bino_mark_mlp_down_reference = 6;
+    bino_mark_mlp_down_i32 = 7;
+    bino_mark_mlp_down_i32_reference = 8;
+    bino_mark_end = 0xFFFF;
+}
+
+/// Calls per measured kernel: the engine's blocks of 8 tokens, 120 of them (960 tokens).
+const BENCH_CALLS: usize = 120;
+
+/// The GEMMs of the encoder as the engine calls them (8 token rows at a time, 960 tokens):
+/// each kernel between markers, the assembly one and the portable reference (the two passes
+/// `matmul_i8_reference` + `requant_rows`). `scripts/firmware.sh --kernels` divides the
+/// plugin's counts by the MACs logged here.
+fn bench(rng: &mut Rng, b: &mut Buffers) {
+    type Mark = extern "C" fn();
+    let shapes: [(&str, usize, usize, Mark, Mark); 3] = [
+        ("qkv", 128, 384, bino_mark_qkv_fused, bino_mark_qkv_reference),
+        ("mlp_up", 128, 480, bino_mark_mlp_up_fused, bino_mark_mlp_up_reference),
+        (
+            "mlp_down",
+            480,
+            128,
+            bino_mark_mlp_down_fused,
+            bino_mark_mlp_down_reference,
+        ),
+    ];
+    const M: usize = 8;
+    for (name, k, n, fused, reference) in shapes {
+        rng.fill(&mut b.a.0[..M * k], 3);
+        rng.fill(&mut b.w.0[..n * k], 3);
+        let (a, w) = (&b.a.0[..M * k], &b.w.0[..n * k]);
+        let p = Params::random(rng, n.min(MAX_N), 18);
+        // Channel parameters repeat past MAX_N (the table holds MAX_N).
+        let bias: [i32; 480] = core::array::from_fn(|c| p.bias[c % MAX_N]);
+        let mult: [i32; 480] = core::array::from_fn(|c| p.mult[c % MAX_N]);
+        let shift: [u8; 480] = core::array::from_fn(|c| p.shift[c % MAX_N]);
+        let zero: [i32; 480] = core::array::from_fn(|c| p.zero[c % MAX_N]);
+        let rq = ChannelRequant {
+            bias: &bias[..n],
+            mult: &mult[..n],
+            shift: &shift[..n],
+        };
+        let (out, want, acc) = (&mut b.found8, &mut b.expected8, &mut b.acc);
+        fused();
+        for _ in 0..BENCH_CALLS {
+            matmul_requant_i8(a, w, k, &rq, &zero[..n], acc, &mut out[..M * n]);
+        }
+        reference();
+        for _ in 0..BENCH_CALLS {
+            matmul_i8_reference(a, w, k, &mut acc[..M * n]);
+            requant_rows(&acc[..M * n], &rq, &zero[..n], &mut want[..M * n]);
+        }
+        bino_mark_end();
+        if name == "mlp_down" {
+            // The engine's fc2 keeps i32 accumulators for the residual add.
+            let acc2 = &mut b.found;
+            bino_mark_mlp_down_i32();
+            for _ in 0..BENCH_CALLS {
+                matmul_i8(a, w, k, &mut acc2[..M * n]);
+            }
+            bino_mark_mlp_down_i32_reference();
+            for _ in 0..BENCH_CALLS {
+                matmul_i8_reference(a, w, k, &mut acc[..M * n]);
+            }
+            bino_mark_end();
+        }
+        // Reading the markers' variable keeps their stores (and so the markers) distinct.
+        let last_mark = CURRENT.load(Ordering::SeqCst);
+        let same = out[..M * n] == want[..M * n] && last_mark == 0xFFFF;
+        defmt::println!(
+            "kernel-bench kernel={=str} m={=usize} k={=usize} n={=usize} calls={=usize} macs={=usize} same={=bool}",
+            name,
+            M,
+            k,
+            n,
+            BENCH_CALLS,
+            BENCH_CALLS * M * k * n,
+            same
+        );
+    }
+}
+
 #[entry]
 fn main() -> ! {
     defmt::println!("kernel-tests board={=str}", BOARD);
@@ -305,11 +413,11 @@ fn main() -> ! {
     let Some(buffers) = cortex_m::singleton!(: Buffers = Buffers {
         a: Aligned([0; MAX_M * MAX_K]),
         w: Aligned([0; MAX_N * MAX_K]),
-        found: [0; MAX_M * MAX_N],
-        expected: [0; MAX_M * MAX_N],
-        found8: [0; MAX_M * MAX_N],
-        expected8: [0; MAX_M * MAX_N],
-        acc: [0; MAX_M * MAX_N],
+        found: [0; MAX_OUT],
+        expected: [0; MAX_OUT],
+        found8: [0; MAX_OUT],
+        expected8: [0; MAX_OUT],
+        acc: [0; MAX_OUT],
     }) else {
         defmt::println!("kernel-tests result=fail buffers taken");
         exit(EXIT_FAILURE);
@@ -319,6 +427,7 @@ fn main() -> ! {
     random_cases(&mut t, &mut rng, buffers);
     rounding_cases(&mut t);
     unaligned_cases(&mut t, &mut rng);
+    bench(&mut rng, buffers);
     let pass = t.failed == 0 && t.asm_cases > 0;
     defmt::println!(
         "kernel-tests result={=str} cases={=usize} assembly_cases={=usize} failed={=usize}",

@@ -94,3 +94,119 @@ pub(crate) fn run<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut
     #[cfg(bino_mve)]
     return mve::gemm(a, w, k, m, epi);
 }
+
+#[cfg(test)]
+mod tests {
+    use super::fused::{matmul_requant_with, Col};
+    use super::*;
+    use crate::kernels::epilogue::ChannelRequant;
+    use crate::kernels::gemm::matmul_requant_reference;
+    use crate::kernels::matmul::matmul_i8_reference;
+    use crate::testutil::Rng;
+
+    type Driver = fn(&[i8], &[i8], usize, usize, &mut fused::Fused<'_>) -> bool;
+    type StoreDriver = fn(&[i8], &[i8], usize, usize, &mut Store<'_>) -> bool;
+    const DRIVERS: [(&str, StoreDriver, Driver); 2] = [
+        (
+            "dsp",
+            |a, w, k, m, e| dsp::gemm(a, w, k, m, e),
+            |a, w, k, m, e| dsp::gemm(a, w, k, m, e),
+        ),
+        (
+            "mve",
+            |a, w, k, m, e| mve::gemm(a, w, k, m, e),
+            |a, w, k, m, e| mve::gemm(a, w, k, m, e),
+        ),
+    ];
+
+    #[test]
+    fn drivers_with_portable_tiles_match_the_reference() {
+        // The drivers' blocking, leftover rows and columns and the DSP scratch layout, on the
+        // host (the firmware's kernel-tests check the assembly tiles themselves).
+        let mut rng = Rng::new(21);
+        let mut a = [0i8; 5 * 132];
+        let mut w = [0i8; 131 * 132];
+        for (m, n, k) in [
+            (1, 1, 4),
+            (2, 3, 8),
+            (3, 4, 12),
+            (4, 5, 20),
+            (5, 7, 132),
+            (5, 131, 36),
+            (4, 2, 17),
+        ] {
+            rng.fill_i8(&mut a[..m * k]);
+            rng.fill_i8(&mut w[..n * k]);
+            let (a, w) = (&a[..m * k], &w[..n * k]);
+            let mut want = [0i32; 5 * 131];
+            matmul_i8_reference(a, w, k, &mut want[..m * n]);
+            let bias: [i32; 131] = core::array::from_fn(|_| rng.range(-1 << 20, 1 << 20) as i32);
+            let mult: [i32; 131] = core::array::from_fn(|_| rng.range(1 << 30, i32::MAX as i64) as i32);
+            let shift: [u8; 131] = core::array::from_fn(|_| rng.range(33, 40) as u8);
+            let zero: [i32; 131] = core::array::from_fn(|_| rng.range(-128, 127) as i32);
+            let rq = ChannelRequant {
+                bias: &bias[..n],
+                mult: &mult[..n],
+                shift: &shift[..n],
+            };
+            let mut want8 = [0i8; 5 * 131];
+            matmul_requant_reference(a, w, k, &rq, &zero[..n], &mut want8[..m * n]);
+            for (name, store, fused) in DRIVERS {
+                let takes = name == "mve" || k % 4 == 0;
+                let mut got = [0i32; 5 * 131];
+                let took = store(a, w, k, m, &mut Store { out: &mut got, n });
+                assert_eq!(took, takes, "{name} m={m} n={n} k={k}");
+                if took {
+                    assert_eq!(got[..m * n], want[..m * n], "{name} m={m} n={n} k={k}");
+                }
+                let mut got8 = [0i8; 5 * 131];
+                let took = matmul_requant_with(a, w, k, &rq, &zero[..n], &mut got8[..m * n], fused);
+                assert_eq!(took, takes, "{name} fused m={m} n={n} k={k}");
+                if took {
+                    assert_eq!(got8[..m * n], want8[..m * n], "{name} fused m={m} n={n} k={k}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fused_epilogue_equals_the_64_bit_formula_in_its_range() {
+        let mut rng = Rng::new(5);
+        for _ in 0..20_000 {
+            let shift = rng.range(33, 62) as u8;
+            let (mult, zero) = (
+                rng.range(i32::MIN as i64, i32::MAX as i64) as i32,
+                rng.range(-300, 300) as i32,
+            );
+            let bias = rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32;
+            let Some(col) = Col::new(bias, mult, shift, zero) else {
+                continue;
+            };
+            let acc = rng.range(-(1 << 29), 1 << 29) as i32;
+            let rq = ChannelRequant {
+                bias: &[bias][..],
+                mult: &[mult][..],
+                shift: &[shift][..],
+            };
+            let want = crate::fixed::sat_i8_i64(rq.apply(0, acc) + zero as i64);
+            assert_eq!(
+                col.apply(acc + bias),
+                want,
+                "acc {acc} bias {bias} mult {mult} shift {shift} zero {zero}"
+            );
+        }
+        // Outside the range the kernels decline.
+        assert!(Col::new(1 << 30, 1, 40, 0).is_none());
+        assert!(Col::new(0, 1, 32, 0).is_none());
+        assert!(Col::new(0, 1, 62, 1).is_none());
+    }
+
+    #[test]
+    fn shapes_outside_the_kernels_are_declined() {
+        assert_eq!(shape(&[0; 8], &[0; 8], 0, 4), None);
+        assert_eq!(shape(&[0; 8], &[0; 8], MAX_K + 1, 4), None);
+        assert_eq!(shape(&[0; 8], &[0; 8], 4, 3), None);
+        assert_eq!(shape(&[0; 3], &[0; 8], 4, 4), None);
+        assert_eq!(shape(&[0; 8], &[0; 8], 4, 4), Some((2, 2)));
+    }
+}
