@@ -37,22 +37,32 @@ def main() -> int:
         name, insns, _ = line.split("\t")
         counts[name] = int(insns)
     rows = []
-    pattern = re.compile(r"kernel-bench kernel=(\w+) m=(\d+) k=(\d+) n=(\d+) calls=(\d+) macs=(\d+) same=(\w+)")
+    pattern = re.compile(
+        r"kernel-bench kernel=(\w+) m=(\d+) k=(\d+) n=(\d+) calls=(\d+) macs=(\d+) same=(\w+)"
+    )
     for m in pattern.finditer(args.log.read_text()):
         kernel, mm, k, n, calls, macs, same = m.groups()
         if same != "true":
-            print(f"kernels.py: {args.log}: kernel {kernel} differs from its reference", file=sys.stderr)
+            print(
+                f"kernels.py: {args.log}: kernel {kernel} differs from its reference",
+                file=sys.stderr,
+            )
             return 1
         variants = [("fused (int8 out)", f"{kernel}_fused", f"{kernel}_reference")]
         if f"{kernel}_i32" in counts:
             variants.append(("int32 out", f"{kernel}_i32", f"{kernel}_i32_reference"))
         for label, fast, ref in variants:
             if fast not in counts or ref not in counts:
-                print(f"kernels.py: {args.counts}: no count for {fast} or {ref}", file=sys.stderr)
+                print(
+                    f"kernels.py: {args.counts}: no count for {fast} or {ref}",
+                    file=sys.stderr,
+                )
                 return 1
             per_mac = counts[fast] / int(macs)
             ref_per_mac = counts[ref] / int(macs)
-            cmsis = CMSIS_NN.get((args.core, kernel)) if label.startswith("fused") else None
+            cmsis = (
+                CMSIS_NN.get((args.core, kernel)) if label.startswith("fused") else None
+            )
             vs = f"{cmsis:.3f} ({per_mac / cmsis:.2f}x)" if cmsis else "-"
             rows.append(
                 f"| {args.core} | {kernel} {label} | {calls} x {mm}x{k} . {k}x{n} | {int(macs):,} "
