@@ -150,11 +150,12 @@ struct Buffers {
     found8: [i8; MAX_OUT],
     expected8: [i8; MAX_OUT],
     acc: [i32; MAX_OUT],
+    weights: [u8; MAX_OUT],
 }
 
 fn random_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     let ks = [
-        1, 3, 4, 8, 12, 16, 17, 20, 28, 32, 36, 60, 100, 127, 128, 132, 200, 480, 512,
+        1, 3, 4, 8, 12, 16, 17, 20, 28, 32, 36, 60, 100, 127, 128, 132, 200, 480, 512, 960, 1024,
     ];
     for (case, &k) in ks.iter().cycle().take(3 * ks.len()).enumerate() {
         for m in [1, 2, 3, 4, 5, 8] {
@@ -275,6 +276,46 @@ fn rounding_cases(t: &mut Tally) {
         let mut acc = [0i32; M];
         matmul_requant_i8(&a.0, &w.0, 4, &rq, &[0][..], &mut acc, &mut found);
         t.check("matmul_requant_i8/declined", [M, 1, 4], &found, &expected);
+    }
+}
+
+/// The attention kernel of the engine (four queries at once: scores and weighted sums through
+/// the GEMM tiles on Cortex-M7) against the single-query reference `attend`, bit for bit.
+fn attention_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::config::HEAD_DIM;
+    use bino_core::fixed::Requant;
+    use bino_core::kernels::attention::{attend, attend_block, value_sums, AttentionQ, QUERY_BLOCK};
+    for (case, n) in [5usize, 36, 200, 960, 960].into_iter().enumerate() {
+        let (keys, rest) = b.w.0.split_at_mut(n * HEAD_DIM);
+        let (values, rest) = rest.split_at_mut(n * HEAD_DIM);
+        let values_t = &mut rest[..n * HEAD_DIM];
+        rng.fill(keys, if case == 4 { 0 } else { 3 });
+        rng.fill(values, 3);
+        for (i, v) in values_t.iter_mut().enumerate() {
+            *v = values[(i % n) * HEAD_DIM + i / n];
+        }
+        let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+        for q in queries.iter_mut() {
+            rng.fill(q, 3);
+        }
+        let sums = value_sums(values_t, n);
+        for shift in [34u32, 40, 46] {
+            let p = AttentionQ {
+                to_log2_q8: Requant { mult: 1 << 30, shift },
+                out: Requant {
+                    mult: 1 << 30,
+                    shift: 46,
+                },
+            };
+            let mut out = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+            let (scores, weights) = (&mut b.found[..QUERY_BLOCK * n], &mut b.weights[..QUERY_BLOCK * n]);
+            attend_block(&queries, keys, values_t, &sums, &p, scores, weights, &mut out);
+            for (q, got) in queries.iter().zip(&out) {
+                let mut want = [0i8; HEAD_DIM];
+                attend(q, keys, values, &p, &mut scores[..n], &mut weights[..n], &mut want);
+                t.check("attend_block", [QUERY_BLOCK, HEAD_DIM, n], got, &want);
+            }
+        }
     }
 }
 
@@ -418,6 +459,7 @@ fn main() -> ! {
         found8: [0; MAX_OUT],
         expected8: [0; MAX_OUT],
         acc: [0; MAX_OUT],
+        weights: [0; MAX_OUT],
     }) else {
         defmt::println!("kernel-tests result=fail buffers taken");
         exit(EXIT_FAILURE);
@@ -427,6 +469,7 @@ fn main() -> ! {
     random_cases(&mut t, &mut rng, buffers);
     rounding_cases(&mut t);
     unaligned_cases(&mut t, &mut rng);
+    attention_cases(&mut t, &mut rng, buffers);
     bench(&mut rng, buffers);
     let pass = t.failed == 0 && t.asm_cases > 0;
     defmt::println!(

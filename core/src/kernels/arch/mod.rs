@@ -25,8 +25,8 @@ pub(crate) mod mve;
 pub use fused::matmul_requant;
 
 /// Longest dot product the kernels take (their stack scratch and the accumulator bound:
-/// `512 * 128 * 128 < 2^23`).
-pub const MAX_K: usize = 512;
+/// `1024 * 128 * 128 < 2^24`; a band of 960 tokens is one attention dot product).
+pub const MAX_K: usize = 1024;
 
 /// What happens to each finished accumulator of a tile.
 pub(crate) trait Epilogue {
