@@ -16,7 +16,10 @@ const SCRATCH: usize = MAX_K / 4 * 2 * ROWS;
 /// The tile driver: `m` rows of `a` against every row of `w`, each finished accumulator to
 /// `epi`. Declines (`false`) `k` not a multiple of 4 or `w` not word-aligned (the kernel loads
 /// whole weight words); the caller has checked `k` in `1..=MAX_K` and the lengths.
-#[inline(always)]
+///
+/// Never inlined: its 8 KiB scratch then lives only while it runs, instead of in the frame of
+/// every caller (the encoder's GEMMs and attention would each add one to the stack peak).
+#[inline(never)]
 pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
     if !k.is_multiple_of(4) || k > MAX_K || !(w.as_ptr() as usize).is_multiple_of(4) {
         return false;

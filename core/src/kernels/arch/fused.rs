@@ -87,6 +87,15 @@ impl Epilogue for Fused<'_> {
             *o = c.apply(acc);
         }
     }
+    #[inline(always)]
+    fn put_row<const C: usize>(&mut self, c: &[Col; C], row: usize, j: usize, acc: [i32; C]) {
+        let at = row * self.n + self.j0 + j;
+        if let Some(o) = self.out.get_mut(at..at + C) {
+            for ((o, c), v) in o.iter_mut().zip(c).zip(acc) {
+                *o = c.apply(v);
+            }
+        }
+    }
 }
 
 /// `out = sat8(rq(a * w^T) + zero)` through `driver` (a tile driver: `a`, one chunk of `w`,

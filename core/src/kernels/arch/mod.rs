@@ -38,6 +38,13 @@ pub(crate) trait Epilogue {
     fn init(c: &Self::Col) -> i32;
     /// Output `(row, j)` from its finished accumulator (`init` plus the dot product).
     fn put(&mut self, c: &Self::Col, row: usize, j: usize, acc: i32);
+    /// Outputs `(row, j..j + C)` (one bounds check where the epilogue can).
+    #[inline(always)]
+    fn put_row<const C: usize>(&mut self, c: &[Self::Col; C], row: usize, j: usize, acc: [i32; C]) {
+        for (i, (c, v)) in c.iter().zip(acc).enumerate() {
+            self.put(c, row, j + i, v);
+        }
+    }
 }
 
 /// Stores accumulators as they are: `out[row * n + j]`.
@@ -58,6 +65,13 @@ impl Epilogue for Store<'_> {
     fn put(&mut self, _: &(), row: usize, j: usize, acc: i32) {
         if let Some(o) = self.out.get_mut(row * self.n + j) {
             *o = acc;
+        }
+    }
+    #[inline(always)]
+    fn put_row<const C: usize>(&mut self, _: &[(); C], row: usize, j: usize, acc: [i32; C]) {
+        let at = row * self.n + j;
+        if let Some(o) = self.out.get_mut(at..at + C) {
+            o.copy_from_slice(&acc);
         }
     }
 }

@@ -11,32 +11,32 @@ use super::Epilogue;
 /// `epi`; the caller has checked `k` in `1..=MAX_K` and the lengths.
 #[inline(always)]
 pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
-    let n = w.len() / k;
     fn rows(x: &[i8], r: usize, k: usize) -> &[i8] {
         x.get(r * k..(r + 1) * k).unwrap_or(&[])
     }
-    let row = |x, r| rows(x, r, k);
     for r0 in (0..m).step_by(2) {
         // An odd last row is paired with itself; the copy's results are not stored.
-        let (a0, a1) = (row(a, r0), row(a, (r0 + 1).min(m - 1)));
-        let pair = (m - r0).min(2);
+        let (a0, a1) = (rows(a, r0, k), rows(a, (r0 + 1).min(m - 1), k));
+        let pair = r0 + 1 < m;
+        let mut triples = w.chunks_exact(3 * k);
         let mut j = 0;
-        while j + 3 <= n {
+        for triple in &mut triples {
+            let (w0, rest) = triple.split_at(k);
+            let (w1, w2) = rest.split_at(k);
             let c = [epi.col(j), epi.col(j + 1), epi.col(j + 2)];
-            let init = c.map(|c| E::init(&c));
-            let acc = tile3(a0, a1, [row(w, j), row(w, j + 1), row(w, j + 2)], init);
-            for (r, acc_row) in acc.iter().enumerate().take(pair) {
-                for (i, (&v, c)) in acc_row.iter().zip(&c).enumerate() {
-                    epi.put(c, r0 + r, j + i, v);
-                }
+            let [acc0, acc1] = tile3(a0, a1, [w0, w1, w2], c.map(|c| E::init(&c)));
+            epi.put_row(&c, r0, j, acc0);
+            if pair {
+                epi.put_row(&c, r0 + 1, j, acc1);
             }
             j += 3;
         }
-        while j < n {
+        for w_row in triples.remainder().chunks_exact(k) {
             let c = epi.col(j);
-            let acc = tile1(a0, a1, row(w, j), E::init(&c));
-            for (r, &v) in acc.iter().enumerate().take(pair) {
-                epi.put(&c, r0 + r, j, v);
+            let [acc0, acc1] = tile1(a0, a1, w_row, E::init(&c));
+            epi.put(&c, r0, j, acc0);
+            if pair {
+                epi.put(&c, r0 + 1, j, acc1);
             }
             j += 1;
         }
