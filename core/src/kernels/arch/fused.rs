@@ -99,9 +99,10 @@ impl Epilogue for Fused<'_> {
 }
 
 /// `out = sat8(rq(a * w^T) + zero)` through `driver` (a tile driver: `a`, one chunk of `w`,
-/// `k`, `m`, the epilogue), chunk by chunk of [`CHUNK`] channels. `false`, with nothing
-/// written, for shapes [`shape`] declines, `rq` not of `n` channels, or parameters outside
-/// [`Col::new`]'s range.
+/// `k`, `m`, the epilogue), chunk by chunk of [`CHUNK`] channels, each chunk's parameters
+/// checked as they are prepared (one pass: the engine calls this per token block). `false`
+/// for shapes [`shape`] declines, `rq` not of `n` channels, or parameters outside
+/// [`Col::new`]'s range; chunks before the one declined may have been written.
 #[inline(always)]
 pub(crate) fn matmul_requant_with<B, M, Z>(
     a: &[i8],
@@ -128,7 +129,7 @@ where
             zero.at(c),
         )
     };
-    if rq.channels() != n || (0..n).any(|c| col(c).is_none()) {
+    if rq.channels() != n {
         return false;
     }
     let mut j0 = 0;
@@ -141,7 +142,10 @@ where
             j0,
         };
         for (i, p) in epi.params[..len].iter_mut().enumerate() {
-            *p = col(j0 + i).unwrap_or(Col::ZERO);
+            let Some(c) = col(j0 + i) else {
+                return false;
+            };
+            *p = c;
         }
         let w_chunk = w.get(j0 * k..(j0 + len) * k).unwrap_or(&[]);
         if !driver(a, w_chunk, k, m, &mut epi) {
@@ -153,8 +157,8 @@ where
 }
 
 /// `out` (`m x n` int8) = `sat8(rq(a * w^T) + zero[c])` on this core's assembly kernel, equal
-/// to `matmul_i8` followed by `requant_rows`; `false` (nothing written) where there is no
-/// kernel or the shape or parameters are not taken.
+/// to `matmul_i8` followed by `requant_rows`; `false` where there is no kernel or the shape
+/// or parameters are not taken (then `out` may be partly written: run the reference over it).
 #[inline]
 pub fn matmul_requant<B, M, Z>(
     a: &[i8],
