@@ -35,10 +35,9 @@ pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mu
         });
         widen(rows, scratch);
         for (j, w_row) in w.chunks_exact(k).enumerate() {
-            let c = epi.col(j);
-            let acc = tile(scratch, w_row, [E::init(&c); ROWS]);
+            let acc = tile(scratch, w_row, [epi.init(j); ROWS]);
             for (i, &v) in acc.iter().enumerate().take(m - r0) {
-                epi.put(&c, r0 + i, j, v);
+                epi.put(r0 + i, j, v);
             }
         }
     }

@@ -72,25 +72,20 @@ pub struct Fused<'o> {
 }
 
 impl Epilogue for Fused<'_> {
-    type Col = Col;
     #[inline(always)]
-    fn col(&self, j: usize) -> Col {
-        self.params.get(j).copied().unwrap_or(Col::ZERO)
+    fn init(&self, j: usize) -> i32 {
+        self.params.get(j).map_or(0, |c| c.bias)
     }
     #[inline(always)]
-    fn init(c: &Col) -> i32 {
-        c.bias
-    }
-    #[inline(always)]
-    fn put(&mut self, c: &Col, row: usize, j: usize, acc: i32) {
-        if let Some(o) = self.out.get_mut(row * self.n + self.j0 + j) {
+    fn put(&mut self, row: usize, j: usize, acc: i32) {
+        if let (Some(o), Some(c)) = (self.out.get_mut(row * self.n + self.j0 + j), self.params.get(j)) {
             *o = c.apply(acc);
         }
     }
     #[inline(always)]
-    fn put_row<const C: usize>(&mut self, c: &[Col; C], row: usize, j: usize, acc: [i32; C]) {
+    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
         let at = row * self.n + self.j0 + j;
-        if let Some(o) = self.out.get_mut(at..at + C) {
+        if let (Some(o), Some(c)) = (self.out.get_mut(at..at + C), self.params.get(j..j + C)) {
             for ((o, c), v) in o.iter_mut().zip(c).zip(acc) {
                 *o = c.apply(v);
             }

@@ -28,21 +28,19 @@ pub use fused::matmul_requant;
 /// `1024 * 128 * 128 < 2^24`; a band of 960 tokens is one attention dot product).
 pub const MAX_K: usize = 1024;
 
-/// What happens to each finished accumulator of a tile.
+/// What happens to each finished accumulator of a tile. Per-column values are looked up by
+/// the epilogue itself (not passed around: copies of them spill, the asm blocks leave the
+/// compiler no free registers).
 pub(crate) trait Epilogue {
-    /// Per-column values, loaded once per tile column.
-    type Col: Copy;
-    /// Column `j`'s values.
-    fn col(&self, j: usize) -> Self::Col;
-    /// The value an accumulator of column `c` starts from (the bias, or 0).
-    fn init(c: &Self::Col) -> i32;
+    /// The value an accumulator of column `j` starts from (the bias, or 0).
+    fn init(&self, j: usize) -> i32;
     /// Output `(row, j)` from its finished accumulator (`init` plus the dot product).
-    fn put(&mut self, c: &Self::Col, row: usize, j: usize, acc: i32);
+    fn put(&mut self, row: usize, j: usize, acc: i32);
     /// Outputs `(row, j..j + C)` (one bounds check where the epilogue can).
     #[inline(always)]
-    fn put_row<const C: usize>(&mut self, c: &[Self::Col; C], row: usize, j: usize, acc: [i32; C]) {
-        for (i, (c, v)) in c.iter().zip(acc).enumerate() {
-            self.put(c, row, j + i, v);
+    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
+        for (i, v) in acc.into_iter().enumerate() {
+            self.put(row, j + i, v);
         }
     }
 }
@@ -54,21 +52,18 @@ pub(crate) struct Store<'o> {
 }
 
 impl Epilogue for Store<'_> {
-    type Col = ();
     #[inline(always)]
-    fn col(&self, _: usize) {}
-    #[inline(always)]
-    fn init(_: &()) -> i32 {
+    fn init(&self, _: usize) -> i32 {
         0
     }
     #[inline(always)]
-    fn put(&mut self, _: &(), row: usize, j: usize, acc: i32) {
+    fn put(&mut self, row: usize, j: usize, acc: i32) {
         if let Some(o) = self.out.get_mut(row * self.n + j) {
             *o = acc;
         }
     }
     #[inline(always)]
-    fn put_row<const C: usize>(&mut self, _: &[(); C], row: usize, j: usize, acc: [i32; C]) {
+    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
         let at = row * self.n + j;
         if let Some(o) = self.out.get_mut(at..at + C) {
             o.copy_from_slice(&acc);

@@ -23,20 +23,19 @@ pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mu
         for triple in &mut triples {
             let (w0, rest) = triple.split_at(k);
             let (w1, w2) = rest.split_at(k);
-            let c = [epi.col(j), epi.col(j + 1), epi.col(j + 2)];
-            let [acc0, acc1] = tile3(a0, a1, [w0, w1, w2], c.map(|c| E::init(&c)));
-            epi.put_row(&c, r0, j, acc0);
+            let init = [epi.init(j), epi.init(j + 1), epi.init(j + 2)];
+            let [acc0, acc1] = tile3(a0, a1, [w0, w1, w2], init);
+            epi.put_row(r0, j, acc0);
             if pair {
-                epi.put_row(&c, r0 + 1, j, acc1);
+                epi.put_row(r0 + 1, j, acc1);
             }
             j += 3;
         }
         for w_row in triples.remainder().chunks_exact(k) {
-            let c = epi.col(j);
-            let [acc0, acc1] = tile1(a0, a1, w_row, E::init(&c));
-            epi.put(&c, r0, j, acc0);
+            let [acc0, acc1] = tile1(a0, a1, w_row, epi.init(j));
+            epi.put(r0, j, acc0);
             if pair {
-                epi.put(&c, r0 + 1, j, acc1);
+                epi.put(r0 + 1, j, acc1);
             }
             j += 1;
         }
