@@ -36,7 +36,9 @@ pub(crate) trait Epilogue {
     fn init(&self, j: usize) -> i32;
     /// Output `(row, j)` from its finished accumulator (`init` plus the dot product).
     fn put(&mut self, row: usize, j: usize, acc: i32);
-    /// Outputs `(row, j..j + C)` (one bounds check where the epilogue can).
+    /// Outputs `(row, j..j + C)` (one bounds check where the epilogue can; the MVE tiles'
+    /// rows).
+    #[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
     #[inline(always)]
     fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
         for (i, v) in acc.into_iter().enumerate() {
