@@ -10,23 +10,40 @@ use super::{Epilogue, MAX_K};
 
 /// Activation rows per tile.
 const ROWS: usize = 4;
-/// Scratch words: per 4-element group, 2 words for each of the 4 rows.
-const SCRATCH: usize = MAX_K / 4 * 2 * ROWS;
 
 /// The tile driver: `m` rows of `a` against every row of `w`, each finished accumulator to
 /// `epi`. Declines (`false`) `k` not a multiple of 4 or `w` not word-aligned (the kernel loads
 /// whole weight words); the caller has checked `k` in `1..=MAX_K` and the lengths.
-///
-/// Never inlined: its 8 KiB scratch then lives only while it runs, instead of in the frame of
-/// every caller (the encoder's GEMMs and attention would each add one to the stack peak).
-#[inline(never)]
+#[inline(always)]
 pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
     if !k.is_multiple_of(4) || k > MAX_K || !(w.as_ptr() as usize).is_multiple_of(4) {
         return false;
     }
+    // A scratch no larger than the shape needs: it is zeroed on every call (attention's
+    // 32-element dot products would otherwise clear 8 KiB each time).
+    match k {
+        0..=32 => gemm_in::<E, { words(32) }>(a, w, k, m, epi),
+        33..=128 => gemm_in::<E, { words(128) }>(a, w, k, m, epi),
+        129..=512 => gemm_in::<E, { words(512) }>(a, w, k, m, epi),
+        _ => gemm_in::<E, { words(MAX_K) }>(a, w, k, m, epi),
+    }
+}
+
+/// Scratch words for dot products of `k` elements: 2 per 4-element group per row.
+const fn words(k: usize) -> usize {
+    k / 4 * 2 * ROWS
+}
+
+/// [`gemm`] with a `WORDS`-word scratch (`k <= 4 * WORDS / (2 * ROWS)`). Never inlined: the
+/// scratch then lives on the stack only while it runs, instead of in the frame of every
+/// caller (the encoder's GEMMs and attention would each add one to the stack peak).
+#[inline(never)]
+fn gemm_in<E: Epilogue, const WORDS: usize>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
     let groups = k / 4;
-    let mut x = [0u32; SCRATCH];
-    let scratch = &mut x[..groups * 2 * ROWS];
+    let mut x = [0u32; WORDS];
+    let Some(scratch) = x.get_mut(..groups * 2 * ROWS) else {
+        return false;
+    };
     for r0 in (0..m).step_by(ROWS) {
         // Rows past the end repeat the last one; their results are not stored.
         let rows: [&[i8]; ROWS] = core::array::from_fn(|i| {
