@@ -1,15 +1,19 @@
 #!/usr/bin/env bash
-# Builds the BINO firmware for both Cortex-M boards and runs each under QEMU: the band pair
+# Builds the BINO firmware for both Cortex-M boards and runs each under QEMU: first the kernel
+# test firmware (src/bin/kernel-tests.rs: the assembly kernels against their references), then the band pair
 # through the int8 pipeline, bit-identical to the host (the firmware exits non-zero otherwise),
 # with executed-instruction counts per stage from the TCG plugin in firmware-sim/qemu-plugin/.
 #
-#   scripts/firmware.sh [--band full|small] [--out DIR] [--profile] [--core m55|m7]
+#   scripts/firmware.sh [--band full|small] [--out DIR] [--profile] [--kernels|--kernels-only] [--core m55|m7]
 #
 #   --band full    one 48x160 band pair, the issue's target size (default; about 2 min of QEMU
 #                  for the M55 and 1 min for the M7 on a 2-core EPYC VM)
 #   --band small   a 48x32 band pair: the same code, bit-identity only, 20 s
 #   --out DIR      where the results go (default out/firmware)
 #   --profile      also a per-function instruction profile (<core>-profile.txt)
+#   --kernels      also the per-kernel table (<core>-kernels.md: executed instructions per MAC of
+#                  the encoder's GEMMs, assembly kernel against the portable reference, from the
+#                  kernel test firmware's markers); --kernels-only skips the band pair
 #
 # Writes <out>/<core>.json (stages, instructions, arena, stack, digests, ELF sections) and
 # <out>/<core>.log (the decoded defmt log) per core; `bino budget --firmware <out>` reports them.
@@ -19,14 +23,16 @@ set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BINO_ROOT"
 
-band=full out="out/firmware" want_profile=0 cores="m55 m7"
+band=full out="out/firmware" want_profile=0 want_kernels=0 kernels_only=0 cores="m55 m7"
 while [ $# -gt 0 ]; do
   case "$1" in
     --band) band="$2"; shift 2 ;;
     --out) out="$2"; shift 2 ;;
     --profile) want_profile=1; shift ;;
+    --kernels) want_kernels=1; shift ;;
+    --kernels-only) want_kernels=1; kernels_only=1; shift ;;
     --core) cores="$2"; shift 2 ;;
-    -h|--help) sed -n '2,17p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
     *) echo "unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -85,6 +91,27 @@ for core in $cores; do
   esac
   echo "== firmware: $core ($machine, $band band)"
   (cd firmware-sim && cargo build --locked --release --target "$target" "${features[@]}")
+  # The kernel test firmware first: every assembly kernel against its reference, bit for bit.
+  # It ends with the encoder's GEMMs between markers, counted by the plugin (for --kernels).
+  kelf="$CARGO_TARGET_DIR/$target/release/kernel-tests"
+  kmarks="$("$llvm_bin/llvm-nm" "$kelf" | awk '$3 ~ /^bino_mark_/ {
+    n = substr($3, 11); if (n == "end") n = "outside"; printf ",mark=%s:0x%s", n, $1 }')"
+  set +e
+  qemu-system-arm -machine "$machine" -cpu "$cpu" -display none -monitor none -serial null \
+    -semihosting-config enable=on,target=native \
+    -plugin "$plugin,out=$out/$core-kernel-counts.tsv$kmarks" \
+    -kernel "$kelf" | defmt-print -e "$kelf" | tee "$out/$core-kernel-tests.log"
+  codes=("${PIPESTATUS[@]}")
+  set -e
+  if [ "${codes[0]}" != 0 ] || [ "${codes[1]}" != 0 ]; then
+    echo "kernel tests $core: FAILED (QEMU exit ${codes[0]}; see $out/$core-kernel-tests.log)" >&2
+    status=1
+  fi
+  if [ "$want_kernels" = 1 ]; then
+    python3 firmware-sim/qemu-plugin/kernels.py --core "$core" --log "$out/$core-kernel-tests.log" \
+      --counts "$out/$core-kernel-counts.tsv" --out "$out/$core-kernels.md"
+    [ "$kernels_only" = 1 ] && continue
+  fi
   elf="$CARGO_TARGET_DIR/$target/release/bino-firmware"
   marks="$("$llvm_bin/llvm-nm" "$elf" | awk '$3 ~ /^bino_mark_/ {
     n = substr($3, 11); if (n == "end") n = "outside"; printf ",mark=%s:0x%s", n, $1 }')"

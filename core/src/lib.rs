@@ -15,7 +15,8 @@
 //! ```
 #![no_std]
 #![deny(missing_docs)]
-// One audited exception: the AVX2 matmul kernel of host builds (kernels/matmul_avx2.rs).
+// Audited exceptions: the AVX2 matmul kernel of host builds (kernels/matmul_avx2.rs) and the
+// Cortex-M assembly kernels (kernels/arch/), each behind a safe, length-checked wrapper.
 #![deny(unsafe_code)]
 
 pub mod arena;

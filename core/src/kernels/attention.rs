@@ -6,6 +6,7 @@
 //! and the output divides by their sum through one reciprocal per row, so diffuse attention
 //! over hundreds of keys keeps its mass instead of rounding every probability to zero.
 
+use super::arch;
 use super::exp::{exp_neg_u8_u32, ExpQ32};
 use super::matmul::{dot, dot4};
 use crate::config::HEAD_DIM;
@@ -113,7 +114,41 @@ pub fn attend_block(
         return;
     }
     // One row of n scores and one of n weights per query.
-    let mut score_rows = scores.chunks_exact_mut(n);
+    let (Some(scores), Some(weights)) = (scores.get_mut(..QUERY_BLOCK * n), weights.get_mut(..QUERY_BLOCK * n)) else {
+        return;
+    };
+    // The head size as an opaque run-time value: with a constant 32, LLVM unrolls each dot
+    // product and vectorises it over 32-bit lanes; a loop of unknown length becomes a
+    // tail-predicated 16-lane `vmladav.s8` loop on MVE, as in the matrix multiply.
+    // On Cortex-M7 (`bino_dsp`, no vector unit) the constant size is the better one: the
+    // unrolled two-row products address keys and queries by constant offsets.
+    let hd = if cfg!(bino_dsp) {
+        HEAD_DIM
+    } else {
+        core::hint::black_box(HEAD_DIM)
+    };
+    // Cortex-M7: the four queries against every key on the assembly GEMM tile (one row of n
+    // scores per query: its `4 x n` output). Elsewhere, and where it declines, the four-row
+    // dot products.
+    let keys_n = keys.get(..n * HEAD_DIM).unwrap_or(&[]);
+    if !(cfg!(bino_dsp) && arch::matmul_i32(queries.as_flattened(), keys_n, HEAD_DIM, scores)) {
+        let mut score_rows = scores.chunks_exact_mut(n);
+        let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
+            score_rows.next(),
+            score_rows.next(),
+            score_rows.next(),
+            score_rows.next(),
+        ) else {
+            return;
+        };
+        let [q0, q1, q2, q3] = queries.each_ref().map(|q| q.get(..hd).unwrap_or(&[]));
+        let score_slots = s0.iter_mut().zip(s1.iter_mut()).zip(s2.iter_mut()).zip(s3.iter_mut());
+        for ((((x0, x1), x2), x3), k) in score_slots.zip(keys.chunks_exact(hd)) {
+            let s = dot4(q0, q1, q2, q3, k);
+            (*x0, *x1, *x2, *x3) = (s[0], s[1], s[2], s[3]);
+        }
+    }
+    let mut score_rows = scores.chunks_exact(n);
     let mut weight_rows = weights.chunks_exact_mut(n);
     let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
         score_rows.next(),
@@ -131,25 +166,9 @@ pub fn attend_block(
     ) else {
         return;
     };
-    // The head size as an opaque run-time value: with a constant 32, LLVM unrolls each dot
-    // product and vectorises it over 32-bit lanes; a loop of unknown length becomes a
-    // tail-predicated 16-lane `vmladav.s8` loop on MVE, as in the matrix multiply.
-    // On Cortex-M7 (`bino_dsp`, no vector unit) the constant size is the better one: the
-    // unrolled two-row products address keys and queries by constant offsets.
-    let hd = if cfg!(bino_dsp) {
-        HEAD_DIM
-    } else {
-        core::hint::black_box(HEAD_DIM)
-    };
-    let [q0, q1, q2, q3] = queries.each_ref().map(|q| q.get(..hd).unwrap_or(&[]));
-    let score_slots = s0.iter_mut().zip(s1.iter_mut()).zip(s2.iter_mut()).zip(s3.iter_mut());
-    for ((((x0, x1), x2), x3), k) in score_slots.zip(keys.chunks_exact(hd)) {
-        let s = dot4(q0, q1, q2, q3, k);
-        (*x0, *x1, *x2, *x3) = (s[0], s[1], s[2], s[3]);
-    }
     let fast = ExpQ32::new(p.to_log2_q8);
     let mut total = [0u32; QUERY_BLOCK];
-    let rows = [(&*s0, &mut *w0), (&*s1, &mut *w1), (&*s2, &mut *w2), (&*s3, &mut *w3)];
+    let rows = [(s0, &mut *w0), (s1, &mut *w1), (s2, &mut *w2), (s3, &mut *w3)];
     for ((s_row, w_row), t) in rows.into_iter().zip(total.iter_mut()) {
         let m = s_row.iter().fold(i32::MIN, |m, &v| m.max(v));
         let mut sum = 0u32;
@@ -171,12 +190,27 @@ pub fn attend_block(
         }
         *t = sum;
     }
-    let [w0, w1, w2, w3]: [&[i8]; 4] = [&*w0, &*w1, &*w2, &*w3].map(bytemuck::cast_slice);
     let mut acc = [[0i32; HEAD_DIM]; QUERY_BLOCK];
-    for (d, (channel, &sum)) in values_t.chunks_exact(n).zip(sums).enumerate() {
-        let offset = sum.wrapping_mul(128);
-        for (acc_q, s) in acc.iter_mut().zip(dot4(w0, w1, w2, w3, channel)) {
-            acc_q[d] = s.wrapping_add(offset);
+    // Cortex-M7: the four weight rows (consecutive) against every value channel on the
+    // assembly GEMM tile, then the offset; elsewhere, and where it declines, as below.
+    let weights_i8: &[i8] = bytemuck::cast_slice(&*weights);
+    let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
+    if cfg!(bino_dsp) && arch::matmul_i32(weights_i8, values_n, n, acc.as_flattened_mut()) {
+        for acc_q in acc.iter_mut() {
+            for (a, &sum) in acc_q.iter_mut().zip(sums) {
+                *a = a.wrapping_add(sum.wrapping_mul(128));
+            }
+        }
+    } else {
+        let mut rows = weights_i8.chunks_exact(n);
+        let (Some(w0), Some(w1), Some(w2), Some(w3)) = (rows.next(), rows.next(), rows.next(), rows.next()) else {
+            return;
+        };
+        for (d, (channel, &sum)) in values_t.chunks_exact(n).zip(sums).enumerate() {
+            let offset = sum.wrapping_mul(128);
+            for (acc_q, s) in acc.iter_mut().zip(dot4(w0, w1, w2, w3, channel)) {
+                acc_q[d] = s.wrapping_add(offset);
+            }
         }
     }
     for ((out_q, acc_q), &t) in out.iter_mut().zip(&acc).zip(&total) {

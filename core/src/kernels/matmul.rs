@@ -9,7 +9,18 @@
 ///
 /// `m = a.len() / k`, `n = w.len() / k`; `out` should hold `m * n` values (a shorter `out`
 /// gets fewer rows). `k` must be at most 2^17 so sums of int8 products cannot overflow.
+///
+/// On Cortex-M7 and Cortex-M55 this runs the core's assembly tile (`kernels::arch`) where it
+/// takes the shape, and [`matmul_i8_reference`] otherwise: the results are the same.
+#[inline]
 pub fn matmul_i8(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
+    if !super::arch::matmul_i32(a, w, k, out) {
+        matmul_i8_reference(a, w, k, out)
+    }
+}
+
+/// The portable [`matmul_i8`]: the specification the assembly kernels are tested against.
+pub fn matmul_i8_reference(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     // Cortex-M7 (`bino_dsp`): the model width as a constant, so the two-row products unroll
     // with constant offsets.
     if cfg!(bino_dsp) && k == crate::config::DIM {

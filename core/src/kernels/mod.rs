@@ -3,9 +3,11 @@
 //! and every accumulation is bounded by the model's fixed sizes or done with wrapping /
 //! saturating arithmetic.
 
+pub mod arch;
 pub mod attention;
 pub mod epilogue;
 pub mod exp;
+pub mod gemm;
 pub mod layernorm;
 pub mod lut;
 pub mod matmul;

@@ -21,6 +21,7 @@ use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, 
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::attention::{attend_block, value_sums, QUERY_BLOCK};
 use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant};
+use crate::kernels::gemm::matmul_requant_i8;
 use crate::kernels::layernorm::layernorm_rows;
 use crate::kernels::lut::apply_lut;
 use crate::kernels::matmul::matmul_i8;
@@ -452,7 +453,8 @@ impl AttentionPass<'_, '_> {
     fn keys_values(&self, x: &[i8], normed: &mut [i8], acc: &mut [i32], keys: &mut [i8], values: &mut [i8]) {
         let ln = self.w.norm1.with_input(self.input);
         let qkv = &self.w.qkv;
-        let kv_weights = qkv.weight.get(DIM * DIM..3 * DIM * DIM).unwrap_or(&[]);
+        let k_weights = qkv.weight.get(DIM * DIM..2 * DIM * DIM).unwrap_or(&[]);
+        let v_weights = qkv.weight.get(2 * DIM * DIM..3 * DIM * DIM).unwrap_or(&[]);
         // Per-channel parameters decoded from the blob once per pass, not once per token.
         let key_bias = decode_channels(&qkv.bias, DIM);
         let key_mult = decode_channels(&qkv.mult, DIM);
@@ -470,20 +472,30 @@ impl AttentionPass<'_, '_> {
         };
         let tokens = self.grid.tokens();
         let mut rotated = [0i8; DIM];
-        let mut value = [0i8; DIM];
+        let mut block_values = [0i8; TOKEN_BLOCK * DIM];
         for (block, x_block) in x.chunks(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
             layernorm_rows(x_block, DIM, &ln, normed);
-            matmul_i8(&normed[..count * DIM], kv_weights, DIM, &mut acc[..count * 2 * DIM]);
-            for (i, kv) in acc.chunks_exact(2 * DIM).take(count).enumerate() {
+            let (k_acc, v_acc) = acc.split_at_mut(count * DIM);
+            matmul_i8(&normed[..count * DIM], k_weights, DIM, k_acc);
+            // Values need no rotation: requantised in the matrix multiply itself.
+            let v_out = &mut block_values[..count * DIM];
+            matmul_requant_i8(
+                &normed[..count * DIM],
+                v_weights,
+                DIM,
+                &value_rq,
+                &Uniform(0),
+                v_acc,
+                v_out,
+            );
+            for (i, (k_acc, value)) in k_acc.chunks_exact(DIM).zip(v_out.chunks_exact(DIM)).enumerate() {
                 let t = block * TOKEN_BLOCK + i;
                 let (row, col) = self.grid.position(t);
                 let (row_angles, col_angles) = self.rope.angles(row, col / 2);
-                let (k_acc, v_acc) = kv.split_at(DIM);
                 rope_token(k_acc, &key_rq, &row_angles, &col_angles, &mut rotated);
-                requant_rows(v_acc, &value_rq, &Uniform(0), &mut value);
                 scatter_heads(&rotated, keys, tokens, t);
-                scatter_channels(&value, values, tokens, t);
+                scatter_channels(value, values, tokens, t);
             }
         }
     }
@@ -589,13 +601,16 @@ fn mlp(
         let count = x_block.len() / DIM;
         layernorm_rows(x_block, DIM, &ln, normed);
         let hidden = &mut hidden[..count * MLP_HIDDEN];
-        matmul_i8(
+        let fc1 = w.fc1.requant();
+        matmul_requant_i8(
             &normed[..count * DIM],
             w.fc1.weight,
             DIM,
-            &mut acc[..count * MLP_HIDDEN],
+            &fc1,
+            &Uniform(0),
+            acc,
+            hidden,
         );
-        requant_rows(&acc[..count * MLP_HIDDEN], &w.fc1.requant(), &Uniform(0), hidden);
         apply_lut(hidden, w.gelu);
         project_add(&w.fc2, hidden, acc, x_block, &carry, &output.zero);
     }

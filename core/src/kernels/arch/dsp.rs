@@ -1,0 +1,154 @@
+//! Cortex-M7 (Armv7E-M DSP extension) tile: 4 rows x 1 column, two MACs per `smlad`.
+//!
+//! Each block of 4 activation rows is widened once into a stack scratch of signed 16-bit
+//! pairs, interleaved so one `ldrd` brings a row's `(a0, a2)` and `(a1, a3)` of a 4-element
+//! group; each weight word is widened in registers (`sxtb16` gives `(w0, w2)`, with `ror #8`
+//! `(w1, w3)`) and shared by the 4 rows: per 16 MACs one `ldr`, two `sxtb16`, four `ldrd` and
+//! eight `smlad`. The scratch is reused for every output column.
+
+use super::{Epilogue, MAX_K};
+
+/// Activation rows per tile.
+const ROWS: usize = 4;
+
+/// The tile driver: `m` rows of `a` against every row of `w`, each finished accumulator to
+/// `epi`. Declines (`false`) `k` not a multiple of 4 or `w` not word-aligned (the kernel loads
+/// whole weight words); the caller has checked `k` in `1..=MAX_K` and the lengths.
+#[inline(always)]
+pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
+    if !k.is_multiple_of(4) || k > MAX_K || !(w.as_ptr() as usize).is_multiple_of(4) {
+        return false;
+    }
+    // A scratch no larger than the shape needs: it is zeroed on every call (attention's
+    // 32-element dot products would otherwise clear 8 KiB each time).
+    match k {
+        0..=32 => gemm_in::<E, { words(32) }>(a, w, k, m, epi),
+        33..=128 => gemm_in::<E, { words(128) }>(a, w, k, m, epi),
+        129..=512 => gemm_in::<E, { words(512) }>(a, w, k, m, epi),
+        _ => gemm_in::<E, { words(MAX_K) }>(a, w, k, m, epi),
+    }
+}
+
+/// Scratch words for dot products of `k` elements: 2 per 4-element group per row.
+const fn words(k: usize) -> usize {
+    k / 4 * 2 * ROWS
+}
+
+/// [`gemm`] with a `WORDS`-word scratch (`k <= 4 * WORDS / (2 * ROWS)`). Never inlined: the
+/// scratch then lives on the stack only while it runs, instead of in the frame of every
+/// caller (the encoder's GEMMs and attention would each add one to the stack peak).
+#[inline(never)]
+fn gemm_in<E: Epilogue, const WORDS: usize>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
+    let groups = k / 4;
+    let mut x = [0u32; WORDS];
+    let Some(scratch) = x.get_mut(..groups * 2 * ROWS) else {
+        return false;
+    };
+    for r0 in (0..m).step_by(ROWS) {
+        // Rows past the end repeat the last one; their results are not stored.
+        let rows: [&[i8]; ROWS] = core::array::from_fn(|i| {
+            let r = (r0 + i).min(m - 1);
+            a.get(r * k..(r + 1) * k).unwrap_or(&[])
+        });
+        widen(rows, scratch);
+        for (j, w_row) in w.chunks_exact(k).enumerate() {
+            let acc = tile(scratch, w_row, [epi.init(j); ROWS]);
+            for (i, &v) in acc.iter().enumerate().take(m - r0) {
+                epi.put(r0 + i, j, v);
+            }
+        }
+    }
+    true
+}
+
+/// Rows of int8 to the interleaved 16-bit layout: for group `g` and row `r`, word
+/// `8g + 2r` holds elements `(4g, 4g + 2)` and word `8g + 2r + 1` holds `(4g + 1, 4g + 3)`,
+/// low halfword first (what `sxtb16` makes of a weight word).
+#[inline(always)]
+fn widen(rows: [&[i8]; ROWS], x: &mut [u32]) {
+    fn pair(lo: i8, hi: i8) -> u32 {
+        (lo as i16 as u16 as u32) | ((hi as i16 as u16 as u32) << 16)
+    }
+    for (r, row) in rows.iter().enumerate() {
+        for (q, dst) in row.chunks_exact(4).zip(x.chunks_exact_mut(2 * ROWS)) {
+            if let (Some(&[e0, e1, e2, e3]), Some(d)) = (q.first_chunk::<4>(), dst.get_mut(2 * r..2 * r + 2)) {
+                d[0] = pair(e0, e2);
+                d[1] = pair(e1, e3);
+            }
+        }
+    }
+}
+
+/// `acc[r] + sum_t a_r[t] * w[t]` for the 4 widened rows of `x` against one weight row.
+#[cfg(bino_dsp)]
+#[inline(always)]
+fn tile(x: &[u32], w: &[i8], acc: [i32; ROWS]) -> [i32; ROWS] {
+    let groups = w.len() / 4;
+    if groups == 0 || x.len() < groups * 2 * ROWS || !(w.as_ptr() as usize).is_multiple_of(4) {
+        return acc;
+    }
+    let [mut a0, mut a1, mut a2, mut a3] = acc;
+    // SAFETY: the loop runs `groups >= 1` times and reads `4 * groups` bytes of `w` (checked
+    // above to be in `w` and word-aligned) and `32 * groups` bytes of `x` (checked above; an
+    // `[u32]`, so word-aligned for `ldrd`). It writes only its declared outputs and
+    // temporaries, touches no stack (`nostack`) and clobbers the flags (not preserved).
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{x}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{x}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{x}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{x}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "subs {g}, {g}, #1",
+            "bne 2b",
+            w = inout(reg) w.as_ptr() => _,
+            x = inout(reg) x.as_ptr() => _,
+            g = inout(reg) groups => _,
+            a0 = inout(reg) a0,
+            a1 = inout(reg) a1,
+            a2 = inout(reg) a2,
+            a3 = inout(reg) a3,
+            t0 = out(reg) _,
+            t1 = out(reg) _,
+            x0 = out(reg) _,
+            x1 = out(reg) _,
+            options(nostack, readonly, pure),
+        );
+    }
+    [a0, a1, a2, a3]
+}
+
+/// The same sums as the assembly tile, in portable Rust (host tests of the driver and layout).
+#[cfg(not(bino_dsp))]
+fn tile(x: &[u32], w: &[i8], mut acc: [i32; ROWS]) -> [i32; ROWS] {
+    fn smlad(acc: i32, x: u32, y: u32) -> i32 {
+        let (xl, xh, yl, yh) = (
+            x as i16 as i32,
+            (x >> 16) as i16 as i32,
+            y as i16 as i32,
+            (y >> 16) as i16 as i32,
+        );
+        acc.wrapping_add(xl * yl).wrapping_add(xh * yh)
+    }
+    for (q, xs) in w.chunks_exact(4).zip(x.chunks_exact(2 * ROWS)) {
+        let word = u32::from_le_bytes([q[0] as u8, q[1] as u8, q[2] as u8, q[3] as u8]);
+        let even = (word as u8 as i8 as i16 as u16 as u32) | (((word >> 16) as u8 as i8 as i16 as u16 as u32) << 16);
+        let odd =
+            ((word >> 8) as u8 as i8 as i16 as u16 as u32) | (((word >> 24) as u8 as i8 as i16 as u16 as u32) << 16);
+        for (r, a) in acc.iter_mut().enumerate() {
+            *a = smlad(smlad(*a, xs[2 * r], even), xs[2 * r + 1], odd);
+        }
+    }
+    acc
+}

@@ -1,0 +1,178 @@
+//! The fused epilogue: bias, per-channel requantisation, zero point and int8 store applied to
+//! each accumulator as its tile finishes, bit for bit what `epilogue::requant_rows` computes.
+//!
+//! `requant_rows` gives `sat8(((acc + bias) * mult + 2^(shift-1)) >> shift) + zero)` in 64
+//! bits. For `shift = 32 + s` with `s >= 1`, `|acc| < 2^30` and `|bias| < 2^30` the product
+//! is below `2^62` in magnitude and, since `2^(31+s)` is a multiple of `2^32`,
+//! `floor((p + 2^(31+s)) / 2^(32+s)) = floor((floor(p / 2^32) + 2^(s-1)) / 2^s)`; adding
+//! `zero * 2^s` before the last shift adds `zero` exactly. So each output is one high-half
+//! multiply-accumulate, one shift and one saturation in 32 bits (`smmla`, `asr`, `ssat` on
+//! both cores). Channels outside that range make the wrapper decline the whole call.
+
+use super::{shape, Epilogue};
+use crate::kernels::epilogue::ChannelRequant;
+use crate::kernels::I32s;
+
+/// Channels whose parameters are prepared at once (2 KiB of stack).
+pub const CHUNK: usize = 128;
+
+/// One channel's prepared parameters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct Col {
+    bias: i32,
+    mult: i32,
+    /// `2^(s-1) + zero * 2^s`.
+    addend: i32,
+    /// `shift - 32`, in `1..=30`.
+    s: u32,
+}
+
+impl Col {
+    const ZERO: Col = Col {
+        bias: 0,
+        mult: 0,
+        addend: 0,
+        s: 1,
+    };
+
+    /// The channel's parameters, or `None` outside the 32-bit range (see the module).
+    pub(crate) fn new(bias: i32, mult: i32, shift: u8, zero: i32) -> Option<Col> {
+        if bias.unsigned_abs() >= 1 << 30 || !(33..=62).contains(&shift) {
+            return None;
+        }
+        let s = shift as u32 - 32;
+        let addend = (1i64 << (s - 1)) + ((zero as i64) << s);
+        if !(-(1i64 << 30)..1i64 << 30).contains(&addend) {
+            return None;
+        }
+        Some(Col {
+            bias,
+            mult,
+            addend: addend as i32,
+            s,
+        })
+    }
+
+    /// The int8 output of an accumulator that already holds the bias (`|acc| < 2^31`).
+    #[inline(always)]
+    pub(crate) fn apply(&self, acc: i32) -> i8 {
+        // High half of the product (`smmla` with the addend): |high| <= 2^30 and
+        // |addend| < 2^30, so the sum cannot wrap.
+        let high = ((acc as i64 * self.mult as i64) >> 32) as i32;
+        (high.wrapping_add(self.addend) >> (self.s & 31)).clamp(-128, 127) as i8
+    }
+}
+
+/// [`Epilogue`] of the fused kernels: one chunk of output channels starting at `j0`.
+pub struct Fused<'o> {
+    params: [Col; CHUNK],
+    out: &'o mut [i8],
+    n: usize,
+    j0: usize,
+}
+
+impl Epilogue for Fused<'_> {
+    #[inline(always)]
+    fn init(&self, j: usize) -> i32 {
+        self.params.get(j).map_or(0, |c| c.bias)
+    }
+    #[inline(always)]
+    fn put(&mut self, row: usize, j: usize, acc: i32) {
+        if let (Some(o), Some(c)) = (self.out.get_mut(row * self.n + self.j0 + j), self.params.get(j)) {
+            *o = c.apply(acc);
+        }
+    }
+    #[inline(always)]
+    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
+        let at = row * self.n + self.j0 + j;
+        if let (Some(o), Some(c)) = (self.out.get_mut(at..at + C), self.params.get(j..j + C)) {
+            for ((o, c), v) in o.iter_mut().zip(c).zip(acc) {
+                *o = c.apply(v);
+            }
+        }
+    }
+}
+
+/// `out = sat8(rq(a * w^T) + zero)` through `driver` (a tile driver: `a`, one chunk of `w`,
+/// `k`, `m`, the epilogue), chunk by chunk of [`CHUNK`] channels, each chunk's parameters
+/// checked as they are prepared (one pass: the engine calls this per token block). `false`
+/// for shapes [`shape`] declines, `rq` not of `n` channels, or parameters outside
+/// [`Col::new`]'s range; chunks before the one declined may have been written.
+#[inline(always)]
+pub(crate) fn matmul_requant_with<B, M, Z>(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    rq: &ChannelRequant<'_, B, M>,
+    zero: &Z,
+    out: &mut [i8],
+    mut driver: impl FnMut(&[i8], &[i8], usize, usize, &mut Fused<'_>) -> bool,
+) -> bool
+where
+    B: I32s + ?Sized,
+    M: I32s + ?Sized,
+    Z: I32s + ?Sized,
+{
+    let Some((m, n)) = shape(a, w, k, out.len()) else {
+        return false;
+    };
+    let col = |c: usize| {
+        Col::new(
+            rq.bias.at(c),
+            rq.mult.at(c),
+            rq.shift.get(c).copied().unwrap_or(0),
+            zero.at(c),
+        )
+    };
+    if rq.channels() != n {
+        return false;
+    }
+    let mut j0 = 0;
+    while j0 < n {
+        let len = (n - j0).min(CHUNK);
+        let mut epi = Fused {
+            params: [Col::ZERO; CHUNK],
+            out: &mut *out,
+            n,
+            j0,
+        };
+        for (i, p) in epi.params[..len].iter_mut().enumerate() {
+            let Some(c) = col(j0 + i) else {
+                return false;
+            };
+            *p = c;
+        }
+        let w_chunk = w.get(j0 * k..(j0 + len) * k).unwrap_or(&[]);
+        if !driver(a, w_chunk, k, m, &mut epi) {
+            return false;
+        }
+        j0 += len;
+    }
+    true
+}
+
+/// `out` (`m x n` int8) = `sat8(rq(a * w^T) + zero[c])` on this core's assembly kernel, equal
+/// to `matmul_i8` followed by `requant_rows`; `false` where there is no kernel or the shape
+/// or parameters are not taken (then `out` may be partly written: run the reference over it).
+#[inline]
+pub fn matmul_requant<B, M, Z>(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    rq: &ChannelRequant<'_, B, M>,
+    zero: &Z,
+    out: &mut [i8],
+) -> bool
+where
+    B: I32s + ?Sized,
+    M: I32s + ?Sized,
+    Z: I32s + ?Sized,
+{
+    #[cfg(any(bino_dsp, bino_mve))]
+    return matmul_requant_with(a, w, k, rq, zero, out, |a, w, k, m, epi| super::run(a, w, k, m, epi));
+    #[cfg(not(any(bino_dsp, bino_mve)))]
+    {
+        let _ = (a, w, k, rq, zero, out);
+        false
+    }
+}

@@ -1,0 +1,223 @@
+//! Assembly GEMM kernels for the Cortex-M cores, behind safe wrappers.
+//!
+//! The only module of `bino-core` that may use `unsafe`, and only for `core::arch::asm!`.
+//! Each kernel computes a small tile of dot products in registers (`dsp`: 4 rows x 1 column
+//! with `sxtb16` + `smlad` on Cortex-M7; `mve`: 2 rows x 3 columns with `vmladava.s8` on
+//! Cortex-M55), and a shared Rust driver hands each finished tile to an [`Epilogue`] in the
+//! same pass: a plain `i32` store, or bias, per-channel requantisation, zero point and the
+//! int8 store (`Fused`). The portable kernels (`matmul::matmul_i8_reference`,
+//! `epilogue::requant_rows`) stay the specification; the wrappers return `false` for shapes
+//! or parameters they do not handle, and the caller then runs the reference.
+//!
+//! Selected by cfgs from `core/build.rs`: `bino_dsp` (thumbv7em) and `bino_mve`
+//! (thumbv8m.main built with `-C target-cpu=cortex-m55`). The drivers and the epilogues are
+//! also compiled for host tests, with portable tile kernels computing the same sums.
+#![allow(unsafe_code)]
+// Host builds without tests use none of the drivers.
+#![cfg_attr(not(any(bino_dsp, bino_mve, test)), allow(dead_code))]
+
+#[cfg(any(bino_dsp, test))]
+pub(crate) mod dsp;
+mod fused;
+#[cfg(any(bino_mve, test))]
+pub(crate) mod mve;
+
+pub use fused::matmul_requant;
+
+/// Longest dot product the kernels take (their stack scratch and the accumulator bound:
+/// `1024 * 128 * 128 < 2^24`; a band of 960 tokens is one attention dot product).
+pub const MAX_K: usize = 1024;
+
+/// What happens to each finished accumulator of a tile. Per-column values are looked up by
+/// the epilogue itself (not passed around: copies of them spill, the asm blocks leave the
+/// compiler no free registers).
+pub(crate) trait Epilogue {
+    /// The value an accumulator of column `j` starts from (the bias, or 0).
+    fn init(&self, j: usize) -> i32;
+    /// Output `(row, j)` from its finished accumulator (`init` plus the dot product).
+    fn put(&mut self, row: usize, j: usize, acc: i32);
+    /// Outputs `(row, j..j + C)` (one bounds check where the epilogue can; the MVE tiles'
+    /// rows).
+    #[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
+    #[inline(always)]
+    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
+        for (i, v) in acc.into_iter().enumerate() {
+            self.put(row, j + i, v);
+        }
+    }
+}
+
+/// Stores accumulators as they are: `out[row * n + j]`.
+pub(crate) struct Store<'o> {
+    pub out: &'o mut [i32],
+    pub n: usize,
+}
+
+impl Epilogue for Store<'_> {
+    #[inline(always)]
+    fn init(&self, _: usize) -> i32 {
+        0
+    }
+    #[inline(always)]
+    fn put(&mut self, row: usize, j: usize, acc: i32) {
+        if let Some(o) = self.out.get_mut(row * self.n + j) {
+            *o = acc;
+        }
+    }
+    #[inline(always)]
+    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
+        let at = row * self.n + j;
+        if let Some(o) = self.out.get_mut(at..at + C) {
+            o.copy_from_slice(&acc);
+        }
+    }
+}
+
+/// Shapes every kernel takes: `m` rows of `a` and `n` rows of `w`, both `k` long, and an
+/// output of at least `m * n` values. `None` for anything else.
+#[cfg_attr(not(any(bino_dsp, bino_mve)), allow(dead_code))]
+pub(crate) fn shape(a: &[i8], w: &[i8], k: usize, out_len: usize) -> Option<(usize, usize)> {
+    if k == 0 || k > MAX_K {
+        return None;
+    }
+    let (m, n) = (a.len() / k, w.len() / k);
+    (m > 0 && n > 0 && m.checked_mul(n)? <= out_len).then_some((m, n))
+}
+
+/// `out` (`m x n`) = `a` (`m x k`) times the transpose of `w` (`n x k`) on this core's
+/// assembly kernel; `false` (nothing written) where there is none or the shape is not taken.
+#[inline]
+pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
+    #[cfg(any(bino_dsp, bino_mve))]
+    if let Some((m, n)) = shape(a, w, k, out.len()) {
+        return run(a, w, k, m, &mut Store { out, n });
+    }
+    let _ = (a, w, k, out);
+    false
+}
+
+/// The tile driver of this core.
+#[cfg(any(bino_dsp, bino_mve))]
+#[inline(always)]
+pub(crate) fn run<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
+    #[cfg(bino_dsp)]
+    return dsp::gemm(a, w, k, m, epi);
+    #[cfg(bino_mve)]
+    return mve::gemm(a, w, k, m, epi);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::fused::{matmul_requant_with, Col};
+    use super::*;
+    use crate::kernels::epilogue::ChannelRequant;
+    use crate::kernels::gemm::matmul_requant_reference;
+    use crate::kernels::matmul::matmul_i8_reference;
+    use crate::testutil::Rng;
+
+    type Driver = fn(&[i8], &[i8], usize, usize, &mut fused::Fused<'_>) -> bool;
+    type StoreDriver = fn(&[i8], &[i8], usize, usize, &mut Store<'_>) -> bool;
+    const DRIVERS: [(&str, StoreDriver, Driver); 2] = [
+        (
+            "dsp",
+            |a, w, k, m, e| dsp::gemm(a, w, k, m, e),
+            |a, w, k, m, e| dsp::gemm(a, w, k, m, e),
+        ),
+        (
+            "mve",
+            |a, w, k, m, e| mve::gemm(a, w, k, m, e),
+            |a, w, k, m, e| mve::gemm(a, w, k, m, e),
+        ),
+    ];
+
+    #[test]
+    fn drivers_with_portable_tiles_match_the_reference() {
+        // The drivers' blocking, leftover rows and columns and the DSP scratch layout, on the
+        // host (the firmware's kernel-tests check the assembly tiles themselves).
+        let mut rng = Rng::new(21);
+        let mut a = [0i8; 5 * 132];
+        let mut w = [0i8; 131 * 132];
+        for (m, n, k) in [
+            (1, 1, 4),
+            (2, 3, 8),
+            (3, 4, 12),
+            (4, 5, 20),
+            (5, 7, 132),
+            (5, 131, 36),
+            (4, 2, 17),
+        ] {
+            rng.fill_i8(&mut a[..m * k]);
+            rng.fill_i8(&mut w[..n * k]);
+            let (a, w) = (&a[..m * k], &w[..n * k]);
+            let mut want = [0i32; 5 * 131];
+            matmul_i8_reference(a, w, k, &mut want[..m * n]);
+            let bias: [i32; 131] = core::array::from_fn(|_| rng.range(-1 << 20, 1 << 20) as i32);
+            let mult: [i32; 131] = core::array::from_fn(|_| rng.range(1 << 30, i32::MAX as i64) as i32);
+            let shift: [u8; 131] = core::array::from_fn(|_| rng.range(33, 40) as u8);
+            let zero: [i32; 131] = core::array::from_fn(|_| rng.range(-128, 127) as i32);
+            let rq = ChannelRequant {
+                bias: &bias[..n],
+                mult: &mult[..n],
+                shift: &shift[..n],
+            };
+            let mut want8 = [0i8; 5 * 131];
+            matmul_requant_reference(a, w, k, &rq, &zero[..n], &mut want8[..m * n]);
+            for (name, store, fused) in DRIVERS {
+                let takes = name == "mve" || k % 4 == 0;
+                let mut got = [0i32; 5 * 131];
+                let took = store(a, w, k, m, &mut Store { out: &mut got, n });
+                assert_eq!(took, takes, "{name} m={m} n={n} k={k}");
+                if took {
+                    assert_eq!(got[..m * n], want[..m * n], "{name} m={m} n={n} k={k}");
+                }
+                let mut got8 = [0i8; 5 * 131];
+                let took = matmul_requant_with(a, w, k, &rq, &zero[..n], &mut got8[..m * n], fused);
+                assert_eq!(took, takes, "{name} fused m={m} n={n} k={k}");
+                if took {
+                    assert_eq!(got8[..m * n], want8[..m * n], "{name} fused m={m} n={n} k={k}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn fused_epilogue_equals_the_64_bit_formula_in_its_range() {
+        let mut rng = Rng::new(5);
+        for _ in 0..20_000 {
+            let shift = rng.range(33, 62) as u8;
+            let (mult, zero) = (
+                rng.range(i32::MIN as i64, i32::MAX as i64) as i32,
+                rng.range(-300, 300) as i32,
+            );
+            let bias = rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32;
+            let Some(col) = Col::new(bias, mult, shift, zero) else {
+                continue;
+            };
+            let acc = rng.range(-(1 << 29), 1 << 29) as i32;
+            let rq = ChannelRequant {
+                bias: &[bias][..],
+                mult: &[mult][..],
+                shift: &[shift][..],
+            };
+            let want = crate::fixed::sat_i8_i64(rq.apply(0, acc) + zero as i64);
+            assert_eq!(
+                col.apply(acc + bias),
+                want,
+                "acc {acc} bias {bias} mult {mult} shift {shift} zero {zero}"
+            );
+        }
+        // Outside the range the kernels decline.
+        assert!(Col::new(1 << 30, 1, 40, 0).is_none());
+        assert!(Col::new(0, 1, 32, 0).is_none());
+        assert!(Col::new(0, 1, 62, 1).is_none());
+    }
+
+    #[test]
+    fn shapes_outside_the_kernels_are_declined() {
+        assert_eq!(shape(&[0; 8], &[0; 8], 0, 4), None);
+        assert_eq!(shape(&[0; 8], &[0; 8], MAX_K + 1, 4), None);
+        assert_eq!(shape(&[0; 8], &[0; 8], 4, 3), None);
+        assert_eq!(shape(&[0; 3], &[0; 8], 4, 4), None);
+        assert_eq!(shape(&[0; 8], &[0; 8], 4, 4), Some((2, 2)));
+    }
+}

@@ -1,0 +1,143 @@
+//! Cortex-M55 (Helium, MVE) tiles: 2 rows x 3 columns (and 2 x 1 for the last columns), 16
+//! MACs per `vmladava.s8`, accumulating into scalar registers.
+//!
+//! One tail-predicated loop (`dlstp.8` / `letp`) runs over `k` in steps of 16: the last step
+//! loads and multiplies only the elements left, so any `k` is taken and nothing is read past a
+//! row. Per 96 MACs: five `vldrb`, six `vmladava` and the loop end.
+
+use super::Epilogue;
+
+/// The tile driver: `m` rows of `a` against every row of `w`, each finished accumulator to
+/// `epi`; the caller has checked `k` in `1..=MAX_K` and the lengths.
+#[inline(always)]
+pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
+    fn rows(x: &[i8], r: usize, k: usize) -> &[i8] {
+        x.get(r * k..(r + 1) * k).unwrap_or(&[])
+    }
+    for r0 in (0..m).step_by(2) {
+        // An odd last row is paired with itself; the copy's results are not stored.
+        let (a0, a1) = (rows(a, r0, k), rows(a, (r0 + 1).min(m - 1), k));
+        let pair = r0 + 1 < m;
+        let mut triples = w.chunks_exact(3 * k);
+        let mut j = 0;
+        for triple in &mut triples {
+            let (w0, rest) = triple.split_at(k);
+            let (w1, w2) = rest.split_at(k);
+            let init = [epi.init(j), epi.init(j + 1), epi.init(j + 2)];
+            let [acc0, acc1] = tile3(a0, a1, [w0, w1, w2], init);
+            epi.put_row(r0, j, acc0);
+            if pair {
+                epi.put_row(r0 + 1, j, acc1);
+            }
+            j += 3;
+        }
+        for w_row in triples.remainder().chunks_exact(k) {
+            let [acc0, acc1] = tile1(a0, a1, w_row, epi.init(j));
+            epi.put(r0, j, acc0);
+            if pair {
+                epi.put(r0 + 1, j, acc1);
+            }
+            j += 1;
+        }
+    }
+    true
+}
+
+/// `init[c] + a_r . w_c` for rows `a0`, `a1` and the three weight rows.
+#[cfg(bino_mve)]
+#[inline(always)]
+fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i32; 3]; 2] {
+    let k = a0.len();
+    if k == 0 || a1.len() != k || w.iter().any(|w| w.len() != k) {
+        return [init; 2];
+    }
+    let ([mut s00, mut s01, mut s02], [mut s10, mut s11, mut s12]) = (init, init);
+    // SAFETY: the tail-predicated loop reads exactly `k >= 1` bytes from each of the five
+    // pointers, all checked above to be rows of `k` bytes (`vldrb.u8` needs no alignment;
+    // predicated-off lanes of the last step are not accessed). It writes only its declared
+    // outputs: the accumulators, the pointers, `lr` (loop count) and q0-q3 (declared through
+    // their `d` aliases). `letp` restores FPSCR.LTPSIZE to 4 when the loop exits.
+    unsafe {
+        core::arch::asm!(
+            "dlstp.8 lr, lr",
+            "2:",
+            "vldrb.u8 q0, [{a0}], #16",
+            "vldrb.u8 q1, [{a1}], #16",
+            "vldrb.u8 q2, [{w0}], #16",
+            "vmladava.s8 r0, q0, q2",
+            "vmladava.s8 r2, q1, q2",
+            "vldrb.u8 q3, [{w1}], #16",
+            "vmladava.s8 r4, q0, q3",
+            "vmladava.s8 r8, q1, q3",
+            "vldrb.u8 q2, [{w2}], #16",
+            "vmladava.s8 r10, q0, q2",
+            "vmladava.s8 r12, q1, q2",
+            "letp lr, 2b",
+            a0 = inout(reg) a0.as_ptr() => _,
+            a1 = inout(reg) a1.as_ptr() => _,
+            w0 = inout(reg) w[0].as_ptr() => _,
+            w1 = inout(reg) w[1].as_ptr() => _,
+            w2 = inout(reg) w[2].as_ptr() => _,
+            inout("lr") k => _,
+            inout("r0") s00,
+            inout("r2") s10,
+            inout("r4") s01,
+            inout("r8") s11,
+            inout("r10") s02,
+            inout("r12") s12,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            options(nostack, readonly, pure),
+        );
+    }
+    [[s00, s01, s02], [s10, s11, s12]]
+}
+
+/// `init + a_r . w` for rows `a0`, `a1` and one weight row.
+#[cfg(bino_mve)]
+#[inline(always)]
+fn tile1(a0: &[i8], a1: &[i8], w: &[i8], init: i32) -> [i32; 2] {
+    let k = a0.len();
+    if k == 0 || a1.len() != k || w.len() != k {
+        return [init; 2];
+    }
+    let (mut s0, mut s1) = (init, init);
+    // SAFETY: as in `tile3`, with three rows of `k` bytes and q0-q2.
+    unsafe {
+        core::arch::asm!(
+            "dlstp.8 lr, lr",
+            "2:",
+            "vldrb.u8 q0, [{a0}], #16",
+            "vldrb.u8 q1, [{a1}], #16",
+            "vldrb.u8 q2, [{w0}], #16",
+            "vmladava.s8 r0, q0, q2",
+            "vmladava.s8 r2, q1, q2",
+            "letp lr, 2b",
+            a0 = inout(reg) a0.as_ptr() => _,
+            a1 = inout(reg) a1.as_ptr() => _,
+            w0 = inout(reg) w.as_ptr() => _,
+            inout("lr") k => _,
+            inout("r0") s0,
+            inout("r2") s1,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _,
+            options(nostack, readonly, pure),
+        );
+    }
+    [s0, s1]
+}
+
+/// Portable twins of the tiles (host tests of the driver).
+#[cfg(not(bino_mve))]
+fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i32; 3]; 2] {
+    let dot = crate::kernels::matmul::dot;
+    [
+        core::array::from_fn(|c| init[c].wrapping_add(dot(a0, w[c]))),
+        core::array::from_fn(|c| init[c].wrapping_add(dot(a1, w[c]))),
+    ]
+}
+
+#[cfg(not(bino_mve))]
+fn tile1(a0: &[i8], a1: &[i8], w: &[i8], init: i32) -> [i32; 2] {
+    let dot = crate::kernels::matmul::dot;
+    [init.wrapping_add(dot(a0, w)), init.wrapping_add(dot(a1, w))]
+}

@@ -1,0 +1,84 @@
+#!/usr/bin/env python3
+"""Per-kernel table of the kernel test firmware's bench: executed instructions per MAC.
+
+Reads the decoded defmt log (`kernel-bench kernel=... macs=...` lines) and the plugin's counts
+per marker (`bino_mark_<kernel>_fused`, `_reference`, ...) and writes a Markdown table.
+"""
+
+import argparse
+import re
+import sys
+from pathlib import Path
+
+# CMSIS-NN (commit 99f736a, arm-none-eabi-gcc 12.2 -O3), arm_nn_mat_mult_nt_t_s8 on the
+# issue's 960-row shapes, requantisation and int8 store included (issue 16).
+CMSIS_NN = {
+    ("m55", "qkv"): 0.281,
+    ("m55", "mlp_up"): 0.281,
+    ("m55", "mlp_down"): 0.201,
+    ("m7", "qkv"): 1.709,
+    ("m7", "mlp_up"): 1.709,
+    ("m7", "mlp_down"): 1.478,
+}
+
+
+def main() -> int:
+    p = argparse.ArgumentParser(description=__doc__)
+    p.add_argument("--core", required=True)
+    p.add_argument("--log", type=Path, required=True)
+    p.add_argument("--counts", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    args = p.parse_args()
+
+    counts: dict[str, int] = {}
+    for line in args.counts.read_text().splitlines():
+        if line.startswith("#") or not line.strip():
+            continue
+        name, insns, _ = line.split("\t")
+        counts[name] = int(insns)
+    rows = []
+    pattern = re.compile(
+        r"kernel-bench kernel=(\w+) m=(\d+) k=(\d+) n=(\d+) calls=(\d+) macs=(\d+) same=(\w+)"
+    )
+    for m in pattern.finditer(args.log.read_text()):
+        kernel, mm, k, n, calls, macs, same = m.groups()
+        if same != "true":
+            print(
+                f"kernels.py: {args.log}: kernel {kernel} differs from its reference",
+                file=sys.stderr,
+            )
+            return 1
+        variants = [("fused (int8 out)", f"{kernel}_fused", f"{kernel}_reference")]
+        if f"{kernel}_i32" in counts:
+            variants.append(("int32 out", f"{kernel}_i32", f"{kernel}_i32_reference"))
+        for label, fast, ref in variants:
+            if fast not in counts or ref not in counts:
+                print(
+                    f"kernels.py: {args.counts}: no count for {fast} or {ref}",
+                    file=sys.stderr,
+                )
+                return 1
+            per_mac = counts[fast] / int(macs)
+            ref_per_mac = counts[ref] / int(macs)
+            cmsis = (
+                CMSIS_NN.get((args.core, kernel)) if label.startswith("fused") else None
+            )
+            vs = f"{cmsis:.3f} ({per_mac / cmsis:.2f}x)" if cmsis else "-"
+            rows.append(
+                f"| {args.core} | {kernel} {label} | {calls} x {mm}x{k} . {k}x{n} | {int(macs):,} "
+                f"| {counts[fast]:,} | **{per_mac:.3f}** | {ref_per_mac:.3f} | {vs} |"
+            )
+    if not rows:
+        print(f"kernels.py: {args.log}: no kernel-bench lines", file=sys.stderr)
+        return 1
+    header = (
+        "| core | kernel | calls x shape | MACs | instructions | instr/MAC | portable reference instr/MAC "
+        "| CMSIS-NN instr/MAC (this/CMSIS) |\n|---|---|---|---|---|---|---|---|\n"
+    )
+    args.out.write_text(header + "\n".join(rows) + "\n")
+    print(args.out.read_text(), end="")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,493 @@
+//! Kernel test firmware: property tests of every assembly kernel of `bino_core::kernels::arch`
+//! against its portable reference, on this core under QEMU (`scripts/firmware.sh` runs it on
+//! both), bit for bit.
+//!
+//! Random inputs and shapes (1 to 8 rows, `k` from 1 to 512 including values that are not
+//! multiples of 16, channel counts across the fused epilogue's 128-channel chunks), extreme
+//! values (all -128, all 127, alternating), every rounding case of the requantisation
+//! (`(acc + bias) / 2^s` at, below and above each half, both signs, at the saturation edges),
+//! and parameters the kernels must decline. Prints `index / found / expected` on the first
+//! mismatch of a case and exits non-zero if any case fails.
+#![no_std]
+#![no_main]
+
+use bino_core::kernels::arch::{self, MAX_K};
+use core::sync::atomic::{AtomicU32, Ordering};
+
+use bino_core::kernels::epilogue::{requant_rows, ChannelRequant};
+use bino_core::kernels::gemm::{matmul_requant_i8, matmul_requant_reference};
+use bino_core::kernels::matmul::{matmul_i8, matmul_i8_reference};
+use cortex_m as _;
+use cortex_m_rt::entry;
+use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
+use defmt_semihosting as _;
+
+#[cfg(board = "an547")]
+const BOARD: &str = "mps3-an547 (Cortex-M55)";
+#[cfg(board = "an500")]
+const BOARD: &str = "mps2-an500 (Cortex-M7)";
+
+/// Largest shapes of the random cases.
+const MAX_M: usize = 8;
+const MAX_N: usize = 130;
+/// Outputs of the largest case: the bench's 8 x 480.
+const MAX_OUT: usize = MAX_M * 480;
+
+/// Word-aligned buffers (the Cortex-M7 kernel takes word-aligned weights only).
+#[repr(C, align(4))]
+struct Aligned<T>(T);
+
+/// xorshift64: deterministic inputs, so a failure reproduces.
+struct Rng(u64);
+
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 << 13;
+        self.0 ^= self.0 >> 7;
+        self.0 ^= self.0 << 17;
+        self.0
+    }
+    /// Uniform in `lo..=hi`.
+    fn range(&mut self, lo: i64, hi: i64) -> i64 {
+        lo + (self.next() % (hi - lo + 1) as u64) as i64
+    }
+    /// Random codes, or one of the extreme patterns.
+    fn fill(&mut self, x: &mut [i8], pattern: u32) {
+        for (i, v) in x.iter_mut().enumerate() {
+            *v = match pattern {
+                0 => -128,
+                1 => 127,
+                2 => [-128, 127][i % 2],
+                _ => self.next() as i8,
+            };
+        }
+    }
+}
+
+struct Tally {
+    cases: usize,
+    failed: usize,
+    asm_cases: usize,
+}
+
+impl Tally {
+    /// Compares `found` with `expected`; prints the first difference.
+    fn check<T: PartialEq + Copy + defmt::Format>(
+        &mut self,
+        what: &str,
+        shape: [usize; 3],
+        found: &[T],
+        expected: &[T],
+    ) {
+        self.cases += 1;
+        if let Some(i) = found.iter().zip(expected).position(|(f, e)| f != e) {
+            self.failed += 1;
+            defmt::println!(
+                "kernel-tests mismatch kernel={=str} m={=usize} n={=usize} k={=usize} index={=usize} found={} expected={}",
+                what, shape[0], shape[1], shape[2], i, found[i], expected[i]
+            );
+        }
+    }
+}
+
+/// Per-channel parameters of one fused case.
+struct Params {
+    bias: [i32; MAX_N],
+    mult: [i32; MAX_N],
+    shift: [u8; MAX_N],
+    zero: [i32; MAX_N],
+}
+
+impl Params {
+    /// Random parameters in the fused kernels' range, scaled so that outputs spread over the
+    /// int8 range and past it (`log2_acc`: magnitude of typical accumulators).
+    fn random(rng: &mut Rng, n: usize, log2_acc: i64) -> Params {
+        let mut p = Params {
+            bias: [0; MAX_N],
+            mult: [0; MAX_N],
+            shift: [40; MAX_N],
+            zero: [0; MAX_N],
+        };
+        for c in 0..n {
+            p.mult[c] = match rng.range(0, 9) {
+                0 => i32::MIN,
+                1 => i32::MAX,
+                2 => -(rng.range(1 << 30, i32::MAX as i64) as i32),
+                _ => rng.range(1 << 30, i32::MAX as i64) as i32,
+            };
+            p.shift[c] = (log2_acc + 31 - 7 + rng.range(-3, 3)).clamp(33, 62) as u8;
+            p.bias[c] = match rng.range(0, 9) {
+                0 => (1 << 30) - 1,
+                1 => -(1 << 30) + 1,
+                _ => rng.range(-(1 << log2_acc), 1 << log2_acc) as i32,
+            };
+            p.zero[c] = rng.range(-128, 127) as i32;
+        }
+        p
+    }
+
+    fn requant(&self, n: usize) -> ChannelRequant<'_, [i32], [i32]> {
+        ChannelRequant {
+            bias: &self.bias[..n],
+            mult: &self.mult[..n],
+            shift: &self.shift[..n],
+        }
+    }
+}
+
+/// Whether this core's kernels take `k` with word-aligned weights.
+fn takes(k: usize) -> bool {
+    let m7 = cfg!(board = "an500");
+    (1..=MAX_K).contains(&k) && (!m7 || k.is_multiple_of(4))
+}
+
+/// The random cases' buffers (in `.bss`: too large for the stack).
+struct Buffers {
+    a: Aligned<[i8; MAX_M * MAX_K]>,
+    w: Aligned<[i8; MAX_N * MAX_K]>,
+    found: [i32; MAX_OUT],
+    expected: [i32; MAX_OUT],
+    found8: [i8; MAX_OUT],
+    expected8: [i8; MAX_OUT],
+    acc: [i32; MAX_OUT],
+    weights: [u8; MAX_OUT],
+}
+
+fn random_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    let ks = [
+        1, 3, 4, 8, 12, 16, 17, 20, 28, 32, 36, 60, 100, 127, 128, 132, 200, 480, 512, 960, 1024,
+    ];
+    for (case, &k) in ks.iter().cycle().take(3 * ks.len()).enumerate() {
+        for m in [1, 2, 3, 4, 5, 8] {
+            let n = [1, 2, 3, 4, 5, 7, 130][(case + m) % 7];
+            let pattern = if case % 5 == 4 { (m % 3) as u32 } else { 3 };
+            rng.fill(&mut b.a.0[..m * k], pattern);
+            rng.fill(&mut b.w.0[..n * k], if pattern == 2 { 1 } else { pattern });
+            let (a, w) = (&b.a.0[..m * k], &b.w.0[..n * k]);
+            let shape = [m, n, k];
+
+            // The i32 kernel against the reference.
+            let (found, expected) = (&mut b.found, &mut b.expected);
+            matmul_i8_reference(a, w, k, &mut expected[..m * n]);
+            let took = arch::matmul_i32(a, w, k, &mut found[..m * n]);
+            if took != takes(k) {
+                defmt::println!(
+                    "kernel-tests wrong-path kernel=matmul_i32 k={=usize} took={=bool}",
+                    k,
+                    took
+                );
+                t.failed += 1;
+            }
+            t.asm_cases += usize::from(took);
+            if took {
+                t.check("matmul_i32", shape, &found[..m * n], &expected[..m * n]);
+            }
+            matmul_i8(a, w, k, &mut found[..m * n]);
+            t.check("matmul_i8", shape, &found[..m * n], &expected[..m * n]);
+
+            // The fused kernel against the reference.
+            let log2_acc = (64 - ((k as u64) << 14).leading_zeros() as i64) / 2 + 7;
+            let p = Params::random(rng, n, log2_acc);
+            let rq = p.requant(n);
+            let (found, expected) = (&mut b.found8, &mut b.expected8);
+            matmul_requant_reference(a, w, k, &rq, &p.zero[..n], &mut expected[..m * n]);
+            let took = arch::matmul_requant(a, w, k, &rq, &p.zero[..n], &mut found[..m * n]);
+            if took != takes(k) {
+                defmt::println!(
+                    "kernel-tests wrong-path kernel=matmul_requant k={=usize} took={=bool}",
+                    k,
+                    took
+                );
+                t.failed += 1;
+            }
+            t.asm_cases += usize::from(took);
+            if took {
+                t.check("matmul_requant", shape, &found[..m * n], &expected[..m * n]);
+            }
+            matmul_requant_i8(a, w, k, &rq, &p.zero[..n], &mut b.acc, &mut found[..m * n]);
+            t.check("matmul_requant_i8", shape, &found[..m * n], &expected[..m * n]);
+        }
+    }
+}
+
+/// Every rounding case: one channel, `k = 4` (`a = [v, 0, 0, 0]`, `w = [1, 0, 0, 0]`), so
+/// `acc = v` for every code `v`; multipliers that make `(v + bias) * mult / 2^shift` land on,
+/// just below and just above each half, both signs, and biases that push results across
+/// the saturation edges.
+fn rounding_cases(t: &mut Tally) {
+    const M: usize = 256;
+    let mut a = Aligned([0i8; M * 4]);
+    for (v, row) in a.0.chunks_exact_mut(4).enumerate() {
+        row[0] = (v as i32 - 128) as i8;
+    }
+    let w = Aligned([1i8, 0, 0, 0]);
+    let mut found = [0i8; M];
+    let mut expected = [0i8; M];
+    for shift in [33u8, 34, 35, 36, 40, 47, 55, 62] {
+        // mult / 2^(shift - 32) = 2^-s * {1/2, 1 - 2^-31 (just below 1), 3/4, -1/2}.
+        for mult in [1 << 30, i32::MAX, 3 << 29, -(1 << 30), i32::MIN] {
+            for bias in [0, 1, -1, 255, -255, 1 << 20, -(1 << 20), (1 << 30) - 1, -(1 << 30) + 1] {
+                for zero in [0, 5, -7, 127, -128] {
+                    let bias_a = [bias];
+                    let mult_a = [mult];
+                    let rq = ChannelRequant {
+                        bias: &bias_a[..],
+                        mult: &mult_a[..],
+                        shift: &[shift][..],
+                    };
+                    let z = [zero];
+                    matmul_requant_reference(&a.0, &w.0, 4, &rq, &z[..], &mut expected);
+                    let took = arch::matmul_requant(&a.0, &w.0, 4, &rq, &z[..], &mut found);
+                    let in_range = (1i64 << (shift - 33)) + ((zero as i64) << (shift - 32));
+                    let should = in_range.abs() < 1 << 30;
+                    if took != should {
+                        defmt::println!(
+                            "kernel-tests wrong-path kernel=matmul_requant shift={=u8} zero={=i32} took={=bool}",
+                            shift,
+                            zero,
+                            took
+                        );
+                        t.failed += 1;
+                    }
+                    t.asm_cases += usize::from(took);
+                    if took {
+                        t.check("matmul_requant/rounding", [M, 1, 4], &found, &expected);
+                    }
+                }
+            }
+        }
+    }
+    // Parameters outside the kernels' range: they decline, the public function still agrees.
+    for (bias, shift) in [(1 << 30, 40u8), (0, 32), (0, 20), (-(1 << 30), 40)] {
+        let (bias_a, mult_a) = ([bias], [1 << 30]);
+        let rq = ChannelRequant {
+            bias: &bias_a[..],
+            mult: &mult_a[..],
+            shift: &[shift][..],
+        };
+        if arch::matmul_requant(&a.0, &w.0, 4, &rq, &[0][..], &mut found) {
+            defmt::println!(
+                "kernel-tests wrong-path kernel=matmul_requant shift={=u8} took=true",
+                shift
+            );
+            t.failed += 1;
+        }
+        matmul_requant_reference(&a.0, &w.0, 4, &rq, &[0][..], &mut expected);
+        let mut acc = [0i32; M];
+        matmul_requant_i8(&a.0, &w.0, 4, &rq, &[0][..], &mut acc, &mut found);
+        t.check("matmul_requant_i8/declined", [M, 1, 4], &found, &expected);
+    }
+}
+
+/// The attention kernel of the engine (four queries at once: scores and weighted sums through
+/// the GEMM tiles on Cortex-M7) against the single-query reference `attend`, bit for bit.
+fn attention_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::config::HEAD_DIM;
+    use bino_core::fixed::Requant;
+    use bino_core::kernels::attention::{attend, attend_block, value_sums, AttentionQ, QUERY_BLOCK};
+    for (case, n) in [5usize, 36, 200, 960, 960].into_iter().enumerate() {
+        let (keys, rest) = b.w.0.split_at_mut(n * HEAD_DIM);
+        let (values, rest) = rest.split_at_mut(n * HEAD_DIM);
+        let values_t = &mut rest[..n * HEAD_DIM];
+        rng.fill(keys, if case == 4 { 0 } else { 3 });
+        rng.fill(values, 3);
+        for (i, v) in values_t.iter_mut().enumerate() {
+            *v = values[(i % n) * HEAD_DIM + i / n];
+        }
+        let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+        for q in queries.iter_mut() {
+            rng.fill(q, 3);
+        }
+        let sums = value_sums(values_t, n);
+        for shift in [34u32, 40, 46] {
+            let p = AttentionQ {
+                to_log2_q8: Requant { mult: 1 << 30, shift },
+                out: Requant {
+                    mult: 1 << 30,
+                    shift: 46,
+                },
+            };
+            let mut out = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+            let (scores, weights) = (&mut b.found[..QUERY_BLOCK * n], &mut b.weights[..QUERY_BLOCK * n]);
+            attend_block(&queries, keys, values_t, &sums, &p, scores, weights, &mut out);
+            for (q, got) in queries.iter().zip(&out) {
+                let mut want = [0i8; HEAD_DIM];
+                attend(q, keys, values, &p, &mut scores[..n], &mut weights[..n], &mut want);
+                t.check("attend_block", [QUERY_BLOCK, HEAD_DIM, n], got, &want);
+            }
+        }
+    }
+}
+
+/// Weights at an odd address: the Cortex-M7 kernel declines, the results still agree.
+fn unaligned_cases(t: &mut Tally, rng: &mut Rng) {
+    let mut a = Aligned([0i8; 4 * 32]);
+    let mut w = Aligned([0i8; 3 * 32 + 1]);
+    rng.fill(&mut a.0, 3);
+    rng.fill(&mut w.0, 3);
+    let w_odd = &w.0[1..];
+    let mut found = [0i32; 12];
+    let mut expected = [0i32; 12];
+    matmul_i8_reference(&a.0, w_odd, 32, &mut expected);
+    let took = arch::matmul_i32(&a.0, w_odd, 32, &mut found);
+    if cfg!(board = "an500") && took {
+        defmt::println!("kernel-tests wrong-path kernel=matmul_i32 unaligned took=true");
+        t.failed += 1;
+    }
+    matmul_i8(&a.0, w_odd, 32, &mut found);
+    t.check("matmul_i8/unaligned", [4, 3, 32], &found, &expected);
+}
+
+/// The stage the instruction-count plugin attributes work to (written by the markers).
+static CURRENT: AtomicU32 = AtomicU32::new(0);
+
+macro_rules! markers {
+    ($($name:ident = $id:expr;)*) => {
+        $(
+            #[no_mangle]
+            #[inline(never)]
+            #[doc = "Marker the instruction-count plugin watches (`scripts/firmware.sh --kernels`)."]
+            pub extern "C" fn $name() {
+                CURRENT.store($id, Ordering::SeqCst);
+            }
+        )*
+    };
+}
+
+markers! {
+    bino_mark_qkv_fused = 1;
+    bino_mark_qkv_reference = 2;
+    bino_mark_mlp_up_fused = 3;
+    bino_mark_mlp_up_reference = 4;
+    bino_mark_mlp_down_fused = 5;
+    bino_mark_mlp_down_reference = 6;
+    bino_mark_mlp_down_i32 = 7;
+    bino_mark_mlp_down_i32_reference = 8;
+    bino_mark_end = 0xFFFF;
+}
+
+/// Calls per measured kernel: the engine's blocks of 8 tokens, 120 of them (960 tokens).
+const BENCH_CALLS: usize = 120;
+
+/// The GEMMs of the encoder as the engine calls them (8 token rows at a time, 960 tokens):
+/// each kernel between markers, the assembly one and the portable reference (the two passes
+/// `matmul_i8_reference` + `requant_rows`). `scripts/firmware.sh --kernels` divides the
+/// plugin's counts by the MACs logged here.
+fn bench(rng: &mut Rng, b: &mut Buffers) {
+    type Mark = extern "C" fn();
+    let shapes: [(&str, usize, usize, Mark, Mark); 3] = [
+        ("qkv", 128, 384, bino_mark_qkv_fused, bino_mark_qkv_reference),
+        ("mlp_up", 128, 480, bino_mark_mlp_up_fused, bino_mark_mlp_up_reference),
+        (
+            "mlp_down",
+            480,
+            128,
+            bino_mark_mlp_down_fused,
+            bino_mark_mlp_down_reference,
+        ),
+    ];
+    const M: usize = 8;
+    for (name, k, n, fused, reference) in shapes {
+        rng.fill(&mut b.a.0[..M * k], 3);
+        rng.fill(&mut b.w.0[..n * k], 3);
+        let (a, w) = (&b.a.0[..M * k], &b.w.0[..n * k]);
+        let p = Params::random(rng, n.min(MAX_N), 18);
+        // Channel parameters repeat past MAX_N (the table holds MAX_N).
+        let bias: [i32; 480] = core::array::from_fn(|c| p.bias[c % MAX_N]);
+        let mult: [i32; 480] = core::array::from_fn(|c| p.mult[c % MAX_N]);
+        let shift: [u8; 480] = core::array::from_fn(|c| p.shift[c % MAX_N]);
+        let zero: [i32; 480] = core::array::from_fn(|c| p.zero[c % MAX_N]);
+        let rq = ChannelRequant {
+            bias: &bias[..n],
+            mult: &mult[..n],
+            shift: &shift[..n],
+        };
+        let (out, want, acc) = (&mut b.found8, &mut b.expected8, &mut b.acc);
+        fused();
+        for _ in 0..BENCH_CALLS {
+            matmul_requant_i8(a, w, k, &rq, &zero[..n], acc, &mut out[..M * n]);
+        }
+        reference();
+        for _ in 0..BENCH_CALLS {
+            matmul_i8_reference(a, w, k, &mut acc[..M * n]);
+            requant_rows(&acc[..M * n], &rq, &zero[..n], &mut want[..M * n]);
+        }
+        bino_mark_end();
+        if name == "mlp_down" {
+            // The engine's fc2 keeps i32 accumulators for the residual add.
+            let acc2 = &mut b.found;
+            bino_mark_mlp_down_i32();
+            for _ in 0..BENCH_CALLS {
+                matmul_i8(a, w, k, &mut acc2[..M * n]);
+            }
+            bino_mark_mlp_down_i32_reference();
+            for _ in 0..BENCH_CALLS {
+                matmul_i8_reference(a, w, k, &mut acc[..M * n]);
+            }
+            bino_mark_end();
+        }
+        // Reading the markers' variable keeps their stores (and so the markers) distinct.
+        let last_mark = CURRENT.load(Ordering::SeqCst);
+        let same = out[..M * n] == want[..M * n] && last_mark == 0xFFFF;
+        defmt::println!(
+            "kernel-bench kernel={=str} m={=usize} k={=usize} n={=usize} calls={=usize} macs={=usize} same={=bool}",
+            name,
+            M,
+            k,
+            n,
+            BENCH_CALLS,
+            BENCH_CALLS * M * k * n,
+            same
+        );
+    }
+}
+
+#[entry]
+fn main() -> ! {
+    defmt::println!("kernel-tests board={=str}", BOARD);
+    let mut t = Tally {
+        cases: 0,
+        failed: 0,
+        asm_cases: 0,
+    };
+    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let Some(buffers) = cortex_m::singleton!(: Buffers = Buffers {
+        a: Aligned([0; MAX_M * MAX_K]),
+        w: Aligned([0; MAX_N * MAX_K]),
+        found: [0; MAX_OUT],
+        expected: [0; MAX_OUT],
+        found8: [0; MAX_OUT],
+        expected8: [0; MAX_OUT],
+        acc: [0; MAX_OUT],
+        weights: [0; MAX_OUT],
+    }) else {
+        defmt::println!("kernel-tests result=fail buffers taken");
+        exit(EXIT_FAILURE);
+        #[allow(clippy::empty_loop)]
+        loop {}
+    };
+    random_cases(&mut t, &mut rng, buffers);
+    rounding_cases(&mut t);
+    unaligned_cases(&mut t, &mut rng);
+    attention_cases(&mut t, &mut rng, buffers);
+    bench(&mut rng, buffers);
+    let pass = t.failed == 0 && t.asm_cases > 0;
+    defmt::println!(
+        "kernel-tests result={=str} cases={=usize} assembly_cases={=usize} failed={=usize}",
+        if pass { "pass" } else { "fail" },
+        t.cases,
+        t.asm_cases,
+        t.failed
+    );
+    exit(if pass { EXIT_SUCCESS } else { EXIT_FAILURE });
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
+
+#[panic_handler]
+fn panic(info: &core::panic::PanicInfo) -> ! {
+    defmt::println!("kernel-tests result=panic {}", defmt::Display2Format(info));
+    exit(EXIT_FAILURE);
+    #[allow(clippy::empty_loop)]
+    loop {}
+}
