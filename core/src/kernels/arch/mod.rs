@@ -3,7 +3,7 @@
 //! The only module of `bino-core` that may use `unsafe`, and only for `core::arch::asm!`.
 //! Each kernel computes a small tile of dot products in registers (`dsp`: 4 rows x 1 column
 //! with `sxtb16` + `smlad` on Cortex-M7; `mve`: 2 rows x 3 columns with `vmladava.s8` on
-//! Cortex-M55), and a shared Rust driver hands each finished tile to an [`Epilogue`] in the
+//! Cortex-M55), and a shared Rust driver hands each finished tile to an `Epilogue` in the
 //! same pass: a plain `i32` store, or bias, per-channel requantisation, zero point and the
 //! int8 store (`Fused`). The portable kernels (`matmul::matmul_i8_reference`,
 //! `epilogue::requant_rows`) stay the specification; the wrappers return `false` for shapes
