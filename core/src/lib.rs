@@ -33,6 +33,7 @@ pub mod lr;
 pub mod matching;
 pub mod model;
 pub mod pipeline;
+pub mod preset;
 pub mod refine;
 pub mod sgm;
 #[cfg(test)]

@@ -12,44 +12,14 @@
 use bino_core::band::Band;
 use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
-use bino_core::depth::{Calibration, DepthModel, DisparityUnit, SectorSummary};
+use bino_core::depth::{DepthModel, DisparityUnit, SectorSummary};
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Refine, Report, RowSource, Sink};
-use bino_core::sgm::Penalties;
+use bino_core::pipeline::{self, HeadChecked, MatchedRow, Pipeline, Report, RowSource, Sink};
 use bino_core::Error;
 
-/// Readout options: the `bino` CLI's defaults (16 candidates, SGM penalties 8 / 32, left-right
-/// tolerance one patch column, head on with its left-right check: the default readout of
-/// `bino run` is head+lr).
-pub const OPTIONS: Options = Options {
-    max_cols: 16,
-    penalties: Penalties { p1: 8, p2: 32 },
-    lr_max_diff_q8: 256,
-    head: true,
-    head_lr: true,
-};
-
-/// The pixel refinement: the default parameters on the readout the pipeline's rule picks for
-/// [`OPTIONS`] (head+lr, the readout `bino run` shows at w160).
-pub const REFINE: Refine = Refine::for_options(&OPTIONS);
-
-/// The example stereo board: a 640-px-wide sensor read at the band's profile width (160 px:
-/// scale 4), f = 500 px (a 65 degree field of view), principal point at the centre, 60 mm
-/// baseline.
-pub const CALIBRATION: Calibration = Calibration {
-    focal_px: 500.0,
-    principal_x_px: 320.0,
-    baseline_mm: 60.0,
-    sensor_width_px: 640,
-};
-
-/// Column sectors of the obstacle summary.
-pub const SECTORS: usize = 8;
-
-/// Arena bytes the workload needs for a `height x width` band pair.
-pub const fn arena_bytes(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes_refined(height, width, &OPTIONS, &REFINE)
-}
+// The readouts, the refinement, the example board's calibration and the sector count: the
+// preset the board apps (`boards/`) run too.
+pub use bino_core::preset::{arena_bytes, CALIBRATION, OPTIONS, REFINE, SECTORS};
 
 /// The stages the firmware reports: blob loading, then the pipeline's own.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -24,7 +24,7 @@ pub fn test_band(
     core_hz: u32,
 ) -> bool {
     let result = SlicePair::new(left, right, BAND_WIDTH, BAND_HEIGHT).and_then(|mut rows| {
-        let mut summary = Summary::new(BAND_WIDTH, DwtClock);
+        let mut summary = Summary::new(BAND_WIDTH, DwtClock)?;
         run_band(pipeline, &mut rows, arena, &mut summary).map(|report| (summary, report))
     });
     match result {

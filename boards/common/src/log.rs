@@ -11,11 +11,13 @@ pub fn print<C: Clock>(frame: u32, summary: &Summary<C>, report: &Report, core_h
     let near: [u16; SECTORS] = core::array::from_fn(|s| sectors[s].near_px);
     let median: [u16; SECTORS] = core::array::from_fn(|s| sectors[s].median_px);
     let consistent: [u16; SECTORS] = core::array::from_fn(|s| sectors[s].consistent_permille);
+    let nearest_mm: [u32; SECTORS] = core::array::from_fn(|s| sectors[s].nearest_mm);
     defmt::println!(
-        "bino frame={=u32} near_px={} median_px={} consistent_permille={} refined_rows={=usize} refined_crc={=u32:08x} arena_used={=usize}",
+        "bino frame={=u32} near_px={} median_px={} nearest_mm={} consistent_permille={} refined_rows={=usize} refined_crc={=u32:08x} arena_used={=usize}",
         frame,
         near,
         median,
+        nearest_mm,
         consistent,
         summary.refined_rows(),
         summary.refined_crc(),

@@ -1,17 +1,21 @@
 //! The board's report of one band pair, gathered as the pipeline streams (a
 //! [`Sink`]): the refined pixel disparity of the head+lr readout summarised per vertical
-//! sector (median and near disparity, what an obstacle check reads), the share of cells the
+//! sector (median and near disparity, and the nearest depth in mm through
+//! `bino_core::depth` with the preset's example calibration, what an obstacle check reads), the share of cells the
 //! head's left-right check confirms per sector, a CRC-32 of the refined rows (to compare with
 //! a host run of the same band), and the cycles each pipeline stage took.
 
 use bino_core::config::CELL_W;
 use bino_core::crc32::Crc32;
+use bino_core::depth::{DepthModel, DisparityUnit, SectorSummary};
 use bino_core::pipeline::{HeadChecked, MatchedRow, Sink, Stage};
+use bino_core::preset::CALIBRATION;
+use bino_core::Error;
 
 use crate::options::OPTIONS;
 
-/// Vertical sectors the width is split into.
-pub const SECTORS: usize = 8;
+/// Vertical sectors the width is split into: the preset's, as the QEMU firmware's.
+pub const SECTORS: usize = bino_core::preset::SECTORS;
 /// Histogram bins: whole pixels of disparity, 0 to the largest candidate (larger values count
 /// in the last bin).
 const BINS: usize = OPTIONS.max_cols * CELL_W + 1;
@@ -41,6 +45,9 @@ pub struct Sector {
     pub near_px: u16,
     /// Cells of the sector the head's left-right check confirms, per mille.
     pub consistent_permille: u16,
+    /// Nearest depth of the sector's refined pixels, mm (`bino_core::depth` with the preset's
+    /// calibration); 0 where no pixel has a depth.
+    pub nearest_mm: u32,
 }
 
 /// What a run reports; fill it by passing it as the pipeline's sink, then call
@@ -53,14 +60,19 @@ pub struct Summary<C> {
     cells: [u32; SECTORS],
     refined: Crc32,
     refined_rows: usize,
+    depth: SectorSummary<SECTORS>,
+    depth_error: Option<Error>,
     stage_cycles: [u64; Stage::ALL.len()],
     current: Option<(usize, u64)>,
 }
 
 impl<C: Clock> Summary<C> {
-    /// An empty summary for views `width` pixels wide, timed by `clock`.
-    pub fn new(width: usize, clock: C) -> Self {
-        Self {
+    /// An empty summary for views `width` pixels wide (the profile width the calibration is
+    /// scaled to), timed by `clock`; [`Error::OutOfRange`] for a width the depth summary
+    /// cannot split into [`SECTORS`].
+    pub fn new(width: usize, clock: C) -> Result<Self, Error> {
+        let model = DepthModel::new(&CALIBRATION, width, DisparityUnit::Pixels)?;
+        Ok(Self {
             clock,
             width,
             histogram: [[0; BINS]; SECTORS],
@@ -68,9 +80,16 @@ impl<C: Clock> Summary<C> {
             cells: [0; SECTORS],
             refined: Crc32::new(),
             refined_rows: 0,
+            depth: SectorSummary::new(&model, width)?,
+            depth_error: None,
             stage_cycles: [0; Stage::ALL.len()],
             current: None,
-        }
+        })
+    }
+
+    /// The first error the depth summary met (a refined row of another width), if any.
+    pub fn depth_error(&self) -> Option<Error> {
+        self.depth_error
     }
 
     /// Closes the last stage's timing (call once the run returns).
@@ -87,6 +106,7 @@ impl<C: Clock> Summary<C> {
             median_px: percentile(&self.histogram[s], 50),
             near_px: percentile(&self.histogram[s], 90),
             consistent_permille: permille(self.consistent[s], self.cells[s]),
+            nearest_mm: self.depth.sectors()[s].nearest_mm.unwrap_or(0),
         })
     }
 
@@ -161,6 +181,9 @@ impl<C: Clock> Sink for Summary<C> {
             *count = count.saturating_add(1);
             self.refined.update(&d.to_le_bytes());
         }
+        if let Err(e) = self.depth.push_row(disparity_q8, None) {
+            self.depth_error.get_or_insert(e);
+        }
         self.refined_rows += 1;
     }
 }
@@ -183,7 +206,7 @@ mod tests {
 
     #[test]
     fn refined_rows_land_in_their_sector() {
-        let mut s = Summary::new(16, NoClock);
+        let mut s = Summary::new(16, NoClock).unwrap();
         // Sector k (2 px wide) gets disparity 3k px; the last pixel saturates.
         let row: [u16; 16] = core::array::from_fn(|x| ((x / 2) as u16 * 3) << 8);
         let mut wide = row;
@@ -197,6 +220,11 @@ mod tests {
         assert_eq!(got[SECTORS - 1].median_px, 21);
         assert_eq!(got[SECTORS - 1].near_px, (BINS - 1) as u16);
         assert_eq!(s.refined_rows(), 2);
+        // Depth: f 500 px x 60 mm / (disparity x scale 640/16 = 40); sector 0 reads 0 px (no
+        // depth), sector 1 3 px: 30000 / 120 = 250 mm; the saturated pixel has none.
+        assert_eq!(got[0].nearest_mm, 0);
+        assert_eq!(got[1].nearest_mm, 250);
+        assert!(s.depth_error().is_none());
     }
 
     #[test]
@@ -208,7 +236,7 @@ mod tests {
                 self.0
             }
         }
-        let mut s = Summary::new(32, Ticks(0));
+        let mut s = Summary::new(32, Ticks(0)).unwrap();
         s.stage(Stage::Rows);
         s.stage(Stage::EncodeLeft);
         // 8 patch columns: one per sector; the first half confirmed.

@@ -42,7 +42,7 @@ fn summary_of_the_test_band_matches_its_refined_rows() {
     let pipeline = load(&blob).unwrap();
     let mut arena = vec![0u8; ARENA_BYTES];
     let mut tee = Tee {
-        summary: Summary::new(BAND_WIDTH, NoClock),
+        summary: Summary::new(BAND_WIDTH, NoClock).unwrap(),
         rows: Vec::new(),
         masks: Vec::new(),
     };
@@ -112,11 +112,11 @@ fn a_side_by_side_frame_gives_the_same_summary_as_the_two_views() {
     let pipeline = load(&blob).unwrap();
     let mut arena = vec![0u8; ARENA_BYTES];
 
-    let mut views = Summary::new(BAND_WIDTH, NoClock);
+    let mut views = Summary::new(BAND_WIDTH, NoClock).unwrap();
     let mut source = SlicePair::new(&left, &right, BAND_WIDTH, BAND_HEIGHT).unwrap();
     run_band(&pipeline, &mut source, &mut arena, &mut views).unwrap();
 
-    let mut camera = Summary::new(BAND_WIDTH, NoClock);
+    let mut camera = Summary::new(BAND_WIDTH, NoClock).unwrap();
     let mut source = SideBySide::new(&frame, BAND_WIDTH, BAND_HEIGHT).unwrap();
     run_band(&pipeline, &mut source, &mut arena, &mut camera).unwrap();
 

@@ -146,7 +146,7 @@ mod source {
             }
             let bytes: &[u8] = bytemuck::cast_slice(frame);
             let result = SideBySide::new(bytes, BAND_WIDTH, BAND_HEIGHT).and_then(|mut rows| {
-                let mut summary = Summary::new(BAND_WIDTH, DwtClock);
+                let mut summary = Summary::new(BAND_WIDTH, DwtClock)?;
                 run_band(pipeline, &mut rows, arena, &mut summary).map(|r| (summary, r))
             });
             match result {

@@ -1,0 +1,51 @@
+//! The readouts the firmware (`firmware-sim`) and the board apps (`boards/`) run, in one place so
+//! every target computes the same numbers: the `bino` CLI's defaults (16 candidates, SGM
+//! penalties 8 / 32, left-right tolerance one patch column, the head with its own left-right
+//! check), the pixel refinement of the head+lr grid, and (feature `depth`) the example board's
+//! calibration and sector count of the obstacle summary.
+//!
+//! ```
+//! use bino_core::preset::{arena_bytes, OPTIONS, REFINE};
+//! use bino_core::pipeline::RefineInput;
+//! assert_eq!(REFINE.input, RefineInput::HeadLr);
+//! assert!(OPTIONS.head && OPTIONS.head_lr);
+//! // The 48x160 band pair of the budget: 486,918 bytes.
+//! assert_eq!(arena_bytes(48, 160), 486_918);
+//! ```
+
+use crate::pipeline::{self, Options, Refine};
+use crate::sgm::Penalties;
+
+/// Readout options: 16 candidates, SGM penalties 8 / 32, left-right tolerance one patch
+/// column (Q8 256), the head with its own left-right check.
+pub const OPTIONS: Options = Options {
+    max_cols: 16,
+    penalties: Penalties { p1: 8, p2: 32 },
+    lr_max_diff_q8: 256,
+    head: true,
+    head_lr: true,
+};
+
+/// The pixel refinement: the default parameters on the readout the pipeline's rule picks for
+/// [`OPTIONS`] (head+lr).
+pub const REFINE: Refine = Refine::for_options(&OPTIONS);
+
+/// Arena bytes a `height x width` band pair needs with [`OPTIONS`] and [`REFINE`].
+pub const fn arena_bytes(height: usize, width: usize) -> usize {
+    pipeline::arena_bytes_refined(height, width, &OPTIONS, &REFINE)
+}
+
+/// Column sectors of the obstacle summary.
+#[cfg(feature = "depth")]
+pub const SECTORS: usize = 8;
+
+/// The example stereo board: a 640-px-wide sensor read at the band's profile width (160 px:
+/// scale 4), f = 500 px (a 65 degree field of view), principal point at the centre, 60 mm
+/// baseline. A real board replaces it with its own calibration.
+#[cfg(feature = "depth")]
+pub const CALIBRATION: crate::depth::Calibration = crate::depth::Calibration {
+    focal_px: 500.0,
+    principal_x_px: 320.0,
+    baseline_mm: 60.0,
+    sensor_width_px: 640,
+};
