@@ -6,7 +6,9 @@
 //! core: the QEMU plugin's instruction counts, the firmware's own arena and stack measurements)
 //! and from the firmware ELF's section headers (read here when the ELF the run used is still
 //! there, same SHA-256, else the sizes the run recorded from it with `llvm-size`). Nothing is estimated except the time,
-//! which assumes a stated number of instructions per cycle: instructions are not cycles.
+//! which assumes a stated number of instructions per cycle: instructions are not cycles. Beside
+//! it, the cycle model ([`cycles`]) prices each stage's instructions per class in cycles per core:
+//! a documented model, reported as such.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
