@@ -2,7 +2,8 @@
 # Builds the BINO firmware for both Cortex-M boards and runs each under QEMU: first the kernel
 # test firmware (src/bin/kernel-tests.rs: the assembly kernels against their references), then the band pair
 # through the int8 pipeline, bit-identical to the host (the firmware exits non-zero otherwise),
-# with executed-instruction counts per stage from the TCG plugin in firmware-sim/qemu-plugin/.
+# with executed-instruction counts per stage, and per instruction class for the cycle model of
+# `bino budget` (firmware-sim/qemu-plugin/CYCLES.md), from the TCG plugin in firmware-sim/qemu-plugin/.
 #
 #   scripts/firmware.sh [--band full|small] [--out DIR] [--profile] [--kernels|--kernels-only] [--core m55|m7]
 #
@@ -15,7 +16,7 @@
 #                  the encoder's GEMMs, assembly kernel against the portable reference, from the
 #                  kernel test firmware's markers); --kernels-only skips the band pair
 #
-# Writes <out>/<core>.json (stages, instructions, arena, stack, digests, ELF sections) and
+# Writes <out>/<core>.json (stages, instructions and their classes, arena, stack, digests, ELF sections) and
 # <out>/<core>.log (the decoded defmt log) per core; `bino budget --firmware <out>` reports them.
 # Installs what is missing first: qemu-system-arm (apt), defmt-print (cargo install), the Rust
 # targets and llvm-tools.
@@ -32,7 +33,7 @@ while [ $# -gt 0 ]; do
     --kernels) want_kernels=1; shift ;;
     --kernels-only) want_kernels=1; kernels_only=1; shift ;;
     --core) cores="$2"; shift 2 ;;
-    -h|--help) sed -n '2,21p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
     *) echo "unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -70,10 +71,14 @@ llvm_bin="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //
 plugin_dir="$BINO_CACHE/qemu-plugin"
 plugin="$plugin_dir/libinsn_count.so"
 src="firmware-sim/qemu-plugin/insn_count.c"
-if [ ! -f "$plugin" ] || [ "$src" -nt "$plugin" ] || [ firmware-sim/qemu-plugin/qemu-plugin-v1.h -nt "$plugin" ]; then
+if [ ! -f "$plugin" ] || [ "$src" -nt "$plugin" ] || [ firmware-sim/qemu-plugin/qemu-plugin-v1.h -nt "$plugin" ] ||
+  [ firmware-sim/qemu-plugin/classify.h -nt "$plugin" ]; then
   mkdir -p "$plugin_dir"
   cc -O2 -Wall -Wextra -Werror -shared -fPIC -fvisibility=hidden -o "$plugin" "$src"
 fi
+# The instruction classifier of the cycle model (classify.h) against known encodings (< 1 s).
+cc -O1 -Wall -Wextra -Werror -o "$plugin_dir/classify_test" firmware-sim/qemu-plugin/classify_test.c
+"$plugin_dir/classify_test"
 
 # ---- format and lints of the firmware workspace (both targets)
 (cd firmware-sim && cargo fmt --check)
@@ -128,7 +133,7 @@ for core in $cores; do
   # repeats exactly; sleep=off skips the time the core waits for a row (WFI).
   qemu-system-arm -machine "$machine" -cpu "$cpu" -display none -monitor none -serial null \
     -semihosting-config enable=on,target=native -icount shift=0,align=off,sleep=off \
-    -plugin "$plugin,out=$out/$core-counts.tsv$marks$(printf %s "${profile_args[@]}")" \
+    -plugin "$plugin,out=$out/$core-counts.tsv,classes=$out/$core-classes.tsv$marks$(printf %s "${profile_args[@]}")" \
     -kernel "$elf" | defmt-print -e "$elf" | tee "$out/$core.log"
   codes=("${PIPESTATUS[@]}")
   set -e
@@ -137,7 +142,7 @@ for core in $cores; do
   [ "${codes[1]}" = 0 ] || { echo "defmt-print failed (${codes[1]})" >&2; status=1; }
   if ! python3 firmware-sim/qemu-plugin/report.py --core "$core" --cpu "$cpu" --board "$machine" \
     --target "$target" --elf "$elf" --log "$out/$core.log" --counts "$out/$core-counts.tsv" \
-    --llvm-size "$llvm_bin/llvm-size" --llvm-nm "$llvm_bin/llvm-nm" --qemu "$qemu_version" \
+    --classes "$out/$core-classes.tsv" --llvm-size "$llvm_bin/llvm-size" --llvm-nm "$llvm_bin/llvm-nm" --qemu "$qemu_version" \
     --wall "$wall" --exit-status "${codes[0]}" --out "$out/$core.json" "${report_profile[@]}"; then
     echo "firmware $core: FAILED (QEMU exit ${codes[0]}; see $out/$core.log)" >&2
     status=1

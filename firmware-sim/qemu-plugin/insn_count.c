@@ -1,7 +1,7 @@
 /*
  * Executed-instruction counts per firmware stage, for QEMU 7.2 system emulation (one vCPU).
  *
- *   qemu-system-arm ... -plugin libinsn_count.so,out=FILE,mark=NAME:ADDR,mark=NAME:ADDR,...[,profile=FILE]
+ *   qemu-system-arm ... -plugin libinsn_count.so,out=FILE,mark=NAME:ADDR,...[,profile=FILE][,classes=FILE]
  *
  * Every executed translation block adds its instruction count to one running total (an inline
  * add, no callback). A callback sits only on each marker address (a `bino_mark_<stage>`
@@ -16,12 +16,19 @@
  * With profile=FILE the plugin also counts executions of every translation block (one more
  * inline add per block) and writes "start address, instructions in the block, executions" per
  * block to FILE, for a per-function profile (scripts/firmware.sh maps addresses to symbols).
+ *
+ * With classes=FILE it also classifies every instruction once, at translation, from its bytes
+ * (classify.h: MVE, FP, multiply, divide, load/store, branch, loop, other, and the adjustments the
+ * cycle model of CYCLES.md prices), adds each block's per-class totals inline the same way, and
+ * writes one line per stage with its counts per class to FILE; a stage's classes add up to its
+ * instructions. The instruction counts themselves are the same with or without it.
  */
 #include <inttypes.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
+#include "classify.h"
 #include "qemu-plugin-v1.h"
 
 QEMU_PLUGIN_EXPORT int qemu_plugin_version = 1;
@@ -33,6 +40,7 @@ struct mark {
     uint64_t addr;
     uint64_t insns;
     uint64_t entered;
+    uint64_t classes[N_COUNTERS]; /* per class and adjustment, with classes=FILE */
 };
 
 static struct mark marks[MAX_MARKS + 1]; /* marks[0] is "startup" */
@@ -42,6 +50,9 @@ static uint64_t total;      /* instructions executed so far (inline adds) */
 static uint64_t last_total; /* total at the last marker */
 static char out_path[4096];
 static char profile_path[4096];
+static char classes_path[4096];
+static uint64_t class_total[N_COUNTERS]; /* per class so far (inline adds), with classes=FILE */
+static uint64_t class_last[N_COUNTERS];  /* class_total at the last marker */
 
 /* Per-block execution counters for profile=FILE, in fixed chunks so their addresses (baked into
  * the translated code) never move. */
@@ -73,6 +84,10 @@ static void close_interval(void)
 {
     marks[current].insns += total - last_total;
     last_total = total;
+    for (int k = 0; k < N_COUNTERS; k++) {
+        marks[current].classes[k] += class_total[k] - class_last[k];
+        class_last[k] = class_total[k];
+    }
 }
 
 static void on_mark(unsigned int vcpu_index, void *userdata)
@@ -81,6 +96,53 @@ static void on_mark(unsigned int vcpu_index, void *userdata)
     close_interval();
     current = (int)(intptr_t)userdata;
     marks[current].entered++;
+}
+
+/* Classifies the block's instructions and adds its per-class totals to class_total each time it
+ * runs: one inline add per class present, no callback. */
+static void count_classes(struct qemu_plugin_tb *tb, size_t n)
+{
+    uint64_t counts[N_COUNTERS] = {0};
+    struct insn_info prev = {CLASS_OTHER, 0, 0};
+    int prev_paired = 0;
+    for (size_t i = 0; i < n; i++) {
+        struct qemu_plugin_insn *insn = qemu_plugin_tb_get_insn(tb, i);
+        struct insn_info cur = classify_thumb(qemu_plugin_insn_data(insn), qemu_plugin_insn_size(insn));
+        count_insn(counts, i > 0 ? &prev : NULL, &cur, &prev_paired);
+        prev = cur;
+    }
+    for (int k = 0; k < N_COUNTERS; k++) {
+        if (counts[k]) {
+            qemu_plugin_register_vcpu_tb_exec_inline(tb, QEMU_PLUGIN_INLINE_ADD_U64, &class_total[k], counts[k]);
+        }
+    }
+}
+
+static void write_classes(void)
+{
+    FILE *f = fopen(classes_path, "w");
+    if (!f) {
+        perror(classes_path);
+        return;
+    }
+    fprintf(f, "# stage");
+    for (int k = 0; k < N_COUNTERS; k++) {
+        fprintf(f, "\t%s", k < N_CLASSES ? class_names[k] : adjustment_names[k - N_CLASSES]);
+    }
+    fprintf(f, "\n");
+    for (int m = 0; m < n_marks; m++) {
+        fprintf(f, "%s", marks[m].name);
+        for (int k = 0; k < N_COUNTERS; k++) {
+            fprintf(f, "\t%" PRIu64, marks[m].classes[k]);
+        }
+        fprintf(f, "\n");
+    }
+    fprintf(f, "total");
+    for (int k = 0; k < N_COUNTERS; k++) {
+        fprintf(f, "\t%" PRIu64, class_total[k]);
+    }
+    fprintf(f, "\n");
+    fclose(f);
 }
 
 static void on_tb_trans(qemu_plugin_id_t id, struct qemu_plugin_tb *tb)
@@ -95,6 +157,9 @@ static void on_tb_trans(qemu_plugin_id_t id, struct qemu_plugin_tb *tb)
             b->n_insns = n;
             qemu_plugin_register_vcpu_tb_exec_inline(tb, QEMU_PLUGIN_INLINE_ADD_U64, &b->executed, 1);
         }
+    }
+    if (classes_path[0]) {
+        count_classes(tb, n);
     }
     for (size_t i = 0; i < n; i++) {
         struct qemu_plugin_insn *insn = qemu_plugin_tb_get_insn(tb, i);
@@ -126,6 +191,9 @@ static void on_plugin_exit(qemu_plugin_id_t id, void *userdata)
     if (f != stderr) {
         fclose(f);
     }
+    if (classes_path[0]) {
+        write_classes();
+    }
     if (profile_path[0]) {
         FILE *p = fopen(profile_path, "w");
         if (!p) {
@@ -154,6 +222,8 @@ QEMU_PLUGIN_EXPORT int qemu_plugin_install(qemu_plugin_id_t id, const qemu_info_
             snprintf(out_path, sizeof out_path, "%s", arg + 4);
         } else if (strncmp(arg, "profile=", 8) == 0) {
             snprintf(profile_path, sizeof profile_path, "%s", arg + 8);
+        } else if (strncmp(arg, "classes=", 8) == 0) {
+            snprintf(classes_path, sizeof classes_path, "%s", arg + 8);
         } else if (strncmp(arg, "mark=", 5) == 0) {
             const char *colon = strrchr(arg + 5, ':');
             if (!colon || n_marks > MAX_MARKS || (size_t)(colon - (arg + 5)) >= sizeof marks[0].name) {

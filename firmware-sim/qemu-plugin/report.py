@@ -19,6 +19,13 @@ NOTE = (
     "instructions are executed instructions counted by a QEMU TCG plugin (qemu-plugin/insn_count.c) "
     "between the firmware's stage markers; they are not cycles"
 )
+CLASS_NOTE = (
+    "classes: each stage's executed instructions by class, decoded from the instruction bytes at "
+    "translation (qemu-plugin/classify.h); they add up to the stage's instructions. "
+    "cycle_adjustments are what the cycle model of qemu-plugin/CYCLES.md prices besides the classes: "
+    "MVE instructions overlapping their predecessor, scalar pairs the Cortex-M7 could dual-issue, "
+    "words moved beyond the first by multi-word loads/stores"
+)
 KV = re.compile(r"(\w+)=(\S+)")
 # The clocks the budget assumes (bino budget): one instruction per cycle at these rates.
 CLOCK_HZ = {"m55": 400_000_000, "m7": 480_000_000}
@@ -51,6 +58,37 @@ def parse_counts(path):
             name, insns, entered = line.split("\t")
             counts[name] = (int(insns), int(entered))
     return counts
+
+
+# The plugin's class columns (classify.h) that partition a stage's instructions; the columns
+# after them are the cycle model's adjustments (CYCLES.md), not instructions.
+CLASSES = ("mve", "fp", "mul", "div", "load_store", "branch", "loop", "other")
+ADJUSTMENTS = ("mve_overlap", "dual_issue_pair", "extra_words")
+
+
+def parse_classes(path, counts):
+    """Per bucket: {"classes": {...}, "adjustments": {...}}, checked against the plain counts."""
+    out = {}
+    with open(path) as f:
+        header = f.readline().rstrip("\n").split("\t")
+        if header[1:] != list(CLASSES + ADJUSTMENTS):
+            raise ValueError(f"{path}: columns {header[1:]}, expected {CLASSES + ADJUSTMENTS}")
+        for line in f:
+            if not line.strip():
+                continue
+            name, *values = line.rstrip("\n").split("\t")
+            numbers = [int(v) for v in values]
+            if len(numbers) != len(CLASSES + ADJUSTMENTS):
+                raise ValueError(f"{path}: {name} has {len(numbers)} columns")
+            classes = dict(zip(CLASSES, numbers[: len(CLASSES)], strict=True))
+            if sum(classes.values()) != counts.get(name, (0, 0))[0]:
+                raise ValueError(
+                    f"{path}: {name}'s classes add up to {sum(classes.values())}, "
+                    f"its instructions are {counts.get(name)}"
+                )
+            adjustments = dict(zip(ADJUSTMENTS, numbers[len(CLASSES) :], strict=True))
+            out[name] = {"classes": classes, "adjustments": adjustments}
+    return out
 
 
 def elf_sections(llvm_size, elf):
@@ -200,6 +238,7 @@ def main():
         ap.add_argument("--" + a, required=True)
     ap.add_argument("--wall", type=float, required=True)
     ap.add_argument("--exit-status", type=int, required=True)
+    ap.add_argument("--classes", help="the plugin's per-class counts, for the cycle model")
     ap.add_argument("--profile")
     ap.add_argument("--profile-out")
     args = ap.parse_args()
@@ -222,6 +261,12 @@ def main():
         )
         return 1
 
+    try:
+        classes = parse_classes(args.classes, counts) if args.classes else {}
+    except (OSError, ValueError) as e:
+        print(f"report.py: {e}", file=sys.stderr)
+        return 1
+
     height, width = (int(x) for x in str(header.get("band", "0x0")).split("x"))
     stages = []
     for l in stage_lines:
@@ -233,6 +278,14 @@ def main():
                 "marker_hits": entered,
                 "arena_in_use": l["arena_in_use"],
                 "stack_peak": l["stack_peak"],
+                **(
+                    {
+                        "classes": classes[l["stage"]]["classes"],
+                        "cycle_adjustments": classes[l["stage"]]["adjustments"],
+                    }
+                    if l["stage"] in classes
+                    else {}
+                ),
             }
         )
     report = {
@@ -276,6 +329,8 @@ def main():
         "sgm_kept": arena.get("sgm_kept"),
         "note": NOTE,
     }
+    if classes:
+        report["class_note"] = CLASS_NOTE
     if args.profile:
         total, top, hot = profile(args.llvm_nm, args.elf, args.profile, 40)
         report["profile_top_functions"] = top[:15]

@@ -6,7 +6,9 @@
 //! core: the QEMU plugin's instruction counts, the firmware's own arena and stack measurements)
 //! and from the firmware ELF's section headers (read here when the ELF the run used is still
 //! there, same SHA-256, else the sizes the run recorded from it with `llvm-size`). Nothing is estimated except the time,
-//! which assumes a stated number of instructions per cycle: instructions are not cycles.
+//! which assumes a stated number of instructions per cycle: instructions are not cycles. Beside
+//! it, the cycle model ([`cycles`]) prices each stage's instructions per class in cycles per core:
+//! a documented model, reported as such.
 
 use std::collections::BTreeMap;
 use std::fmt::Write as _;
@@ -16,8 +18,9 @@ use anyhow::{bail, ensure, Context, Result};
 use serde::{Deserialize, Serialize};
 use serde_json::Value;
 
+pub mod cycles;
 mod report;
-pub use report::{Band, BudgetReport, CoreBudget, StageBudget, SCHEMA};
+pub use report::{Band, BudgetReport, CoreBudget, CoreCycles, StageBudget, SCHEMA};
 
 /// Bytes in a KiB.
 const KIB: f64 = 1024.0;
@@ -61,6 +64,11 @@ impl Clock {
     pub fn ms(&self, instructions: u64) -> f64 {
         instructions as f64 / (self.mhz * 1e3 * self.ipc)
     }
+
+    /// Milliseconds `cycles` take at this clock (no IPC: they are cycles already).
+    pub fn cycles_ms(&self, cycles: f64) -> f64 {
+        cycles / (self.mhz * 1e3)
+    }
 }
 
 /// The clock a core is reported at: M55 400 MHz, M7 480 MHz, both at 1 instruction per cycle.
@@ -82,6 +90,45 @@ pub struct StageRun {
     pub arena_in_use: u64,
     /// Deepest stack use during the stage, bytes.
     pub stack_peak: u64,
+    /// Executed instructions per class ([`cycles::CLASSES`]), when the run counted them (runs
+    /// before the cycle model did not).
+    #[serde(default)]
+    pub classes: Option<BTreeMap<String, u64>>,
+    /// The cycle model's adjustments ([`cycles::ADJUSTMENTS`]), with the classes.
+    #[serde(default)]
+    pub cycle_adjustments: Option<BTreeMap<String, u64>>,
+}
+
+impl StageRun {
+    /// Modelled cycles of the stage on `core` (the sum over classes and adjustments of count x
+    /// cost), when the run counted classes.
+    pub fn modelled_cycles(&self, core: &str) -> Option<f64> {
+        let counts = self.class_counts()?;
+        cycles::modelled_cycles(cycles::cost_table(core), &counts).ok()
+    }
+
+    /// The classes and adjustments in one map, when the run counted them.
+    pub fn class_counts(&self) -> Option<BTreeMap<String, u64>> {
+        let mut all = self.classes.clone()?;
+        all.extend(self.cycle_adjustments.clone().unwrap_or_default());
+        Some(all)
+    }
+
+    /// Checks the class counts: they add up to the instructions, and every name has a cost.
+    fn check_classes(&self, core: &str) -> Result<()> {
+        let (Some(classes), Some(counts)) = (&self.classes, self.class_counts()) else {
+            return Ok(());
+        };
+        let sum: u64 = classes.values().sum();
+        ensure!(
+            sum == self.instructions,
+            "stage {}: its instruction classes add up to {sum}, its instructions are {}",
+            self.name,
+            self.instructions
+        );
+        cycles::modelled_cycles(cycles::cost_table(core), &counts).with_context(|| format!("stage {}", self.name))?;
+        Ok(())
+    }
 }
 
 /// Section sizes of the firmware ELF that the budget needs.
@@ -215,6 +262,9 @@ impl CoreRun {
         ensure!(schema == "bino-firmware-run/1", "unknown schema {schema:?}");
         let run = RunJson::deserialize(&v).context("not a firmware run")?;
         ensure!(!run.stages.is_empty(), "no stages");
+        for stage in &run.stages {
+            stage.check_classes(&run.core)?;
+        }
         // The ELF the run used, if it is still there and unchanged (a later build overwrites it).
         let same_elf = run.elf.and_then(|path| {
             let bytes = std::fs::read(&path).ok()?;
@@ -256,6 +306,31 @@ impl CoreRun {
             .filter(|s| !BOOT_STAGES.contains(&s.name.as_str()))
             .map(|s| s.instructions)
             .sum()
+    }
+
+    /// Whether every stage has its instruction classes (runs before the cycle model have none).
+    pub fn has_class_counts(&self) -> bool {
+        self.stages.iter().all(|s| s.classes.is_some())
+    }
+
+    /// Modelled cycles of one band pair (every stage but blob loading), with class counts.
+    pub fn band_pair_modelled_cycles(&self) -> Option<f64> {
+        self.stages
+            .iter()
+            .filter(|s| !BOOT_STAGES.contains(&s.name.as_str()))
+            .map(|s| s.modelled_cycles(&self.core))
+            .sum()
+    }
+
+    /// Per class and adjustment, the band pair's counts (every stage but blob loading).
+    pub fn band_pair_class_counts(&self) -> Option<BTreeMap<String, u64>> {
+        let mut total = BTreeMap::new();
+        for s in self.stages.iter().filter(|s| !BOOT_STAGES.contains(&s.name.as_str())) {
+            for (name, n) in s.class_counts()? {
+                *total.entry(name).or_insert(0) += n;
+            }
+        }
+        Some(total)
     }
 
     /// Executed instructions of the stage `name`, when the run has it.
@@ -576,6 +651,7 @@ pub fn markdown(runs: &[CoreRun]) -> String {
             if v.met { "met" } else { "**missed**" }
         );
     }
+    md.push_str(&cycles::markdown(runs));
     md
 }
 
@@ -733,6 +809,55 @@ mod tests {
         assert_eq!(r.ram_used(), 4 + 16 + 486912 + 7360);
         assert!(CoreRun::parse("{}").is_err());
         assert!(CoreRun::parse(&run_json("m55", 1).replace("bino-firmware-run/1", "other")).is_err());
+    }
+
+    /// `run_json` with class counts on every stage: all its instructions `other`, plus the
+    /// given adjustments.
+    fn run_json_with_classes(core: &str, encode: u64, adjustments: Value) -> String {
+        let mut v: Value = serde_json::from_str(&run_json(core, encode)).unwrap();
+        for stage in v["stages"].as_array_mut().unwrap() {
+            let n = stage["instructions"].as_u64().unwrap();
+            stage["classes"] = json!({"mve": 0, "fp": 0, "mul": 0, "div": 0, "load_store": 0,
+                                      "branch": 0, "loop": 0, "other": n});
+            stage["cycle_adjustments"] = adjustments.clone();
+        }
+        v.to_string()
+    }
+
+    #[test]
+    fn class_counts_are_optional_checked_and_priced() {
+        let old = CoreRun::parse(&run_json("m7", 1000)).unwrap();
+        assert!(!old.has_class_counts());
+        assert_eq!(old.band_pair_modelled_cycles(), None);
+        assert!(markdown(&[old]).contains("M7: no class counts in this run"));
+
+        let adj = json!({"mve_overlap": 0, "dual_issue_pair": 100, "extra_words": 10});
+        let r = CoreRun::parse(&run_json_with_classes("m7", 1000, adj.clone())).unwrap();
+        assert!(r.has_class_counts());
+        // encode_left: 1000 `other` at 1, 100 pairs at -0.5, 10 extra words at 0.5.
+        assert_eq!(r.stages[1].modelled_cycles("m7"), Some(1000.0 - 50.0 + 5.0));
+        // Band pair: encode_left, head (100), refine (60M), each with the same adjustments.
+        assert_eq!(
+            r.band_pair_modelled_cycles(),
+            Some((1000 + 100 + 60_000_000) as f64 + 3.0 * (-50.0 + 5.0))
+        );
+        let md = markdown(std::slice::from_ref(&r));
+        assert!(md.contains("a model, not a measurement"), "{md}");
+        assert!(md.contains("| encode_left | 0.0 | 955 | 0.0 | 0.95 |"), "{md}");
+        assert!(md.contains("| dual_issue_pair | 300 | -0.5 |"), "{md}");
+        let j = to_json(std::slice::from_ref(&r));
+        let cm = j.cores[0].cycle_model.as_ref().unwrap();
+        assert_eq!(cm.class_counts["other"], 1000 + 100 + 60_000_000);
+        assert_eq!(j.cores[0].stages[1].modelled_cycles, Some(955.0));
+
+        let mut bad: Value = serde_json::from_str(&run_json_with_classes("m55", 1000, adj)).unwrap();
+        bad["stages"][1]["classes"]["other"] = json!(999);
+        let err = format!("{:#}", CoreRun::parse(&bad.to_string()).unwrap_err());
+        assert!(err.contains("encode_left") && err.contains("add up to 999"), "{err}");
+        bad["stages"][1]["classes"]["other"] = json!(1000);
+        bad["stages"][1]["cycle_adjustments"]["warp"] = json!(1);
+        let err = format!("{:#}", CoreRun::parse(&bad.to_string()).unwrap_err());
+        assert!(err.contains("\"warp\" has no cost"), "{err}");
     }
 
     #[test]

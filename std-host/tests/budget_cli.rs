@@ -64,6 +64,58 @@ fn budget_reports_the_committed_runs() {
             "{core}: {stdout}"
         );
     }
+    // The cycle model: per stage, modelled cycles = sum over classes and adjustments of count x
+    // cost, from the run's own counts; the classes add up to the stage's instructions.
+    assert!(stdout.contains("Cycle model (a model, not a measurement)"), "{stdout}");
+    assert!(
+        stdout.contains("M55 ms IPC 1 | M55 modelled cycles | M55 modelled ms"),
+        "{stdout}"
+    );
+    for (i, core) in ["m55", "m7"].iter().enumerate() {
+        let run = measured(core);
+        let got = &report["cores"][i];
+        let model = &got["cycle_model"];
+        assert!(model.is_object(), "{core}: the committed run has class counts: {model}");
+        let costs = model["costs"].as_object().unwrap();
+        let mut band_pair = 0.0;
+        for (s, r) in got["stages"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip(run["stages"].as_array().unwrap())
+        {
+            let classes = r["classes"].as_object().unwrap();
+            let sum: u64 = classes.values().map(|v| v.as_u64().unwrap()).sum();
+            assert_eq!(sum, r["instructions"].as_u64().unwrap(), "{core} {}", r["name"]);
+            let counts = classes.iter().chain(r["cycle_adjustments"].as_object().unwrap());
+            let want: f64 = counts
+                .map(|(k, v)| v.as_u64().unwrap() as f64 * costs[k].as_f64().unwrap())
+                .sum();
+            let cycles = s["modelled_cycles"].as_f64().unwrap();
+            assert!((cycles - want).abs() < 1e-6, "{core} {}: {cycles} vs {want}", r["name"]);
+            let mhz = if *core == "m55" { 400.0 } else { 480.0 };
+            let ms = s["modelled_ms"].as_f64().unwrap();
+            assert!((ms - cycles / (mhz * 1e3)).abs() < 1e-9, "{core} {}", r["name"]);
+            if r["name"] != "load" {
+                band_pair += cycles;
+            }
+        }
+        let total = model["band_pair_modelled_cycles"].as_f64().unwrap();
+        assert!((total - band_pair).abs() < 1e-3, "{core}: {total} vs {band_pair}");
+        assert!(
+            stdout.contains(&bino_host::budget::grouped(total.round() as u64)),
+            "{core}: {stdout}"
+        );
+    }
+    // MVE exists only on the M55, so only its run counts vector instructions.
+    assert!(
+        report["cores"][0]["cycle_model"]["class_counts"]["mve"]
+            .as_u64()
+            .unwrap()
+            > 0
+    );
+    assert_eq!(report["cores"][1]["cycle_model"]["class_counts"]["mve"], 0);
+
     let targets = report["targets"].as_array().unwrap();
     // Weights, arena, then per core its band-pair instructions and its refinement's share.
     assert_eq!(targets.len(), 6);

@@ -2,9 +2,11 @@
 //! serde. Fields are declared in alphabetical order, the order the file has always had its
 //! keys in, so reports of different runs diff line by line.
 
+use std::collections::BTreeMap;
+
 use serde::Serialize;
 
-use super::{clock, verdicts, CoreRun, SectionSource, Verdict};
+use super::{clock, cycles, verdicts, CoreRun, SectionSource, Verdict};
 
 /// Schema name and version of the file.
 pub const SCHEMA: &str = "bino-budget/1";
@@ -47,6 +49,9 @@ pub struct CoreBudget {
     pub core: String,
     /// QEMU CPU model.
     pub cpu: String,
+    /// The cycle model's band pair; `null` when the run has no class counts (runs measured
+    /// before the plugin classified instructions).
+    pub cycle_model: Option<CoreCycles>,
     /// Whether every output was bit-identical to the host's.
     pub outputs_bit_identical: bool,
     /// QEMU wall time, seconds (`null` when the run did not record it).
@@ -69,6 +74,21 @@ pub struct CoreBudget {
     pub weights_flash_bytes: u64,
 }
 
+/// One core's band pair under the cycle model (`firmware-sim/qemu-plugin/CYCLES.md`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct CoreCycles {
+    /// Modelled cycles of one band pair: the sum over its stages of count x cost per class.
+    pub band_pair_modelled_cycles: f64,
+    /// Those cycles in milliseconds at the core's clock.
+    pub band_pair_modelled_ms: f64,
+    /// The band pair's instructions per class and the adjustments' counts.
+    pub class_counts: BTreeMap<String, u64>,
+    /// Cycles per instruction of each class, or per adjustment event, on this core.
+    pub costs: BTreeMap<String, f64>,
+    /// What the figures are.
+    pub note: &'static str,
+}
+
 /// Band height and width, pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 pub struct Band {
@@ -85,8 +105,18 @@ pub struct StageBudget {
     pub arena_in_use_bytes: u64,
     /// Milliseconds at the stated clock and IPC.
     pub estimated_ms: f64,
+    /// Executed instructions per class and the cycle model's adjustments (absent when the run
+    /// has no class counts).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub instruction_classes: Option<BTreeMap<String, u64>>,
     /// Executed instructions.
     pub instructions: u64,
+    /// The cycle model's cycles for the stage (absent without class counts).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub modelled_cycles: Option<f64>,
+    /// Those cycles in milliseconds at the core's clock (absent without class counts).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub modelled_ms: Option<f64>,
     /// Stage name.
     pub name: String,
     /// Deepest stack use during the stage, bytes.
@@ -124,6 +154,17 @@ impl CoreBudget {
             code_flash_bytes: r.sections.code_flash(),
             core: r.core.clone(),
             cpu: r.cpu.clone(),
+            cycle_model: r.band_pair_modelled_cycles().map(|n| CoreCycles {
+                band_pair_modelled_cycles: n,
+                band_pair_modelled_ms: c.cycles_ms(n),
+                class_counts: r.band_pair_class_counts().unwrap_or_default(),
+                costs: cycles::cost_table(&r.core)
+                    .iter()
+                    .map(|k| (k.name.to_string(), k.cycles))
+                    .collect(),
+                note: "a model, not a measurement: cycles = sum over classes of count x cost; costs and \
+                       assumptions in firmware-sim/qemu-plugin/CYCLES.md",
+            }),
             outputs_bit_identical: r.passed,
             qemu_wall_seconds: r.qemu_wall_seconds,
             ram_reserved_bytes: r.ram_reserved(),
@@ -141,7 +182,10 @@ impl CoreBudget {
                 .map(|s| StageBudget {
                     arena_in_use_bytes: s.arena_in_use,
                     estimated_ms: c.ms(s.instructions),
+                    instruction_classes: s.class_counts(),
                     instructions: s.instructions,
+                    modelled_cycles: s.modelled_cycles(&r.core),
+                    modelled_ms: s.modelled_cycles(&r.core).map(|n| c.cycles_ms(n)),
                     name: s.name.clone(),
                     stack_peak_bytes: s.stack_peak,
                 })
