@@ -277,6 +277,9 @@ class NativeHead(StereoHead):
     def init_projection(self, desc: Tensor) -> None:
         raise TypeError("a native head starts from both phase maps: init_from(even, odd)")
 
+    def project(self, desc: Tensor) -> Tensor:
+        raise TypeError("a native head projects pair features of both maps: features(even, odd)")
+
 
 def make_head(cfg: HeadConfig) -> StereoHead:
     """The head class a config names: StereoHead (export pathway) or NativeHead."""

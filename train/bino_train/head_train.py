@@ -6,6 +6,8 @@
     python -m bino_train.head_train --random-init-seed 0 --out runs/smoke --smoke  # seconds
     python -m bino_train.head_train --encoder E --cache runs/headcache/C.pt --out runs/NAME \
         --steps 20000 --batch 8 --val-every 1000 [--photometric 1 --smoothness 0.05]
+    python -m bino_train.head_train --encoder E --cache runs/headcache/N.pt --pathway native \
+        [--pair-features full] --steps 4000 --batch 8 --uniform-weights --out runs/NAME
 
 Supervision (head_data.py): synthetic scenes with known sub-pixel disparity and StereoSGBM
 pseudo-labels on train-split crops (48 x 160 after resizing to 160 .. 320 px wide); never the
@@ -14,7 +16,9 @@ descriptor pool (`--pool`, `--refresh`), so one encoder pass serves several head
 with `--cache` (head_cache.py), every crop is encoded once before training and a step costs
 only the head. Labels carry a confidence (`--label-weighting lr`: SGBM's sub-pixel left-right
 agreement; `--uniform-weights` ignores it);
-`--photometric` / `--smoothness` add the self-supervised terms of photometric.py. The head
+`--photometric` / `--smoothness` add the self-supervised terms of photometric.py. `--pathway
+native` trains a native head (head.NativeHead, NATIVE_HEADS) on the phase maps of one encoder
+pass on (L, R); a cache holds one pathway's maps and a run refuses the other pathway's. The head
 trains on the train split less the validation pairs, which `--val-every` scores (head_val.py).
 AdamW with linear warm-up then cosine decay over `--schedule-steps` (fixed at the start).
 

@@ -186,6 +186,8 @@ def test_native_init_is_pca_of_the_pair_features() -> None:
     assert float(flat.var(0)[0]) > float(flat.var(0)[-1])  # top principal direction first
     with pytest.raises(TypeError):
         head.init_projection(a)
+    with pytest.raises(TypeError):
+        head.project(a)  # one shared projection is the export head's
 
 
 @pytest.mark.parametrize("cfg", [NATIVE_HEAD, NATIVE_FULL_HEAD])
