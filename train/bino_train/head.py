@@ -12,6 +12,15 @@ Data flow, all on the token grid (T = H/4 rows, P = W/4 patch columns):
   -> softmax over k: soft-argmin disparity sum_k k * prob_k (patch columns, 4 px each at the
      encoder's input) and confidence max_k prob_k.
 
+The native head (`HeadConfig.pair_features` "concat" or "full", the native pathway of
+DESIGN.md) reads the phase maps a, b (even and odd fused columns of one encoder pass on (L, R))
+instead: each fused token covers 4 rows x 2 columns of both views, so a and b each hold left and
+right content and a single shared projection cannot tell them apart. It forms pair features
+u = [a, b] ("concat") or the paper's u = [a, b, |a - b|, a * b] ("full"; |x| as
+relu(a - b) + relu(b - a), inside the op set below), one LayerNorm over u, then two projections
+f_L = P_L(u), f_R = P_R(u) correlated exactly as above (f_L[p] * f_R[p - k]), then the same
+regularisation and soft-argmin.
+
 Everything is convolutional in (row, column), so any T x P grid works: 48-row training crops,
 and full eval images described band by band. The correlation is built from one zero block and
 a constant-bound slice per candidate, so the ONNX graph holds only LayerNormalization, MatMul,
@@ -31,12 +40,17 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
+from .config import PAPER_CONFIG
 from .export import stamp_metadata
-from .model import parameter_count
+from .model import encoder_macs, parameter_count
 
 OPSET = 17
 MASKED_LOGIT = 1e4
 """Subtracted from the logits of candidates outside the right image (finite, so int8-friendly)."""
+
+
+PAIR_FEATURES = ("", "concat", "full")
+"""HeadConfig.pair_features: "" the shared (export-pathway) head, else a native head."""
 
 
 @dataclass(frozen=True)
@@ -51,20 +65,49 @@ class HeadConfig:
     search range and the eval split's largest ground truth at w160 (27.7 px, 7 columns),
     with room for the wider (up to 320 px) training crops."""
     ln_eps: float = 1e-5
+    pair_features: str = ""
+    """"": the shared head on D(L), D(R) (export pathway); "concat" / "full": the native head on
+    the phase maps (module docstring). Checkpoints from before this field load as ""."""
 
     def __post_init__(self) -> None:
+        if self.pair_features not in PAIR_FEATURES:
+            raise ValueError(f"pair_features {self.pair_features!r} not in {PAIR_FEATURES}")
         if self.proj_dim % self.groups:
             raise ValueError(f"proj_dim {self.proj_dim} not divisible by groups {self.groups}")
         if self.max_disp < 2:
             raise ValueError("max_disp must be at least 2")
 
+    @property
+    def pathway(self) -> str:
+        """The encoder outputs this head reads: "export" (D(L), D(R)) or "native" (phase maps)."""
+        return "native" if self.pair_features else "export"
+
+    @property
+    def pair_dim(self) -> int:
+        """Width of the features the LayerNorm sees: desc_dim, or u's width for a native head."""
+        return {"": 1, "concat": 2, "full": 4}[self.pair_features] * self.desc_dim
+
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        """The fields; the shared head's without `pair_features`, so its checkpoints and ONNX
+        metadata stay as they were before native heads existed."""
+        d = asdict(self)
+        if not self.pair_features:
+            del d["pair_features"]
+        return d
 
 
 PAPER_HEAD = HeadConfig()
 PAPER_HEAD_PARAMETERS = 86_000
 """The paper's figure for the shared head (0.086M); the default config is within 0.1% of it."""
+
+NATIVE_HEAD = HeadConfig(pair_features="concat", proj_dim=64)
+"""The native head, u = [a, b]: the shared head's regulariser with 64-channel projections (96
+would put the head at 15.3 % of an encoder pass at 48x160, over the 15 % budget; head_macs)."""
+
+NATIVE_FULL_HEAD = HeadConfig(pair_features="full", proj_dim=32)
+"""The paper's pair features u = [a, b, |a - b|, a * b]: twice u's width, so half the channels."""
+
+NATIVE_HEADS = {"concat": NATIVE_HEAD, "full": NATIVE_FULL_HEAD}
 
 
 class HeadOutput(NamedTuple):
@@ -90,11 +133,13 @@ def shifted_views(x: Tensor, count: int) -> list[Tensor]:
 
 
 class StereoHead(nn.Module):
+    """The shared head (export pathway): one LayerNorm + projection for both views."""
+
     def __init__(self, cfg: HeadConfig = PAPER_HEAD) -> None:
         super().__init__()
         self.cfg = cfg
-        self.norm = nn.LayerNorm(cfg.desc_dim, eps=cfg.ln_eps)
-        self.proj = nn.Linear(cfg.desc_dim, cfg.proj_dim)
+        self.check_config(cfg)
+        self.build_features(cfg)
         per_group = cfg.proj_dim // cfg.groups
         # Channel -> group averaging as one MatMul: no reshape with dynamic sizes in the graph.
         group_of = torch.arange(cfg.proj_dim) // per_group
@@ -111,6 +156,24 @@ class StereoHead(nn.Module):
         )
         self.out = nn.Conv3d(cfg.hidden, 1, 3, padding=1)
 
+    def check_config(self, cfg: HeadConfig) -> None:
+        if cfg.pathway != "export":
+            raise ValueError(f"StereoHead is the export head; {cfg.pair_features!r}: NativeHead")
+
+    def build_features(self, cfg: HeadConfig) -> None:
+        """The modules before the correlation (registered first: the state dict's order)."""
+        self.norm = nn.LayerNorm(cfg.desc_dim, eps=cfg.ln_eps)
+        self.proj = nn.Linear(cfg.desc_dim, cfg.proj_dim)
+
+    def features(self, first: Tensor, second: Tensor) -> tuple[Tensor, Tensor]:
+        """(f_L, f_R), each (B, T, P, C), from the head's two input maps."""
+        return self.project(first), self.project(second)
+
+    @torch.no_grad()
+    def init_from(self, first: Tensor, second: Tensor) -> None:
+        """Data-dependent init from a few samples of the two input maps (B, T, P, desc_dim)."""
+        self.init_projection(torch.cat([first, second]).float())
+
     @torch.no_grad()
     def init_projection(self, desc: Tensor) -> None:
         """Data-dependent init: the projection becomes centred PCA of LayerNorm(desc).
@@ -121,15 +184,11 @@ class StereoHead(nn.Module):
         principal directions (scaled to unit mean variance), starts the correlation as an
         inner product of what differs between tokens, which is what matching needs.
         """
-        x = self.norm(desc.reshape(-1, self.cfg.desc_dim).float())
-        mean = x.mean(dim=0)
-        cov = torch.cov((x - mean).T)
-        eigval, eigvec = torch.linalg.eigh(cov)  # ascending
-        top = eigvec[:, -self.cfg.proj_dim :].flip(-1).T  # (C, desc_dim)
-        scale = eigval[-self.cfg.proj_dim :].clamp_min(0).mean().sqrt().clamp_min(1e-6)
-        weight = top / scale
+        weight, bias = pca_projection(
+            self.norm(desc.reshape(-1, self.cfg.desc_dim).float()), self.cfg.proj_dim
+        )
         self.proj.weight.copy_(weight)
-        self.proj.bias.copy_(-(weight @ mean))
+        self.proj.bias.copy_(bias)
 
     def project(self, desc: Tensor) -> Tensor:
         """(B, T, P, desc_dim) -> (B, T, P, C); the same weights for both views."""
@@ -158,13 +217,73 @@ class StereoHead(nn.Module):
     def forward(self, desc_left: Tensor, desc_right: Tensor) -> HeadOutput:
         if not torch.onnx.is_in_onnx_export() and desc_left.shape != desc_right.shape:
             raise ValueError(f"{tuple(desc_left.shape)} vs {tuple(desc_right.shape)}")
-        volume = self.correlation(self.project(desc_left), self.project(desc_right))
+        volume = self.correlation(*self.features(desc_left, desc_right))
         valid = self.candidate_mask(desc_left)
         logits = self.regularise(volume) - (1.0 - valid) * MASKED_LOGIT
         prob = torch.softmax(logits, dim=1)
         disparity = (prob * self.candidates.view(1, -1, 1, 1)).sum(dim=1)
         confidence = prob.amax(dim=1)
         return HeadOutput(logits, disparity, confidence)
+
+
+def pca_projection(x: Tensor, dim: int) -> tuple[Tensor, Tensor]:
+    """(weight (dim, F), bias (dim,)) projecting rows of x (N, F) onto their top `dim` centred
+    principal directions, scaled to unit mean variance (StereoHead.init_projection)."""
+    mean = x.mean(dim=0)
+    cov = torch.cov((x - mean).T)
+    eigval, eigvec = torch.linalg.eigh(cov)  # ascending
+    top = eigvec[:, -dim:].flip(-1).T  # (dim, F)
+    scale = eigval[-dim:].clamp_min(0).mean().sqrt().clamp_min(1e-6)
+    weight = top / scale
+    return weight, -(weight @ mean)
+
+
+class NativeHead(StereoHead):
+    """The native-pathway head: pair features of the phase maps, two projections (module doc)."""
+
+    def check_config(self, cfg: HeadConfig) -> None:
+        if cfg.pathway != "native":
+            raise ValueError("NativeHead needs pair_features 'concat' or 'full'")
+
+    def build_features(self, cfg: HeadConfig) -> None:
+        self.norm = nn.LayerNorm(cfg.pair_dim, eps=cfg.ln_eps)
+        self.proj_left = nn.Linear(cfg.pair_dim, cfg.proj_dim)
+        self.proj_right = nn.Linear(cfg.pair_dim, cfg.proj_dim)
+
+    def pair_features(self, even: Tensor, odd: Tensor) -> Tensor:
+        """u (B, T, P, pair_dim) from the phase maps (B, T, P, desc_dim), LayerNorm applied."""
+        parts = [even, odd]
+        if self.cfg.pair_features == "full":
+            # |a - b| as two Relu of Sub: no Abs or Neg in the ONNX graph (op set above).
+            parts += [F.relu(even - odd) + F.relu(odd - even), even * odd]
+        return self.norm(torch.cat(parts, dim=-1))
+
+    def features(self, first: Tensor, second: Tensor) -> tuple[Tensor, Tensor]:
+        u = self.pair_features(first, second)
+        return self.proj_left(u), self.proj_right(u)
+
+    @torch.no_grad()
+    def init_from(self, first: Tensor, second: Tensor) -> None:
+        """Both projections start as the centred PCA of LayerNorm(u) (as the shared head's
+        init): the correlation starts as an inner product of what differs between pair
+        features, and training separates P_L from P_R (the shifts make their gradients differ).
+        """
+        u = self.pair_features(first.float(), second.float())
+        weight, bias = pca_projection(u.reshape(-1, self.cfg.pair_dim), self.cfg.proj_dim)
+        for proj in (self.proj_left, self.proj_right):
+            proj.weight.copy_(weight)
+            proj.bias.copy_(bias)
+
+    def init_projection(self, desc: Tensor) -> None:
+        raise TypeError("a native head starts from both phase maps: init_from(even, odd)")
+
+    def project(self, desc: Tensor) -> Tensor:
+        raise TypeError("a native head projects pair features of both maps: features(even, odd)")
+
+
+def make_head(cfg: HeadConfig) -> StereoHead:
+    """The head class a config names: StereoHead (export pathway) or NativeHead."""
+    return NativeHead(cfg) if cfg.pathway == "native" else StereoHead(cfg)
 
 
 @dataclass(frozen=True)
@@ -213,13 +332,30 @@ def head_loss(
 
 
 def head_parameters(cfg: HeadConfig = PAPER_HEAD) -> int:
-    return parameter_count(StereoHead(cfg))
+    return parameter_count(make_head(cfg))
+
+
+def head_macs(cfg: HeadConfig, rows: int = 12, cols: int = 40) -> int:
+    """Multiply-accumulates of one head pass on a rows x cols token grid (48x160 px: 12 x 40):
+    projections, the correlation products (each summed into its group), the 3D convolutions
+    (zero padding counted, as a dense kernel computes it). LayerNorm, the pair features' |a-b|
+    and a*b, and the softmax are elementwise and not counted."""
+    cells = rows * cols
+    proj = 2 * cells * cfg.pair_dim * cfg.proj_dim  # two views, or P_L and P_R of one u
+    corr = cells * cfg.max_disp * cfg.proj_dim
+    voxels = cfg.max_disp * cells
+    conv = (
+        voxels
+        * 27
+        * (cfg.groups * cfg.hidden + cfg.middle_layers * cfg.hidden * cfg.hidden + cfg.hidden)
+    )
+    return proj + corr + conv
 
 
 def load_head(checkpoint: Path) -> StereoHead:
     """A head from a head-training checkpoint (`head_config` + `head` state dict)."""
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    head = StereoHead(HeadConfig(**state["head_config"]))
+    head = make_head(HeadConfig(**state["head_config"]))
     head.load_state_dict(state["head"])
     return head.eval()
 
@@ -237,6 +373,11 @@ class _ExportWrapper(nn.Module):
         return out.disparity, out.confidence
 
 
+def head_input_names(cfg: HeadConfig) -> list[str]:
+    """The export head reads `desc_left`, `desc_right`; a native head `phase_even`, `phase_odd`."""
+    return ["phase_even", "phase_odd"] if cfg.pathway == "native" else ["desc_left", "desc_right"]
+
+
 def head_output_names(logits: bool) -> list[str]:
     return ["disparity", "confidence", "logits"] if logits else ["disparity", "confidence"]
 
@@ -250,13 +391,14 @@ def export_head_onnx(
     rows: int = 12,
     cols: int = 40,
 ) -> None:
-    """Inputs `desc_left`, `desc_right` (1, T, P, desc_dim), T and P dynamic; outputs
+    """Inputs `head_input_names` (1, T, P, desc_dim), T and P dynamic; outputs
     `disparity` and `confidence` (1, T, P) (patch columns), optionally `logits` (1, D, T, P)."""
     cfg = head.cfg
     example = torch.zeros(1, rows, cols, cfg.desc_dim)
     names = head_output_names(logits)
     grid = {1: "token_rows", 2: "patch_cols"}
-    dynamic: dict[str, dict[int, str]] = {"desc_left": grid, "desc_right": grid}
+    inputs = head_input_names(cfg)
+    dynamic: dict[str, dict[int, str]] = {name: grid for name in inputs}
     for name in names:
         dynamic[name] = {2: "token_rows", 3: "patch_cols"} if name == "logits" else grid
     out.parent.mkdir(parents=True, exist_ok=True)
@@ -265,7 +407,7 @@ def export_head_onnx(
             _ExportWrapper(head.eval(), logits),
             (example, example),
             str(out),
-            input_names=["desc_left", "desc_right"],
+            input_names=inputs,
             output_names=names,
             dynamic_axes=dynamic,
             opset_version=OPSET,
@@ -275,6 +417,7 @@ def export_head_onnx(
         "bino.weights": provenance,
         "bino.head_config": repr(cfg.to_dict()),
         "bino.parameters": str(parameter_count(head)),
+        "bino.pathway": cfg.pathway,
         "bino.disparity_unit": "patch columns (4 px at the encoder input)",
     }
     stamp_metadata(out, meta)
@@ -292,8 +435,15 @@ def main(argv: list[str] | None = None) -> None:
     )
     args = parser.parse_args(argv)
     if args.checkpoint is None:
-        n = head_parameters()
-        print(f"stereo head: {n:,} parameters ({n / 1e6:.4f}M), config {PAPER_HEAD.to_dict()}")
+        encoder = encoder_macs(PAPER_CONFIG)
+        for name, cfg in [("stereo head", PAPER_HEAD)] + [
+            (f"native head ({k})", c) for k, c in NATIVE_HEADS.items()
+        ]:
+            n, macs = head_parameters(cfg), head_macs(cfg)
+            print(
+                f"{name}: {n:,} parameters ({n / 1e6:.4f}M), {macs / 1e6:.1f}M MACs at 48x160 "
+                f"({100 * macs / encoder:.2f} % of an encoder pass), config {cfg.to_dict()}"
+            )
         return
     if args.out is None:
         parser.error("--out is required with --checkpoint")

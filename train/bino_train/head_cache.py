@@ -1,14 +1,17 @@
 """A descriptor cache for head training: crops encoded once, reused by every head step.
 
     python -m bino_train.head_cache --encoder runs/PRE/last.pt --out runs/cache_NAME.pt \
-        --count 6000 [--label-weighting lr] [--synthetic-fraction 0.5]
+        --count 6000 [--label-weighting lr] [--synthetic-fraction 0.5] [--pathway native]
 
 Sample i is `HeadSampler(data, seed).sample(i)` (synthetic scenes and SGBM pseudo-labels of
 the head-training pairs: the train split less the validation pairs), encoded by the frozen
-encoder under no_grad; the file holds every DescBatch field at storage precision (descriptors
-and clean crops fp16) plus what made it (data config, seed, count, encoder hash), so a head run
-that reads it can check it is paired with the right encoder and resume exactly.
-About 0.18 s a sample on one core of the 2-core dev VM (two 48x160 encoder passes + SGBM).
+encoder under no_grad (`--pathway export`: D(L) and D(R), two passes a crop; `native`: the
+phase maps of one pass on (L, R), head_data.encode_maps); the file holds every DescBatch field
+at storage precision (maps and clean crops fp16) plus what made it (data config, seed, count,
+encoder hash, pathway), so a head run that reads it can check it is paired with the right
+encoder and pathway and resume exactly.
+About 0.18 s a sample on one core of the 2-core dev VM (two 48x160 encoder passes + SGBM);
+the native pathway about 0.3 s on the same VM while it was shared by several jobs.
 """
 
 from __future__ import annotations
@@ -25,10 +28,12 @@ import torch
 
 from .head_data import (
     LABEL_WEIGHTINGS,
+    PATHWAYS,
     DataConfig,
     DescBatch,
     HeadSampler,
     batch_fields,
+    check_pathway,
     encode,
     stored_batch,
 )
@@ -46,6 +51,15 @@ class DescriptorCache:
     def count(self) -> int:
         return int(self.data.left.shape[0])
 
+    @property
+    def pathway(self) -> str:
+        return cache_pathway(self.meta)
+
+
+def cache_pathway(meta: dict[str, Any]) -> str:
+    """The pathway a cache was encoded for (caches from before the native pathway: export)."""
+    return check_pathway(str(meta.get("pathway", "export")))
+
 
 def build_cache(
     encoder: BinoEncoder,
@@ -55,6 +69,7 @@ def build_cache(
     count: int,
     data_dir: Path | None,
     progress: bool = True,
+    pathway: str = "export",
 ) -> DescriptorCache:
     sampler = HeadSampler(data, seed, data_dir)
     device = torch.device("cpu")
@@ -63,7 +78,9 @@ def build_cache(
     start = time.perf_counter()
     for lo in range(0, count, CHUNK):
         hi = min(count, lo + CHUNK)
-        chunks.append(stored_batch(encode(encoder, sampler.samples(range(lo, hi)), device)))
+        chunks.append(
+            stored_batch(encode(encoder, sampler.samples(range(lo, hi)), device, pathway))
+        )
         if progress:
             rate = hi / (time.perf_counter() - start)
             eta = (count - hi) / rate
@@ -74,6 +91,7 @@ def build_cache(
         "seed": seed,
         "count": count,
         "encoder_sha256": encoder_sha256,
+        "pathway": check_pathway(pathway),
         "build_seconds": round(time.perf_counter() - start, 1),
     }
     return DescriptorCache(meta, DescBatch(*fields))
@@ -116,6 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--synthetic-fraction", type=float, default=0.5)
     p.add_argument("--label-weighting", choices=LABEL_WEIGHTINGS, default="lr")
+    p.add_argument("--pathway", choices=PATHWAYS, default="export", help="maps to store")
     p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     args = p.parse_args(argv)
@@ -132,10 +151,15 @@ def main(argv: list[str] | None = None) -> None:
         synthetic_fraction=args.synthetic_fraction,
         label_weighting=args.label_weighting,
     )
-    cache = build_cache(encoder, encoder_digest(encoder), data, args.seed, args.count, args.data)
+    digest = encoder_digest(encoder)
+    cache = build_cache(
+        encoder, digest, data, args.seed, args.count, args.data, pathway=args.pathway
+    )
     cache.meta["encoder_path"] = str(args.encoder.resolve())
     save_cache(cache, args.out)
-    print(f"wrote {args.out}: {cache.count} samples in {cache.meta['build_seconds']} s")
+    print(
+        f"wrote {args.out}: {cache.count} {args.pathway} samples in {cache.meta['build_seconds']} s"
+    )
 
 
 if __name__ == "__main__":

@@ -424,8 +424,9 @@ class HeadSampler:
 @dataclass(frozen=True)
 class DescBatch:
     left: Tensor
-    """(B, T, P, d) descriptor maps of the left crops."""
+    """(B, T, P, d) descriptor maps of the left crops (native pathway: the even phase maps)."""
     right: Tensor
+    """The right crops' descriptor maps (native pathway: the odd phase maps)."""
     label: Tensor
     """(B, T, P) patch columns, NaN where unknown."""
     synthetic: Tensor
@@ -440,24 +441,64 @@ ENCODE_CHUNK = 32
 """Images per encoder forward; fixed so that a regenerated batch is bit-identical."""
 
 
-@torch.no_grad()
-def encode(encoder: BinoEncoder, samples: Sequence[Sample], device: torch.device) -> DescBatch:
-    """Descriptors of both views of each crop under no_grad (the encoder is frozen), with the
-    labels, their weights and the crops themselves."""
+PATHWAYS = ("export", "native")
+"""export: D(I) of each view, encoder on (L, L) and (R, R); native: the phase maps of one pass on
+(L, R) (DESIGN.md, Readouts)."""
+
+
+def check_pathway(pathway: str) -> str:
+    if pathway not in PATHWAYS:
+        raise ValueError(f"pathway {pathway!r} not in {PATHWAYS}")
+    return pathway
+
+
+def _gray_batch(images: Sequence[Gray], device: torch.device) -> Tensor:
+    """(N, 3, H, W) from grayscale crops (replicated, as the encoder expects)."""
+    x = torch.from_numpy(np.stack(images)[:, None]).to(device)
+    return x.expand(-1, 3, -1, -1)
+
+
+def encode_maps(
+    encoder: BinoEncoder, samples: Sequence[Sample], device: torch.device, pathway: str
+) -> tuple[Tensor, Tensor]:
+    """The two maps a head reads for each crop: (D(L), D(R)) on the export pathway, the phase
+    maps (even, odd) of the encoder on (L, R) on the native one. Each (N, T, P, d), fp32."""
+    if check_pathway(pathway) == "native":
+        evens, odds = [], []
+        for i in range(0, len(samples), ENCODE_CHUNK):
+            chunk = samples[i : i + ENCODE_CHUNK]
+            left = _gray_batch([s.left for s in chunk], device)
+            right = _gray_batch([s.right for s in chunk], device)
+            even, odd = encoder.phase_maps(left, right)
+            evens.append(even.float())
+            odds.append(odd.float())
+        return torch.cat(evens), torch.cat(odds)
     images = [s.left for s in samples] + [s.right for s in samples]
-    descs = []
-    for i in range(0, len(images), ENCODE_CHUNK):
-        x = torch.from_numpy(np.stack(images[i : i + ENCODE_CHUNK])[:, None]).to(device)
-        descs.append(encoder.descriptors(x.expand(-1, 3, -1, -1)).float())
+    descs = [
+        encoder.descriptors(_gray_batch(images[i : i + ENCODE_CHUNK], device)).float()
+        for i in range(0, len(images), ENCODE_CHUNK)
+    ]
     d = torch.cat(descs)
-    n = len(samples)
+    return d[: len(samples)], d[len(samples) :]
+
+
+@torch.no_grad()
+def encode(
+    encoder: BinoEncoder,
+    samples: Sequence[Sample],
+    device: torch.device,
+    pathway: str = "export",
+) -> DescBatch:
+    """The maps of each crop (`encode_maps`) under no_grad (the encoder is frozen), with the
+    labels, their weights and the crops themselves."""
+    left, right = encode_maps(encoder, samples, device, pathway)
     label = torch.from_numpy(np.stack([s.label for s in samples])).to(device)
     weight = torch.from_numpy(np.stack([s.label_weight() for s in samples])).to(device)
     synthetic = torch.tensor([s.synthetic for s in samples], device=device)
     crops = torch.from_numpy(
         np.stack([np.stack(s.clean or (s.left, s.right)) for s in samples])
     ).to(device)
-    return DescBatch(d[:n], d[n:], label, synthetic, weight, crops)
+    return DescBatch(left, right, label, synthetic, weight, crops)
 
 
 def batch_fields(batch: DescBatch) -> list[Tensor]:

@@ -8,12 +8,15 @@ overlapping bands stitched for taller images); the head runs on the whole stitch
 convolutional in rows and columns). Head disparity in patch columns x 4 = px on the token grid,
 bilinearly upsampled to pixels, then epe / bad1tok / bad2 per pair and the mean over pairs.
 The no-linkage probe (cosine WTA, 10 columns) on the same descriptors is reported alongside.
-The head predicts every pixel: density 100.
+The head predicts every pixel: density 100. A native head (head.NativeHead) reads the phase maps
+of one encoder pass on each pair instead (`pair_inputs`); it has no probe.
 
 `head+lr` is the Rust CLI's readout of that name (`bino_host::readout`): the head's own
-left-right check (the head on the mirrored pair gives the right view's disparity; a left cell
-is kept when the right cell it lands on reads the same disparity within one column), and each
-rejected cell takes the disparity of the nearest kept cell to its left, before upsampling.
+left-right check (the head on the mirrored pair gives the right view's disparity: the export
+head on the mirrored descriptor maps, the native head on the phase maps of the encoder on
+(mirror(R), mirror(L)), not on mirrored phase maps; a left cell is kept when the right cell it
+lands on reads the same disparity within one column), and each rejected cell takes the
+disparity of the nearest kept cell to its left, before upsampling.
 """
 
 from __future__ import annotations
@@ -32,8 +35,10 @@ import torch
 from .head import StereoHead, load_head
 from .model import BinoEncoder
 from .probe import (
+    Gray,
     ProbeItem,
     encoder_describe,
+    encoder_phase_maps,
     load_probe_set,
     mean_metrics,
     run_sgbm,
@@ -75,12 +80,39 @@ def fill_rejected(disparity: np.ndarray, kept: np.ndarray) -> np.ndarray:
     return out
 
 
-def head_lr(head: StereoHead, dl: torch.Tensor, dr: torch.Tensor) -> tuple[np.ndarray, np.ndarray]:
-    """(left disparity, kept mask) of the head and its check, descriptor maps (rows, cols, C)."""
+HeadInputs = tuple[torch.Tensor, torch.Tensor]
+"""The two maps a head reads, each (rows, cols, C): D(L), D(R) or the native phase maps."""
+
+
+def mirror_descriptors(dl: torch.Tensor, dr: torch.Tensor) -> HeadInputs:
+    """The export head's mirrored inputs: the descriptor maps swapped and flipped left-right."""
+    return dr.flip(1), dl.flip(1)
+
+
+def pair_inputs(
+    encoder: BinoEncoder, pathway: str, left: Gray, right: Gray
+) -> tuple[HeadInputs, HeadInputs]:
+    """(inputs, mirrored inputs) of a head of `pathway` for one pair. Native: the phase maps of
+    the encoder on (L, R) and on (mirror(R), mirror(L)); export: D(L), D(R) and their mirror."""
+    if pathway == "native":
+        mirrored = encoder_phase_maps(
+            encoder, np.ascontiguousarray(right[:, ::-1]), np.ascontiguousarray(left[:, ::-1])
+        )
+        return encoder_phase_maps(encoder, left, right), mirrored
+    dl, dr = encoder_describe(encoder)([left, right])
+    return (dl, dr), mirror_descriptors(dl, dr)
+
+
+def head_lr(
+    head: StereoHead, inputs: HeadInputs, mirrored: HeadInputs
+) -> tuple[np.ndarray, np.ndarray]:
+    """(left disparity, kept mask) of the head and its left-right check: the head on `mirrored`
+    (the mirrored pair's inputs, `pair_inputs`) gives the right view's disparity, flipped back."""
     device = next(head.parameters()).device
-    left = head(dl[None].to(device), dr[None].to(device)).disparity[0].float().cpu().numpy()
-    mirrored = head(dr.flip(1)[None].to(device), dl.flip(1)[None].to(device))
-    right = mirrored.disparity[0].float().cpu().numpy()[:, ::-1]
+    first, second = (t[None].to(device) for t in inputs)
+    left = head(first, second).disparity[0].float().cpu().numpy()
+    first, second = (t[None].to(device) for t in mirrored)
+    right = head(first, second).disparity[0].float().cpu().numpy()[:, ::-1]
     return left, consistent(left, right)
 
 
@@ -88,18 +120,19 @@ def head_lr(head: StereoHead, dl: torch.Tensor, dr: torch.Tensor) -> tuple[np.nd
 def head_scores(
     encoder: BinoEncoder, head: StereoHead, items: Sequence[ProbeItem]
 ) -> tuple[list[dict[str, float]], list[dict[str, float]], list[dict[str, float]]]:
-    """Per-pair EVAL.md metrics of the head, of head+lr and of the probe, from one set of
-    descriptors."""
-    describe = encoder_describe(encoder)
+    """Per-pair EVAL.md metrics of the head, of head+lr and of the probe (export pathway only:
+    a native head's list is empty), from one set of encoder outputs."""
     head = head.eval()
+    pathway = head.cfg.pathway
     heads, checked, probes = [], [], []
     for item in items:
-        dl, dr = describe([item.left, item.right])
-        left, kept = head_lr(head, dl, dr)
+        inputs, mirrored = pair_inputs(encoder, pathway, item.left, item.right)
+        left, kept = head_lr(head, inputs, mirrored)
         heads.append(score(upsample_disparity(left), item.gt, item.valid))
         checked.append(score(upsample_disparity(fill_rejected(left, kept)), item.gt, item.valid))
-        probe = wta_subtoken(similarity_volume(dl, dr, PROBE_COLS))
-        probes.append(score(upsample_disparity(probe), item.gt, item.valid))
+        if pathway == "export":
+            probe = wta_subtoken(similarity_volume(*inputs, PROBE_COLS))
+            probes.append(score(upsample_disparity(probe), item.gt, item.valid))
     return heads, checked, probes
 
 
@@ -110,15 +143,17 @@ def evaluate_head(
     profile: str = "w160",
     per_pair: bool = False,
 ) -> dict[str, Any]:
-    """{"head", "head+lr", "probe", "sgbm": metrics} (means over the eval pairs)."""
+    """{"pathway", "head", "head+lr", "probe", "sgbm": metrics} (means over the eval pairs; the
+    probe only on the export pathway, None on the native one)."""
     items = load_probe_set(data_dir, profile)
     heads, checked, probes = head_scores(encoder, head, items)
     out: dict[str, Any] = {
         "profile": profile,
         "pairs": len(items),
+        "pathway": head.cfg.pathway,
         "head": {**mean_metrics(heads), "density": 100.0},
         "head+lr": {**mean_metrics(checked), "density": 100.0},
-        "probe": {**mean_metrics(probes), "density": 100.0},
+        "probe": {**mean_metrics(probes), "density": 100.0} if probes else None,
         "sgbm": run_sgbm(items, profile_width(profile)),
     }
     if per_pair:

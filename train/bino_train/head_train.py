@@ -6,6 +6,8 @@
     python -m bino_train.head_train --random-init-seed 0 --out runs/smoke --smoke  # seconds
     python -m bino_train.head_train --encoder E --cache runs/headcache/C.pt --out runs/NAME \
         --steps 20000 --batch 8 --val-every 1000 [--photometric 1 --smoothness 0.05]
+    python -m bino_train.head_train --encoder E --cache runs/headcache/N.pt --pathway native \
+        [--pair-features full] --steps 4000 --batch 8 --uniform-weights --out runs/NAME
 
 Supervision (head_data.py): synthetic scenes with known sub-pixel disparity and StereoSGBM
 pseudo-labels on train-split crops (48 x 160 after resizing to 160 .. 320 px wide); never the
@@ -14,7 +16,9 @@ descriptor pool (`--pool`, `--refresh`), so one encoder pass serves several head
 with `--cache` (head_cache.py), every crop is encoded once before training and a step costs
 only the head. Labels carry a confidence (`--label-weighting lr`: SGBM's sub-pixel left-right
 agreement; `--uniform-weights` ignores it);
-`--photometric` / `--smoothness` add the self-supervised terms of photometric.py. The head
+`--photometric` / `--smoothness` add the self-supervised terms of photometric.py. `--pathway
+native` trains a native head (head.NativeHead, NATIVE_HEADS) on the phase maps of one encoder
+pass on (L, R); a cache holds one pathway's maps and a run refuses the other pathway's. The head
 trains on the train split less the validation pairs, which `--val-every` scores (head_val.py).
 AdamW with linear warm-up then cosine decay over `--schedule-steps` (fixed at the start).
 
@@ -42,9 +46,17 @@ import torch
 from torch import nn
 
 from .config import EncoderConfig
-from .head import HeadConfig, StereoHead, head_loss
-from .head_cache import DescriptorCache, load_cache, load_cache_meta
-from .head_data import DataConfig, DescBatch, DescriptorPool, HeadSampler, encode, gather
+from .head import NATIVE_HEADS, HeadConfig, head_loss, make_head
+from .head_cache import DescriptorCache, cache_pathway, load_cache, load_cache_meta
+from .head_data import (
+    PATHWAYS,
+    DataConfig,
+    DescBatch,
+    DescriptorPool,
+    HeadSampler,
+    encode,
+    gather,
+)
 from .head_val import ValidationSet
 from .model import BinoEncoder, parameter_count
 from .photometric import photometric_terms
@@ -88,13 +100,23 @@ class HeadTrainConfig:
     """Steps between validations (head_val.py, never the eval split); 0: none."""
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        return {**asdict(self), "head": self.head.to_dict()}
 
     @staticmethod
     def from_dict(d: dict[str, Any]) -> HeadTrainConfig:
         rest = {k: v for k, v in d.items() if k not in ("head", "data")}
         return HeadTrainConfig(
             head=HeadConfig(**d["head"]), data=DataConfig.from_dict(d["data"]), **rest
+        )
+
+
+def check_cache_pathway(path: str, cached: str, wanted: str) -> None:
+    """A cache of one pathway's maps never trains the other pathway's head."""
+    if cached != wanted:
+        raise ValueError(
+            f"descriptor cache {path} holds {cached}-pathway maps, this run trains a head of "
+            f"the {wanted} pathway (build a cache with head_cache --pathway {wanted}, or pass "
+            f"--pathway {cached})"
         )
 
 
@@ -163,11 +185,13 @@ class HeadTrainer:
         self.encoder = encoder.to(device).eval().requires_grad_(False)
         self.source = source
         torch.manual_seed(cfg.seed)
-        self.head = StereoHead(cfg.head).to(device)
+        self.head = make_head(cfg.head).to(device)
+        self.pathway = cfg.head.pathway
         self.opt = torch.optim.AdamW(param_groups([self.head], cfg.weight_decay), lr=cfg.lr)
         self.cache: DescriptorCache | None = None
         if cfg.cache:
             self.cache = load_cache(Path(cfg.cache))
+            check_cache_pathway(cfg.cache, self.cache.pathway, self.pathway)
             if self.cache.meta["encoder_sha256"] != source.sha256:
                 raise ValueError(f"descriptor cache {cfg.cache} was made by another encoder")
             if DataConfig.from_dict(self.cache.meta["data"]) != cfg.data:
@@ -177,7 +201,9 @@ class HeadTrainer:
         self.pool = DescriptorPool(cfg.pool, cfg.refresh)
         self.validation: ValidationSet | None = None
         if cfg.val_every > 0:
-            self.validation = ValidationSet.build(self.encoder, data_dir, cfg.data, device=device)
+            self.validation = ValidationSet.build(
+                self.encoder, data_dir, cfg.data, device=device, pathway=self.pathway
+            )
         self.step = 0
         self.train_seconds = 0.0
         self.encode_seconds = 0.0
@@ -186,7 +212,7 @@ class HeadTrainer:
         """Encode the samples that step `step` adds to the pool."""
         r = self.cfg.refresh
         samples = self.sampler.samples(range(step * r, (step + 1) * r))
-        self.pool.insert(step, encode(self.encoder, samples, self.device))
+        self.pool.insert(step, encode(self.encoder, samples, self.device, self.pathway))
 
     def rebuild_pool(self) -> None:
         """The pool as it was after step `self.step - 1` (used on resume)."""
@@ -201,7 +227,7 @@ class HeadTrainer:
             data = self.cache.data
             if self.step == 0:
                 n = min(self.cfg.refresh, self.cache.count)
-                self.head.init_projection(torch.cat([data.left[:n], data.right[:n]]).float())
+                self.head.init_from(data.left[:n], data.right[:n])
             idx = torch.from_numpy(rng.choice(self.cache.count, size=self.cfg.batch))
             return gather(data, idx)
         t0 = time.perf_counter()
@@ -210,9 +236,7 @@ class HeadTrainer:
         if self.step == 0 and self.pool.data is not None:
             # Fresh run: start the projection from the descriptor statistics (head.py).
             n = self.cfg.refresh
-            self.head.init_projection(
-                torch.cat([self.pool.data.left[:n], self.pool.data.right[:n]]).float()
-            )
+            self.head.init_from(self.pool.data.left[:n], self.pool.data.right[:n])
         return self.pool.draw(rng, self.cfg.batch)
 
     def train_step(self) -> dict[str, Any]:
@@ -342,7 +366,7 @@ def run(trainer: HeadTrainer, opts: RunOptions) -> list[dict[str, Any]]:
             from .head_eval import evaluate_head  # reads the eval split: scoring only
 
             t0 = time.perf_counter()
-            metrics = evaluate_head(trainer.encoder, trainer.head, opts.data_dir)
+            metrics = evaluate_head(trainer.encoder, trainer.head, opts.data_dir)  # its pathway
             record = {"kind": "eval", "step": trainer.step, **metrics}
             record["eval_s"] = round(time.perf_counter() - t0, 2)
             log(record)
@@ -391,6 +415,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--label-weighting", choices=("binary", "lr"), help="SGBM label confidence (no --cache)"
     )
+    p.add_argument("--pathway", choices=PATHWAYS, default="export", help="the maps the head reads")
+    p.add_argument(
+        "--pair-features",
+        choices=tuple(NATIVE_HEADS),
+        help="native head's pair features: [a, b] (concat, default) or [a, b, |a-b|, a*b] (full)",
+    )
     p.add_argument("--uniform-weights", action="store_true", help="ignore label confidence")
     p.add_argument("--photometric", type=float, help="weight of the photometric term")
     p.add_argument("--smoothness", type=float, help="weight of the edge-aware smoothness term")
@@ -407,6 +437,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     if args.smoke:
         args.steps, args.no_eval, args.log_every = args.steps or 60, True, 10
         args.synthetic_only = True
+    if args.pair_features is not None and args.pathway != "native":
+        p.error("--pair-features needs --pathway native")
     if not args.resume and args.encoder is None and args.random_init_seed is None:
         p.error("give --encoder or --random-init-seed (or --resume)")
     if args.steps is None and args.minutes is None:
@@ -418,12 +450,24 @@ def _given(**values: Any) -> dict[str, Any]:
     return {k: v for k, v in values.items() if v is not None}
 
 
+def head_config(pathway: str, pair_features: str | None, desc_dim: int) -> HeadConfig:
+    """The head a pathway trains: the shared head (export), a native head (NATIVE_HEADS)."""
+    if pathway == "native":
+        return replace(NATIVE_HEADS[pair_features or "concat"], desc_dim=desc_dim)
+    return HeadConfig(desc_dim=desc_dim)
+
+
 def build_config(args: argparse.Namespace, desc_dim: int, device: torch.device) -> HeadTrainConfig:
     fraction = 1.0 if args.synthetic_only else args.synthetic_fraction
     if args.cache is not None:
         if fraction is not None or args.widths is not None or args.label_weighting is not None:
             sys.exit("error: with --cache the data comes from the cache")
-        data = DataConfig.from_dict(load_cache_meta(args.cache)["data"])
+        meta = load_cache_meta(args.cache)
+        try:
+            check_cache_pathway(str(args.cache), cache_pathway(meta), args.pathway)
+        except ValueError as err:
+            sys.exit(f"error: {err}")
+        data = DataConfig.from_dict(meta["data"])
     else:
         data = DataConfig(
             **_given(synthetic_fraction=fraction, label_weighting=args.label_weighting)
@@ -434,7 +478,7 @@ def build_config(args: argparse.Namespace, desc_dim: int, device: torch.device) 
     if schedule is None:
         schedule = round(60.0 * args.minutes * ASSUMED_STEPS_PER_S[device.type])
     cfg = HeadTrainConfig(
-        head=HeadConfig(desc_dim=desc_dim),
+        head=head_config(args.pathway, args.pair_features, desc_dim),
         data=data,
         seed=args.seed,
         schedule_steps=schedule,
@@ -454,7 +498,7 @@ def build_config(args: argparse.Namespace, desc_dim: int, device: torch.device) 
         # Tiny encoder, head and crops: CPU seconds, still the full data and loss path.
         cfg = replace(
             cfg,
-            head=replace(SMOKE_HEAD, desc_dim=desc_dim),
+            head=replace(SMOKE_HEAD, desc_dim=desc_dim, pair_features=cfg.head.pair_features),
             data=replace(cfg.data, crop_h=32, crop_w=96),
             batch=args.batch or 8,
             pool=args.pool or 8,

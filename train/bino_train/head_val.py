@@ -9,7 +9,13 @@ Two sets, both fixed for a run:
   training seed), scored in px on the labelled cells whose match lies inside the right crop
   (`head.supervised_cells`: the others have no candidate).
 
-Descriptors are computed once (`ValidationSet.build`); scoring a head costs only the head.
+Encoder outputs are computed once (`ValidationSet.build`); scoring a head costs only the head.
+A set is built for one pathway (`--pathway`): export heads read D(L), D(R); native heads the
+phase maps of one pass on (L, R), and for their left-right check those of the pass on
+(mirror(R), mirror(L)) (head_eval.pair_inputs).
+
+    python -m bino_train.head_val --encoder E --heads runs/A/last.pt runs/B/last.pt
+    python -m bino_train.head_val --encoder E --pathway native --heads runs/N/last.pt
 """
 
 from __future__ import annotations
@@ -21,21 +27,22 @@ from typing import Any
 import numpy as np
 import torch
 from numpy.typing import NDArray
-from torch import Tensor
 
 from .head import StereoHead, supervised_cells
 from .head_data import (
+    PATHWAYS,
     DataConfig,
     DescBatch,
+    check_pathway,
     consistent_sgbm,
     encode,
     synthetic_sample,
     validation_pairs,
 )
-from .head_eval import fill_rejected, head_lr
+from .head_eval import HeadInputs, fill_rejected, head_lr, pair_inputs
 from .model import BinoEncoder
 from .pairs import load_gray
-from .probe import CELL, encoder_describe, mean_metrics, score, upsample_disparity
+from .probe import CELL, mean_metrics, score, upsample_disparity
 from .profile import resize_image
 
 VAL_WIDTH = 160
@@ -46,8 +53,10 @@ SYNTHETIC_SEED = 1_000_003
 @dataclass(frozen=True)
 class HeldOutPair:
     pair_id: str
-    desc_left: Tensor
-    desc_right: Tensor
+    inputs: HeadInputs
+    """The head's two input maps (D(L), D(R), or the native phase maps)."""
+    mirrored: HeadInputs
+    """Those of the mirrored pair, for the head's left-right check."""
     disparity: NDArray[np.float32]
     valid: NDArray[np.bool_]
 
@@ -60,6 +69,7 @@ def _u8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
 class ValidationSet:
     pairs: list[HeldOutPair]
     synthetic: DescBatch
+    pathway: str = "export"
 
     @staticmethod
     @torch.no_grad()
@@ -69,30 +79,36 @@ class ValidationSet:
         data: DataConfig,
         synthetic_count: int = 96,
         device: torch.device | None = None,
+        pathway: str = "export",
     ) -> ValidationSet:
-        describe = encoder_describe(encoder)
+        check_pathway(pathway)
+        encoder.eval()
         pairs = []
         for pair in validation_pairs(data_dir):
             left = resize_image(load_gray(pair.left), VAL_WIDTH)
             right = resize_image(load_gray(pair.right), VAL_WIDTH)
             disparity, valid, _ = consistent_sgbm(_u8(left), _u8(right))
-            dl, dr = describe([left, right])
-            pairs.append(HeldOutPair(pair.pair_id, dl, dr, disparity, valid))
+            inputs, mirrored = pair_inputs(encoder, pathway, left, right)
+            pairs.append(HeldOutPair(pair.pair_id, inputs, mirrored, disparity, valid))
         samples = [
             synthetic_sample(np.random.default_rng([SYNTHETIC_SEED, i]), data)
             for i in range(synthetic_count)
         ]
-        synthetic = encode(encoder, samples, device or torch.device("cpu"))
-        return ValidationSet(pairs, synthetic)
+        synthetic = encode(encoder, samples, device or torch.device("cpu"), pathway)
+        return ValidationSet(pairs, synthetic, pathway)
 
     @torch.no_grad()
     def score(self, head: StereoHead) -> dict[str, Any]:
         """{"val_sgbm": head vs confident SGBM, "val_sgbm_lr": head+lr, "val_synthetic"}."""
+        if head.cfg.pathway != self.pathway:
+            raise ValueError(
+                f"a {head.cfg.pathway}-pathway head on a {self.pathway} validation set"
+            )
         was_training = head.training
         head.eval()
         raw, checked = [], []
         for item in self.pairs:
-            left, kept = head_lr(head, item.desc_left, item.desc_right)
+            left, kept = head_lr(head, item.inputs, item.mirrored)
             raw.append(score(upsample_disparity(left), item.disparity, item.valid))
             filled = upsample_disparity(fill_rejected(left, kept))
             checked.append(score(filled, item.disparity, item.valid))
@@ -127,6 +143,7 @@ def main(argv: list[str] | None = None) -> None:
     p = argparse.ArgumentParser(description=__doc__)
     p.add_argument("--encoder", type=Path, required=True, help="encoder the heads were trained on")
     p.add_argument("--heads", type=Path, nargs="+", required=True, help="head checkpoints")
+    p.add_argument("--pathway", choices=PATHWAYS, default="export", help="the heads' pathway")
     p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     args = p.parse_args(argv)
@@ -134,8 +151,13 @@ def main(argv: list[str] | None = None) -> None:
         torch.set_num_threads(args.threads)
     encoder = load_encoder(args.encoder)
     heads = {str(path): load_head(path) for path in args.heads}
+    for name, head in heads.items():
+        if head.cfg.pathway != args.pathway:
+            p.error(
+                f"{name} is a {head.cfg.pathway}-pathway head; pass --pathway {head.cfg.pathway}"
+            )
     data = DataConfig(crop_h=48, crop_w=160, max_disp=next(iter(heads.values())).cfg.max_disp)
-    val = ValidationSet.build(encoder, args.data, data)
+    val = ValidationSet.build(encoder, args.data, data, pathway=args.pathway)
     print(json.dumps({name: val.score(head) for name, head in heads.items()}, indent=1))
 
 

@@ -160,10 +160,34 @@ class BinoEncoder(nn.Module):
         tokens = self.forward(image, image)
         return phase_average(tokens)
 
+    def phase_maps(self, left: Tensor, right: Tensor) -> tuple[Tensor, Tensor]:
+        """The native pathway: one pass on the actual pair, de-interleaved (`phase_maps`)."""
+        return phase_maps(self.forward(left, right))
+
 
 def phase_average(tokens: Tensor) -> Tensor:
     """Average the two phase tokens (c = 2p, 2p + 1) of each patch column."""
     return 0.5 * (tokens[:, :, 0::2] + tokens[:, :, 1::2])
+
+
+def phase_maps(tokens: Tensor) -> tuple[Tensor, Tensor]:
+    """The fused grid's two phase maps (B, H/4, W/4, d): even fused columns c = 2p, odd 2p + 1.
+
+    Each fused token covers 4 rows x 2 columns of both views, so both maps hold left and right
+    content (different half-columns of a patch column), not one view each."""
+    return tokens[:, :, 0::2], tokens[:, :, 1::2]
+
+
+def encoder_macs(cfg: EncoderConfig, height: int = 48, width: int = 160) -> int:
+    """Multiply-accumulates of one encoder pass on a height x width pair: the patch embedding,
+    and per block the qkv, attention scores, attention-weighted values, output projection and
+    the MLP (norms, softmax, GELU and RoPE are elementwise, not counted)."""
+    tokens = (height // cfg.patch_h) * (2 * width // cfg.patch_w)
+    d = cfg.dim
+    embed = tokens * cfg.in_chans * cfg.patch_h * cfg.patch_w * d
+    attention = tokens * 3 * d * d + 2 * tokens * tokens * d + tokens * d * d
+    mlp = 2 * tokens * d * cfg.mlp_hidden
+    return embed + cfg.depth * (attention + mlp)
 
 
 def parameter_count(model: nn.Module) -> int:

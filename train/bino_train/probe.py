@@ -102,6 +102,30 @@ def encoder_descriptors(model: BinoEncoder, images: Sequence[Gray]) -> list[Tens
     return out
 
 
+@torch.no_grad()
+def encoder_phase_maps(model: BinoEncoder, left: Gray, right: Gray) -> tuple[Tensor, Tensor]:
+    """The native pathway's phase maps (H/4, W/4, d) of one pair: the encoder once on (L, R) per
+    48-row band (the bands of `encoder_descriptors`), de-interleaved, stitched (fp32)."""
+    if left.shape != right.shape:
+        raise ValueError(f"left {left.shape} and right {right.shape} differ")
+    h, w = left.shape
+    if h % CELL or w % CELL:
+        raise ValueError(f"image size {left.shape} is not a multiple of {CELL}")
+    device = next(model.parameters()).device
+    evens, odds = [], []
+    for band in band_plan(h // CELL):
+        rows = slice(band.start * CELL, (band.start + band.rows) * CELL)
+        views = [
+            torch.from_numpy(np.ascontiguousarray(v[rows]))[None, None].expand(-1, 3, -1, -1)
+            for v in (left, right)
+        ]
+        even, odd = model.phase_maps(views[0].to(device), views[1].to(device))
+        keep = slice(band.keep_from - band.start, band.keep_to - band.start)
+        evens.append(even[0, keep].float().cpu())
+        odds.append(odd[0, keep].float().cpu())
+    return torch.cat(evens), torch.cat(odds)
+
+
 def window_descriptors(images: Sequence[Gray], size: int) -> list[Tensor]:
     """Zero-mean, unit-norm size x size pixel window centred on each 4x4 cell (reflect padding)."""
     if size < CELL or (size - CELL) % 2:

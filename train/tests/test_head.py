@@ -35,7 +35,13 @@ from bino_train.head_data import (
     sgbm_disparity,
     synthetic_sample,
 )
-from bino_train.head_eval import consistent, evaluate_head, fill_rejected, head_lr
+from bino_train.head_eval import (
+    consistent,
+    evaluate_head,
+    fill_rejected,
+    head_lr,
+    mirror_descriptors,
+)
 from bino_train.head_train import (
     SMOKE_ENCODER,
     SMOKE_HEAD,
@@ -305,7 +311,7 @@ def test_the_mirrored_head_reads_the_right_view() -> None:
     head = StereoHead(replace(SMOKE_HEAD, desc_dim=8)).eval()
     dl, dr = torch.randn(6, 10, 8), torch.randn(6, 10, 8)
     with torch.no_grad():
-        left, kept = head_lr(head, dl, dr)
+        left, kept = head_lr(head, (dl, dr), mirror_descriptors(dl, dr))
         direct = head(dr.flip(1)[None], dl.flip(1)[None]).disparity[0].numpy()[:, ::-1]
         assert np.allclose(left, head(dl[None], dr[None]).disparity[0].numpy())
     assert kept.tolist() == consistent(left, direct).tolist()
