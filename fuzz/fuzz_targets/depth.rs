@@ -43,7 +43,8 @@ fuzz_target!(|input: Input| {
                 / (f64::from(q8) / 256.0 * unit.pixels() as f64 * scale);
             let got = f64::from(got.unwrap());
             if want < f64::from(u32::MAX) * 0.99 {
-                assert!((got - want).abs() <= 0.5 + want * 1e-6, "q8 {q8}: {got} mm, expected {want}");
+                // The documented bound of `depth_mm`.
+                assert!((got - want).abs() <= 0.5 + want * 1e-6 + 1e-5, "q8 {q8}: {got} mm, expected {want}");
             }
         }
     }
