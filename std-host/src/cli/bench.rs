@@ -1,6 +1,5 @@
 //! `bino bench`: tract-onnx (f32) against the int8 engine on one band, single-threaded.
 
-use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::Result;
@@ -53,9 +52,5 @@ pub fn run(args: BenchArgs) -> Result<()> {
         eprintln!("WARNING: debug build: timings are only meaningful with --release");
     }
     println!("{}", report.text());
-    if let Some(path) = &args.json {
-        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
-        println!("wrote {}", path.display());
-    }
-    Ok(())
+    super::write_json(args.json.as_deref(), || report.to_json())
 }

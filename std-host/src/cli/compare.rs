@@ -1,6 +1,5 @@
 //! `bino compare`: the float encoder (tract-onnx) against the int8 engine on eval pairs.
 
-use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::Result;
@@ -84,9 +83,5 @@ pub fn run(args: CompareArgs) -> Result<()> {
     })?;
     progress.finish();
     println!("{}", report.table());
-    if let Some(path) = &args.json {
-        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
-        println!("wrote {}", path.display());
-    }
-    Ok(())
+    super::write_json(args.json.as_deref(), || report.to_json())
 }

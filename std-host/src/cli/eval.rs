@@ -1,6 +1,5 @@
 //! `bino eval`: the readouts scored on the eval split, int8 and f32, StereoSGBM beside them.
 
-use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::Result;
@@ -130,9 +129,5 @@ pub fn run(args: EvalArgs) -> Result<()> {
     })?;
     progress.finish();
     println!("{}", report.table());
-    if let Some(path) = &args.json {
-        bino_host::files::write_atomic(path, |file| Ok(file.write_all(report.to_json().as_bytes())?))?;
-        println!("wrote {}", path.display());
-    }
-    Ok(())
+    super::write_json(args.json.as_deref(), || report.to_json())
 }

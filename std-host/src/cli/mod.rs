@@ -60,6 +60,15 @@ impl Cli {
     }
 }
 
+/// Writes a report's JSON to `--json PATH` (atomically) when given, and says so.
+fn write_json(path: Option<&std::path::Path>, json: impl FnOnce() -> String) -> Result<()> {
+    if let Some(path) = path {
+        bino_host::files::write_atomic(path, |file| Ok(std::io::Write::write_all(file, json().as_bytes())?))?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
 /// Exits with clap's usage error (code 2) for `subcommand`, as a bad value would.
 fn usage_error(subcommand: &str, msg: String) -> ! {
     let mut cli = Cli::command().bin_name("bino");
