@@ -1,0 +1,110 @@
+"""Choose the pixel refinement's parameters on held-out train pairs, never on the eval split.
+
+For each held-out train pair (`head_data.validation_pairs`) at a profile width, the float head
+with its own left-right check and fill (head+lr, as `head_eval`) gives a token grid; the
+integer refinement (`refine.refine_int`, bit-exact with `bino_core::refine`) turns it into
+pixels for every parameter set asked for, and each result is scored like EVAL.md against
+StereoSGBM's pixels that pass its own checks and the sub-pixel left-right check
+(`head_data.consistent_sgbm`: agreement with confident SGBM, a proxy, not accuracy).
+
+    python -m bino_train.refine_val --encoder E --head H --width 320 --search 2 4 6
+
+prints one JSON object: per width and parameter set, the mean epe / bad1tok / bad2 and the
+change of epe against the unrefined (bilinear) grid.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from numpy.typing import NDArray
+
+from .head import StereoHead
+from .head_data import consistent_sgbm, validation_pairs
+from .head_eval import fill_rejected, head_lr, pair_inputs
+from .model import BinoEncoder
+from .pairs import load_gray
+from .probe import mean_metrics, score, upsample_disparity
+from .profile import resize_image
+from .refine import RefineParams, refine_int
+
+
+def to_q8(tokens: NDArray[np.float32]) -> NDArray[np.uint16]:
+    """Patch-column disparities to the readouts' Q8 (rounded half up, saturated)."""
+    return np.clip(np.floor(tokens.astype(np.float64) * 256.0 + 0.5), 0, 65535).astype(np.uint16)
+
+
+def _u8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
+    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+
+
+@torch.no_grad()
+def validate(
+    encoder: BinoEncoder,
+    head: StereoHead,
+    width: int,
+    params: list[RefineParams],
+    data_dir: Path | None = None,
+) -> dict[str, Any]:
+    """Mean metrics of head+lr unrefined and refined with each of `params` at `width`."""
+    encoder.eval()
+    head.eval()
+    unrefined: list[dict[str, float]] = []
+    refined: list[list[dict[str, float]]] = [[] for _ in params]
+    pairs = validation_pairs(data_dir)
+    for pair in pairs:
+        left_f = resize_image(load_gray(pair.left), width)
+        right_f = resize_image(load_gray(pair.right), width)
+        left, right = _u8(left_f), _u8(right_f)
+        gt, valid, _ = consistent_sgbm(left, right)
+        inputs, mirrored = pair_inputs(encoder, head.cfg.pathway, left_f, right_f)
+        tokens, kept = head_lr(head, inputs, mirrored)
+        filled = fill_rejected(tokens, kept)
+        unrefined.append(score(upsample_disparity(filled), gt, valid))
+        q8 = to_q8(filled)
+        for out, p in zip(refined, params, strict=True):
+            pixels = refine_int(left, right, q8, p).astype(np.float32) / np.float32(256.0)
+            out.append(score(pixels, gt, valid))
+    base = mean_metrics(unrefined)
+    rows = []
+    for p, scores in zip(params, refined, strict=True):
+        m = mean_metrics(scores)
+        rows.append({**asdict(p), **m, "epe_change": m["epe"] / base["epe"] - 1.0})
+    return {"width": width, "pairs": len(pairs), "unrefined": base, "refined": rows}
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--encoder", type=Path, required=True, help="encoder checkpoint")
+    parser.add_argument("--head", type=Path, required=True, help="head checkpoint")
+    parser.add_argument("--width", type=int, nargs="+", default=[160, 320], help="profile widths")
+    parser.add_argument("--search", type=int, nargs="+", default=[2], help="search radii (px)")
+    parser.add_argument("--lam", type=int, nargs="+", default=[50], help="lambda values")
+    parser.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
+    parser.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    args = parser.parse_args(argv)
+    if args.threads > 0:
+        torch.set_num_threads(args.threads)
+
+    from .export import load_encoder
+    from .head import load_head
+
+    params = [RefineParams(search=s, lam=lam) for s in args.search for lam in args.lam]
+    for p in params:
+        p.check()
+    encoder = load_encoder(args.encoder)
+    head = load_head(args.head)
+    results = [validate(encoder, head, w, params, args.data) for w in args.width]
+    print(json.dumps(results, indent=1))
+
+
+if __name__ == "__main__":
+    main()

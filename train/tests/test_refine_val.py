@@ -1,0 +1,36 @@
+"""Choosing the refinement's parameters on held-out train pairs (bino_train.refine_val)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from bino_train import refine_val
+from bino_train.export import random_encoder
+from bino_train.head import StereoHead
+from bino_train.pairs import training_pairs
+from bino_train.refine import RefineParams
+
+
+def test_q8_rounds_half_up_and_saturates() -> None:
+    tokens = np.array([[0.0, 0.5 / 256, 1.0, 300.0, -1.0]], dtype=np.float32)
+    assert refine_val.to_q8(tokens).tolist() == [[0, 1, 256, 65535, 0]]
+
+
+def test_validation_scores_each_parameter_set_against_the_unrefined_grid(
+    data_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # The tiny data set has no dataset of four pairs, so hold out its train pairs directly.
+    monkeypatch.setattr(refine_val, "validation_pairs", lambda d: training_pairs(d))
+    torch.manual_seed(0)
+    params = [RefineParams(search=0), RefineParams(search=3)]
+    out = refine_val.validate(random_encoder(0), StereoHead(), 160, params, data_dir)
+    assert out["width"] == 160 and out["pairs"] == len(training_pairs(data_dir))
+    base = out["unrefined"]["epe"]
+    assert [r["search"] for r in out["refined"]] == [0, 3]
+    for row in out["refined"]:
+        assert np.isfinite(row["epe"]) and 0.0 <= row["bad2"] <= 100.0
+        assert row["epe_change"] == pytest.approx(row["epe"] / base - 1.0)
