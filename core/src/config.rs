@@ -33,6 +33,9 @@ pub const MAX_TOKEN_ROWS: usize = MAX_HEIGHT / PATCH_H;
 
 /// Channels of the shared head's L/R projection.
 pub const HEAD_PROJ_DIM: usize = 96;
+/// Projection channels of the native pathway's head (`P_L`, `P_R`; 96 would put it over 15 %
+/// of an encoder pass in MACs at 48x160, `train/bino_train/head.py`, `NATIVE_HEAD`).
+pub const NATIVE_HEAD_PROJ_DIM: usize = 64;
 /// Groups of the head's groupwise correlation.
 pub const HEAD_GROUPS: usize = 16;
 /// Channels of the head's 3D regularisation net.

@@ -106,6 +106,14 @@ pub enum Error {
         /// Rows lost so far.
         lost: usize,
     },
+    /// A head stream was given the other pathway's input (descriptor rows to the native
+    /// head, or pair-token rows to the export head).
+    PathwayMismatch {
+        /// The head's pathway (`export` or `native`).
+        head: &'static str,
+        /// The pathway whose input it was given.
+        input: &'static str,
+    },
     /// The weight blob is malformed or lacks a tensor the model needs.
     Blob(crate::blob::BlobError),
 }
@@ -138,6 +146,12 @@ impl fmt::Display for Error {
                 write!(f, "weight blob tensor {:#010x} holds an out-of-range parameter", id.0)
             }
             Error::StreamFinished => write!(f, "row pushed after the stream was finished"),
+            Error::PathwayMismatch { head, input } => {
+                write!(
+                    f,
+                    "the {head} pathway's head was given the {input} pathway's input rows"
+                )
+            }
             Error::Candidates { requested, max } => {
                 write!(
                     f,

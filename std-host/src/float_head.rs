@@ -1,5 +1,7 @@
-//! The float shared stereo head's parameters, read from its ONNX export
-//! (`python -m bino_train.head --checkpoint ... --out ...`; `train/bino_train/head.py`).
+//! The float stereo heads' parameters, read from their ONNX exports
+//! (`python -m bino_train.head --checkpoint ... --out ...`; `train/bino_train/head.py`): the
+//! export pathway's shared head and the native pathway's head with pair features `u = [a, b]`
+//! (`NATIVE_HEAD`; the `[a, b, |a-b|, a*b]` variant has no int8 twin and is refused).
 //!
 //! Layouts follow PyTorch: the projection is `out x in` row-major, Conv3d kernels are
 //! `(out, in, 3, 3, 3)` over (disparity, row, column).
@@ -7,7 +9,8 @@
 use std::path::Path;
 
 use anyhow::{ensure, Context, Result};
-use bino_core::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM};
+use bino_core::config::{HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
+use bino_core::model::ids::HeadKind;
 
 use crate::float_weights::{FloatLinear, ONNX_DEFAULT_LN_EPS};
 use crate::onnx_params::OnnxParams;
@@ -48,18 +51,24 @@ impl FloatConv3d {
     }
 }
 
-/// The shared head: LayerNorm + projection on both views, groupwise correlation over
-/// `max_disp` candidates, then stem, residual middle layers and output Conv3d.
+/// A stereo head: LayerNorm + projection on both views (export) or LayerNorm of the pair
+/// feature and two projections (native), groupwise correlation over `max_disp` candidates, then
+/// stem, residual middle layers and output Conv3d.
 #[derive(Debug, Clone, PartialEq)]
 pub struct FloatHead {
-    /// LayerNorm scale (128).
+    /// Which head: export (shared) or native.
+    pub kind: HeadKind,
+    /// LayerNorm scale (`kind.input_dim()`: 128, or 256 for the native `[a, b]`).
     pub norm_weight: Vec<f32>,
-    /// LayerNorm shift (128).
+    /// LayerNorm shift.
     pub norm_bias: Vec<f32>,
     /// LayerNorm epsilon.
     pub ln_eps: f32,
-    /// Descriptor projection, 128 -> 96 (shared by both views).
+    /// The left projection: the export head's shared one (128 -> 96, both views), or the
+    /// native head's `P_L` (256 -> 64).
     pub proj: FloatLinear,
+    /// The native head's `P_R` (256 -> 64); `None` for the export head (its `proj` serves both).
+    pub proj_right: Option<FloatLinear>,
     /// Correlation groups (96 channels / 16 groups = 6 channels averaged per group).
     pub groups: usize,
     /// Disparity candidates 0 .. max_disp - 1, in patch columns.
@@ -73,8 +82,8 @@ pub struct FloatHead {
 }
 
 impl FloatHead {
-    /// Reads the head exported to `path`, checking it has the paper's shape (proj 96,
-    /// 16 groups, hidden 24, 4 middle layers, 12 candidates).
+    /// Reads the head exported to `path`, checking it has the paper's shape (proj 96, or 64 for
+    /// the native head, 16 groups, hidden 24, 4 middle layers, 12 candidates).
     pub fn from_onnx(path: &Path) -> Result<Self> {
         let params = OnnxParams::load(path)?;
         Self::from_params(&params).with_context(|| format!("reading the float head from {}", path.display()))
@@ -82,7 +91,13 @@ impl FloatHead {
 
     /// Reads the head from an indexed ONNX graph.
     pub fn from_params(params: &OnnxParams) -> Result<Self> {
-        let (groups, max_disp) = head_config(params)?;
+        let kind = if params.has_node("/head/proj_left/MatMul") {
+            HeadKind::Native
+        } else {
+            HeadKind::Export
+        };
+        let (groups, max_disp) = head_config(params, kind)?;
+        let (input, proj) = (kind.input_dim(), kind.proj_dim());
         let norm = "/head/norm/LayerNormalization";
         let middle_layers = (0..).take_while(|i| params.has_node(&middle_node(*i))).count();
         ensure!(
@@ -93,11 +108,20 @@ impl FloatHead {
         let middle = (0..middle_layers)
             .map(|i| FloatConv3d::from_onnx_node(params, &middle_node(i), HEAD_HIDDEN, HEAD_HIDDEN))
             .collect::<Result<_>>()?;
+        let (proj_left, proj_right) = match kind {
+            HeadKind::Export => (FloatLinear::from_onnx_scope(params, "/head/proj", input, proj)?, None),
+            HeadKind::Native => (
+                FloatLinear::from_onnx_scope(params, "/head/proj_left", input, proj)?,
+                Some(FloatLinear::from_onnx_scope(params, "/head/proj_right", input, proj)?),
+            ),
+        };
         Ok(Self {
-            norm_weight: params.node_tensor(norm, 1, &[DIM], "head LayerNorm weight")?,
-            norm_bias: params.node_tensor(norm, 2, &[DIM], "head LayerNorm bias")?,
+            kind,
+            norm_weight: params.node_tensor(norm, 1, &[input], "head LayerNorm weight")?,
+            norm_bias: params.node_tensor(norm, 2, &[input], "head LayerNorm bias")?,
             ln_eps: params.float_attribute_or(norm, "epsilon", ONNX_DEFAULT_LN_EPS)?,
-            proj: FloatLinear::from_onnx_scope(params, "/head/proj", DIM, HEAD_PROJ_DIM)?,
+            proj: proj_left,
+            proj_right,
             groups,
             max_disp,
             stem: FloatConv3d::from_onnx_node(params, "/head/stem/Conv", groups, HEAD_HIDDEN)?,
@@ -123,9 +147,23 @@ fn group_pool_node(k: usize) -> String {
 // Groups and candidates from the `bino.head_config` metadata `head.py` stamps; without it, one
 // group-pooling MatMul per candidate (`/head/MatMul`, `/head/MatMul_1`, ...) gives the count
 // and the groups are the paper's (the stem's input channels are checked against them).
-fn head_config(params: &OnnxParams) -> Result<(usize, usize)> {
+fn head_config(params: &OnnxParams, kind: HeadKind) -> Result<(usize, usize)> {
+    if kind == HeadKind::Native {
+        let text = params.metadata("bino.head_config").unwrap_or_default();
+        ensure!(
+            !text.contains("'full'"),
+            "ONNX head {} is a native head with pair features [a, b, |a-b|, a*b] ('full'); the int8 \
+             engine runs the [a, b] head ('concat', NATIVE_HEAD)",
+            params.source()
+        );
+    }
     let config = params.metadata_numbers("bino.head_config")?.unwrap_or_default();
-    for (field, expected) in [("desc_dim", DIM), ("proj_dim", HEAD_PROJ_DIM), ("hidden", HEAD_HIDDEN)] {
+    let desc_dim = bino_core::config::DIM;
+    for (field, expected) in [
+        ("desc_dim", desc_dim),
+        ("proj_dim", kind.proj_dim()),
+        ("hidden", HEAD_HIDDEN),
+    ] {
         if let Some(&value) = config.get(field) {
             ensure!(
                 value == expected as f64,
@@ -155,6 +193,7 @@ fn head_config(params: &OnnxParams) -> Result<(usize, usize)> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use bino_core::config::{DIM, HEAD_PROJ_DIM};
     use tract_onnx::pb::attribute_proto::AttributeType;
     use tract_onnx::pb::{AttributeProto, GraphProto, ModelProto, NodeProto, StringStringEntryProto, TensorProto};
 

@@ -9,10 +9,8 @@ use bino_core::band::BandPlan;
 use bino_core::blob::Blob;
 use bino_core::config::{check_view_size, DIM, PATCH_H};
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
-use bino_core::model::head::{
-    arena_bytes as head_arena_bytes, HeadRow, HeadSink, HeadStream, HeadWeights, OUT_FRAC_BITS,
-};
-use bino_core::model::ids::{self, kind};
+use bino_core::model::head::{arena_bytes_for, HeadRow, HeadSink, HeadStream, HeadWeights, OUT_FRAC_BITS};
+use bino_core::model::ids::{self, kind, HeadKind};
 use bino_core::model::probe::{NoProbe, Probe, Stage};
 use bino_core::{matching, sgm};
 
@@ -93,6 +91,64 @@ impl Int8Model {
     /// [`Int8Model::descriptor_codes`], with every band's stages shown to `probe`.
     pub fn descriptor_codes_probed(&self, view: &View, probe: &mut impl Probe) -> Result<(usize, usize, Vec<i8>)> {
         let encoder = self.encoder()?;
+        let pixels = to_u8(&view.pixels);
+        let (rows, cols, out) = self.banded(view, 1, |band, arena, band_out| {
+            encoder
+                .describe(band.gray(&pixels)?, arena, band_out, probe)
+                .map_err(anyhow::Error::msg)?;
+            Ok(())
+        })?;
+        Ok((rows, cols, out))
+    }
+
+    /// The native pathway's input codes of a pair (`H/4 x W/4 x [even, odd] x DIM`: the
+    /// de-positioned fused token grid in descriptor codes, `Encoder::pair_tokens`), band by band.
+    pub fn pair_token_codes(&self, left: &View, right: &View) -> Result<(usize, usize, Vec<i8>)> {
+        ensure!(
+            (left.width, left.height) == (right.width, right.height),
+            "views differ in size: {}x{} and {}x{}",
+            left.width,
+            left.height,
+            right.width,
+            right.height
+        );
+        let encoder = self.encoder()?;
+        let (left_px, right_px) = (to_u8(&left.pixels), to_u8(&right.pixels));
+        self.banded(left, 2, |band, arena, band_out| {
+            encoder
+                .pair_tokens(
+                    band.gray(&left_px)?,
+                    band.gray(&right_px)?,
+                    arena,
+                    band_out,
+                    &mut NoProbe,
+                )
+                .map_err(anyhow::Error::msg)?;
+            Ok(())
+        })
+    }
+
+    /// Dequantised [`Int8Model::pair_token_codes`] (`H/4 x W/2 x DIM`, fused columns), comparable
+    /// with the float reference's de-positioned token grid (`ReferenceEncoder::tokens`).
+    pub fn pair_tokens(&self, left: &View, right: &View) -> Result<FeatureMap> {
+        let (rows, cols, codes) = self.pair_token_codes(left, right)?;
+        let scale = self.descriptor_scale()?;
+        Ok(FeatureMap {
+            rows,
+            cols: 2 * cols,
+            dim: DIM,
+            data: codes.iter().map(|&c| c as f32 * scale).collect(),
+        })
+    }
+
+    /// Runs `encode` on every band of `view`'s size (it gets the band's rows, the band arena
+    /// and the band's output of `per_cell x DIM` codes per patch column) and keeps each output
+    /// row from the band the plan assigns it to: (token rows, patch columns, codes).
+    fn banded<F>(&self, view: &View, per_cell: usize, mut encode: F) -> Result<(usize, usize, Vec<i8>)>
+    where
+        F: FnMut(BandRows, &mut [u8], &mut [i8]) -> Result<()>,
+    {
+        let encoder = self.encoder()?;
         let (rows, cols) = check_view_size(view.height, view.width).map_err(anyhow::Error::msg)?;
         ensure!(
             view.width <= encoder.max_width(),
@@ -100,20 +156,20 @@ impl Int8Model {
             view.width,
             encoder.max_width()
         );
-        let pixels = to_u8(&view.pixels);
         let plan = BandPlan::new(rows).map_err(anyhow::Error::msg)?;
         let mut arena = vec![0u8; arena_bytes(bino_core::config::BAND_ROWS, view.width)];
-        let mut out = vec![0i8; rows * cols * DIM];
+        let row_len = cols * per_cell * DIM;
+        let mut out = vec![0i8; rows * row_len];
         let mut band_out = Vec::new();
+        let width = view.width;
         for band in plan.iter() {
-            let (y0, h) = (band.start * PATCH_H, band.rows * PATCH_H);
-            let band_pixels = &pixels[y0 * view.width..(y0 + h) * view.width];
-            let gray = GrayBand::new(band_pixels, view.width, h).map_err(anyhow::Error::msg)?;
-            band_out.resize(band.rows * cols * DIM, 0);
-            encoder
-                .describe(gray, &mut arena, &mut band_out, probe)
-                .map_err(anyhow::Error::msg)?;
-            let row_len = cols * DIM;
+            let rows_of_band = BandRows {
+                first: band.start * PATCH_H,
+                height: band.rows * PATCH_H,
+                width,
+            };
+            band_out.resize(band.rows * row_len, 0);
+            encode(rows_of_band, &mut arena, &mut band_out)?;
             let from = (band.keep_from - band.start) * row_len;
             let to = (band.keep_to - band.start) * row_len;
             out[band.keep_from * row_len..band.keep_to * row_len].copy_from_slice(&band_out[from..to]);
@@ -131,6 +187,24 @@ impl Int8Model {
             dim: DIM,
             data: codes.iter().map(|&c| c as f32 * scale).collect(),
         })
+    }
+}
+
+/// The pixel rows of one band of a view.
+#[derive(Clone, Copy)]
+struct BandRows {
+    first: usize,
+    height: usize,
+    width: usize,
+}
+
+impl BandRows {
+    /// The band of a whole view's pixels (`width` per row).
+    fn gray<'p>(&self, pixels: &'p [u8]) -> Result<GrayBand<'p>> {
+        let rows = pixels
+            .get(self.first * self.width..(self.first + self.height) * self.width)
+            .context("band outside the view")?;
+        GrayBand::new(rows, self.width, self.height).map_err(anyhow::Error::msg)
     }
 }
 
@@ -214,7 +288,52 @@ impl HeadSink for CollectRows<'_> {
 impl Int8Model {
     /// Whether the blob holds the shared head.
     pub fn has_head(&self) -> bool {
-        self.blob().ok().and_then(|b| HeadWeights::new(b).ok()).is_some()
+        self.has_head_of(HeadKind::Export)
+    }
+
+    /// Whether the blob holds `head` (the native pathway's head: `--native-head` at quantisation).
+    pub fn has_head_of(&self, head: HeadKind) -> bool {
+        self.blob()
+            .ok()
+            .and_then(|b| HeadWeights::for_kind(b, head).ok())
+            .is_some()
+    }
+
+    /// The blob's `head` weights, or an error naming the blob and how to add that head.
+    fn head_weights(&self, head: HeadKind) -> Result<(HeadWeights<'_>, f32)> {
+        let blob = self.blob()?;
+        let flag = match head {
+            HeadKind::Export => "--head",
+            HeadKind::Native => "--native-head",
+        };
+        let weights = HeadWeights::for_kind(blob, head)
+            .map_err(|e| anyhow::anyhow!("{e}"))
+            .with_context(|| {
+                format!(
+                    "{} holds no usable {} pathway head (quantise with {flag})",
+                    self.path.display(),
+                    head.pathway()
+                )
+            })?;
+        let logit_scale = meta_f32(&blob, ids::id(kind::META_HEAD_LOGIT_SCALE, head.index()), 1)?[0];
+        Ok((weights, logit_scale))
+    }
+
+    /// The int8 native head over a pair token code map (`rows x cols x [even, odd] x DIM`,
+    /// [`Int8Model::pair_token_codes`]), streamed row by row.
+    pub fn native_head(&self, tokens: &[i8], rows: usize, cols: usize) -> Result<HeadMaps> {
+        ensure!(
+            tokens.len() == rows * cols * 2 * DIM,
+            "pair token map holds {} codes, expected {rows} x {cols} x 2 x {DIM}",
+            tokens.len()
+        );
+        let (weights, logit_scale) = self.head_weights(HeadKind::Native)?;
+        run_head(weights, logit_scale, rows, cols, |stream, sink| {
+            for row in tokens.chunks_exact(cols * 2 * DIM) {
+                stream.push_pair_row(row, sink)?;
+            }
+            Ok(())
+        })
     }
 
     /// The int8 head over two descriptor code maps (`rows x cols x DIM` each), streamed row by row.
@@ -223,35 +342,52 @@ impl Int8Model {
             left.len() == rows * cols * DIM && right.len() == left.len(),
             "descriptor maps differ in size"
         );
-        let blob = self.blob()?;
-        let weights = HeadWeights::new(blob)
-            .map_err(|e| anyhow::anyhow!("{e}"))
-            .with_context(|| format!("{} holds no usable head (quantise with --head)", self.path.display()))?;
-        let logit_scale = meta_f32(&blob, ids::id(kind::META_HEAD_LOGIT_SCALE, 0), 1)?[0];
-        let mut arena = vec![0u8; head_arena_bytes(cols)];
-        let mut stream = HeadStream::new(weights, cols, &mut arena).map_err(anyhow::Error::msg)?;
-        let mut maps = HeadMaps {
-            rows,
-            cols,
-            disparity: Vec::new(),
-            confidence: Vec::new(),
-            logits: Vec::new(),
-        };
-        let mut sink = CollectRows {
-            out: &mut maps,
-            logit_scale,
-        };
-        for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
-            stream.push_row(l, r, &mut sink).map_err(anyhow::Error::msg)?;
-        }
-        stream.finish(&mut sink).map_err(anyhow::Error::msg)?;
-        ensure!(
-            maps.disparity.len() == rows * cols,
-            "head emitted {} cells",
-            maps.disparity.len()
-        );
-        Ok(maps)
+        let (weights, logit_scale) = self.head_weights(HeadKind::Export)?;
+        run_head(weights, logit_scale, rows, cols, |stream, sink| {
+            for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
+                stream.push_row(l, r, sink)?;
+            }
+            Ok(())
+        })
     }
+}
+
+/// A head stream over `cols` patch columns fed by `feed`, then finished: the whole maps.
+fn run_head<F>(weights: HeadWeights<'_>, logit_scale: f32, rows: usize, cols: usize, feed: F) -> Result<HeadMaps>
+where
+    F: FnOnce(&mut HeadStream<'_, '_>, &mut CollectRows<'_>) -> Result<(), bino_core::Error>,
+{
+    let mut arena = vec![0u8; arena_bytes_for(weights.kind(), cols)];
+    let mut stream = HeadStream::new(weights, cols, &mut arena).map_err(anyhow::Error::msg)?;
+    let mut maps = HeadMaps {
+        rows,
+        cols,
+        disparity: Vec::new(),
+        confidence: Vec::new(),
+        logits: Vec::new(),
+    };
+    let mut sink = CollectRows {
+        out: &mut maps,
+        logit_scale,
+    };
+    feed(&mut stream, &mut sink).map_err(anyhow::Error::msg)?;
+    stream.finish(&mut sink).map_err(anyhow::Error::msg)?;
+    ensure!(
+        maps.disparity.len() == rows * cols,
+        "head emitted {} cells",
+        maps.disparity.len()
+    );
+    Ok(maps)
+}
+
+/// The pair token layout (`[cell][even, odd][dim]`) from two phase maps of `dim`-value cells.
+pub fn interleave_phases<T: Copy>(even: &[T], odd: &[T], dim: usize) -> Vec<T> {
+    let mut out = Vec::with_capacity(even.len() + odd.len());
+    for (a, b) in even.chunks_exact(dim).zip(odd.chunks_exact(dim)) {
+        out.extend_from_slice(a);
+        out.extend_from_slice(b);
+    }
+    out
 }
 
 /// Pixels in [0, 1] as the 8-bit codes a camera delivers.

@@ -46,6 +46,27 @@ impl FeatureMap {
         &self.data[start..start + self.dim]
     }
 
+    /// The two phase maps of a token grid: (even fused columns 2p, odd fused columns 2p + 1),
+    /// each `rows x cols/2 x dim` — the native head's inputs `phase_even`, `phase_odd`.
+    pub fn phase_maps(&self) -> (FeatureMap, FeatureMap) {
+        let cols = self.cols / 2;
+        let (mut even, mut odd) = (Vec::with_capacity(self.rows * cols * self.dim), Vec::new());
+        odd.reserve(even.capacity());
+        for r in 0..self.rows {
+            for p in 0..cols {
+                even.extend_from_slice(self.at(r, 2 * p));
+                odd.extend_from_slice(self.at(r, 2 * p + 1));
+            }
+        }
+        let map = |data| FeatureMap {
+            rows: self.rows,
+            cols,
+            dim: self.dim,
+            data,
+        };
+        (map(even), map(odd))
+    }
+
     /// Averages the two phase tokens (fused columns 2p, 2p + 1) of each patch column:
     /// the descriptor map of a token grid computed on (I, I).
     pub fn phase_average(&self) -> FeatureMap {

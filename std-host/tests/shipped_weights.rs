@@ -106,6 +106,7 @@ fn quantize_reads_the_plain_shipped_export() {
     let opts = bino_host::quantize::QuantizeOptions {
         encoder: weights().join("bino_encoder.onnx"),
         head: Some(weights().join("bino_head.onnx")),
+        native_head: None,
         head_calib_pairs: 2,
         data: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
         profile: bino_host::profile::Profile::W160,

@@ -44,6 +44,7 @@ fn int8_descriptors_follow_float() {
         calib_pairs: 2,
         max_width: 160,
         head: Some(fixtures().join("head_random_seed0.onnx")),
+        native_head: None,
         head_calib_pairs: 2,
     };
     let (blob, _) = quantize(&opts, |_, _| {}).unwrap();
@@ -131,4 +132,120 @@ fn int8_descriptors_follow_float() {
         encoder.describe(too_wide, &mut big_arena, &mut wide_out, &mut NoProbe),
         Err(Error::TooWide { width: 164, max: 160 })
     ));
+}
+
+/// The native pathway (issue 15): one encoder pass on the pair, its de-positioned fused grid in
+/// descriptor codes, and the native head on it, against the float encoder and head (tract).
+#[test]
+fn int8_native_pathway_follows_float() {
+    use bino_core::model::head::{arena_bytes_for, HeadRow, HeadSink, HeadStream, HeadWeights};
+    use bino_core::model::ids::HeadKind;
+
+    if !data_dir().join("PAIRS.tsv").is_file() {
+        eprintln!("skipped: no calibration data at {}", data_dir().display());
+        return;
+    }
+    let onnx = fixtures().join("encoder_random_seed0.onnx");
+    let native_onnx = fixtures().join("native_head_random_seed0.onnx");
+    let opts = QuantizeOptions {
+        encoder: onnx.clone(),
+        data: data_dir(),
+        profile: Profile::W160,
+        calib_pairs: 2,
+        max_width: 160,
+        head: Some(fixtures().join("head_random_seed0.onnx")),
+        native_head: Some(native_onnx.clone()),
+        head_calib_pairs: 2,
+    };
+    let (blob, report) = quantize(&opts, |_, _| {}).unwrap();
+    assert!(report.head_choice.is_some() && report.native_head_choice.is_some());
+    let model = Int8Model::from_bytes(blob, "fixture blob").unwrap();
+    assert!(model.has_head_of(HeadKind::Export) && model.has_head_of(HeadKind::Native));
+    let scene = synthetic::default_scene(160, 48);
+    let left = Profile::W160.apply(&scene.left).unwrap();
+    let right = Profile::W160.apply(&scene.right).unwrap();
+
+    // The fused grid of one pass on (L, R), de-positioned, against the float reference's.
+    let tokens = model.pair_tokens(&left, &right).unwrap();
+    let mut float = ReferenceEncoder::load(&onnx).unwrap();
+    let expected = float.tokens(&left, &right).unwrap();
+    assert_eq!((tokens.rows, tokens.cols), (expected.rows, expected.cols));
+    let token_cos = mean_cosine(&tokens.data, &expected.data, 128);
+    eprintln!("pair tokens: mean cosine {token_cos:.5}");
+    assert!(token_cos >= 0.99, "int8 pair tokens cosine {token_cos}");
+
+    // The native head end to end: int8 tokens -> int8 head versus float -> float.
+    let (rows, cols, codes) = model.pair_token_codes(&left, &right).unwrap();
+    let head = model.native_head(&codes, rows, cols).unwrap();
+    let (even, odd) = expected.phase_maps();
+    let float_out = FloatHeadRunner::load(&native_onnx).unwrap().run(&even, &odd).unwrap();
+    let HeadAgreement {
+        logit_cosine,
+        disparity_mean_abs,
+    } = compare_heads(&head, &float_out).unwrap();
+    eprintln!("native head: logit cosine {logit_cosine:.5}, mean |disparity int8 - float| {disparity_mean_abs:.4}");
+    assert!(logit_cosine >= 0.98, "native head logits cosine {logit_cosine}");
+    assert!(
+        disparity_mean_abs <= 0.25,
+        "native head disparity differs by {disparity_mean_abs}"
+    );
+
+    // In place (what a pipeline keeps in its arena) equals the copy, code for code; on (I, I)
+    // the mean of a cell's two phase codes is its descriptor code, up to rounding.
+    let encoder = model.encoder().unwrap();
+    let pixels = bino_host::int8::to_u8(&left.pixels);
+    let band = GrayBand::new(&pixels, 160, 48).unwrap();
+    let mut arena = vec![0u8; arena_bytes(48, 160)];
+    let mut copied = vec![0i8; 12 * 80 * 128];
+    encoder
+        .pair_tokens(band, band, &mut arena, &mut copied, &mut NoProbe)
+        .unwrap();
+    let (_, len) = encoder
+        .pair_tokens_in_place(band, band, &mut arena, &mut NoProbe)
+        .unwrap();
+    let in_place: Vec<i8> = arena[..len].iter().map(|&b| b as i8).collect();
+    assert_eq!(in_place, copied);
+    let mut desc = vec![0i8; 12 * 40 * 128];
+    encoder.describe(band, &mut arena, &mut desc, &mut NoProbe).unwrap();
+    for (cell, d) in copied.chunks_exact(256).zip(desc.chunks_exact(128)) {
+        for c in 0..128 {
+            let mean = (cell[c] as i32 + cell[128 + c] as i32) as f64 / 2.0;
+            assert!(
+                (mean - d[c] as f64).abs() <= 1.0,
+                "descriptor {} vs phase mean {mean}",
+                d[c]
+            );
+        }
+    }
+
+    // Bad input: each head takes only its own pathway's rows, and a blob without the native
+    // head says how to add one.
+    struct Ignore;
+    impl HeadSink for Ignore {
+        fn row(&mut self, _: HeadRow<'_>) {}
+    }
+    let weights = HeadWeights::for_kind(model.blob().unwrap(), HeadKind::Native).unwrap();
+    let mut head_arena = vec![0u8; arena_bytes_for(HeadKind::Native, 40)];
+    let mut stream = HeadStream::new(weights, 40, &mut head_arena).unwrap();
+    let row = vec![0i8; 40 * 128];
+    assert_eq!(
+        stream.push_row(&row, &row, &mut Ignore).unwrap_err(),
+        Error::PathwayMismatch {
+            head: "native",
+            input: "export"
+        }
+    );
+    assert!(matches!(
+        stream.push_pair_row(&row, &mut Ignore),
+        Err(Error::BufferSize { .. })
+    ));
+    let export_only = QuantizeOptions {
+        native_head: None,
+        ..opts
+    };
+    let (blob, _) = quantize(&export_only, |_, _| {}).unwrap();
+    let model = Int8Model::from_bytes(blob, "export-only blob").unwrap();
+    assert!(!model.has_head_of(HeadKind::Native));
+    let err = model.native_head(&codes, rows, cols).unwrap_err();
+    assert!(format!("{err:#}").contains("quantise with --native-head"), "{err:#}");
 }

@@ -2,6 +2,7 @@
 
     python -m bino_train.head                                         # parameter count
     python -m bino_train.head --checkpoint runs/NAME/last.pt --out weights/bino_head.onnx
+    python -m bino_train.head --native-fixture ../tests/fixtures/native_head_random_seed0.onnx
 
 Data flow, all on the token grid (T = H/4 rows, P = W/4 patch columns):
   D_L, D_R (B, T, P, 128) -> the same LayerNorm + Linear 128 -> C on both views
@@ -423,6 +424,16 @@ def export_head_onnx(
     stamp_metadata(out, meta)
 
 
+def write_native_fixture(out: Path) -> None:
+    """The int8 engine's native-head test fixture (`tests/tests/int8.rs`): NATIVE_HEAD at its
+    seed-0 random init, exported with logits, as the shared head's fixture is."""
+    if "weights" in out.resolve().parts:
+        sys.exit(f"error: refusing to write a test fixture into weights/ ({out})")
+    torch.manual_seed(0)
+    head = NativeHead(NATIVE_HEAD)
+    export_head_onnx(head, out, provenance="native-head fixture, seed 0 (tests only)", logits=True)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -433,7 +444,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--state-dict", type=Path, help="also save {head_config, head} (PyTorch) to this file"
     )
+    parser.add_argument(
+        "--native-fixture",
+        type=Path,
+        help="write the test fixture: NATIVE_HEAD at its seed-0 random init, with logits",
+    )
     args = parser.parse_args(argv)
+    if args.native_fixture is not None:
+        write_native_fixture(args.native_fixture)
+        print(f"wrote {args.native_fixture}")
+        return
     if args.checkpoint is None:
         encoder = encoder_macs(PAPER_CONFIG)
         for name, cfg in [("stereo head", PAPER_HEAD)] + [

@@ -29,6 +29,7 @@ from bino_train.head import (
     head_macs,
     load_head,
     make_head,
+    write_native_fixture,
 )
 from bino_train.head_cache import build_cache, cache_pathway, save_cache
 from bino_train.head_data import DataConfig, HeadSampler, encode
@@ -314,3 +315,21 @@ def test_validation_and_evaluation_score_native_heads(data_dir: Path) -> None:
     result = evaluate_head(enc, head, data_dir)
     assert result["pathway"] == "native" and result["probe"] is None
     assert np.isfinite(result["head+lr"]["epe"]) and result["pairs"] == 2
+
+
+def test_native_fixture_is_a_concat_head_with_logits(tmp_path: Path) -> None:
+    out = tmp_path / "native.onnx"
+    write_native_fixture(out)
+    model = onnx.load(str(out))
+    assert [i.name for i in model.graph.input] == ["phase_even", "phase_odd"]
+    assert [o.name for o in model.graph.output] == ["disparity", "confidence", "logits"]
+    meta = {p.key: p.value for p in model.metadata_props}
+    assert meta["bino.pathway"] == "native" and "'concat'" in meta["bino.head_config"]
+    names = {n.name for n in model.graph.node}
+    assert {"/head/proj_left/Add", "/head/proj_right/Add"} <= names
+    phases = np.random.default_rng(0).normal(size=(2, 1, 12, 40, 128)).astype(np.float32)
+    session = ort.InferenceSession(str(out))
+    disparity, _, logits = session.run(None, {"phase_even": phases[0], "phase_odd": phases[1]})
+    assert logits.shape == (1, 12, 12, 40) and np.isfinite(disparity).all()
+    with pytest.raises(SystemExit):
+        write_native_fixture(tmp_path / "weights" / "native.onnx")

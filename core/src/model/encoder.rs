@@ -236,6 +236,72 @@ impl<'w> Encoder<'w> {
         Ok(self.forward(Fused::Pair(left, right), left, arena, probe)?.0)
     }
 
+    /// The native pathway's input (DESIGN.md, Readouts): the encoder on the pair (L, R), every
+    /// fused token de-positioned and rescaled to descriptor codes (the unit of [`describe`]'s
+    /// descriptors, one phase token instead of the mean of two), in the fused grid's order:
+    /// `rows/4 x width/4 x [even, odd] x DIM` codes written to `out`. Patch column `p` of a row
+    /// holds its even-phase token (fused column `2p`) then its odd-phase token (`2p + 1`): the
+    /// two phase maps interleaved, which is the native head's pair feature `u = [a, b]` per cell.
+    ///
+    /// [`describe`]: Encoder::describe
+    pub fn pair_tokens(
+        &self,
+        left: GrayBand<'_>,
+        right: GrayBand<'_>,
+        arena: &mut [u8],
+        out: &mut [i8],
+        probe: &mut impl Probe,
+    ) -> Result<RunReport, Error> {
+        let expected = (left.height / PATCH_H) * 2 * (left.width / CELL_W) * DIM;
+        if out.len() != expected {
+            return Err(Error::BufferSize {
+                what: "pair token output",
+                expected,
+                found: out.len(),
+            });
+        }
+        if left.width != right.width || left.height != right.height {
+            return Err(Error::PairMismatch);
+        }
+        let (report, x) = self.forward(Fused::Pair(left, right), left, arena, probe)?;
+        let params = self.descriptor_params()?;
+        let row_len = report.fused_cols * DIM;
+        for (row, (x_row, out_row)) in x.chunks_exact(row_len).zip(out.chunks_exact_mut(row_len)).enumerate() {
+            for (token, cell) in x_row.chunks_exact(DIM).zip(out_row.chunks_exact_mut(DIM)) {
+                params.token(row, token, cell);
+            }
+        }
+        Ok(report)
+    }
+
+    /// [`Encoder::pair_tokens`] written over the residual stream at the front of `arena`
+    /// itself (each token rescaled where it lies): returns the run report and the map's length
+    /// in bytes. A pipeline keeps the map there and uses the rest of the arena for the head.
+    pub fn pair_tokens_in_place(
+        &self,
+        left: GrayBand<'_>,
+        right: GrayBand<'_>,
+        arena: &mut [u8],
+        probe: &mut impl Probe,
+    ) -> Result<(RunReport, usize), Error> {
+        if left.width != right.width || left.height != right.height {
+            return Err(Error::PairMismatch);
+        }
+        let (report, _) = self.forward(Fused::Pair(left, right), left, arena, probe)?;
+        let len = report.rows * report.fused_cols * DIM;
+        let x: &mut [i8] = bytemuck::cast_slice_mut(arena.get_mut(..len).ok_or(Error::ArenaTooSmall {
+            needed: len,
+            available: 0,
+        })?);
+        let params = self.descriptor_params()?;
+        let mut token = [0i8; DIM];
+        for (t, cell) in x.chunks_exact_mut(DIM).enumerate() {
+            token.copy_from_slice(cell);
+            params.token(t / report.fused_cols.max(1), &token, cell);
+        }
+        Ok((report, len))
+    }
+
     fn forward<'a>(
         &self,
         fused: Fused<'_>,
@@ -417,6 +483,14 @@ impl DescriptorParams<'_> {
             let offset = self.row_offsets.at(row * DIM + c) as i64;
             *o = sat_i8_i64(round_shift(scaled - offset, DESC_FRAC_BITS));
         }
+    }
+}
+
+impl DescriptorParams<'_> {
+    /// One phase token of a cell, de-positioned, in descriptor codes: a cell whose two phase
+    /// tokens are both `token` (their mean is the token itself).
+    fn token(&self, row: usize, token: &[i8], out: &mut [i8]) {
+        self.cell(row, token, token, out);
     }
 }
 

@@ -1,4 +1,10 @@
-//! The shared stereo head in int8, streaming: descriptor rows in, disparity rows out.
+//! The stereo heads in int8, streaming: descriptor rows in, disparity rows out.
+//!
+//! Two heads share everything after their projections ([`HeadKind`]): the export pathway's
+//! shared head reads a descriptor row of each view and projects both with one LayerNorm +
+//! projection; the native pathway's head reads one row of the pair's de-positioned fused grid
+//! (`Encoder::pair_tokens`: per patch column the pair feature `u = [a, b]`, its two phase
+//! tokens), normalises `u` once and projects it twice (`P_L`, `P_R`).
 //!
 //! Per descriptor row pair: LayerNorm and the shared projection of both views, the groupwise
 //! correlation over `HEAD_MAX_DISP` candidates (row layout `[column][disparity][channel]`), then
@@ -8,11 +14,11 @@
 //! its kernel spans, so memory depends on the width only; an output row leaves the head six rows
 //! after its descriptors went in (one per convolution) and [`HeadStream::finish`] flushes the rest.
 
-use super::ids::{self, kind, Linear, HEAD_CONVS, HEAD_LAYERNORM};
+use super::ids::{self, kind, HeadKind, Linear, HEAD_CONVS};
 use super::weights::{LayerNormScalars, LinearQ};
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::Blob;
-use crate::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM};
+use crate::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
 use crate::fixed::{sat_i8_i64, Requant, MAX_SHIFT};
 use crate::kernels::epilogue::requant_rows;
 use crate::kernels::exp::exp_neg_u8;
@@ -23,8 +29,6 @@ use crate::Error;
 
 /// Kernel positions of a 3x3x3 convolution.
 const TAPS: usize = 27;
-/// Channels per correlation group.
-const PER_GROUP: usize = HEAD_PROJ_DIM / HEAD_GROUPS;
 /// Descriptor cells projected together.
 const CELL_BLOCK: usize = 8;
 /// The LayerNorm's input unit: descriptors are per-tensor, so any common scale works.
@@ -74,15 +78,22 @@ const fn ring_bytes_per_col() -> usize {
     bytes
 }
 
-/// Arena bytes of a head stream over `cols` patch columns (descriptor map width). Saturates at
-/// `usize::MAX` for widths no memory holds, so such a stream is [`Error::ArenaTooSmall`].
+/// Arena bytes of the export head's stream over `cols` patch columns (descriptor map width):
+/// [`arena_bytes_for`] of [`HeadKind::Export`].
 pub const fn arena_bytes(cols: usize) -> usize {
-    let acc = max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * HEAD_PROJ_DIM);
+    arena_bytes_for(HeadKind::Export, cols)
+}
+
+/// Arena bytes of a `head` stream over `cols` patch columns. Saturates at `usize::MAX` for
+/// widths no memory holds, so such a stream is [`Error::ArenaTooSmall`].
+pub const fn arena_bytes_for(head: HeadKind, cols: usize) -> usize {
+    let proj = head.proj_dim();
+    let acc = max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * proj);
     let per_col = ring_bytes_per_col()
-        + 2 * HEAD_PROJ_DIM // projected left and right rows
+        + 2 * proj // projected left and right rows
         + HEAD_MAX_DISP * 4 // output logits
         + 2 * 2; // disparity and confidence (u16)
-    let fixed = CELL_BLOCK * DIM // normalised descriptors
+    let fixed = CELL_BLOCK * head.input_dim() // normalised input cells
         + HEAD_MAX_DISP * TAPS * HEAD_HIDDEN // one column's gathered kernel inputs
         + acc * 4
         + 2 * ALIGN_SLACK // accumulators and logits (i32, aligned)
@@ -90,10 +101,11 @@ pub const fn arena_bytes(cols: usize) -> usize {
     cols.saturating_mul(per_col).saturating_add(fixed)
 }
 
-/// The head's weights in a blob, validated once.
+/// One head's weights in a blob, validated once.
 #[derive(Clone, Copy)]
 pub struct HeadWeights<'w> {
     blob: Blob<'w>,
+    kind: HeadKind,
     norm: LayerNormScalars,
     correlation: Requant,
     softmax: Requant,
@@ -102,9 +114,16 @@ pub struct HeadWeights<'w> {
 }
 
 impl<'w> HeadWeights<'w> {
-    /// Checks every head tensor of `blob`.
+    /// Checks every tensor of the export pathway's shared head in `blob`.
     pub fn new(blob: Blob<'w>) -> Result<Self, Error> {
-        let norm_id = ids::id(kind::LAYERNORM, HEAD_LAYERNORM);
+        Self::for_kind(blob, HeadKind::Export)
+    }
+
+    /// Checks every tensor of the `head` in `blob` (a blob without that head is
+    /// [`Error::Blob`] naming the first missing tensor).
+    pub fn for_kind(blob: Blob<'w>, head: HeadKind) -> Result<Self, Error> {
+        let at = head.index();
+        let norm_id = ids::id(kind::LAYERNORM, head.layernorm());
         let values = blob.i64s(norm_id, 3)?;
         let norm_out = requant_i64(values.get(1), values.get(2)).ok_or(Error::BadParameter { id: norm_id })?;
         let eps = values.get(0).unwrap_or(-1);
@@ -112,16 +131,16 @@ impl<'w> HeadWeights<'w> {
             return Err(Error::BadParameter { id: norm_id });
         }
         let pair = |k: u16| -> Result<Requant, Error> {
-            let id = ids::id(k, 0);
+            let id = ids::id(k, at);
             let v = blob.i32s(id, 2)?;
             requant_i64(v.get(0).map(i64::from), v.get(1).map(i64::from)).ok_or(Error::BadParameter { id })
         };
-        let zero_list = blob.i32s(ids::id(kind::HEAD_ZERO, 0), HEAD_CONVS)?;
+        let zero_list = blob.i32s(ids::id(kind::HEAD_ZERO, at), HEAD_CONVS)?;
         let mut zeros = [0i32; HEAD_CONVS];
         for (i, z) in zeros.iter_mut().enumerate() {
             *z = zero_list.get(i).unwrap_or(0);
         }
-        let carry_id = ids::id(kind::HEAD_CARRY, 0);
+        let carry_id = ids::id(kind::HEAD_CARRY, at);
         let carry_list = blob.i32s(carry_id, 2 * HEAD_MIDDLE_LAYERS)?;
         let mut carries = [Requant { mult: 0, shift: 1 }; HEAD_MIDDLE_LAYERS];
         for (i, c) in carries.iter_mut().enumerate() {
@@ -133,28 +152,54 @@ impl<'w> HeadWeights<'w> {
         }
         let weights = Self {
             blob,
+            kind: head,
             norm: LayerNormScalars { eps, out: norm_out },
             correlation: pair(kind::HEAD_CORRELATION)?,
             softmax: pair(kind::HEAD_SOFTMAX)?,
             zeros,
             carries,
         };
-        weights.projection()?;
+        weights.projections()?;
         for layer in 0..HEAD_CONVS {
             weights.conv(layer)?;
         }
         Ok(weights)
     }
 
-    /// The shared projection (`HEAD_PROJ_DIM x DIM`).
-    pub fn projection(&self) -> Result<LinearQ<'w>, Error> {
-        LinearQ::load(&self.blob, Linear::HeadProj, HEAD_PROJ_DIM, DIM, HEAD_PROJ_DIM)
+    /// Which head these are.
+    pub fn kind(&self) -> HeadKind {
+        self.kind
+    }
+
+    /// The input LayerNorm: input codes share one scale (descriptor codes), so any common
+    /// unit serves as their relative scale.
+    fn input_norm(&self) -> LayerNormQ<'static, Uniform, Uniform> {
+        LayerNormQ {
+            zero: &Uniform(0),
+            rel: &Uniform(DESC_REL),
+            eps: self.norm.eps,
+            out: self.norm.out,
+        }
+    }
+
+    /// The left and right projections (`proj_dim x input_dim` of [`HeadKind`]): the export
+    /// head's one shared projection twice, or the native head's `P_L` and `P_R`.
+    pub fn projections(&self) -> Result<(LinearQ<'w>, LinearQ<'w>), Error> {
+        let (out, inputs) = (self.kind.proj_dim(), self.kind.input_dim());
+        let load = |layer| LinearQ::load(&self.blob, layer, out, inputs, out);
+        match self.kind {
+            HeadKind::Export => {
+                let shared = load(Linear::HeadProj)?;
+                Ok((shared, shared))
+            }
+            HeadKind::Native => Ok((load(Linear::NativeProjLeft)?, load(Linear::NativeProjRight)?)),
+        }
     }
 
     /// Convolution `layer` (0 stem, 1..=4 middle, 5 output).
     pub fn conv(&self, layer: usize) -> Result<LinearQ<'w>, Error> {
         let (outputs, inputs) = (conv_outputs(layer), TAPS * conv_inputs(layer));
-        LinearQ::load(&self.blob, Linear::HeadConv(layer), outputs, inputs, outputs)
+        LinearQ::load(&self.blob, self.kind.conv(layer), outputs, inputs, outputs)
     }
 }
 
@@ -189,9 +234,11 @@ pub trait HeadSink {
 pub enum HeadView {
     /// The left view's: the head on (left, right), as trained.
     Left,
-    /// The right view's: the head on the mirrored pair (mirror(right), mirror(left)), each
-    /// descriptor row's cells in reverse order, its output mirrored back, so cell `q` of an
-    /// output row is right cell `q`. The left-right check of the head compares the two.
+    /// The right view's: the head on the mirrored pair (mirror(right), mirror(left)), its
+    /// output mirrored back, so cell `q` of an output row is right cell `q`. The left-right
+    /// check of the head compares the two. The export head takes the same (left, right)
+    /// descriptor rows and mirrors them itself (each row's cells in reverse order); the native
+    /// head takes the rows of the encoder's pass on the mirrored pair.
     Right,
 }
 
@@ -227,15 +274,17 @@ impl<'a, 'w> HeadStream<'a, 'w> {
         if cols == 0 {
             return Err(Error::EmptyImage);
         }
-        let mut carver = Carver::new(arena, arena_bytes(cols))?;
-        // Carver::new took arena_bytes(cols) <= arena.len(): these products cannot overflow.
+        let head = weights.kind;
+        let mut carver = Carver::new(arena, arena_bytes_for(head, cols))?;
+        // Carver::new took arena_bytes_for(head, cols) <= arena.len(): these products cannot
+        // overflow.
         let rings_len = cols * ring_bytes_per_col();
         let rings = carver.i8s(rings_len)?;
-        let f_left = carver.i8s(cols * HEAD_PROJ_DIM)?;
-        let f_right = carver.i8s(cols * HEAD_PROJ_DIM)?;
-        let normed = carver.i8s(CELL_BLOCK * DIM)?;
+        let f_left = carver.i8s(cols * head.proj_dim())?;
+        let f_right = carver.i8s(cols * head.proj_dim())?;
+        let normed = carver.i8s(CELL_BLOCK * head.input_dim())?;
         let gathered = carver.i8s(HEAD_MAX_DISP * TAPS * HEAD_HIDDEN)?;
-        let acc = carver.i32s(max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * HEAD_PROJ_DIM))?;
+        let acc = carver.i32s(max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * head.proj_dim()))?;
         let logits = carver.i32s(cols * HEAD_MAX_DISP)?;
         let disparity = carver.u16s(cols)?;
         let confidence = carver.u16s(cols)?;
@@ -265,9 +314,10 @@ impl<'a, 'w> HeadStream<'a, 'w> {
         self.arena_used
     }
 
-    /// Feeds the next descriptor row of both views (`cols x DIM` codes each); emits every
-    /// output row that became computable.
+    /// Feeds the export head the next descriptor row of both views (`cols x DIM` codes each);
+    /// emits every output row that became computable.
     pub fn push_row(&mut self, desc_left: &[i8], desc_right: &[i8], sink: &mut impl HeadSink) -> Result<(), Error> {
+        self.check_pathway(HeadKind::Export)?;
         let expected = self.cols * DIM;
         for (what, row) in [("left descriptor row", desc_left), ("right descriptor row", desc_right)] {
             if row.len() != expected {
@@ -281,13 +331,8 @@ impl<'a, 'w> HeadStream<'a, 'w> {
         if self.input_done {
             return Err(Error::StreamFinished);
         }
-        let proj = self.w.projection()?;
-        let norm = LayerNormQ {
-            zero: &Uniform(0),
-            rel: &Uniform(DESC_REL),
-            eps: self.w.norm.eps,
-            out: self.w.norm.out,
-        };
+        let (proj, _) = self.w.projections()?;
+        let norm = self.w.input_norm();
         match self.view {
             HeadView::Left => {
                 project(desc_left, &norm, &proj, self.normed, self.acc, self.f_left);
@@ -298,13 +343,62 @@ impl<'a, 'w> HeadStream<'a, 'w> {
                 // reversing the cells after is the same as projecting reversed rows.
                 project(desc_right, &norm, &proj, self.normed, self.acc, self.f_left);
                 project(desc_left, &norm, &proj, self.normed, self.acc, self.f_right);
-                reverse_cells(self.f_left, HEAD_PROJ_DIM);
-                reverse_cells(self.f_right, HEAD_PROJ_DIM);
+                reverse_cells(self.f_left, self.w.kind.proj_dim());
+                reverse_cells(self.f_right, self.w.kind.proj_dim());
             }
         }
+        self.correlate_and_pump(sink)
+    }
+
+    /// Feeds the native head the next row of the pair's de-positioned fused grid
+    /// (`Encoder::pair_tokens`: `cols x [even, odd] x DIM` codes, the pair feature `u` of each
+    /// patch column; for [`HeadView::Right`], the row of the encoder's pass on the mirrored
+    /// pair); emits every output row that became computable.
+    pub fn push_pair_row(&mut self, tokens: &[i8], sink: &mut impl HeadSink) -> Result<(), Error> {
+        self.check_pathway(HeadKind::Native)?;
+        let expected = self.cols * 2 * DIM;
+        if tokens.len() != expected {
+            return Err(Error::BufferSize {
+                what: "pair token row",
+                expected,
+                found: tokens.len(),
+            });
+        }
+        if self.input_done {
+            return Err(Error::StreamFinished);
+        }
+        let (left, right) = self.w.projections()?;
+        let norm = self.w.input_norm();
+        let buffers = ProjectBuffers {
+            normed: self.normed,
+            acc: self.acc,
+        };
+        project_pair(tokens, &norm, (&left, &right), buffers, (self.f_left, self.f_right));
+        self.correlate_and_pump(sink)
+    }
+
+    fn check_pathway(&self, input: HeadKind) -> Result<(), Error> {
+        if self.w.kind == input {
+            Ok(())
+        } else {
+            Err(Error::PathwayMismatch {
+                head: self.w.kind.pathway(),
+                input: input.pathway(),
+            })
+        }
+    }
+
+    /// The projected row pair into the correlation ring, then every computable output.
+    fn correlate_and_pump(&mut self, sink: &mut impl HeadSink) -> Result<(), Error> {
         let row = self.pushed[0];
         let slot = ring_slot_mut(self.rings, self.cols, 0, row);
-        correlate(self.f_left, self.f_right, self.w.correlation, slot);
+        correlate(
+            self.f_left,
+            self.f_right,
+            self.w.kind.proj_dim(),
+            self.w.correlation,
+            slot,
+        );
         self.pushed[0] += 1;
         self.pump(sink)
     }
@@ -521,25 +615,68 @@ fn project(
     acc: &mut [i32],
     out: &mut [i8],
 ) {
-    for (cells, out_cells) in desc
-        .chunks(CELL_BLOCK * DIM)
-        .zip(out.chunks_mut(CELL_BLOCK * HEAD_PROJ_DIM))
-    {
-        let count = cells.len() / DIM;
-        layernorm_rows(cells, DIM, norm, normed);
-        matmul_i8(
-            &normed[..count * DIM],
-            proj.weight,
-            DIM,
-            &mut acc[..count * HEAD_PROJ_DIM],
-        );
-        requant_rows(&acc[..count * HEAD_PROJ_DIM], &proj.requant(), &Uniform(0), out_cells);
+    let buffers = ProjectBuffers { normed, acc };
+    project_cells(desc, DIM, norm, &[proj], buffers, [out]);
+}
+
+/// The native head's front: each pair feature `u` normalised once, then projected by `P_L`
+/// into `f_left` and by `P_R` into `f_right`.
+fn project_pair(
+    tokens: &[i8],
+    norm: &LayerNormQ<'_, Uniform, Uniform>,
+    (left, right): (&LinearQ<'_>, &LinearQ<'_>),
+    buffers: ProjectBuffers<'_>,
+    (f_left, f_right): (&mut [i8], &mut [i8]),
+) {
+    project_cells(tokens, 2 * DIM, norm, &[left, right], buffers, [f_left, f_right]);
+}
+
+/// Scratch of the projections: normalised cells and accumulators of one cell block.
+struct ProjectBuffers<'a> {
+    normed: &'a mut [i8],
+    acc: &'a mut [i32],
+}
+
+/// LayerNorm of each `dim`-code input cell, then projection `k` of the block into `outs[k]`,
+/// [`CELL_BLOCK`] cells at a time (one normalisation serves every projection).
+fn project_cells<const N: usize>(
+    cells: &[i8],
+    dim: usize,
+    norm: &LayerNormQ<'_, Uniform, Uniform>,
+    projections: &[&LinearQ<'_>; N],
+    buffers: ProjectBuffers<'_>,
+    mut outs: [&mut [i8]; N],
+) {
+    let Some(first) = projections.first() else { return };
+    if dim == 0 {
+        return;
+    }
+    // Every projection has the same shape: its output channels from its weights' length.
+    let proj_dim = first.weight.len() / dim;
+    for (block, block_cells) in cells.chunks(CELL_BLOCK * dim).enumerate() {
+        let count = block_cells.len() / dim;
+        let normed = &mut buffers.normed[..count * dim];
+        layernorm_rows(block_cells, dim, norm, normed);
+        let acc = &mut buffers.acc[..count * proj_dim];
+        for (proj, out) in projections.iter().zip(outs.iter_mut()) {
+            let Some(out_cells) = out.get_mut(block * CELL_BLOCK * proj_dim..(block * CELL_BLOCK + count) * proj_dim)
+            else {
+                return;
+            };
+            matmul_i8(normed, proj.weight, dim, acc);
+            requant_rows(acc, &proj.requant(), &Uniform(0), out_cells);
+        }
     }
 }
 
-/// One correlation row: `[column][disparity][group]`, zero where the candidate is outside.
-fn correlate(f_left: &[i8], f_right: &[i8], rq: Requant, out: &mut [i8]) {
-    let cells_left = f_left.chunks_exact(HEAD_PROJ_DIM);
+/// One correlation row: `[column][disparity][group]`, zero where the candidate is outside;
+/// features of `proj_dim` channels, [`HEAD_GROUPS`] groups.
+fn correlate(f_left: &[i8], f_right: &[i8], proj_dim: usize, rq: Requant, out: &mut [i8]) {
+    let per_group = proj_dim / HEAD_GROUPS;
+    if per_group == 0 {
+        return;
+    }
+    let cells_left = f_left.chunks_exact(proj_dim);
     for (p, (left, out_cell)) in cells_left
         .zip(out.chunks_exact_mut(HEAD_MAX_DISP * HEAD_GROUPS))
         .enumerate()
@@ -547,10 +684,10 @@ fn correlate(f_left: &[i8], f_right: &[i8], rq: Requant, out: &mut [i8]) {
         for (d, out_groups) in out_cell.chunks_exact_mut(HEAD_GROUPS).enumerate() {
             let right = p
                 .checked_sub(d)
-                .and_then(|q| f_right.get(q * HEAD_PROJ_DIM..(q + 1) * HEAD_PROJ_DIM));
+                .and_then(|q| f_right.get(q * proj_dim..(q + 1) * proj_dim));
             match right {
                 Some(right) => {
-                    let groups = left.chunks_exact(PER_GROUP).zip(right.chunks_exact(PER_GROUP));
+                    let groups = left.chunks_exact(per_group).zip(right.chunks_exact(per_group));
                     for (o, (a, b)) in out_groups.iter_mut().zip(groups) {
                         *o = sat_i8_i64(rq.apply_i64(dot(a, b) as i64));
                     }

@@ -110,6 +110,13 @@ pub enum Linear {
     /// The head's 3D convolution `i` (0 stem, 1..=4 middle, 5 output): `out x 27 in`,
     /// kernel positions ordered (row, disparity, column), channels innermost.
     HeadConv(usize),
+    /// The native head's left projection `P_L`: `NATIVE_HEAD_PROJ_DIM x 2 DIM` (its
+    /// LayerNorm's affine folded in).
+    NativeProjLeft,
+    /// The native head's right projection `P_R`, as [`Linear::NativeProjLeft`].
+    NativeProjRight,
+    /// The native head's 3D convolution `i`, as [`Linear::HeadConv`].
+    NativeConv(usize),
 }
 
 impl Linear {
@@ -123,6 +130,9 @@ impl Linear {
             Linear::Fc2(b) => 4 + 4 * b,
             Linear::HeadProj => HEAD_LINEAR_BASE,
             Linear::HeadConv(i) => HEAD_LINEAR_BASE + 1 + i,
+            Linear::NativeProjLeft => NATIVE_LINEAR_BASE,
+            Linear::NativeProjRight => NATIVE_LINEAR_BASE + 1,
+            Linear::NativeConv(i) => NATIVE_LINEAR_BASE + 2 + i,
         };
         i as u16
     }
@@ -139,6 +149,76 @@ pub const HEAD_LINEAR_BASE: usize = 100;
 pub const HEAD_CONVS: usize = crate::config::HEAD_MIDDLE_LAYERS + 2;
 /// LayerNorm index of the head's input normalisation.
 pub const HEAD_LAYERNORM: usize = 100;
+/// Linear-layer index of the native head's left projection; its right projection and its
+/// convolutions follow.
+pub const NATIVE_LINEAR_BASE: usize = 110;
+/// LayerNorm index of the native head's pair-feature normalisation.
+pub const NATIVE_LAYERNORM: usize = 101;
+
+/// The two stereo heads a blob may hold. The per-head scalar tensors (`HEAD_CORRELATION`,
+/// `HEAD_CARRY`, `HEAD_ZERO`, `HEAD_SOFTMAX`, `META_HEAD_LOGIT_SCALE`) take [`HeadKind::index`]
+/// as their index.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum HeadKind {
+    /// The shared head of the export pathway: descriptor maps D(L), D(R) of two encoder
+    /// passes on (L, L) and (R, R), one LayerNorm + projection for both.
+    Export,
+    /// The native pathway's head: the fused grid of one pass on (L, R), pair features
+    /// `u = [a, b]` (the two phase tokens of a patch column), one LayerNorm, projections
+    /// `P_L`, `P_R`.
+    Native,
+}
+
+impl HeadKind {
+    /// Index of this head's scalar tensors.
+    pub const fn index(self) -> usize {
+        match self {
+            HeadKind::Export => 0,
+            HeadKind::Native => 1,
+        }
+    }
+
+    /// LayerNorm index of the head's input normalisation.
+    pub const fn layernorm(self) -> usize {
+        match self {
+            HeadKind::Export => HEAD_LAYERNORM,
+            HeadKind::Native => NATIVE_LAYERNORM,
+        }
+    }
+
+    /// The head's 3D convolution `i`.
+    pub const fn conv(self, i: usize) -> Linear {
+        match self {
+            HeadKind::Export => Linear::HeadConv(i),
+            HeadKind::Native => Linear::NativeConv(i),
+        }
+    }
+
+    /// Channels of one input cell: a descriptor, or the pair feature `[a, b]`.
+    pub const fn input_dim(self) -> usize {
+        match self {
+            HeadKind::Export => crate::config::DIM,
+            HeadKind::Native => 2 * crate::config::DIM,
+        }
+    }
+
+    /// Channels of each projected feature map.
+    pub const fn proj_dim(self) -> usize {
+        match self {
+            HeadKind::Export => crate::config::HEAD_PROJ_DIM,
+            HeadKind::Native => crate::config::NATIVE_HEAD_PROJ_DIM,
+        }
+    }
+
+    /// The pathway's name, as the CLI spells it.
+    pub const fn pathway(self) -> &'static str {
+        match self {
+            HeadKind::Export => "export",
+            HeadKind::Native => "native",
+        }
+    }
+}
 
 /// Residual format after embedding.
 pub const fn residual_after_embed() -> usize {

@@ -27,7 +27,11 @@ pub struct QuantizeArgs {
     /// Float shared head (`python -m bino_train.head`); quantised into the same blob.
     #[arg(long)]
     head: Option<PathBuf>,
-    /// Train pairs whose descriptor maps calibrate the head.
+    /// Float native-pathway head (`python -m bino_train.head` of a `--pathway native` head with
+    /// pair features [a, b]); quantised into the same blob, beside the shared head.
+    #[arg(long)]
+    native_head: Option<PathBuf>,
+    /// Train pairs whose input maps calibrate each head.
     #[arg(long, default_value_t = 16)]
     head_calib_pairs: usize,
     /// Folder with PAIRS.tsv; only `split = train` pairs are read.
@@ -52,6 +56,7 @@ pub fn run(args: QuantizeArgs) -> Result<()> {
     let opts = QuantizeOptions {
         encoder: args.onnx,
         head: args.head,
+        native_head: args.native_head,
         head_calib_pairs: args.head_calib_pairs,
         data: args.calib,
         profile: args.profile,
@@ -71,8 +76,12 @@ pub fn run(args: QuantizeArgs) -> Result<()> {
         });
     })?;
     progress.finish();
-    if let Some(choice) = &report.head_choice {
-        eprintln!("head correlation format, mean |int8 - float| disparity on the calibration maps (train split):");
+    for (name, choice) in [
+        ("head", &report.head_choice),
+        ("native head", &report.native_head_choice),
+    ] {
+        let Some(choice) = choice else { continue };
+        eprintln!("{name} correlation format, mean |int8 - float| disparity on the calibration maps (train split):");
         for (i, (label, error)) in choice.tried.iter().enumerate() {
             let mark = if i == choice.chosen { "  <- chosen" } else { "" };
             eprintln!("  {label:<20} {error:.4} patch columns{mark}");

@@ -1,12 +1,14 @@
-//! The shared head's int8 tensors: calibration on float descriptor maps of train-split pairs
-//! (tract taps of the head ONNX) and the integer parameters of `core/src/model/head.rs`.
+//! The heads' int8 tensors: calibration on float input maps of train-split pairs (tract taps
+//! of the head ONNX) and the integer parameters of `core/src/model/head.rs`. The export head
+//! reads descriptor maps D(L), D(R); the native head the two phase maps of the pair's
+//! de-positioned fused grid (even and odd fused columns), each as a map of `DIM` channels.
 
 use std::path::Path;
 
 use anyhow::{ensure, Context, Result};
-use bino_core::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM};
+use bino_core::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
 use bino_core::kernels::layernorm::Z_FRAC_BITS;
-use bino_core::model::ids::{self, kind, Linear, HEAD_CONVS, HEAD_LAYERNORM};
+use bino_core::model::ids::{self, kind, HeadKind, Linear, HEAD_CONVS};
 use tract_onnx::prelude::*;
 
 use super::calibrate::{z_scores, Samples};
@@ -32,10 +34,14 @@ const CORRELATION_PERCENTILES: [f64; 5] = [0.9999, 0.999, 0.995, 0.99, 0.98];
 
 /// Tap names of the head ONNX (`python -m bino_train.head`): projected left and right,
 /// correlation volume, stem output, the middle layers' residual outputs.
-pub fn head_taps() -> Vec<String> {
+pub fn head_taps(head: HeadKind) -> Vec<String> {
+    let (left, right) = match head {
+        HeadKind::Export => ("/head/proj/Add_output_0", "/head/proj_1/Add_output_0"),
+        HeadKind::Native => ("/head/proj_left/Add_output_0", "/head/proj_right/Add_output_0"),
+    };
     let mut names = vec![
-        "/head/proj/Add_output_0".to_string(),
-        "/head/proj_1/Add_output_0".to_string(),
+        left.to_string(),
+        right.to_string(),
         "/head/Transpose_output_0".to_string(),
         "/head/Relu_output_0".to_string(),
     ];
@@ -60,9 +66,10 @@ pub struct HeadStats {
     pub float_disparity: Vec<Vec<f32>>,
 }
 
-/// Runs the float head on descriptor map pairs and gathers the statistics.
-pub fn collect(head_onnx: &Path, pairs: &[(FeatureMap, FeatureMap)]) -> Result<HeadStats> {
-    let mut names = head_taps();
+/// Runs the float `head` on its input map pairs (D(L), D(R), or the even and odd phase maps)
+/// and gathers the statistics.
+pub fn collect(head_onnx: &Path, head: HeadKind, pairs: &[(FeatureMap, FeatureMap)]) -> Result<HeadStats> {
+    let mut names = head_taps(head);
     names.push("disparity".to_string());
     let mut model = TappedModel::load(head_onnx, &names, 2)?;
     let mut stats = HeadStats {
@@ -71,12 +78,22 @@ pub fn collect(head_onnx: &Path, pairs: &[(FeatureMap, FeatureMap)]) -> Result<H
     };
     for (left, right) in pairs {
         ensure!(
-            left.dim == DIM && (left.rows, left.cols) == (right.rows, right.cols),
-            "descriptor maps differ"
+            left.dim == DIM && right.dim == DIM && (left.rows, left.cols) == (right.rows, right.cols),
+            "head input maps differ"
         );
-        for map in [left, right] {
-            let z: Vec<f32> = map.data.chunks_exact(DIM).step_by(4).flat_map(z_scores).collect();
-            stats.normalised.add(z.into_iter(), SAMPLES_PER_MAP);
+        match head {
+            HeadKind::Export => {
+                for map in [left, right] {
+                    let z: Vec<f32> = map.data.chunks_exact(DIM).step_by(4).flat_map(z_scores).collect();
+                    stats.normalised.add(z.into_iter(), SAMPLES_PER_MAP);
+                }
+            }
+            HeadKind::Native => {
+                // The LayerNorm sees the pair feature u = [a, b] of each cell.
+                let cells = left.data.chunks_exact(DIM).zip(right.data.chunks_exact(DIM));
+                let z: Vec<f32> = cells.step_by(2).flat_map(|(a, b)| z_scores(&[a, b].concat())).collect();
+                stats.normalised.add(z.into_iter(), SAMPLES_PER_MAP);
+            }
         }
         let outputs = model.run(vec![map_tensor(left)?, map_tensor(right)?])?;
         stats.projected.add(outputs[0].1.iter().copied(), SAMPLES_PER_MAP);
@@ -151,9 +168,10 @@ impl HeadFormats {
 }
 
 /// Mean |int8 - float| head disparity in patch columns over the calibration pairs: the int8
-/// head of `model` on the float descriptors quantised to its input codes (`desc_scale`).
+/// `head` of `model` on the float input maps quantised to its input codes (`desc_scale`).
 pub fn disagreement(
     model: &crate::int8::Int8Model,
+    head: HeadKind,
     pairs: &[(FeatureMap, FeatureMap)],
     float_disparity: &[Vec<f32>],
     desc_scale: f64,
@@ -172,7 +190,13 @@ pub fn disagreement(
     };
     let (mut sum, mut cells) = (0.0f64, 0usize);
     for ((left, right), float) in pairs.iter().zip(float_disparity) {
-        let maps = model.head(&codes(left), &codes(right), left.rows, left.cols)?;
+        let maps = match head {
+            HeadKind::Export => model.head(&codes(left), &codes(right), left.rows, left.cols)?,
+            HeadKind::Native => {
+                let tokens = crate::int8::interleave_phases(&codes(left), &codes(right), DIM);
+                model.native_head(&tokens, left.rows, left.cols)?
+            }
+        };
         ensure!(maps.disparity.len() == float.len(), "head maps differ in size");
         sum += maps
             .disparity
@@ -185,8 +209,11 @@ pub fn disagreement(
     Ok(sum / cells as f64)
 }
 
-/// Writes every head tensor; `desc_scale` is the encoder's descriptor scale (the head's input).
+/// Writes every tensor of `float`'s head (export or native, [`FloatHead::kind`]); `desc_scale`
+/// is the encoder's descriptor scale (the unit of both heads' input codes).
 pub fn write_head(float: &FloatHead, f: &HeadFormats, desc_scale: f64, w: &mut BlobWriter) -> Result<()> {
+    let head = float.kind;
+    let at = head.index();
     ensure!(
         float.middle.len() == HEAD_MIDDLE_LAYERS,
         "head has {} middle layers",
@@ -197,26 +224,35 @@ pub fn write_head(float: &FloatHead, f: &HeadFormats, desc_scale: f64, w: &mut B
     let eps = (float.ln_eps as f64 / (unit * unit)).round() as i64;
     let out = requant_of(1.0 / (f.normalised * (1u64 << Z_FRAC_BITS) as f64))?;
     w.add_i64(
-        ids::id(kind::LAYERNORM, HEAD_LAYERNORM),
+        ids::id(kind::LAYERNORM, head.layernorm()),
         &[eps, out.mult as i64, out.shift as i64],
     )?;
 
-    let proj = fold_layernorm(&float.proj, &float.norm_weight, &float.norm_bias);
-    let (codes, scales) = quantize_rows(&proj.weight, DIM);
-    let bias: Result<Vec<i32>> = scales
-        .iter()
-        .zip(&proj.bias)
-        .map(|(&s, &b)| to_i32(b as f64 / (f.normalised * s)))
-        .collect();
-    let mults: Result<Vec<_>> = scales
-        .iter()
-        .map(|&s| requant_of(f.normalised * s / f.projected))
-        .collect();
-    write_linear(w, Linear::HeadProj, &codes, &bias?, &mults?)?;
+    let projections = match (head, &float.proj_right) {
+        (HeadKind::Export, None) => vec![(Linear::HeadProj, &float.proj)],
+        (HeadKind::Native, Some(right)) => {
+            vec![(Linear::NativeProjLeft, &float.proj), (Linear::NativeProjRight, right)]
+        }
+        _ => anyhow::bail!("the {} head's projections are incomplete", head.pathway()),
+    };
+    for (layer, linear) in projections {
+        let proj = fold_layernorm(linear, &float.norm_weight, &float.norm_bias);
+        let (codes, scales) = quantize_rows(&proj.weight, head.input_dim());
+        let bias: Result<Vec<i32>> = scales
+            .iter()
+            .zip(&proj.bias)
+            .map(|(&s, &b)| to_i32(b as f64 / (f.normalised * s)))
+            .collect();
+        let mults: Result<Vec<_>> = scales
+            .iter()
+            .map(|&s| requant_of(f.normalised * s / f.projected))
+            .collect();
+        write_linear(w, layer, &codes, &bias?, &mults?)?;
+    }
 
-    let per_group = (HEAD_PROJ_DIM / HEAD_GROUPS) as f64;
+    let per_group = (head.proj_dim() / HEAD_GROUPS) as f64;
     let corr = requant_of(f.projected * f.projected / per_group / f.correlation)?;
-    w.add_i32(ids::id(kind::HEAD_CORRELATION, 0), &[corr.mult, corr.shift as i32])?;
+    w.add_i32(ids::id(kind::HEAD_CORRELATION, at), &[corr.mult, corr.shift as i32])?;
 
     let convs: Vec<&FloatConv3d> = std::iter::once(&float.stem)
         .chain(float.middle.iter())
@@ -242,7 +278,7 @@ pub fn write_head(float: &FloatHead, f: &HeadFormats, desc_scale: f64, w: &mut B
             .collect();
         let out_scale = if layer + 1 < HEAD_CONVS { f.hidden[layer].0 } else { 1.0 };
         let mults: Result<Vec<_>> = scales.iter().map(|&s| requant_of(in_scale * s / out_scale)).collect();
-        write_linear(w, Linear::HeadConv(layer), &codes, &bias?, &mults?)?;
+        write_linear(w, head.conv(layer), &codes, &bias?, &mults?)?;
         if (1..HEAD_CONVS - 1).contains(&layer) {
             let carry = requant_of(in_scale / f.hidden[layer].0)?;
             carries.extend([carry.mult, carry.shift as i32]);
@@ -250,12 +286,12 @@ pub fn write_head(float: &FloatHead, f: &HeadFormats, desc_scale: f64, w: &mut B
         if layer + 1 == HEAD_CONVS {
             let logit_scale = in_scale * scales[0];
             let softmax = requant_of(logit_scale * std::f64::consts::LOG2_E * 256.0)?;
-            w.add_i32(ids::id(kind::HEAD_SOFTMAX, 0), &[softmax.mult, softmax.shift as i32])?;
-            w.add_f32(ids::id(kind::META_HEAD_LOGIT_SCALE, 0), &[logit_scale as f32])?;
+            w.add_i32(ids::id(kind::HEAD_SOFTMAX, at), &[softmax.mult, softmax.shift as i32])?;
+            w.add_f32(ids::id(kind::META_HEAD_LOGIT_SCALE, at), &[logit_scale as f32])?;
         }
     }
-    w.add_i32(ids::id(kind::HEAD_ZERO, 0), &zeros)?;
-    w.add_i32(ids::id(kind::HEAD_CARRY, 0), &carries)?;
+    w.add_i32(ids::id(kind::HEAD_ZERO, at), &zeros)?;
+    w.add_i32(ids::id(kind::HEAD_CARRY, at), &carries)?;
     ensure!(
         HEAD_HIDDEN == float.stem.out_channels && HEAD_MAX_DISP == float.max_disp,
         "head shape differs"
@@ -328,10 +364,11 @@ fn to_i32(x: f64) -> Result<i32> {
     Ok(r as i32)
 }
 
-/// Float descriptor maps of the first `max_pairs` train pairs (spread over the split) for
-/// head calibration.
+/// Float input maps of the `head` on the first `max_pairs` train pairs (spread over the split)
+/// for head calibration: D(L), D(R), or the even and odd phase maps of the pair's token grid.
 pub fn calibration_maps(
     encoder_onnx: &Path,
+    head: HeadKind,
     data: &Path,
     profile: crate::profile::Profile,
     max_pairs: usize,
@@ -347,9 +384,13 @@ pub fn calibration_maps(
     for pair in train.iter().step_by(step) {
         let left = profile.apply(&load_gray(&pair.left)?)?;
         let right = profile.apply(&load_gray(&pair.right)?)?;
-        let dl = encoder.descriptors(&left).with_context(|| pair.pair_id.clone())?;
-        let dr = encoder.descriptors(&right).with_context(|| pair.pair_id.clone())?;
-        maps.push((dl, dr));
+        let inputs = match head {
+            HeadKind::Export => encoder
+                .descriptors(&left)
+                .and_then(|dl| Ok((dl, encoder.descriptors(&right)?))),
+            HeadKind::Native => encoder.tokens(&left, &right).map(|t| t.phase_maps()),
+        };
+        maps.push(inputs.with_context(|| pair.pair_id.clone())?);
     }
     Ok(maps)
 }

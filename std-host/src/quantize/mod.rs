@@ -17,6 +17,8 @@ use std::path::PathBuf;
 use anyhow::{ensure, Context, Result};
 use bino_core::config::CELL_W;
 
+use bino_core::model::ids::HeadKind;
+
 use crate::blob_writer::BlobWriter;
 use crate::float_head::FloatHead;
 use crate::float_weights::FloatEncoder;
@@ -29,7 +31,10 @@ pub struct QuantizeOptions {
     pub encoder: PathBuf,
     /// The float shared head (`python -m bino_train.head`), quantised too when given.
     pub head: Option<PathBuf>,
-    /// Train pairs whose float descriptor maps calibrate the head.
+    /// The float native-pathway head (`python -m bino_train.head` of a `--pathway native`
+    /// checkpoint, pair features `[a, b]`), quantised too when given.
+    pub native_head: Option<PathBuf>,
+    /// Train pairs whose float input maps calibrate each head.
     pub head_calib_pairs: usize,
     /// Folder with `PAIRS.tsv`; only its train split is used.
     pub data: PathBuf,
@@ -48,8 +53,10 @@ pub struct QuantizeReport {
     pub bands: usize,
     /// The chosen activation formats.
     pub formats: formats::EncoderFormats,
-    /// How the head's correlation format was chosen (with `--head`).
+    /// How the shared head's correlation format was chosen (with `--head`).
     pub head_choice: Option<HeadChoice>,
+    /// How the native head's correlation format was chosen (with `--native-head`).
+    pub native_head_choice: Option<HeadChoice>,
 }
 
 /// The head format candidates and their measured disagreement with the float head on the
@@ -73,51 +80,64 @@ pub fn quantize(opts: &QuantizeOptions, progress: impl FnMut(usize, usize)) -> R
     let bands = calibrate::calibration_bands(&opts.data, opts.profile, opts.calib_pairs)?;
     let stats = calibrate::collect(&opts.encoder, &bands, progress).context("calibration")?;
     let formats = formats::EncoderFormats::choose(&stats);
-    let build = |head: Option<(&FloatHead, &head::HeadFormats)>| -> Result<Vec<u8>> {
+    let build = |heads: &[(&FloatHead, &head::HeadFormats)]| -> Result<Vec<u8>> {
         let mut writer = BlobWriter::new();
         encoder::write_encoder(&float, &formats, opts.max_width / CELL_W, &mut writer)?;
-        if let Some((float_head, head_formats)) = head {
+        for (float_head, head_formats) in heads {
             head::write_head(float_head, head_formats, formats.descriptor, &mut writer)?;
         }
         Ok(writer.finish())
     };
-    let Some(head_onnx) = &opts.head else {
-        return Ok((
-            build(None)?,
-            QuantizeReport {
-                bands: stats.bands,
-                formats,
-                head_choice: None,
-            },
-        ));
-    };
-    let float_head = FloatHead::from_onnx(head_onnx)?;
-    let maps = head::calibration_maps(&opts.encoder, &opts.data, opts.profile, opts.head_calib_pairs)?;
-    let head_stats = head::collect(head_onnx, &maps).context("head calibration")?;
-    // Each candidate blob runs the int8 head on the (train-split) calibration maps.
-    let mut best: Option<(f64, Vec<u8>)> = None;
-    let mut choice = HeadChoice {
-        tried: Vec::new(),
-        chosen: 0,
-    };
-    for (label, head_formats) in head::HeadFormats::candidates(&head_stats) {
-        let blob = build(Some((&float_head, &head_formats)))?;
-        let model = crate::int8::Int8Model::from_bytes(blob, &label)?;
-        let error = head::disagreement(&model, &maps, &head_stats.float_disparity, formats.descriptor)
-            .with_context(|| format!("head candidate {label}"))?;
-        if best.as_ref().is_none_or(|(e, _)| error < *e) {
-            choice.chosen = choice.tried.len();
-            best = Some((error, model.bytes().to_vec()));
+    // Each head's formats are chosen with the heads before it fixed.
+    let mut chosen: Vec<(FloatHead, head::HeadFormats)> = Vec::new();
+    let mut choices = [None, None];
+    for (slot, (path, kind)) in [(&opts.head, HeadKind::Export), (&opts.native_head, HeadKind::Native)]
+        .into_iter()
+        .enumerate()
+    {
+        let Some(path) = path else { continue };
+        let float_head = FloatHead::from_onnx(path)?;
+        ensure!(
+            float_head.kind == kind,
+            "{} is the {} pathway's head, given as the {} pathway's",
+            path.display(),
+            float_head.kind.pathway(),
+            kind.pathway()
+        );
+        let maps = head::calibration_maps(&opts.encoder, kind, &opts.data, opts.profile, opts.head_calib_pairs)?;
+        let head_stats =
+            head::collect(path, kind, &maps).with_context(|| format!("{} head calibration", kind.pathway()))?;
+        // Each candidate blob runs the int8 head on the (train-split) calibration maps.
+        let mut best: Option<(f64, head::HeadFormats)> = None;
+        let mut choice = HeadChoice {
+            tried: Vec::new(),
+            chosen: 0,
+        };
+        for (label, head_formats) in head::HeadFormats::candidates(&head_stats) {
+            let mut heads: Vec<_> = chosen.iter().map(|(h, f)| (h, f)).collect();
+            heads.push((&float_head, &head_formats));
+            let model = crate::int8::Int8Model::from_bytes(build(&heads)?, &label)?;
+            let error = head::disagreement(&model, kind, &maps, &head_stats.float_disparity, formats.descriptor)
+                .with_context(|| format!("{} head candidate {label}", kind.pathway()))?;
+            if best.as_ref().is_none_or(|(e, _)| error < *e) {
+                choice.chosen = choice.tried.len();
+                best = Some((error, head_formats));
+            }
+            choice.tried.push((label, error));
         }
-        choice.tried.push((label, error));
+        let (_, head_formats) = best.context("no head format candidates")?;
+        chosen.push((float_head, head_formats));
+        choices[slot] = Some(choice);
     }
-    let (_, blob) = best.context("no head format candidates")?;
+    let heads: Vec<_> = chosen.iter().map(|(h, f)| (h, f)).collect();
+    let [head_choice, native_head_choice] = choices;
     Ok((
-        blob,
+        build(&heads)?,
         QuantizeReport {
             bands: stats.bands,
             formats,
-            head_choice: Some(choice),
+            head_choice,
+            native_head_choice,
         },
     ))
 }
