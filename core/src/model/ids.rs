@@ -247,3 +247,44 @@ pub const fn layernorm_index(b: usize, second: bool) -> usize {
 pub const fn id(kind: u16, index: usize) -> TensorId {
     TensorId::new(kind, index as u16)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::HEAD_MIDDLE_LAYERS;
+
+    /// Every linear layer of the encoder and both heads has its own index, so a blob can hold
+    /// both heads beside the encoder without one tensor standing for two.
+    #[test]
+    fn linear_indices_are_unique_across_the_encoder_and_both_heads() {
+        let mut indices = [0u16; 64];
+        let mut count = 0;
+        let mut add = |layer: Linear| {
+            indices[count] = layer.index();
+            count += 1;
+        };
+        for layer in [
+            Linear::Embed,
+            Linear::HeadProj,
+            Linear::NativeProjLeft,
+            Linear::NativeProjRight,
+        ] {
+            add(layer);
+        }
+        for b in 0..DEPTH {
+            for layer in [Linear::Qkv(b), Linear::Proj(b), Linear::Fc1(b), Linear::Fc2(b)] {
+                add(layer);
+            }
+        }
+        for i in 0..HEAD_MIDDLE_LAYERS + 2 {
+            add(HeadKind::Export.conv(i));
+            add(HeadKind::Native.conv(i));
+        }
+        let used = &mut indices[..count];
+        used.sort_unstable();
+        assert!(used.windows(2).all(|w| w[0] < w[1]), "{used:?}");
+        assert_ne!(HeadKind::Export.layernorm(), HeadKind::Native.layernorm());
+        assert!(HeadKind::Export.layernorm() > layernorm_index(DEPTH - 1, true));
+        assert_ne!(HeadKind::Export.index(), HeadKind::Native.index());
+    }
+}
