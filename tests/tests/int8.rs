@@ -190,6 +190,34 @@ fn int8_native_pathway_follows_float() {
         "native head disparity differs by {disparity_mean_abs}"
     );
 
+    // `bino compare --native-head` on an eval pair: the same agreement through the CLI's code.
+    let blob_path = std::env::temp_dir().join(format!("bino-native-{}.bin", std::process::id()));
+    std::fs::write(&blob_path, model.bytes()).unwrap();
+    let compared = bino_host::compare::compare(
+        &bino_host::compare::CompareOptions {
+            onnx: onnx.clone(),
+            blob: blob_path.clone(),
+            head: None,
+            native_head: Some(native_onnx.clone()),
+            data: data_dir(),
+            split: "eval".into(),
+            profile: Profile::W160,
+            max_cols: 10,
+            limit: Some(1),
+        },
+        |_, _, _| {},
+    );
+    std::fs::remove_file(&blob_path).unwrap();
+    let native = compared.unwrap().mean.native.expect("the native pathway was compared");
+    eprintln!(
+        "compare --native-head, first eval pair: pair token cosine {:.5}, logit cosine {:.5}",
+        native.pair_token_cosine, native.head.logit_cosine
+    );
+    assert!(
+        native.pair_token_cosine >= 0.99 && native.head.logit_cosine >= 0.98,
+        "{native:?}"
+    );
+
     // In place (what a pipeline keeps in its arena) equals the copy, code for code; on (I, I)
     // the mean of a cell's two phase codes is its descriptor code, up to rounding.
     let encoder = model.encoder().unwrap();

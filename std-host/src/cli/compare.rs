@@ -17,7 +17,7 @@ use super::progress::Progress;
 /// / 255, so only the engines differ). Per view: the descriptor maps' cosine (float on the
 /// exact view). Per pair: integer WTA disparity agreement and the EVAL.md metrics of the
 /// no-linkage readout of both, upsampled and refined (nolink+ref; with --head also head and
-/// head+ref). Prints the means with the targets (descriptor cosine >= 0.99,
+/// head+ref; with --native-head the native pathway's pair tokens and native head). Prints the means with the targets (descriptor cosine >= 0.99,
 /// WTA agreement >= 98 %, int8 epe at most 3 % above float); progress on stderr.
 #[derive(Args)]
 #[command(mut_arg("max_cols", |a| a.help(NOLINK_CANDIDATES_HELP)))]
@@ -40,6 +40,10 @@ pub struct CompareArgs {
     /// Float shared head: also compare the int8 head's logits and disparity with it.
     #[arg(long)]
     head: Option<PathBuf>,
+    /// Float native-pathway head: also compare the native pathway (the pair tokens of one pass
+    /// on (L, R), and the blob's int8 native head on them against this head on the float ones).
+    #[arg(long)]
+    native_head: Option<PathBuf>,
     /// Also write every number (per pair and mean) and the inputs' provenance as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -56,6 +60,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
         onnx: args.onnx,
         blob: args.blob,
         head: args.head,
+        native_head: args.native_head,
         data: args.data,
         split: args.split,
         profile: args.profile,

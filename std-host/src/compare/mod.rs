@@ -24,6 +24,7 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, ensure, Context, Result};
 use bino_core::band::BandPlan;
 use bino_core::config::{DIM, PATCH_H};
+use bino_core::model::ids::HeadKind;
 use bino_core::model::probe::Stage;
 
 use crate::eval::{
@@ -31,7 +32,7 @@ use crate::eval::{
     Metrics, SimilarityVolume,
 };
 use crate::files::sha256_hex;
-use crate::int8::{dequantise_residual, to_u8, Int8Model, StageRecorder};
+use crate::int8::{dequantise_residual, to_u8, HeadMaps, Int8Model, StageRecorder};
 use crate::pairs::{read_index, Split};
 use crate::profile::{Profile, View};
 use crate::reference::{FeatureMap, ReferenceEncoder};
@@ -47,6 +48,9 @@ pub struct CompareOptions {
     pub blob: PathBuf,
     /// Float shared head (ONNX); compared with the blob's int8 head when given.
     pub head: Option<PathBuf>,
+    /// Float native-pathway head (ONNX); when given, the native pathway is compared too: the
+    /// pair tokens of one pass on (L, R) and the blob's int8 native head on them.
+    pub native_head: Option<PathBuf>,
     /// Folder holding `PAIRS.tsv`.
     pub data: PathBuf,
     /// Split to read: only `eval` (the metrics need ground truth).
@@ -81,6 +85,30 @@ impl HeadComparison {
     pub fn epe_change_pct(&self) -> f64 {
         (self.int8.epe - self.float.epe) / self.float.epe * 100.0
     }
+
+    /// Unweighted mean over pairs.
+    fn mean(heads: &[HeadComparison]) -> Result<HeadComparison> {
+        let n = heads.len() as f64;
+        let of = |get: fn(&HeadComparison) -> Metrics| mean_metrics(&heads.iter().map(get).collect::<Vec<_>>());
+        Ok(HeadComparison {
+            logit_cosine: heads.iter().map(|x| x.logit_cosine).sum::<f64>() / n,
+            disparity_mean_abs: heads.iter().map(|x| x.disparity_mean_abs).sum::<f64>() / n,
+            float: of(|x| x.float)?,
+            int8: of(|x| x.int8)?,
+            float_ref: of(|x| x.float_ref)?,
+            int8_ref: of(|x| x.int8_ref)?,
+        })
+    }
+}
+
+/// The native pathway, int8 against float (`bino compare --native-head`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NativeComparison {
+    /// Mean per-token cosine of the de-positioned fused token grids of one pass on (L, R)
+    /// (the native head's input).
+    pub pair_token_cosine: f64,
+    /// The int8 native head on the int8 pair tokens against the float one on the float tokens.
+    pub head: HeadComparison,
 }
 
 /// The numbers of one pair, or their unweighted mean over pairs.
@@ -108,6 +136,8 @@ pub struct Comparison {
     pub int8_ref: Metrics,
     /// The head comparison, once there is one.
     pub head: Option<HeadComparison>,
+    /// The native pathway's comparison, with `--native-head`.
+    pub native: Option<NativeComparison>,
 }
 
 impl Comparison {
@@ -123,10 +153,8 @@ impl Comparison {
         let n = items.len() as f64;
         let mean = |get: &dyn Fn(&Comparison) -> f64| items.iter().map(|c| get(c)).sum::<f64>() / n;
         let heads: Option<Vec<HeadComparison>> = items.iter().map(|c| c.head).collect();
+        let natives: Option<Vec<NativeComparison>> = items.iter().map(|c| c.native).collect();
         let all = |get: fn(&Comparison) -> Metrics| mean_metrics(&items.iter().map(|c| get(c)).collect::<Vec<_>>());
-        let heads_of = |h: &[HeadComparison], get: fn(&HeadComparison) -> Metrics| {
-            mean_metrics(&h.iter().map(get).collect::<Vec<_>>())
-        };
         Ok(Comparison {
             stage_cosine: (0..STAGE_COUNT).map(|s| mean(&|c| c.stage_cosine[s])).collect(),
             descriptor_cosine: mean(&|c| c.descriptor_cosine),
@@ -137,14 +165,11 @@ impl Comparison {
             int8: all(|c| c.int8)?,
             float_ref: all(|c| c.float_ref)?,
             int8_ref: all(|c| c.int8_ref)?,
-            head: match heads {
-                Some(h) => Some(HeadComparison {
-                    logit_cosine: h.iter().map(|x| x.logit_cosine).sum::<f64>() / n,
-                    disparity_mean_abs: h.iter().map(|x| x.disparity_mean_abs).sum::<f64>() / n,
-                    float: heads_of(&h, |x| x.float)?,
-                    int8: heads_of(&h, |x| x.int8)?,
-                    float_ref: heads_of(&h, |x| x.float_ref)?,
-                    int8_ref: heads_of(&h, |x| x.int8_ref)?,
+            head: heads.map(|h| HeadComparison::mean(&h)).transpose()?,
+            native: match natives {
+                Some(v) => Some(NativeComparison {
+                    pair_token_cosine: v.iter().map(|x| x.pair_token_cosine).sum::<f64>() / n,
+                    head: HeadComparison::mean(&v.iter().map(|x| x.head).collect::<Vec<_>>())?,
                 }),
                 None => None,
             },
@@ -180,6 +205,8 @@ pub struct CompareReport {
     pub blob: PathBuf,
     /// The float head compared, if any.
     pub head: Option<PathBuf>,
+    /// The float native head compared, if any.
+    pub native_head: Option<PathBuf>,
     /// SHA-256 of the blob's bytes.
     pub blob_sha256: String,
     /// Data folder.
@@ -208,6 +235,7 @@ pub struct Comparer {
     descriptor_scale: f32,
     max_cols: usize,
     float_head: Option<head::FloatHeadRunner>,
+    native_head: Option<head::FloatHeadRunner>,
 }
 
 // What one view gave.
@@ -221,15 +249,23 @@ struct ViewComparison {
 }
 
 impl Comparer {
-    /// Loads the float encoder `onnx` and the int8 blob `blob`, and the float head `head` if
-    /// given (the blob must then hold the int8 head); `max_cols` disparity candidates.
-    pub fn load(onnx: &Path, blob: &Path, head: Option<&Path>, max_cols: usize) -> Result<Self> {
+    /// Loads the float encoder `onnx` and the int8 blob `blob`, and the float heads `heads`
+    /// (shared, native) where given (the blob must then hold the int8 head of each);
+    /// `max_cols` disparity candidates.
+    pub fn load(onnx: &Path, blob: &Path, heads: [Option<&Path>; 2], max_cols: usize) -> Result<Self> {
         ensure!(max_cols > 0, "--max-cols must be at least 1");
         let int8 = Int8Model::load(blob)?;
+        let [head, native] = heads;
         let float_head = head.map(head::FloatHeadRunner::load).transpose()?;
         ensure!(
             float_head.is_none() || int8.has_head(),
             "blob {} has no shared head to compare: quantise with `bino quantize --head`",
+            blob.display()
+        );
+        let native_head = native.map(head::FloatHeadRunner::load).transpose()?;
+        ensure!(
+            native_head.is_none() || int8.has_head_of(HeadKind::Native),
+            "blob {} has no native head to compare: quantise with `bino quantize --native-head`",
             blob.display()
         );
         let formats = (0..STAGE_COUNT)
@@ -247,6 +283,7 @@ impl Comparer {
             descriptor_scale,
             max_cols,
             float_head,
+            native_head,
         })
     }
 
@@ -282,6 +319,7 @@ impl Comparer {
             float_ref: refined_metrics(&float_wta, &views, item).context("float nolink+ref")?,
             int8_ref: refined_metrics(&int8_wta, &views, item).context("int8 nolink+ref")?,
             head: self.compare_head(&left, &right, &views, item).context("shared head")?,
+            native: self.compare_native(&views, item).context("native pathway")?,
         };
         Ok(PairComparison {
             pair_id: item.pair_id.clone(),
@@ -306,21 +344,26 @@ impl Comparer {
         let (rows, cols) = (left.int8.rows, left.int8.cols);
         let int8 = self.int8.head(&left.codes, &right.codes, rows, cols)?;
         let float = float_head.run(&left.float, &right.float)?;
-        let tokens = |values: &[f32]| DisparityMap {
-            width: cols,
-            height: rows,
-            values: values.to_vec(),
+        head_comparison(&int8, &float, views, item).map(Some)
+    }
+
+    /// The native pathway on one pair: the fused token grids of one pass on (L, R), int8 (on
+    /// the engine's 8-bit pixels) against float (on the exact views), and each precision's
+    /// native head on its own tokens.
+    fn compare_native(&mut self, views: &GrayViews, item: &EvalItem) -> Result<Option<NativeComparison>> {
+        let Some(float_head) = self.native_head.as_mut() else {
+            return Ok(None);
         };
-        let scored = |values: &[f32]| score(&upsample_disparity(&tokens(values)), &item.gt);
-        let refined = |values: &[f32]| refined_metrics(&tokens(values), views, item);
-        let agreement = head::compare_heads(&int8, &float)?;
-        Ok(Some(HeadComparison {
-            logit_cosine: agreement.logit_cosine,
-            disparity_mean_abs: agreement.disparity_mean_abs,
-            float: scored(&float.disparity)?,
-            int8: scored(&int8.disparity)?,
-            float_ref: refined(&float.disparity)?,
-            int8_ref: refined(&int8.disparity)?,
+        let (rows, cols, codes) = self.int8.pair_token_codes(&item.left, &item.right)?;
+        let int8_tokens: Vec<f32> = codes.iter().map(|&c| c as f32 * self.descriptor_scale).collect();
+        let float_tokens = self.reference.tokens(&item.left, &item.right)?;
+        let pair_token_cosine = mean_token_cosine(&int8_tokens, &float_tokens.data, DIM).context("pair tokens")?;
+        let int8 = self.int8.native_head(&codes, rows, cols)?;
+        let (even, odd) = float_tokens.phase_maps();
+        let float = float_head.run(&even, &odd)?;
+        Ok(Some(NativeComparison {
+            pair_token_cosine,
+            head: head_comparison(&int8, &float, views, item)?,
         }))
     }
 
@@ -398,6 +441,33 @@ fn split_bands(recorded: Vec<(Stage, usize, usize, Vec<i8>)>) -> Result<Vec<Vec<
                 .collect()
         })
         .collect()
+}
+
+/// EVAL.md metrics of an int8 and a float head's disparity on one pair, unrefined and refined,
+/// with how closely their logits and disparities agree.
+fn head_comparison(
+    int8: &HeadMaps,
+    float: &head::FloatHeadOutput,
+    views: &GrayViews,
+    item: &EvalItem,
+) -> Result<HeadComparison> {
+    let (rows, cols) = (int8.rows, int8.cols);
+    let tokens = |values: &[f32]| DisparityMap {
+        width: cols,
+        height: rows,
+        values: values.to_vec(),
+    };
+    let scored = |values: &[f32]| score(&upsample_disparity(&tokens(values)), &item.gt);
+    let refined = |values: &[f32]| refined_metrics(&tokens(values), views, item);
+    let agreement = head::compare_heads(int8, float)?;
+    Ok(HeadComparison {
+        logit_cosine: agreement.logit_cosine,
+        disparity_mean_abs: agreement.disparity_mean_abs,
+        float: scored(&float.disparity)?,
+        int8: scored(&int8.disparity)?,
+        float_ref: refined(&float.disparity)?,
+        int8_ref: refined(&int8.disparity)?,
+    })
 }
 
 /// Integer winner-take-all disparity of every cell: the first candidate with the largest
@@ -497,7 +567,8 @@ pub fn compare(
         .take(opts.limit.unwrap_or(usize::MAX))
         .collect();
     ensure!(!records.is_empty(), "no {split} pairs in {}", opts.data.display());
-    let mut comparer = Comparer::load(&opts.onnx, &opts.blob, opts.head.as_deref(), opts.max_cols)?;
+    let heads = [opts.head.as_deref(), opts.native_head.as_deref()];
+    let mut comparer = Comparer::load(&opts.onnx, &opts.blob, heads, opts.max_cols)?;
     let mut pairs = Vec::with_capacity(records.len());
     for (i, record) in records.iter().enumerate() {
         let item = load_eval_item(record, opts.profile)?;
@@ -513,6 +584,7 @@ pub fn compare(
         onnx: opts.onnx.clone(),
         blob: opts.blob.clone(),
         head: opts.head.clone(),
+        native_head: opts.native_head.clone(),
         blob_sha256: sha256_hex(comparer.int8().bytes()),
         data: opts.data.clone(),
         split,
@@ -581,6 +653,14 @@ mod tests {
                 float_ref: metrics(0.5),
                 int8_ref: metrics(0.75),
             }),
+            native: None,
+        };
+        let a = Comparison {
+            native: Some(NativeComparison {
+                pair_token_cosine: 0.9,
+                head: a.head.unwrap(),
+            }),
+            ..a
         };
         let b = Comparison {
             stage_cosine: vec![0.5; STAGE_COUNT],
@@ -597,8 +677,15 @@ mod tests {
         assert_eq!(m.epe_change_pct(), 25.0);
         assert_eq!((m.float_ref.epe, m.int8_ref.epe), (1.0, 1.5));
         assert_eq!(m.head.map(|h| h.epe_change_pct()), Some(50.0));
-        let c = Comparison { head: None, ..b };
-        assert!(Comparison::mean([&a, &c]).unwrap().head.is_none());
+        let native = m.native.expect("both pairs have the native pathway");
+        assert_eq!((native.pair_token_cosine, native.head.epe_change_pct()), (0.9, 50.0));
+        let c = Comparison {
+            head: None,
+            native: None,
+            ..b
+        };
+        let partial = Comparison::mean([&a, &c]).unwrap();
+        assert!(partial.head.is_none() && partial.native.is_none());
         assert!(Comparison::mean([]).is_err());
     }
 

@@ -5,7 +5,7 @@ use std::fmt::Write;
 use super::stages::{stage_label, EmbedSource, STAGE_COUNT};
 use serde::Serialize;
 
-use super::{CompareReport, Comparison, HeadComparison, PairComparison};
+use super::{CompareReport, Comparison, HeadComparison, NativeComparison, PairComparison};
 use crate::eval::Metrics;
 use crate::keyed::Keyed;
 
@@ -52,6 +52,29 @@ pub fn checks(mean: &Comparison) -> Vec<Check> {
             pass: change <= EPE_CHANGE_TARGET_PCT,
         },
     ]
+}
+
+/// One metric's row of the table: float, int8, their change and `extra` (a target).
+fn metric_row(t: &mut String, name: &str, f: f64, i: f64, extra: &str) {
+    let change = (i - f) / f * 100.0;
+    let row = format!("  {name:<16} {f:>8.4}  {i:>8.4}  {change:>+7.2} %  {extra}");
+    let _ = writeln!(t, "{}", row.trim_end());
+}
+
+/// A head's rows of the table: float and int8 metrics, unrefined and refined.
+fn head_rows(t: &mut String, title: &str, head: &HeadComparison) {
+    let _ = writeln!(
+        t,
+        "\n{title:<20} float      int8     change   (logit cosine {:.5}, mean |int8 - float| {:.4} patch columns)",
+        head.logit_cosine, head.disparity_mean_abs
+    );
+    metric_row(t, "epe (px)", head.float.epe, head.int8.epe, "");
+    metric_row(t, "bad1tok (%)", head.float.bad1tok, head.int8.bad1tok, "");
+    metric_row(t, "bad2 (%)", head.float.bad2, head.int8.bad2, "");
+    let _ = writeln!(t, "  refined (head+ref)");
+    metric_row(t, "epe (px)", head.float_ref.epe, head.int8_ref.epe, "");
+    metric_row(t, "bad1tok (%)", head.float_ref.bad1tok, head.int8_ref.bad1tok, "");
+    metric_row(t, "bad2 (%)", head.float_ref.bad2, head.int8_ref.bad2, "");
 }
 
 fn verdict(pass: bool) -> &'static str {
@@ -132,11 +155,6 @@ impl CompareReport {
             mean.wta_flip_loss, mean.wta_top2_gap
         );
         let _ = writeln!(t, "\nno-linkage readout   float      int8     change");
-        let metric_row = |t: &mut String, name: &str, f: f64, i: f64, extra: &str| {
-            let change = (i - f) / f * 100.0;
-            let row = format!("  {name:<16} {f:>8.4}  {i:>8.4}  {change:>+7.2} %  {extra}");
-            let _ = writeln!(t, "{}", row.trim_end());
-        };
         metric_row(
             &mut t,
             "epe (px)",
@@ -151,18 +169,15 @@ impl CompareReport {
         metric_row(&mut t, "bad1tok (%)", mean.float_ref.bad1tok, mean.int8_ref.bad1tok, "");
         metric_row(&mut t, "bad2 (%)", mean.float_ref.bad2, mean.int8_ref.bad2, "");
         if let Some(head) = &mean.head {
+            head_rows(&mut t, "shared head", head);
+        }
+        if let Some(native) = &mean.native {
             let _ = writeln!(
                 t,
-                "\nshared head          float      int8     change   (logit cosine {:.5}, mean |int8 - float| {:.4} patch columns)",
-                head.logit_cosine, head.disparity_mean_abs
+                "\nnative pathway (one pass on (L, R)): pair token cosine {:.5}",
+                native.pair_token_cosine
             );
-            metric_row(&mut t, "epe (px)", head.float.epe, head.int8.epe, "");
-            metric_row(&mut t, "bad1tok (%)", head.float.bad1tok, head.int8.bad1tok, "");
-            metric_row(&mut t, "bad2 (%)", head.float.bad2, head.int8.bad2, "");
-            let _ = writeln!(t, "  refined (head+ref)");
-            metric_row(&mut t, "epe (px)", head.float_ref.epe, head.int8_ref.epe, "");
-            metric_row(&mut t, "bad1tok (%)", head.float_ref.bad1tok, head.int8_ref.bad1tok, "");
-            metric_row(&mut t, "bad2 (%)", head.float_ref.bad2, head.int8_ref.bad2, "");
+            head_rows(&mut t, "native head", &native.head);
         }
         let _ = writeln!(
             t,
@@ -196,6 +211,7 @@ impl CompareReport {
             onnx: self.onnx.display().to_string(),
             blob: self.blob.display().to_string(),
             head_onnx: self.head.as_ref().map(|h| h.display().to_string()),
+            native_head_onnx: self.native_head.as_ref().map(|h| h.display().to_string()),
             blob_sha256: &self.blob_sha256,
             data: self.data.display().to_string(),
             split: self.split.to_string(),
@@ -227,6 +243,7 @@ struct CompareJson<'a> {
     onnx: String,
     blob: String,
     head_onnx: Option<String>,
+    native_head_onnx: Option<String>,
     blob_sha256: &'a str,
     data: String,
     split: String,
@@ -286,6 +303,7 @@ struct ComparisonJson {
     float_ref: Metrics,
     int8_ref: Metrics,
     head: Option<HeadJson>,
+    native: Option<NativeJson>,
 }
 
 impl ComparisonJson {
@@ -302,6 +320,23 @@ impl ComparisonJson {
             float_ref: c.float_ref,
             int8_ref: c.int8_ref,
             head: c.head.as_ref().map(HeadJson::new),
+            native: c.native.as_ref().map(NativeJson::new),
+        }
+    }
+}
+
+#[derive(Serialize)]
+struct NativeJson {
+    pair_token_cosine: f64,
+    /// The native head, as `head`.
+    head: HeadJson,
+}
+
+impl NativeJson {
+    fn new(n: &NativeComparison) -> Self {
+        Self {
+            pair_token_cosine: n.pair_token_cosine,
+            head: HeadJson::new(&n.head),
         }
     }
 }
@@ -359,6 +394,7 @@ mod tests {
             float_ref: m(0.6 * epe_float),
             int8_ref: m(0.6 * epe_int8),
             head: None,
+            native: None,
         }
     }
 
@@ -368,6 +404,7 @@ mod tests {
             onnx: PathBuf::from("enc \"x\".onnx"),
             blob: PathBuf::from("q.bin"),
             head: Some(PathBuf::from("head.onnx")),
+            native_head: None,
             blob_sha256: "ab".repeat(32),
             data: PathBuf::from("data"),
             split: Split::Eval,
@@ -423,8 +460,22 @@ mod tests {
             float_ref: Metrics { epe: 0.9, ..mean.float },
             int8_ref: Metrics { epe: 1.0, ..mean.float },
         });
-        let text = report(mean).to_json();
+        let head = mean.head.unwrap();
+        mean.native = Some(NativeComparison {
+            pair_token_cosine: 0.997,
+            head: HeadComparison {
+                logit_cosine: 0.97,
+                ..head
+            },
+        });
+        let text = report(mean.clone()).to_json();
+        let table = report(mean).table();
+        assert!(table.contains("pair token cosine 0.99700"), "{table}");
+        assert!(table.contains("native head"), "{table}");
         let v: serde_json::Value = serde_json::from_str(&text).unwrap();
+        assert_eq!(v["mean"]["native"]["pair_token_cosine"], 0.997);
+        assert_eq!(v["mean"]["native"]["head"]["logit_cosine"], 0.97);
+        assert_eq!(v["native_head_onnx"], serde_json::Value::Null);
         assert_eq!(v["onnx"], "enc \"x\".onnx");
         assert_eq!(v["head_onnx"], "head.onnx");
         assert_eq!(v["stages"].as_array().unwrap().len(), STAGE_COUNT);
