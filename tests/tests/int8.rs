@@ -18,6 +18,21 @@ fn data_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
 }
 
+/// Quantising the fixture encoder (calibrated on two train pairs) with the shared head and,
+/// when given, the native head.
+fn fixture_options(native_head: Option<PathBuf>) -> QuantizeOptions {
+    QuantizeOptions {
+        encoder: fixtures().join("encoder_random_seed0.onnx"),
+        data: data_dir(),
+        profile: Profile::W160,
+        calib_pairs: 2,
+        max_width: 160,
+        head: Some(fixtures().join("head_random_seed0.onnx")),
+        native_head,
+        head_calib_pairs: 2,
+    }
+}
+
 fn cosine(a: &[f32], b: &[f32]) -> f64 {
     let dot: f64 = a.iter().zip(b).map(|(x, y)| *x as f64 * *y as f64).sum();
     let na: f64 = a.iter().map(|x| (*x as f64).powi(2)).sum::<f64>().sqrt();
@@ -37,16 +52,7 @@ fn int8_descriptors_follow_float() {
         return;
     }
     let onnx = fixtures().join("encoder_random_seed0.onnx");
-    let opts = QuantizeOptions {
-        encoder: onnx.clone(),
-        data: data_dir(),
-        profile: Profile::W160,
-        calib_pairs: 2,
-        max_width: 160,
-        head: Some(fixtures().join("head_random_seed0.onnx")),
-        native_head: None,
-        head_calib_pairs: 2,
-    };
+    let opts = fixture_options(None);
     let (blob, _) = quantize(&opts, |_, _| {}).unwrap();
     let model = Int8Model::from_bytes(blob, "fixture blob").unwrap();
     let scene = synthetic::default_scene(160, 48);
@@ -147,16 +153,7 @@ fn int8_native_pathway_follows_float() {
     }
     let onnx = fixtures().join("encoder_random_seed0.onnx");
     let native_onnx = fixtures().join("native_head_random_seed0.onnx");
-    let opts = QuantizeOptions {
-        encoder: onnx.clone(),
-        data: data_dir(),
-        profile: Profile::W160,
-        calib_pairs: 2,
-        max_width: 160,
-        head: Some(fixtures().join("head_random_seed0.onnx")),
-        native_head: Some(native_onnx.clone()),
-        head_calib_pairs: 2,
-    };
+    let opts = fixture_options(Some(native_onnx.clone()));
     let (blob, report) = quantize(&opts, |_, _| {}).unwrap();
     assert!(report.head_choice.is_some() && report.native_head_choice.is_some());
     let model = Int8Model::from_bytes(blob, "fixture blob").unwrap();
@@ -267,11 +264,7 @@ fn int8_native_pathway_follows_float() {
         stream.push_pair_row(&row, &mut Ignore),
         Err(Error::BufferSize { .. })
     ));
-    let export_only = QuantizeOptions {
-        native_head: None,
-        ..opts
-    };
-    let (blob, _) = quantize(&export_only, |_, _| {}).unwrap();
+    let (blob, _) = quantize(&fixture_options(None), |_, _| {}).unwrap();
     let model = Int8Model::from_bytes(blob, "export-only blob").unwrap();
     assert!(!model.has_head_of(HeadKind::Native));
     let err = model.native_head(&codes, rows, cols).unwrap_err();

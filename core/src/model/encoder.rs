@@ -230,9 +230,7 @@ impl<'w> Encoder<'w> {
         arena: &mut [u8],
         probe: &mut impl Probe,
     ) -> Result<RunReport, Error> {
-        if left.width != right.width || left.height != right.height {
-            return Err(Error::PairMismatch);
-        }
+        check_pair(&left, &right)?;
         Ok(self.forward(Fused::Pair(left, right), left, arena, probe)?.0)
     }
 
@@ -260,9 +258,7 @@ impl<'w> Encoder<'w> {
                 found: out.len(),
             });
         }
-        if left.width != right.width || left.height != right.height {
-            return Err(Error::PairMismatch);
-        }
+        check_pair(&left, &right)?;
         let (report, x) = self.forward(Fused::Pair(left, right), left, arena, probe)?;
         let params = self.descriptor_params()?;
         let row_len = report.fused_cols * DIM;
@@ -284,9 +280,7 @@ impl<'w> Encoder<'w> {
         arena: &mut [u8],
         probe: &mut impl Probe,
     ) -> Result<(RunReport, usize), Error> {
-        if left.width != right.width || left.height != right.height {
-            return Err(Error::PairMismatch);
-        }
+        check_pair(&left, &right)?;
         let (report, _) = self.forward(Fused::Pair(left, right), left, arena, probe)?;
         let len = report.rows * report.fused_cols * DIM;
         let x: &mut [i8] = bytemuck::cast_slice_mut(arena.get_mut(..len).ok_or(Error::ArenaTooSmall {
@@ -492,6 +486,14 @@ impl DescriptorParams<'_> {
     fn token(&self, row: usize, token: &[i8], out: &mut [i8]) {
         self.cell(row, token, token, out);
     }
+}
+
+/// [`Error::PairMismatch`] unless the two views of a pair have the same size.
+fn check_pair(left: &GrayBand<'_>, right: &GrayBand<'_>) -> Result<(), Error> {
+    if left.width != right.width || left.height != right.height {
+        return Err(Error::PairMismatch);
+    }
+    Ok(())
 }
 
 /// The token grid of a band.
