@@ -6,8 +6,8 @@
 #
 # Each stage checkpoints (pretraining every few minutes, the head every 5 minutes) and `--resume`
 # continues exactly, so the script can be stopped and restarted at will: a stage whose target is
-# already reached returns at once. Stages: pretraining (30,000 pairs) -> shared head (HEAD_STEPS
-# steps) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
+# already reached returns at once. Stages: pretraining (30,000 pairs) -> shared head and native
+# pathway head (HEAD_STEPS steps each) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
 # the trained encoder and the random init, head vs StereoSGBM on the eval split) -> int8 blob ->
 # MANIFEST.json. Set BINO_THREADS to change the torch thread count (default 2).
 set -euo pipefail
@@ -27,6 +27,7 @@ pretrain_pairs=30000
 head_steps="${HEAD_STEPS:-1000}"
 pre=runs/p1_clean_bn
 head=runs/head_p1
+native_head=runs/hnat_p1
 weights="$BINO_ROOT/weights"
 data="${BINO_DATA:-$BINO_ROOT/../shared/data}"
 py() { (cd train && "$BINO_VENV/bin/python" -W ignore "$@"); }
@@ -51,9 +52,20 @@ else
   py -m bino_train.head_train --out "$head" --resume --steps "$head_steps" --threads "$threads"
 fi
 
+step "native pathway head to $head_steps steps ($native_head): the shared head's recipe on the fused grid"
+if [[ ${#resume[@]} -eq 0 ]]; then
+  py -m bino_train.head_train --encoder "$pre/last.pt" --pathway native --out "$native_head" \
+    --steps "$head_steps" --threads "$threads" --no-eval --val-every 0
+else
+  py -m bino_train.head_train --out "$native_head" --resume --steps "$head_steps" --threads "$threads" \
+    --no-eval --val-every 0
+fi
+
 step "exports and state dicts"
 py -m bino_train.head --checkpoint "$head/last.pt" --out "$weights/bino_head.onnx" --logits \
   --state-dict "$weights/bino_head.pt"
+py -m bino_train.head --checkpoint "$native_head/last.pt" --out "$weights/bino_native_head.onnx" --logits \
+  --state-dict "$weights/bino_native_head.pt"
 py -m bino_train.export --checkpoint "$pre/last.pt" --out "$weights/bino_encoder.onnx" \
   --state-dict "$weights/bino_encoder.pt"
 
@@ -69,12 +81,12 @@ py -m bino_train.head_eval --encoder "$pre/last.pt" --head "$head/last.pt" --thr
 
 step "int8 blob"
 cargo run -q --release --locked -p bino-host --bin bino -- quantize \
-  --onnx "$weights/bino_encoder.onnx" --head "$weights/bino_head.onnx" --calib "$data" \
-  --out "$weights/bino_int8.bin"
+  --onnx "$weights/bino_encoder.onnx" --head "$weights/bino_head.onnx" \
+  --native-head "$weights/bino_native_head.onnx" --calib "$data" --out "$weights/bino_int8.bin"
 cargo run -q --release --locked -p bino-host --bin bino -- compare --data "$data" --split eval \
   --profile w160 --onnx "$weights/bino_encoder.onnx" --blob "$weights/bino_int8.bin" \
   --head "$weights/bino_head.onnx" --json "$metrics/int8_compare_w160.json"
 
 step "manifest"
-py -m bino_train.manifest --pretrain-run "$pre" --head-run "$head" --metrics-dir runs/metrics \
+py -m bino_train.manifest --pretrain-run "$pre" --head-run "$head" --native-head-run "$native_head" --metrics-dir runs/metrics \
   --experiments experiments.json --out "$weights/MANIFEST.json"

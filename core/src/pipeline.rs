@@ -37,12 +37,13 @@ use crate::lr::{consistent_row, right_view_costs, wta_costs};
 use crate::matching::{check_candidates, cost_row, inverse_norms, match_row};
 use crate::model::encoder::{self, Encoder, GrayBand};
 use crate::model::head::{self, HeadRow, HeadSink, HeadStream, HeadView, HeadWeights};
-use crate::model::ids::HEAD_CONVS;
+use crate::model::ids::{HeadKind, HEAD_CONVS};
 use crate::model::probe::NoProbe;
 use crate::refine::RefineParams;
 use crate::sgm::{state_len, Penalties, SgmStream};
 use crate::Error;
 
+mod native;
 mod refine_stage;
 
 use refine_stage::{BandView, RefineIo, RefineStage, Scratch, HEAD_LAG};
@@ -68,11 +69,15 @@ pub enum Stage {
     /// The pixel refinement of the rows one token row made computable (and the copy of view
     /// rows it still needs before a band load).
     Refine,
+    /// Native pathway: the encoder on (L, R), the band's pair tokens.
+    EncodePair,
+    /// Native pathway with the head's left-right check: the encoder on the mirrored pair.
+    EncodeMirror,
 }
 
 impl Stage {
     /// Every stage, in pipeline order.
-    pub const ALL: [Stage; 8] = [
+    pub const ALL: [Stage; 10] = [
         Stage::Rows,
         Stage::EncodeLeft,
         Stage::EncodeRight,
@@ -81,6 +86,8 @@ impl Stage {
         Stage::LeftRight,
         Stage::Head,
         Stage::Refine,
+        Stage::EncodePair,
+        Stage::EncodeMirror,
     ];
 
     /// A short lower-case name (reports, firmware logs).
@@ -94,7 +101,17 @@ impl Stage {
             Stage::LeftRight => "left_right",
             Stage::Head => "head",
             Stage::Refine => "refine",
+            Stage::EncodePair => "encode_pair",
+            Stage::EncodeMirror => "encode_mirror",
         }
+    }
+
+    /// Whether the stage runs the encoder.
+    pub const fn encodes(self) -> bool {
+        matches!(
+            self,
+            Stage::EncodeLeft | Stage::EncodeRight | Stage::EncodePair | Stage::EncodeMirror
+        )
     }
 }
 
@@ -175,9 +192,19 @@ impl RowSource for SlicePair<'_> {
     }
 }
 
+/// How a band reaches the readouts: the export pathway (two encoder passes, on (L, L) and
+/// (R, R), descriptor maps for every readout) or the native one (one pass on (L, R), its fused
+/// grid read by the native head only).
+pub type Pathway = HeadKind;
+
 /// What the readouts use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Options {
+    /// [`Pathway::Export`]: every readout (no-linkage WTA, SGM, their checks, the shared head
+    /// when `head`). [`Pathway::Native`]: the native head alone (`head` is implied; `max_cols`
+    /// and `penalties` are unused), with its check when `head_lr`, which costs a second encoder
+    /// pass per band on the mirrored pair.
+    pub pathway: Pathway,
     /// Disparity candidates of the WTA and SGM readouts, in patch columns (1 to 64).
     pub max_cols: usize,
     /// SGM penalties (cost units: 4096 = cosine 1).
@@ -216,11 +243,13 @@ impl RefineInput {
     /// The rule: [`RefineInput::HeadLr`] when the run checks the head ([`Options::head`] and
     /// [`Options::head_lr`]), else [`RefineInput::SgmLr`] — the best readout each run has
     /// (README: head+lr at w160, sgm+lr the default of `bino run`).
+    /// The native pathway has only its head: head+lr with the check, else head.
     pub const fn for_options(opts: &Options) -> Self {
-        if opts.head && opts.head_lr {
-            RefineInput::HeadLr
-        } else {
-            RefineInput::SgmLr
+        match opts.pathway {
+            Pathway::Native if opts.head_lr => RefineInput::HeadLr,
+            Pathway::Native => RefineInput::Head,
+            Pathway::Export if opts.head && opts.head_lr => RefineInput::HeadLr,
+            Pathway::Export => RefineInput::SgmLr,
         }
     }
 
@@ -307,6 +336,11 @@ pub trait Sink {
     /// Both descriptor maps of a band (`band.rows x cols x DIM` codes each), after encoding.
     fn band(&mut self, band: Band, left: &[i8], right: &[i8]) {
         let _ = (band, left, right);
+    }
+    /// Native pathway: the pair token codes of a band (`band.rows x cols x [even, odd] x DIM`,
+    /// as `Encoder::pair_tokens`), after the pass on (L, R).
+    fn pair_band(&mut self, band: Band, tokens: &[i8]) {
+        let _ = (band, tokens);
     }
     /// One token row of the WTA and SGM readouts, top to bottom.
     fn matched(&mut self, row: &MatchedRow<'_>);
@@ -440,9 +474,11 @@ pub const fn arena_bytes_head_lr(height: usize, width: usize, max_cols: usize) -
     arena_bytes_of(height, width, max_cols, true, None)
 }
 
-/// The arena bytes a run with `opts` needs ([`arena_bytes`] or [`arena_bytes_head_lr`]).
+/// The arena bytes a run with `opts` needs: on the export pathway [`arena_bytes`] or
+/// [`arena_bytes_head_lr`]; on the native one the pixel band, the native head (two with its
+/// check) and the encoder's scratch, which holds the band's pair tokens after each pass.
 pub const fn arena_bytes_for(height: usize, width: usize, opts: &Options) -> usize {
-    arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr, None)
+    arena_bytes_run(height, width, opts, None)
 }
 
 /// The arena bytes [`Pipeline::run_refined`] needs with `opts` and `refine`. For one band
@@ -450,7 +486,15 @@ pub const fn arena_bytes_for(height: usize, width: usize, opts: &Options) -> usi
 /// encoder's scratch beside the streams, as at 48x160; with several bands it adds
 /// [`refine_bytes`].
 pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, refine: &Refine) -> usize {
-    arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr, Some(refine))
+    arena_bytes_run(height, width, opts, Some(refine))
+}
+
+/// The arena bytes of a run with `opts`, refined when `refine` is given, on either pathway.
+const fn arena_bytes_run(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+    match opts.pathway {
+        Pathway::Export => arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr, refine),
+        Pathway::Native => native::arena_bytes(height, width, opts.head_lr, refine),
+    }
 }
 
 /// Bytes of the refinement's buffers in a run of a `height x width` pair: its state kept
@@ -501,25 +545,36 @@ const fn arena_bytes_of(height: usize, width: usize, max_cols: usize, head_lr: b
     }
 }
 
-/// The int8 encoder and (optionally) head over one weight blob.
+/// The int8 encoder and (optionally) the heads of both pathways over one weight blob.
 #[derive(Clone, Copy)]
 pub struct Pipeline<'w> {
     encoder: Encoder<'w>,
     head: Option<HeadWeights<'w>>,
+    native: Option<HeadWeights<'w>>,
 }
 
 impl<'w> Pipeline<'w> {
-    /// The pipeline of a blob; `head` is `None` when the blob has no head tensors.
+    /// The pipeline of a blob; a head the blob does not carry (or carries incomplete) is left
+    /// out, and a run that needs it is an error naming its first missing tensor.
     pub fn new(blob: crate::blob::Blob<'w>) -> Result<Self, Error> {
         Ok(Self {
             encoder: Encoder::new(blob)?,
-            head: HeadWeights::new(blob).ok(),
+            head: HeadWeights::for_kind(blob, HeadKind::Export).ok(),
+            native: HeadWeights::for_kind(blob, HeadKind::Native).ok(),
         })
     }
 
-    /// Whether the blob carries the shared head.
+    /// Whether the blob carries the shared head (export pathway).
     pub fn has_head(&self) -> bool {
         self.head.is_some()
+    }
+
+    /// Whether the blob carries `pathway`'s head (the native pathway needs one to run at all).
+    pub fn has_head_of(&self, pathway: Pathway) -> bool {
+        match pathway {
+            Pathway::Export => self.head.is_some(),
+            Pathway::Native => self.native.is_some(),
+        }
     }
 
     /// Runs the pair `source` delivers through every readout, in `arena`
@@ -551,6 +606,14 @@ impl<'w> Pipeline<'w> {
         self.run_with(source, opts, Some(refine), arena, sink)
     }
 
+    /// The head weights of `pathway`, when the blob has them.
+    fn weights_of(&self, pathway: Pathway) -> Option<HeadWeights<'w>> {
+        match pathway {
+            Pathway::Export => self.head,
+            Pathway::Native => self.native,
+        }
+    }
+
     fn run_with(
         &self,
         source: &mut impl RowSource,
@@ -567,18 +630,26 @@ impl<'w> Pipeline<'w> {
                 max: self.encoder.max_width(),
             });
         }
-        check_candidates(opts.max_cols)?;
-        let head = match (opts.head, self.head) {
+        let native = opts.pathway == Pathway::Native;
+        if !native {
+            check_candidates(opts.max_cols)?;
+        }
+        let head = match (native || opts.head, self.weights_of(opts.pathway)) {
             (true, Some(w)) => Some(w),
-            (true, None) => return Err(Error::Blob(crate::blob::BlobError::MissingTensor { id: head_id() })),
+            (true, None) => {
+                return Err(Error::Blob(crate::blob::BlobError::MissingTensor {
+                    id: head_id(opts.pathway),
+                }))
+            }
             (false, _) => None,
         };
+        let head_lr = head.is_some() && opts.head_lr;
         if let Some(r) = refine {
             r.params.check()?;
             let missing = match r.input {
-                RefineInput::Head => !opts.head,
-                RefineInput::HeadLr => !(opts.head && opts.head_lr),
-                _ => false,
+                RefineInput::Head => head.is_none(),
+                RefineInput::HeadLr => !head_lr,
+                _ => native,
             };
             if missing {
                 return Err(Error::MissingReadout {
@@ -586,7 +657,7 @@ impl<'w> Pipeline<'w> {
                 });
             }
         }
-        let needed = arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr, refine);
+        let needed = arena_bytes_run(height, width, opts, refine);
         if arena.len() < needed {
             return Err(Error::ArenaTooSmall {
                 needed,
@@ -595,6 +666,19 @@ impl<'w> Pipeline<'w> {
         }
         let plan = BandPlan::new(token_rows)?;
         let band_px = band_pixel_rows(height);
+        let ctx = Context {
+            pipeline: self,
+            head,
+            opts,
+            refine,
+            cols,
+            width,
+            height,
+            band_px,
+        };
+        if native {
+            return native::run(&ctx, source, &plan, arena, sink);
+        }
         let desc_len = (band_px / PATCH_H) * cols * DIM;
         let (pixels, rest) = arena.split_at_mut(2 * band_px * width);
         let (left_px, right_px) = pixels.split_at_mut(band_px * width);
@@ -613,16 +697,6 @@ impl<'w> Pipeline<'w> {
             width,
             first: 0,
             loaded: 0,
-        };
-        let ctx = Context {
-            pipeline: self,
-            head,
-            opts,
-            refine,
-            cols,
-            width,
-            height,
-            band_px,
         };
         let state_len = match refine {
             Some(r) => refine_parts(height, width, r).0,
@@ -691,9 +765,10 @@ impl<'w> Pipeline<'w> {
     }
 }
 
-/// Any head tensor id, for the error of a head asked of a blob without one.
-fn head_id() -> crate::blob::TensorId {
-    crate::model::ids::id(crate::model::ids::kind::LAYERNORM, crate::model::ids::HEAD_LAYERNORM)
+/// A tensor id of `pathway`'s head (its input LayerNorm), for the error of a head asked of a
+/// blob without one.
+fn head_id(pathway: Pathway) -> crate::blob::TensorId {
+    crate::model::ids::id(crate::model::ids::kind::LAYERNORM, pathway.layernorm())
 }
 
 /// What the stages of one run share.
@@ -860,9 +935,11 @@ impl<K: Sink> HeadSink for HeadRows<'_, '_, '_, K> {
 /// The head's left-right check: the left rows kept for it, its mask row, what it kept.
 struct HeadCheck<'a> {
     cols: usize,
+    /// Rows of `left_rows`.
+    rows: usize,
     lr_max_diff_q8: u16,
-    /// [`HEAD_CHECK_ROWS`] rows of left disparities, row `r` in slot `r % HEAD_CHECK_ROWS`
-    /// (one band: every row of it, so the mirrored head can run afterwards).
+    /// `rows` rows of left disparities, row `r` in slot `r % rows` (export pathway,
+    /// [`HEAD_CHECK_ROWS`]; one band: every row of it, so the mirrored head can run afterwards).
     left_rows: &'a mut [u16],
     mask: &'a mut [u8],
     kept: usize,
@@ -870,7 +947,7 @@ struct HeadCheck<'a> {
 
 impl HeadCheck<'_> {
     fn slot(&mut self, row: usize) -> Option<&mut [u16]> {
-        let at = (row % HEAD_CHECK_ROWS) * self.cols;
+        let at = (row % self.rows.max(1)) * self.cols;
         self.left_rows.get_mut(at..at + self.cols)
     }
 
@@ -895,7 +972,7 @@ impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
     fn row(&mut self, row: HeadRow<'_>) {
         let check = &mut *self.check;
         let tolerance = check.lr_max_diff_q8;
-        let at = (row.row % HEAD_CHECK_ROWS) * check.cols;
+        let at = (row.row % check.rows.max(1)) * check.cols;
         let Some(left) = check.left_rows.get(at..at + check.cols) else {
             return;
         };
@@ -1015,6 +1092,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                     let mut carver = Carver::new(rest, head_check_bytes(cols, false))?;
                     let check = HeadCheck {
                         cols,
+                        rows: HEAD_CHECK_ROWS,
                         lr_max_diff_q8: ctx.opts.lr_max_diff_q8,
                         left_rows: carver.u16s(cols * HEAD_CHECK_ROWS)?,
                         mask: carver.u8s(cols)?,

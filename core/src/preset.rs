@@ -13,12 +13,13 @@
 //! assert_eq!(arena_bytes(48, 160), 486_918);
 //! ```
 
-use crate::pipeline::{self, Options, Refine};
+use crate::pipeline::{self, Options, Pathway, Refine};
 use crate::sgm::Penalties;
 
 /// Readout options: 16 candidates, SGM penalties 8 / 32, left-right tolerance one patch
 /// column (Q8 256), the head with its own left-right check.
 pub const OPTIONS: Options = Options {
+    pathway: Pathway::Export,
     max_cols: 16,
     penalties: Penalties { p1: 8, p2: 32 },
     lr_max_diff_q8: 256,
@@ -33,6 +34,21 @@ pub const REFINE: Refine = Refine::for_options(&OPTIONS);
 /// Arena bytes a `height x width` band pair needs with [`OPTIONS`] and [`REFINE`].
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
     pipeline::arena_bytes_refined(height, width, &OPTIONS, &REFINE)
+}
+
+/// [`OPTIONS`] on the native pathway: one encoder pass on (L, R) and the native head, with its
+/// left-right check (a second pass, on the mirrored pair).
+pub const NATIVE_OPTIONS: Options = Options {
+    pathway: Pathway::Native,
+    ..OPTIONS
+};
+
+/// The pixel refinement of the native pathway's head+lr grid.
+pub const NATIVE_REFINE: Refine = Refine::for_options(&NATIVE_OPTIONS);
+
+/// Arena bytes a `height x width` band pair needs with [`NATIVE_OPTIONS`] and [`NATIVE_REFINE`].
+pub const fn native_arena_bytes(height: usize, width: usize) -> usize {
+    pipeline::arena_bytes_refined(height, width, &NATIVE_OPTIONS, &NATIVE_REFINE)
 }
 
 /// Column sectors of the obstacle summary.

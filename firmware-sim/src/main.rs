@@ -88,6 +88,8 @@ markers! {
     bino_mark_left_right = 6;
     bino_mark_head = 7;
     bino_mark_refine = 8;
+    bino_mark_encode_pair = 9;
+    bino_mark_encode_mirror = 10;
     bino_mark_end = 0xFFFF;
 }
 
@@ -103,6 +105,8 @@ fn mark(stage: Stage) {
         Stage::Pipeline(P::LeftRight) => bino_mark_left_right(),
         Stage::Pipeline(P::Head) => bino_mark_head(),
         Stage::Pipeline(P::Refine) => bino_mark_refine(),
+        Stage::Pipeline(P::EncodePair) => bino_mark_encode_pair(),
+        Stage::Pipeline(P::EncodeMirror) => bino_mark_encode_mirror(),
     }
 }
 

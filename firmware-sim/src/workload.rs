@@ -224,9 +224,12 @@ pub fn arena_per_stage(r: &Report) -> [usize; Stage::COUNT] {
         *o = match Stage::at(i) {
             Stage::Load => 0,
             Stage::Pipeline(pipeline::Stage::Rows) => r.pixels,
-            Stage::Pipeline(pipeline::Stage::EncodeLeft | pipeline::Stage::EncodeRight) => {
-                r.pixels + r.descriptors + r.encoder
-            }
+            Stage::Pipeline(
+                pipeline::Stage::EncodeLeft
+                | pipeline::Stage::EncodeRight
+                | pipeline::Stage::EncodePair
+                | pipeline::Stage::EncodeMirror,
+            ) => r.pixels + r.descriptors + r.encoder,
             Stage::Pipeline(pipeline::Stage::Refine) => r.pixels + 2 * r.descriptors + r.streams + r.refine,
             Stage::Pipeline(_) => r.pixels + 2 * r.descriptors + r.streams,
         };

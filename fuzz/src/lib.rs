@@ -52,7 +52,9 @@ pub struct Run {
     pub p2: u16,
     /// Left-right tolerance, Q8.
     pub lr_max_diff_q8: u16,
-    /// Run the head.
+    /// The native pathway (one pass on (L, R), the native head) instead of the export one.
+    pub native: bool,
+    /// Run the head (implied on the native pathway).
     pub head: bool,
     /// With the head: its left-right check (a second, mirrored head stream).
     pub head_lr: bool,
@@ -100,6 +102,7 @@ impl RowSource for FuzzSource<'_> {
 #[derive(Default)]
 struct CountSink {
     rows: usize,
+    head_rows: usize,
     checksum: u64,
 }
 
@@ -107,6 +110,12 @@ impl Sink for CountSink {
     fn matched(&mut self, row: &MatchedRow<'_>) {
         self.rows += 1;
         for &v in row.wta_q8.iter().chain(row.sgm_q8) {
+            self.checksum = self.checksum.wrapping_mul(31).wrapping_add(v as u64);
+        }
+    }
+    fn head(&mut self, row: bino_core::model::head::HeadRow<'_>) {
+        self.head_rows += 1;
+        for &v in row.disparity_q8 {
             self.checksum = self.checksum.wrapping_mul(31).wrapping_add(v as u64);
         }
     }
@@ -118,6 +127,11 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
     let width = usize::from(run.width) % (MAX_WIDTH + 1);
     let height = usize::from(run.height) % (MAX_HEIGHT + 1);
     let opts = Options {
+        pathway: if run.native {
+            pipeline::Pathway::Native
+        } else {
+            pipeline::Pathway::Export
+        },
         max_cols: usize::from(run.max_cols),
         penalties: Penalties { p1: run.p1, p2: run.p2 },
         lr_max_diff_q8: run.lr_max_diff_q8,
@@ -152,8 +166,14 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
     };
     let mut sink = CountSink::default();
     let report = pipeline.run(&mut source, &opts, &mut arena, &mut sink)?;
-    // A finished run emitted one matched row per token row and stayed inside its arena.
-    assert_eq!(sink.rows, report.rows);
+    // A finished run emitted one row per token row of each readout it ran (the native pathway
+    // has only its head) and stayed inside its arena.
+    if run.native {
+        assert_eq!((sink.rows, sink.head_rows), (0, report.rows));
+    } else {
+        assert_eq!(sink.rows, report.rows);
+        assert_eq!(sink.head_rows, if run.head { report.rows } else { 0 });
+    }
     assert!(report.arena_used <= arena.len());
     Ok(report)
 }

@@ -33,7 +33,7 @@ macro_rules! add_le {
         $(#[$doc])*
         pub fn $name(&mut self, id: TensorId, values: &[$t]) -> Result<&mut Self> {
             let bytes = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-            self.add(id, Dtype::$dtype, values.len(), bytes)
+            self.add_raw(id, Dtype::$dtype, values.len(), bytes)
         }
     )*};
 }
@@ -66,7 +66,10 @@ impl BlobWriter {
         add_f32: f32 => F32;
     }
 
-    fn add(&mut self, id: TensorId, dtype: Dtype, elements: usize, bytes: Vec<u8>) -> Result<&mut Self> {
+    /// Adds a tensor of `elements` values of `dtype` as little-endian `bytes` (a tensor copied
+    /// from another blob: `Blob::raw`); errors as [`BlobWriter::add_i8`], and when the byte count
+    /// is not `elements` values of `dtype`.
+    pub fn add_raw(&mut self, id: TensorId, dtype: Dtype, elements: usize, bytes: Vec<u8>) -> Result<&mut Self> {
         ensure!(
             !self.tensors.iter().any(|t| t.id == id),
             "blob already holds tensor {id}"
@@ -75,6 +78,12 @@ impl BlobWriter {
             self.tensors.len() < usize::from(u16::MAX),
             "blob cannot hold more than {} tensors",
             u16::MAX
+        );
+        ensure!(
+            elements.checked_mul(dtype.size_bytes()) == Some(bytes.len()),
+            "tensor {id}: {} bytes are not {elements} {} values",
+            bytes.len(),
+            dtype.name()
         );
         let elements = u32::try_from(elements).map_err(|_| anyhow::anyhow!("tensor {id} has too many elements"))?;
         // One more table entry, alignment padding and the tensor's bytes.

@@ -23,6 +23,7 @@ pub mod occlusion;
 pub mod onnx;
 pub mod onnx_params;
 pub mod pairs;
+pub mod pathway;
 pub mod pfm;
 pub mod pipeline_maps;
 pub mod profile;

@@ -68,9 +68,12 @@ pub fn run_pipeline(
     let (rows, cols) = (report.rows, report.cols);
     let m = sink.maps;
     let cells = rows * cols;
+    // The native pathway has no matching readouts.
+    let matched = opts.pathway == bino_core::pipeline::Pathway::Export;
+    let expected_matched = if matched { cells } else { 0 };
     ensure!(
-        m.wta.len() == cells
-            && m.sgm.len() == cells
+        m.wta.len() == expected_matched
+            && m.sgm.len() == expected_matched
             && (m.head.is_empty() || m.head.len() == cells)
             && (m.head_mask.is_empty() || m.head_mask.len() == cells),
         "the pipeline emitted {} WTA, {} SGM, {} head and {} head check cells for {rows}x{cols}",
@@ -84,12 +87,12 @@ pub fn run_pipeline(
         height: rows,
         values,
     };
-    let head_ran = opts.head && !m.head.is_empty();
+    let head_ran = !m.head.is_empty();
     let check_ran = head_ran && opts.head_lr;
     Ok(PipelineMaps {
         methods: MethodMaps {
-            nolink: map(m.wta),
-            sgm: map(m.sgm),
+            nolink: matched.then(|| map(m.wta)),
+            sgm: matched.then(|| map(m.sgm)),
             head: head_ran.then(|| map(m.head)),
             nolink_consistent: m.wta_mask,
             sgm_consistent: m.sgm_mask,
@@ -140,7 +143,7 @@ fn q8(values: &[u16]) -> impl Iterator<Item = f32> + '_ {
 impl Sink for Collect<'_> {
     fn stage(&mut self, stage: Stage) {
         self.stage_done();
-        if stage == Stage::EncodeLeft {
+        if stage == Stage::EncodeLeft || stage == Stage::EncodePair {
             self.bands_started += 1;
             (self.on_band)(self.bands_started, self.bands);
         }

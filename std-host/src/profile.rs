@@ -120,6 +120,18 @@ pub struct View {
     pub pixels: Vec<f32>,
 }
 
+impl View {
+    /// The view mirrored left to right (each row reversed): with the views swapped, the pair a
+    /// right-view readout runs on.
+    pub fn mirrored(&self) -> View {
+        let mut pixels = self.pixels.clone();
+        for row in pixels.chunks_exact_mut(self.width.max(1)) {
+            row.reverse();
+        }
+        View { pixels, ..*self }
+    }
+}
+
 /// Resizes a row-major image as OpenCV's `INTER_AREA` does when shrinking (each output pixel
 /// is the overlap-weighted mean of the source pixels under it); enlarging falls back to
 /// bilinear interpolation, as OpenCV does too.

@@ -140,15 +140,15 @@ impl FromStr for Readout {
 /// Every method's token-grid disparity (patch columns) of one pair, with its left-right mask.
 #[derive(Debug, Clone)]
 pub struct MethodMaps {
-    /// No-linkage WTA.
-    pub nolink: DisparityMap,
-    /// SGM.
-    pub sgm: DisparityMap,
-    /// The shared head, when it ran.
+    /// No-linkage WTA (export pathway).
+    pub nolink: Option<DisparityMap>,
+    /// SGM (export pathway).
+    pub sgm: Option<DisparityMap>,
+    /// The pathway's head (the shared head, or the native pathway's), when it ran.
     pub head: Option<DisparityMap>,
-    /// Cells whose WTA passes its left-right check.
+    /// Cells whose WTA passes its left-right check (with `nolink`).
     pub nolink_consistent: Vec<bool>,
-    /// Cells whose SGM passes its left-right check.
+    /// Cells whose SGM passes its left-right check (with `sgm`).
     pub sgm_consistent: Vec<bool>,
     /// Cells whose head disparity passes the head's left-right check, when it ran.
     pub head_consistent: Option<Vec<bool>>,
@@ -159,9 +159,13 @@ pub struct MethodMaps {
 impl MethodMaps {
     /// `method`'s disparity and its mask (`None`: the check did not run).
     pub fn method(&self, method: Method) -> Result<(&DisparityMap, Option<&[bool]>)> {
+        fn export<'m>(map: &'m Option<DisparityMap>, name: &str) -> Result<&'m DisparityMap> {
+            map.as_ref()
+                .with_context(|| format!("the run had no {name} readout (the native pathway has only its head)"))
+        }
         Ok(match method {
-            Method::Nolink => (&self.nolink, Some(&self.nolink_consistent)),
-            Method::Sgm => (&self.sgm, Some(&self.sgm_consistent)),
+            Method::Nolink => (export(&self.nolink, "nolink")?, Some(&self.nolink_consistent[..])),
+            Method::Sgm => (export(&self.sgm, "sgm")?, Some(&self.sgm_consistent[..])),
             Method::Head => (
                 self.head.as_ref().context("the run had no head")?,
                 self.head_consistent.as_deref(),
@@ -247,8 +251,8 @@ mod tests {
             values: q8.iter().map(|&d| d as f32 / 256.0).collect(),
         };
         let maps = MethodMaps {
-            nolink: map.clone(),
-            sgm: map.clone(),
+            nolink: Some(map.clone()),
+            sgm: Some(map.clone()),
             head: None,
             nolink_consistent: mask.iter().map(|&m| m != 0).collect(),
             sgm_consistent: vec![true; 24],
@@ -278,8 +282,8 @@ mod tests {
             values: q8.iter().map(|&d| d as f32 / 256.0).collect(),
         };
         let maps = MethodMaps {
-            nolink: map.clone(),
-            sgm: map.clone(),
+            nolink: Some(map.clone()),
+            sgm: Some(map.clone()),
             head: Some(map.clone()),
             nolink_consistent: mask.clone(),
             sgm_consistent: mask.clone(),

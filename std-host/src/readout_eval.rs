@@ -16,6 +16,7 @@ use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
+use bino_core::model::ids::HeadKind;
 use bino_core::pipeline::Options as PipelineOptions;
 use bino_core::sgm::Penalties;
 use serde::Serialize;
@@ -31,8 +32,9 @@ use crate::keyed::Keyed;
 use crate::nuisance::{degrade_item, Nuisance};
 use crate::occlusion::{check_severities, occlude_item};
 use crate::pairs::{read_index, Split};
+use crate::pathway::Pathway;
 use crate::pipeline_maps::run_pipeline;
-use crate::profile::Profile;
+use crate::profile::{Profile, View};
 use crate::readout::MethodMaps;
 pub use crate::readout::Readout;
 use crate::reference::ReferenceEncoder;
@@ -87,8 +89,12 @@ pub struct EvalOptions {
     pub head_onnx: PathBuf,
     /// Precisions to run, in order.
     pub precisions: Vec<Precision>,
-    /// Readouts to score, in order.
+    /// Readouts to score, in order (each one of the pathway's).
     pub readouts: Vec<Readout>,
+    /// Export (two encoder passes, every readout) or native (one pass on (L, R), its head).
+    pub pathway: Pathway,
+    /// Float native-pathway head (ONNX), for `f32` on the native pathway.
+    pub native_head_onnx: PathBuf,
     /// Disparity candidates of `nolink` and `sgm`, in patch columns.
     pub max_cols: usize,
     /// SGM penalties.
@@ -237,14 +243,22 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
         "eval" => Split::Eval,
         other => bail!("split {other:?}: only eval pairs carry ground truth here (use --split eval)"),
     };
+    for &readout in &opts.readouts {
+        opts.pathway.check(readout)?;
+    }
     let wants = |p: Precision| opts.precisions.contains(&p);
     let head = opts.readouts.iter().any(|r| r.uses_head());
     let model = if wants(Precision::Int8) {
         let model = Int8Model::load(&opts.blob)?;
+        let (kind, flag) = match opts.pathway {
+            Pathway::Export => (HeadKind::Export, "--head"),
+            Pathway::Native => (HeadKind::Native, "--native-head"),
+        };
         ensure!(
-            !head || model.has_head(),
-            "blob {} holds no shared head: drop --readout head or quantise with --head",
-            opts.blob.display()
+            !head || model.has_head_of(kind),
+            "blob {} holds no {} pathway head: drop --readout head or quantise with {flag}",
+            opts.blob.display(),
+            opts.pathway
         );
         Some(model)
     } else {
@@ -252,8 +266,12 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
     };
     let mut float = if wants(Precision::F32) {
         let encoder = ReferenceEncoder::load(&opts.onnx)?;
+        let head_onnx = match opts.pathway {
+            Pathway::Export => &opts.head_onnx,
+            Pathway::Native => &opts.native_head_onnx,
+        };
         let head = if head {
-            Some(FloatHeadRunner::load(&opts.head_onnx)?)
+            Some(FloatHeadRunner::load(head_onnx)?)
         } else {
             None
         };
@@ -400,6 +418,7 @@ fn score_readout(maps: &MethodMaps, readout: Readout, gt: &GroundTruthMap) -> Re
 fn int8_maps(opts: &EvalOptions, model: &Int8Model, item: &EvalItem) -> Result<MethodMaps> {
     let head = opts.readouts.iter().any(|r| r.uses_head());
     let pipeline = PipelineOptions {
+        pathway: opts.pathway.core(),
         max_cols: opts.max_cols,
         penalties: opts.penalties,
         lr_max_diff_q8: lr_tolerance_q8(opts.lr_max_diff),
@@ -421,6 +440,9 @@ fn float_maps(
     head: Option<&mut FloatHeadRunner>,
     item: &EvalItem,
 ) -> Result<MethodMaps> {
+    if opts.pathway == Pathway::Native {
+        return float_native_maps(opts, encoder, head.context("the native pathway needs its head")?, item);
+    }
     let left = encoder.descriptors(&item.left).context("left view")?;
     let right = encoder.descriptors(&item.right).context("right view")?;
     let volume = similarity_volume(&left, &right, opts.max_cols)?;
@@ -445,13 +467,43 @@ fn float_maps(
         None => (None, None),
     };
     Ok(MethodMaps {
-        nolink: wta,
-        sgm: sgm_left,
+        nolink: Some(wta),
+        sgm: Some(sgm_left),
         head,
         nolink_consistent: wta_consistent,
         sgm_consistent,
         head_consistent,
         // The refinement reads the pipeline's 8-bit views in both precisions.
+        views: GrayViews::from_views(&item.left, &item.right)?,
+    })
+}
+
+/// The native pathway in float: the native head on the phase maps of one pass on (L, R); for
+/// its check, on those of the pass on the mirrored pair, mirrored back.
+fn float_native_maps(
+    opts: &EvalOptions,
+    encoder: &mut ReferenceEncoder,
+    head: &mut FloatHeadRunner,
+    item: &EvalItem,
+) -> Result<MethodMaps> {
+    let mut run = |left: &View, right: &View| -> Result<DisparityMap> {
+        let (even, odd) = encoder.tokens(left, right)?.phase_maps();
+        Ok(DisparityMap {
+            width: even.cols,
+            height: even.rows,
+            values: head.run(&even, &odd)?.disparity,
+        })
+    };
+    let head_left = run(&item.left, &item.right).context("native pass on (L, R)")?;
+    let head_right = mirror(&run(&item.right.mirrored(), &item.left.mirrored()).context("mirrored pass")?);
+    let mask = consistent(&head_left, &head_right, opts.lr_max_diff);
+    Ok(MethodMaps {
+        nolink: None,
+        sgm: None,
+        head: Some(head_left),
+        nolink_consistent: Vec::new(),
+        sgm_consistent: Vec::new(),
+        head_consistent: Some(mask),
         views: GrayViews::from_views(&item.left, &item.right)?,
     })
 }
@@ -517,12 +569,13 @@ impl EvalReport {
         let mut t = String::new();
         let _ = writeln!(
             t,
-            "bino {} eval: {} {} pairs of {} at {}, {} candidates, SGM p1 {} p2 {}, LR tolerance {} col",
+            "bino {} eval: {} {} pairs of {} at {}, {} pathway, {} candidates, SGM p1 {} p2 {}, LR tolerance {} col",
             env!("CARGO_PKG_VERSION"),
             self.pairs.len(),
             o.split,
             o.data.display(),
             o.profile,
+            o.pathway,
             o.max_cols,
             o.penalties.p1,
             o.penalties.p2,
@@ -707,6 +760,8 @@ impl EvalReport {
             blob: o.blob.display().to_string(),
             onnx: o.onnx.display().to_string(),
             head_onnx: o.head_onnx.display().to_string(),
+            pathway: o.pathway.name(),
+            native_head_onnx: o.native_head_onnx.display().to_string(),
             data: o.data.display().to_string(),
             split: &o.split,
             profile: o.profile.to_string(),
@@ -780,6 +835,8 @@ struct EvalJson<'a> {
     blob: String,
     onnx: String,
     head_onnx: String,
+    pathway: &'static str,
+    native_head_onnx: String,
     data: String,
     split: &'a str,
     profile: String,
@@ -916,6 +973,8 @@ mod tests {
             blob: PathBuf::from("/nonexistent/blob.bin"),
             onnx: PathBuf::from("/nonexistent/encoder.onnx"),
             head_onnx: PathBuf::from("/nonexistent/head.onnx"),
+            pathway: Pathway::Export,
+            native_head_onnx: PathBuf::from("/nonexistent/native_head.onnx"),
             precisions: vec![Precision::Int8],
             readouts: vec![Readout::NOLINK],
             max_cols: 10,
@@ -940,5 +999,11 @@ mod tests {
         };
         let err = format!("{:#}", evaluate(&missing, |_, _, _| {}).unwrap_err());
         assert!(err.contains("/nonexistent/blob.bin"), "{err}");
+        let native_sgm = EvalOptions {
+            pathway: Pathway::Native,
+            ..missing
+        };
+        let err = format!("{:#}", evaluate(&native_sgm, |_, _, _| {}).unwrap_err());
+        assert!(err.contains("--readout nolink needs the export pathway"), "{err}");
     }
 }

@@ -17,6 +17,7 @@ use bino_core::sgm::Penalties;
 use crate::colour::colourise;
 use crate::eval::{upsample_mask, DisparityMap};
 use crate::int8::Int8Model;
+use crate::pathway::Pathway;
 use crate::pipeline_maps::run_pipeline;
 use crate::profile::load_profiled_pair;
 use crate::profile::Profile;
@@ -58,8 +59,10 @@ pub struct RunOptions {
     pub profile: Profile,
     /// Int8 weight blob.
     pub blob: PathBuf,
-    /// Readout (with `+ref`: refined pixels; see [`Refine::apply`]).
+    /// Readout (with `+ref`: refined pixels; see [`Refine::apply`]); one of the pathway's.
     pub readout: Readout,
+    /// Export (two encoder passes, every readout) or native (one pass on (L, R), the head).
+    pub pathway: Pathway,
     /// Disparity candidates of nolink and sgm, in patch columns.
     pub max_cols: usize,
     /// SGM penalties.
@@ -99,18 +102,20 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         timings.push((name, Duration::ZERO));
         Instant::now()
     };
+    opts.pathway.check(opts.readout)?;
     let started = step("loading the pair and the blob", &mut timings, &mut progress);
     let (left, right) = load_profiled_pair(&opts.left, &opts.right, opts.profile)?;
     let model = Int8Model::load(&opts.blob)?;
     finish(&mut timings, started);
 
-    let started = step(
-        "int8 pipeline: rows -> encoder (L,L), (R,R) -> readouts, band by band",
-        &mut timings,
-        &mut progress,
-    );
+    let pipeline_step = match opts.pathway {
+        Pathway::Export => "int8 pipeline: rows -> encoder (L,L), (R,R) -> readouts, band by band",
+        Pathway::Native => "int8 pipeline: rows -> encoder (L,R) -> native head, band by band",
+    };
+    let started = step(pipeline_step, &mut timings, &mut progress);
     let head = opts.readout.uses_head();
     let pipeline_opts = PipelineOptions {
+        pathway: opts.pathway.core(),
         max_cols: opts.max_cols,
         penalties: opts.penalties,
         lr_max_diff_q8: lr_tolerance_q8(opts.lr_max_diff),

@@ -32,6 +32,7 @@ use embedded_graphics::text::{Baseline, Text};
 use crate::colour::colourise;
 use crate::image_io::GrayImage;
 use crate::int8::{to_u8, Int8Model};
+use crate::pathway::Pathway;
 use crate::profile::{load_profiled_pair, Profile, View};
 use crate::readout::{Method, Readout};
 use crate::synthetic::default_scene;
@@ -61,8 +62,10 @@ pub struct SimOptions {
     pub profile: Profile,
     /// Int8 weight blob.
     pub blob: PathBuf,
-    /// Readout drawn.
+    /// Readout drawn (one of the pathway's).
     pub readout: Readout,
+    /// Export (two encoder passes, every readout) or native (one pass on (L, R), its head).
+    pub pathway: Pathway,
     /// Disparity candidates of nolink and sgm, in patch columns.
     pub max_cols: usize,
     /// SGM penalties.
@@ -123,17 +126,21 @@ impl SimReport {
 /// Runs the simulation; `progress` hears about each step before it starts.
 pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimReport> {
     ensure!(opts.frames >= 1, "--frames must be at least 1");
+    opts.pathway.check(opts.readout)?;
     progress("loading the pair and the blob");
     let (source, left, right) = load_pair(opts)?;
     let (width, height) = (left.width, left.height);
     let model = Int8Model::load(&opts.blob)?;
     let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
     ensure!(
-        !opts.readout.uses_head() || pipeline.has_head(),
-        "the blob {} has no shared head; use --readout sgm or nolink",
-        opts.blob.display()
+        !opts.readout.uses_head() || pipeline.has_head_of(opts.pathway.core()),
+        "the blob {} has no {} pathway head; use --readout sgm or nolink on the export pathway, or a blob \
+         quantised with that head",
+        opts.blob.display(),
+        opts.pathway
     );
     let pipeline_opts = PipelineOptions {
+        pathway: opts.pathway.core(),
         max_cols: opts.max_cols,
         penalties: opts.penalties,
         lr_max_diff_q8: crate::readout_eval::lr_tolerance_q8(opts.lr_max_diff),

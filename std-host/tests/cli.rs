@@ -289,6 +289,7 @@ fn run_refine_off_is_the_upsampled_grid_and_the_default_its_refinement() {
     let (l, r) = load_profiled_pair(&left, &right, Profile::Native).unwrap();
     let model = Int8Model::load(Path::new(bino_host::demo::DEFAULT_BLOB)).unwrap();
     let opts = Options {
+        pathway: bino_core::pipeline::Pathway::Export,
         max_cols: 16,
         penalties: bino_host::demo::DEFAULT_PENALTIES,
         lr_max_diff_q8: 256,

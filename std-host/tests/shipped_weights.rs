@@ -180,6 +180,8 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
         blob: PathBuf::from(DEFAULT_BLOB),
         onnx: weights.join("bino_encoder.onnx"),
         head_onnx: weights.join("bino_head.onnx"),
+        pathway: bino_host::pathway::Pathway::Export,
+        native_head_onnx: weights.join("bino_native_head.onnx"),
         precisions: vec![Precision::Int8, Precision::F32],
         readouts: vec![
             Readout::NOLINK,
@@ -208,8 +210,10 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
     for (i, f) in int8.iter().zip(float) {
         let (ei, ef) = (i.metrics.epe, f.metrics.epe);
         assert!(ei.is_finite() && ei > 0.0 && ei < 10.0, "{i:?}");
-        // The int8 readouts are twins of the float ones: within 10 % on two pairs.
-        assert!((ei - ef).abs() <= 0.1 * ef, "int8 {ei} vs f32 {ef}");
+        // The int8 readouts are twins of the float ones: at most 10 % worse on two pairs, and
+        // within 15 % either way (the blob of 2026-12-02 is 10.2 % better than float on
+        // head+lr+ref of these two pairs, 0.585 against 0.651; 0.842 against 0.844 over all 16).
+        assert!(ei <= 1.1 * ef && (ei - ef).abs() <= 0.15 * ef, "int8 {ei} vs f32 {ef}");
     }
     // Every method has its own check, the head's from the head on the mirrored pair.
     for s in [int8[0], int8[1], int8[2], float[0], float[1], float[2]] {

@@ -3,12 +3,16 @@
 //! same descriptors, WTA, SGM and head outputs, for one band and for images taller than one.
 
 use bino_core::band::Band;
+use bino_core::blob::{Blob, BlobError};
 use bino_core::lr::consistent_row;
 use bino_core::model::head::HeadRow;
+use bino_core::model::ids;
 use bino_core::pipeline::{
-    arena_bytes, arena_bytes_head_lr, HeadChecked, MatchedRow, Options, Pipeline, RowSource, Sink, SlicePair, Stage,
+    arena_bytes, arena_bytes_for, arena_bytes_head_lr, HeadChecked, MatchedRow, Options, Pathway, Pipeline, RowSource,
+    Sink, SlicePair, Stage,
 };
 use bino_core::Error;
+use bino_host::blob_writer::BlobWriter;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
 use bino_host::int8::{match_rows, sgm_rows, Int8Model};
 use bino_host::profile::View;
@@ -18,6 +22,7 @@ const MAX_COLS: usize = 16;
 
 fn options() -> Options {
     Options {
+        pathway: bino_core::pipeline::Pathway::Export,
         max_cols: MAX_COLS,
         penalties: DEFAULT_PENALTIES,
         lr_max_diff_q8: 256,
@@ -357,4 +362,182 @@ fn the_heads_left_right_check_is_the_head_on_the_mirrored_pair() {
             "{width}x{height}: the head mostly agrees with itself ({kept})"
         );
     }
+}
+
+/// Pair tokens (native pathway) by band, kept rows only, in arrival order.
+#[derive(Default)]
+struct Native {
+    collect: Collect,
+    tokens: Vec<i8>,
+}
+
+impl Sink for Native {
+    fn stage(&mut self, stage: Stage) {
+        self.collect.stage(stage);
+    }
+    fn band(&mut self, _: Band, _: &[i8], _: &[i8]) {
+        panic!("the native pathway makes no descriptor maps");
+    }
+    fn pair_band(&mut self, band: Band, tokens: &[i8]) {
+        let row_len = tokens.len() / band.rows;
+        for row in band.keep_from..band.keep_to {
+            let at = (row - band.start) * row_len;
+            self.tokens.extend_from_slice(&tokens[at..at + row_len]);
+        }
+        self.collect.bands.push(band);
+    }
+    fn matched(&mut self, _: &MatchedRow<'_>) {
+        panic!("the native pathway has no matching readouts");
+    }
+    fn head(&mut self, row: HeadRow<'_>) {
+        self.collect.head(row);
+    }
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        self.collect.head_checked(row);
+    }
+}
+
+fn mirror_view(pixels: &[u8], width: usize) -> Vec<u8> {
+    pixels
+        .chunks_exact(width)
+        .flat_map(|row| row.iter().rev().copied().collect::<Vec<_>>())
+        .collect()
+}
+
+/// The native pathway (issue 15 item 5): one encoder pass per band on (L, R), the native head
+/// streamed over the pair tokens and, with its check, a second pass on the mirrored pair read
+/// in place; every output equals the host's whole-map steps (`pair_token_codes`, `native_head`
+/// on the pair and on the mirrored pair), for one band and several, in an arena smaller than
+/// the export pathway's.
+#[test]
+fn the_native_pathway_streams_like_the_whole_map_steps() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    assert!(
+        pipeline.has_head_of(Pathway::Native),
+        "the shipped blob carries the native head"
+    );
+    for head_lr in [false, true] {
+        let opts = Options {
+            pathway: Pathway::Native,
+            head: false, // implied on the native pathway
+            head_lr,
+            ..options()
+        };
+        for (width, height) in [(160, 48), (64, 112)] {
+            let what = format!("{width}x{height} head_lr {head_lr}");
+            let scene = synthetic::default_scene(width, height);
+            let (l, r) = (&scene.left.pixels, &scene.right.pixels);
+            let needed = arena_bytes_for(height, width, &opts);
+            let export = Options {
+                pathway: Pathway::Export,
+                head: true,
+                ..opts
+            };
+            assert!(needed < arena_bytes_for(height, width, &export), "{what}");
+            let mut arena = vec![0u8; needed];
+            let err = pipeline.run(
+                &mut SlicePair::new(l, r, width, height).unwrap(),
+                &opts,
+                &mut arena[..needed - 1],
+                &mut Native::default(),
+            );
+            assert!(matches!(err, Err(Error::ArenaTooSmall { .. })), "{what}: {err:?}");
+            let mut out = Native::default();
+            let report = pipeline
+                .run(
+                    &mut SlicePair::new(l, r, width, height).unwrap(),
+                    &opts,
+                    &mut arena,
+                    &mut out,
+                )
+                .unwrap();
+            assert!(report.arena_used <= needed, "{what}: {report:?}");
+            let (rows, cols, tokens) = model
+                .pair_token_codes(&view(l, width, height), &view(r, width, height))
+                .unwrap();
+            assert!(out.tokens == tokens, "{what}: pair tokens differ");
+            let passes = out.collect.stages.iter().filter(|&&s| s == Stage::EncodePair).count();
+            let mirrored = out.collect.stages.iter().filter(|&&s| s == Stage::EncodeMirror).count();
+            assert_eq!(
+                (passes, mirrored),
+                (report.bands, if head_lr { report.bands } else { 0 }),
+                "{what}"
+            );
+            assert!(out
+                .collect
+                .stages
+                .iter()
+                .all(|s| !matches!(s, Stage::EncodeLeft | Stage::EncodeRight | Stage::Match | Stage::Sgm)));
+            assert_eq!(out.collect.head_rows, (0..rows).collect::<Vec<_>>(), "{what}");
+            let head = model.native_head(&tokens, rows, cols).unwrap();
+            assert_eq!(q8(&out.collect.head), head.disparity, "{what}: head");
+            if !head_lr {
+                assert!(out.collect.checked_rows.is_empty());
+                continue;
+            }
+            let (ml, mr) = (mirror_view(r, width), mirror_view(l, width));
+            let (_, _, mirror_tokens) = model
+                .pair_token_codes(&view(&ml, width, height), &view(&mr, width, height))
+                .unwrap();
+            let right_view: Vec<f32> = model
+                .native_head(&mirror_tokens, rows, cols)
+                .unwrap()
+                .disparity
+                .chunks_exact(cols)
+                .flat_map(|row| row.iter().rev().copied().collect::<Vec<_>>())
+                .collect();
+            assert_eq!(out.collect.checked_rows, (0..rows).collect::<Vec<_>>(), "{what}");
+            assert_eq!(q8(&out.collect.head_right), right_view, "{what}: right view");
+            let mut expected = vec![0u8; rows * cols];
+            let mut kept = 0;
+            for ((left_row, right_row), mask) in out
+                .collect
+                .head
+                .chunks_exact(cols)
+                .zip(out.collect.head_right.chunks_exact(cols))
+                .zip(expected.chunks_exact_mut(cols))
+            {
+                kept += consistent_row(left_row, right_row, opts.lr_max_diff_q8, mask).unwrap();
+            }
+            assert_eq!(out.collect.head_mask, expected, "{what}");
+            assert_eq!(report.head_kept, kept);
+            assert!(
+                kept > rows * cols / 2,
+                "{what}: the head mostly agrees with itself ({kept})"
+            );
+        }
+    }
+}
+
+#[test]
+fn the_native_pathway_needs_the_native_head() {
+    // A blob without it: the error names the head's first tensor, before any row is read.
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let shipped = model.blob().unwrap();
+    let native_norm = ids::id(ids::kind::LAYERNORM, Pathway::Native.layernorm());
+    let mut writer = BlobWriter::new();
+    for t in shipped.tensors().filter(|t| t.id != native_norm) {
+        let (dtype, bytes) = shipped.raw(t.id).unwrap();
+        writer.add_raw(t.id, dtype, t.elements, bytes.to_vec()).unwrap();
+    }
+    let blob = writer.finish();
+    let pipeline = Pipeline::new(Blob::parse(&blob).unwrap()).unwrap();
+    assert!(!pipeline.has_head_of(Pathway::Native));
+    let opts = Options {
+        pathway: Pathway::Native,
+        ..options()
+    };
+    let (l, r) = (vec![0u8; 32 * 48], vec![0u8; 32 * 48]);
+    let mut arena = vec![0u8; arena_bytes_for(48, 32, &opts)];
+    let err = pipeline
+        .run(
+            &mut SlicePair::new(&l, &r, 32, 48).unwrap(),
+            &opts,
+            &mut arena,
+            &mut Native::default(),
+        )
+        .unwrap_err();
+    assert_eq!(err, Error::Blob(BlobError::MissingTensor { id: native_norm }));
+    assert!(pipeline.has_head_of(Pathway::Export), "the export pathway still runs");
 }

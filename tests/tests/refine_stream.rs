@@ -29,6 +29,7 @@ const INPUTS: [RefineInput; 6] = [
 
 fn options(head: bool, head_lr: bool) -> Options {
     Options {
+        pathway: bino_core::pipeline::Pathway::Export,
         max_cols: MAX_COLS,
         penalties: DEFAULT_PENALTIES,
         lr_max_diff_q8: 256,
@@ -321,4 +322,49 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
     let mut source = SlicePair::new(&s.left, &s.right, 32, 80).unwrap();
     let err = pipeline.run_refined(&mut source, &head_lr, &refine, &mut arena, &mut Collect::new(32, 80));
     assert!(matches!(err, Err(Error::ArenaTooSmall { .. })), "{err:?}");
+}
+
+/// The native pathway (issue 15): its head and head+lr grids refine as the whole map, on one
+/// band and many (the check's rows come after the band's second, mirrored pass); the matching
+/// readouts it does not have are refused.
+#[test]
+fn the_native_pathway_refines_its_head_as_the_whole_map() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let opts = Options {
+        pathway: bino_core::pipeline::Pathway::Native,
+        ..options(false, true)
+    };
+    let unchecked = Options { head_lr: false, ..opts };
+    assert_eq!(Refine::for_options(&opts).input, RefineInput::HeadLr);
+    assert_eq!(Refine::for_options(&unchecked).input, RefineInput::Head);
+    for (width, height) in [(160, 48), (32, 56), (32, 80), (48, 100), (32, 144)] {
+        let s = scene(width, height);
+        let plain = run(&pipeline, &s, &opts, None).unwrap();
+        for input in INPUTS {
+            let refine = Refine {
+                input,
+                params: RefineParams::DEFAULT,
+            };
+            let what = format!("native {width}x{height} {}", input.name());
+            if !input.uses_head() {
+                let err = run(&pipeline, &s, &opts, Some(&refine)).unwrap_err();
+                assert_eq!(err, Error::MissingReadout { readout: input.name() }, "{what}");
+                continue;
+            }
+            let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
+            assert_eq!(out.refined_rows, (0..height).collect::<Vec<_>>(), "{what}");
+            assert!(out.refine_stage_ok, "{what}");
+            let want = whole_map(&s, &out, input, &refine.params);
+            assert!(
+                out.refined == want,
+                "{what}: {}",
+                first_difference(&out.refined, &want, width)
+            );
+            assert!((&out.head, &out.head_mask) == (&plain.head, &plain.head_mask), "{what}");
+        }
+        let head_lr = Refine::for_options(&opts);
+        let err = run(&pipeline, &s, &unchecked, Some(&head_lr)).unwrap_err();
+        assert_eq!(err, Error::MissingReadout { readout: "head+lr" });
+    }
 }

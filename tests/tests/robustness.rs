@@ -42,6 +42,7 @@ impl Sink for Rows {
 
 fn options(max_cols: usize) -> Options {
     Options {
+        pathway: bino_core::pipeline::Pathway::Export,
         max_cols,
         penalties: DEFAULT_PENALTIES,
         lr_max_diff_q8: 256,

@@ -117,6 +117,7 @@ def build_manifest(
     metrics: dict[str, Any],
     experiments: list[dict[str, Any]],
     data_dir: Path | None,
+    native_head_run: Path | None = None,
 ) -> dict[str, Any]:
     pairs = training_pairs(data_dir)
     return {
@@ -125,6 +126,9 @@ def build_manifest(
         "hardware": hardware(),
         "pretraining": run_summary(pretrain_run),
         "head_training": run_summary(head_run) if head_run is not None else None,
+        "native_head_training": (
+            run_summary(native_head_run) if native_head_run is not None else None
+        ),
         "training_pairs": [p.pair_id for p in pairs],
         "metrics": metrics,
         "experiments": experiments,
@@ -138,6 +142,7 @@ def main(argv: list[str] | None = None) -> None:
     )
     parser.add_argument("--pretrain-run", type=Path, required=True)
     parser.add_argument("--head-run", type=Path)
+    parser.add_argument("--native-head-run", type=Path, help="the native pathway's head run")
     parser.add_argument("--metrics", type=Path, help="JSON of measured metrics")
     parser.add_argument(
         "--metrics-dir", type=Path, help="folder of JSON results: each becomes metrics[file stem]"
@@ -151,7 +156,13 @@ def main(argv: list[str] | None = None) -> None:
         metrics.update(collect_metrics(args.metrics_dir))
     experiments = json.loads(args.experiments.read_text()) if args.experiments else []
     manifest = build_manifest(
-        args.out.parent, args.pretrain_run, args.head_run, metrics, experiments, args.data
+        args.out.parent,
+        args.pretrain_run,
+        args.head_run,
+        metrics,
+        experiments,
+        args.data,
+        native_head_run=args.native_head_run,
     )
     args.out.write_text(json.dumps(manifest, indent=2) + "\n")
     print(f"wrote {args.out} ({len(manifest['files'])} files hashed)")

@@ -68,6 +68,8 @@ pub struct GrayBand<'a> {
     pixels: &'a [u8],
     width: usize,
     height: usize,
+    /// Read right to left (see [`GrayBand::mirrored`]).
+    mirrored: bool,
 }
 
 impl<'a> GrayBand<'a> {
@@ -89,7 +91,22 @@ impl<'a> GrayBand<'a> {
                 found: pixels.len(),
             });
         }
-        Ok(Self { pixels, width, height })
+        Ok(Self {
+            pixels,
+            width,
+            height,
+            mirrored: false,
+        })
+    }
+
+    /// The same pixels read with each row reversed: the view of a horizontally mirrored
+    /// camera, without a copy. The native pathway's left-right check encodes the mirrored pair
+    /// (`right.mirrored()`, `left.mirrored()`).
+    pub fn mirrored(self) -> Self {
+        Self {
+            mirrored: !self.mirrored,
+            ..self
+        }
     }
 
     /// Width in pixels.
@@ -104,8 +121,18 @@ impl<'a> GrayBand<'a> {
 
     #[inline(always)]
     fn code(&self, y: usize, x: usize) -> i8 {
+        let x = if self.mirrored {
+            // x < width for every patch read; an x outside reads as 0 below.
+            self.width.checked_sub(x.saturating_add(1)).unwrap_or(usize::MAX)
+        } else {
+            x
+        };
         // Pixel p in [0, 255] is the real value p / 255; codes are p - 128 (zero point -128).
-        let p = self.pixels.get(y * self.width + x).copied().unwrap_or(0);
+        let p = self
+            .pixels
+            .get(y.saturating_mul(self.width).saturating_add(x))
+            .copied()
+            .unwrap_or(0);
         (p ^ 0x80) as i8
     }
 }

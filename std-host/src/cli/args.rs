@@ -58,3 +58,13 @@ pub struct LeftRightCheck {
     #[arg(long, default_value_t = 1.0)]
     pub lr_max_diff: f32,
 }
+
+/// `--pathway`: how each band reaches the readouts.
+#[derive(Args, Debug, Clone, Copy)]
+pub struct PathwayChoice {
+    /// Pathway: export (each view encoded alone, two encoder passes per band; every readout)
+    /// or native (one pass on the pair (L, R); the native head's readouts, head+lr with a
+    /// second pass on the mirrored pair).
+    #[arg(long, value_enum, default_value_t = bino_host::pathway::Pathway::Export)]
+    pub pathway: bino_host::pathway::Pathway,
+}

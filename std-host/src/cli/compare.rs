@@ -4,10 +4,14 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use bino_host::compare::{compare, CompareOptions};
+use bino_host::pathway::Pathway;
 use bino_host::profile::Profile;
+
+/// The shipped float native head, relative to the repository root like the other defaults.
+const DEFAULT_NATIVE_HEAD_ONNX: &str = "weights/bino_native_head.onnx";
 use clap::Args;
 
-use super::args::{Candidates, NOLINK_CANDIDATES_HELP};
+use super::args::{Candidates, PathwayChoice, NOLINK_CANDIDATES_HELP};
 use super::progress::Progress;
 
 /// Compare the float encoder (tract-onnx) with the int8 engine on eval pairs.
@@ -44,6 +48,11 @@ pub struct CompareArgs {
     /// on (L, R), and the blob's int8 native head on them against this head on the float ones).
     #[arg(long)]
     native_head: Option<PathBuf>,
+    /// --pathway native: compare the native pathway too, with --native-head or, by default,
+    /// the shipped weights/bino_native_head.onnx (the encoder's stages and descriptors are
+    /// compared on either pathway).
+    #[command(flatten)]
+    pathway: PathwayChoice,
     /// Also write every number (per pair and mean) and the inputs' provenance as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -60,7 +69,10 @@ pub fn run(args: CompareArgs) -> Result<()> {
         onnx: args.onnx,
         blob: args.blob,
         head: args.head,
-        native_head: args.native_head,
+        native_head: match (args.pathway.pathway, args.native_head) {
+            (Pathway::Native, None) => Some(PathBuf::from(DEFAULT_NATIVE_HEAD_ONNX)),
+            (_, given) => given,
+        },
         data: args.data,
         split: args.split,
         profile: args.profile,

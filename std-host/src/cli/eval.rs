@@ -7,7 +7,7 @@ use bino_host::profile::Profile;
 use bino_host::readout_eval::EvalOptions;
 use clap::Args;
 
-use super::args::{Candidates, LeftRightCheck, SgmPenalties};
+use super::args::{Candidates, LeftRightCheck, PathwayChoice, SgmPenalties};
 use super::progress::Progress;
 
 /// Score the readouts (nolink, sgm, head, each also +lr, each of those also +ref) on the
@@ -33,6 +33,11 @@ pub struct EvalArgs {
     /// Float shared head (ONNX), for --precision f32 with the head readout.
     #[arg(long, default_value = "weights/bino_head.onnx")]
     head_onnx: PathBuf,
+    /// Float native-pathway head (ONNX), for --precision f32 on --pathway native.
+    #[arg(long, default_value = "weights/bino_native_head.onnx")]
+    native_head_onnx: PathBuf,
+    #[command(flatten)]
+    pathway: PathwayChoice,
     /// Precisions (repeat or comma-separate): int8 (the core pipeline), f32 (tract and the
     /// float twins of the readouts).
     #[arg(long, value_delimiter = ',', default_value = "int8,f32")]
@@ -40,12 +45,9 @@ pub struct EvalArgs {
     /// Readouts to score (repeat or comma-separate): nolink, sgm, head, each optionally
     /// with +lr (cells the method's own left-right check rejects filled from the left),
     /// then optionally +ref (pixels by the integer refinement instead of bilinear
-    /// upsampling). Default: all twelve, each unrefined then refined.
-    #[arg(
-        long,
-        value_delimiter = ',',
-        default_value = "nolink,nolink+ref,nolink+lr,nolink+lr+ref,sgm,sgm+ref,sgm+lr,sgm+lr+ref,head,head+ref,head+lr,head+lr+ref"
-    )]
+    /// upsampling). Default: every readout of the pathway, each unrefined then refined (all
+    /// twelve on export; head, head+ref, head+lr, head+lr+ref on native).
+    #[arg(long, value_delimiter = ',')]
     readout: Vec<bino_host::readout::Readout>,
     #[command(flatten)]
     lr: LeftRightCheck,
@@ -92,8 +94,14 @@ pub fn run(args: EvalArgs) -> Result<()> {
         blob: args.blob,
         onnx: args.onnx,
         head_onnx: args.head_onnx,
+        pathway: args.pathway.pathway,
+        native_head_onnx: args.native_head_onnx,
         precisions: args.precision,
-        readouts: args.readout,
+        readouts: if args.readout.is_empty() {
+            args.pathway.pathway.readouts()
+        } else {
+            args.readout
+        },
         max_cols: args.candidates.max_cols,
         penalties: args.sgm.penalties(),
         lr_max_diff: args.lr.lr_max_diff,

@@ -3,11 +3,12 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
+use bino_host::pathway::Pathway;
 use bino_host::profile::Profile;
 use bino_host::run::RunOptions;
 use clap::Args;
 
-use super::args::{LeftRightCheck, PairCandidates, SgmPenalties};
+use super::args::{LeftRightCheck, PairCandidates, PathwayChoice, SgmPenalties};
 use super::progress::Progress;
 
 /// The int8 pipeline on a rectified pair of any size: writes disparity.png (colour),
@@ -30,10 +31,13 @@ pub struct RunArgs {
     blob: PathBuf,
     /// Readout: nolink, sgm or head, each optionally with +lr (cells the method's own
     /// left-right check rejects filled from the nearest kept cell to their left), then
-    /// optionally +ref (the same as --refine on). The default, sgm+lr, has the lowest
-    /// unrefined eval-split error at the default profile, w320 (head+lr at w160; README).
-    #[arg(long, default_value = "sgm+lr")]
-    readout: bino_host::readout::Readout,
+    /// optionally +ref (the same as --refine on). The default on the export pathway, sgm+lr,
+    /// has the lowest unrefined eval-split error at the default profile, w320 (head+lr at
+    /// w160; README); on the native pathway, head+lr.
+    #[arg(long)]
+    readout: Option<bino_host::readout::Readout>,
+    #[command(flatten)]
+    pathway: PathwayChoice,
     /// Pixel refinement of the readout: on (its +ref: census 5x5 search +-2 px around the
     /// upsampled token disparity, bino_core::refine) or off (the token grid upsampled
     /// bilinearly, as before the refinement).
@@ -52,9 +56,10 @@ pub struct RunArgs {
 
 /// Runs the verb.
 pub fn run(args: RunArgs) -> Result<()> {
+    let pathway = args.pathway.pathway;
     let readout = args
         .refine
-        .apply(args.readout)
+        .apply(args.readout.unwrap_or(pathway.default_readout()))
         .unwrap_or_else(|msg| super::usage_error("run", msg));
     let opts = RunOptions {
         left: args.left,
@@ -62,6 +67,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         profile: args.profile,
         blob: args.blob,
         readout,
+        pathway,
         max_cols: args.candidates.max_cols,
         penalties: args.sgm.penalties(),
         lr_max_diff: args.lr.lr_max_diff,
@@ -71,8 +77,9 @@ pub fn run(args: RunArgs) -> Result<()> {
     let report = bino_host::run::run_pair(&opts, |step| progress.step(step))?;
     progress.finish();
     println!(
-        "bino run: {} readout at {}x{} ({}), {:.1} % of pixels left-right consistent",
+        "bino run: {} readout, {} pathway, at {}x{} ({}), {:.1} % of pixels left-right consistent",
         opts.readout.name(),
+        opts.pathway,
         report.width,
         report.height,
         opts.profile,
@@ -83,12 +90,19 @@ pub fn run(args: RunArgs) -> Result<()> {
     }
     let p = &report.pipeline;
     let kept = |cells: usize| 100.0 * cells as f64 / (p.rows * p.cols).max(1) as f64;
-    println!(
-        "  {} band(s); left-right check keeps {:.1} % of WTA and {:.1} % of SGM cells (LRkeep)",
-        p.bands,
-        kept(p.wta_kept),
-        kept(p.sgm_kept)
-    );
+    match opts.pathway {
+        Pathway::Export => println!(
+            "  {} band(s); left-right check keeps {:.1} % of WTA and {:.1} % of SGM cells (LRkeep)",
+            p.bands,
+            kept(p.wta_kept),
+            kept(p.sgm_kept)
+        ),
+        Pathway::Native => println!(
+            "  {} band(s); the head's left-right check keeps {:.1} % of its cells (LRkeep)",
+            p.bands,
+            kept(p.head_kept)
+        ),
+    }
     println!("  time inside the pipeline by stage:");
     for (stage, took) in &report.stage_times {
         if !took.is_zero() {

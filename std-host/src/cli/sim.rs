@@ -7,7 +7,7 @@ use bino_host::profile::Profile;
 use bino_host::sim::SimOptions;
 use clap::Args;
 
-use super::args::{LeftRightCheck, PairCandidates, SgmPenalties};
+use super::args::{LeftRightCheck, PairCandidates, PathwayChoice, SgmPenalties};
 use super::progress::Progress;
 
 /// The board, simulated: the pair is fed row by row into the band buffer as a camera
@@ -32,9 +32,12 @@ pub struct SimArgs {
     /// Readout drawn: nolink, sgm or head (cells their left-right check rejects are dark),
     /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval`
     /// scores), each token row as the pipeline streams it; or a +ref readout, its refined
-    /// pixel rows as the pipeline's refinement stage streams them. The default is `bino run`'s.
-    #[arg(long, default_value = "sgm+lr+ref")]
-    readout: bino_host::readout::Readout,
+    /// pixel rows as the pipeline's refinement stage streams them. The default is `bino run`'s
+    /// on the pathway, refined (sgm+lr+ref on export, head+lr+ref on native).
+    #[arg(long)]
+    readout: Option<bino_host::readout::Readout>,
+    #[command(flatten)]
+    pathway: PathwayChoice,
     #[command(flatten)]
     candidates: PairCandidates,
     #[command(flatten)]
@@ -58,7 +61,10 @@ pub fn run(args: SimArgs) -> Result<()> {
         pair: args.left.zip(args.right),
         profile: args.profile,
         blob: args.blob,
-        readout: args.readout,
+        readout: args
+            .readout
+            .unwrap_or(args.pathway.pathway.default_readout().refined(true)),
+        pathway: args.pathway.pathway,
         max_cols: args.candidates.max_cols,
         penalties: args.sgm.penalties(),
         lr_max_diff: args.lr.lr_max_diff,
