@@ -73,11 +73,14 @@ pub enum Stage {
     EncodePair,
     /// Native pathway with the head's left-right check: the encoder on the mirrored pair.
     EncodeMirror,
+    /// Native pathway with the head's left-right check: the native head on the mirrored pair's
+    /// tokens (the export pathway's mirrored head runs in [`Stage::Head`]).
+    HeadMirror,
 }
 
 impl Stage {
     /// Every stage, in pipeline order.
-    pub const ALL: [Stage; 10] = [
+    pub const ALL: [Stage; 11] = [
         Stage::Rows,
         Stage::EncodeLeft,
         Stage::EncodeRight,
@@ -88,6 +91,7 @@ impl Stage {
         Stage::Refine,
         Stage::EncodePair,
         Stage::EncodeMirror,
+        Stage::HeadMirror,
     ];
 
     /// A short lower-case name (reports, firmware logs).
@@ -103,6 +107,7 @@ impl Stage {
             Stage::Refine => "refine",
             Stage::EncodePair => "encode_pair",
             Stage::EncodeMirror => "encode_mirror",
+            Stage::HeadMirror => "head_mirror",
         }
     }
 
@@ -888,17 +893,20 @@ impl<S: RowSource> BandRows<'_, S> {
 struct Feed<'k, 'a, 'b> {
     stage: &'k mut RefineStage<'a>,
     io: &'k mut RefineIo<'b>,
+    /// The head stage to return to.
+    back: Stage,
 }
 
 impl Feed<'_, '_, '_> {
-    /// The refinement's input `want`, when it is the run's.
+    /// The refinement's input `want`, when it is the run's, fed from head stage `back`.
     fn of<'k, 'a, 'b>(
         refine: &'k mut Option<(RefineInput, RefineStage<'a>)>,
         io: &'k mut RefineIo<'b>,
         want: RefineInput,
+        back: Stage,
     ) -> Option<Feed<'k, 'a, 'b>> {
         match refine {
-            Some((input, stage)) if *input == want => Some(Feed { stage, io }),
+            Some((input, stage)) if *input == want => Some(Feed { stage, io, back }),
             _ => None,
         }
     }
@@ -907,7 +915,7 @@ impl Feed<'_, '_, '_> {
     fn push(&mut self, row: usize, disparity_q8: &[u16], mask: Option<&[u8]>, sink: &mut impl Sink) {
         sink.stage(Stage::Refine);
         self.stage.push_or_keep(row, disparity_q8, mask, self.io, sink);
-        sink.stage(Stage::Head);
+        sink.stage(self.back);
     }
 }
 
@@ -1238,14 +1246,14 @@ impl<'a, 'w> Streams<'a, 'w> {
                 let mut rows = HeadRows {
                     sink: &mut *sink,
                     check: Some(&mut *check),
-                    refine: Feed::of(&mut self.refine, io, RefineInput::Head),
+                    refine: Feed::of(&mut self.refine, io, RefineInput::Head, Stage::Head),
                 };
                 head_step(head, input, &mut rows)?;
                 if let Some(mirror) = mirror {
                     let mut rows = CheckedRows {
                         sink: &mut *sink,
                         check,
-                        refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr),
+                        refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr, Stage::Head),
                     };
                     head_step(mirror, input, &mut rows)?;
                 }
@@ -1254,7 +1262,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                 let mut rows = HeadRows {
                     sink: &mut *sink,
                     check: None,
-                    refine: Feed::of(&mut self.refine, io, RefineInput::Head),
+                    refine: Feed::of(&mut self.refine, io, RefineInput::Head, Stage::Head),
                 };
                 head_step(head, input, &mut rows)?;
             }
@@ -1285,7 +1293,7 @@ impl<'a, 'w> Streams<'a, 'w> {
         let mut rows = CheckedRows {
             sink,
             check,
-            refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr),
+            refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr, Stage::Head),
         };
         for row in band.keep_from..band.keep_to {
             let (l, r) = kept_row(band, row, self.cols, left, right)?;

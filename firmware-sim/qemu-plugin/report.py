@@ -156,7 +156,8 @@ def camera_rates(camera, stages, clock_hz):
     if not camera or not stages or not clock_hz:
         return None
     by_name = {s["name"]: s["instructions"] for s in stages}
-    band = sum(n for name, n in by_name.items() if name != "load")
+    # The export pathway's band pair (the native run's stages are named native_*).
+    band = sum(n for name, n in by_name.items() if name != "load" and not name.startswith("native_"))
     rows_insns = by_name.get("rows", 0)
     work = band - rows_insns
     frame_rows = camera["frame_rows"]
@@ -247,7 +248,9 @@ def main():
     header = next((l for l in lines if "band" in l), {})
     stage_lines = [l for l in lines if "stage" in l]
     outputs = [l for l in lines if "output" in l]
-    arena = next((l for l in lines if "arena_used" in l), {})
+    # One arena line per pathway run (export first; an older firmware's has no pathway field).
+    arena = next((l for l in lines if "arena_used" in l and l.get("pathway", "export") == "export"), {})
+    native_arena = next((l for l in lines if "arena_used" in l and l.get("pathway") == "native"), {})
     camera = next((l for l in lines if "frame_rows" in l), {})
     overflow = next((l for l in lines if "queued_rows_read" in l), {})
     result = next((l.get("result") for l in lines if "result" in l), "none")
@@ -316,7 +319,13 @@ def main():
         "outside_instructions": counts.get("outside", (0, 0))[0],
         "total_instructions": counts.get("total", (0, 0))[0],
         "outputs": [
-            {"name": o["output"], "digest": o["digest"], "expected": o["expected"], "match": o["match"]}
+            {
+                "pathway": o.get("pathway", "export"),
+                "name": o["output"],
+                "digest": o["digest"],
+                "expected": o["expected"],
+                "match": o["match"],
+            }
             for o in outputs
         ],
         "camera": camera_rates(camera, stages, CLOCK_HZ.get(args.core)),
@@ -327,6 +336,17 @@ def main():
         ),
         "wta_kept": arena.get("wta_kept"),
         "sgm_kept": arena.get("sgm_kept"),
+        # The native pathway's run (stages native_*): its arena; absent for an older firmware.
+        "native": (
+            {
+                "arena_used": native_arena.get("arena_used"),
+                "arena_painted_high_water": native_arena.get("painted_high_water"),
+                "arena_breakdown": {k: native_arena.get(k) for k in ("pixels", "encoder", "streams", "refine")},
+                "head_kept": native_arena.get("head_kept"),
+            }
+            if native_arena
+            else None
+        ),
         "note": NOTE,
     }
     if classes:

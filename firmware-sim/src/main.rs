@@ -20,7 +20,7 @@ mod workload;
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of, addr_of_mut};
 
-use bino_core::pipeline::{self, RowSource};
+use bino_core::pipeline::{self, Pathway, RowSource};
 use bino_core::Error;
 use camera::Camera;
 // The critical-section implementation (single core) that defmt's logger needs.
@@ -90,6 +90,18 @@ markers! {
     bino_mark_refine = 8;
     bino_mark_encode_pair = 9;
     bino_mark_encode_mirror = 10;
+    bino_mark_head_mirror = 11;
+    bino_mark_native_rows = 101;
+    bino_mark_native_encode_left = 102;
+    bino_mark_native_encode_right = 103;
+    bino_mark_native_match = 104;
+    bino_mark_native_sgm = 105;
+    bino_mark_native_left_right = 106;
+    bino_mark_native_head = 107;
+    bino_mark_native_refine = 108;
+    bino_mark_native_encode_pair = 109;
+    bino_mark_native_encode_mirror = 110;
+    bino_mark_native_head_mirror = 111;
     bino_mark_end = 0xFFFF;
 }
 
@@ -107,6 +119,18 @@ fn mark(stage: Stage) {
         Stage::Pipeline(P::Refine) => bino_mark_refine(),
         Stage::Pipeline(P::EncodePair) => bino_mark_encode_pair(),
         Stage::Pipeline(P::EncodeMirror) => bino_mark_encode_mirror(),
+        Stage::Pipeline(P::HeadMirror) => bino_mark_head_mirror(),
+        Stage::Native(P::Rows) => bino_mark_native_rows(),
+        Stage::Native(P::EncodeLeft) => bino_mark_native_encode_left(),
+        Stage::Native(P::EncodeRight) => bino_mark_native_encode_right(),
+        Stage::Native(P::Match) => bino_mark_native_match(),
+        Stage::Native(P::Sgm) => bino_mark_native_sgm(),
+        Stage::Native(P::LeftRight) => bino_mark_native_left_right(),
+        Stage::Native(P::Head) => bino_mark_native_head(),
+        Stage::Native(P::Refine) => bino_mark_native_refine(),
+        Stage::Native(P::EncodePair) => bino_mark_native_encode_pair(),
+        Stage::Native(P::EncodeMirror) => bino_mark_native_encode_mirror(),
+        Stage::Native(P::HeadMirror) => bino_mark_native_head_mirror(),
     }
 }
 
@@ -232,12 +256,18 @@ fn main() -> ! {
     // SAFETY: BLOB is immutable; reading its address through a volatile load keeps the
     // optimiser from folding the blob's contents into the code.
     let blob: &[u8] = unsafe { &*core::ptr::read_volatile(&addr_of!(BLOB.0)) };
-    let result = workload::run(blob, &mut camera, arena, &mut fw);
-    let painted = arena_high_water(arena);
-    let rows_ok = report_camera(&camera);
-    let code = match result {
-        Ok(outcome) => {
-            let per_stage = workload::arena_per_stage(&outcome.report);
+    let export = workload::run(blob, Pathway::Export, &mut camera, arena, &mut fw);
+    let export_rows_ok = report_camera(&camera);
+    let export_painted = arena_high_water(arena);
+    // The native run: the same band again from the camera, in the same arena, painted anew.
+    arena.fill(ARENA_PAINT);
+    camera.rewind(expected::HEIGHT);
+    let native = workload::run(blob, Pathway::Native, &mut camera, arena, &mut fw);
+    let native_rows_ok = report_camera(&camera);
+    let native_painted = arena_high_water(arena);
+    let code = match (export, native) {
+        (Ok(export), Ok(native)) => {
+            let per_stage = workload::arena_per_stage(&export.report, &native.report);
             for (i, (&arena_in_use, &stack)) in per_stage.iter().zip(&fw.stack).enumerate() {
                 defmt::println!(
                     "bino stage={=str} arena_in_use={=usize} stack_peak={=usize}",
@@ -246,54 +276,38 @@ fn main() -> ! {
                     stack
                 );
             }
-            let mut mismatches = 0;
-            for ((name, &got), &want) in OUTPUTS.iter().zip(&outcome.digests).zip(&expected::DIGESTS) {
-                mismatches += usize::from(got != want);
-                defmt::println!(
-                    "bino output={=str} digest={=u32:08x} expected={=u32:08x} match={=bool}",
-                    name,
-                    got,
-                    want,
-                    got == want
-                );
-            }
-            for (i, sector) in outcome.sectors.sectors().iter().enumerate() {
-                defmt::println!("bino sector={=usize} {}", i, sector);
-            }
-            if let Some((i, mm)) = outcome.sectors.nearest() {
-                defmt::println!("bino nearest_sector={=usize} nearest_mm={=u32}", i, mm);
-            }
-            let r = &outcome.report;
-            let arena_ok = r.arena_used == expected::ARENA_USED && painted <= r.arena_used;
-            defmt::println!(
-                "bino arena_used={=usize} expected={=usize} painted_high_water={=usize} pixels={=usize} descriptors={=usize} encoder={=usize} streams={=usize} refine={=usize} wta_kept={=usize} sgm_kept={=usize}",
-                r.arena_used,
+            let export_ok = check_outcome(
+                Pathway::Export,
+                &export,
+                &expected::DIGESTS,
                 expected::ARENA_USED,
-                painted,
-                r.pixels,
-                r.descriptors,
-                r.encoder,
-                r.streams,
-                r.refine,
-                r.wta_kept,
-                r.sgm_kept
+                export_painted,
             );
+            let native_ok = check_outcome(
+                Pathway::Native,
+                &native,
+                &expected::NATIVE_DIGESTS,
+                expected::NATIVE_ARENA_USED,
+                native_painted,
+            );
+            let rows_ok = export_rows_ok && native_rows_ok;
             let overflow_ok = overflow_check(&mut camera);
-            if mismatches == 0 && arena_ok && rows_ok && overflow_ok {
-                defmt::println!("bino result=pass outputs={=usize}", OUTPUTS.len());
+            let outputs = workload::outputs(Pathway::Export).len() + workload::outputs(Pathway::Native).len();
+            if export_ok && native_ok && rows_ok && overflow_ok {
+                defmt::println!("bino result=pass outputs={=usize}", outputs);
                 EXIT_SUCCESS
             } else {
                 defmt::println!(
-                    "bino result=fail mismatched_outputs={=usize} arena_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
-                    mismatches,
-                    arena_ok,
+                    "bino result=fail export_ok={=bool} native_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
+                    export_ok,
+                    native_ok,
                     rows_ok,
                     overflow_ok
                 );
                 EXIT_FAILURE
             }
         }
-        Err(e) => {
+        (Err(e), _) | (_, Err(e)) => {
             defmt::println!("bino result=error error={}", e);
             EXIT_FAILURE
         }
@@ -301,6 +315,61 @@ fn main() -> ! {
     exit(code);
     #[allow(clippy::empty_loop)]
     loop {}
+}
+
+/// Logs `pathway`'s digests against the host's, its sectors and arena; `true` when every digest
+/// matches and the arena's high-water is the host's.
+#[inline(never)]
+fn check_outcome(
+    pathway: Pathway,
+    outcome: &workload::Outcome,
+    want: &[u32; OUTPUTS.len()],
+    arena_used: usize,
+    painted: usize,
+) -> bool {
+    let name = pathway.pathway();
+    let mut mismatches = 0;
+    for &slot in workload::outputs(pathway) {
+        let (got, want) = (outcome.digests[slot], want[slot]);
+        mismatches += usize::from(got != want);
+        defmt::println!(
+            "bino pathway={=str} output={=str} digest={=u32:08x} expected={=u32:08x} match={=bool}",
+            name,
+            OUTPUTS[slot],
+            got,
+            want,
+            got == want
+        );
+    }
+    for (i, sector) in outcome.sectors.sectors().iter().enumerate() {
+        defmt::println!("bino pathway={=str} sector={=usize} {}", name, i, sector);
+    }
+    if let Some((i, mm)) = outcome.sectors.nearest() {
+        defmt::println!(
+            "bino pathway={=str} nearest_sector={=usize} nearest_mm={=u32}",
+            name,
+            i,
+            mm
+        );
+    }
+    let r = &outcome.report;
+    let arena_ok = r.arena_used == arena_used && painted <= r.arena_used;
+    defmt::println!(
+        "bino pathway={=str} arena_used={=usize} expected={=usize} painted_high_water={=usize} pixels={=usize} descriptors={=usize} encoder={=usize} streams={=usize} refine={=usize} wta_kept={=usize} sgm_kept={=usize} head_kept={=usize}",
+        name,
+        r.arena_used,
+        arena_used,
+        painted,
+        r.pixels,
+        r.descriptors,
+        r.encoder,
+        r.streams,
+        r.refine,
+        r.wta_kept,
+        r.sgm_kept,
+        r.head_kept
+    );
+    mismatches == 0 && arena_ok
 }
 
 /// Logs the camera path of the run (the inputs of the sustainable row rate that report.py

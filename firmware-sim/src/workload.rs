@@ -1,10 +1,14 @@
 //! The firmware's workload, shared word for word by the firmware and by `build.rs` (which runs it
-//! on the host to bake the expected digests in): one band pair through
-//! `bino_core::pipeline` — both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the
-//! left-right check, the shared head and its own left-right check (the head on the mirrored
-//! pair, rerun on the head's arena), row by row, and the pixel refinement of the head+lr grid —
-//! with a CRC-32 digest of every output, and the obstacle summary of the refined rows
-//! (`bino_core::depth`: nearest depth and bearing in [`SECTORS`] column sectors).
+//! on the host to bake the expected digests in): one band pair through `bino_core::pipeline`
+//! on either pathway, with a CRC-32 digest of every output and the obstacle summary of the
+//! refined rows (`bino_core::depth`: nearest depth and bearing in [`SECTORS`] column sectors).
+//!
+//! - Export: both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the left-right
+//!   check, the shared head and its own left-right check (the head on the mirrored pair, rerun
+//!   on the head's arena), row by row, and the pixel refinement of the head+lr grid.
+//! - Native: one encoder pass on (L, R) and the native head on its pair tokens, a second pass
+//!   on the mirrored pair for the head's left-right check, and the refinement of its head+lr
+//!   grid.
 //!
 //! The rows come from any `RowSource`: `build.rs` hands over the embedded band as a
 //! `SlicePair`, the firmware the interrupt-fed camera (`camera.rs`); the digests must agree.
@@ -14,54 +18,105 @@ use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
 use bino_core::depth::{DepthModel, DisparityUnit, SectorSummary};
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, HeadChecked, MatchedRow, Pipeline, Report, RowSource, Sink};
+use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pathway, Pipeline, Refine, Report, RowSource, Sink};
 use bino_core::Error;
 
 // The readouts, the refinement, the example board's calibration and the sector count: the
 // preset the board apps (`boards/`) run too.
-pub use bino_core::preset::{arena_bytes, CALIBRATION, OPTIONS, REFINE, SECTORS};
+pub use bino_core::preset::{CALIBRATION, NATIVE_OPTIONS, NATIVE_REFINE, OPTIONS, REFINE, SECTORS};
 
-/// The stages the firmware reports: blob loading, then the pipeline's own.
+/// Arena bytes for a `height x width` band pair on both pathways (one arena serves each run).
+pub const fn arena_bytes(height: usize, width: usize) -> usize {
+    let export = bino_core::preset::arena_bytes(height, width);
+    let native = bino_core::preset::native_arena_bytes(height, width);
+    if export > native {
+        export
+    } else {
+        native
+    }
+}
+
+/// The readout options and refinement of `pathway`'s run.
+pub const fn preset(pathway: Pathway) -> (Options, Refine) {
+    match pathway {
+        Pathway::Export => (OPTIONS, REFINE),
+        Pathway::Native => (NATIVE_OPTIONS, NATIVE_REFINE),
+    }
+}
+
+/// The stages the firmware reports: blob loading (both runs), then each pathway's pipeline
+/// stages, the native run's named `native_<stage>`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stage {
     /// Blob header, CRC over the whole blob, tensor table, weights.
     Load,
-    /// A stage of `bino_core::pipeline`.
+    /// A stage of `bino_core::pipeline` on the export pathway.
     Pipeline(pipeline::Stage),
+    /// A stage of `bino_core::pipeline` on the native pathway.
+    Native(pipeline::Stage),
 }
+
+/// Pipeline stages per pathway.
+const PIPELINE_STAGES: usize = pipeline::Stage::ALL.len();
 
 impl Stage {
     /// Number of stages.
-    pub const COUNT: usize = 1 + pipeline::Stage::ALL.len();
+    pub const COUNT: usize = 1 + 2 * PIPELINE_STAGES;
+
+    /// The stage `stage` of `pathway`'s run.
+    pub const fn of(pathway: Pathway, stage: pipeline::Stage) -> Stage {
+        match pathway {
+            Pathway::Export => Stage::Pipeline(stage),
+            Pathway::Native => Stage::Native(stage),
+        }
+    }
 
     /// Stage `i` in run order.
     pub const fn at(i: usize) -> Stage {
         if i == 0 {
             Stage::Load
-        } else {
+        } else if i <= PIPELINE_STAGES {
             Stage::Pipeline(pipeline::Stage::ALL[i - 1])
+        } else {
+            Stage::Native(pipeline::Stage::ALL[(i - 1 - PIPELINE_STAGES) % PIPELINE_STAGES])
         }
     }
 
     /// The stage's name in logs, JSON and its marker symbol `bino_mark_<name>`.
     pub const fn name(self) -> &'static str {
+        use pipeline::Stage as P;
         match self {
             Stage::Load => "load",
             Stage::Pipeline(s) => s.name(),
+            Stage::Native(s) => match s {
+                P::Rows => "native_rows",
+                P::EncodeLeft => "native_encode_left",
+                P::EncodeRight => "native_encode_right",
+                P::Match => "native_match",
+                P::Sgm => "native_sgm",
+                P::LeftRight => "native_left_right",
+                P::Head => "native_head",
+                P::Refine => "native_refine",
+                P::EncodePair => "native_encode_pair",
+                P::EncodeMirror => "native_encode_mirror",
+                P::HeadMirror => "native_head_mirror",
+            },
         }
     }
 
     /// Index in run order (`Stage::at(s.index()) == s`).
     pub fn index(self) -> usize {
+        let position = |s: pipeline::Stage| pipeline::Stage::ALL.iter().position(|&x| x == s).unwrap_or(0);
         match self {
             Stage::Load => 0,
-            Stage::Pipeline(s) => 1 + pipeline::Stage::ALL.iter().position(|&x| x == s).unwrap_or(0),
+            Stage::Pipeline(s) => 1 + position(s),
+            Stage::Native(s) => 1 + PIPELINE_STAGES + position(s),
         }
     }
 }
 
-/// The outputs the firmware digests, in order.
-pub const OUTPUTS: [&str; 9] = [
+/// The outputs the firmware digests: one slot each, filled by the pathways that make it.
+pub const OUTPUTS: [&str; 10] = [
     "descriptors_left",
     "descriptors_right",
     "wta",
@@ -71,7 +126,16 @@ pub const OUTPUTS: [&str; 9] = [
     "head_left_right",
     "refined",
     "sectors",
+    "pair_tokens",
 ];
+
+/// The slots of [`OUTPUTS`] `pathway`'s run fills, in order.
+pub const fn outputs(pathway: Pathway) -> &'static [usize] {
+    match pathway {
+        Pathway::Export => &[0, 1, 2, 3, 4, 5, 6, 7, 8],
+        Pathway::Native => &[9, 5, 6, 7, 8],
+    }
+}
 
 /// What the workload tells its caller about where it is.
 pub trait Hooks {
@@ -98,6 +162,7 @@ pub struct Outcome {
 
 struct Recorder<'h, H> {
     hooks: &'h mut H,
+    pathway: Pathway,
     current: Stage,
     crcs: [Crc32; OUTPUTS.len()],
     sectors: SectorSummary<SECTORS>,
@@ -116,7 +181,7 @@ impl<H: Hooks> Recorder<'_, H> {
 
 impl<H: Hooks> Sink for Recorder<'_, H> {
     fn stage(&mut self, stage: pipeline::Stage) {
-        self.current = Stage::Pipeline(stage);
+        self.current = Stage::of(self.pathway, stage);
         self.hooks.enter(self.current);
     }
 
@@ -128,6 +193,12 @@ impl<H: Hooks> Sink for Recorder<'_, H> {
             update_i8(&mut c[0], left.get(rows.clone()).unwrap_or_default());
             update_i8(&mut c[1], right.get(rows).unwrap_or_default());
         });
+    }
+
+    fn pair_band(&mut self, band: Band, tokens: &[i8]) {
+        let row_len = tokens.len() / band.rows.max(1);
+        let rows = (band.keep_from - band.start) * row_len..(band.keep_to - band.start) * row_len;
+        self.digest(|c| update_i8(&mut c[9], tokens.get(rows).unwrap_or_default()));
     }
 
     fn matched(&mut self, row: &MatchedRow<'_>) {
@@ -165,9 +236,10 @@ impl<H: Hooks> Sink for Recorder<'_, H> {
     }
 }
 
-/// Runs every stage on the rows of `source` in `arena`.
+/// Runs every stage of `pathway` on the rows of `source` in `arena`.
 pub fn run(
     blob: &[u8],
+    pathway: Pathway,
     source: &mut impl RowSource,
     arena: &mut [u8],
     hooks: &mut impl Hooks,
@@ -179,12 +251,14 @@ pub fn run(
     let depth = DepthModel::new(&CALIBRATION, source.width(), DisparityUnit::Pixels)?;
     let mut recorder = Recorder {
         hooks,
+        pathway,
         current: Stage::Load,
         crcs: [Crc32::new(); OUTPUTS.len()],
         sectors: SectorSummary::new(&depth, source.width())?,
         depth_error: None,
     };
-    let report = pipeline.run_refined(source, &OPTIONS, &REFINE, arena, &mut recorder);
+    let (options, refine) = preset(pathway);
+    let report = pipeline.run_refined(source, &options, &refine, arena, &mut recorder);
     recorder.hooks.finish();
     let report = report?;
     if let Some(e) = recorder.depth_error {
@@ -215,14 +289,21 @@ fn sectors_digest(summary: &SectorSummary<SECTORS>) -> u32 {
 }
 
 /// Arena bytes in use during each stage (index as [`Stage::index`]) of a one-band run, from the
-/// pipeline's report: the pixel band, plus the left descriptors and the encoder's scratch while
-/// encoding, plus both descriptor maps and the readout streams afterwards, and the
-/// refinement's buffers while it refines.
-pub fn arena_per_stage(r: &Report) -> [usize; Stage::COUNT] {
+/// pipeline reports of both pathways. Export: the pixel band, plus the left descriptors and the
+/// encoder's scratch while encoding, plus both descriptor maps and the readout streams
+/// afterwards, and the refinement's buffers while it refines. Native: the pixel band and the
+/// head check's rows, plus the encoder's scratch while encoding; the whole high-water after
+/// (the head's stream and the refinement's row scratch follow the tokens in that scratch).
+pub fn arena_per_stage(r: &Report, native: &Report) -> [usize; Stage::COUNT] {
     let mut out = [0; Stage::COUNT];
     for (i, o) in out.iter_mut().enumerate() {
         *o = match Stage::at(i) {
             Stage::Load => 0,
+            Stage::Native(pipeline::Stage::Rows) => native.pixels,
+            Stage::Native(pipeline::Stage::EncodePair | pipeline::Stage::EncodeMirror) => {
+                native.pixels + native.streams + native.encoder
+            }
+            Stage::Native(_) => native.arena_used,
             Stage::Pipeline(pipeline::Stage::Rows) => r.pixels,
             Stage::Pipeline(
                 pipeline::Stage::EncodeLeft

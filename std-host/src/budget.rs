@@ -251,6 +251,19 @@ struct SectionJson {
 /// Stages that run once at boot, not per band pair.
 const BOOT_STAGES: [&str; 1] = ["load"];
 
+/// Prefix of the native pathway run's stages (`native_encode_pair`, `native_head`, ...); the
+/// others (but `load`) are the export pathway's.
+pub const NATIVE_PREFIX: &str = "native_";
+
+/// Issue 15: one native band pair (one encoder pass on (L, R) and the native head) costs at
+/// most this share of the export pathway's band pair in executed instructions, on every core.
+pub const NATIVE_SHARE_OF_EXPORT: f64 = 0.55;
+
+/// Whether stage `name` is part of the export pathway's band pair.
+fn export_band_stage(name: &str) -> bool {
+    !BOOT_STAGES.contains(&name) && !name.starts_with(NATIVE_PREFIX)
+}
+
 impl CoreRun {
     /// Parses a run's JSON; the ELF it names is read when it still exists.
     pub fn parse(text: &str) -> Result<Self> {
@@ -262,6 +275,10 @@ impl CoreRun {
         ensure!(schema == "bino-firmware-run/1", "unknown schema {schema:?}");
         let run = RunJson::deserialize(&v).context("not a firmware run")?;
         ensure!(!run.stages.is_empty(), "no stages");
+        // A stage the firmware never entered (one of the other pathway's) is not reported.
+        let mut run = run;
+        run.stages
+            .retain(|s| s.instructions > 0 || BOOT_STAGES.contains(&s.name.as_str()));
         for stage in &run.stages {
             stage.check_classes(&run.core)?;
         }
@@ -299,13 +316,40 @@ impl CoreRun {
         })
     }
 
-    /// Executed instructions of one band pair: every stage but blob loading.
+    /// Executed instructions of one band pair on the export pathway: every stage but blob
+    /// loading and the native run's.
     pub fn band_pair_instructions(&self) -> u64 {
         self.stages
             .iter()
-            .filter(|s| !BOOT_STAGES.contains(&s.name.as_str()))
+            .filter(|s| export_band_stage(&s.name))
             .map(|s| s.instructions)
             .sum()
+    }
+
+    /// Executed instructions of one band pair on the native pathway (its `native_` stages,
+    /// the head's left-right check included: the mirrored pass and head), `None` for a firmware
+    /// that ran only the export pathway.
+    pub fn native_band_pair_instructions(&self) -> Option<u64> {
+        let native: Vec<&StageRun> = self
+            .stages
+            .iter()
+            .filter(|s| s.name.starts_with(NATIVE_PREFIX))
+            .collect();
+        (!native.is_empty()).then(|| native.iter().map(|s| s.instructions).sum())
+    }
+
+    /// [`CoreRun::native_band_pair_instructions`] without the check: one encoder pass on
+    /// (L, R) and the native head (the stages `native_encode_mirror` and `native_head_mirror`
+    /// left out; the refinement of the checked grid stays in).
+    pub fn native_one_pass_instructions(&self) -> Option<u64> {
+        let check = ["native_encode_mirror", "native_head_mirror"];
+        let all = self.native_band_pair_instructions()?;
+        Some(
+            all - check
+                .iter()
+                .filter_map(|name| self.stage_instructions(name))
+                .sum::<u64>(),
+        )
     }
 
     /// Whether every stage has its instruction classes (runs before the cycle model have none).
@@ -317,7 +361,7 @@ impl CoreRun {
     pub fn band_pair_modelled_cycles(&self) -> Option<f64> {
         self.stages
             .iter()
-            .filter(|s| !BOOT_STAGES.contains(&s.name.as_str()))
+            .filter(|s| export_band_stage(&s.name))
             .map(|s| s.modelled_cycles(&self.core))
             .sum()
     }
@@ -325,7 +369,7 @@ impl CoreRun {
     /// Per class and adjustment, the band pair's counts (every stage but blob loading).
     pub fn band_pair_class_counts(&self) -> Option<BTreeMap<String, u64>> {
         let mut total = BTreeMap::new();
-        for s in self.stages.iter().filter(|s| !BOOT_STAGES.contains(&s.name.as_str())) {
+        for s in self.stages.iter().filter(|s| export_band_stage(&s.name)) {
             for (name, n) in s.class_counts()? {
                 *total.entry(name).or_insert(0) += n;
             }
@@ -474,6 +518,25 @@ pub fn verdicts(runs: &[CoreRun]) -> Vec<Verdict> {
             }),
             _ => {}
         }
+        if let (Some(one_pass), Some(checked)) = (r.native_one_pass_instructions(), r.native_band_pair_instructions()) {
+            let share = one_pass as f64 / n.max(1) as f64;
+            out.push(Verdict {
+                target: format!(
+                    "{} native band pair (one encoder pass on (L, R) + native head) <= {:.0} % of the export pathway's",
+                    core_name(&r.core),
+                    100.0 * NATIVE_SHARE_OF_EXPORT
+                ),
+                measured: format!(
+                    "{:.0}M ({:.1} % of {:.0}M; with the head's check, a second pass: {:.0}M, {:.1} %)",
+                    one_pass as f64 / 1e6,
+                    100.0 * share,
+                    n as f64 / 1e6,
+                    checked as f64 / 1e6,
+                    100.0 * checked as f64 / n.max(1) as f64
+                ),
+                met: share <= NATIVE_SHARE_OF_EXPORT,
+            });
+        }
         if let (Some(refine), Some(encoder)) = (r.stage_instructions("refine"), r.stage_instructions("encode_left")) {
             let share = refine as f64 / encoder.max(1) as f64;
             out.push(Verdict {
@@ -602,7 +665,11 @@ pub fn markdown(runs: &[CoreRun]) -> String {
         }
         md.push('\n');
     }
-    let _ = write!(md, "| **band pair** (all but load) | {} |", b(first.arena_high_water()));
+    let _ = write!(
+        md,
+        "| **band pair, export pathway** (all but load and native_*) | {} |",
+        b(first.arena_high_water())
+    );
     for r in runs {
         let n = r.band_pair_instructions();
         let _ = write!(
@@ -614,6 +681,14 @@ pub fn markdown(runs: &[CoreRun]) -> String {
         );
     }
     md.push('\n');
+    if runs.iter().any(|r| r.native_band_pair_instructions().is_some()) {
+        let _ = write!(md, "| **band pair, native pathway** (native_*) | |");
+        for r in runs {
+            let n = r.native_band_pair_instructions().unwrap_or(0);
+            let _ = write!(md, " | **{}** | **{:.0}** |", grouped(n), clock(&r.core).ms(n));
+        }
+        md.push('\n');
+    }
     let _ = write!(md, "| outside the stages (digests, logging) | |");
     for r in runs {
         let _ = write!(
@@ -901,6 +976,50 @@ mod tests {
         assert!(v[2].met && !v[3].met, "{v:#?}: 60M is 12 % of a 500M pass");
         assert!((clock("m55").ms(400_000_000) - 1000.0).abs() < 1e-9);
         assert!((clock("m7").ms(480_000_000) - 1000.0).abs() < 1e-9);
+    }
+
+    /// A firmware that runs both pathways: the native stages (`native_*`) stay out of the export
+    /// band pair, stages never entered are dropped, and the native band pair without its
+    /// check's second pass is judged against the export one.
+    #[test]
+    fn the_native_pathway_is_judged_beside_the_export_one() {
+        let mut v: Value = serde_json::from_str(&run_json("m55", 700_000_000)).unwrap();
+        let stages = v["stages"].as_array_mut().unwrap();
+        for (name, n) in [
+            ("encode_pair", 0u64),
+            ("native_encode_pair", 300_000_000),
+            ("native_head", 50),
+            ("native_refine", 60_000_000),
+            ("native_encode_mirror", 300_000_000),
+            ("native_head_mirror", 50),
+        ] {
+            stages.push(json!({"name": name, "instructions": n, "arena_in_use": 1, "stack_peak": 1}));
+        }
+        let r = CoreRun::parse(&v.to_string()).unwrap();
+        assert!(r.stage_instructions("encode_pair").is_none(), "never entered: dropped");
+        assert_eq!(r.band_pair_instructions(), 760_000_100, "the export pathway alone");
+        assert_eq!(r.native_band_pair_instructions(), Some(660_000_100));
+        assert_eq!(r.native_one_pass_instructions(), Some(360_000_050));
+        let verdict = verdicts(std::slice::from_ref(&r))
+            .into_iter()
+            .find(|v| v.target.contains("native band pair"))
+            .unwrap();
+        // 360M of 760M: 47.4 % <= 55 %.
+        assert!(verdict.met, "{verdict:?}");
+        assert!(
+            verdict.measured.starts_with("360M (47.4 % of 760M"),
+            "{}",
+            verdict.measured
+        );
+        let md = markdown(std::slice::from_ref(&r));
+        assert!(
+            md.contains("| **band pair, native pathway** (native_*) | | | **660,000,100** |"),
+            "{md}"
+        );
+        assert!(CoreRun::parse(&run_json("m55", 1))
+            .unwrap()
+            .native_band_pair_instructions()
+            .is_none());
     }
 
     #[test]

@@ -1,10 +1,10 @@
 //! Determinism (issue 12): the firmware's own workload (`firmware-sim/src/workload.rs`, the
-//! shipped blob, the embedded 48x160 band pair) gives bit-identical outputs run after run and
-//! on several threads at once on the host, and the same digests the Cortex-M55 and Cortex-M7
-//! firmwares computed under QEMU (`firmware-sim/measured/*.json`, written by
-//! `scripts/firmware.sh --profile --out firmware-sim/measured`). The refined rows' digest is
-//! also recomputed from the specification: `refine::refine_map` on the whole head+lr token map
-//! of a plain pipeline run.
+//! shipped blob, the embedded 48x160 band pair), on both pathways, gives bit-identical outputs
+//! run after run and on several threads at once on the host, and the same digests the
+//! Cortex-M55 and Cortex-M7 firmwares computed under QEMU (`firmware-sim/measured/*.json`,
+//! written by `scripts/firmware.sh --profile --out firmware-sim/measured`). The refined rows'
+//! digest is also recomputed from the specification: `refine::refine_map` on the whole head+lr
+//! token map of a plain pipeline run.
 
 use std::path::{Path, PathBuf};
 
@@ -16,9 +16,9 @@ use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
 use bino_core::lr::fill_rejected;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{HeadChecked, MatchedRow, Pipeline, RefineInput, Sink, SlicePair};
+use bino_core::pipeline::{HeadChecked, MatchedRow, Pathway, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::{refine_map, scratch_len};
-use workload::{Hooks, Stage, OPTIONS, OUTPUTS, REFINE};
+use workload::{Hooks, Stage, OUTPUTS};
 
 struct Quiet;
 
@@ -34,17 +34,17 @@ fn repo() -> PathBuf {
 }
 
 /// The workload's digests on the committed band, in a fresh arena each time.
-fn digests(blob: &[u8], left: &[u8], right: &[u8]) -> [u32; OUTPUTS.len()] {
+fn digests(blob: &[u8], pathway: Pathway, left: &[u8], right: &[u8]) -> [u32; OUTPUTS.len()] {
     let (height, width) = (48, 160);
     let mut arena = vec![0xA5u8; workload::arena_bytes(height, width)];
     let mut source = SlicePair::new(left, right, width, height).unwrap();
-    workload::run(blob, &mut source, &mut arena, &mut Quiet)
+    workload::run(blob, pathway, &mut source, &mut arena, &mut Quiet)
         .unwrap()
         .digests
 }
 
-/// The digests a firmware run recorded, by output name.
-fn firmware_digests(core: &str) -> Vec<(String, u32)> {
+/// The digests a firmware run recorded: (pathway, output name, digest), in log order.
+fn firmware_digests(core: &str) -> Vec<(String, String, u32)> {
     let path = repo().join(format!("firmware-sim/measured/{core}.json"));
     let text = std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let run: serde_json::Value = serde_json::from_str(&text).unwrap();
@@ -55,9 +55,10 @@ fn firmware_digests(core: &str) -> Vec<(String, u32)> {
         .unwrap()
         .iter()
         .map(|o| {
+            let pathway = o["pathway"].as_str().unwrap().to_string();
             let name = o["name"].as_str().unwrap().to_string();
             let digest = u32::from_str_radix(o["digest"].as_str().unwrap(), 16).unwrap();
-            (name, digest)
+            (pathway, name, digest)
         })
         .collect()
 }
@@ -81,11 +82,12 @@ impl Sink for HeadMaps {
     }
 }
 
-/// CRC-32 of `refine_map` on the filled head+lr grid of a run without the refinement stage,
-/// rows top to bottom, values little-endian: what the workload's `refined` digest must be.
-fn refined_digest_from_the_whole_map(blob: &[u8], left: &[u8], right: &[u8]) -> u32 {
+/// CRC-32 of `refine_map` on the filled head+lr grid of `pathway`'s run without the refinement
+/// stage, rows top to bottom, values little-endian: what the workload's `refined` digest must be.
+fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8], right: &[u8]) -> u32 {
     let (height, width) = (48, 160);
-    assert_eq!(REFINE.input, RefineInput::HeadLr);
+    let (options, refine) = workload::preset(pathway);
+    assert_eq!(refine.input, RefineInput::HeadLr);
     let pipeline = Pipeline::new(Blob::parse(blob).unwrap()).unwrap();
     let cols = width / 4;
     let cells = height / 4 * cols;
@@ -94,16 +96,16 @@ fn refined_digest_from_the_whole_map(blob: &[u8], left: &[u8], right: &[u8]) -> 
         head: vec![0; cells],
         mask: vec![0; cells],
     };
-    let mut arena = vec![0u8; bino_core::pipeline::arena_bytes_for(height, width, &OPTIONS)];
+    let mut arena = vec![0u8; bino_core::pipeline::arena_bytes_for(height, width, &options)];
     let mut source = SlicePair::new(left, right, width, height).unwrap();
-    pipeline.run(&mut source, &OPTIONS, &mut arena, &mut maps).unwrap();
+    pipeline.run(&mut source, &options, &mut arena, &mut maps).unwrap();
     let mut grid = maps.head.clone();
     for (row, m) in grid.chunks_exact_mut(cols).zip(maps.mask.chunks_exact(cols)) {
         fill_rejected(row, m).unwrap();
     }
-    let mut scratch = vec![0u32; scratch_len(width, &REFINE.params)];
+    let mut scratch = vec![0u32; scratch_len(width, &refine.params)];
     let mut refined = vec![0u16; width * height];
-    refine_map(left, right, width, &grid, &REFINE.params, &mut scratch, &mut refined).unwrap();
+    refine_map(left, right, width, &grid, &refine.params, &mut scratch, &mut refined).unwrap();
     let mut crc = Crc32::new();
     for v in refined {
         crc.update(&v.to_le_bytes());
@@ -118,30 +120,42 @@ fn outputs_are_bit_identical_across_runs_threads_and_targets() {
     let left = std::fs::read(assets.join("band_48x160_left.gray")).unwrap();
     let right = std::fs::read(assets.join("band_48x160_right.gray")).unwrap();
 
-    let first = digests(&blob, &left, &right);
     let refined = OUTPUTS.iter().position(|&n| n == "refined").unwrap();
-    assert_eq!(
-        first[refined],
-        refined_digest_from_the_whole_map(&blob, &left, &right),
-        "the streamed refinement against refine_map on the whole head+lr map"
-    );
-    assert_eq!(digests(&blob, &left, &right), first, "a second run on the host");
-    let threads: Vec<[u32; OUTPUTS.len()]> = std::thread::scope(|scope| {
-        let handles: Vec<_> = (0..3).map(|_| scope.spawn(|| digests(&blob, &left, &right))).collect();
-        handles.into_iter().map(|h| h.join().unwrap()).collect()
-    });
-    for (i, d) in threads.iter().enumerate() {
-        assert_eq!(d, &first, "thread {i} of three running at once");
+    let mut host = Vec::new();
+    for pathway in [Pathway::Export, Pathway::Native] {
+        let first = digests(&blob, pathway, &left, &right);
+        assert_eq!(
+            first[refined],
+            refined_digest_from_the_whole_map(&blob, pathway, &left, &right),
+            "{pathway:?}: the streamed refinement against refine_map on the whole head+lr map"
+        );
+        assert_eq!(
+            digests(&blob, pathway, &left, &right),
+            first,
+            "{pathway:?}: a second run on the host"
+        );
+        let threads: Vec<[u32; OUTPUTS.len()]> = std::thread::scope(|scope| {
+            let handles: Vec<_> = (0..3)
+                .map(|_| scope.spawn(|| digests(&blob, pathway, &left, &right)))
+                .collect();
+            handles.into_iter().map(|h| h.join().unwrap()).collect()
+        });
+        for (i, d) in threads.iter().enumerate() {
+            assert_eq!(d, &first, "{pathway:?}: thread {i} of three running at once");
+        }
+        for &slot in workload::outputs(pathway) {
+            host.push((pathway.pathway().to_string(), OUTPUTS[slot].to_string(), first[slot]));
+        }
     }
-
     for core in ["m55", "m7"] {
         let recorded = firmware_digests(core);
-        let names: Vec<&str> = recorded.iter().map(|(n, _)| n.as_str()).collect();
-        assert_eq!(names, OUTPUTS, "{core}: the workload's outputs");
-        for ((name, digest), host) in recorded.iter().zip(first) {
+        let names: Vec<(&str, &str)> = recorded.iter().map(|(p, n, _)| (p.as_str(), n.as_str())).collect();
+        let want: Vec<(&str, &str)> = host.iter().map(|(p, n, _)| (p.as_str(), n.as_str())).collect();
+        assert_eq!(names, want, "{core}: the workload's outputs, both pathways");
+        for ((pathway, name, digest), (_, _, host)) in recorded.iter().zip(&host) {
             assert_eq!(
-                *digest, host,
-                "{core} {name}: firmware {digest:08x}, host {host:08x} (re-measure with scripts/firmware.sh --profile --out firmware-sim/measured after changing the blob or the engine)"
+                digest, host,
+                "{core} {pathway} {name}: firmware {digest:08x}, host {host:08x} (re-measure with scripts/firmware.sh --profile --out firmware-sim/measured after changing the blob or the engine)"
             );
         }
     }

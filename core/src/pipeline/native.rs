@@ -31,12 +31,27 @@ use crate::Error;
 /// finish adds the rows its convolutions held back.
 const CHECK_ROWS: usize = BAND_TOKEN_ROWS + HEAD_CONVS;
 
-/// Arena bytes of the check's kept left rows and mask row (0 without the check).
+/// Arena bytes of the check's kept left rows and mask row (0 without the check), rounded up
+/// to [`REGION_ALIGN`].
 const fn check_bytes(cols: usize, head_lr: bool) -> usize {
     if head_lr {
-        sum(&[cols.saturating_mul(2 * CHECK_ROWS).saturating_add(1), cols])
+        aligned(sum(&[cols.saturating_mul(2 * CHECK_ROWS).saturating_add(1), cols]))
     } else {
         0
+    }
+}
+
+/// Alignment of every region's start: the encoder's scratch starts where the export pathway's
+/// does, on a 16-byte boundary, so the assembly kernels' aligned paths apply (the M7's DSP
+/// GEMMs fall back to the portable kernels on unaligned rows, half again as many instructions
+/// for the whole pass).
+const REGION_ALIGN: usize = 16;
+
+/// `bytes` rounded up to [`REGION_ALIGN`] (saturating).
+const fn aligned(bytes: usize) -> usize {
+    match bytes.checked_add(REGION_ALIGN - 1) {
+        Some(n) => n / REGION_ALIGN * REGION_ALIGN,
+        None => usize::MAX,
     }
 }
 
@@ -52,11 +67,12 @@ pub(super) const fn arena_bytes(height: usize, width: usize, head_lr: bool, refi
     let pixels = band_rows.saturating_mul(width).saturating_mul(2);
     let tokens = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(2 * DIM);
     let encoder = encoder::arena_bytes(band_rows, width);
-    let head = head::arena_bytes_for(HeadKind::Native, cols);
+    let head = aligned(head::arena_bytes_for(HeadKind::Native, cols));
     let (state, scratch) = match refine {
         Some(r) => refine_parts(height, width, r),
         None => (0, 0),
     };
+    let state = aligned(state);
     let check = check_bytes(cols, head_lr);
     if height <= band_rows {
         let after = sum(&[tokens, head, scratch]);
@@ -87,17 +103,17 @@ pub(super) fn run(
     let streaming = plan.len() > 1;
     let (width, cols, band_px) = (ctx.width, ctx.cols, ctx.band_px);
     let pixel_len = band_px * width;
-    let head_len = head::arena_bytes_for(HeadKind::Native, cols);
+    let head_len = aligned(head::arena_bytes_for(HeadKind::Native, cols));
     let stream_len = match (streaming, head_lr) {
         (false, _) => 0,
         (true, false) => head_len,
         (true, true) => 2 * head_len,
     };
     let check_len = check_bytes(cols, head_lr);
-    let state_len = match ctx.refine {
+    let state_len = aligned(match ctx.refine {
         Some(r) => refine_parts(ctx.height, width, r).0,
         None => 0,
-    };
+    });
     let too_small = Error::ArenaTooSmall {
         needed: arena_bytes(ctx.height, width, head_lr, ctx.refine),
         available: arena.len(),
@@ -295,13 +311,16 @@ impl<'a> Readouts<'a> {
         io: &mut RefineIo<'_>,
         sink: &mut impl Sink,
     ) -> Result<(), Error> {
-        sink.stage(Stage::Head);
+        sink.stage(match view {
+            HeadView::Left => Stage::Head,
+            HeadView::Right => Stage::HeadMirror,
+        });
         match view {
             HeadView::Left => {
                 let mut rows = HeadRows {
                     sink: &mut *sink,
                     check: self.check.as_mut(),
-                    refine: Feed::of(&mut self.refine, io, RefineInput::Head),
+                    refine: Feed::of(&mut self.refine, io, RefineInput::Head, Stage::Head),
                 };
                 pair_step(stream, tokens, &mut rows)?;
             }
@@ -312,7 +331,7 @@ impl<'a> Readouts<'a> {
                 let mut rows = CheckedRows {
                     sink: &mut *sink,
                     check,
-                    refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr),
+                    refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr, Stage::HeadMirror),
                 };
                 pair_step(stream, tokens, &mut rows)?;
             }
