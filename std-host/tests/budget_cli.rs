@@ -45,14 +45,24 @@ fn budget_reports_the_committed_runs() {
         let run = measured(core);
         let got = &report["cores"][i];
         assert_eq!(got["core"], *core);
-        // The band pair is every stage the plugin counted except blob loading at boot.
+        // The export band pair is every stage the plugin counted except blob loading at boot and
+        // the native run's stages; the native band pair is those.
         let stages = run["stages"].as_array().unwrap();
-        let band_pair: u64 = stages
-            .iter()
-            .filter(|s| s["name"] != "load")
-            .map(|s| s["instructions"].as_u64().unwrap())
-            .sum();
+        let sum = |native: bool| -> u64 {
+            stages
+                .iter()
+                .filter(|s| s["name"] != "load" && s["name"].as_str().unwrap().starts_with("native_") == native)
+                .map(|s| s["instructions"].as_u64().unwrap())
+                .sum()
+        };
+        let band_pair = sum(false);
         assert_eq!(got["band_pair_instructions"], band_pair);
+        assert_eq!(got["native_band_pair_instructions"], sum(true));
+        let one_pass = got["native_one_pass_instructions"].as_u64().unwrap();
+        assert!(
+            one_pass < sum(true) && (one_pass as f64) < 0.55 * band_pair as f64,
+            "{core}: one native pass {one_pass} against the export band pair {band_pair}"
+        );
         let mhz = if *core == "m55" { 400.0 } else { 480.0 };
         let ms = got["band_pair_estimated_ms"].as_f64().unwrap();
         assert!((ms - band_pair as f64 / (mhz * 1e3)).abs() < 1e-6, "{core}: {ms} ms");
@@ -78,12 +88,16 @@ fn budget_reports_the_committed_runs() {
         assert!(model.is_object(), "{core}: the committed run has class counts: {model}");
         let costs = model["costs"].as_object().unwrap();
         let mut band_pair = 0.0;
-        for (s, r) in got["stages"]
+        // The report leaves out the stages the firmware never entered (the other pathway's).
+        let entered: Vec<&Value> = run["stages"]
             .as_array()
             .unwrap()
             .iter()
-            .zip(run["stages"].as_array().unwrap())
-        {
+            .filter(|r| r["name"] == "load" || r["instructions"].as_u64().unwrap() > 0)
+            .collect();
+        assert_eq!(got["stages"].as_array().unwrap().len(), entered.len(), "{core}");
+        for (s, r) in got["stages"].as_array().unwrap().iter().zip(entered) {
+            assert_eq!(s["name"], r["name"], "{core}");
             let classes = r["classes"].as_object().unwrap();
             let sum: u64 = classes.values().map(|v| v.as_u64().unwrap()).sum();
             assert_eq!(sum, r["instructions"].as_u64().unwrap(), "{core} {}", r["name"]);
@@ -96,7 +110,8 @@ fn budget_reports_the_committed_runs() {
             let mhz = if *core == "m55" { 400.0 } else { 480.0 };
             let ms = s["modelled_ms"].as_f64().unwrap();
             assert!((ms - cycles / (mhz * 1e3)).abs() < 1e-9, "{core} {}", r["name"]);
-            if r["name"] != "load" {
+            // The model's band pair is the export pathway's.
+            if r["name"] != "load" && !r["name"].as_str().unwrap().starts_with("native_") {
                 band_pair += cycles;
             }
         }
@@ -117,8 +132,9 @@ fn budget_reports_the_committed_runs() {
     assert_eq!(report["cores"][1]["cycle_model"]["class_counts"]["mve"], 0);
 
     let targets = report["targets"].as_array().unwrap();
-    // Weights, arena, then per core its band-pair instructions and its refinement's share.
-    assert_eq!(targets.len(), 6);
+    // Weights, arena, then per core its band-pair instructions, the native band pair's share
+    // and its refinement's share.
+    assert_eq!(targets.len(), 8);
     for core in ["Cortex-M55", "Cortex-M7"] {
         let refinement = targets
             .iter()
@@ -128,6 +144,14 @@ fn budget_reports_the_committed_runs() {
             })
             .unwrap_or_else(|| panic!("{core}: no refinement target in {targets:?}"));
         assert_eq!(refinement["met"], true, "{core}: {refinement}");
+        let native = targets
+            .iter()
+            .find(|t| {
+                let name = t["target"].as_str().unwrap();
+                name.starts_with(core) && name.contains("native band pair")
+            })
+            .unwrap_or_else(|| panic!("{core}: no native pathway target in {targets:?}"));
+        assert_eq!(native["met"], true, "{core}: {native}");
     }
     let png_bytes = std::fs::read(&png).unwrap();
     assert_eq!(&png_bytes[1..4], b"PNG");

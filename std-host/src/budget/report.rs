@@ -37,7 +37,8 @@ pub struct CoreBudget {
     pub band: Band,
     /// Milliseconds of one band pair at the stated clock and IPC.
     pub band_pair_estimated_ms: f64,
-    /// Executed instructions of one band pair (every stage but `load`).
+    /// Executed instructions of one band pair on the export pathway (every stage but `load`
+    /// and the native run's `native_*`).
     pub band_pair_instructions: u64,
     /// QEMU board.
     pub board: String,
@@ -52,6 +53,14 @@ pub struct CoreBudget {
     /// The cycle model's band pair; `null` when the run has no class counts (runs measured
     /// before the plugin classified instructions).
     pub cycle_model: Option<CoreCycles>,
+    /// Executed instructions of one native band pair, its head's check included (the
+    /// `native_*` stages; absent for a firmware that ran only the export pathway).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub native_band_pair_instructions: Option<u64>,
+    /// The same without the check's mirrored pass and head: one encoder pass on (L, R) and
+    /// the native head (issue 15's figure).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub native_one_pass_instructions: Option<u64>,
     /// Whether every output was bit-identical to the host's.
     pub outputs_bit_identical: bool,
     /// QEMU wall time, seconds (`null` when the run did not record it).
@@ -149,6 +158,8 @@ impl CoreBudget {
             },
             band_pair_estimated_ms: c.ms(r.band_pair_instructions()),
             band_pair_instructions: r.band_pair_instructions(),
+            native_band_pair_instructions: r.native_band_pair_instructions(),
+            native_one_pass_instructions: r.native_one_pass_instructions(),
             board: r.board.clone(),
             clock_mhz: c.mhz,
             code_flash_bytes: r.sections.code_flash(),
