@@ -1,14 +1,18 @@
 //! `bino demo`: the int8 pipeline end to end on the built-in procedural scene, with no data
 //! files: encoder on both views (descriptor pathway), the no-linkage readout and the shared
 //! head (also `head+lr` and its pixel refinement `head+lr+ref`, as `bino_host::readout` defines
-//! them), scored against the scene's known disparity, written as pictures and a report.
+//! them), and, when the blob carries it, the native pathway (one encoder pass on (L, R), the
+//! native head: `native_head`, `native_head+lr`, `native_head+lr+ref`, through the streaming
+//! core pipeline), scored against the scene's known disparity, written as pictures and a report.
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
 use bino_core::config::BAND_ROWS;
+use bino_core::model::ids::HeadKind;
 use bino_core::model::{encoder, head};
+use bino_core::pipeline::{Options as PipelineOptions, Pathway};
 use bino_core::sgm::Penalties;
 use serde::Serialize;
 
@@ -16,7 +20,9 @@ use crate::colour::{colourise, error_colour};
 use crate::eval::{fill_invalid, score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
 use crate::int8::{match_rows, sgm_rows, Int8Model};
 use crate::keyed::Keyed;
+use crate::pipeline_maps::run_pipeline;
 use crate::profile::{Profile, View};
+use crate::readout::Readout;
 use crate::refine::{refine_pixels, GrayViews};
 use crate::synthetic::{default_scene, SyntheticPair};
 
@@ -54,7 +60,8 @@ pub const DEFAULT_PENALTIES: Penalties = Penalties { p1: 8, p2: 32 };
 /// One readout scored against the scene's true disparity.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReadoutResult {
-    /// `nolink`, `sgm`, `head`, `head+lr` or `head+lr+ref`.
+    /// `nolink`, `sgm`, `head`, `head+lr`, `head+lr+ref`, or the native pathway's
+    /// `native_head`, `native_head+lr`, `native_head+lr+ref`.
     pub name: &'static str,
     /// EVAL.md metrics (pixels at the scene's resolution).
     pub metrics: Metrics,
@@ -138,6 +145,27 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
                 scored_pixels("head+lr+ref", disparity, &truth)
             })?,
         );
+    }
+    if model.has_head_of(HeadKind::Native) {
+        let native = PipelineOptions {
+            pathway: Pathway::Native,
+            max_cols: opts.max_cols,
+            penalties: opts.penalties,
+            lr_max_diff_q8: DEMO_LR_MAX_DIFF_Q8,
+            head: true,
+            head_lr: true,
+        };
+        let maps = steps.run(
+            "native pathway: one encoder pass on (L, R), native head and its check (int8 pipeline)",
+            || run_pipeline(&model, &left, &right, &native, &mut |_, _| {}),
+        )?;
+        for (name, readout) in [
+            ("native_head", Readout::HEAD),
+            ("native_head+lr", Readout::HEAD_LR),
+            ("native_head+lr+ref", Readout::HEAD_LR.refined(true)),
+        ] {
+            readouts.push(scored_pixels(name, maps.methods.pixels(readout)?, &truth)?);
+        }
     }
     let files = steps.run("writing pictures and report", || {
         write_outputs(opts, &scene, &left, &right, &readouts)

@@ -55,8 +55,17 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     let names: Vec<&str> = report.readouts.iter().map(|r| r.name).collect();
     assert_eq!(
         names,
-        ["nolink", "sgm", "head", "head+lr", "head+lr+ref"],
-        "the shipped blob carries the head"
+        [
+            "nolink",
+            "sgm",
+            "head",
+            "head+lr",
+            "head+lr+ref",
+            "native_head",
+            "native_head+lr",
+            "native_head+lr+ref"
+        ],
+        "the shipped blob carries both pathways' heads"
     );
     let epe: Vec<f32> = report.readouts.iter().map(|r| r.metrics.epe as f32).collect();
     eprintln!(
@@ -76,6 +85,18 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     assert_ne!(epe[3], epe[2], "head+lr fills some cells");
     // The pixel refinement sharpens the planes' edges the bilinear upsampling blurs.
     assert!(epe[4] < epe[3], "head+lr+ref epe {} vs head+lr {}", epe[4], epe[3]);
+    // The native pathway reads the scene too, and its refinement helps it as well.
+    assert!(
+        epe[5] < 0.8 * constant_epe,
+        "native head epe {} vs {constant_epe}",
+        epe[5]
+    );
+    assert!(
+        epe[7] < epe[6],
+        "native head+lr+ref epe {} vs head+lr {}",
+        epe[7],
+        epe[6]
+    );
     for name in [
         "left.png",
         "disparity_true.png",
@@ -96,6 +117,10 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     assert!(report_json["head"]["epe"].as_f64().is_some(), "{report_json}");
     assert!(report_json["head+lr"]["epe"].as_f64().is_some(), "{report_json}");
     assert!(report_json["head+lr+ref"]["epe"].as_f64().is_some(), "{report_json}");
+    assert!(
+        report_json["native_head+lr+ref"]["epe"].as_f64().is_some(),
+        "{report_json}"
+    );
     std::fs::remove_dir_all(&out).ok();
 }
 

@@ -53,10 +53,10 @@ pub fn run(args: DemoArgs) -> Result<()> {
         report.height,
         opts.blob.display()
     );
-    println!("{:<12} {:>9} {:>9} {:>9}", "readout", "epe px", "bad1tok %", "bad2 %");
+    println!("{:<20} {:>9} {:>9} {:>9}", "readout", "epe px", "bad1tok %", "bad2 %");
     for r in &report.readouts {
         println!(
-            "{:<12} {:>9.3} {:>9.2} {:>9.2}",
+            "{:<20} {:>9.3} {:>9.2} {:>9.2}",
             r.name, r.metrics.epe, r.metrics.bad1tok, r.metrics.bad2
         );
     }
