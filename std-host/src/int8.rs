@@ -299,6 +299,12 @@ impl Int8Model {
             .is_some()
     }
 
+    /// An error naming the blob and how to add `head` when the blob does not carry it (what a
+    /// command checks before it runs a head readout).
+    pub fn require_head(&self, head: HeadKind) -> Result<()> {
+        self.head_weights(head).map(|_| ())
+    }
+
     /// The blob's `head` weights, or an error naming the blob and how to add that head.
     fn head_weights(&self, head: HeadKind) -> Result<(HeadWeights<'_>, f32)> {
         let blob = self.blob()?;

@@ -16,7 +16,6 @@ use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
-use bino_core::model::ids::HeadKind;
 use bino_core::pipeline::Options as PipelineOptions;
 use bino_core::sgm::Penalties;
 use serde::Serialize;
@@ -250,16 +249,9 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
     let head = opts.readouts.iter().any(|r| r.uses_head());
     let model = if wants(Precision::Int8) {
         let model = Int8Model::load(&opts.blob)?;
-        let (kind, flag) = match opts.pathway {
-            Pathway::Export => (HeadKind::Export, "--head"),
-            Pathway::Native => (HeadKind::Native, "--native-head"),
-        };
-        ensure!(
-            !head || model.has_head_of(kind),
-            "blob {} holds no {} pathway head: drop --readout head or quantise with {flag}",
-            opts.blob.display(),
-            opts.pathway
-        );
+        if head {
+            model.require_head(opts.pathway.core())?;
+        }
         Some(model)
     } else {
         None

@@ -106,6 +106,9 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
     let started = step("loading the pair and the blob", &mut timings, &mut progress);
     let (left, right) = load_profiled_pair(&opts.left, &opts.right, opts.profile)?;
     let model = Int8Model::load(&opts.blob)?;
+    if opts.readout.uses_head() {
+        model.require_head(opts.pathway.core())?;
+    }
     finish(&mut timings, started);
 
     let pipeline_step = match opts.pathway {

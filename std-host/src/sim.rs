@@ -132,13 +132,9 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     let (width, height) = (left.width, left.height);
     let model = Int8Model::load(&opts.blob)?;
     let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
-    ensure!(
-        !opts.readout.uses_head() || pipeline.has_head_of(opts.pathway.core()),
-        "the blob {} has no {} pathway head; use --readout sgm or nolink on the export pathway, or a blob \
-         quantised with that head",
-        opts.blob.display(),
-        opts.pathway
-    );
+    if opts.readout.uses_head() {
+        model.require_head(opts.pathway.core())?;
+    }
     let pipeline_opts = PipelineOptions {
         pathway: opts.pathway.core(),
         max_cols: opts.max_cols,

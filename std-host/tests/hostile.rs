@@ -164,6 +164,42 @@ fn a_blob_path_that_is_a_directory_is_named() {
     assert!(!out.exists());
 }
 
+/// Issue 15: the native pathway asked of a blob without the native head (any blob quantised
+/// before it) names the blob and the quantiser flag that adds it, before any output.
+#[test]
+fn the_native_pathway_on_a_blob_without_its_head_is_named() {
+    use bino_core::blob::Blob;
+    use bino_core::model::ids;
+    let dir = scratch("native-blob");
+    let (left, right) = (dir.join("l.png"), dir.join("r.png"));
+    write_png(&left, 200, 60);
+    write_png(&right, 200, 60);
+    let shipped = std::fs::read(bino_host::demo::DEFAULT_BLOB).unwrap();
+    let shipped = Blob::parse(&shipped).unwrap();
+    let mut writer = bino_host::blob_writer::BlobWriter::new();
+    let native_norm = ids::id(ids::kind::LAYERNORM, ids::HeadKind::Native.layernorm());
+    for t in shipped.tensors().filter(|t| t.id != native_norm) {
+        let (dtype, bytes) = shipped.raw(t.id).unwrap();
+        writer.add_raw(t.id, dtype, t.elements, bytes.to_vec()).unwrap();
+    }
+    let blob = dir.join("export_only.bin");
+    std::fs::write(&blob, writer.finish()).unwrap();
+    let out = dir.join("out");
+    let args = |pathway: &'static str| {
+        let pair = ["run", "--left", s(&left), "--right", s(&right), "--profile", "w160"];
+        let rest = ["--blob", s(&blob), "--out", s(&out), "--pathway", pathway];
+        bino(&[&pair[..], &rest[..]].concat())
+    };
+    assert_refused(
+        &args("native"),
+        &["export_only.bin", "no usable native pathway head", "--native-head"],
+    );
+    assert!(!out.exists());
+    // The export pathway still runs on it.
+    let export = args("export");
+    assert!(export.status.success(), "{}", String::from_utf8_lossy(&export.stderr));
+}
+
 #[test]
 fn an_unwritable_output_folder_is_named_and_nothing_is_left() {
     let dir = scratch("out");
