@@ -452,7 +452,13 @@ const HEAD_CHECK_ROWS: usize = max(BAND_TOKEN_ROWS, HEAD_CONVS + 1);
 /// several bands (`streaming`) the mirrored head's own stream.
 const fn head_check_bytes(cols: usize, streaming: bool) -> usize {
     let mirror = if streaming { head::arena_bytes(cols) } else { 0 };
-    sum(&[mirror, cols.saturating_mul(2 * HEAD_CHECK_ROWS).saturating_add(1), cols])
+    sum(&[mirror, check_rows_bytes(cols, HEAD_CHECK_ROWS)])
+}
+
+/// Arena bytes of a [`HeadCheck`] keeping `rows` rows of `cols` left disparities (u16,
+/// aligned) and its mask row.
+const fn check_rows_bytes(cols: usize, rows: usize) -> usize {
+    sum(&[cols.saturating_mul(rows).saturating_mul(2).saturating_add(1), cols])
 }
 
 /// Arena bytes of the readout streams (with the head, and its check when `head_lr`; the check
@@ -953,7 +959,22 @@ struct HeadCheck<'a> {
     kept: usize,
 }
 
-impl HeadCheck<'_> {
+impl<'a> HeadCheck<'a> {
+    /// A check keeping `rows` rows of `cols` left disparities, cut from the front of `arena`
+    /// ([`check_rows_bytes`]); returns it and the bytes it took.
+    fn carve(arena: &'a mut [u8], cols: usize, rows: usize, lr_max_diff_q8: u16) -> Result<(Self, usize), Error> {
+        let mut carver = Carver::new(arena, check_rows_bytes(cols, rows))?;
+        let check = HeadCheck {
+            cols,
+            rows,
+            lr_max_diff_q8,
+            left_rows: carver.u16s(cols.saturating_mul(rows))?,
+            mask: carver.u8s(cols)?,
+            kept: 0,
+        };
+        Ok((check, carver.used()))
+    }
+
     fn slot(&mut self, row: usize) -> Option<&mut [u16]> {
         let at = (row % self.rows.max(1)) * self.cols;
         self.left_rows.get_mut(at..at + self.cols)
@@ -1097,16 +1118,8 @@ impl<'a, 'w> Streams<'a, 'w> {
                     } else {
                         (None, check_arena)
                     };
-                    let mut carver = Carver::new(rest, head_check_bytes(cols, false))?;
-                    let check = HeadCheck {
-                        cols,
-                        rows: HEAD_CHECK_ROWS,
-                        lr_max_diff_q8: ctx.opts.lr_max_diff_q8,
-                        left_rows: carver.u16s(cols * HEAD_CHECK_ROWS)?,
-                        mask: carver.u8s(cols)?,
-                        kept: 0,
-                    };
-                    used += carver.used();
+                    let (check, check_used) = HeadCheck::carve(rest, cols, HEAD_CHECK_ROWS, ctx.opts.lr_max_diff_q8)?;
+                    used += check_used;
                     Some((mirror, check))
                 } else {
                     None

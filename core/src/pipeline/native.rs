@@ -13,10 +13,9 @@
 //! [`Encoder::pair_tokens_in_place`]: crate::model::encoder::Encoder::pair_tokens_in_place
 
 use super::{
-    band_pixel_rows, max, refine_parts, refine_stage, sum, BandRows, CheckedRows, Context, Feed, HeadCheck, HeadRows,
-    Refine, RefineInput, Report, RowSource, Sink, Stage,
+    band_pixel_rows, check_rows_bytes, max, refine_parts, refine_stage, sum, BandRows, CheckedRows, Context, Feed,
+    HeadCheck, HeadRows, Refine, RefineInput, Report, RowSource, Sink, Stage,
 };
-use crate::arena::Carver;
 use crate::band::{Band, BandPlan};
 use crate::config::{BAND_TOKEN_ROWS, CELL_W, DIM, PATCH_H};
 use crate::model::encoder::{self, GrayBand};
@@ -35,7 +34,7 @@ const CHECK_ROWS: usize = BAND_TOKEN_ROWS + HEAD_CONVS;
 /// to [`REGION_ALIGN`].
 const fn check_bytes(cols: usize, head_lr: bool) -> usize {
     if head_lr {
-        aligned(sum(&[cols.saturating_mul(2 * CHECK_ROWS).saturating_add(1), cols]))
+        aligned(check_rows_bytes(cols, CHECK_ROWS))
     } else {
         0
     }
@@ -223,16 +222,8 @@ impl<'a> Readouts<'a> {
     fn new(ctx: &Context<'_, '_>, check: &'a mut [u8], state: &'a mut [u8], streaming: bool) -> Result<Self, Error> {
         let cols = ctx.cols;
         let (check, check_used) = if ctx.head_lr() {
-            let mut carver = Carver::new(check, check_bytes(cols, true))?;
-            let check = HeadCheck {
-                cols,
-                rows: CHECK_ROWS,
-                lr_max_diff_q8: ctx.opts.lr_max_diff_q8,
-                left_rows: carver.u16s(cols * CHECK_ROWS)?,
-                mask: carver.u8s(cols)?,
-                kept: 0,
-            };
-            (Some(check), carver.used())
+            let (check, used) = HeadCheck::carve(check, cols, CHECK_ROWS, ctx.opts.lr_max_diff_q8)?;
+            (Some(check), used)
         } else {
             (None, 0)
         };
