@@ -42,8 +42,13 @@ pub const HEAD_GROUPS: usize = 16;
 pub const HEAD_HIDDEN: usize = 24;
 /// Residual 3D convolutions between the head's stem and output.
 pub const HEAD_MIDDLE_LAYERS: usize = 4;
-/// Disparity candidates of the head, in patch columns (`0..HEAD_MAX_DISP`).
+/// Disparity candidates the heads were trained with, in patch columns (`0..HEAD_MAX_DISP`), and
+/// their default count. A head stream may search more (`HeadStream::with_candidates`, up to
+/// [`HEAD_CANDIDATES_LIMIT`]): no weight depends on the count, since the correlation and the 3D
+/// convolutions slide along the disparity axis.
 pub const HEAD_MAX_DISP: usize = 12;
+/// The most disparity candidates a head stream searches (the row matchers' limit too).
+pub const HEAD_CANDIDATES_LIMIT: usize = 64;
 
 /// Token-grid size of a `height` x `width` view: (token rows, patch columns, fused columns).
 pub const fn token_grid(height: usize, width: usize) -> (usize, usize, usize) {

@@ -222,6 +222,11 @@ pub struct Options {
     /// ([`Sink::head_checked`]); a second head stream, so the arena is
     /// [`arena_bytes_head_lr`]. Ignored without `head`.
     pub head_lr: bool,
+    /// Disparity candidates of the head (either pathway), in patch columns (1 to
+    /// [`HEAD_CANDIDATES_LIMIT`](crate::config::HEAD_CANDIDATES_LIMIT)):
+    /// [`HEAD_MAX_DISP`](crate::config::HEAD_MAX_DISP), the count it was trained with, or more
+    /// for wide views whose disparities reach further ([`HeadStream::with_candidates`]).
+    pub head_candidates: usize,
 }
 
 /// The readout whose token grid the refinement reads, named as the host names readouts. A
@@ -450,8 +455,12 @@ const HEAD_CHECK_ROWS: usize = max(BAND_TOKEN_ROWS, HEAD_CONVS + 1);
 
 /// Arena bytes of the head's left-right check: the left rows kept, one mask row, and for
 /// several bands (`streaming`) the mirrored head's own stream.
-const fn head_check_bytes(cols: usize, streaming: bool) -> usize {
-    let mirror = if streaming { head::arena_bytes(cols) } else { 0 };
+const fn head_check_bytes(cols: usize, candidates: usize, streaming: bool) -> usize {
+    let mirror = if streaming {
+        head::arena_bytes_with(HeadKind::Export, cols, candidates)
+    } else {
+        0
+    };
     sum(&[mirror, check_rows_bytes(cols, HEAD_CHECK_ROWS)])
 }
 
@@ -461,11 +470,41 @@ const fn check_rows_bytes(cols: usize, rows: usize) -> usize {
     sum(&[cols.saturating_mul(rows).saturating_mul(2).saturating_add(1), cols])
 }
 
-/// Arena bytes of the readout streams (with the head, and its check when `head_lr`; the check
+/// The head's part of an export-pathway run: its disparity candidates and whether it is
+/// checked ([`Options::head_lr`]).
+#[derive(Clone, Copy)]
+struct HeadShape {
+    candidates: usize,
+    lr: bool,
+}
+
+impl HeadShape {
+    const fn of(opts: &Options) -> Self {
+        HeadShape {
+            candidates: opts.head_candidates,
+            lr: opts.head && opts.head_lr,
+        }
+    }
+
+    /// The default head ([`HEAD_MAX_DISP`](crate::config::HEAD_MAX_DISP) candidates).
+    const fn trained(lr: bool) -> Self {
+        HeadShape {
+            candidates: crate::config::HEAD_MAX_DISP,
+            lr,
+        }
+    }
+}
+
+/// Arena bytes of the readout streams (with the head, and its check when `head.lr`; the check
 /// needs a second head stream only when `streaming` several bands).
-const fn stream_bytes(cols: usize, max_cols: usize, head_lr: bool, streaming: bool) -> usize {
-    let check = if head_lr { head_check_bytes(cols, streaming) } else { 0 };
-    sum(&[matching_bytes(cols, max_cols), head::arena_bytes(cols), check])
+const fn stream_bytes(cols: usize, max_cols: usize, head: HeadShape, streaming: bool) -> usize {
+    let check = if head.lr {
+        head_check_bytes(cols, head.candidates, streaming)
+    } else {
+        0
+    };
+    let stream = head::arena_bytes_with(HeadKind::Export, cols, head.candidates);
+    sum(&[matching_bytes(cols, max_cols), stream, check])
 }
 
 /// Arena bytes the pipeline needs for a `height x width` pair with `max_cols` candidates
@@ -476,13 +515,13 @@ const fn stream_bytes(cols: usize, max_cols: usize, head_lr: bool, streaming: bo
 /// [`Error::ArenaTooSmall`] (or earlier, as [`Error::TooWide`] / [`Error::Candidates`]); the
 /// result is never a small wrong size.
 pub const fn arena_bytes(height: usize, width: usize, max_cols: usize) -> usize {
-    arena_bytes_of(height, width, max_cols, false, None)
+    arena_bytes_of(height, width, max_cols, HeadShape::trained(false), None)
 }
 
 /// [`arena_bytes`] with the head's left-right check ([`Options::head_lr`]): a second head
 /// stream.
 pub const fn arena_bytes_head_lr(height: usize, width: usize, max_cols: usize) -> usize {
-    arena_bytes_of(height, width, max_cols, true, None)
+    arena_bytes_of(height, width, max_cols, HeadShape::trained(true), None)
 }
 
 /// The arena bytes a run with `opts` needs: on the export pathway [`arena_bytes`] or
@@ -503,8 +542,8 @@ pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, re
 /// The arena bytes of a run with `opts`, refined when `refine` is given, on either pathway.
 const fn arena_bytes_run(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
     match opts.pathway {
-        Pathway::Export => arena_bytes_of(height, width, opts.max_cols, opts.head && opts.head_lr, refine),
-        Pathway::Native => native::arena_bytes(height, width, opts.head_lr, refine),
+        Pathway::Export => arena_bytes_of(height, width, opts.max_cols, HeadShape::of(opts), refine),
+        Pathway::Native => native::arena_bytes(height, width, opts, refine),
     }
 }
 
@@ -530,7 +569,13 @@ const fn refine_parts(height: usize, width: usize, refine: &Refine) -> (usize, u
     )
 }
 
-const fn arena_bytes_of(height: usize, width: usize, max_cols: usize, head_lr: bool, refine: Option<&Refine>) -> usize {
+const fn arena_bytes_of(
+    height: usize,
+    width: usize,
+    max_cols: usize,
+    head: HeadShape,
+    refine: Option<&Refine>,
+) -> usize {
     let band_rows = band_pixel_rows(height);
     let cols = width / CELL_W;
     let pixels = band_rows.saturating_mul(width).saturating_mul(2);
@@ -541,11 +586,11 @@ const fn arena_bytes_of(height: usize, width: usize, max_cols: usize, head_lr: b
         None => (0, 0),
     };
     if height <= band_rows {
-        let streams = stream_bytes(cols, max_cols, head_lr, false);
+        let streams = stream_bytes(cols, max_cols, head, false);
         let after = sum(&[descriptors, streams, state, scratch]);
         sum(&[pixels, descriptors, max(encoder, after)])
     } else {
-        let streams = stream_bytes(cols, max_cols, head_lr, true);
+        let streams = stream_bytes(cols, max_cols, head, true);
         sum(&[
             pixels,
             descriptors,
@@ -645,6 +690,7 @@ impl<'w> Pipeline<'w> {
         if !native {
             check_candidates(opts.max_cols)?;
         }
+        head::check_candidates(opts.head_candidates)?;
         let head = match (native || opts.head, self.weights_of(opts.pathway)) {
             (true, Some(w)) => Some(w),
             (true, None) => {
@@ -718,7 +764,7 @@ impl<'w> Pipeline<'w> {
             rows.load(band, left_px, right_px, sink)?;
             let (encoder_used, right_desc, rest) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
             sink.band(band, desc_left, right_desc);
-            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_lr(), false) + state_len;
+            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_shape(), false) + state_len;
             let (stream_arena, rest) = rest.split_at_mut(stream_len.min(rest.len()));
             let mut streams = Streams::new(&ctx, stream_arena, false)?;
             let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
@@ -739,7 +785,7 @@ impl<'w> Pipeline<'w> {
             };
             report.arena_used = report.pixels + desc_len + max(encoder_used, desc_len + after);
         } else {
-            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_lr(), true);
+            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_shape(), true);
             let (stream_arena, scratch) = scratch.split_at_mut((stream_len + state_len).min(scratch.len()));
             let mut streams = Streams::new(&ctx, stream_arena, true)?;
             let mut scratch_used = 0;
@@ -798,6 +844,14 @@ impl Context<'_, '_> {
     /// Whether this run checks the head left against right.
     fn head_lr(&self) -> bool {
         self.head.is_some() && self.opts.head_lr
+    }
+
+    /// The head's shape in the arena (sized even without a head: see [`arena_bytes_for`]).
+    fn head_shape(&self) -> HeadShape {
+        HeadShape {
+            candidates: self.opts.head_candidates,
+            lr: self.head_lr(),
+        }
     }
 
     /// The refinement's view of the band buffer and its row scratch, cut from `arena` (none
@@ -1053,7 +1107,7 @@ impl<'a, 'w> Streams<'a, 'w> {
     /// a mirrored head beside the left one instead of rerunning the band after it.
     fn new(ctx: &Context<'_, 'w>, arena: &'a mut [u8], streaming: bool) -> Result<Self, Error> {
         let (cols, max_cols) = (ctx.cols, ctx.opts.max_cols);
-        let streams = stream_bytes(cols, max_cols, ctx.head_lr(), streaming);
+        let streams = stream_bytes(cols, max_cols, ctx.head_shape(), streaming);
         let (arena, refine_arena) = arena.split_at_mut(streams.min(arena.len()));
         let refine = match ctx.refine {
             Some(r) => {
@@ -1105,14 +1159,16 @@ impl<'a, 'w> Streams<'a, 'w> {
         let mut used = carver.used();
         let (head, check) = match ctx.head {
             Some(w) => {
-                let (left_arena, check_arena) = head_arena.split_at_mut(head::arena_bytes(cols).min(head_arena.len()));
-                let stream = HeadStream::new(w, cols, left_arena)?;
+                let nd = ctx.opts.head_candidates;
+                let head_len = head::arena_bytes_with(HeadKind::Export, cols, nd);
+                let (left_arena, check_arena) = head_arena.split_at_mut(head_len.min(head_arena.len()));
+                let stream = HeadStream::with_candidates(w, cols, nd, HeadView::Left, left_arena)?;
                 used = matching + stream.arena_used();
                 let check = if ctx.head_lr() {
                     let (mirror, rest) = if streaming {
-                        let len = head::arena_bytes(cols).min(check_arena.len());
+                        let len = head_len.min(check_arena.len());
                         let (mirror_arena, rest) = check_arena.split_at_mut(len);
-                        let mirror = HeadStream::for_view(w, cols, HeadView::Right, mirror_arena)?;
+                        let mirror = HeadStream::with_candidates(w, cols, nd, HeadView::Right, mirror_arena)?;
                         used += mirror.arena_used();
                         (Some(mirror), rest)
                     } else {

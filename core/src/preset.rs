@@ -19,7 +19,8 @@ use crate::pipeline::{self, Options, Pathway, Refine};
 use crate::sgm::Penalties;
 
 /// Readout options: 16 candidates, SGM penalties 8 / 32, left-right tolerance one patch
-/// column (Q8 256), the head with its own left-right check.
+/// column (Q8 256), the head (its trained 12 candidates: a 160-px view's disparities stay
+/// below 44 px) with its own left-right check.
 pub const OPTIONS: Options = Options {
     pathway: Pathway::Export,
     max_cols: 16,
@@ -27,6 +28,7 @@ pub const OPTIONS: Options = Options {
     lr_max_diff_q8: 256,
     head: true,
     head_lr: true,
+    head_candidates: crate::config::HEAD_MAX_DISP,
 };
 
 /// The pixel refinement: the default parameters on the readout the pipeline's rule picks for

@@ -58,6 +58,8 @@ pub struct Run {
     pub head: bool,
     /// With the head: its left-right check (a second, mirrored head stream).
     pub head_lr: bool,
+    /// The head's disparity candidates (valid: 1 to 64).
+    pub head_candidates: u8,
     /// Arena bytes relative to what `arena_bytes` asks for.
     pub arena_delta: i16,
     /// Pixel values, cycled over both views.
@@ -137,6 +139,7 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
         lr_max_diff_q8: run.lr_max_diff_q8,
         head: run.head,
         head_lr: run.head_lr,
+        head_candidates: usize::from(run.head_candidates),
     };
     // A lying source reports a size of its own: small ones are run (the pipeline then asks
     // for rows the source may not have), absurd ones must be refused before any row is read.

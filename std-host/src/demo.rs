@@ -154,6 +154,7 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
             lr_max_diff_q8: DEMO_LR_MAX_DIFF_Q8,
             head: true,
             head_lr: true,
+            head_candidates: crate::readout_eval::head_candidates(left.width),
         };
         let maps = steps.run(
             "native pathway: one encoder pass on (L, R), native head and its check (int8 pipeline)",

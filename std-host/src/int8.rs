@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use anyhow::{ensure, Context, Result};
 use bino_core::band::BandPlan;
 use bino_core::blob::Blob;
-use bino_core::config::{check_view_size, DIM, PATCH_H};
+use bino_core::config::{check_view_size, DIM, HEAD_MAX_DISP, PATCH_H};
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
-use bino_core::model::head::{arena_bytes_for, HeadRow, HeadSink, HeadStream, HeadWeights, OUT_FRAC_BITS};
+use bino_core::model::head::{arena_bytes_with, HeadRow, HeadSink, HeadStream, HeadView, HeadWeights, OUT_FRAC_BITS};
 use bino_core::model::ids::{self, kind, HeadKind};
 use bino_core::model::probe::{NoProbe, Probe, Stage};
 use bino_core::{matching, sgm};
@@ -219,7 +219,7 @@ pub struct HeadMaps {
     pub disparity: Vec<f32>,
     /// Largest candidate probability per cell.
     pub confidence: Vec<f32>,
-    /// Real logits (`rows x cols x HEAD_MAX_DISP`); candidates outside the right view are
+    /// Real logits (`rows x cols x candidates`); candidates outside the right view are
     /// `-inf`.
     pub logits: Vec<f32>,
 }
@@ -328,13 +328,23 @@ impl Int8Model {
     /// The int8 native head over a pair token code map (`rows x cols x [even, odd] x DIM`,
     /// [`Int8Model::pair_token_codes`]), streamed row by row.
     pub fn native_head(&self, tokens: &[i8], rows: usize, cols: usize) -> Result<HeadMaps> {
+        self.native_head_with_candidates(tokens, (rows, cols), HEAD_MAX_DISP)
+    }
+
+    /// [`Int8Model::native_head`] over `candidates` disparities.
+    pub fn native_head_with_candidates(
+        &self,
+        tokens: &[i8],
+        (rows, cols): (usize, usize),
+        candidates: usize,
+    ) -> Result<HeadMaps> {
         ensure!(
             tokens.len() == rows * cols * 2 * DIM,
             "pair token map holds {} codes, expected {rows} x {cols} x 2 x {DIM}",
             tokens.len()
         );
         let (weights, logit_scale) = self.head_weights(HeadKind::Native)?;
-        run_head(weights, logit_scale, rows, cols, |stream, sink| {
+        run_head(weights, logit_scale, (rows, cols, candidates), |stream, sink| {
             for row in tokens.chunks_exact(cols * 2 * DIM) {
                 stream.push_pair_row(row, sink)?;
             }
@@ -342,14 +352,26 @@ impl Int8Model {
         })
     }
 
-    /// The int8 head over two descriptor code maps (`rows x cols x DIM` each), streamed row by row.
+    /// The int8 head over two descriptor code maps (`rows x cols x DIM` each), streamed row by
+    /// row, over the trained [`HEAD_MAX_DISP`] candidates.
     pub fn head(&self, left: &[i8], right: &[i8], rows: usize, cols: usize) -> Result<HeadMaps> {
+        self.head_with_candidates(left, right, (rows, cols), HEAD_MAX_DISP)
+    }
+
+    /// [`Int8Model::head`] over `candidates` disparities (`HeadStream::with_candidates`).
+    pub fn head_with_candidates(
+        &self,
+        left: &[i8],
+        right: &[i8],
+        (rows, cols): (usize, usize),
+        candidates: usize,
+    ) -> Result<HeadMaps> {
         ensure!(
             left.len() == rows * cols * DIM && right.len() == left.len(),
             "descriptor maps differ in size"
         );
         let (weights, logit_scale) = self.head_weights(HeadKind::Export)?;
-        run_head(weights, logit_scale, rows, cols, |stream, sink| {
+        run_head(weights, logit_scale, (rows, cols, candidates), |stream, sink| {
             for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
                 stream.push_row(l, r, sink)?;
             }
@@ -358,13 +380,20 @@ impl Int8Model {
     }
 }
 
-/// A head stream over `cols` patch columns fed by `feed`, then finished: the whole maps.
-fn run_head<F>(weights: HeadWeights<'_>, logit_scale: f32, rows: usize, cols: usize, feed: F) -> Result<HeadMaps>
+/// A head stream over `cols` patch columns and `candidates` disparities fed by `feed`, then
+/// finished: the whole maps.
+fn run_head<F>(
+    weights: HeadWeights<'_>,
+    logit_scale: f32,
+    (rows, cols, candidates): (usize, usize, usize),
+    feed: F,
+) -> Result<HeadMaps>
 where
     F: FnOnce(&mut HeadStream<'_, '_>, &mut CollectRows<'_>) -> Result<(), bino_core::Error>,
 {
-    let mut arena = vec![0u8; arena_bytes_for(weights.kind(), cols)];
-    let mut stream = HeadStream::new(weights, cols, &mut arena).map_err(anyhow::Error::msg)?;
+    let mut arena = vec![0u8; arena_bytes_with(weights.kind(), cols, candidates)];
+    let mut stream = HeadStream::with_candidates(weights, cols, candidates, HeadView::Left, &mut arena)
+        .map_err(anyhow::Error::msg)?;
     let mut maps = HeadMaps {
         rows,
         cols,

@@ -13,6 +13,7 @@ pub mod eval;
 pub mod files;
 pub mod float_head;
 pub mod float_weights;
+pub mod head_forward;
 pub mod image_io;
 pub mod int8;
 mod keyed;

@@ -16,16 +16,17 @@ use std::str::FromStr;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Context, Result};
+use bino_core::config::{CELL_W, HEAD_CANDIDATES_LIMIT, HEAD_MAX_DISP};
 use bino_core::pipeline::Options as PipelineOptions;
 use bino_core::sgm::Penalties;
 use serde::Serialize;
 
-use crate::compare::head::FloatHeadRunner;
 use crate::eval::float_twins::{consistent, right_view, sgm};
 use crate::eval::{
     density, load_eval_item, mean_metrics, score, score_sparse, similarity_volume, upsample_mask, wta_subtoken,
     DisparityMap, EvalItem, GroundTruthMap, Metrics,
 };
+use crate::float_head::FloatHead;
 use crate::int8::{to_u8, Int8Model};
 use crate::keyed::Keyed;
 use crate::nuisance::{degrade_item, Nuisance};
@@ -263,7 +264,7 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
             Pathway::Native => &opts.native_head_onnx,
         };
         let head = if head {
-            Some(FloatHeadRunner::load(head_onnx)?)
+            Some(FloatHead::from_onnx(head_onnx)?)
         } else {
             None
         };
@@ -319,7 +320,7 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
     })
 }
 
-type FloatModels = Option<(ReferenceEncoder, Option<FloatHeadRunner>)>;
+type FloatModels = Option<(ReferenceEncoder, Option<FloatHead>)>;
 
 /// Every row and SGBM over `items` (right views under `nuisance`, already applied).
 fn evaluate_set(
@@ -417,6 +418,7 @@ fn int8_maps(opts: &EvalOptions, model: &Int8Model, item: &EvalItem) -> Result<M
         head,
         // The head's own check: for head+lr, and for head's LRkeep column.
         head_lr: head,
+        head_candidates: head_candidates(item.left.width),
     };
     Ok(run_pipeline(model, &item.left, &item.right, &pipeline, &mut |_, _| {})?.methods)
 }
@@ -426,10 +428,21 @@ pub fn lr_tolerance_q8(columns: f32) -> u16 {
     (columns.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16
 }
 
+/// Disparity candidates of the heads for views `width` px wide, in patch columns: the
+/// StereoSGBM reference's search range at that width (EVAL.md: `numDisparities` 32 px per
+/// 160 px of width, 64 px = 16 columns at w320), never fewer than the
+/// [`HEAD_MAX_DISP`] = 12 they were trained with (44 px: a w160 view's disparities stay below
+/// 28 px on the eval split, while 8 % of the w320 ground truth lies above 40 px). Every command
+/// and precision uses it, so a readout has one definition per width.
+pub fn head_candidates(width: usize) -> usize {
+    let sgbm_px = 16 * (2 * width).div_ceil(160);
+    (sgbm_px / CELL_W).clamp(HEAD_MAX_DISP, HEAD_CANDIDATES_LIMIT)
+}
+
 fn float_maps(
     opts: &EvalOptions,
     encoder: &mut ReferenceEncoder,
-    head: Option<&mut FloatHeadRunner>,
+    head: Option<&mut FloatHead>,
     item: &EvalItem,
 ) -> Result<MethodMaps> {
     if opts.pathway == Pathway::Native {
@@ -450,9 +463,10 @@ fn float_maps(
                 height: left.rows,
                 values,
             };
-            let head_left = map(h.run(&left, &right)?.disparity);
+            let nd = head_candidates(item.left.width);
+            let head_left = map(h.forward(&left, &right, nd)?.disparity);
             // The right view: the head on the mirrored pair, mirrored back.
-            let head_right = mirror(&map(h.run(&right.mirrored(), &left.mirrored())?.disparity));
+            let head_right = mirror(&map(h.forward(&right.mirrored(), &left.mirrored(), nd)?.disparity));
             let mask = consistent(&head_left, &head_right, opts.lr_max_diff);
             (Some(head_left), Some(mask))
         }
@@ -475,7 +489,7 @@ fn float_maps(
 fn float_native_maps(
     opts: &EvalOptions,
     encoder: &mut ReferenceEncoder,
-    head: &mut FloatHeadRunner,
+    head: &mut FloatHead,
     item: &EvalItem,
 ) -> Result<MethodMaps> {
     let mut run = |left: &View, right: &View| -> Result<DisparityMap> {
@@ -483,7 +497,7 @@ fn float_native_maps(
         Ok(DisparityMap {
             width: even.cols,
             height: even.rows,
-            values: head.run(&even, &odd)?.disparity,
+            values: head.forward(&even, &odd, head_candidates(left.width))?.disparity,
         })
     };
     let head_left = run(&item.left, &item.right).context("native pass on (L, R)")?;

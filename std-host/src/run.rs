@@ -125,6 +125,7 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         head,
         // The head's own left-right check (lr_mask.png, and the fill of head+lr).
         head_lr: head,
+        head_candidates: crate::readout_eval::head_candidates(left.width),
     };
     let mut on_band = |i: usize, n: usize| {
         if n > 1 {

@@ -144,6 +144,7 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         // The head's own left-right check: the display darkens (or, for head+lr, fills) the
         // cells it rejects, as for the other methods.
         head_lr: opts.readout.uses_head(),
+        head_candidates: crate::readout_eval::head_candidates(width),
     };
     // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
     let refine = opts.readout.refine.then(|| Refine {

@@ -295,6 +295,7 @@ fn run_refine_off_is_the_upsampled_grid_and_the_default_its_refinement() {
         lr_max_diff_q8: 256,
         head: false,
         head_lr: false,
+        head_candidates: bino_core::config::HEAD_MAX_DISP,
     };
     let maps = run_pipeline(&model, &l, &r, &opts, &mut |_, _| {}).unwrap().methods;
     let tokens = maps.tokens(Readout::new(Method::Sgm, true)).unwrap();

@@ -39,17 +39,45 @@ fn read_pfm(path: &Path) -> DisparityMap {
 
 #[test]
 fn run_writes_what_eval_scores_on_a_multi_band_pair() {
+    let readouts = ["nolink+lr", "sgm", "head", "head+lr", "sgm+ref", "head+lr+ref"];
+    let report = run_matches_eval(Profile::W160, &readouts);
+    // The refinement changes the map (and, on this pair, lowers the head's error).
+    let epe = |r: &str| {
+        report["per_pair"][0]["readouts"][format!("int8_{r}")]["metrics"]["epe"]
+            .as_f64()
+            .unwrap()
+    };
+    assert_ne!(epe("sgm"), epe("sgm+ref"));
+    assert!(
+        epe("head+lr+ref") < epe("head+lr"),
+        "{} vs {}",
+        epe("head+lr+ref"),
+        epe("head+lr")
+    );
+}
+
+/// At w320 the head searches 16 candidates in both commands (`readout_eval::head_candidates`).
+#[test]
+fn run_writes_what_eval_scores_at_w320() {
+    let report = run_matches_eval(Profile::W320, &["head", "head+lr+ref"]);
+    assert!(report["per_pair"][0]["readouts"]["int8_head"]["metrics"]["epe"].is_number());
+}
+
+/// Runs `bino eval` on mb2005_Art at `profile` for `readouts`, then `bino run` for each, and
+/// checks run's `disparity.pfm` scores eval's per-pair epe; returns eval's report.
+fn run_matches_eval(profile: Profile, readouts: &[&str]) -> serde_json::Value {
+    let profile_name = profile.to_string();
     let data = repo().join("../shared/data");
     let record = read_index(&data)
         .unwrap()
         .into_iter()
         .find(|r| r.pair_id == "mb2005_Art")
         .expect("mb2005_Art in the eval split");
-    let item = load_eval_item(&record, Profile::W160).unwrap();
+    let item = load_eval_item(&record, profile).unwrap();
     assert!(item.left.height / 4 > 12, "more than one band");
 
     // A data folder holding only this pair (links to the shared files), for `bino eval`.
-    let dir = scratch_dir("one-number");
+    let dir = scratch_dir(&format!("one-number-{profile_name}"));
     let link = |name: &str, target: &Path| -> PathBuf {
         let path = dir.join(name);
         let _ = std::fs::remove_file(&path);
@@ -72,14 +100,13 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
         ),
     )
     .unwrap();
-    let readouts = ["nolink+lr", "sgm", "head", "head+lr", "sgm+ref", "head+lr+ref"];
     let json = dir.join("eval.json");
     let eval = bino(&[
         "eval",
         "--data",
         s(&dir),
         "--profile",
-        "w160",
+        &profile_name,
         "--precision",
         "int8",
         "--readout",
@@ -92,7 +119,7 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let max_cols = report["max_cols"].as_u64().unwrap().to_string();
 
-    for readout in readouts {
+    for &readout in readouts {
         let out = dir.join(format!("run-{readout}"));
         // The refined readouts by run's default, the others with --refine off.
         let (name, refine) = match readout.strip_suffix("+ref") {
@@ -106,7 +133,7 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
             "--right",
             s(&right),
             "--profile",
-            "w160",
+            &profile_name,
             "--readout",
             name,
             "--max-cols",
@@ -132,17 +159,5 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
             "{readout}: run {run_epe} vs eval {eval_epe}"
         );
     }
-    // The refinement changes the map (and, on this pair, lowers the head's error).
-    let epe = |r: &str| {
-        report["per_pair"][0]["readouts"][format!("int8_{r}")]["metrics"]["epe"]
-            .as_f64()
-            .unwrap()
-    };
-    assert_ne!(epe("sgm"), epe("sgm+ref"));
-    assert!(
-        epe("head+lr+ref") < epe("head+lr"),
-        "{} vs {}",
-        epe("head+lr+ref"),
-        epe("head+lr")
-    );
+    report
 }

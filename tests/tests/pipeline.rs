@@ -28,6 +28,7 @@ fn options() -> Options {
         lr_max_diff_q8: 256,
         head: true,
         head_lr: false,
+        head_candidates: bino_core::config::HEAD_MAX_DISP,
     }
 }
 
@@ -98,16 +99,20 @@ fn view(pixels: &[u8], width: usize, height: usize) -> View {
 /// Runs the pipeline on the synthetic scene of the given size and checks every readout
 /// against the host's whole-map computation.
 fn pipeline_equals_whole_map_steps(width: usize, height: usize) -> Collect {
+    pipeline_equals_whole_map_steps_with(width, height, options())
+}
+
+fn pipeline_equals_whole_map_steps_with(width: usize, height: usize, opts: Options) -> Collect {
     let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
     let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
     let scene = synthetic::default_scene(width, height);
     let (l, r) = (&scene.left.pixels, &scene.right.pixels);
-    let mut arena = vec![0u8; arena_bytes(height, width, MAX_COLS)];
+    let mut arena = vec![0u8; arena_bytes_for(height, width, &opts)];
     let mut out = Collect::default();
     let report = pipeline
         .run(
             &mut SlicePair::new(l, r, width, height).unwrap(),
-            &options(),
+            &opts,
             &mut arena,
             &mut out,
         )
@@ -128,7 +133,9 @@ fn pipeline_equals_whole_map_steps(width: usize, height: usize) -> Collect {
     assert_eq!(q8(&out.wta), wta.values, "WTA");
     let sgm = sgm_rows(&left, &right, rows, cols, MAX_COLS, DEFAULT_PENALTIES).unwrap();
     assert_eq!(q8(&out.sgm), sgm.values, "SGM");
-    let head = model.head(&left, &right, rows, cols).unwrap();
+    let head = model
+        .head_with_candidates(&left, &right, (rows, cols), opts.head_candidates)
+        .unwrap();
     assert_eq!(q8(&out.head), head.disparity, "head");
     assert_eq!(report.wta_kept, out.wta_mask.iter().map(|&m| m as usize).sum::<usize>());
     out
@@ -147,6 +154,36 @@ fn one_band_streams_to_the_same_outputs_as_whole_maps() {
 fn taller_images_go_band_by_band_to_the_same_outputs() {
     let out = pipeline_equals_whole_map_steps(96, 112);
     assert_eq!(out.bands.len(), 3);
+}
+
+/// A wide view's head searches further (w320: 16 candidates) and streams exactly as the whole
+/// map; the extra candidates cost arena, and an absurd count is refused before any row.
+#[test]
+fn more_head_candidates_stream_like_the_whole_map() {
+    let opts = Options {
+        head_candidates: 16,
+        ..options()
+    };
+    let out = pipeline_equals_whole_map_steps_with(96, 112, opts);
+    let trained = pipeline_equals_whole_map_steps(96, 112);
+    assert_ne!(out.head, trained.head, "the extra candidates change the head's output");
+    assert!(arena_bytes_for(112, 96, &opts) > arena_bytes_for(112, 96, &options()));
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let scene = synthetic::default_scene(32, 48);
+    for bad in [0, bino_core::config::HEAD_CANDIDATES_LIMIT + 1] {
+        let opts = Options {
+            head_candidates: bad,
+            ..options()
+        };
+        let mut arena = vec![0u8; arena_bytes_for(48, 32, &options())];
+        let mut source = SlicePair::new(&scene.left.pixels, &scene.right.pixels, 32, 48).unwrap();
+        let err = pipeline.run(&mut source, &opts, &mut arena, &mut Collect::default());
+        assert!(
+            matches!(err, Err(Error::Candidates { requested, .. }) if requested == bad),
+            "{bad}"
+        );
+    }
 }
 
 #[test]

@@ -35,6 +35,7 @@ fn options(head: bool, head_lr: bool) -> Options {
         lr_max_diff_q8: 256,
         head,
         head_lr,
+        head_candidates: bino_core::config::HEAD_MAX_DISP,
     }
 }
 

@@ -48,6 +48,7 @@ fn options(max_cols: usize) -> Options {
         lr_max_diff_q8: 256,
         head: false,
         head_lr: false,
+        head_candidates: bino_core::config::HEAD_MAX_DISP,
     }
 }
 

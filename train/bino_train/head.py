@@ -32,8 +32,9 @@ ReduceSum and ReduceMax, and no shape arithmetic (all of them are tract-onnx 0.2
 from __future__ import annotations
 
 import argparse
+import math
 import sys
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -50,6 +51,9 @@ MASKED_LOGIT = 1e4
 """Subtracted from the logits of candidates outside the right image (finite, so int8-friendly)."""
 
 
+PAPER_HEAD_MAX_DISP = 12
+"""The candidates the heads are trained with (HeadConfig.max_disp's default)."""
+
 PAIR_FEATURES = ("", "concat", "full")
 """HeadConfig.pair_features: "" the shared (export-pathway) head, else a native head."""
 
@@ -61,7 +65,7 @@ class HeadConfig:
     groups: int = 16
     hidden: int = 24
     middle_layers: int = 4
-    max_disp: int = 12
+    max_disp: int = 12  # PAPER_HEAD_MAX_DISP
     """D: candidates 0 .. D-1 patch columns; D = 12 reaches 44 px at w160: above SGBM's 32 px
     search range and the eval split's largest ground truth at w160 (27.7 px, 7 columns),
     with room for the wider (up to 320 px) training crops."""
@@ -353,10 +357,37 @@ def head_macs(cfg: HeadConfig, rows: int = 12, cols: int = 40) -> int:
     return proj + corr + conv
 
 
-def load_head(checkpoint: Path) -> StereoHead:
-    """A head from a head-training checkpoint (`head_config` + `head` state dict)."""
+CANDIDATES_LIMIT = 64
+"""The most disparity candidates a head searches (bino_core::config::HEAD_CANDIDATES_LIMIT)."""
+
+
+def head_candidates(width: int, trained: int = PAPER_HEAD_MAX_DISP) -> int:
+    """Disparity candidates of the heads for views `width` px wide (bino_host's
+    `readout_eval::head_candidates`, the same rule in every command): the StereoSGBM
+    reference's search range at that width (EVAL.md: numDisparities 32 px per 160 px, 64 px =
+    16 columns at w320), never fewer than the `trained` 12."""
+    sgbm_px = 16 * math.ceil(2 * width / 160)
+    return min(max(sgbm_px // 4, trained), CANDIDATES_LIMIT)
+
+
+def with_candidates(head: StereoHead, candidates: int) -> StereoHead:
+    """The same head searching `candidates` disparities (no weight depends on the count: the
+    correlation and the 3D convolutions slide along the disparity axis)."""
+    if candidates == head.cfg.max_disp:
+        return head
+    wider = make_head(replace(head.cfg, max_disp=candidates))
+    wider.load_state_dict(head.state_dict())
+    return wider.to(next(head.parameters()).device).train(head.training)
+
+
+def load_head(checkpoint: Path, max_disp: int | None = None) -> StereoHead:
+    """A head from a head-training checkpoint (`head_config` + `head` state dict); `max_disp`
+    overrides its number of candidates ([`with_candidates`])."""
     state = torch.load(checkpoint, map_location="cpu", weights_only=False)
-    head = make_head(HeadConfig(**state["head_config"]))
+    config = HeadConfig(**state["head_config"])
+    if max_disp is not None:
+        config = replace(config, max_disp=max_disp)
+    head = make_head(config)
     head.load_state_dict(state["head"])
     return head.eval()
 

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from .head import StereoHead, load_head
+from .head import StereoHead, head_candidates, load_head, with_candidates
 from .model import BinoEncoder
 from .probe import (
     Gray,
@@ -146,11 +146,14 @@ def evaluate_head(
     """{"pathway", "head", "head+lr", "probe", "sgbm": metrics} (means over the eval pairs; the
     probe only on the export pathway, None on the native one)."""
     items = load_probe_set(data_dir, profile)
+    # The candidates follow the view width, as in every bino command (head.head_candidates).
+    head = with_candidates(head, head_candidates(profile_width(profile)))
     heads, checked, probes = head_scores(encoder, head, items)
     out: dict[str, Any] = {
         "profile": profile,
         "pairs": len(items),
         "pathway": head.cfg.pathway,
+        "head_candidates": head.cfg.max_disp,
         "head": {**mean_metrics(heads), "density": 100.0},
         "head+lr": {**mean_metrics(checked), "density": 100.0},
         "probe": {**mean_metrics(probes), "density": 100.0} if probes else None,

@@ -80,13 +80,14 @@ class ValidationSet:
         synthetic_count: int = 96,
         device: torch.device | None = None,
         pathway: str = "export",
+        width: int = VAL_WIDTH,
     ) -> ValidationSet:
         check_pathway(pathway)
         encoder.eval()
         pairs = []
         for pair in validation_pairs(data_dir):
-            left = resize_image(load_gray(pair.left), VAL_WIDTH)
-            right = resize_image(load_gray(pair.right), VAL_WIDTH)
+            left = resize_image(load_gray(pair.left), width)
+            right = resize_image(load_gray(pair.right), width)
             disparity, valid, _ = consistent_sgbm(_u8(left), _u8(right))
             inputs, mirrored = pair_inputs(encoder, pathway, left, right)
             pairs.append(HeldOutPair(pair.pair_id, inputs, mirrored, disparity, valid))
@@ -146,18 +147,24 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--pathway", choices=PATHWAYS, default="export", help="the heads' pathway")
     p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    p.add_argument("--width", type=int, default=VAL_WIDTH, help="held-out pairs' width (px)")
+    p.add_argument(
+        "--max-disp",
+        type=int,
+        help="score each head with this many disparity candidates (its weights do not depend on it)",
+    )
     args = p.parse_args(argv)
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     encoder = load_encoder(args.encoder)
-    heads = {str(path): load_head(path) for path in args.heads}
+    heads = {str(path): load_head(path, args.max_disp) for path in args.heads}
     for name, head in heads.items():
         if head.cfg.pathway != args.pathway:
             p.error(
                 f"{name} is a {head.cfg.pathway}-pathway head; pass --pathway {head.cfg.pathway}"
             )
     data = DataConfig(crop_h=48, crop_w=160, max_disp=next(iter(heads.values())).cfg.max_disp)
-    val = ValidationSet.build(encoder, args.data, data, pathway=args.pathway)
+    val = ValidationSet.build(encoder, args.data, data, pathway=args.pathway, width=args.width)
     print(json.dumps({name: val.score(head) for name, head in heads.items()}, indent=1))
 
 

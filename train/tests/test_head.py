@@ -18,6 +18,8 @@ import torch
 import bino_train.augment as augment
 from bino_train.export import random_encoder
 from bino_train.head import (
+    head_candidates,
+    with_candidates,
     PAPER_HEAD_PARAMETERS,
     HeadConfig,
     StereoHead,
@@ -91,6 +93,25 @@ def test_correlation_of_shifted_descriptors_peaks_at_the_shift(shift: int) -> No
     ks = torch.arange(12).view(-1, 1, 1)
     assert torch.equal(mask, (cols >= ks).float().expand(12, t, p))
     assert torch.all(corr[mask == 0] == 0)  # candidates outside the right view carry nothing
+
+
+def test_head_candidates_follow_the_sgbm_range_of_the_width() -> None:
+    # The Rust rule (readout_eval::head_candidates): 12 at w160, 16 at w320, capped at 64.
+    assert [head_candidates(w) for w in (32, 160, 320, 400, 4000)] == [12, 12, 16, 20, 64]
+
+
+def test_more_candidates_keep_the_weights_and_the_near_logits() -> None:
+    head = StereoHead(replace(SMOKE_HEAD, desc_dim=16)).eval()
+    wider = with_candidates(head, SMOKE_HEAD.max_disp + 4)
+    assert wider.cfg.max_disp == SMOKE_HEAD.max_disp + 4
+    left, right = torch.randn(1, 3, 20, 16), torch.randn(1, 3, 20, 16)
+    with torch.no_grad():
+        near, far = head(left, right), wider(left, right)
+    assert far.logits.shape[1] == near.logits.shape[1] + 4
+    # Candidate 0 lies further from the disparity edge than the convolutions reach.
+    reach = 2 + SMOKE_HEAD.middle_layers
+    if SMOKE_HEAD.max_disp > reach:
+        assert torch.allclose(near.logits[:, 0], far.logits[:, 0], atol=1e-4)
 
 
 def test_masked_candidates_get_no_probability() -> None:

@@ -7,7 +7,8 @@
 //! tokens), normalises `u` once and projects it twice (`P_L`, `P_R`).
 //!
 //! Per descriptor row pair: LayerNorm and the shared projection of both views, the groupwise
-//! correlation over `HEAD_MAX_DISP` candidates (row layout `[column][disparity][channel]`), then
+//! correlation over the stream's disparity candidates (`HEAD_MAX_DISP` unless
+//! [`HeadStream::with_candidates`] asks for more; row layout `[column][disparity][channel]`), then
 //! six 3x3x3 convolutions over (row, disparity, column): a stem, four residual middle layers
 //! (`x + relu(conv(x))`) and the output layer, whose logits go through an integer softmax to a
 //! soft-argmin disparity and a confidence. Each convolution keeps a ring of the three input rows
@@ -18,7 +19,7 @@ use super::ids::{self, kind, HeadKind, Linear, HEAD_CONVS};
 use super::weights::{LayerNormScalars, LinearQ};
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::Blob;
-use crate::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
+use crate::config::{DIM, HEAD_CANDIDATES_LIMIT, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
 use crate::fixed::{sat_i8_i64, Requant, MAX_SHIFT};
 use crate::kernels::epilogue::requant_rows;
 use crate::kernels::exp::exp_neg_u8;
@@ -62,20 +63,33 @@ const fn conv_outputs(layer: usize) -> usize {
     }
 }
 
-/// Bytes of one ring row of convolution `layer`'s input, for `cols` patch columns.
-const fn ring_row(layer: usize, cols: usize) -> usize {
-    cols.saturating_mul(HEAD_MAX_DISP * conv_inputs(layer))
+/// Bytes of one ring row of convolution `layer`'s input, for `cols` patch columns and
+/// `candidates` disparities.
+const fn ring_row(layer: usize, cols: usize, candidates: usize) -> usize {
+    cols.saturating_mul(candidates * conv_inputs(layer))
 }
 
 /// Bytes per patch column of every ring (three rows per convolution).
-const fn ring_bytes_per_col() -> usize {
+const fn ring_bytes_per_col(candidates: usize) -> usize {
     let mut bytes = 0;
     let mut layer = 0;
     while layer < HEAD_CONVS {
-        bytes += 3 * HEAD_MAX_DISP * conv_inputs(layer);
+        bytes += 3 * candidates * conv_inputs(layer);
         layer += 1;
     }
     bytes
+}
+
+/// Checks a head stream's number of disparity candidates (1 to [`HEAD_CANDIDATES_LIMIT`]).
+pub const fn check_candidates(candidates: usize) -> Result<(), Error> {
+    if candidates == 0 || candidates > HEAD_CANDIDATES_LIMIT {
+        Err(Error::Candidates {
+            requested: candidates,
+            max: HEAD_CANDIDATES_LIMIT,
+        })
+    } else {
+        Ok(())
+    }
 }
 
 /// Arena bytes of the export head's stream over `cols` patch columns (descriptor map width):
@@ -84,17 +98,29 @@ pub const fn arena_bytes(cols: usize) -> usize {
     arena_bytes_for(HeadKind::Export, cols)
 }
 
-/// Arena bytes of a `head` stream over `cols` patch columns. Saturates at `usize::MAX` for
-/// widths no memory holds, so such a stream is [`Error::ArenaTooSmall`].
+/// Arena bytes of a `head` stream over `cols` patch columns with the default
+/// [`HEAD_MAX_DISP`] candidates: [`arena_bytes_with`].
 pub const fn arena_bytes_for(head: HeadKind, cols: usize) -> usize {
+    arena_bytes_with(head, cols, HEAD_MAX_DISP)
+}
+
+/// Arena bytes of a `head` stream over `cols` patch columns searching `candidates`
+/// disparities. Saturates at `usize::MAX` for widths no memory holds, so such a stream is
+/// [`Error::ArenaTooSmall`]; a count [`check_candidates`] refuses is sized as the limit.
+pub const fn arena_bytes_with(head: HeadKind, cols: usize, candidates: usize) -> usize {
+    let d = if candidates > HEAD_CANDIDATES_LIMIT {
+        HEAD_CANDIDATES_LIMIT
+    } else {
+        candidates
+    };
     let proj = head.proj_dim();
-    let acc = max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * proj);
-    let per_col = ring_bytes_per_col()
+    let acc = max(d * HEAD_HIDDEN, CELL_BLOCK * proj);
+    let per_col = ring_bytes_per_col(d)
         + 2 * proj // projected left and right rows
-        + HEAD_MAX_DISP * 4 // output logits
+        + d * 4 // output logits
         + 2 * 2; // disparity and confidence (u16)
     let fixed = CELL_BLOCK * head.input_dim() // normalised input cells
-        + HEAD_MAX_DISP * TAPS * HEAD_HIDDEN // one column's gathered kernel inputs
+        + d * TAPS * HEAD_HIDDEN // one column's gathered kernel inputs
         + acc * 4
         + 2 * ALIGN_SLACK // accumulators and logits (i32, aligned)
         + 2; // disparity and confidence (u16, aligned)
@@ -218,9 +244,11 @@ pub struct HeadRow<'r> {
     pub disparity_q8: &'r [u16],
     /// Largest candidate probability per patch column, Q8 (`256` = certain).
     pub confidence_q8: &'r [u16],
-    /// Output-layer accumulators (`cols x HEAD_MAX_DISP`); `i32::MIN` marks candidates outside
+    /// Output-layer accumulators (`cols x candidates`); `i32::MIN` marks candidates outside
     /// the right view. Real logit = accumulator x the blob's `META_HEAD_LOGIT_SCALE`.
     pub logits: &'r [i32],
+    /// Disparity candidates per cell (the stream's count).
+    pub candidates: usize,
 }
 
 /// Receives the head's rows in order.
@@ -247,6 +275,7 @@ pub struct HeadStream<'a, 'w> {
     w: HeadWeights<'w>,
     view: HeadView,
     cols: usize,
+    candidates: usize,
     rings: &'a mut [i8],
     pushed: [usize; HEAD_CONVS],
     produced: [usize; HEAD_CONVS],
@@ -271,21 +300,36 @@ impl<'a, 'w> HeadStream<'a, 'w> {
 
     /// [`HeadStream::new`] reading out `view`; it takes the same (left, right) rows.
     pub fn for_view(weights: HeadWeights<'w>, cols: usize, view: HeadView, arena: &'a mut [u8]) -> Result<Self, Error> {
+        Self::with_candidates(weights, cols, HEAD_MAX_DISP, view, arena)
+    }
+
+    /// [`HeadStream::for_view`] searching `candidates` disparities (0 .. `candidates` - 1
+    /// patch columns; [`check_candidates`]) instead of the trained [`HEAD_MAX_DISP`]: for
+    /// views wider than the heads' training crops, whose disparities reach further.
+    pub fn with_candidates(
+        weights: HeadWeights<'w>,
+        cols: usize,
+        candidates: usize,
+        view: HeadView,
+        arena: &'a mut [u8],
+    ) -> Result<Self, Error> {
         if cols == 0 {
             return Err(Error::EmptyImage);
         }
+        check_candidates(candidates)?;
         let head = weights.kind;
-        let mut carver = Carver::new(arena, arena_bytes_for(head, cols))?;
-        // Carver::new took arena_bytes_for(head, cols) <= arena.len(): these products cannot
-        // overflow.
-        let rings_len = cols * ring_bytes_per_col();
+        let d = candidates;
+        let mut carver = Carver::new(arena, arena_bytes_with(head, cols, d))?;
+        // Carver::new took arena_bytes_with(head, cols, d) <= arena.len(): these products
+        // cannot overflow.
+        let rings_len = cols * ring_bytes_per_col(d);
         let rings = carver.i8s(rings_len)?;
         let f_left = carver.i8s(cols * head.proj_dim())?;
         let f_right = carver.i8s(cols * head.proj_dim())?;
         let normed = carver.i8s(CELL_BLOCK * head.input_dim())?;
-        let gathered = carver.i8s(HEAD_MAX_DISP * TAPS * HEAD_HIDDEN)?;
-        let acc = carver.i32s(max(HEAD_MAX_DISP * HEAD_HIDDEN, CELL_BLOCK * head.proj_dim()))?;
-        let logits = carver.i32s(cols * HEAD_MAX_DISP)?;
+        let gathered = carver.i8s(d * TAPS * HEAD_HIDDEN)?;
+        let acc = carver.i32s(max(d * HEAD_HIDDEN, CELL_BLOCK * head.proj_dim()))?;
+        let logits = carver.i32s(cols * d)?;
         let disparity = carver.u16s(cols)?;
         let confidence = carver.u16s(cols)?;
         let arena_used = carver.used();
@@ -293,6 +337,7 @@ impl<'a, 'w> HeadStream<'a, 'w> {
             w: weights,
             view,
             cols,
+            candidates,
             rings,
             pushed: [0; HEAD_CONVS],
             produced: [0; HEAD_CONVS],
@@ -312,6 +357,11 @@ impl<'a, 'w> HeadStream<'a, 'w> {
     /// Arena bytes the stream took.
     pub fn arena_used(&self) -> usize {
         self.arena_used
+    }
+
+    /// Disparity candidates per cell.
+    pub fn candidates(&self) -> usize {
+        self.candidates
     }
 
     /// Feeds the export head the next descriptor row of both views (`cols x DIM` codes each);
@@ -391,13 +441,13 @@ impl<'a, 'w> HeadStream<'a, 'w> {
     /// The projected row pair into the correlation ring, then every computable output.
     fn correlate_and_pump(&mut self, sink: &mut impl HeadSink) -> Result<(), Error> {
         let row = self.pushed[0];
-        let slot = ring_slot_mut(self.rings, self.cols, 0, row);
+        let slot = ring_slot_mut(self.rings, self.cols, self.candidates, 0, row);
         correlate(
             self.f_left,
             self.f_right,
             self.w.kind.proj_dim(),
             self.w.correlation,
-            slot,
+            (self.candidates, slot),
         );
         self.pushed[0] += 1;
         self.pump(sink)
@@ -470,23 +520,23 @@ impl<'a, 'w> HeadStream<'a, 'w> {
     /// Output row `m` of convolution `layer` from its input rows `m - 1 ..= m + 1`.
     fn conv_row(&mut self, layer: usize, m: usize, sink: &mut impl HeadSink) -> Result<(), Error> {
         let conv = self.w.conv(layer)?;
-        let cols = self.cols;
+        let (cols, nd) = (self.cols, self.candidates);
         let cin = conv_inputs(layer);
         let cout = conv_outputs(layer);
         let rows_in = self.pushed[layer];
-        let base = ring_base(layer, cols);
+        let base = ring_base(layer, cols, nd);
         let (lower, upper) = self
             .rings
-            .split_at_mut(ring_base(layer + 1, cols).min(self.rings.len()));
+            .split_at_mut(ring_base(layer + 1, cols, nd).min(self.rings.len()));
         let input = lower.get(base..).unwrap_or(&[]);
         let slot_of = |r: isize| -> Option<&[i8]> {
             let r = usize::try_from(r).ok().filter(|&r| r < rows_in)?;
-            let len = ring_row(layer, cols);
+            let len = ring_row(layer, cols, nd);
             input.get((r % 3) * len..(r % 3 + 1) * len)
         };
         let rows = [slot_of(m as isize - 1), slot_of(m as isize), slot_of(m as isize + 1)];
         let zero = self.w.zeros.get(layer).copied().unwrap_or(0);
-        let out_len = ring_row(layer + 1, cols);
+        let out_len = ring_row(layer + 1, cols, nd);
         let out_slot = if layer + 1 < HEAD_CONVS {
             let next = self.pushed[layer + 1];
             upper.get_mut((next % 3) * out_len..(next % 3 + 1) * out_len)
@@ -497,16 +547,13 @@ impl<'a, 'w> HeadStream<'a, 'w> {
         let rq = conv.requant();
         let mut out_slot = out_slot;
         for p in 0..cols {
-            gather(&rows, p, cols, cin, zero as i8, &mut self.gathered[..HEAD_MAX_DISP * k]);
-            matmul_i8(
-                &self.gathered[..HEAD_MAX_DISP * k],
-                conv.weight,
-                k,
-                &mut self.acc[..HEAD_MAX_DISP * cout],
-            );
+            let gathered = self.gathered.get_mut(..nd * k).unwrap_or(&mut []);
+            gather(&rows, (p, cols, nd), cin, zero as i8, gathered);
+            let acc = self.acc.get_mut(..nd * cout).unwrap_or(&mut []);
+            matmul_i8(gathered, conv.weight, k, acc);
             if layer + 1 == HEAD_CONVS {
-                for (d, &a) in self.acc.iter().take(HEAD_MAX_DISP).enumerate() {
-                    if let Some(l) = self.logits.get_mut(p * HEAD_MAX_DISP + d) {
+                for (d, &a) in self.acc.iter().take(nd).enumerate() {
+                    if let Some(l) = self.logits.get_mut(p * nd + d) {
                         *l = if d <= p {
                             a.saturating_add(conv.bias.at(0))
                         } else {
@@ -517,11 +564,9 @@ impl<'a, 'w> HeadStream<'a, 'w> {
                 continue;
             }
             let Some(out) = out_slot.as_deref_mut() else { continue };
-            let out_cell = out
-                .get_mut(p * HEAD_MAX_DISP * cout..(p + 1) * HEAD_MAX_DISP * cout)
-                .unwrap_or(&mut []);
+            let out_cell = out.get_mut(p * nd * cout..(p + 1) * nd * cout).unwrap_or(&mut []);
             let next_zero = self.w.zeros.get(layer + 1).copied().unwrap_or(0) as i64;
-            let center = rows[1].and_then(|r| r.get(p * HEAD_MAX_DISP * cin..(p + 1) * HEAD_MAX_DISP * cin));
+            let center = rows[1].and_then(|r| r.get(p * nd * cin..(p + 1) * nd * cin));
             for (i, (o, &a)) in out_cell.iter_mut().zip(self.acc.iter()).enumerate() {
                 let relu = rq.apply(i % cout, a).max(0);
                 let carried = match (layer, center) {
@@ -547,7 +592,7 @@ impl<'a, 'w> HeadStream<'a, 'w> {
     }
 
     fn emit(&mut self, row: usize, sink: &mut impl HeadSink) {
-        for (p, cell) in self.logits.chunks_exact(HEAD_MAX_DISP).enumerate().take(self.cols) {
+        for (p, cell) in self.logits.chunks_exact(self.candidates).enumerate().take(self.cols) {
             let (disparity, confidence) = soft_argmin(cell, self.w.softmax);
             if let (Some(d), Some(c)) = (self.disparity.get_mut(p), self.confidence.get_mut(p)) {
                 (*d, *c) = (disparity, confidence);
@@ -557,13 +602,14 @@ impl<'a, 'w> HeadStream<'a, 'w> {
             // Back from the mirrored pair's cell order to the right view's.
             self.disparity.reverse();
             self.confidence.reverse();
-            reverse_cells(self.logits, HEAD_MAX_DISP);
+            reverse_cells(self.logits, self.candidates);
         }
         sink.row(HeadRow {
             row,
             disparity_q8: self.disparity,
             confidence_q8: self.confidence,
             logits: self.logits,
+            candidates: self.candidates,
         });
     }
 }
@@ -669,16 +715,16 @@ fn project_cells<const N: usize>(
     }
 }
 
-/// One correlation row: `[column][disparity][group]`, zero where the candidate is outside;
-/// features of `proj_dim` channels, [`HEAD_GROUPS`] groups.
-fn correlate(f_left: &[i8], f_right: &[i8], proj_dim: usize, rq: Requant, out: &mut [i8]) {
+/// One correlation row of `candidates` disparities: `[column][disparity][group]`, zero where
+/// the candidate is outside; features of `proj_dim` channels, [`HEAD_GROUPS`] groups.
+fn correlate(f_left: &[i8], f_right: &[i8], proj_dim: usize, rq: Requant, (candidates, out): (usize, &mut [i8])) {
     let per_group = proj_dim / HEAD_GROUPS;
-    if per_group == 0 {
+    if per_group == 0 || candidates == 0 {
         return;
     }
     let cells_left = f_left.chunks_exact(proj_dim);
     for (p, (left, out_cell)) in cells_left
-        .zip(out.chunks_exact_mut(HEAD_MAX_DISP * HEAD_GROUPS))
+        .zip(out.chunks_exact_mut(candidates * HEAD_GROUPS))
         .enumerate()
     {
         for (d, out_groups) in out_cell.chunks_exact_mut(HEAD_GROUPS).enumerate() {
@@ -698,9 +744,10 @@ fn correlate(f_left: &[i8], f_right: &[i8], proj_dim: usize, rq: Requant, out: &
     }
 }
 
-/// The 27 kernel inputs of every disparity of column `p` (positions ordered row, disparity,
-/// column; channels innermost); outside the volume they are the input's zero point.
-fn gather(rows: &[Option<&[i8]>; 3], p: usize, cols: usize, cin: usize, zero: i8, out: &mut [i8]) {
+/// The 27 kernel inputs of every one of the `nd` disparities of column `p` (positions ordered
+/// row, disparity, column; channels innermost); outside the volume they are the input's zero
+/// point.
+fn gather(rows: &[Option<&[i8]>; 3], (p, cols, nd): (usize, usize, usize), cin: usize, zero: i8, out: &mut [i8]) {
     for (d, taps) in out.chunks_exact_mut(TAPS * cin).enumerate() {
         let mut chunks = taps.chunks_exact_mut(cin);
         for row in rows {
@@ -708,9 +755,7 @@ fn gather(rows: &[Option<&[i8]>; 3], p: usize, cols: usize, cin: usize, zero: i8
                 for pp in [p.wrapping_sub(1), p, p + 1] {
                     let Some(dst) = chunks.next() else { return };
                     let src = match row {
-                        Some(r) if dd < HEAD_MAX_DISP && pp < cols => {
-                            r.get((pp * HEAD_MAX_DISP + dd) * cin..(pp * HEAD_MAX_DISP + dd + 1) * cin)
-                        }
+                        Some(r) if dd < nd && pp < cols => r.get((pp * nd + dd) * cin..(pp * nd + dd + 1) * cin),
                         _ => None,
                     };
                     match src {
@@ -723,12 +768,12 @@ fn gather(rows: &[Option<&[i8]>; 3], p: usize, cols: usize, cin: usize, zero: i8
     }
 }
 
-fn ring_base(layer: usize, cols: usize) -> usize {
-    (0..layer).map(|l| 3 * ring_row(l, cols)).sum()
+fn ring_base(layer: usize, cols: usize, candidates: usize) -> usize {
+    (0..layer).map(|l| 3 * ring_row(l, cols, candidates)).sum()
 }
 
-fn ring_slot_mut(rings: &mut [i8], cols: usize, layer: usize, row: usize) -> &mut [i8] {
-    let len = ring_row(layer, cols);
-    let start = ring_base(layer, cols) + (row % 3) * len;
+fn ring_slot_mut(rings: &mut [i8], cols: usize, candidates: usize, layer: usize, row: usize) -> &mut [i8] {
+    let len = ring_row(layer, cols, candidates);
+    let start = ring_base(layer, cols, candidates) + (row % 3) * len;
     rings.get_mut(start..start + len).unwrap_or(&mut [])
 }

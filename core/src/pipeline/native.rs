@@ -14,7 +14,7 @@
 
 use super::{
     band_pixel_rows, check_rows_bytes, max, refine_parts, refine_stage, sum, BandRows, CheckedRows, Context, Feed,
-    HeadCheck, HeadRows, Refine, RefineInput, Report, RowSource, Sink, Stage,
+    HeadCheck, HeadRows, Options, Refine, RefineInput, Report, RowSource, Sink, Stage,
 };
 use crate::band::{Band, BandPlan};
 use crate::config::{BAND_TOKEN_ROWS, CELL_W, DIM, PATCH_H};
@@ -60,13 +60,14 @@ const fn aligned(bytes: usize) -> usize {
 /// after the pass's tokens (the mirrored head after the second pass's), so only the check's
 /// rows and the refinement's state sit outside it. Several bands: the head streams carry
 /// state from band to band and sit outside the scratch, one per view.
-pub(super) const fn arena_bytes(height: usize, width: usize, head_lr: bool, refine: Option<&Refine>) -> usize {
+pub(super) const fn arena_bytes(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+    let head_lr = opts.head_lr;
     let band_rows = band_pixel_rows(height);
     let cols = width / CELL_W;
     let pixels = band_rows.saturating_mul(width).saturating_mul(2);
     let tokens = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(2 * DIM);
     let encoder = encoder::arena_bytes(band_rows, width);
-    let head = aligned(head::arena_bytes_for(HeadKind::Native, cols));
+    let head = aligned(head::arena_bytes_with(HeadKind::Native, cols, opts.head_candidates));
     let (state, scratch) = match refine {
         Some(r) => refine_parts(height, width, r),
         None => (0, 0),
@@ -102,7 +103,8 @@ pub(super) fn run(
     let streaming = plan.len() > 1;
     let (width, cols, band_px) = (ctx.width, ctx.cols, ctx.band_px);
     let pixel_len = band_px * width;
-    let head_len = aligned(head::arena_bytes_for(HeadKind::Native, cols));
+    let nd = ctx.opts.head_candidates;
+    let head_len = aligned(head::arena_bytes_with(HeadKind::Native, cols, nd));
     let stream_len = match (streaming, head_lr) {
         (false, _) => 0,
         (true, false) => head_len,
@@ -114,7 +116,7 @@ pub(super) fn run(
         None => 0,
     });
     let too_small = Error::ArenaTooSmall {
-        needed: arena_bytes(ctx.height, width, head_lr, ctx.refine),
+        needed: arena_bytes(ctx.height, width, ctx.opts, ctx.refine),
         available: arena.len(),
     };
     let (pixels, rest) = split(arena, 2 * pixel_len).ok_or(too_small)?;
@@ -127,11 +129,14 @@ pub(super) fn run(
     let mut streams = if streaming {
         let (left, mirror) = split(stream_arena, head_len).ok_or(too_small)?;
         let mirror = if head_lr {
-            Some(HeadStream::for_view(weights, cols, HeadView::Right, mirror)?)
+            Some(HeadStream::with_candidates(weights, cols, nd, HeadView::Right, mirror)?)
         } else {
             None
         };
-        Some((HeadStream::new(weights, cols, left)?, mirror))
+        Some((
+            HeadStream::with_candidates(weights, cols, nd, HeadView::Left, left)?,
+            mirror,
+        ))
     } else {
         None
     };
@@ -186,7 +191,7 @@ pub(super) fn run(
                 None => {
                     // One band: this pass's head stream after its tokens.
                     let (arena, rest) = split(rest, head_len).ok_or(too_small)?;
-                    let mut stream = HeadStream::for_view(weights, cols, view, arena)?;
+                    let mut stream = HeadStream::with_candidates(weights, cols, nd, view, arena)?;
                     let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
                     readouts.pass(&mut stream, view, band, tokens, last, &mut io, sink)?;
                     scratch_used = scratch_used.max(io.scratch.used());

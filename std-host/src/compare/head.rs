@@ -76,9 +76,12 @@ pub struct HeadAgreement {
 /// Compares the int8 head's maps with the float head's on the same grid.
 pub fn compare_heads(int8: &HeadMaps, float: &FloatHeadOutput) -> Result<HeadAgreement> {
     let (rows, cols) = (int8.rows, int8.cols);
+    // Both searched the same candidates (the view width's, readout_eval::head_candidates).
+    let nd = int8.logits.len() / (rows * cols).max(1);
     ensure!(
-        int8.logits.len() == rows * cols * HEAD_MAX_DISP
-            && float.logits.len() == rows * cols * HEAD_MAX_DISP
+        nd > 0
+            && int8.logits.len() == rows * cols * nd
+            && float.logits.len() == rows * cols * nd
             && int8.disparity.len() == rows * cols
             && float.disparity.len() == rows * cols,
         "head outputs of the two engines differ in size"
@@ -87,8 +90,8 @@ pub fn compare_heads(int8: &HeadMaps, float: &FloatHeadOutput) -> Result<HeadAgr
     let (mut a, mut b) = (Vec::new(), Vec::new());
     for r in 0..rows {
         for p in 0..cols {
-            for d in 0..=p.min(HEAD_MAX_DISP - 1) {
-                a.push(int8.logits[(r * cols + p) * HEAD_MAX_DISP + d]);
+            for d in 0..=p.min(nd - 1) {
+                a.push(int8.logits[(r * cols + p) * nd + d]);
                 b.push(float.logits[(d * rows + r) * cols + p]);
             }
         }

@@ -32,9 +32,11 @@ use crate::eval::{
     Metrics, SimilarityVolume,
 };
 use crate::files::sha256_hex;
+use crate::float_head::FloatHead;
 use crate::int8::{dequantise_residual, to_u8, HeadMaps, Int8Model, StageRecorder};
 use crate::pairs::{read_index, Split};
 use crate::profile::{Profile, View};
+use crate::readout_eval::head_candidates;
 use crate::reference::{FeatureMap, ReferenceEncoder};
 use crate::refine::{refine_pixels, GrayViews};
 use stages::{mean_token_cosine, EmbedSource, FloatStages, STAGE_COUNT};
@@ -234,8 +236,8 @@ pub struct Comparer {
     formats: Vec<(Vec<f32>, Vec<i32>)>,
     descriptor_scale: f32,
     max_cols: usize,
-    float_head: Option<head::FloatHeadRunner>,
-    native_head: Option<head::FloatHeadRunner>,
+    float_head: Option<FloatHead>,
+    native_head: Option<FloatHead>,
 }
 
 // What one view gave.
@@ -256,13 +258,13 @@ impl Comparer {
         ensure!(max_cols > 0, "--max-cols must be at least 1");
         let int8 = Int8Model::load(blob)?;
         let [head, native] = heads;
-        let float_head = head.map(head::FloatHeadRunner::load).transpose()?;
+        let float_head = head.map(FloatHead::from_onnx).transpose()?;
         ensure!(
             float_head.is_none() || int8.has_head(),
             "blob {} has no shared head to compare: quantise with `bino quantize --head`",
             blob.display()
         );
-        let native_head = native.map(head::FloatHeadRunner::load).transpose()?;
+        let native_head = native.map(FloatHead::from_onnx).transpose()?;
         ensure!(
             native_head.is_none() || int8.has_head_of(HeadKind::Native),
             "blob {} has no native head to compare: quantise with `bino quantize --native-head`",
@@ -342,8 +344,11 @@ impl Comparer {
             return Ok(None);
         };
         let (rows, cols) = (left.int8.rows, left.int8.cols);
-        let int8 = self.int8.head(&left.codes, &right.codes, rows, cols)?;
-        let float = float_head.run(&left.float, &right.float)?;
+        let nd = head_candidates(item.left.width);
+        let int8 = self
+            .int8
+            .head_with_candidates(&left.codes, &right.codes, (rows, cols), nd)?;
+        let float = float_head.forward(&left.float, &right.float, nd)?;
         head_comparison(&int8, &float, views, item).map(Some)
     }
 
@@ -358,9 +363,10 @@ impl Comparer {
         let int8_tokens: Vec<f32> = codes.iter().map(|&c| c as f32 * self.descriptor_scale).collect();
         let float_tokens = self.reference.tokens(&item.left, &item.right)?;
         let pair_token_cosine = mean_token_cosine(&int8_tokens, &float_tokens.data, DIM).context("pair tokens")?;
-        let int8 = self.int8.native_head(&codes, rows, cols)?;
+        let nd = head_candidates(item.left.width);
+        let int8 = self.int8.native_head_with_candidates(&codes, (rows, cols), nd)?;
         let (even, odd) = float_tokens.phase_maps();
-        let float = float_head.run(&even, &odd)?;
+        let float = float_head.forward(&even, &odd, nd)?;
         Ok(Some(NativeComparison {
             pair_token_cosine,
             head: head_comparison(&int8, &float, views, item)?,
