@@ -575,7 +575,7 @@ impl EvalReport {
         let mut t = String::new();
         let _ = writeln!(
             t,
-            "bino {} eval: {} {} pairs of {} at {}, {} pathway, {} candidates, SGM p1 {} p2 {}, LR tolerance {} col",
+            "bino {} eval: {} {} pairs of {} at {}, {} pathway, {} candidates (head {}), SGM p1 {} p2 {}, LR tolerance {} col",
             env!("CARGO_PKG_VERSION"),
             self.pairs.len(),
             o.split,
@@ -583,6 +583,9 @@ impl EvalReport {
             o.profile,
             o.pathway,
             o.max_cols,
+            o.profile
+                .width()
+                .map_or("by width".to_string(), |w| head_candidates(w).to_string()),
             o.penalties.p1,
             o.penalties.p2,
             o.lr_max_diff
@@ -772,6 +775,7 @@ impl EvalReport {
             split: &o.split,
             profile: o.profile.to_string(),
             max_cols: o.max_cols,
+            head_candidates: o.profile.width().map(head_candidates),
             sgm_p1: o.penalties.p1,
             sgm_p2: o.penalties.p2,
             lr_max_diff: o.lr_max_diff as f64,
@@ -847,6 +851,10 @@ struct EvalJson<'a> {
     split: &'a str,
     profile: String,
     max_cols: usize,
+    // The heads' candidates at the profile's width (head_candidates); absent for the native
+    // profile, whose width varies by pair.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    head_candidates: Option<usize>,
     sgm_p1: u16,
     sgm_p2: u16,
     lr_max_diff: f64,
@@ -969,6 +977,14 @@ impl OcclusionSummary {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The rule `train/bino_train/head.py::head_candidates` repeats (its test pins the same
+    /// values): SGBM's range at the width, never below the trained 12, at most the limit.
+    #[test]
+    fn head_candidates_follow_the_sgbm_range_of_the_width() {
+        let counts: Vec<usize> = [32, 160, 320, 400, 4000].into_iter().map(head_candidates).collect();
+        assert_eq!(counts, [12, 12, 16, 20, 64]);
+    }
 
     #[test]
     fn bad_options_are_errors() {

@@ -409,6 +409,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--lr", type=float)
     p.add_argument("--synthetic-fraction", type=float, help="share of synthetic samples")
     p.add_argument("--widths", type=int, nargs=2, metavar=("MIN", "MAX"), help="resize widths")
+    p.add_argument(
+        "--max-disp",
+        type=int,
+        help="candidates of the head and its labels (default 12; 16 reaches 60 px at w320)",
+    )
     p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
     p.add_argument("--synthetic-only", action="store_true", help="no SGBM pseudo-labels")
     p.add_argument("--cache", type=Path, help="descriptor cache (head_cache.py): no encoding")
@@ -474,11 +479,17 @@ def build_config(args: argparse.Namespace, desc_dim: int, device: torch.device) 
         )
     if args.widths is not None:
         data = replace(data, min_width=args.widths[0], max_width=args.widths[1])
+    head = head_config(args.pathway, args.pair_features, desc_dim)
+    if args.max_disp is not None:
+        if args.cache is not None and args.max_disp != data.max_disp:
+            sys.exit(f"error: the cache {args.cache} holds labels for {data.max_disp} candidates")
+        data = replace(data, max_disp=args.max_disp)
+        head = replace(head, max_disp=args.max_disp)
     schedule = args.schedule_steps or args.steps
     if schedule is None:
         schedule = round(60.0 * args.minutes * ASSUMED_STEPS_PER_S[device.type])
     cfg = HeadTrainConfig(
-        head=head_config(args.pathway, args.pair_features, desc_dim),
+        head=head,
         data=data,
         seed=args.seed,
         schedule_steps=schedule,

@@ -151,7 +151,7 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument(
         "--max-disp",
         type=int,
-        help="score each head with this many disparity candidates (its weights do not depend on it)",
+        help="score each head with this many candidates (no weight depends on the count)",
     )
     args = p.parse_args(argv)
     if args.threads > 0:

@@ -18,14 +18,14 @@ import torch
 import bino_train.augment as augment
 from bino_train.export import random_encoder
 from bino_train.head import (
-    head_candidates,
-    with_candidates,
     PAPER_HEAD_PARAMETERS,
     HeadConfig,
     StereoHead,
     export_head_onnx,
+    head_candidates,
     head_output_names,
     supervised_cells,
+    with_candidates,
 )
 from bino_train.head_data import (
     DataConfig,
