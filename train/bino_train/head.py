@@ -505,8 +505,14 @@ def main(argv: list[str] | None = None) -> None:
         "weights" in args.out.resolve().parts
     ):
         sys.exit(f"error: refusing to write a head trained on a random-init encoder ({args.out})")
-    head = load_head(args.checkpoint)
-    provenance = f"head checkpoint {args.checkpoint.name} at step {state.get('step')}"
+    trained = HeadConfig(**state["head_config"]).max_disp
+    # The export holds the default 12 candidates whatever the count trained with: no weight
+    # depends on it, and bino picks each view width's count (head_candidates) at run time.
+    head = load_head(args.checkpoint, PAPER_HEAD_MAX_DISP)
+    provenance = (
+        f"head checkpoint {args.checkpoint.name} at step {state.get('step')}, "
+        f"trained with {trained} candidates"
+    )
     export_head_onnx(head, args.out, provenance=provenance, logits=args.logits)
     print(f"wrote {args.out} ({parameter_count(head):,} parameters; {provenance})")
     if args.state_dict is not None:
