@@ -28,7 +28,10 @@ impl HeadSink for Count {
         assert_eq!(row.disparity_q8.len(), row.confidence_q8.len());
         assert_eq!(row.logits.len(), row.disparity_q8.len() * row.candidates);
         // Soft-argmin stays inside the candidates (Q8 patch columns).
-        assert!(row.disparity_q8.iter().all(|&d| usize::from(d) < row.candidates.max(1) * 256));
+        assert!(row
+            .disparity_q8
+            .iter()
+            .all(|&d| usize::from(d) < row.candidates.max(1) * 256));
         self.0 += 1;
     }
 }
