@@ -7,6 +7,11 @@
 //! allocated before timing. Each gets one warm-up run, then `runs` timed runs. tract's time
 //! includes copying its output out of the tensor (about 0.5 MB, negligible next to the pass).
 //!
+//! With `onnxruntime` (the default), the project's Python environment also times onnxruntime's
+//! float session and its dynamic int8 quantisation on the same pixels, one thread each
+//! ([`crate::ort_bench`]). The engines take turns: every round runs each engine once, so the
+//! drift of a shared machine reaches them all alike.
+//!
 //! Threads: this build of tract-onnx lacks the `multithread-mm` feature (no rayon), so its
 //! only executor is `Executor::SingleThread`; the int8 engine never spawns threads. Both
 //! therefore run on the calling thread, and only `--threads 1` exists. The report also counts
@@ -15,7 +20,7 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use anyhow::{ensure, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use bino_core::config::{BAND_ROWS, DEPTH, DIM, MLP_HIDDEN, PATCH_H, PATCH_W};
 use bino_core::model::encoder::{arena_bytes, GrayBand};
 use bino_core::model::probe::NoProbe;
@@ -25,8 +30,10 @@ use tract_onnx::prelude::{tract_ndarray, Tensor};
 use crate::files::sha256_hex;
 use crate::int8::Int8Model;
 use crate::onnx::OnnxModel;
+use crate::ort_bench::{OrtServer, OrtSession};
 use crate::profile::Profile;
 use crate::synthetic;
+use crate::train_python::TrainPython;
 
 /// What to time.
 #[derive(Debug, Clone)]
@@ -41,6 +48,8 @@ pub struct BenchOptions {
     pub threads: usize,
     /// Timed runs per engine, after one warm-up run.
     pub runs: usize,
+    /// Also time onnxruntime (f32 and dynamic int8) through the project's Python environment.
+    pub onnxruntime: bool,
 }
 
 /// Timed runs of one engine, in seconds.
@@ -134,12 +143,39 @@ pub struct BenchReport {
     pub tract: Timing,
     /// The int8 engine.
     pub int8: Timing,
+    /// onnxruntime, when it was timed.
+    pub onnxruntime: Option<OrtTimings>,
+}
+
+/// onnxruntime's sessions, one thread each.
+#[derive(Debug, Clone)]
+pub struct OrtTimings {
+    /// The float graph.
+    pub f32: Timing,
+    /// Its dynamic int8 quantisation.
+    pub int8_dynamic: Timing,
 }
 
 impl BenchReport {
     /// tract median over int8 median: how many times faster the int8 engine is.
     pub fn speedup(&self) -> f64 {
         self.tract.median() / self.int8.median()
+    }
+
+    /// onnxruntime int8 (dynamic) median over the int8 engine's: above 1, the engine is faster.
+    pub fn ort_int8_speedup(&self) -> Option<f64> {
+        self.onnxruntime
+            .as_ref()
+            .map(|ort| ort.int8_dynamic.median() / self.int8.median())
+    }
+
+    fn engines(&self) -> Vec<(&'static str, &Timing)> {
+        let mut engines = vec![("tract f32", &self.tract), ("int8", &self.int8)];
+        if let Some(ort) = &self.onnxruntime {
+            engines.push(("onnxruntime f32", &ort.f32));
+            engines.push(("onnxruntime int8 (dynamic)", &ort.int8_dynamic));
+        }
+        engines
     }
 
     /// The report as text for people.
@@ -167,9 +203,9 @@ impl BenchReport {
             yes_no(self.built_with_avx2),
             self.process_threads.map_or("unknown".to_string(), |n| n.to_string())
         ));
-        for (name, timing) in [("tract f32", &self.tract), ("int8", &self.int8)] {
+        for (name, timing) in self.engines() {
             lines.push(format!(
-                "{name:<10} median {:>9.2} ms  min {:>9.2} ms  {:>6.2} GMAC/s  ({} runs)",
+                "{name:<26} median {:>9.2} ms  min {:>9.2} ms  {:>6.2} GMAC/s  ({} runs)",
                 timing.median() * 1e3,
                 timing.min() * 1e3,
                 self.macs as f64 / timing.median() / 1e9,
@@ -177,6 +213,9 @@ impl BenchReport {
             ));
         }
         lines.push(format!("tract / int8 (medians): {:.2}x", self.speedup()));
+        if let Some(ratio) = self.ort_int8_speedup() {
+            lines.push(format!("onnxruntime int8 / int8 (medians): {ratio:.2}x"));
+        }
         lines.join("\n")
     }
 
@@ -201,6 +240,9 @@ impl BenchReport {
             tract_f32: self.tract.json(self.macs),
             int8: self.int8.json(self.macs),
             tract_over_int8: self.speedup(),
+            onnxruntime_f32: self.onnxruntime.as_ref().map(|o| o.f32.json(self.macs)),
+            onnxruntime_int8_dynamic: self.onnxruntime.as_ref().map(|o| o.int8_dynamic.json(self.macs)),
+            onnxruntime_int8_over_int8: self.ort_int8_speedup(),
         };
         serde_json::to_string_pretty(&json).expect("plain structs serialise")
     }
@@ -227,6 +269,9 @@ struct BenchJson<'a> {
     tract_f32: TimingJson<'a>,
     int8: TimingJson<'a>,
     tract_over_int8: f64,
+    onnxruntime_f32: Option<TimingJson<'a>>,
+    onnxruntime_int8_dynamic: Option<TimingJson<'a>>,
+    onnxruntime_int8_over_int8: Option<f64>,
 }
 
 fn yes_no(v: bool) -> &'static str {
@@ -262,17 +307,34 @@ fn process_threads() -> Option<usize> {
     std::fs::read_dir("/proc/self/task").ok().map(|d| d.count())
 }
 
-// One warm-up run, then `runs` timed runs; `prepare` makes each run's input off the clock.
-fn time_runs<T>(runs: usize, mut prepare: impl FnMut() -> T, mut run: impl FnMut(T) -> Result<()>) -> Result<Timing> {
-    run(prepare()).context("warm-up run")?;
-    let mut times = Vec::with_capacity(runs);
-    for _ in 0..runs {
-        let input = prepare();
-        let started = Instant::now();
-        run(input)?;
-        times.push(started.elapsed().as_secs_f64());
+// One warm-up run of every engine, then `runs` rounds in which every engine runs once. Each
+// engine returns its run's seconds.
+type Engine<'a> = Box<dyn FnMut() -> Result<f64> + 'a>;
+
+fn time_rounds(runs: usize, engines: &mut [(&str, Engine<'_>)]) -> Result<Vec<Timing>> {
+    for (name, engine) in engines.iter_mut() {
+        engine().with_context(|| format!("{name}: warm-up run"))?;
     }
-    Ok(Timing { runs: times })
+    let mut timings = vec![
+        Timing {
+            runs: Vec::with_capacity(runs)
+        };
+        engines.len()
+    ];
+    for _ in 0..runs {
+        for ((name, engine), timing) in engines.iter_mut().zip(timings.iter_mut()) {
+            timing
+                .runs
+                .push(engine().with_context(|| format!("{name}: timed run"))?);
+        }
+    }
+    Ok(timings)
+}
+
+fn timed(run: impl FnOnce() -> Result<()>) -> Result<f64> {
+    let started = Instant::now();
+    run()?;
+    Ok(started.elapsed().as_secs_f64())
 }
 
 /// Times both engines; `note` is told what is being timed as it starts.
@@ -306,29 +368,63 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
     })
     .into();
 
-    note("tract f32: plan, warm-up, timed runs");
     // The plan for this shape is built on the first call, before the warm-up.
+    note("tract f32: plan");
     tract.run(vec![input.clone(), input.clone()])?;
-    let tract_timing = time_runs(
-        opts.runs,
-        || vec![input.clone(), input.clone()],
-        |inputs| tract.run(inputs).map(|_| ()),
-    )?;
-
-    note("int8 engine: warm-up, timed runs");
     let band = GrayBand::new(&pixels, width, height).map_err(anyhow::Error::msg)?;
     let mut arena = vec![0u8; arena_bytes(height, width)];
     let mut out = vec![0i8; (height / PATCH_H) * (width / PATCH_W) * DIM];
-    let int8_timing = time_runs(
-        opts.runs,
-        || (),
-        |()| {
-            encoder
-                .describe(band, &mut arena, &mut out, &mut NoProbe)
-                .map_err(anyhow::Error::msg)?;
-            Ok(())
-        },
-    )?;
+    let mut ort = if opts.onnxruntime {
+        note("onnxruntime: load, quantise, warm up");
+        let env = TrainPython::locate("onnxruntime", "--no-onnxruntime")?;
+        Some(OrtServer::start(&env, &opts.onnx, &pixels, width, height)?)
+    } else {
+        None
+    };
+    note("every engine: warm-up, then timed rounds");
+    let mut engines: Vec<(&str, Engine<'_>)> = vec![
+        (
+            "tract f32",
+            Box::new(|| {
+                let inputs = vec![input.clone(), input.clone()];
+                timed(|| tract.run(inputs).map(|_| ()))
+            }),
+        ),
+        (
+            "int8",
+            Box::new(|| {
+                timed(|| {
+                    encoder
+                        .describe(band, &mut arena, &mut out, &mut NoProbe)
+                        .map(|_| ())
+                        .map_err(anyhow::Error::msg)
+                })
+            }),
+        ),
+    ];
+    if let Some(server) = ort.as_mut() {
+        let server = std::cell::RefCell::new(server);
+        let server = std::rc::Rc::new(server);
+        let (f32_server, int8_server) = (server.clone(), server);
+        engines.push((
+            "onnxruntime f32",
+            Box::new(move || f32_server.borrow_mut().time(OrtSession::F32)),
+        ));
+        engines.push((
+            "onnxruntime int8",
+            Box::new(move || int8_server.borrow_mut().time(OrtSession::Int8Dynamic)),
+        ));
+    }
+    let mut timings = time_rounds(opts.runs, &mut engines)?.into_iter();
+    drop(engines);
+    let (Some(tract_timing), Some(int8_timing)) = (timings.next(), timings.next()) else {
+        bail!("bench: missing timings");
+    };
+    let onnxruntime = match (timings.next(), timings.next()) {
+        (Some(f32), Some(int8_dynamic)) => Some(OrtTimings { f32, int8_dynamic }),
+        _ => None,
+    };
+    drop(ort);
 
     let tokens = (height / PATCH_H) * 2 * (width / PATCH_W);
     Ok(BenchReport {
@@ -347,6 +443,7 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
         process_threads: process_threads(),
         tract: tract_timing,
         int8: int8_timing,
+        onnxruntime,
     })
 }
 
@@ -383,8 +480,42 @@ mod tests {
             profile: Profile::W160,
             threads: 2,
             runs: 1,
+            onnxruntime: true,
         };
         let err = bench(&opts, |_| {}).unwrap_err();
         assert!(format!("{err:#}").contains("multithread-mm"), "{err:#}");
+    }
+
+    #[test]
+    fn rounds_take_turns_after_one_warm_up_each() {
+        let order = std::cell::RefCell::new(Vec::new());
+        let mut engines: Vec<(&str, Engine<'_>)> = vec![
+            (
+                "a",
+                Box::new(|| {
+                    order.borrow_mut().push('a');
+                    Ok(1.0)
+                }),
+            ),
+            (
+                "b",
+                Box::new(|| {
+                    order.borrow_mut().push('b');
+                    Ok(2.0)
+                }),
+            ),
+        ];
+        let timings = time_rounds(3, &mut engines).unwrap();
+        drop(engines);
+        assert_eq!(order.into_inner().iter().collect::<String>(), "abababab");
+        assert_eq!(timings[0].runs, [1.0; 3]);
+        assert_eq!(timings[1].runs, [2.0; 3]);
+    }
+
+    #[test]
+    fn a_failing_engine_is_named() {
+        let mut engines: Vec<(&str, Engine<'_>)> = vec![("flaky", Box::new(|| bail!("no device")))];
+        let err = time_rounds(1, &mut engines).unwrap_err();
+        assert_eq!(format!("{err:#}"), "flaky: warm-up run: no device");
     }
 }

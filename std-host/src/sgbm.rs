@@ -9,6 +9,8 @@ use std::process::Command;
 
 use anyhow::{bail, ensure, Context, Result};
 
+use crate::train_python::{pgm, tempdir, TrainPython};
+
 use crate::eval::DisparityMap;
 
 /// Where the Python side lives and which interpreter runs it.
@@ -31,38 +33,15 @@ pub struct GrayPair<'a> {
 }
 
 impl SgbmRunner {
-    /// The interpreter of `$BINO_PYTHON`, else `$BINO_VENV/bin/python`, else the environment
-    /// `scripts/setup.sh` makes (`~/.cache/bino-edge/venv`); the `train/` folder of this
-    /// checkout (or `$BINO_TRAIN_DIR`).
+    /// The project's Python environment ([`TrainPython::locate`]).
     pub fn locate() -> Result<Self> {
-        let python = match (std::env::var_os("BINO_PYTHON"), std::env::var_os("BINO_VENV")) {
-            (Some(p), _) => PathBuf::from(p),
-            (None, Some(venv)) => PathBuf::from(venv).join("bin/python"),
-            (None, None) => {
-                let home = std::env::var_os("HOME").context("HOME is not set")?;
-                PathBuf::from(home).join(".cache/bino-edge/venv/bin/python")
-            }
-        };
-        let train_dir = std::env::var_os("BINO_TRAIN_DIR")
-            .map(PathBuf::from)
-            .unwrap_or_else(|| PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../train")));
-        ensure!(
-            python.is_file(),
-            "StereoSGBM runs in the project's Python environment, and {} does not exist: run \
-             scripts/setup.sh, set BINO_PYTHON, or pass --no-sgbm",
-            python.display()
-        );
-        ensure!(
-            train_dir.join("bino_train").is_dir(),
-            "no bino_train package in {} (set BINO_TRAIN_DIR)",
-            train_dir.display()
-        );
+        let TrainPython { python, train_dir } = TrainPython::locate("StereoSGBM", "--no-sgbm")?;
         Ok(Self { python, train_dir })
     }
 
     /// SGBM's disparity (pixels) and validity for each pair, in order.
     pub fn run(&self, pairs: &[GrayPair<'_>]) -> Result<Vec<(DisparityMap, Vec<bool>)>> {
-        let dir = tempdir()?;
+        let dir = tempdir("sgbm")?;
         let result = self.run_in(dir.as_path(), pairs);
         let _ = std::fs::remove_dir_all(&dir);
         result
@@ -129,34 +108,9 @@ impl SgbmRunner {
     }
 }
 
-/// Binary 8-bit PGM.
-fn pgm(pixels: &[u8], width: usize, height: usize) -> Vec<u8> {
-    let mut bytes = format!("P5\n{width} {height}\n255\n").into_bytes();
-    bytes.extend_from_slice(pixels);
-    bytes
-}
-
-fn tempdir() -> Result<PathBuf> {
-    let stamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map(|d| d.as_nanos())
-        .unwrap_or(0);
-    let dir = std::env::temp_dir().join(format!("bino-sgbm-{}-{stamp}", std::process::id()));
-    std::fs::create_dir_all(&dir).with_context(|| format!("cannot create {}", dir.display()))?;
-    Ok(dir)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn pgm_header_and_pixels() {
-        assert_eq!(
-            pgm(&[1, 2, 3, 4, 5, 6], 3, 2),
-            b"P5\n3 2\n255\n\x01\x02\x03\x04\x05\x06"
-        );
-    }
 
     #[test]
     fn sgbm_finds_a_known_shift_when_python_is_there() {

@@ -131,7 +131,9 @@ pub fn attend_block(
     // scores per query: its `4 x n` output). Elsewhere, and where it declines, the four-row
     // dot products.
     let keys_n = keys.get(..n * HEAD_DIM).unwrap_or(&[]);
-    if !(cfg!(bino_dsp) && arch::matmul_i32(queries.as_flattened(), keys_n, HEAD_DIM, scores)) {
+    if !(cfg!(bino_dsp) && arch::matmul_i32(queries.as_flattened(), keys_n, HEAD_DIM, scores)
+        || avx2_scores(queries, keys_n, n, scores))
+    {
         let mut score_rows = scores.chunks_exact_mut(n);
         let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
             score_rows.next(),
@@ -195,7 +197,9 @@ pub fn attend_block(
     // assembly GEMM tile, then the offset; elsewhere, and where it declines, as below.
     let weights_i8: &[i8] = bytemuck::cast_slice(&*weights);
     let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
-    if cfg!(bino_dsp) && arch::matmul_i32(weights_i8, values_n, n, acc.as_flattened_mut()) {
+    // AVX2 hosts: the weights widened once into the scores' room (no longer needed).
+    let dsp = cfg!(bino_dsp) && arch::matmul_i32(weights_i8, values_n, n, acc.as_flattened_mut());
+    if dsp || avx2_weighted_sums(weights_i8, values_n, n, scores, &mut acc) {
         for acc_q in acc.iter_mut() {
             for (a, &sum) in acc_q.iter_mut().zip(sums) {
                 *a = a.wrapping_add(sum.wrapping_mul(128));
@@ -215,6 +219,36 @@ pub fn attend_block(
     }
     for ((out_q, acc_q), &t) in out.iter_mut().zip(&acc).zip(&total) {
         normalise(acc_q, t, p, out_q);
+    }
+}
+
+// The AVX2 kernels of host builds (`kernels::matmul_avx2`); `false` elsewhere, or where they
+// decline the shape.
+#[inline(always)]
+fn avx2_scores(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usize, scores: &mut [i32]) -> bool {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    return super::matmul_avx2::scores4(queries, keys, n, scores);
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    {
+        let _ = (queries, keys, n, scores);
+        false
+    }
+}
+
+#[inline(always)]
+fn avx2_weighted_sums(
+    weights: &[i8],
+    values_t: &[i8],
+    n: usize,
+    scratch: &mut [i32],
+    acc: &mut [[i32; HEAD_DIM]; QUERY_BLOCK],
+) -> bool {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    return super::matmul_avx2::weighted_sums4(weights, values_t, n, scratch, acc);
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    {
+        let _ = (weights, values_t, n, scratch, acc);
+        false
     }
 }
 

@@ -1,4 +1,4 @@
-//! `bino bench`: tract-onnx (f32) against the int8 engine on one band, single-threaded.
+//! `bino bench`: tract-onnx (f32), onnxruntime and the int8 engine on one band, single-threaded.
 
 use std::path::PathBuf;
 
@@ -9,10 +9,12 @@ use clap::Args;
 
 use super::progress::Progress;
 
-/// Time tract-onnx (f32) and the int8 engine on the same band, single-threaded.
+/// Time tract-onnx (f32), the int8 engine and onnxruntime on the same band, single-threaded.
 ///
-/// One 48-row band of the built-in scene at the profile's width, encoded on (I, I) by both
-/// (the descriptor pathway); one warm-up run, then --runs timed runs each. Prints medians,
+/// One 48-row band of the built-in scene at the profile's width, encoded on (I, I) by each
+/// (the descriptor pathway); one warm-up run each, then --runs rounds in which every engine
+/// runs once (onnxruntime: f32 and dynamic int8, through `python -m bino_train.ort_bench`
+/// in the project's Python environment). Prints medians,
 /// minima, GMAC/s and the ratio. Build with --release: a debug build's timings mean little.
 #[derive(Args)]
 pub struct BenchArgs {
@@ -31,6 +33,10 @@ pub struct BenchArgs {
     /// Timed runs per engine.
     #[arg(long, default_value_t = 10)]
     runs: usize,
+    /// Skip onnxruntime (timed by default through the project's Python environment, f32 and
+    /// dynamic int8, one thread each).
+    #[arg(long)]
+    no_onnxruntime: bool,
     /// Also write the timings as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -44,6 +50,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         profile: args.profile,
         threads: args.threads,
         runs: args.runs,
+        onnxruntime: !args.no_onnxruntime,
     };
     let progress = Progress::new(args.json.is_some());
     let report = bench(&opts, |what| progress.note(&format!("timing {what}")))?;
