@@ -50,6 +50,8 @@ pub struct BenchOptions {
     pub runs: usize,
     /// Also time onnxruntime (f32 and dynamic int8) through the project's Python environment.
     pub onnxruntime: bool,
+    /// Keep the int8 engine on its AVX2 kernels where the CPU also has AVX-512 VNNI.
+    pub no_vnni: bool,
 }
 
 /// Timed runs of one engine, in seconds.
@@ -135,6 +137,8 @@ pub struct BenchReport {
     pub built_with_avx2: bool,
     /// Whether the CPU has AVX2 (x86-64 only).
     pub cpu_has_avx2: bool,
+    /// The int8 engine's x86 kernels: `avx512-vnni`, `avx2` or `portable`.
+    pub x86_kernels: &'static str,
     /// Whether debug assertions are on (a dev build: timings are not meaningful).
     pub debug_build: bool,
     /// Threads of the process after the timed runs (Linux), expected 1.
@@ -197,10 +201,11 @@ impl BenchReport {
             self.macs as f64 / 1e9
         ));
         lines.push(format!(
-            "cpu: {}; AVX2: cpu {}, binary {}; threads: 1 (process threads after runs: {})",
+            "cpu: {}; AVX2: cpu {}, binary {}; int8 kernels: {}; threads: 1 (process threads after runs: {})",
             self.cpu.as_deref().unwrap_or("unknown"),
             yes_no(self.cpu_has_avx2),
             yes_no(self.built_with_avx2),
+            self.x86_kernels,
             self.process_threads.map_or("unknown".to_string(), |n| n.to_string())
         ));
         for (name, timing) in self.engines() {
@@ -234,6 +239,7 @@ impl BenchReport {
             cpu: self.cpu.as_deref(),
             built_with_avx2: self.built_with_avx2,
             cpu_has_avx2: self.cpu_has_avx2,
+            x86_kernels: self.x86_kernels,
             debug_build: self.debug_build,
             threads: 1,
             process_threads: self.process_threads,
@@ -263,6 +269,7 @@ struct BenchJson<'a> {
     cpu: Option<&'a str>,
     built_with_avx2: bool,
     cpu_has_avx2: bool,
+    x86_kernels: &'a str,
     debug_build: bool,
     threads: usize,
     process_threads: Option<usize>,
@@ -289,6 +296,30 @@ pub fn cpu_model() -> Option<String> {
         .find(|l| l.starts_with("model name") || l.starts_with("Model"))
         .and_then(|l| l.split_once(':'))
         .map(|(_, v)| v.trim().to_string())
+}
+
+/// The x86 kernels the int8 engine runs now: `avx512-vnni`, `avx2` or `portable` (a build
+/// without AVX2, or not x86).
+pub fn x86_kernels() -> &'static str {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    {
+        if bino_core::kernels::x86_vnni::available() {
+            "avx512-vnni"
+        } else {
+            "avx2"
+        }
+    }
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    "portable"
+}
+
+/// Keeps the int8 engine on its AVX2 kernels (`off`), or lets it use AVX-512 VNNI where the
+/// CPU has it, for this process.
+pub fn allow_vnni(on: bool) {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    bino_core::kernels::x86_vnni::enable(on);
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    let _ = on;
 }
 
 fn cpu_has_avx2() -> bool {
@@ -346,6 +377,7 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
         opts.threads
     );
     ensure!(opts.runs >= 1, "--runs must be at least 1");
+    allow_vnni(!opts.no_vnni);
     let width = opts
         .profile
         .width()
@@ -439,6 +471,7 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
         cpu: cpu_model(),
         built_with_avx2: cfg!(target_feature = "avx2"),
         cpu_has_avx2: cpu_has_avx2(),
+        x86_kernels: x86_kernels(),
         debug_build: cfg!(debug_assertions),
         process_threads: process_threads(),
         tract: tract_timing,
@@ -481,6 +514,7 @@ mod tests {
             threads: 2,
             runs: 1,
             onnxruntime: true,
+            no_vnni: false,
         };
         let err = bench(&opts, |_| {}).unwrap_err();
         assert!(format!("{err:#}").contains("multithread-mm"), "{err:#}");

@@ -175,13 +175,7 @@ pub fn attend_block(
         let m = s_row.iter().fold(i32::MIN, |m, &v| m.max(v));
         let mut sum = 0u32;
         match fast {
-            Some(e) => {
-                for (w, &s) in w_row.iter_mut().zip(s_row.iter()) {
-                    let x = e.weight(m.wrapping_sub(s) as u32);
-                    *w = x ^ 0x80;
-                    sum = sum.wrapping_add(x as u32);
-                }
-            }
+            Some(e) => sum = x86_softmax_row(&e, m, s_row, w_row).unwrap_or_else(|| softmax_row(&e, m, s_row, w_row)),
             None => {
                 for (w, &s) in w_row.iter_mut().zip(s_row.iter()) {
                     let x = softmax_weight(m, s, p);
@@ -199,7 +193,7 @@ pub fn attend_block(
     let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
     // AVX2 hosts: the weights widened once into the scores' room (no longer needed).
     let dsp = cfg!(bino_dsp) && arch::matmul_i32(weights_i8, values_n, n, acc.as_flattened_mut());
-    if dsp || avx2_weighted_sums(weights_i8, values_n, n, scores, &mut acc) {
+    if dsp || avx2_weighted_sums(weights_i8, values_n, n, sums, scores, &mut acc) {
         for acc_q in acc.iter_mut() {
             for (a, &sum) in acc_q.iter_mut().zip(sums) {
                 *a = a.wrapping_add(sum.wrapping_mul(128));
@@ -222,12 +216,12 @@ pub fn attend_block(
     }
 }
 
-// The AVX2 kernels of host builds (`kernels::matmul_avx2`); `false` elsewhere, or where they
-// decline the shape.
+// The x86 kernels of host builds (`kernels::x86_vnni` where the CPU has AVX-512 VNNI, else
+// `kernels::matmul_avx2`); `false` elsewhere, or where they decline the shape.
 #[inline(always)]
 fn avx2_scores(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usize, scores: &mut [i32]) -> bool {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    return super::matmul_avx2::scores4(queries, keys, n, scores);
+    return super::x86_vnni::scores4(queries, keys, n, scores) || super::matmul_avx2::scores4(queries, keys, n, scores);
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
     {
         let _ = (queries, keys, n, scores);
@@ -240,15 +234,41 @@ fn avx2_weighted_sums(
     weights: &[i8],
     values_t: &[i8],
     n: usize,
+    sums: &[i32; HEAD_DIM],
     scratch: &mut [i32],
     acc: &mut [[i32; HEAD_DIM]; QUERY_BLOCK],
 ) -> bool {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    return super::matmul_avx2::weighted_sums4(weights, values_t, n, scratch, acc);
+    return super::x86_vnni::weighted_sums4(weights, values_t, n, sums, acc)
+        || super::matmul_avx2::weighted_sums4(weights, values_t, n, scratch, acc);
     #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
     {
-        let _ = (weights, values_t, n, scratch, acc);
+        let _ = (weights, values_t, n, sums, scratch, acc);
         false
+    }
+}
+
+/// One row's softmax weights `e.weight(max - s)`, stored as `w - 128` (int8), and their sum.
+#[inline(always)]
+pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
+    let mut sum = 0u32;
+    for (w, &s) in weights.iter_mut().zip(scores) {
+        let x = e.weight(max.wrapping_sub(s) as u32);
+        *w = x ^ 0x80;
+        sum = sum.wrapping_add(x as u32);
+    }
+    sum
+}
+
+// [`softmax_row`] compiled for AVX-512 where the CPU has it (`kernels::x86_vnni`).
+#[inline(always)]
+fn x86_softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> Option<u32> {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    return super::x86_vnni::softmax_row(e, max, scores, weights);
+    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    {
+        let _ = (e, max, scores, weights);
+        None
     }
 }
 

@@ -11,12 +11,13 @@
 /// gets fewer rows). `k` must be at most 2^17 so sums of int8 products cannot overflow.
 ///
 /// On Cortex-M7 and Cortex-M55 this runs the core's assembly tile (`kernels::arch`), on AVX2
-/// hosts the AVX2 tile (`kernels::matmul_avx2`), where it takes the shape, and
+/// hosts the AVX-512 VNNI tile where the CPU has it (`kernels::x86_vnni`) or the AVX2 tile
+/// (`kernels::matmul_avx2`), where it takes the shape, and
 /// [`matmul_i8_reference`] otherwise: the results are the same.
 #[inline]
 pub fn matmul_i8(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    if super::matmul_avx2::matmul_i32(a, w, k, out) {
+    if super::x86_vnni::matmul_i32(a, w, k, out) || super::matmul_avx2::matmul_i32(a, w, k, out) {
         return;
     }
     if !super::arch::matmul_i32(a, w, k, out) {

@@ -15,5 +15,7 @@ pub mod matmul;
 mod matmul_avx2;
 pub mod params;
 pub mod rope;
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+pub mod x86_vnni;
 
 pub use params::I32s;

@@ -37,6 +37,10 @@ pub struct BenchArgs {
     /// dynamic int8, one thread each).
     #[arg(long)]
     no_onnxruntime: bool,
+    /// Keep the int8 engine on its AVX2 kernels where the CPU also has AVX-512 VNNI (the
+    /// results are the same; this measures the AVX2 path).
+    #[arg(long)]
+    no_vnni: bool,
     /// Also write the timings as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -51,6 +55,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         threads: args.threads,
         runs: args.runs,
         onnxruntime: !args.no_onnxruntime,
+        no_vnni: args.no_vnni,
     };
     let progress = Progress::new(args.json.is_some());
     let report = bench(&opts, |what| progress.note(&format!("timing {what}")))?;

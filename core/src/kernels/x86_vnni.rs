@@ -1,0 +1,408 @@
+//! AVX-512 VNNI kernels of x86-64 host builds, chosen at run time where the CPU has them
+//! (`vpdpbusd`: 32 products of an unsigned and a signed byte, summed into 8 int32 lanes, in one
+//! instruction, against 16 per `vpmaddwd` + `vpaddd` pair on AVX2). The build targets AVX2
+//! (`x86-64-v3`), so these are compiled for the wider features and called only after
+//! [`available`] has seen them in `cpuid` and the OS saving their registers (`xgetbv`).
+//!
+//! `vpdpbusd` multiplies unsigned by signed bytes: the signed codes `x` of one operand enter as
+//! `x ^ 0x80 = x + 128`, and `128 * sum(other operand)` comes off again, exactly: every sum is
+//! taken modulo 2^32, as the portable kernels' wrapping adds take it, and such sums do not
+//! depend on their order. So the results are bit-identical to the portable kernels'.
+//! Each entry point returns `false` (computing nothing) where the CPU or the shape does not
+//! fit; the caller then runs the AVX2 or portable kernel.
+
+use core::arch::x86_64::{
+    __cpuid, __cpuid_count, __m128i, __m256i, _mm256_castsi256_si128, _mm256_dpbusd_epi32, _mm256_extracti128_si256,
+    _mm256_hadd_epi32, _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_set1_epi8, _mm256_setzero_si256,
+    _mm256_sub_epi32, _mm256_unpackhi_epi32, _mm256_unpackhi_epi64, _mm256_unpacklo_epi32, _mm256_unpacklo_epi64,
+    _mm256_xor_si256, _mm_add_epi32, _mm_set1_epi32, _mm_sub_epi32, _mm_unpackhi_epi32, _mm_unpackhi_epi64,
+    _mm_unpacklo_epi32, _mm_unpacklo_epi64, _xgetbv,
+};
+use core::sync::atomic::{AtomicU8, Ordering};
+
+use bytemuck::must_cast;
+
+use super::exp::ExpQ32;
+
+/// Bytes per step: one 256-bit vector.
+pub const STEP: usize = 32;
+/// Longest dot product [`matmul_i32`] takes.
+pub const MAX_GEMM_K: usize = 1024;
+/// Most output channels [`matmul_i32`] takes (their corrections live on the stack).
+pub const MAX_GEMM_N: usize = 512;
+const HEAD: usize = crate::config::HEAD_DIM;
+
+// 0: not yet looked, 1: absent or switched off, 2: in use.
+static STATE: AtomicU8 = AtomicU8::new(0);
+
+/// Whether these kernels run: the CPU and OS support AVX-512 F, BW, VL and VNNI, and
+/// [`enable`] has not switched them off.
+pub fn available() -> bool {
+    match STATE.load(Ordering::Relaxed) {
+        1 => false,
+        2 => true,
+        _ => enable(true),
+    }
+}
+
+/// Switches the kernels on (only where [`supported`]) or off, for this process; returns
+/// whether they now run. Off is how the AVX2 kernels are measured and tested on a CPU with
+/// VNNI; the results are the same either way.
+pub fn enable(on: bool) -> bool {
+    let run = on && supported();
+    STATE.store(if run { 2 } else { 1 }, Ordering::Relaxed);
+    run
+}
+
+/// Whether the CPU has AVX-512 F, BW, VL and VNNI and the OS saves their registers.
+pub fn supported() -> bool {
+    const OSXSAVE: u32 = 1 << 27;
+    // xgetbv(0): SSE, AVX, opmask, ZMM_Hi256 and Hi16_ZMM state enabled.
+    const AVX512_STATE: u64 = 0b1110_0110;
+    if __cpuid(0).eax < 7 || __cpuid(1).ecx & OSXSAVE == 0 {
+        return false;
+    }
+    // SAFETY: OSXSAVE is set, so the OS has enabled XSAVE and `xgetbv` cannot fault; the
+    // build targets x86-64-v3, whose `xsave` feature the intrinsic needs.
+    #[allow(unsafe_code)]
+    let xcr0 = unsafe { _xgetbv(0) };
+    let leaf7 = __cpuid_count(7, 0);
+    let (f, bw, vl) = (leaf7.ebx >> 16 & 1, leaf7.ebx >> 30 & 1, leaf7.ebx >> 31 & 1);
+    let vnni = leaf7.ecx >> 11 & 1;
+    xcr0 & AVX512_STATE == AVX512_STATE && f & bw & vl & vnni == 1
+}
+
+/// `out` (`m x n`) = `a` (`m x k`) times the transpose of `w` (`n x k`), as
+/// `matmul::matmul_i8_reference` computes it, when the kernels run, `k` is a multiple of
+/// [`STEP`] up to [`MAX_GEMM_K`], `n` at most [`MAX_GEMM_N`] and `out` holds exactly `m * n`.
+pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
+    if k == 0 || !k.is_multiple_of(STEP) || k > MAX_GEMM_K || !available() {
+        return false;
+    }
+    let (m, n) = (a.len() / k, w.len() / k);
+    if n > MAX_GEMM_N || m.checked_mul(n) != Some(out.len()) {
+        return false;
+    }
+    // SAFETY: `available()` saw AVX-512 F/BW/VL/VNNI on this CPU, enabled by the OS.
+    #[allow(unsafe_code)]
+    unsafe {
+        matmul_vnni(&a[..m * k], &w[..n * k], k, out)
+    };
+    true
+}
+
+/// Scores of four queries against `n` keys (`n x HEAD_DIM`): row `q` of `scores` (`4 x n`)
+/// gets `queries[q] . key_j`. `false` where the kernels do not run or the slices do not fit.
+pub fn scores4(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [i32]) -> bool {
+    let (Some(key_bytes), Some(score_len)) = (n.checked_mul(HEAD), n.checked_mul(4)) else {
+        return false;
+    };
+    if HEAD != STEP || keys.len() < key_bytes || scores.len() < score_len || !available() {
+        return false;
+    }
+    // SAFETY: as in `matmul_i32`.
+    #[allow(unsafe_code)]
+    unsafe {
+        scores4_vnni(queries, &keys[..key_bytes], n, &mut scores[..score_len])
+    };
+    true
+}
+
+/// Weighted sums of attention, `acc[q][d] = weights_q . values_t_d` for four weight rows
+/// (`4 x n`) and the `HEAD_DIM` value channels (`HEAD_DIM x n`), given the channels' wrapping
+/// sums `sums` (`attention::value_sums`). `false` where the kernels do not run, `n` is not a
+/// multiple of [`STEP`] or the slices do not fit.
+pub fn weighted_sums4(
+    weights: &[i8],
+    values_t: &[i8],
+    n: usize,
+    sums: &[i32; HEAD],
+    acc: &mut [[i32; HEAD]; 4],
+) -> bool {
+    let (Some(weight_len), Some(value_len)) = (n.checked_mul(4), n.checked_mul(HEAD)) else {
+        return false;
+    };
+    let fits = weights.len() >= weight_len && values_t.len() >= value_len;
+    if n == 0 || !n.is_multiple_of(STEP) || !fits || !available() {
+        return false;
+    }
+    // SAFETY: as in `matmul_i32`.
+    #[allow(unsafe_code)]
+    unsafe {
+        weighted_sums4_vnni(&weights[..weight_len], &values_t[..value_len], n, sums, acc)
+    };
+    true
+}
+
+/// `out[at..at + count] = values[..count]` where it fits: a fixed-size copy for a full `N`
+/// (a variable-length one is a `memcpy` call).
+#[inline(always)]
+fn store<const N: usize>(out: &mut [i32], at: usize, values: &[i32; N], count: usize) {
+    if count == N {
+        if let Some(slot) = out.get_mut(at..at + N) {
+            slot.copy_from_slice(values);
+        }
+    } else {
+        for (o, &v) in out.iter_mut().skip(at).zip(values).take(count) {
+            *o = v;
+        }
+    }
+}
+
+/// `attention::softmax_row` compiled with AVX-512 (16 lanes a vector) where the kernels run;
+/// `None` elsewhere.
+pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> Option<u32> {
+    if !available() {
+        return None;
+    }
+    // SAFETY: as in `matmul_i32`.
+    #[allow(unsafe_code)]
+    Some(unsafe { softmax_row_avx512(e, max, scores, weights) })
+}
+
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
+    super::attention::softmax_row(e, max, scores, weights)
+}
+
+#[inline(always)]
+fn load(chunk: &[i8]) -> __m256i {
+    must_cast::<[i8; STEP], __m256i>(chunk.try_into().unwrap_or([0; STEP]))
+}
+
+/// `[sum of v[0]'s lanes, ..., sum of v[3]'s lanes]`.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn sum4(v: [__m256i; 4]) -> __m128i {
+    let halves = _mm256_hadd_epi32(_mm256_hadd_epi32(v[0], v[1]), _mm256_hadd_epi32(v[2], v[3]));
+    _mm_add_epi32(_mm256_castsi256_si128(halves), _mm256_extracti128_si256::<1>(halves))
+}
+
+/// Rows of a 4 x 4 matrix given as its columns (and the other way round).
+#[inline]
+#[target_feature(enable = "avx2")]
+fn transpose4(c: [__m128i; 4]) -> [[i32; 4]; 4] {
+    let (t0, t1) = (_mm_unpacklo_epi32(c[0], c[1]), _mm_unpacklo_epi32(c[2], c[3]));
+    let (t2, t3) = (_mm_unpackhi_epi32(c[0], c[1]), _mm_unpackhi_epi32(c[2], c[3]));
+    [
+        must_cast(_mm_unpacklo_epi64(t0, t1)),
+        must_cast(_mm_unpackhi_epi64(t0, t1)),
+        must_cast(_mm_unpacklo_epi64(t2, t3)),
+        must_cast(_mm_unpackhi_epi64(t2, t3)),
+    ]
+}
+
+// Tiles of 4 rows of `a` (unsigned: `x ^ 0x80`, in registers) x 4 rows of `w` (signed, memory
+// operands): 16 accumulators, 16 `vpdpbusd` per 32 elements. Column `j` then loses
+// `128 * sum(w_j)`, computed once per call. Rows past the last full four, and columns past the
+// last full four, run as narrower tiles of the same loop.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn matmul_vnni(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
+    let n = w.len() / k;
+    let flip = _mm256_set1_epi8(-128);
+    let mut corrections = [0i32; MAX_GEMM_N];
+    for (c, w_row) in corrections.iter_mut().zip(w.chunks_exact(k)) {
+        let mut acc = _mm256_setzero_si256();
+        for chunk in w_row.chunks_exact(STEP) {
+            acc = _mm256_dpbusd_epi32(acc, flip, load(chunk));
+        }
+        let lanes: [i32; 8] = must_cast(acc);
+        *c = lanes.iter().fold(0i32, |s, &v| s.wrapping_add(v));
+    }
+    for (a4, o4) in a.chunks(4 * k).zip(out.chunks_mut(4 * n)) {
+        let rows = a4.len() / k;
+        let mut j = 0;
+        for w4 in w.chunks(4 * k) {
+            let cols = w4.len() / k;
+            let mut acc = [[_mm256_setzero_si256(); 4]; 4];
+            for s in 0..k / STEP {
+                let at = s * STEP;
+                let x: [__m256i; 4] = core::array::from_fn(|r| {
+                    _mm256_xor_si256(load(a4.get(r * k + at..r * k + at + STEP).unwrap_or(&[])), flip)
+                });
+                for (c, acc_c) in acc.iter_mut().enumerate().take(cols) {
+                    let wv = load(w4.get(c * k + at..c * k + at + STEP).unwrap_or(&[]));
+                    for (r, acc_rc) in acc_c.iter_mut().enumerate() {
+                        *acc_rc = _mm256_dpbusd_epi32(*acc_rc, x[r], wv);
+                    }
+                }
+            }
+            let per_col: [__m128i; 4] = core::array::from_fn(|c| {
+                let fix = _mm_set1_epi32(corrections.get(j + c).copied().unwrap_or(0));
+                _mm_sub_epi32(sum4(acc[c]), fix)
+            });
+            for (r, row) in transpose4(per_col).into_iter().enumerate().take(rows) {
+                store(o4, r * n + j, &row, cols);
+            }
+            j += cols;
+        }
+    }
+}
+
+// Keys as the unsigned operand (`k ^ 0x80`), eight at a time: their 8 x 8 grid of 4-byte groups
+// transposed, so that vector `g` holds group `g` of each of the eight keys, and each query's
+// group `g` broadcast against it. Eight scores per query come out in one vector, no horizontal
+// sums; each query then loses `128 * sum(q)`. Keys past the last full eight run as a zero-padded
+// block whose extra scores are not stored.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn scores4_vnni(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [i32]) {
+    let flip = _mm256_set1_epi8(-128);
+    let groups: [[i32; 8]; 4] = queries.map(bytemuck::cast);
+    let corrections: [__m256i; 4] = core::array::from_fn(|q| {
+        let lanes: [i32; 8] = must_cast(_mm256_dpbusd_epi32(_mm256_setzero_si256(), flip, load(&queries[q])));
+        _mm256_set1_epi32(lanes.iter().fold(0i32, |s, &v| s.wrapping_add(v)))
+    });
+    for (b, block) in keys.chunks(8 * HEAD).enumerate() {
+        let rows: [__m256i; 8] =
+            core::array::from_fn(|i| _mm256_xor_si256(load(block.get(i * HEAD..(i + 1) * HEAD).unwrap_or(&[])), flip));
+        let g = transpose8(rows);
+        for (q, q_groups) in groups.iter().enumerate() {
+            let mut acc = _mm256_setzero_si256();
+            for (gv, &qg) in g.iter().zip(q_groups) {
+                acc = _mm256_dpbusd_epi32(acc, *gv, _mm256_set1_epi32(qg));
+            }
+            let lanes: [i32; 8] = must_cast(_mm256_sub_epi32(acc, corrections[q]));
+            store(scores, q * n + b * 8, &lanes, block.len() / HEAD);
+        }
+    }
+}
+
+/// 8 x 8 transpose of 32-bit elements: `out[g]` lane `i` = `rows[i]` lane `g`.
+#[inline]
+#[target_feature(enable = "avx2")]
+fn transpose8(r: [__m256i; 8]) -> [__m256i; 8] {
+    let t0 = _mm256_unpacklo_epi32(r[0], r[1]);
+    let t1 = _mm256_unpackhi_epi32(r[0], r[1]);
+    let t2 = _mm256_unpacklo_epi32(r[2], r[3]);
+    let t3 = _mm256_unpackhi_epi32(r[2], r[3]);
+    let t4 = _mm256_unpacklo_epi32(r[4], r[5]);
+    let t5 = _mm256_unpackhi_epi32(r[4], r[5]);
+    let t6 = _mm256_unpacklo_epi32(r[6], r[7]);
+    let t7 = _mm256_unpackhi_epi32(r[6], r[7]);
+    let u0 = _mm256_unpacklo_epi64(t0, t2);
+    let u1 = _mm256_unpackhi_epi64(t0, t2);
+    let u2 = _mm256_unpacklo_epi64(t1, t3);
+    let u3 = _mm256_unpackhi_epi64(t1, t3);
+    let u4 = _mm256_unpacklo_epi64(t4, t6);
+    let u5 = _mm256_unpackhi_epi64(t4, t6);
+    let u6 = _mm256_unpacklo_epi64(t5, t7);
+    let u7 = _mm256_unpackhi_epi64(t5, t7);
+    [
+        _mm256_permute2x128_si256::<0x20>(u0, u4),
+        _mm256_permute2x128_si256::<0x20>(u1, u5),
+        _mm256_permute2x128_si256::<0x20>(u2, u6),
+        _mm256_permute2x128_si256::<0x20>(u3, u7),
+        _mm256_permute2x128_si256::<0x31>(u0, u4),
+        _mm256_permute2x128_si256::<0x31>(u1, u5),
+        _mm256_permute2x128_si256::<0x31>(u2, u6),
+        _mm256_permute2x128_si256::<0x31>(u3, u7),
+    ]
+}
+
+// Weights as the unsigned operand (`w ^ 0x80`, the softmax weights themselves), four value
+// channels at a time as memory operands: 16 accumulators, 16 `vpdpbusd` per 32 keys. Channel
+// `d` then loses `128 * sums[d]`.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn weighted_sums4_vnni(weights: &[i8], values_t: &[i8], n: usize, sums: &[i32; HEAD], acc: &mut [[i32; HEAD]; 4]) {
+    let flip = _mm256_set1_epi8(-128);
+    for (d4, channels) in values_t.chunks_exact(4 * n).enumerate() {
+        let mut lanes = [[_mm256_setzero_si256(); 4]; 4];
+        for s in 0..n / STEP {
+            let at = s * STEP;
+            let x: [__m256i; 4] = core::array::from_fn(|q| {
+                _mm256_xor_si256(load(weights.get(q * n + at..q * n + at + STEP).unwrap_or(&[])), flip)
+            });
+            for (c, lanes_c) in lanes.iter_mut().enumerate() {
+                let v = load(channels.get(c * n + at..c * n + at + STEP).unwrap_or(&[]));
+                for (q, l) in lanes_c.iter_mut().enumerate() {
+                    *l = _mm256_dpbusd_epi32(*l, x[q], v);
+                }
+            }
+        }
+        for (c, lanes_c) in lanes.into_iter().enumerate() {
+            let d = 4 * d4 + c;
+            let fix = _mm_set1_epi32(sums.get(d).copied().unwrap_or(0).wrapping_mul(128));
+            let per_query: [i32; 4] = must_cast(_mm_sub_epi32(sum4(lanes_c), fix));
+            for (acc_q, v) in acc.iter_mut().zip(per_query) {
+                if let Some(slot) = acc_q.get_mut(d) {
+                    *slot = v;
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::matmul::dot;
+    use crate::testutil::Rng;
+
+    // One test: switching the kernels off is process-wide, and a second test doing it would
+    // race this one.
+    #[test]
+    fn the_kernels_match_plain_dots_where_the_cpu_has_vnni_and_decline_when_off() {
+        let was = available();
+        assert!(!enable(false));
+        assert!(!matmul_i32(&[1; 64], &[1; 64], 32, &mut [0; 4]));
+        assert!(!scores4(&[[1; HEAD]; 4], &[1; HEAD], 1, &mut [0; 4]));
+        assert_eq!(enable(true), was);
+        if !was {
+            return; // nothing more to check on this CPU: the callers fall back (tested there)
+        }
+        let mut rng = Rng::new(41);
+        let mut a = [0i8; 9 * 480];
+        let mut w = [0i8; 7 * 480];
+        for (m, n, k) in [(4, 4, 32), (9, 7, 64), (5, 3, 128), (8, 7, 480), (1, 1, 32), (3, 6, 96)] {
+            rng.fill_i8(&mut a[..m * k]);
+            rng.fill_i8(&mut w[..n * k]);
+            if k == 480 {
+                a[..m * k].fill(-128);
+                w[..n * k].fill(-128);
+            }
+            let mut out = [i32::MIN; 9 * 7];
+            assert!(matmul_i32(&a[..m * k], &w[..n * k], k, &mut out[..m * n]));
+            for i in 0..m {
+                for j in 0..n {
+                    let want = dot(&a[i * k..(i + 1) * k], &w[j * k..(j + 1) * k]);
+                    assert_eq!(out[i * n + j], want, "m={m} n={n} k={k} ({i}, {j})");
+                }
+            }
+        }
+        for n in [1, 8, 13, 64, 960] {
+            let mut keys = [0i8; 960 * HEAD];
+            let mut values_t = [0i8; 960 * HEAD];
+            let mut weights = [0i8; 4 * 960];
+            let mut queries = [[0i8; HEAD]; 4];
+            rng.fill_i8(&mut keys[..n * HEAD]);
+            rng.fill_i8(&mut values_t[..n * HEAD]);
+            rng.fill_i8(&mut weights[..4 * n]);
+            queries.iter_mut().for_each(|q| rng.fill_i8(q));
+            if n == 960 {
+                keys.fill(-128);
+                values_t.fill(127);
+                weights.fill(-128);
+                queries = [[-128; HEAD]; 4];
+            }
+            let mut scores = [i32::MIN; 4 * 960];
+            assert!(scores4(&queries, &keys[..n * HEAD], n, &mut scores[..4 * n]));
+            for (q, row) in queries.iter().zip(scores.chunks_exact(n)) {
+                for (j, &s) in row.iter().enumerate() {
+                    assert_eq!(s, dot(q, &keys[j * HEAD..(j + 1) * HEAD]), "n={n} key {j}");
+                }
+            }
+            let sums = crate::kernels::attention::value_sums(&values_t[..n * HEAD], n);
+            let mut acc = [[0i32; HEAD]; 4];
+            let taken = weighted_sums4(&weights[..4 * n], &values_t[..HEAD * n], n, &sums, &mut acc);
+            assert_eq!(taken, n % STEP == 0, "n={n}");
+            if taken {
+                for (q, acc_q) in acc.iter().enumerate() {
+                    for (d, &s) in acc_q.iter().enumerate() {
+                        let want = dot(&weights[q * n..(q + 1) * n], &values_t[d * n..(d + 1) * n]);
+                        assert_eq!(s, want, "n={n} query {q} channel {d}");
+                    }
+                }
+            }
+        }
+    }
+}
