@@ -28,8 +28,6 @@ use super::exp::ExpQ32;
 pub const STEP: usize = 32;
 /// Longest dot product [`matmul_i32`] takes.
 pub const MAX_GEMM_K: usize = 1024;
-/// Most output channels [`matmul_i32`] takes (their corrections live on the stack).
-pub const MAX_GEMM_N: usize = 512;
 const HEAD: usize = crate::config::HEAD_DIM;
 
 // 0: not yet looked, 1: absent or switched off, 2: in use.
@@ -74,13 +72,13 @@ pub fn supported() -> bool {
 
 /// `out` (`m x n`) = `a` (`m x k`) times the transpose of `w` (`n x k`), as
 /// `matmul::matmul_i8_reference` computes it, when the kernels run, `k` is a multiple of
-/// [`STEP`] up to [`MAX_GEMM_K`], `n` at most [`MAX_GEMM_N`] and `out` holds exactly `m * n`.
+/// [`STEP`] up to [`MAX_GEMM_K`] and `out` holds exactly `m * n`.
 pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
     if k == 0 || !k.is_multiple_of(STEP) || k > MAX_GEMM_K || !available() {
         return false;
     }
     let (m, n) = (a.len() / k, w.len() / k);
-    if n > MAX_GEMM_N || m.checked_mul(n) != Some(out.len()) {
+    if m.checked_mul(n) != Some(out.len()) {
         return false;
     }
     // SAFETY: `available()` saw AVX-512 F/BW/VL/VNNI on this CPU, enabled by the OS.
@@ -192,51 +190,89 @@ fn transpose4(c: [__m128i; 4]) -> [[i32; 4]; 4] {
     ]
 }
 
-// Tiles of 4 rows of `a` (unsigned: `x ^ 0x80`, in registers) x 4 rows of `w` (signed, memory
-// operands): 16 accumulators, 16 `vpdpbusd` per 32 elements. Column `j` then loses
-// `128 * sum(w_j)`, computed once per call. Rows past the last full four, and columns past the
-// last full four, run as narrower tiles of the same loop.
+// Tiles of 4 rows of `a` (signed, memory operands) x 4 rows of `w` (unsigned: `w ^ 0x80`, in
+// registers): 16 accumulators, 16 `vpdpbusd` per 32 elements. Row `r` then loses
+// `128 * sum(a_r)`, computed once per four rows (the engine multiplies a few token rows at a
+// time, so a per-column correction would cost as much as the tiles).
 #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
 fn matmul_vnni(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     let n = w.len() / k;
     let flip = _mm256_set1_epi8(-128);
-    let mut corrections = [0i32; MAX_GEMM_N];
-    for (c, w_row) in corrections.iter_mut().zip(w.chunks_exact(k)) {
-        let mut acc = _mm256_setzero_si256();
-        for chunk in w_row.chunks_exact(STEP) {
-            acc = _mm256_dpbusd_epi32(acc, flip, load(chunk));
-        }
-        let lanes: [i32; 8] = must_cast(acc);
-        *c = lanes.iter().fold(0i32, |s, &v| s.wrapping_add(v));
-    }
     for (a4, o4) in a.chunks(4 * k).zip(out.chunks_mut(4 * n)) {
         let rows = a4.len() / k;
-        let mut j = 0;
-        for w4 in w.chunks(4 * k) {
-            let cols = w4.len() / k;
-            let mut acc = [[_mm256_setzero_si256(); 4]; 4];
-            for s in 0..k / STEP {
-                let at = s * STEP;
-                let x: [__m256i; 4] = core::array::from_fn(|r| {
-                    _mm256_xor_si256(load(a4.get(r * k + at..r * k + at + STEP).unwrap_or(&[])), flip)
-                });
-                for (c, acc_c) in acc.iter_mut().enumerate().take(cols) {
-                    let wv = load(w4.get(c * k + at..c * k + at + STEP).unwrap_or(&[]));
-                    for (r, acc_rc) in acc_c.iter_mut().enumerate() {
-                        *acc_rc = _mm256_dpbusd_epi32(*acc_rc, x[r], wv);
-                    }
-                }
+        let row_sums: [__m256i; 4] = core::array::from_fn(|r| {
+            let mut acc = _mm256_setzero_si256();
+            for chunk in a4.get(r * k..(r + 1) * k).unwrap_or(&[]).chunks_exact(STEP) {
+                acc = _mm256_dpbusd_epi32(acc, flip, load(chunk));
             }
-            let per_col: [__m128i; 4] = core::array::from_fn(|c| {
-                let fix = _mm_set1_epi32(corrections.get(j + c).copied().unwrap_or(0));
-                _mm_sub_epi32(sum4(acc[c]), fix)
-            });
+            acc
+        });
+        let corrections = sum4(row_sums);
+        for (q, w4) in w.chunks(4 * k).enumerate() {
+            let j = 4 * q;
+            let cols = w4.len() / k;
+            let sums = if rows == 4 && cols == 4 {
+                full_tile(a4, w4, k)
+            } else {
+                tile(a4, w4, k, rows, cols)
+            };
+            let per_col: [__m128i; 4] = core::array::from_fn(|c| _mm_sub_epi32(sum4(sums[c]), corrections));
             for (r, row) in transpose4(per_col).into_iter().enumerate().take(rows) {
                 store(o4, r * n + j, &row, cols);
             }
-            j += cols;
         }
     }
+}
+
+// A full 4 x 4 tile: every slice walked by exact chunks, so the loop carries no bounds checks.
+#[inline]
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn full_tile(a4: &[i8], w4: &[i8], k: usize) -> [[__m256i; 4]; 4] {
+    let flip = _mm256_set1_epi8(-128);
+    let mut acc = [[_mm256_setzero_si256(); 4]; 4];
+    let mut rows = a4.chunks_exact(k).map(|r| r.chunks_exact(STEP));
+    let mut cols = w4.chunks_exact(k).map(|c| c.chunks_exact(STEP));
+    let (Some(a0), Some(a1), Some(a2), Some(a3)) = (rows.next(), rows.next(), rows.next(), rows.next()) else {
+        return acc;
+    };
+    let (Some(w0), Some(w1), Some(w2), Some(w3)) = (cols.next(), cols.next(), cols.next(), cols.next()) else {
+        return acc;
+    };
+    for (((((((x0, x1), x2), x3), v0), v1), v2), v3) in a0.zip(a1).zip(a2).zip(a3).zip(w0).zip(w1).zip(w2).zip(w3) {
+        let x = [x0, x1, x2, x3].map(load);
+        for (acc_c, v) in acc.iter_mut().zip([v0, v1, v2, v3]) {
+            let v = _mm256_xor_si256(load(v), flip);
+            for (acc_rc, xr) in acc_c.iter_mut().zip(x) {
+                *acc_rc = _mm256_dpbusd_epi32(*acc_rc, v, xr);
+            }
+        }
+    }
+    acc
+}
+
+// A tile of `rows` x `cols` (each at most 4); missing rows and columns count as zeros.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn tile(a4: &[i8], w4: &[i8], k: usize, rows: usize, cols: usize) -> [[__m256i; 4]; 4] {
+    let flip = _mm256_set1_epi8(-128);
+    let mut acc = [[_mm256_setzero_si256(); 4]; 4];
+    for s in 0..k / STEP {
+        let at = s * STEP;
+        let x: [__m256i; 4] = core::array::from_fn(|r| {
+            let row = if r < rows {
+                a4.get(r * k + at..r * k + at + STEP)
+            } else {
+                None
+            };
+            load(row.unwrap_or(&[]))
+        });
+        for (c, acc_c) in acc.iter_mut().enumerate().take(cols) {
+            let wv = _mm256_xor_si256(load(w4.get(c * k + at..c * k + at + STEP).unwrap_or(&[])), flip);
+            for (r, acc_rc) in acc_c.iter_mut().enumerate() {
+                *acc_rc = _mm256_dpbusd_epi32(*acc_rc, wv, x[r]);
+            }
+        }
+    }
+    acc
 }
 
 // Keys as the unsigned operand (`k ^ 0x80`), eight at a time: their 8 x 8 grid of 4-byte groups
