@@ -4,7 +4,8 @@
 //! pairs, interleaved so one `ldrd` brings a row's `(a0, a2)` and `(a1, a3)` of a 4-element
 //! group; each weight word is widened in registers (`sxtb16` gives `(w0, w2)`, with `ror #8`
 //! `(w1, w3)`) and shared by the 4 rows: per 16 MACs one `ldr`, two `sxtb16`, four `ldrd` and
-//! eight `smlad`. The scratch is reused for every output column.
+//! eight `smlad`, the loop unrolled over two groups where their count is even. The scratch is
+//! reused for every output column.
 
 use super::{Epilogue, MAX_K};
 
@@ -53,9 +54,7 @@ fn gemm_in<E: Epilogue, const WORDS: usize>(a: &[i8], w: &[i8], k: usize, m: usi
         widen(rows, scratch);
         for (j, w_row) in w.chunks_exact(k).enumerate() {
             let acc = tile(scratch, w_row, [epi.init(j); ROWS]);
-            for (i, &v) in acc.iter().enumerate().take(m - r0) {
-                epi.put(r0 + i, j, v);
-            }
+            epi.put_col(r0, j, acc, m - r0);
         }
     }
     true
@@ -88,6 +87,60 @@ fn tile(x: &[u32], w: &[i8], acc: [i32; ROWS]) -> [i32; ROWS] {
         return acc;
     }
     let [mut a0, mut a1, mut a2, mut a3] = acc;
+    if groups.is_multiple_of(2) {
+        // SAFETY: as below, with the loop running `groups / 2 >= 1` times over two groups
+        // each: the same `4 * groups` bytes of `w` and `32 * groups` bytes of `x`.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}], #8",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}], #8",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}], #8",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}], #8",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}], #8",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}], #8",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}], #8",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}], #8",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "subs {g}, {g}, #1",
+                "bne 2b",
+                w = inout(reg) w.as_ptr() => _,
+                x = inout(reg) x.as_ptr() => _,
+                g = inout(reg) groups / 2 => _,
+                a0 = inout(reg) a0,
+                a1 = inout(reg) a1,
+                a2 = inout(reg) a2,
+                a3 = inout(reg) a3,
+                t0 = out(reg) _,
+                t1 = out(reg) _,
+                x0 = out(reg) _,
+                x1 = out(reg) _,
+                options(nostack, readonly, pure),
+            );
+        }
+        return [a0, a1, a2, a3];
+    }
     // SAFETY: the loop runs `groups >= 1` times and reads `4 * groups` bytes of `w` (checked
     // above to be in `w` and word-aligned) and `32 * groups` bytes of `x` (checked above; an
     // `[u32]`, so word-aligned for `ldrd`). It writes only its declared outputs and

@@ -83,6 +83,18 @@ impl Epilogue for Fused<'_> {
         }
     }
     #[inline(always)]
+    fn put_col<const R: usize>(&mut self, row0: usize, j: usize, acc: [i32; R], rows: usize) {
+        let Some(&c) = self.params.get(j) else {
+            return;
+        };
+        let base = row0 * self.n + self.j0 + j;
+        for (i, v) in acc.into_iter().enumerate().take(rows) {
+            if let Some(o) = self.out.get_mut(base + i * self.n) {
+                *o = c.apply(v);
+            }
+        }
+    }
+    #[inline(always)]
     fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
         let at = row * self.n + self.j0 + j;
         if let (Some(o), Some(c)) = (self.out.get_mut(at..at + C), self.params.get(j..j + C)) {

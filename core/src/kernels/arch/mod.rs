@@ -36,6 +36,15 @@ pub(crate) trait Epilogue {
     fn init(&self, j: usize) -> i32;
     /// Output `(row, j)` from its finished accumulator (`init` plus the dot product).
     fn put(&mut self, row: usize, j: usize, acc: i32);
+    /// Outputs `(row0 + i, j)` for the first `rows` of `acc` (the DSP tile's column: the
+    /// epilogue looks its channel up once).
+    #[cfg_attr(not(any(bino_dsp, test)), allow(dead_code))]
+    #[inline(always)]
+    fn put_col<const R: usize>(&mut self, row0: usize, j: usize, acc: [i32; R], rows: usize) {
+        for (i, v) in acc.into_iter().enumerate().take(rows) {
+            self.put(row0 + i, j, v);
+        }
+    }
     /// Outputs `(row, j..j + C)` (one bounds check where the epilogue can; the MVE tiles'
     /// rows).
     #[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
