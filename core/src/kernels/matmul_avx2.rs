@@ -214,16 +214,9 @@ fn scores4_avx2(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [
     let mut key_quads = keys.chunks_exact(4 * HEAD);
     let mut j = 0;
     for quad in &mut key_quads {
-        let [k0, k1, k2, k3]: [__m128i; 4] = core::array::from_fn(|i| key_scores(&quad[i * HEAD..(i + 1) * HEAD]));
-        // Transpose: key-major [q0 q1 q2 q3] x 4 to query-major [k0 k1 k2 k3] x 4.
-        let (t0, t1) = (_mm_unpacklo_epi32(k0, k1), _mm_unpacklo_epi32(k2, k3));
-        let (t2, t3) = (_mm_unpackhi_epi32(k0, k1), _mm_unpackhi_epi32(k2, k3));
-        let rows: [[i32; 4]; 4] = [
-            must_cast(_mm_unpacklo_epi64(t0, t1)),
-            must_cast(_mm_unpackhi_epi64(t0, t1)),
-            must_cast(_mm_unpacklo_epi64(t2, t3)),
-            must_cast(_mm_unpackhi_epi64(t2, t3)),
-        ];
+        let keys4: [__m128i; 4] = core::array::from_fn(|i| key_scores(&quad[i * HEAD..(i + 1) * HEAD]));
+        // Key-major [q0 q1 q2 q3] x 4 to query-major [k0 k1 k2 k3] x 4.
+        let rows = transpose4(keys4);
         for (s, row) in [&mut *s0, &mut *s1, &mut *s2, &mut *s3].into_iter().zip(rows) {
             if let Some(slot) = s.get_mut(j..j + 4) {
                 slot.copy_from_slice(&row);
@@ -286,13 +279,27 @@ fn load_i16(chunk: &[i16]) -> __m256i {
     must_cast::<[i16; LANES], __m256i>(chunk.try_into().unwrap_or([0; LANES]))
 }
 
-/// `[sum of v[0]'s lanes, ..., sum of v[3]'s lanes]`.
+/// `[sum of v[0]'s lanes, ..., sum of v[3]'s lanes]` (also the VNNI kernels' reduction).
 #[inline]
 #[target_feature(enable = "avx2")]
-fn sum4(v: [__m256i; 4]) -> __m128i {
+pub(super) fn sum4(v: [__m256i; 4]) -> __m128i {
     // Lanes [v0 v1 v2 v3] of each 128-bit half after two rounds of pairwise adds.
     let halves = _mm256_hadd_epi32(_mm256_hadd_epi32(v[0], v[1]), _mm256_hadd_epi32(v[2], v[3]));
     _mm_add_epi32(_mm256_castsi256_si128(halves), _mm256_extracti128_si256::<1>(halves))
+}
+
+/// Rows of a 4 x 4 matrix of int32 given as its columns (and the other way round).
+#[inline]
+#[target_feature(enable = "avx2")]
+pub(super) fn transpose4(c: [__m128i; 4]) -> [[i32; 4]; 4] {
+    let (t0, t1) = (_mm_unpacklo_epi32(c[0], c[1]), _mm_unpacklo_epi32(c[2], c[3]));
+    let (t2, t3) = (_mm_unpackhi_epi32(c[0], c[1]), _mm_unpackhi_epi32(c[2], c[3]));
+    [
+        must_cast(_mm_unpacklo_epi64(t0, t1)),
+        must_cast(_mm_unpackhi_epi64(t0, t1)),
+        must_cast(_mm_unpacklo_epi64(t2, t3)),
+        must_cast(_mm_unpackhi_epi64(t2, t3)),
+    ]
 }
 
 #[inline]

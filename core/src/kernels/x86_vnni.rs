@@ -12,17 +12,16 @@
 //! fit; the caller then runs the AVX2 or portable kernel.
 
 use core::arch::x86_64::{
-    __cpuid, __cpuid_count, __m128i, __m256i, _mm256_castsi256_si128, _mm256_dpbusd_epi32, _mm256_extracti128_si256,
-    _mm256_hadd_epi32, _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_set1_epi8, _mm256_setzero_si256,
-    _mm256_sub_epi32, _mm256_unpackhi_epi32, _mm256_unpackhi_epi64, _mm256_unpacklo_epi32, _mm256_unpacklo_epi64,
-    _mm256_xor_si256, _mm_add_epi32, _mm_set1_epi32, _mm_sub_epi32, _mm_unpackhi_epi32, _mm_unpackhi_epi64,
-    _mm_unpacklo_epi32, _mm_unpacklo_epi64, _xgetbv,
+    __cpuid, __cpuid_count, __m128i, __m256i, _mm256_dpbusd_epi32, _mm256_permute2x128_si256, _mm256_set1_epi32,
+    _mm256_set1_epi8, _mm256_setzero_si256, _mm256_sub_epi32, _mm256_unpackhi_epi32, _mm256_unpackhi_epi64,
+    _mm256_unpacklo_epi32, _mm256_unpacklo_epi64, _mm256_xor_si256, _mm_set1_epi32, _mm_sub_epi32, _xgetbv,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
 use bytemuck::must_cast;
 
 use super::exp::ExpQ32;
+use super::matmul_avx2::{sum4, transpose4};
 
 /// Bytes per step: one 256-bit vector.
 pub const STEP: usize = 32;
@@ -166,28 +165,6 @@ fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) 
 #[inline(always)]
 fn load(chunk: &[i8]) -> __m256i {
     must_cast::<[i8; STEP], __m256i>(chunk.try_into().unwrap_or([0; STEP]))
-}
-
-/// `[sum of v[0]'s lanes, ..., sum of v[3]'s lanes]`.
-#[inline]
-#[target_feature(enable = "avx2")]
-fn sum4(v: [__m256i; 4]) -> __m128i {
-    let halves = _mm256_hadd_epi32(_mm256_hadd_epi32(v[0], v[1]), _mm256_hadd_epi32(v[2], v[3]));
-    _mm_add_epi32(_mm256_castsi256_si128(halves), _mm256_extracti128_si256::<1>(halves))
-}
-
-/// Rows of a 4 x 4 matrix given as its columns (and the other way round).
-#[inline]
-#[target_feature(enable = "avx2")]
-fn transpose4(c: [__m128i; 4]) -> [[i32; 4]; 4] {
-    let (t0, t1) = (_mm_unpacklo_epi32(c[0], c[1]), _mm_unpacklo_epi32(c[2], c[3]));
-    let (t2, t3) = (_mm_unpackhi_epi32(c[0], c[1]), _mm_unpackhi_epi32(c[2], c[3]));
-    [
-        must_cast(_mm_unpacklo_epi64(t0, t1)),
-        must_cast(_mm_unpackhi_epi64(t0, t1)),
-        must_cast(_mm_unpacklo_epi64(t2, t3)),
-        must_cast(_mm_unpackhi_epi64(t2, t3)),
-    ]
 }
 
 // Tiles of 4 rows of `a` (signed, memory operands) x 4 rows of `w` (unsigned: `w ^ 0x80`, in
