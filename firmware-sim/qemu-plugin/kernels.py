@@ -20,6 +20,8 @@ CMSIS_NN = {
     ("m7", "mlp_up"): 1.709,
     ("m7", "mlp_down"): 1.478,
 }
+# CMSIS-NN's arm_softmax_s8 per element on a 960-long row, same harness (issue 16).
+CMSIS_NN_SOFTMAX = {"m55": 298.0, "m7": 287.0}
 
 
 def main() -> int:
@@ -68,6 +70,7 @@ def main() -> int:
                 f"| {args.core} | {kernel} {label} | {calls} x {mm}x{k} . {k}x{n} | {int(macs):,} "
                 f"| {counts[fast]:,} | **{per_mac:.3f}** | {ref_per_mac:.3f} | {vs} |"
             )
+    rows += softmax_rows(args, counts)
     if not rows:
         print(f"kernels.py: {args.log}: no kernel-bench lines", file=sys.stderr)
         return 1
@@ -78,6 +81,32 @@ def main() -> int:
     args.out.write_text(header + "\n".join(rows) + "\n")
     print(args.out.read_text(), end="")
     return 0
+
+
+def softmax_rows(args: argparse.Namespace, counts: dict[str, int]) -> list[str]:
+    """Rows for the softmax bench (`kernel-bench-rows` lines): instructions per element."""
+    rows = []
+    pattern = re.compile(
+        r"kernel-bench-rows kernel=(\w+) rows=(\d+) n=(\d+) elements=(\d+) same=(\w+)"
+    )
+    for m in pattern.finditer(args.log.read_text()):
+        kernel, nrows, n, elements, same = m.groups()
+        fast, ref = f"{kernel}_fast", f"{kernel}_reference"
+        if same != "true" or fast not in counts or ref not in counts:
+            print(
+                f"kernels.py: {args.log}: {kernel} differs from its reference or was not counted",
+                file=sys.stderr,
+            )
+            raise SystemExit(1)
+        per = counts[fast] / int(elements)
+        ref_per = counts[ref] / int(elements)
+        cmsis = CMSIS_NN_SOFTMAX.get(args.core)
+        vs = f"{cmsis:.0f} per element ({per / cmsis:.2f}x)" if cmsis else "-"
+        rows.append(
+            f"| {args.core} | {kernel} row (max, weights, sum) | {nrows} rows x {n} | {int(elements):,} elements "
+            f"| {counts[fast]:,} | **{per:.2f}** per element | {ref_per:.2f} per element | {vs} |"
+        )
+    return rows
 
 
 if __name__ == "__main__":

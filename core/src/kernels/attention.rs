@@ -175,7 +175,7 @@ pub fn attend_block(
         let m = s_row.iter().fold(i32::MIN, |m, &v| m.max(v));
         let mut sum = 0u32;
         match fast {
-            Some(e) => sum = x86_softmax_row(&e, m, s_row, w_row).unwrap_or_else(|| softmax_row(&e, m, s_row, w_row)),
+            Some(e) => sum = softmax_row_fastest(&e, m, s_row, w_row),
             None => {
                 for (w, &s) in w_row.iter_mut().zip(s_row.iter()) {
                     let x = softmax_weight(m, s, p);
@@ -248,12 +248,42 @@ fn avx2_weighted_sums(
     }
 }
 
-/// One row's softmax weights `e.weight(max - s)`, stored as `w - 128` (int8), and their sum.
+/// One row's softmax weights `e.weight(max - s)`, stored as `w - 128` (int8), and their sum:
+/// the specification of every faster path ([`softmax_row_fastest`]).
 #[inline(always)]
-pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
+pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
     let mut sum = 0u32;
     for (w, &s) in weights.iter_mut().zip(scores) {
         let x = e.weight(max.wrapping_sub(s) as u32);
+        *w = x ^ 0x80;
+        sum = sum.wrapping_add(x as u32);
+    }
+    sum
+}
+
+/// [`softmax_row`] on this core's fastest path, bit for bit the same: AVX-512 on x86 hosts that
+/// have it, the Helium assembly on Cortex-M55, the byte table on Cortex-M7.
+#[inline(always)]
+pub fn softmax_row_fastest(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
+    if let Some(sum) = x86_softmax_row(e, max, scores, weights) {
+        return sum;
+    }
+    if let Some(sum) = arch::softmax_row(e, max, scores, weights) {
+        return sum;
+    }
+    if cfg!(bino_dsp) {
+        return softmax_row_by_table(e, max, scores, weights);
+    }
+    softmax_row(e, max, scores, weights)
+}
+
+/// [`softmax_row`] with [`ExpQ32::weight_by_table`] (equal weights, see `exp`'s tests): on a
+/// scalar core one `umull` and one byte load replace the cubic's four multiplies.
+#[inline(always)]
+pub fn softmax_row_by_table(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
+    let mut sum = 0u32;
+    for (w, &s) in weights.iter_mut().zip(scores) {
+        let x = e.weight_by_table(max.wrapping_sub(s) as u32);
         *w = x ^ 0x80;
         sum = sum.wrapping_add(x as u32);
     }
@@ -395,6 +425,36 @@ mod tests {
                 attend(q, &keys, &values, &p, &mut scores[..N], &mut weights[..N], &mut want);
                 assert_eq!(*got, want, "scale {score_scale}");
             }
+        }
+    }
+
+    #[test]
+    fn every_softmax_path_equals_the_specification() {
+        let mut rng = Rng::new(29);
+        for (case, n) in [1usize, 3, 4, 5, 17, 64, 960].into_iter().cycle().take(28).enumerate() {
+            let spread = [6u32, 14, 20, 31][case % 4];
+            let scores: [i32; 960] = core::array::from_fn(|_| match rng.next_u64() % 16 {
+                0 => i32::MIN,
+                1 => i32::MAX,
+                r => ((rng.next_u64() as i64 % (1i64 << spread)) as i32).wrapping_mul(r as i32 % 2 * 2 - 1),
+            });
+            let scores = &scores[..n];
+            let max = scores
+                .iter()
+                .fold(i32::MIN, |m, &v| m.max(v))
+                .wrapping_sub((case % 3) as i32 * 77);
+            let shift = 22 + (case as u32 * 5) % 41;
+            let e = ExpQ32::new(Requant {
+                mult: (rng.next_u64() >> 33) as i32,
+                shift,
+            })
+            .expect("shift >= 22");
+            let (mut want, mut by_table, mut fastest) = ([0u8; 960], [0u8; 960], [0u8; 960]);
+            let sum = softmax_row(&e, max, scores, &mut want[..n]);
+            assert_eq!(softmax_row_by_table(&e, max, scores, &mut by_table[..n]), sum, "{case}");
+            assert_eq!(softmax_row_fastest(&e, max, scores, &mut fastest[..n]), sum, "{case}");
+            assert_eq!(by_table, want, "{case}");
+            assert_eq!(fastest, want, "{case}");
         }
     }
 

@@ -47,7 +47,7 @@ pub fn exp2_neg_u8(x: i64) -> u8 {
 
 /// [`exp2_neg_u8`] for `x` in `0..=23 * 256`, branch-free.
 #[inline(always)]
-fn exp2_neg_u8_q8(x: u32) -> u8 {
+const fn exp2_neg_u8_q8(x: u32) -> u8 {
     let whole = x >> 8;
     let f = x & 255;
     // Every intermediate is positive and below 2^24.
@@ -57,6 +57,22 @@ fn exp2_neg_u8_q8(x: u32) -> u8 {
     let scaled = (C0 - t) * 255;
     (((scaled >> whole) + (1 << 14)) >> 15) as u8
 }
+
+/// From this Q8 base-2 input on, [`exp2_neg_u8`] is 0: `255 * 2^15 >> 9` rounds to 0.
+pub const EXP2_TABLE_LAST: u32 = 9 * 256;
+
+/// `exp2_neg_u8(x)` for `x` in `0..=EXP2_TABLE_LAST` (the last entry 0): one byte load in
+/// place of the cubic on cores without a vector unit, and the gather table of the Helium
+/// softmax (`kernels::arch::mve`). Built from the cubic, so it equals it by construction.
+pub static EXP2_NEG_U8_TABLE: [u8; EXP2_TABLE_LAST as usize + 1] = {
+    let mut t = [0u8; EXP2_TABLE_LAST as usize + 1];
+    let mut x = 0;
+    while x < t.len() {
+        t[x] = exp2_neg_u8_q8(x as u32);
+        x += 1;
+    }
+    t
+};
 
 /// `exp(-gap * scale)` as `0..=255`, where `to_log2_q8` turns a score gap into Q8 base-2 units.
 #[inline(always)]
@@ -128,6 +144,34 @@ impl ExpQ32 {
         let x = (hi + self.round) >> (self.post & 31);
         exp2_neg_u8_q8(x.min(EXP2_ZERO_FROM))
     }
+
+    /// [`ExpQ32::weight`] through one 32 x 32 -> 64-bit multiply (`umull`) and
+    /// [`EXP2_NEG_U8_TABLE`]: fewer instructions on cores with a 64-bit product but no vector
+    /// unit (Cortex-M7), where the cubic's four multiplies run one element at a time.
+    #[inline(always)]
+    pub fn weight_by_table(&self, gap: u32) -> u8 {
+        let g = gap.min(EXP_Q32_MAX_GAP) << (self.pre & 15);
+        let hi = ((g as u64 * self.mult() as u64) >> 32) as u32;
+        let x = (hi + self.round) >> (self.post & 31);
+        EXP2_NEG_U8_TABLE
+            .get(x.min(EXP2_TABLE_LAST) as usize)
+            .copied()
+            .unwrap_or(0)
+    }
+
+    /// The multiplier (`< 2^31`), whole.
+    #[inline(always)]
+    pub fn mult(&self) -> u32 {
+        (self.mult_hi << 16) | self.mult_lo
+    }
+
+    /// `(pre, round, post)`: the left shift of the gap (`0..=11`), the rounding term added to
+    /// the product's high word and the right shift after it (`1..=30`), for the kernels that
+    /// compute [`ExpQ32::weight`] in assembly.
+    #[inline(always)]
+    pub fn shifts(&self) -> (u32, u32, u32) {
+        (self.pre & 15, self.round, self.post & 31)
+    }
 }
 
 #[cfg(test)]
@@ -190,6 +234,46 @@ mod tests {
             shift: 21
         })
         .is_none());
+    }
+
+    #[test]
+    fn byte_table_equals_the_cubic_everywhere() {
+        for x in 0..=EXP2_ZERO_FROM + 300 {
+            let want = exp2_neg_u8(x as i64);
+            if x >= EXP2_TABLE_LAST {
+                assert_eq!(want, 0, "{x}: the table's last entry must stand for every larger input");
+            } else {
+                assert_eq!(EXP2_NEG_U8_TABLE[x as usize], want, "{x}");
+            }
+        }
+        assert_eq!(EXP2_NEG_U8_TABLE[EXP2_TABLE_LAST as usize], 0);
+        // The bound is tight: the entry before it is not 0.
+        assert!(EXP2_NEG_U8_TABLE[..EXP2_TABLE_LAST as usize]
+            .iter()
+            .rev()
+            .take(256)
+            .any(|&w| w > 0));
+    }
+
+    #[test]
+    fn table_path_equals_the_cubic_path() {
+        let mut rng = crate::testutil::Rng::new(23);
+        for shift in 22..=62u32 {
+            for mult in [1 << 30, 1_433_499_224, 1_997_098_146, i32::MAX, 1, 0] {
+                let e = ExpQ32::new(Requant { mult, shift }).expect("shift >= 22");
+                let (pre, _, post) = e.shifts();
+                assert!(pre <= 11 && (1..=30).contains(&post), "{shift}: {pre} {post}");
+                for i in 0..400u32 {
+                    let gap = match i {
+                        0 => 0,
+                        1 => EXP_Q32_MAX_GAP,
+                        2 => u32::MAX,
+                        _ => (rng.next_u64() as u32) >> (i % 32),
+                    };
+                    assert_eq!(e.weight_by_table(gap), e.weight(gap), "{gap} {mult} {shift}");
+                }
+            }
+        }
     }
 
     #[test]

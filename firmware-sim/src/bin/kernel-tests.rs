@@ -6,7 +6,8 @@
 //! multiples of 16, channel counts across the fused epilogue's 128-channel chunks), extreme
 //! values (all -128, all 127, alternating), every rounding case of the requantisation
 //! (`(acc + bias) / 2^s` at, below and above each half, both signs, at the saturation edges),
-//! and parameters the kernels must decline. Prints `index / found / expected` on the first
+//! and parameters the kernels must decline; the softmax row of each core's fastest path against
+//! the portable one. Prints `index / found / expected` on the first
 //! mismatch of a case and exits non-zero if any case fails.
 #![no_std]
 #![no_main]
@@ -319,6 +320,60 @@ fn attention_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     }
 }
 
+/// A row's maximum, as the engine takes it before its softmax.
+fn row_max(scores: &[i32]) -> i32 {
+    scores.iter().fold(i32::MIN, |m, &v| m.max(v))
+}
+
+/// The softmax row on this core's fastest path (`softmax_row_fastest`: the Helium assembly on
+/// Cortex-M55, the byte table on Cortex-M7) against the portable `softmax_row`, bit for bit:
+/// rows of 1 to 960 scores (every tail length of a 4-lane step), spreads from a few codes to
+/// 2^31, the extreme scores (gaps that wrap, or pass the 2^20 clamp), a maximum below the
+/// row's own (negative gaps), and the shifts and multipliers an attention can hold.
+fn softmax_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::fixed::Requant;
+    use bino_core::kernels::attention::{softmax_row, softmax_row_fastest};
+    use bino_core::kernels::exp::ExpQ32;
+    let lens = [1usize, 2, 3, 4, 5, 6, 7, 8, 9, 15, 16, 17, 33, 100, 255, 960];
+    for (case, &n) in lens.iter().cycle().take(3 * lens.len()).enumerate() {
+        let spread = [4, 10, 16, 21, 31][case % 5];
+        let extremes = case % 3 == 0;
+        let scores = &mut b.found[..n];
+        for s in scores.iter_mut() {
+            *s = match rng.range(0, 15) {
+                0 if extremes => i32::MIN,
+                1 if extremes => i32::MAX,
+                _ => rng.range(-(1 << spread), 1 << spread) as i32,
+            };
+        }
+        let max = match case % 4 {
+            3 => row_max(scores).wrapping_sub(rng.range(1, 1 << 12) as i32),
+            _ => row_max(scores),
+        };
+        let shift = [22u32, 30, 33, 34, 40, 46, 62][case % 7];
+        let mult = match case % 4 {
+            0 => 1 << 30,
+            1 => i32::MAX,
+            2 => rng.range(0, 1 << 16) as i32,
+            _ => rng.range(1, i32::MAX as i64) as i32,
+        };
+        let Some(e) = ExpQ32::new(Requant { mult, shift }) else {
+            defmt::println!("kernel-tests mismatch kernel=softmax shift={=u32} rejected", shift);
+            t.failed += 1;
+            continue;
+        };
+        let (found, rest) = b.weights.split_at_mut(n);
+        let expected = &mut rest[..n];
+        let sum_found = softmax_row_fastest(&e, max, scores, found);
+        let sum_expected = softmax_row(&e, max, scores, expected);
+        t.check("softmax_row", [1, n, 0], found, expected);
+        t.check("softmax_row/sum", [1, n, 0], &[sum_found], &[sum_expected]);
+        if cfg!(board = "an547") {
+            t.asm_cases += 1;
+        }
+    }
+}
+
 /// Weights at an odd address: the Cortex-M7 kernel declines, the results still agree.
 fn unaligned_cases(t: &mut Tally, rng: &mut Rng) {
     let mut a = Aligned([0i8; 4 * 32]);
@@ -363,6 +418,8 @@ markers! {
     bino_mark_mlp_down_reference = 6;
     bino_mark_mlp_down_i32 = 7;
     bino_mark_mlp_down_i32_reference = 8;
+    bino_mark_softmax_fast = 9;
+    bino_mark_softmax_reference = 10;
     bino_mark_end = 0xFFFF;
 }
 
@@ -442,6 +499,49 @@ fn bench(rng: &mut Rng, b: &mut Buffers) {
     }
 }
 
+/// Softmax rows as attention computes them (the row maximum, then the weights and their sum),
+/// this core's fastest path and the portable reference between markers; rows of 960 scores, a
+/// band's tokens, spread like the products of 32 int8 pairs.
+fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::fixed::Requant;
+    use bino_core::kernels::attention::{softmax_row, softmax_row_fastest};
+    use bino_core::kernels::exp::ExpQ32;
+    const N: usize = 960;
+    const ROWS: usize = 16;
+    for s in b.found[..N].iter_mut() {
+        *s = rng.range(-(1 << 15), 1 << 15) as i32;
+    }
+    let Some(e) = ExpQ32::new(Requant {
+        mult: 1_433_499_224,
+        shift: 40,
+    }) else {
+        defmt::println!("kernel-bench kernel=softmax rejected");
+        return;
+    };
+    let (scores, (fast, rest)) = (&b.found[..N], b.weights.split_at_mut(N));
+    let reference = &mut rest[..N];
+    let (mut sum_fast, mut sum_reference) = (0u32, 0u32);
+    bino_mark_softmax_fast();
+    for _ in 0..ROWS {
+        let m = row_max(scores);
+        sum_fast = sum_fast.wrapping_add(softmax_row_fastest(&e, m, scores, fast));
+    }
+    bino_mark_softmax_reference();
+    for _ in 0..ROWS {
+        let m = row_max(scores);
+        sum_reference = sum_reference.wrapping_add(softmax_row(&e, m, scores, reference));
+    }
+    bino_mark_end();
+    let same = fast == reference && sum_fast == sum_reference && CURRENT.load(Ordering::SeqCst) == 0xFFFF;
+    defmt::println!(
+        "kernel-bench-rows kernel=softmax rows={=usize} n={=usize} elements={=usize} same={=bool}",
+        ROWS,
+        N,
+        ROWS * N,
+        same
+    );
+}
+
 #[entry]
 fn main() -> ! {
     defmt::println!("kernel-tests board={=str}", BOARD);
@@ -470,7 +570,9 @@ fn main() -> ! {
     rounding_cases(&mut t);
     unaligned_cases(&mut t, &mut rng);
     attention_cases(&mut t, &mut rng, buffers);
+    softmax_cases(&mut t, &mut rng, buffers);
     bench(&mut rng, buffers);
+    bench_softmax(&mut rng, buffers);
     let pass = t.failed == 0 && t.asm_cases > 0;
     defmt::println!(
         "kernel-tests result={=str} cases={=usize} assembly_cases={=usize} failed={=usize}",

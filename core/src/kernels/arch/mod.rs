@@ -1,4 +1,5 @@
-//! Assembly GEMM kernels for the Cortex-M cores, behind safe wrappers.
+//! Assembly kernels for the Cortex-M cores (GEMM tiles, and the softmax row on Cortex-M55),
+//! behind safe wrappers.
 //!
 //! The only module of `bino-core` that may use `unsafe`, and only for `core::arch::asm!`.
 //! Each kernel computes a small tile of dot products in registers (`dsp`: 4 rows x 1 column
@@ -23,6 +24,8 @@ mod fused;
 pub(crate) mod mve;
 
 pub use fused::matmul_requant;
+
+use super::exp::ExpQ32;
 
 /// Longest dot product the kernels take (their stack scratch and the accumulator bound:
 /// `1024 * 128 * 128 < 2^24`; a band of 960 tokens is one attention dot product).
@@ -103,6 +106,20 @@ pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
     }
     let _ = (a, w, k, out);
     false
+}
+
+/// One row of softmax weights and their sum, bit for bit
+/// [`attention::softmax_row`](crate::kernels::attention::softmax_row), on this core's assembly
+/// kernel (Cortex-M55); `None` (nothing written) where there is none.
+#[inline]
+pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> Option<u32> {
+    #[cfg(bino_mve)]
+    return Some(mve::softmax_row(e, max, scores, weights));
+    #[cfg(not(bino_mve))]
+    {
+        let _ = (e, max, scores, weights);
+        None
+    }
 }
 
 /// The tile driver of this core.
