@@ -19,6 +19,9 @@ CMSIS_NN = {
     ("m7", "qkv"): 1.709,
     ("m7", "mlp_up"): 1.709,
     ("m7", "mlp_down"): 1.478,
+    # Q.K^T, 960x32 . 32x960 (no requantisation: int32 scores).
+    ("m55", "scores"): 0.586,
+    ("m7", "scores"): 2.653,
 }
 # CMSIS-NN's arm_softmax_s8 per element on a 960-long row, same harness (issue 16).
 CMSIS_NN_SOFTMAX = {"m55": 298.0, "m7": 287.0}
@@ -50,7 +53,10 @@ def main() -> int:
                 file=sys.stderr,
             )
             return 1
-        variants = [("fused (int8 out)", f"{kernel}_fused", f"{kernel}_reference")]
+        if f"{kernel}_fast" in counts:
+            variants = [("(int32 out)", f"{kernel}_fast", f"{kernel}_reference")]
+        else:
+            variants = [("fused (int8 out)", f"{kernel}_fused", f"{kernel}_reference")]
         if f"{kernel}_i32" in counts:
             variants.append(("int32 out", f"{kernel}_i32", f"{kernel}_i32_reference"))
         for label, fast, ref in variants:
@@ -63,7 +69,9 @@ def main() -> int:
             per_mac = counts[fast] / int(macs)
             ref_per_mac = counts[ref] / int(macs)
             cmsis = (
-                CMSIS_NN.get((args.core, kernel)) if label.startswith("fused") else None
+                CMSIS_NN.get((args.core, kernel))
+                if label.startswith(("fused", "(int32"))
+                else None
             )
             vs = f"{cmsis:.3f} ({per_mac / cmsis:.2f}x)" if cmsis else "-"
             rows.append(

@@ -117,39 +117,7 @@ pub fn attend_block(
     let (Some(scores), Some(weights)) = (scores.get_mut(..QUERY_BLOCK * n), weights.get_mut(..QUERY_BLOCK * n)) else {
         return;
     };
-    // The head size as an opaque run-time value: with a constant 32, LLVM unrolls each dot
-    // product and vectorises it over 32-bit lanes; a loop of unknown length becomes a
-    // tail-predicated 16-lane `vmladav.s8` loop on MVE, as in the matrix multiply.
-    // On Cortex-M7 (`bino_dsp`, no vector unit) the constant size is the better one: the
-    // unrolled two-row products address keys and queries by constant offsets.
-    let hd = if cfg!(bino_dsp) {
-        HEAD_DIM
-    } else {
-        core::hint::black_box(HEAD_DIM)
-    };
-    // Cortex-M7: the four queries against every key on the assembly GEMM tile (one row of n
-    // scores per query: its `4 x n` output). Elsewhere, and where it declines, the four-row
-    // dot products.
-    let keys_n = keys.get(..n * HEAD_DIM).unwrap_or(&[]);
-    if !(cfg!(bino_dsp) && arch::matmul_i32(queries.as_flattened(), keys_n, HEAD_DIM, scores)
-        || avx2_scores(queries, keys_n, n, scores))
-    {
-        let mut score_rows = scores.chunks_exact_mut(n);
-        let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
-            score_rows.next(),
-            score_rows.next(),
-            score_rows.next(),
-            score_rows.next(),
-        ) else {
-            return;
-        };
-        let [q0, q1, q2, q3] = queries.each_ref().map(|q| q.get(..hd).unwrap_or(&[]));
-        let score_slots = s0.iter_mut().zip(s1.iter_mut()).zip(s2.iter_mut()).zip(s3.iter_mut());
-        for ((((x0, x1), x2), x3), k) in score_slots.zip(keys.chunks_exact(hd)) {
-            let s = dot4(q0, q1, q2, q3, k);
-            (*x0, *x1, *x2, *x3) = (s[0], s[1], s[2], s[3]);
-        }
-    }
+    scores_block(queries, keys, n, scores);
     let mut score_rows = scores.chunks_exact(n);
     let mut weight_rows = weights.chunks_exact_mut(n);
     let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
@@ -213,6 +181,60 @@ pub fn attend_block(
     }
     for ((out_q, acc_q), &t) in out.iter_mut().zip(&acc).zip(&total) {
         normalise(acc_q, t, p, out_q);
+    }
+}
+
+/// The scores of the [`QUERY_BLOCK`] queries against the first `n` keys: `scores[q * n + j] =
+/// queries[q] . keys[j]`, on this core's fastest kernel (the GEMM tile on Cortex-M7, the
+/// Helium score kernel on Cortex-M55, AVX-512 VNNI or AVX2 on x86 hosts), else
+/// [`scores_block_reference`]. `keys` needs `n * HEAD_DIM` codes and `scores` `QUERY_BLOCK * n`
+/// entries; with less, what fits is computed.
+#[inline(always)]
+pub fn scores_block(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usize, scores: &mut [i32]) {
+    let n = n.min(keys.len() / HEAD_DIM).min(scores.len() / QUERY_BLOCK);
+    let keys_n = keys.get(..n * HEAD_DIM).unwrap_or(&[]);
+    let Some(scores) = scores.get_mut(..QUERY_BLOCK * n) else {
+        return;
+    };
+    let taken = (cfg!(bino_dsp) && arch::matmul_i32(queries.as_flattened(), keys_n, HEAD_DIM, scores))
+        || arch::attention_scores(queries, keys_n, scores)
+        || avx2_scores(queries, keys_n, n, scores);
+    if !taken {
+        scores_block_reference(queries, keys_n, scores);
+    }
+}
+
+/// [`scores_block`] in portable Rust: the specification of its kernels.
+#[inline(always)]
+pub fn scores_block_reference(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], scores: &mut [i32]) {
+    let n = (keys.len() / HEAD_DIM).min(scores.len() / QUERY_BLOCK);
+    if n == 0 {
+        return;
+    }
+    // The head size as an opaque run-time value: with a constant 32, LLVM unrolls each dot
+    // product and vectorises it over 32-bit lanes; a loop of unknown length becomes a
+    // tail-predicated 16-lane `vmladav.s8` loop on MVE, as in the matrix multiply.
+    // On Cortex-M7 (`bino_dsp`, no vector unit) the constant size is the better one: the
+    // unrolled two-row products address keys and queries by constant offsets.
+    let hd = if cfg!(bino_dsp) {
+        HEAD_DIM
+    } else {
+        core::hint::black_box(HEAD_DIM)
+    };
+    let mut score_rows = scores.chunks_exact_mut(n);
+    let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
+        score_rows.next(),
+        score_rows.next(),
+        score_rows.next(),
+        score_rows.next(),
+    ) else {
+        return;
+    };
+    let [q0, q1, q2, q3] = queries.each_ref().map(|q| q.get(..hd).unwrap_or(&[]));
+    let score_slots = s0.iter_mut().zip(s1.iter_mut()).zip(s2.iter_mut()).zip(s3.iter_mut());
+    for ((((x0, x1), x2), x3), k) in score_slots.zip(keys.chunks_exact(hd)) {
+        let s = dot4(q0, q1, q2, q3, k);
+        (*x0, *x1, *x2, *x3) = (s[0], s[1], s[2], s[3]);
     }
 }
 

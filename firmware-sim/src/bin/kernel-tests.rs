@@ -320,6 +320,29 @@ fn attention_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     }
 }
 
+/// Attention scores of four queries on this core's fastest path (`scores_block`: the GEMM tile
+/// on Cortex-M7, the Helium score kernel on Cortex-M55) against the portable
+/// `scores_block_reference`: 1 to 960 keys, random and extreme codes.
+fn scores_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::config::HEAD_DIM;
+    use bino_core::kernels::attention::{scores_block, scores_block_reference, QUERY_BLOCK};
+    let lens = [1usize, 2, 3, 5, 16, 37, 200, 960];
+    for (case, &n) in lens.iter().cycle().take(4 * lens.len()).enumerate() {
+        let pattern = [3u32, 0, 1, 2][case / lens.len()];
+        let keys = &mut b.w.0[..n * HEAD_DIM];
+        rng.fill(keys, pattern);
+        let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+        for q in queries.iter_mut() {
+            rng.fill(q, if case % 2 == 0 { pattern } else { 3 });
+        }
+        let (found, expected) = (&mut b.found[..QUERY_BLOCK * n], &mut b.expected[..QUERY_BLOCK * n]);
+        scores_block(&queries, keys, n, found);
+        scores_block_reference(&queries, keys, expected);
+        t.check("scores_block", [QUERY_BLOCK, n, HEAD_DIM], found, expected);
+        t.asm_cases += 1;
+    }
+}
+
 /// A row's maximum, as the engine takes it before its softmax.
 fn row_max(scores: &[i32]) -> i32 {
     scores.iter().fold(i32::MIN, |m, &v| m.max(v))
@@ -420,6 +443,8 @@ markers! {
     bino_mark_mlp_down_i32_reference = 8;
     bino_mark_softmax_fast = 9;
     bino_mark_softmax_reference = 10;
+    bino_mark_scores_fast = 11;
+    bino_mark_scores_reference = 12;
     bino_mark_end = 0xFFFF;
 }
 
@@ -542,6 +567,42 @@ fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
     );
 }
 
+/// Attention scores as the engine computes them (four queries against a band's 960 keys, 240
+/// blocks: one head of one layer), this core's fastest path and the portable reference
+/// between markers. Printed as a GEMM (`m` queries, `k` the head size, `n` keys).
+fn bench_scores(rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::config::HEAD_DIM;
+    use bino_core::kernels::attention::{scores_block, scores_block_reference, QUERY_BLOCK};
+    const N: usize = 960;
+    const CALLS: usize = 240;
+    rng.fill(&mut b.w.0[..N * HEAD_DIM], 3);
+    let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+    for q in queries.iter_mut() {
+        rng.fill(q, 3);
+    }
+    let keys = &b.w.0[..N * HEAD_DIM];
+    let (found, expected) = (&mut b.found[..QUERY_BLOCK * N], &mut b.expected[..QUERY_BLOCK * N]);
+    bino_mark_scores_fast();
+    for _ in 0..CALLS {
+        scores_block(&queries, keys, N, found);
+    }
+    bino_mark_scores_reference();
+    for _ in 0..CALLS {
+        scores_block_reference(&queries, keys, expected);
+    }
+    bino_mark_end();
+    let same = found == expected && CURRENT.load(Ordering::SeqCst) == 0xFFFF;
+    defmt::println!(
+        "kernel-bench kernel=scores m={=usize} k={=usize} n={=usize} calls={=usize} macs={=usize} same={=bool}",
+        QUERY_BLOCK,
+        HEAD_DIM,
+        N,
+        CALLS,
+        CALLS * QUERY_BLOCK * HEAD_DIM * N,
+        same
+    );
+}
+
 #[entry]
 fn main() -> ! {
     defmt::println!("kernel-tests board={=str}", BOARD);
@@ -571,8 +632,10 @@ fn main() -> ! {
     unaligned_cases(&mut t, &mut rng);
     attention_cases(&mut t, &mut rng, buffers);
     softmax_cases(&mut t, &mut rng, buffers);
+    scores_cases(&mut t, &mut rng, buffers);
     bench(&mut rng, buffers);
     bench_softmax(&mut rng, buffers);
+    bench_scores(&mut rng, buffers);
     let pass = t.failed == 0 && t.asm_cases > 0;
     defmt::println!(
         "kernel-tests result={=str} cases={=usize} assembly_cases={=usize} failed={=usize}",

@@ -26,6 +26,7 @@ pub(crate) mod mve;
 pub use fused::matmul_requant;
 
 use super::exp::ExpQ32;
+use crate::config::HEAD_DIM;
 
 /// Longest dot product the kernels take (their stack scratch and the accumulator bound:
 /// `1024 * 128 * 128 < 2^24`; a band of 960 tokens is one attention dot product).
@@ -108,7 +109,22 @@ pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
     false
 }
 
-/// One row of softmax weights and their sum, bit for bit
+/// Attention scores of four queries against `keys.len() / HEAD_DIM` keys (`scores[q * n + j]`,
+/// `scores` exactly `4 * n` long), bit for bit
+/// [`attention::scores_block_reference`](crate::kernels::attention::scores_block_reference), on
+/// this core's assembly kernel (Cortex-M55); `false` (nothing written) where there is none.
+#[inline]
+pub fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], scores: &mut [i32]) -> bool {
+    #[cfg(bino_mve)]
+    return mve::attention_scores(queries, keys, scores);
+    #[cfg(not(bino_mve))]
+    {
+        let _ = (queries, keys, scores);
+        false
+    }
+}
+
+/// One softmax row and their sum, bit for bit
 /// [`attention::softmax_row`](crate::kernels::attention::softmax_row), on this core's assembly
 /// kernel (Cortex-M55); `None` (nothing written) where there is none.
 #[inline]

@@ -1,11 +1,14 @@
-//! Cortex-M55 (Helium, MVE) tiles: 2 rows x 3 columns (and 2 x 1 for the last columns), 16
-//! MACs per `vmladava.s8`, accumulating into scalar registers.
+//! Cortex-M55 (Helium, MVE) kernels: the GEMM tiles, 2 rows x 3 columns (and 2 x 1 for the
+//! last columns), 16 MACs per `vmladava.s8`, accumulating into scalar registers; attention's
+//! scores with the queries held in vector registers; the softmax row.
 //!
 //! One tail-predicated loop (`dlstp.8` / `letp`) runs over `k` in steps of 16: the last step
 //! loads and multiplies only the elements left, so any `k` is taken and nothing is read past a
 //! row. Per 96 MACs: five `vldrb`, six `vmladava` and the loop end.
 
 use super::Epilogue;
+#[cfg(bino_mve)]
+use crate::config::HEAD_DIM;
 #[cfg(bino_mve)]
 use crate::kernels::exp::{ExpQ32, EXP2_NEG_U8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
@@ -126,6 +129,59 @@ fn tile1(a0: &[i8], a1: &[i8], w: &[i8], init: i32) -> [i32; 2] {
         );
     }
     [s0, s1]
+}
+
+/// Attention scores of four queries (`HEAD_DIM` = 32 codes: two vectors each) against every
+/// key, two queries at a time held in q0-q3: per key two `vldrb`, four `vmladav(a)` and two
+/// stores (64 MACs). Declines (`false`) unless `scores` is exactly `4 * n` for `n >= 1` keys.
+#[cfg(bino_mve)]
+pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], scores: &mut [i32]) -> bool {
+    const _: () = assert!(HEAD_DIM == 32);
+    let n = keys.len() / HEAD_DIM;
+    if n == 0 || scores.len() != 4 * n {
+        return false;
+    }
+    let (first, second) = scores.split_at_mut(2 * n);
+    let [q0, q1, q2, q3] = queries;
+    for ((qa, qb), rows) in [((q0, q1), first), ((q2, q3), second)] {
+        let (row_a, row_b) = rows.split_at_mut(n);
+        // SAFETY: reads the two 32-byte queries, then loops `n >= 1` times (`dls`/`le`), each
+        // time reading 32 bytes of `keys` (`n * 32` bytes in all, checked above) and writing one
+        // word to each of `row_a` and `row_b` (`n` words each). `vldrb.u8` and `str` need no
+        // alignment beyond the `i32` rows'. It writes only its declared outputs: the pointers,
+        // r0, r2, `lr` and q0-q5 (through their `d` aliases).
+        unsafe {
+            core::arch::asm!(
+                "vldrb.u8 q0, [{qa}]",
+                "vldrb.u8 q1, [{qa}, #16]",
+                "vldrb.u8 q2, [{qb}]",
+                "vldrb.u8 q3, [{qb}, #16]",
+                "dls lr, lr",
+                "2:",
+                "vldrb.u8 q4, [{k}], #16",
+                "vldrb.u8 q5, [{k}], #16",
+                "vmladav.s8 r0, q0, q4",
+                "vmladava.s8 r0, q1, q5",
+                "vmladav.s8 r2, q2, q4",
+                "vmladava.s8 r2, q3, q5",
+                "str r0, [{sa}], #4",
+                "str r2, [{sb}], #4",
+                "le lr, 2b",
+                qa = in(reg) qa.as_ptr(),
+                qb = in(reg) qb.as_ptr(),
+                k = inout(reg) keys.as_ptr() => _,
+                sa = inout(reg) row_a.as_mut_ptr() => _,
+                sb = inout(reg) row_b.as_mut_ptr() => _,
+                inout("lr") n => _,
+                out("r0") _,
+                out("r2") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _,
+                out("d6") _, out("d7") _, out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                options(nostack),
+            );
+        }
+    }
+    true
 }
 
 /// One softmax row, four scores a step: `ExpQ32::weight_by_table` on every lane (`vmulh.u32`
