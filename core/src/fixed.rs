@@ -74,11 +74,8 @@ pub fn round_shift(x: i64, shift: u32) -> i64 {
 pub fn isqrt_u64(n: u64) -> u32 {
     let mut rem = n;
     let mut root: u64 = 0;
-    // Highest power of four not above n.
-    let mut bit: u64 = 1 << 62;
-    while bit > rem {
-        bit >>= 2;
-    }
+    // Highest power of four not above n (0 for n = 0: the loop below is then skipped).
+    let mut bit: u64 = if n == 0 { 0 } else { 1 << ((63 - n.leading_zeros()) & !1) };
     while bit != 0 {
         if rem >= root + bit {
             rem -= root + bit;

@@ -22,9 +22,17 @@ CMSIS_NN = {
     # Q.K^T, 960x32 . 32x960 (no requantisation: int32 scores).
     ("m55", "scores"): 0.586,
     ("m7", "scores"): 2.653,
+    # P.V, 960x960 . 960x32.
+    ("m55", "pv"): 0.186,
+    ("m7", "pv"): 1.436,
 }
 # CMSIS-NN's arm_softmax_s8 per element on a 960-long row, same harness (issue 16).
-CMSIS_NN_SOFTMAX = {"m55": 298.0, "m7": 287.0}
+CMSIS_NN_PER_ELEMENT = {("m55", "softmax"): 298.0, ("m7", "softmax"): 287.0}
+# What each per-element bench row measures.
+ROW_LABELS = {
+    "softmax": "softmax row (max, weights, sum)",
+    "layernorm": "LayerNorm row (values, normalise, int8 out)",
+}
 
 
 def main() -> int:
@@ -92,7 +100,7 @@ def main() -> int:
 
 
 def softmax_rows(args: argparse.Namespace, counts: dict[str, int]) -> list[str]:
-    """Rows for the softmax bench (`kernel-bench-rows` lines): instructions per element."""
+    """Rows for the per-element benches (`kernel-bench-rows` lines: softmax, LayerNorm)."""
     rows = []
     pattern = re.compile(
         r"kernel-bench-rows kernel=(\w+) rows=(\d+) n=(\d+) elements=(\d+) same=(\w+)"
@@ -108,10 +116,10 @@ def softmax_rows(args: argparse.Namespace, counts: dict[str, int]) -> list[str]:
             raise SystemExit(1)
         per = counts[fast] / int(elements)
         ref_per = counts[ref] / int(elements)
-        cmsis = CMSIS_NN_SOFTMAX.get(args.core)
+        cmsis = CMSIS_NN_PER_ELEMENT.get((args.core, kernel))
         vs = f"{cmsis:.0f} per element ({per / cmsis:.2f}x)" if cmsis else "-"
         rows.append(
-            f"| {args.core} | {kernel} row (max, weights, sum) | {nrows} rows x {n} | {int(elements):,} elements "
+            f"| {args.core} | {ROW_LABELS.get(kernel, kernel)} | {nrows} rows x {n} | {int(elements):,} elements "
             f"| {counts[fast]:,} | **{per:.2f}** per element | {ref_per:.2f} per element | {vs} |"
         )
     return rows

@@ -50,6 +50,22 @@ pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
     }
 }
 
+/// [`layernorm_rows`] by the saturating 64-bit path only: the specification every faster path
+/// (the narrow rows, their 32-bit lanes, the Helium loops) is tested against.
+pub fn layernorm_rows_reference<Z: I32s + ?Sized, R: I32s + ?Sized>(
+    x: &[i8],
+    dim: usize,
+    p: &LayerNormQ<'_, Z, R>,
+    out: &mut [i8],
+) {
+    if dim == 0 {
+        return;
+    }
+    for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
+        layernorm_row_unbuffered(row, p, out_row);
+    }
+}
+
 /// A LayerNorm's per-channel parameters decoded once into plain arrays, for formats whose
 /// values `(q - zero) * rel` fit 32 bits (`|zero|, |rel| <= 2^15`: quantiser-made formats
 /// have `|zero| < 2^9` and `rel <= 2^15`) and rows of at most [`BUFFERED_DIM`] channels. Gives
@@ -95,6 +111,9 @@ impl NarrowParams {
             return;
         }
         let (row, out) = (&row[..dim], &mut out[..dim]);
+        if cfg!(any(bino_mve, test)) && self.row_in_lanes(row, out) {
+            return;
+        }
         let d = dim as i64;
         // |q - zero| <= 2^15 + 128 and |rel| <= 2^15: every value fits 31 bits.
         let mut v = [0i32; BUFFERED_DIM];
@@ -135,6 +154,116 @@ impl NarrowParams {
             // |z| <= 2^21 and |mult| < 2^31: the output product never saturates.
             let z = (y as i64 * recip + z_half) >> (RECIP_BITS - Z_FRAC_BITS);
             *o = sat_i8_i64((z * mult + out_half) >> out_shift);
+        }
+    }
+}
+
+impl NarrowParams {
+    /// [`NarrowParams::row`] in 32-bit lanes, three passes that are Helium loops on Cortex-M55
+    /// (`kernels::arch`; portable twins below for host tests), for rows of [`LANE_DIM`]
+    /// channels. `false` (nothing written) where an identity below needs more: a shift above
+    /// 13, a reciprocal from `2^23`, an output shift below 33.
+    ///
+    /// With `d = 2^7`, `H = half - sum` and the row's shift `s`, the scalar path's normalised
+    /// value `((v d + H) >> s) as i32` is, for `s <= 7`, `(v << (7 - s)) + (H >> s)` modulo 2^32
+    /// (no bits leave a right shift; for `s <= 0`, `H = -sum` and `>> s` is `<< -s`), and for
+    /// `7 < s <= 13` it is `(v + (H >> 7)) >> (s - 7)` (the 7 low bits of `H` never carry past a
+    /// multiple of `2^(s-7)`), whose sum is exact in 32 bits because `|v d - sum| < 2^(24+s)`.
+    /// The output's `(n recip + 2^23) >> 24` is `vrmulh(n, recip << 8)`, and
+    /// `(z mult + 2^(sh-1)) >> sh` for `sh >= 33` is `(vmulh(z, mult) + 2^(sh-33)) >> (sh - 32)`,
+    /// as in the fused GEMM epilogue.
+    #[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
+    fn row_in_lanes(&self, row: &[i8], out: &mut [i8]) -> bool {
+        let dim = row.len();
+        if dim != LANE_DIM || out.len() != dim || self.out.shift < 33 {
+            return false;
+        }
+        let (zero, rel) = (&self.zero[..dim], &self.rel[..dim]);
+        let mut v = [0i32; LANE_DIM];
+        let Some((sum, lo, hi)) = lanes::values(row, zero, rel, &mut v) else {
+            return false;
+        };
+        let d = dim as i64;
+        let max_dev = (hi as i64 * d - sum).max(sum - lo as i64 * d) as u64;
+        let shift = bit_length(max_dev) as i32 - WORK_BITS;
+        let (left, add, right) = match shift {
+            ..=0 => (
+                (7 - shift) as u32,
+                sum.wrapping_neg().wrapping_shl((-shift) as u32) as i32,
+                0,
+            ),
+            1..=7 => ((7 - shift) as u32, (((1i64 << (shift - 1)) - sum) >> shift) as i32, 0),
+            8..=13 => (0, (((1i64 << (shift - 1)) - sum) >> 7) as i32, (shift - 7) as u32),
+            _ => return false,
+        };
+        let mut n = [0i32; LANE_DIM];
+        let Some(sum_sq) = lanes::normalise(&v, left, add, right, &mut n) else {
+            return false;
+        };
+        // `sum_sq / d` for d = 2^7: a sum of squares below 2^58 is not negative.
+        let recip = reciprocal_std(sum_sq >> 7, self.eps, d, shift).min(i32::MAX as i64);
+        if recip >= 1 << 23 {
+            return false;
+        }
+        let post = self.out.shift - 32;
+        lanes::output(&n, (recip << 8) as i32, self.out.mult, 1 << (post - 1), post, out)
+    }
+}
+
+/// Row length of [`NarrowParams::row_in_lanes`]: the encoder's width, `2^7`.
+const LANE_DIM: usize = 128;
+
+/// The three lane passes of [`NarrowParams::row_in_lanes`]: the Helium loops of
+/// `kernels::arch` on Cortex-M55, these portable twins in host tests (the same 32-bit lane
+/// arithmetic, so the tests prove the identities the loops rely on).
+mod lanes {
+    /// `v = (q - zero) * rel` per channel; the 64-bit sum, the minimum and the maximum.
+    #[inline(always)]
+    pub(super) fn values(row: &[i8], zero: &[i32], rel: &[i32], v: &mut [i32]) -> Option<(i64, i32, i32)> {
+        #[cfg(bino_mve)]
+        return crate::kernels::arch::layernorm_values(row, zero, rel, v);
+        #[cfg(not(bino_mve))]
+        {
+            let (mut sum, mut lo, mut hi) = (0i64, i32::MAX, i32::MIN);
+            for (((x, &q), &z), &r) in v.iter_mut().zip(row).zip(zero).zip(rel) {
+                *x = (q as i32).wrapping_sub(z).wrapping_mul(r);
+                sum = sum.wrapping_add(*x as i64);
+                (lo, hi) = (lo.min(*x), hi.max(*x));
+            }
+            Some((sum, lo, hi))
+        }
+    }
+
+    /// `n = ((v << left) + add) >> right` (wrapping, arithmetic shift) and the 64-bit sum of
+    /// the squares of `n`.
+    #[inline(always)]
+    pub(super) fn normalise(v: &[i32], left: u32, add: i32, right: u32, n: &mut [i32]) -> Option<i64> {
+        #[cfg(bino_mve)]
+        return crate::kernels::arch::layernorm_normalise(v, left, add, right, n);
+        #[cfg(not(bino_mve))]
+        {
+            let mut sum_sq = 0i64;
+            for (y, &x) in n.iter_mut().zip(v) {
+                *y = (x.wrapping_shl(left).wrapping_add(add)) >> (right & 31);
+                sum_sq = sum_sq.wrapping_add(*y as i64 * *y as i64);
+            }
+            Some(sum_sq)
+        }
+    }
+
+    /// `out = sat8((hi32(rnd_hi32(n * recip_q) * mult) + round) >> post)`.
+    #[inline(always)]
+    pub(super) fn output(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
+        #[cfg(bino_mve)]
+        return crate::kernels::arch::layernorm_output(n, recip_q, mult, round, post, out);
+        #[cfg(not(bino_mve))]
+        {
+            for (o, &y) in out.iter_mut().zip(n) {
+                let z = ((y as i64 * recip_q as i64 + (1 << 31)) >> 32) as i32;
+                let high = ((z as i64 * mult as i64) >> 32) as i32;
+                *o = (high.wrapping_add(round) >> (post & 31)).clamp(-128, 127) as i8;
+            }
+            true
         }
     }
 }
@@ -344,6 +473,73 @@ mod tests {
                 assert_eq!(fast[r * D..(r + 1) * D], slow, "trial {trial} row {r}");
             }
         }
+    }
+
+    #[test]
+    fn lanes_equal_the_unbuffered_path_in_every_shift_class() {
+        const D: usize = LANE_DIM;
+        let mut rng = Rng::new(41);
+        // Rows taken by the lanes, per class of the row's shift: <= 0, 1..=7, 8..=13.
+        let mut taken = [0usize; 3];
+        for trial in 0..600 {
+            let limit = NARROW_LIMIT as i64;
+            let rel_max = [4, 300, 6_000, 30_000, limit][trial % 5];
+            let zero: [i32; D] = core::array::from_fn(|_| rng.range(-600, 600) as i32);
+            let rel: [i32; D] = core::array::from_fn(|c| {
+                let r = rng.range(1, rel_max) as i32;
+                if trial % 3 == 1 && c % 4 == 0 {
+                    -r
+                } else {
+                    r
+                }
+            });
+            let p = LayerNormQ {
+                zero: &zero,
+                rel: &rel,
+                eps: if trial % 4 == 0 { 0 } else { rng.range(0, 1 << 40) },
+                out: Requant {
+                    mult: rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32,
+                    shift: rng.range(30, 62) as u32,
+                },
+            };
+            let Some(narrow) = NarrowParams::decode(&p, D) else {
+                panic!("trial {trial}: {:?} {:?} {}", p.out, &rel[..4], p.eps);
+            };
+            let mut x = [0i8; D];
+            match trial % 11 {
+                0 => x.fill(-128),
+                1 => x
+                    .iter_mut()
+                    .enumerate()
+                    .for_each(|(c, v)| *v = if c % 2 == 0 { -128 } else { 127 }),
+                2 => x[7] = 100,
+                _ => rng.fill_i8(&mut x),
+            }
+            let (mut lanes, mut slow) = ([0i8; D], [0i8; D]);
+            layernorm_row_unbuffered(&x, &p, &mut slow);
+            if narrow.row_in_lanes(&x, &mut lanes) {
+                assert_eq!(lanes, slow, "trial {trial}");
+                let v: [i64; D] = core::array::from_fn(|c| (x[c] as i64 - zero[c] as i64) * rel[c] as i64);
+                let sum: i64 = v.iter().sum();
+                let max_dev = v
+                    .iter()
+                    .map(|&v| (v * D as i64 - sum).unsigned_abs())
+                    .max()
+                    .unwrap_or(0);
+                let shift = bit_length(max_dev) as i32 - WORK_BITS;
+                taken[match shift {
+                    ..=0 => 0,
+                    1..=7 => 1,
+                    _ => 2,
+                }] += 1;
+            } else {
+                assert!(
+                    p.out.shift < 33 || trial % 11 != 3,
+                    "trial {trial}: declined an ordinary row"
+                );
+            }
+        }
+        assert!(taken.iter().all(|&t| t >= 10), "rows per shift class: {taken:?}");
     }
 
     #[test]

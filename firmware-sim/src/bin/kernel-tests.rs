@@ -343,6 +343,78 @@ fn scores_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     }
 }
 
+/// A LayerNorm of random per-channel formats, quantiser-like or at the narrow path's limits.
+struct LayerNormCase {
+    zero: [i32; 256],
+    rel: [i32; 256],
+}
+
+impl LayerNormCase {
+    fn random(rng: &mut Rng, case: usize) -> LayerNormCase {
+        let rel_max = [4i64, 300, 6_000, 30_000, 1 << 15, 1 << 20][case % 6];
+        let zero_max = if case % 6 == 5 { 1 << 20 } else { 600 };
+        let mut c = LayerNormCase {
+            zero: [0; 256],
+            rel: [0; 256],
+        };
+        for (i, (z, r)) in c.zero.iter_mut().zip(c.rel.iter_mut()).enumerate() {
+            *z = rng.range(-zero_max, zero_max) as i32;
+            let m = rng.range(1, rel_max) as i32;
+            *r = if case % 3 == 1 && i % 4 == 0 { -m } else { m };
+        }
+        c
+    }
+
+    fn params(&self, eps: i64, mult: i32, shift: u32) -> bino_core::kernels::layernorm::LayerNormQ<'_, [i32], [i32]> {
+        bino_core::kernels::layernorm::LayerNormQ {
+            zero: &self.zero[..],
+            rel: &self.rel[..],
+            eps,
+            out: bino_core::fixed::Requant { mult, shift },
+        }
+    }
+}
+
+/// LayerNorm rows on this core's fastest path (`layernorm_rows`: Helium lane loops on
+/// Cortex-M55 for 128-channel rows, the narrow scalar rows elsewhere) against the saturating
+/// reference `layernorm_rows_reference`: widths 128 (and 64, 96, 256, which other paths take),
+/// constant and alternating rows, formats across every shift class of the row and past the
+/// narrow path's limits, output shifts on both sides of 33.
+fn layernorm_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::kernels::layernorm::{layernorm_rows, layernorm_rows_reference};
+    const ROWS: usize = 4;
+    for case in 0..72 {
+        let dim = [128usize, 128, 128, 64, 96, 256][case % 6];
+        let formats = LayerNormCase::random(rng, case / 6);
+        let eps = if case % 4 == 0 { 0 } else { rng.range(0, 1 << 40) };
+        let mult = match case % 5 {
+            0 => i32::MAX,
+            1 => -(rng.range(1 << 30, i32::MAX as i64) as i32),
+            _ => rng.range(1 << 30, i32::MAX as i64) as i32,
+        };
+        let shift = [40u32, 33, 32, 45, 62, 20][(case + case / 6) % 6];
+        let p = formats.params(eps, mult, shift);
+        let x = &mut b.a.0[..ROWS * dim];
+        rng.fill(x, 3);
+        match case % 7 {
+            0 => x[..dim].fill(-128),
+            1 => x[..dim]
+                .iter_mut()
+                .enumerate()
+                .for_each(|(c, v)| *v = [-128, 127][c % 2]),
+            2 => x[..dim].fill(5),
+            _ => {}
+        }
+        let (found, expected) = (&mut b.found8[..ROWS * dim], &mut b.expected8[..ROWS * dim]);
+        layernorm_rows(x, dim, &p, found);
+        layernorm_rows_reference(x, dim, &p, expected);
+        t.check("layernorm_rows", [ROWS, dim, 0], found, expected);
+        if cfg!(board = "an547") && dim == 128 {
+            t.asm_cases += 1;
+        }
+    }
+}
+
 /// A row's maximum, as the engine takes it before its softmax.
 fn row_max(scores: &[i32]) -> i32 {
     scores.iter().fold(i32::MIN, |m, &v| m.max(v))
@@ -445,6 +517,10 @@ markers! {
     bino_mark_softmax_reference = 10;
     bino_mark_scores_fast = 11;
     bino_mark_scores_reference = 12;
+    bino_mark_pv_fast = 13;
+    bino_mark_pv_reference = 14;
+    bino_mark_layernorm_fast = 15;
+    bino_mark_layernorm_reference = 16;
     bino_mark_end = 0xFFFF;
 }
 
@@ -603,6 +679,74 @@ fn bench_scores(rng: &mut Rng, b: &mut Buffers) {
     );
 }
 
+/// Attention's weighted sums (P·V) as the engine computes them: four rows of 960 softmax
+/// weights (as int8) against the 32 value channels (transposed, 960 each), 240 blocks, through
+/// `matmul_i8` (this core's GEMM tile) and the portable reference between markers.
+fn bench_pv(rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::config::HEAD_DIM;
+    use bino_core::kernels::attention::QUERY_BLOCK;
+    const N: usize = 960;
+    const CALLS: usize = 240;
+    rng.fill(&mut b.a.0[..QUERY_BLOCK * N], 3);
+    rng.fill(&mut b.w.0[..HEAD_DIM * N], 3);
+    let (weights, values_t) = (&b.a.0[..QUERY_BLOCK * N], &b.w.0[..HEAD_DIM * N]);
+    let (found, expected) = (
+        &mut b.found[..QUERY_BLOCK * HEAD_DIM],
+        &mut b.expected[..QUERY_BLOCK * HEAD_DIM],
+    );
+    bino_mark_pv_fast();
+    for _ in 0..CALLS {
+        matmul_i8(weights, values_t, N, found);
+    }
+    bino_mark_pv_reference();
+    for _ in 0..CALLS {
+        matmul_i8_reference(weights, values_t, N, expected);
+    }
+    bino_mark_end();
+    let same = found == expected && CURRENT.load(Ordering::SeqCst) == 0xFFFF;
+    defmt::println!(
+        "kernel-bench kernel=pv m={=usize} k={=usize} n={=usize} calls={=usize} macs={=usize} same={=bool}",
+        QUERY_BLOCK,
+        N,
+        HEAD_DIM,
+        CALLS,
+        CALLS * QUERY_BLOCK * HEAD_DIM * N,
+        same
+    );
+}
+
+/// LayerNorm as the engine calls it (blocks of 8 tokens of 128 channels, 120 blocks: one
+/// LayerNorm of a band), with quantiser-like formats: `layernorm_rows` and the reference
+/// between markers. Counted per element.
+fn bench_layernorm(rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::kernels::layernorm::{layernorm_rows, layernorm_rows_reference};
+    const DIM: usize = 128;
+    const ROWS: usize = 8;
+    const CALLS: usize = 120;
+    let formats = LayerNormCase::random(rng, 3);
+    let p = formats.params(1 << 20, 1_500_000_000, 44);
+    rng.fill(&mut b.a.0[..ROWS * DIM], 3);
+    let x = &b.a.0[..ROWS * DIM];
+    let (found, expected) = (&mut b.found8[..ROWS * DIM], &mut b.expected8[..ROWS * DIM]);
+    bino_mark_layernorm_fast();
+    for _ in 0..CALLS {
+        layernorm_rows(x, DIM, &p, found);
+    }
+    bino_mark_layernorm_reference();
+    for _ in 0..CALLS {
+        layernorm_rows_reference(x, DIM, &p, expected);
+    }
+    bino_mark_end();
+    let same = found == expected && CURRENT.load(Ordering::SeqCst) == 0xFFFF;
+    defmt::println!(
+        "kernel-bench-rows kernel=layernorm rows={=usize} n={=usize} elements={=usize} same={=bool}",
+        CALLS * ROWS,
+        DIM,
+        CALLS * ROWS * DIM,
+        same
+    );
+}
+
 #[entry]
 fn main() -> ! {
     defmt::println!("kernel-tests board={=str}", BOARD);
@@ -633,9 +777,12 @@ fn main() -> ! {
     attention_cases(&mut t, &mut rng, buffers);
     softmax_cases(&mut t, &mut rng, buffers);
     scores_cases(&mut t, &mut rng, buffers);
+    layernorm_cases(&mut t, &mut rng, buffers);
     bench(&mut rng, buffers);
     bench_softmax(&mut rng, buffers);
     bench_scores(&mut rng, buffers);
+    bench_pv(&mut rng, buffers);
+    bench_layernorm(&mut rng, buffers);
     let pass = t.failed == 0 && t.asm_cases > 0;
     defmt::println!(
         "kernel-tests result={=str} cases={=usize} assembly_cases={=usize} failed={=usize}",

@@ -124,6 +124,29 @@ pub fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], scores: &mut
     }
 }
 
+/// LayerNorm's first lane pass on Cortex-M55 (`layernorm::NarrowParams::row_in_lanes`):
+/// `v = (q - zero) * rel`, and the 64-bit sum, minimum and maximum of `v`. All four slices
+/// have the row's length.
+#[cfg(bino_mve)]
+#[inline]
+pub(crate) fn layernorm_values(row: &[i8], zero: &[i32], rel: &[i32], v: &mut [i32]) -> Option<(i64, i32, i32)> {
+    mve::layernorm_values(row, zero, rel, v)
+}
+
+/// LayerNorm's second lane pass: `n = ((v << left) + add) >> right` and the sum of squares.
+#[cfg(bino_mve)]
+#[inline]
+pub(crate) fn layernorm_normalise(v: &[i32], left: u32, add: i32, right: u32, n: &mut [i32]) -> Option<i64> {
+    mve::layernorm_normalise(v, left, add, right, n)
+}
+
+/// LayerNorm's output pass: `sat8((vmulh(vrmulh(n, recip_q), mult) + round) >> post)`.
+#[cfg(bino_mve)]
+#[inline]
+pub(crate) fn layernorm_output(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
+    mve::layernorm_output(n, recip_q, mult, round, post, out)
+}
+
 /// One softmax row and their sum, bit for bit
 /// [`attention::softmax_row`](crate::kernels::attention::softmax_row), on this core's assembly
 /// kernel (Cortex-M55); `None` (nothing written) where there is none.
