@@ -75,7 +75,11 @@ pub fn isqrt_u64(n: u64) -> u32 {
     let mut rem = n;
     let mut root: u64 = 0;
     // Highest power of four not above n (0 for n = 0: the loop below is then skipped).
-    let mut bit: u64 = if n == 0 { 0 } else { 1 << ((63 - n.leading_zeros()) & !1) };
+    let mut bit: u64 = if n == 0 {
+        0
+    } else {
+        1 << ((63 - n.leading_zeros()) & !1)
+    };
     while bit != 0 {
         if rem >= root + bit {
             rem -= root + bit;

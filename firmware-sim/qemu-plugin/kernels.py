@@ -32,6 +32,7 @@ CMSIS_NN_PER_ELEMENT = {("m55", "softmax"): 298.0, ("m7", "softmax"): 287.0}
 ROW_LABELS = {
     "softmax": "softmax row (max, weights, sum)",
     "layernorm": "LayerNorm row (values, normalise, int8 out)",
+    "residual": "residual add (carry + requantised delta, int8 out)",
 }
 
 

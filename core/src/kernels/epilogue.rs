@@ -170,6 +170,11 @@ pub fn residual_add<Z, M, B, M2, Z2>(
     let mut start = 0;
     while start < n {
         let len = (n - start).min(CHANNEL_CHUNK);
+        let chunk = residual_lanes::Chunk { n, start, len, rows };
+        if cfg!(any(bino_mve, bino_dsp, test)) && residual_lanes::add_chunk(x, acc, &chunk, carry, delta, new_zero) {
+            start += len;
+            continue;
+        }
         match (
             ChunkParams::decode(delta, start, len),
             CarryParams::decode(carry, start, len),
@@ -202,6 +207,165 @@ pub fn residual_add<Z, M, B, M2, Z2>(
             }
         }
         start += len;
+    }
+}
+
+/// [`residual_add`] by the saturating per-channel formula only: the specification of its
+/// faster paths (the decoded chunks, their 32-bit lanes, the Helium loop).
+pub fn residual_add_reference<Z, M, B, M2, Z2>(
+    x: &mut [i8],
+    carry: &ChannelRescale<'_, Z, M>,
+    acc: &[i32],
+    delta: &ChannelRequant<'_, B, M2>,
+    new_zero: &Z2,
+) where
+    Z: I32s + ?Sized,
+    M: I32s + ?Sized,
+    B: I32s + ?Sized,
+    M2: I32s + ?Sized,
+    Z2: I32s + ?Sized,
+{
+    let n = delta.channels();
+    if n == 0 {
+        return;
+    }
+    let whole_rows = x.len().min(acc.len()) / n * n;
+    for (i, (xq, &a)) in x.iter_mut().zip(acc).enumerate().take(whole_rows) {
+        let c = i % n;
+        *xq = sat_i8_i64(carry.apply(c, *xq) + delta.apply(c, a) + new_zero.at(c) as i64);
+    }
+}
+
+/// A chunk of the residual add in 32-bit lanes: a Helium loop per row on Cortex-M55
+/// (`kernels::arch`), a portable twin elsewhere: on Cortex-M7 (scalar, but each 64-bit product
+/// and shift becomes one `smmul` and 32-bit operations) and in host tests (the same lane
+/// arithmetic, so the tests
+/// prove the identities the loop relies on).
+///
+/// For a product `P` and a shift `s`, `(P + 2^(s-1)) >> s` equals
+/// `(hi32(P 2^e) + 2^(s-33+e)) >> (s - 32 + e)` whenever `s - 32 + e >= 1` (the low bits of
+/// `P 2^e` cannot carry past a multiple of the divisor): one high-half multiply (`vmulh.s32`),
+/// an add and a per-lane shift. The delta's `acc + bias` takes `e = 0` (shifts from 33; it
+/// stays in 32 bits for `|acc| < 2^30`, checked per block, and `|bias| < 2^30`); the carry's
+/// `q - zero`, below `2^16`, is first shifted left by `e = 15` (shifts 18 to 47: a format
+/// change near 1 has a shift near 31) or by 0 (shifts 48 to 62). With `|new_zero| < 2^29` the
+/// sum of the three stays in 32 bits. Other chunks take the scalar path.
+mod residual_lanes {
+    use super::{ChannelRequant, ChannelRescale, CHANNEL_CHUNK};
+    use crate::kernels::I32s;
+
+    /// Per group of four channels: carry zero, left shift, multiplier, rounding term, negated
+    /// shift; delta bias, multiplier, rounding term, negated shift; the new zero point.
+    const VECTORS: usize = 10;
+
+    /// Where a chunk lies: channels `start..start + len` of rows of `n`, `rows` rows.
+    pub(super) struct Chunk {
+        pub n: usize,
+        pub start: usize,
+        pub len: usize,
+        pub rows: usize,
+    }
+
+    /// The chunk added in lanes; `false` (nothing written) where an identity of the module
+    /// does not hold.
+    #[cfg_attr(not(any(bino_mve, bino_dsp, test)), allow(dead_code))]
+    pub(super) fn add_chunk<Z, M, B, M2, Z2>(
+        x: &mut [i8],
+        acc: &[i32],
+        chunk: &Chunk,
+        carry: &ChannelRescale<'_, Z, M>,
+        delta: &ChannelRequant<'_, B, M2>,
+        new_zero: &Z2,
+    ) -> bool
+    where
+        Z: I32s + ?Sized,
+        M: I32s + ?Sized,
+        B: I32s + ?Sized,
+        M2: I32s + ?Sized,
+        Z2: I32s + ?Sized,
+    {
+        let Chunk { n, start, len, rows } = *chunk;
+        if len == 0 || len > CHANNEL_CHUNK || start + len > n {
+            return false;
+        }
+        // The accumulators of the whole block first (one pass): below 2^30 in magnitude.
+        let block = acc.get(..rows * n).unwrap_or(&[]);
+        if block.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 30 {
+            return false;
+        }
+        let mut params = [0i32; CHANNEL_CHUNK * VECTORS];
+        let groups = len.div_ceil(4);
+        for (g, group) in params.chunks_exact_mut(4 * VECTORS).take(groups).enumerate() {
+            for lane in 0..4 {
+                let c = start + 4 * g + lane;
+                if c >= start + len {
+                    break;
+                }
+                let (ks, ds) = (
+                    carry.shift.get(c).copied().unwrap_or(0) as u32,
+                    delta.shift.get(c).copied().unwrap_or(0) as u32,
+                );
+                let (czero, bias, zero) = (carry.zero.at(c), delta.bias.at(c), new_zero.at(c));
+                // ChunkParams' and CarryParams' bounds, and this module's.
+                if !(18..=62).contains(&ks)
+                    || !(33..=62).contains(&ds)
+                    || czero.unsigned_abs() > 1 << 15
+                    || bias.unsigned_abs() >= 1 << 30
+                    || zero.unsigned_abs() >= 1 << 29
+                {
+                    return false;
+                }
+                let pre = if ks <= 47 { 15 } else { 0 };
+                let values = [
+                    czero,
+                    pre as i32,
+                    carry.mult.at(c),
+                    1 << (ks + pre - 33),
+                    32 - (ks + pre) as i32,
+                    bias,
+                    delta.mult.at(c),
+                    1 << (ds - 33),
+                    32 - ds as i32,
+                    zero,
+                ];
+                for (slot, value) in group.iter_mut().skip(lane).step_by(4).zip(values) {
+                    *slot = value;
+                }
+            }
+        }
+        let params = &params[..groups * 4 * VECTORS];
+        for r in 0..rows {
+            let at = r * n + start..r * n + start + len;
+            let (Some(x_part), Some(acc_part)) = (x.get_mut(at.clone()), acc.get(at)) else {
+                return false;
+            };
+            // Only the first row can be declined (the checks are the same for every row).
+            if !add_row(x_part, acc_part, params) {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// One row of the chunk: `x <- sat8(carry(x) + delta(acc) + zero)` in lanes.
+    #[inline(always)]
+    fn add_row(x: &mut [i8], acc: &[i32], params: &[i32]) -> bool {
+        #[cfg(bino_mve)]
+        return crate::kernels::arch::residual_add_row(x, acc, params);
+        #[cfg(not(bino_mve))]
+        {
+            let high = |a: i32, b: i32| ((a as i64 * b as i64) >> 32) as i32;
+            for ((xs, accs), g) in x.chunks_mut(4).zip(acc.chunks(4)).zip(params.chunks_exact(4 * VECTORS)) {
+                for (lane, (xq, &a)) in xs.iter_mut().zip(accs).enumerate() {
+                    let at = |v: usize| g.get(v * 4 + lane).copied().unwrap_or(0);
+                    let centred = (*xq as i32).wrapping_sub(at(0)) << (at(1) & 31);
+                    let carry = high(centred, at(2)).wrapping_add(at(3)) >> (-at(4) & 31);
+                    let delta = high(a.wrapping_add(at(5)), at(6)).wrapping_add(at(7)) >> (-at(8) & 31);
+                    *xq = carry.wrapping_add(delta).wrapping_add(at(9)).clamp(-128, 127) as i8;
+                }
+            }
+            true
+        }
     }
 }
 
@@ -367,6 +531,70 @@ mod tests {
                 let want = sat_i8_i64(carry.apply(c, before[i]) + delta.apply(c, acc[i]) + new_zero[c] as i64);
                 assert_eq!(x[i], want, "trial {trial} index {i}");
             }
+        }
+    }
+
+    #[test]
+    fn residual_lanes_equal_the_reference() {
+        const N: usize = 128;
+        const ROWS: usize = 8;
+        let mut rng = Rng::new(77);
+        for trial in 0..40 {
+            let (lo, hi) = if trial % 5 == 4 { (10, 62) } else { (33, 62) };
+            let mult: [i32; N] = core::array::from_fn(|_| rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32);
+            let shift: [u8; N] = core::array::from_fn(|_| rng.range(lo, hi) as u8);
+            let cmult: [i32; N] = core::array::from_fn(|_| rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32);
+            // The carry's shifts from 18 (a format change near 1 has a shift near 31).
+            let cshift: [u8; N] = core::array::from_fn(|_| rng.range(lo.min(18) + 8 * (trial % 2), hi) as u8);
+            let bias: [i32; N] = core::array::from_fn(|_| rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32);
+            let zero: [i32; N] = core::array::from_fn(|_| rng.range(-(1 << 15), 1 << 15) as i32);
+            let new_zero: [i32; N] = core::array::from_fn(|_| {
+                if trial % 7 == 6 {
+                    rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32
+                } else {
+                    rng.range(-128, 127) as i32
+                }
+            });
+            let delta = ChannelRequant {
+                bias: &bias,
+                mult: &mult,
+                shift: &shift,
+            };
+            let carry = ChannelRescale {
+                zero: &zero,
+                mult: &cmult,
+                shift: &cshift,
+            };
+            let acc: [i32; ROWS * N] = core::array::from_fn(|_| match trial % 4 {
+                0 => rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32,
+                1 => rng.range(i32::MIN as i64, i32::MAX as i64) as i32,
+                _ => rng.range(-(1 << 22), 1 << 22) as i32,
+            });
+            let mut x = [0i8; ROWS * N];
+            rng.fill_i8(&mut x);
+            let mut want = x;
+            // Where every identity holds, the lanes take the whole row block.
+            if trial % 5 != 4 && trial % 4 != 1 {
+                let mut lanes = x;
+                for start in (0..N).step_by(CHANNEL_CHUNK) {
+                    let len = CHANNEL_CHUNK.min(N - start);
+                    let chunk = residual_lanes::Chunk {
+                        n: N,
+                        start,
+                        len,
+                        rows: ROWS,
+                    };
+                    assert!(residual_lanes::add_chunk(
+                        &mut lanes, &acc, &chunk, &carry, &delta, &new_zero
+                    ));
+                }
+                residual_add_reference(&mut want, &carry, &acc, &delta, &new_zero);
+                assert_eq!(lanes, want, "trial {trial}: lanes");
+                want = x;
+            }
+            residual_add(&mut x, &carry, &acc, &delta, &new_zero);
+            residual_add_reference(&mut want, &carry, &acc, &delta, &new_zero);
+            assert_eq!(x, want, "trial {trial}");
         }
     }
 

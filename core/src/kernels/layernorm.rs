@@ -111,7 +111,7 @@ impl NarrowParams {
             return;
         }
         let (row, out) = (&row[..dim], &mut out[..dim]);
-        if cfg!(any(bino_mve, test)) && self.row_in_lanes(row, out) {
+        if cfg!(any(bino_mve, bino_dsp, test)) && self.row_in_lanes(row, out) {
             return;
         }
         let d = dim as i64;
@@ -160,7 +160,8 @@ impl NarrowParams {
 
 impl NarrowParams {
     /// [`NarrowParams::row`] in 32-bit lanes, three passes that are Helium loops on Cortex-M55
-    /// (`kernels::arch`; portable twins below for host tests), for rows of [`LANE_DIM`]
+    /// (`kernels::arch`; portable twins below on Cortex-M7, where 32-bit lanes in scalar code
+    /// also beat 64-bit arithmetic, and in host tests), for rows of [`LANE_DIM`]
     /// channels. `false` (nothing written) where an identity below needs more: a shift above
     /// 13, a reciprocal from `2^23`, an output shift below 33.
     ///
@@ -172,7 +173,7 @@ impl NarrowParams {
     /// The output's `(n recip + 2^23) >> 24` is `vrmulh(n, recip << 8)`, and
     /// `(z mult + 2^(sh-1)) >> sh` for `sh >= 33` is `(vmulh(z, mult) + 2^(sh-33)) >> (sh - 32)`,
     /// as in the fused GEMM epilogue.
-    #[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
+    #[cfg_attr(not(any(bino_mve, bino_dsp, test)), allow(dead_code))]
     fn row_in_lanes(&self, row: &[i8], out: &mut [i8]) -> bool {
         let dim = row.len();
         if dim != LANE_DIM || out.len() != dim || self.out.shift < 33 {
@@ -214,7 +215,7 @@ impl NarrowParams {
 const LANE_DIM: usize = 128;
 
 /// The three lane passes of [`NarrowParams::row_in_lanes`]: the Helium loops of
-/// `kernels::arch` on Cortex-M55, these portable twins in host tests (the same 32-bit lane
+/// `kernels::arch` on Cortex-M55, these portable twins on Cortex-M7 and in host tests (the same 32-bit lane
 /// arithmetic, so the tests prove the identities the loops rely on).
 mod lanes {
     /// `v = (q - zero) * rel` per channel; the 64-bit sum, the minimum and the maximum.

@@ -415,6 +415,97 @@ fn layernorm_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     }
 }
 
+/// Per-channel parameters of a residual add: the carry's and the delta's.
+struct ResidualCase {
+    cmult: [i32; 130],
+    cshift: [u8; 130],
+    czero: [i32; 130],
+    mult: [i32; 130],
+    shift: [u8; 130],
+    bias: [i32; 130],
+    zero: [i32; 130],
+}
+
+impl ResidualCase {
+    /// Delta shifts in `lo..=62` (from 33 the Helium lanes take a chunk), carry shifts from
+    /// 18 or `lo` (the lanes take 18 to 62), large new zero points on request.
+    fn random(rng: &mut Rng, lo: i64, wide_zero: bool) -> ResidualCase {
+        let mut c = ResidualCase {
+            cmult: [0; 130],
+            cshift: [40; 130],
+            czero: [0; 130],
+            mult: [0; 130],
+            shift: [40; 130],
+            bias: [0; 130],
+            zero: [0; 130],
+        };
+        for i in 0..130 {
+            c.cmult[i] = rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32;
+            c.mult[i] = rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32;
+            // The carry's shifts from 18 (a format change near 1 has a shift near 31).
+            c.cshift[i] = rng.range(lo.min(18), 62) as u8;
+            c.shift[i] = rng.range(lo, 62) as u8;
+            c.czero[i] = rng.range(-(1 << 15), 1 << 15) as i32;
+            c.bias[i] = rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32;
+            c.zero[i] = if wide_zero {
+                rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32
+            } else {
+                rng.range(-128, 127) as i32
+            };
+        }
+        c
+    }
+
+    fn run(&self, n: usize, x: &mut [i8], acc: &[i32], reference: bool) {
+        use bino_core::kernels::epilogue::{residual_add, residual_add_reference, ChannelRequant, ChannelRescale};
+        let carry = ChannelRescale {
+            zero: &self.czero[..n],
+            mult: &self.cmult[..n],
+            shift: &self.cshift[..n],
+        };
+        let delta = ChannelRequant {
+            bias: &self.bias[..n],
+            mult: &self.mult[..n],
+            shift: &self.shift[..n],
+        };
+        if reference {
+            residual_add_reference(x, &carry, acc, &delta, &self.zero[..n]);
+        } else {
+            residual_add(x, &carry, acc, &delta, &self.zero[..n]);
+        }
+    }
+}
+
+/// The residual add on this core's fastest path (`residual_add`: Helium lanes per chunk on
+/// Cortex-M55 where both shifts are at least 33, the decoded scalar chunks elsewhere) against
+/// the saturating `residual_add_reference`: 1 to 130 channels (chunks of 64 and tails of every
+/// length mod 4), accumulators up to and past 2^30, shifts on both sides of 33.
+fn residual_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    const ROWS: usize = 8;
+    for case in 0..40 {
+        let n = [128usize, 128, 1, 3, 5, 64, 66, 130][case % 8];
+        let params = ResidualCase::random(rng, if case % 5 == 4 { 20 } else { 33 }, case % 7 == 6);
+        let acc = &mut b.acc[..ROWS * n];
+        for a in acc.iter_mut() {
+            *a = match case % 4 {
+                0 => rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32,
+                1 => rng.next() as i32,
+                _ => rng.range(-(1 << 22), 1 << 22) as i32,
+            };
+        }
+        let x = &mut b.found8[..ROWS * n];
+        rng.fill(x, 3);
+        let want = &mut b.expected8[..ROWS * n];
+        want.copy_from_slice(x);
+        params.run(n, x, acc, false);
+        params.run(n, want, acc, true);
+        t.check("residual_add", [ROWS, n, 0], x, want);
+        if cfg!(board = "an547") {
+            t.asm_cases += 1;
+        }
+    }
+}
+
 /// A row's maximum, as the engine takes it before its softmax.
 fn row_max(scores: &[i32]) -> i32 {
     scores.iter().fold(i32::MIN, |m, &v| m.max(v))
@@ -521,6 +612,8 @@ markers! {
     bino_mark_pv_reference = 14;
     bino_mark_layernorm_fast = 15;
     bino_mark_layernorm_reference = 16;
+    bino_mark_residual_fast = 17;
+    bino_mark_residual_reference = 18;
     bino_mark_end = 0xFFFF;
 }
 
@@ -747,6 +840,54 @@ fn bench_layernorm(rng: &mut Rng, b: &mut Buffers) {
     );
 }
 
+/// The residual add as the engine calls it (blocks of 8 tokens of 128 channels, 120 blocks),
+/// with quantiser-like shifts (36-44) and accumulators: `residual_add` and the reference
+/// between markers. Counted per element.
+fn bench_residual(rng: &mut Rng, b: &mut Buffers) {
+    const DIM: usize = 128;
+    const ROWS: usize = 8;
+    const CALLS: usize = 120;
+    let mut params = ResidualCase::random(rng, 36, false);
+    // The quantiser's shifts: 36-44 for a requantised delta, 29-33 for a format change.
+    for s in params.shift.iter_mut() {
+        *s = (*s).min(44);
+    }
+    for s in params.cshift.iter_mut() {
+        *s = 29 + *s % 5;
+    }
+    for z in params.czero.iter_mut() {
+        *z %= 300;
+    }
+    let acc = &mut b.acc[..ROWS * DIM];
+    for a in acc.iter_mut() {
+        *a = rng.range(-(1 << 20), 1 << 20) as i32;
+    }
+    rng.fill(&mut b.found8[..ROWS * DIM], 3);
+    b.expected8[..ROWS * DIM].copy_from_slice(&b.found8[..ROWS * DIM]);
+    let (x, want, acc) = (
+        &mut b.found8[..ROWS * DIM],
+        &mut b.expected8[..ROWS * DIM],
+        &b.acc[..ROWS * DIM],
+    );
+    bino_mark_residual_fast();
+    for _ in 0..CALLS {
+        params.run(DIM, x, acc, false);
+    }
+    bino_mark_residual_reference();
+    for _ in 0..CALLS {
+        params.run(DIM, want, acc, true);
+    }
+    bino_mark_end();
+    let same = x == want && CURRENT.load(Ordering::SeqCst) == 0xFFFF;
+    defmt::println!(
+        "kernel-bench-rows kernel=residual rows={=usize} n={=usize} elements={=usize} same={=bool}",
+        CALLS * ROWS,
+        DIM,
+        CALLS * ROWS * DIM,
+        same
+    );
+}
+
 #[entry]
 fn main() -> ! {
     defmt::println!("kernel-tests board={=str}", BOARD);
@@ -778,11 +919,13 @@ fn main() -> ! {
     softmax_cases(&mut t, &mut rng, buffers);
     scores_cases(&mut t, &mut rng, buffers);
     layernorm_cases(&mut t, &mut rng, buffers);
+    residual_cases(&mut t, &mut rng, buffers);
     bench(&mut rng, buffers);
     bench_softmax(&mut rng, buffers);
     bench_scores(&mut rng, buffers);
     bench_pv(&mut rng, buffers);
     bench_layernorm(&mut rng, buffers);
+    bench_residual(&mut rng, buffers);
     let pass = t.failed == 0 && t.asm_cases > 0;
     defmt::println!(
         "kernel-tests result={=str} cases={=usize} assembly_cases={=usize} failed={=usize}",

@@ -147,6 +147,15 @@ pub(crate) fn layernorm_output(n: &[i32], recip_q: i32, mult: i32, round: i32, p
     mve::layernorm_output(n, recip_q, mult, round, post, out)
 }
 
+/// One row of a residual-add chunk on Cortex-M55 (`epilogue::residual_lanes`): `x <-
+/// sat8(carry(x) + delta(acc) + zero)` with the chunk's parameters interleaved by groups of four
+/// channels (ten vectors a group).
+#[cfg(bino_mve)]
+#[inline]
+pub(crate) fn residual_add_row(x: &mut [i8], acc: &[i32], params: &[i32]) -> bool {
+    mve::residual_add_row(x, acc, params)
+}
+
 /// One softmax row and their sum, bit for bit
 /// [`attention::softmax_row`](crate::kernels::attention::softmax_row), on this core's assembly
 /// kernel (Cortex-M55); `None` (nothing written) where there is none.
