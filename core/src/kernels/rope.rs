@@ -7,7 +7,7 @@
 
 use super::epilogue::ChannelRequant;
 use super::I32s;
-use crate::config::HEAD_DIM;
+use crate::config::{DIM, HEAD_DIM};
 use crate::fixed::{round_shift, sat_i8_i64};
 
 /// Frequencies per half of a head: pairs `(i, i + QUARTER)`.
@@ -74,11 +74,160 @@ fn rotate_half<B: I32s + ?Sized, M: I32s + ?Sized>(
     }
 }
 
+/// A query or key projection's per-channel requantisation prepared once per pass for
+/// [`RopeLanes::token`]: [`rope_token`] in 32-bit lanes, bit for bit.
+///
+/// The requantisation `((acc + bias) mult + 2^(s-1)) >> s` is
+/// `(hi32(((acc + bias) << e) mult) + 2^(s-33+e)) >> (s - 32 + e)` with `e = 1` for `s = 32`
+/// and 0 above (the low word cannot carry past a multiple of the divisor); `acc + bias` and its
+/// double stay in 32 bits for `|acc|, |bias| < 2^29` (checked). The rotation's
+/// `(a c - b s + 2^21) >> 22` splits `a = 2^12 a_h + a_l` (`0 <= a_l < 2^12`, same for `b`):
+/// `a c - b s = 2^12 (a_h c - b_h s) + (a_l c - b_l s)`, both parts below `2^28` for
+/// `|a|, |b| <= 2^24` and any i16 cosine and sine, and the rounded shift is
+/// `((a_h c - b_h s) + ((a_l c - b_l s + 2^21) >> 12)) >> 10`.
+pub struct RopeLanes {
+    bias: [i32; DIM],
+    mult: [i32; DIM],
+    /// `2^(s-33+e)`.
+    round: [i32; DIM],
+    /// `e`, the left shift before the product.
+    pre: [u8; DIM],
+    /// `s - 32 + e`, the right shift after it.
+    post: [u8; DIM],
+}
+
+impl RopeLanes {
+    /// The lanes of a `DIM`-channel requantisation, or `None` where the identities do not
+    /// hold (shifts below 32, biases from `2^29`): [`rope_token`] then.
+    pub fn new<B: I32s + ?Sized, M: I32s + ?Sized>(rq: &ChannelRequant<'_, B, M>) -> Option<Self> {
+        if rq.channels() != DIM {
+            return None;
+        }
+        let mut lanes = RopeLanes {
+            bias: [0; DIM],
+            mult: [0; DIM],
+            round: [0; DIM],
+            pre: [0; DIM],
+            post: [1; DIM],
+        };
+        for c in 0..DIM {
+            let (bias, shift) = (rq.bias.at(c), rq.shift.get(c).copied().unwrap_or(0) as u32);
+            if !(32..=62).contains(&shift) || bias.unsigned_abs() >= 1 << 29 {
+                return None;
+            }
+            let pre = (shift == 32) as u32;
+            lanes.bias[c] = bias;
+            lanes.mult[c] = rq.mult.at(c);
+            lanes.round[c] = 1 << (shift + pre - 33);
+            lanes.pre[c] = pre as u8;
+            lanes.post[c] = (shift + pre - 32) as u8;
+        }
+        Some(lanes)
+    }
+
+    /// [`rope_token`] of one token's `DIM` accumulators; `false` (nothing written) for
+    /// accumulators from `2^29` in magnitude or slices of another length.
+    pub fn token(&self, acc: &[i32], row: &Angles, col: &Angles, out: &mut [i8]) -> bool {
+        let (Some(acc), Some(out)) = (acc.first_chunk::<DIM>(), out.first_chunk_mut::<DIM>()) else {
+            return false;
+        };
+        if acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 29 {
+            return false;
+        }
+        let limit = PRE_ROPE_LIMIT as i32;
+        let mut v = [0i32; DIM];
+        for c in 0..DIM {
+            let x = (acc[c] + self.bias[c]) << (self.pre[c] & 1);
+            let high = ((x as i64 * self.mult[c] as i64) >> 32) as i32;
+            v[c] = ((high + self.round[c]) >> (self.post[c] & 31)).clamp(-limit, limit);
+        }
+        for (v_head, out_head) in v.chunks_exact(HEAD_DIM).zip(out.chunks_exact_mut(HEAD_DIM)) {
+            let (v_row, v_col) = v_head.split_at(HEAD_DIM / 2);
+            let (out_row, out_col) = out_head.split_at_mut(HEAD_DIM / 2);
+            rotate_half_lanes(v_row, row, out_row);
+            rotate_half_lanes(v_col, col, out_col);
+        }
+        true
+    }
+}
+
+/// One half of a head rotated in 32-bit lanes (see [`RopeLanes`]).
+#[inline(always)]
+fn rotate_half_lanes(v: &[i32], angles: &Angles, out: &mut [i8]) {
+    let (Some(va), Some(vb)) = (
+        v.first_chunk::<QUARTER>(),
+        v.get(QUARTER..).and_then(|b| b.first_chunk::<QUARTER>()),
+    ) else {
+        return;
+    };
+    let (out_a, out_b) = out.split_at_mut(QUARTER.min(out.len()));
+    let mut ra = [0i8; QUARTER];
+    let mut rb = [0i8; QUARTER];
+    for i in 0..QUARTER {
+        let (a, b) = (va[i], vb[i]);
+        let (c, s) = (angles.cos[i] as i32, angles.sin[i] as i32);
+        let (a_h, a_l, b_h, b_l) = (a >> 12, a & 0xFFF, b >> 12, b & 0xFFF);
+        let half = 1 << 21;
+        let oa = ((a_h * c - b_h * s) + ((a_l * c - b_l * s + half) >> 12)) >> 10;
+        let ob = ((b_h * c + a_h * s) + ((b_l * c + a_l * s + half) >> 12)) >> 10;
+        ra[i] = oa.clamp(-128, 127) as i8;
+        rb[i] = ob.clamp(-128, 127) as i8;
+    }
+    for (o, r) in out_a.iter_mut().zip(ra) {
+        *o = r;
+    }
+    for (o, r) in out_b.iter_mut().zip(rb) {
+        *o = r;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::kernels::params::Uniform;
     use crate::testutil::Rng;
+
+    #[test]
+    fn lanes_equal_rope_token() {
+        let mut rng = Rng::new(91);
+        let mut taken = 0;
+        for trial in 0..200 {
+            let shifts: [u8; DIM] = core::array::from_fn(|_| rng.range(if trial % 9 == 8 { 20 } else { 32 }, 62) as u8);
+            let mult: [i32; DIM] = core::array::from_fn(|_| rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32);
+            let bias: [i32; DIM] = core::array::from_fn(|_| rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32);
+            let rq = ChannelRequant {
+                bias: &bias,
+                mult: &mult,
+                shift: &shifts,
+            };
+            let angles = |rng: &mut Rng| Angles {
+                cos: core::array::from_fn(|_| rng.range(i16::MIN as i64, i16::MAX as i64) as i16),
+                sin: core::array::from_fn(|_| rng.range(i16::MIN as i64, i16::MAX as i64) as i16),
+            };
+            let (row, col) = (angles(&mut rng), angles(&mut rng));
+            let acc: [i32; DIM] = core::array::from_fn(|_| match trial % 4 {
+                0 => rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32,
+                1 => rng.range(-(1 << 21), 1 << 21) as i32,
+                2 => rng.range(-300, 300) as i32,
+                _ => rng.range(i32::MIN as i64, i32::MAX as i64) as i32,
+            });
+            let mut want = [0i8; DIM];
+            rope_token(&acc, &rq, &row, &col, &mut want);
+            match RopeLanes::new(&rq) {
+                Some(lanes) => {
+                    let mut got = [0i8; DIM];
+                    if lanes.token(&acc, &row, &col, &mut got) {
+                        assert_eq!(got, want, "trial {trial}");
+                        taken += 1;
+                    } else {
+                        assert_eq!(trial % 4, 3, "trial {trial}: declined small accumulators");
+                    }
+                }
+                None => assert_eq!(trial % 9, 8, "trial {trial}: declined ordinary shifts"),
+            }
+        }
+        assert!(taken >= 100, "{taken}");
+    }
 
     #[test]
     fn rotates_pairs_like_the_float_model() {

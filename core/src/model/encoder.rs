@@ -26,7 +26,7 @@ use crate::kernels::layernorm::layernorm_rows;
 use crate::kernels::lut::apply_lut;
 use crate::kernels::matmul::matmul_i8;
 use crate::kernels::params::{Offset, Uniform};
-use crate::kernels::rope::rope_token;
+use crate::kernels::rope::{rope_token, RopeLanes};
 use crate::kernels::I32s;
 use crate::Error;
 
@@ -573,6 +573,8 @@ impl AttentionPass<'_, '_> {
             mult: &value_mult,
             shift: qkv.shift.get(2 * DIM..).unwrap_or(&[]),
         };
+        // The keys' rotation in 32-bit lanes where the blob's formats allow (quantiser-made ones do).
+        let key_lanes = RopeLanes::new(&key_rq);
         let tokens = self.grid.tokens();
         let mut rotated = [0i8; DIM];
         let mut block_values = [0i8; TOKEN_BLOCK * DIM];
@@ -596,7 +598,12 @@ impl AttentionPass<'_, '_> {
                 let t = block * TOKEN_BLOCK + i;
                 let (row, col) = self.grid.position(t);
                 let (row_angles, col_angles) = self.rope.angles(row, col / 2);
-                rope_token(k_acc, &key_rq, &row_angles, &col_angles, &mut rotated);
+                if !key_lanes
+                    .as_ref()
+                    .is_some_and(|l| l.token(k_acc, &row_angles, &col_angles, &mut rotated))
+                {
+                    rope_token(k_acc, &key_rq, &row_angles, &col_angles, &mut rotated);
+                }
                 scatter_heads(&rotated, keys, tokens, t);
                 scatter_channels(value, values, tokens, t);
             }
@@ -626,6 +633,7 @@ impl AttentionPass<'_, '_> {
             mult: &query_mult,
             shift: qkv.shift.get(..DIM).unwrap_or(&[]),
         };
+        let query_lanes = RopeLanes::new(&query_rq);
         let proj = &self.w.proj;
         let carry = self.w.carry_attention.from_format(self.input);
         let head_len = self.grid.tokens() * HEAD_DIM;
@@ -645,7 +653,12 @@ impl AttentionPass<'_, '_> {
             {
                 let (row, col) = self.grid.position(block * TOKEN_BLOCK + i);
                 let (row_angles, col_angles) = self.rope.angles(row, col / 2);
-                rope_token(q_acc, &query_rq, &row_angles, &col_angles, query);
+                if !query_lanes
+                    .as_ref()
+                    .is_some_and(|l| l.token(q_acc, &row_angles, &col_angles, query))
+                {
+                    rope_token(q_acc, &query_rq, &row_angles, &col_angles, query);
+                }
             }
             let kv = keys.chunks_exact(head_len).zip(values.chunks_exact(head_len));
             for (head, (((k_head, v_head), p), sums)) in kv.zip(self.w.attention.iter()).zip(&sums).enumerate() {
