@@ -21,11 +21,12 @@ use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::Blob;
 use crate::config::{DIM, HEAD_CANDIDATES_LIMIT, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
 use crate::fixed::{sat_i8_i64, Requant, MAX_SHIFT};
-use crate::kernels::epilogue::requant_rows;
+use crate::kernels::epilogue::{requant_rows, ChannelRequant};
 use crate::kernels::exp::exp_neg_u8;
 use crate::kernels::layernorm::{layernorm_rows, LayerNormQ};
 use crate::kernels::matmul::{dot, matmul_i8};
 use crate::kernels::params::Uniform;
+use crate::kernels::I32s;
 use crate::Error;
 
 /// Kernel positions of a 3x3x3 convolution.
@@ -545,6 +546,14 @@ impl<'a, 'w> HeadStream<'a, 'w> {
         };
         let k = TAPS * cin;
         let rq = conv.requant();
+        // The epilogue in 32-bit lanes where the formats allow (quantiser-made ones do).
+        let lanes = if layer + 1 < HEAD_CONVS && cout == HEAD_HIDDEN {
+            let carry = layer.checked_sub(1).and_then(|l| self.w.carries.get(l).copied());
+            let next_zero = self.w.zeros.get(layer + 1).copied().unwrap_or(0);
+            ConvEpilogue::new(&rq, carry, zero, next_zero)
+        } else {
+            None
+        };
         let mut out_slot = out_slot;
         for p in 0..cols {
             let gathered = self.gathered.get_mut(..nd * k).unwrap_or(&mut []);
@@ -567,6 +576,10 @@ impl<'a, 'w> HeadStream<'a, 'w> {
             let out_cell = out.get_mut(p * nd * cout..(p + 1) * nd * cout).unwrap_or(&mut []);
             let next_zero = self.w.zeros.get(layer + 1).copied().unwrap_or(0) as i64;
             let center = rows[1].and_then(|r| r.get(p * nd * cin..(p + 1) * nd * cin));
+            let acc = self.acc.get(..nd * cout).unwrap_or(&[]);
+            if lanes.as_ref().is_some_and(|l| l.apply(acc, center, out_cell)) {
+                continue;
+            }
             for (i, (o, &a)) in out_cell.iter_mut().zip(self.acc.iter()).enumerate() {
                 let relu = rq.apply(i % cout, a).max(0);
                 let carried = match (layer, center) {
@@ -747,7 +760,146 @@ fn correlate(f_left: &[i8], f_right: &[i8], proj_dim: usize, rq: Requant, (candi
 /// The 27 kernel inputs of every one of the `nd` disparities of column `p` (positions ordered
 /// row, disparity, column; channels innermost); outside the volume they are the input's zero
 /// point.
-fn gather(rows: &[Option<&[i8]>; 3], (p, cols, nd): (usize, usize, usize), cin: usize, zero: i8, out: &mut [i8]) {
+fn gather(rows: &[Option<&[i8]>; 3], at: (usize, usize, usize), cin: usize, zero: i8, out: &mut [i8]) {
+    // The model's widths as constants: each tap is then a fixed-size copy (a few loads and
+    // stores) instead of a `memcpy` call, which cost as much as the copy itself.
+    match cin {
+        HEAD_GROUPS => gather_fixed::<HEAD_GROUPS>(rows, at, zero, out),
+        HEAD_HIDDEN => gather_fixed::<HEAD_HIDDEN>(rows, at, zero, out),
+        _ => gather_any(rows, at, cin, zero, out),
+    }
+}
+
+/// The epilogue of a hidden 3D convolution (`HEAD_HIDDEN` outputs per candidate) in 32-bit
+/// scalar lanes, bit for bit [`HeadStream::conv_row`]'s 64-bit one:
+/// `sat8(carry(x - zero) + max(rq(acc), 0) + next_zero)`.
+///
+/// As in `epilogue::residual_lanes`: a rounded shift `(P + 2^(s-1)) >> s` of a product is
+/// `(hi32(P 2^e) + 2^(s-33+e)) >> (s - 32 + e)` for `s - 32 + e >= 1`. The requantisation takes
+/// `e = 0` (shifts from 33, `|acc + bias| < 2^31` for `|acc|, |bias| < 2^30`); the carry's
+/// `x - zero`, below `2^16`, takes `e = 15` (shifts 18 to 47) or 0 (48 to 62). Each term is
+/// then below `2^29` in magnitude and, with `|next_zero| < 2^29`, so is their sum's reach.
+struct ConvEpilogue {
+    bias: [i32; HEAD_HIDDEN],
+    mult: [i32; HEAD_HIDDEN],
+    round: [i32; HEAD_HIDDEN],
+    post: [u8; HEAD_HIDDEN],
+    /// The carry's multiplier, left shift, rounding term and right shift (none at layer 0).
+    carry: Option<(i32, u32, i32, u32)>,
+    zero: i32,
+    next_zero: i32,
+}
+
+impl ConvEpilogue {
+    fn new<B: I32s + ?Sized, M: I32s + ?Sized>(
+        rq: &ChannelRequant<'_, B, M>,
+        carry: Option<Requant>,
+        zero: i32,
+        next_zero: i32,
+    ) -> Option<Self> {
+        if rq.channels() != HEAD_HIDDEN || zero.unsigned_abs() >= 1 << 15 || next_zero.unsigned_abs() >= 1 << 29 {
+            return None;
+        }
+        let mut e = ConvEpilogue {
+            bias: [0; HEAD_HIDDEN],
+            mult: [0; HEAD_HIDDEN],
+            round: [0; HEAD_HIDDEN],
+            post: [1; HEAD_HIDDEN],
+            carry: None,
+            zero,
+            next_zero,
+        };
+        for c in 0..HEAD_HIDDEN {
+            let (bias, shift) = (rq.bias.at(c), rq.shift.get(c).copied().unwrap_or(0) as u32);
+            if !(33..=62).contains(&shift) || bias.unsigned_abs() >= 1 << 30 {
+                return None;
+            }
+            (e.bias[c], e.mult[c]) = (bias, rq.mult.at(c));
+            e.round[c] = 1 << (shift - 33);
+            e.post[c] = (shift - 32) as u8;
+        }
+        if let Some(r) = carry {
+            if !(18..=62).contains(&r.shift) {
+                return None;
+            }
+            let pre = if r.shift <= 47 { 15 } else { 0 };
+            e.carry = Some((r.mult, pre, 1 << (r.shift + pre - 33), r.shift + pre - 32));
+        }
+        Some(e)
+    }
+
+    /// The outputs of one cell (`acc` and `out`: candidates x `HEAD_HIDDEN`; `center`: the
+    /// cell's input, whose codes the carry adds); `false` (nothing written) for accumulators
+    /// from `2^30` in magnitude or lengths that do not match.
+    fn apply(&self, acc: &[i32], center: Option<&[i8]>, out: &mut [i8]) -> bool {
+        if out.len() != acc.len() || acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 30 {
+            return false;
+        }
+        let high = |a: i32, b: i32| ((a as i64 * b as i64) >> 32) as i32;
+        let carry = self.carry.zip(center);
+        for (cell, (outs, accs)) in out
+            .chunks_exact_mut(HEAD_HIDDEN)
+            .zip(acc.chunks_exact(HEAD_HIDDEN))
+            .enumerate()
+        {
+            for (c, (o, &a)) in outs.iter_mut().zip(accs).enumerate() {
+                let relu = ((high(a + self.bias[c], self.mult[c]) + self.round[c]) >> (self.post[c] & 31)).max(0);
+                let carried = match carry {
+                    Some(((mult, pre, round, post), x)) => {
+                        let centred =
+                            (x.get(cell * HEAD_HIDDEN + c).copied().unwrap_or(0) as i32 - self.zero) << (pre & 31);
+                        (high(centred, mult) + round) >> (post & 31)
+                    }
+                    None => 0,
+                };
+                *o = (carried + relu + self.next_zero).clamp(-128, 127) as i8;
+            }
+        }
+        true
+    }
+}
+
+// The fixed-width gathers copy words.
+const _: () = assert!(HEAD_GROUPS.is_multiple_of(4) && HEAD_HIDDEN.is_multiple_of(4));
+
+/// [`gather`] for `CIN` input channels (a multiple of 4).
+fn gather_fixed<const CIN: usize>(
+    rows: &[Option<&[i8]>; 3],
+    (p, cols, nd): (usize, usize, usize),
+    zero: i8,
+    out: &mut [i8],
+) {
+    for (d, taps) in out.chunks_exact_mut(TAPS * CIN).enumerate() {
+        let mut chunks = taps.chunks_exact_mut(CIN);
+        for row in rows {
+            for dd in [d.wrapping_sub(1), d, d + 1] {
+                for pp in [p.wrapping_sub(1), p, p + 1] {
+                    let Some(dst) = chunks.next().and_then(|c| c.first_chunk_mut::<CIN>()) else {
+                        return;
+                    };
+                    let src = match row {
+                        Some(r) if dd < nd && pp < cols => {
+                            r.get((pp * nd + dd) * CIN..).and_then(|s| s.first_chunk::<CIN>())
+                        }
+                        _ => None,
+                    };
+                    // Word by word: a copy of 4 bytes is always inlined (one load, one store).
+                    match src {
+                        Some(s) => {
+                            for (d, s) in dst.chunks_exact_mut(4).zip(s.chunks_exact(4)) {
+                                d.copy_from_slice(s);
+                            }
+                        }
+                        None => dst.fill(zero),
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// [`gather`] for any channel count.
+fn gather_any(rows: &[Option<&[i8]>; 3], (p, cols, nd): (usize, usize, usize), cin: usize, zero: i8, out: &mut [i8]) {
     for (d, taps) in out.chunks_exact_mut(TAPS * cin).enumerate() {
         let mut chunks = taps.chunks_exact_mut(cin);
         for row in rows {
@@ -776,4 +928,95 @@ fn ring_slot_mut(rings: &mut [i8], cols: usize, candidates: usize, layer: usize,
     let len = ring_row(layer, cols, candidates);
     let start = ring_base(layer, cols, candidates) + (row % 3) * len;
     rings.get_mut(start..start + len).unwrap_or(&mut [])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::Rng;
+
+    #[test]
+    fn conv_epilogue_lanes_equal_the_64_bit_formula() {
+        let mut rng = Rng::new(17);
+        let nd = 12;
+        let mut taken = 0;
+        for trial in 0..120 {
+            let lo = if trial % 10 == 9 { 20 } else { 33 };
+            let bias: [i32; HEAD_HIDDEN] = core::array::from_fn(|_| rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32);
+            let mult: [i32; HEAD_HIDDEN] =
+                core::array::from_fn(|_| rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32);
+            let shift: [u8; HEAD_HIDDEN] = core::array::from_fn(|_| rng.range(lo, 62) as u8);
+            let rq = ChannelRequant {
+                bias: &bias,
+                mult: &mult,
+                shift: &shift,
+            };
+            let carry = (trial % 3 != 0).then(|| Requant {
+                mult: rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32,
+                shift: rng.range(18, 62) as u32,
+            });
+            let zero = rng.range(-(1 << 15) + 1, (1 << 15) - 1) as i32;
+            let next_zero = rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32;
+            let mut acc = [0i32; 12 * HEAD_HIDDEN];
+            for a in acc.iter_mut() {
+                *a = match trial % 4 {
+                    0 => rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32,
+                    1 => rng.range(i32::MIN as i64, i32::MAX as i64) as i32,
+                    _ => rng.range(-(1 << 23), 1 << 23) as i32,
+                };
+            }
+            let mut center = [0i8; 12 * HEAD_HIDDEN];
+            rng.fill_i8(&mut center);
+            let center = (trial % 5 != 4).then_some(&center[..]);
+            let mut want = [0i8; 12 * HEAD_HIDDEN];
+            for (i, (o, &a)) in want.iter_mut().zip(&acc).enumerate().take(nd * HEAD_HIDDEN) {
+                let relu = rq.apply(i % HEAD_HIDDEN, a).max(0);
+                let carried = match (carry, center) {
+                    (Some(r), Some(x)) => r.apply_i64(x[i] as i64 - zero as i64),
+                    _ => 0,
+                };
+                *o = sat_i8_i64(carried + relu + next_zero as i64);
+            }
+            match ConvEpilogue::new(&rq, carry, zero, next_zero) {
+                Some(e) => {
+                    let mut got = [0i8; 12 * HEAD_HIDDEN];
+                    if e.apply(&acc, center, &mut got) {
+                        assert_eq!(got, want, "trial {trial}");
+                        taken += 1;
+                    } else {
+                        assert_eq!(trial % 4, 1, "trial {trial}: declined small accumulators");
+                    }
+                }
+                None => assert_eq!(trial % 10, 9, "trial {trial}: declined ordinary formats"),
+            }
+        }
+        assert!(taken >= 60, "{taken}");
+    }
+
+    #[test]
+    fn fixed_width_gather_equals_the_general_one() {
+        let mut rng = Rng::new(3);
+        let (cols, nd) = (5, 4);
+        for cin in [HEAD_GROUPS, HEAD_HIDDEN] {
+            let mut ring = [[0i8; 5 * 4 * HEAD_HIDDEN]; 3];
+            for r in ring.iter_mut() {
+                rng.fill_i8(r);
+            }
+            let len = cols * nd * cin;
+            for missing in [None, Some(0), Some(2)] {
+                let rows: [Option<&[i8]>; 3] = core::array::from_fn(|i| (Some(i) != missing).then(|| &ring[i][..len]));
+                for p in 0..cols {
+                    let mut fixed = [0i8; 4 * TAPS * HEAD_HIDDEN];
+                    let mut any = [1i8; 4 * TAPS * HEAD_HIDDEN];
+                    gather(&rows, (p, cols, nd), cin, -7, &mut fixed[..nd * TAPS * cin]);
+                    gather_any(&rows, (p, cols, nd), cin, -7, &mut any[..nd * TAPS * cin]);
+                    assert_eq!(
+                        fixed[..nd * TAPS * cin],
+                        any[..nd * TAPS * cin],
+                        "cin {cin} p {p} {missing:?}"
+                    );
+                }
+            }
+        }
+    }
 }
