@@ -474,6 +474,8 @@ def build_config(args: argparse.Namespace) -> TrainConfig:
     if args.teacher_temp is not None:
         dino = replace(dino, teacher_temp_start=args.teacher_temp[0])
         dino = replace(dino, teacher_temp_end=args.teacher_temp[1])
+    if args.teacher_temp_warmup is not None:
+        dino = replace(dino, teacher_temp_warmup=args.teacher_temp_warmup)
     mask = MaskConfig()
     if args.mask_ratio is not None:
         mask = replace(mask, ratio_start=args.mask_ratio[0], ratio_end=args.mask_ratio[1])
@@ -523,6 +525,11 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--masked-weight", type=float, help="loss weight of masked tokens")
     p.add_argument("--unmasked-weight", type=float, help="loss weight of other tokens")
     p.add_argument("--teacher-temp", type=float, nargs=2, metavar=("START", "END"))
+    p.add_argument(
+        "--teacher-temp-warmup",
+        type=float,
+        help="fraction of the schedule over which the teacher temperature rises (default 0.3)",
+    )
     p.add_argument("--momentum", type=float, help="EMA momentum at step 0")
     p.add_argument(
         "--precision",

@@ -10,7 +10,15 @@ import pytest
 import torch
 
 from bino_train.export import load_encoder
-from bino_train.pretrain import TrainConfig, Trainer, learning_rate, main, smoke_report
+from bino_train.pretrain import (
+    TrainConfig,
+    Trainer,
+    build_config,
+    learning_rate,
+    main,
+    parse_args,
+    smoke_report,
+)
 
 COMMON = ["--config", "small", "--batch", "2", "--schedule-pairs", "16", "--precision", "fp32"]
 
@@ -89,6 +97,13 @@ def test_learning_rate_schedule_endpoints() -> None:
     assert learning_rate(100, cfg) == pytest.approx(1e-5)
     assert learning_rate(1000, cfg) == pytest.approx(1e-5)
     assert learning_rate(10, cfg) > learning_rate(50, cfg) > learning_rate(90, cfg)
+
+
+def test_teacher_temperature_warmup_is_a_fraction_of_the_schedule() -> None:
+    """A long schedule keeps the short warm-up that avoided collapse (p2 vs p1)."""
+    args = parse_args(["--out", "x", "--pairs", "9", "--teacher-temp-warmup", "0.06"])
+    assert build_config(args).dino.teacher_temp_warmup == pytest.approx(0.06)
+    assert build_config(parse_args(["--out", "x", "--pairs", "9"])).dino.teacher_temp_warmup == pytest.approx(0.3)
 
 
 def test_smoke_report_judges_the_kl() -> None:
