@@ -16,8 +16,10 @@ use crate::kernels::I32s;
 /// Channels whose parameters are prepared at once (2 KiB of stack).
 pub const CHUNK: usize = 128;
 
-/// One channel's prepared parameters.
+/// One channel's prepared parameters. `repr(C)`: the Helium row kernel gathers them by byte
+/// offset (`bias` at 0, `mult` at 4, `addend` at 8, `s` at 12).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[repr(C)]
 pub(crate) struct Col {
     bias: i32,
     mult: i32,
@@ -53,6 +55,12 @@ impl Col {
         })
     }
 
+    /// The bias, the accumulators' start.
+    #[cfg(test)]
+    pub(crate) fn bias(&self) -> i32 {
+        self.bias
+    }
+
     /// The int8 output of an accumulator that already holds the bias (`|acc| < 2^31`).
     #[inline(always)]
     pub(crate) fn apply(&self, acc: i32) -> i8 {
@@ -64,11 +72,38 @@ impl Col {
 }
 
 /// [`Epilogue`] of the fused kernels: one chunk of output channels starting at `j0`.
-pub struct Fused<'o> {
+pub(crate) struct Fused<'o> {
     params: [Col; CHUNK],
     out: &'o mut [i8],
     n: usize,
     j0: usize,
+}
+
+impl Fused<'_> {
+    /// Hands `kernel` the chunk's first `len` channels' parameters and the outputs of those
+    /// channels in row `row0` and, if `pair`, row `row0 + 1` (else a scratch that is dropped).
+    /// `false` if the rows lie outside the output or `kernel` declines.
+    #[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
+    #[inline(always)]
+    pub(crate) fn rows(
+        &mut self,
+        row0: usize,
+        pair: bool,
+        len: usize,
+        kernel: impl FnOnce(&[Col], &mut [i8], &mut [i8]) -> bool,
+    ) -> bool {
+        let at = row0 * self.n + self.j0;
+        let mut spare = [0i8; CHUNK];
+        let (first, second) = self.out.split_at_mut((at + self.n).min(self.out.len()));
+        let (Some(params), Some(out0)) = (self.params.get(..len), first.get_mut(at..at + len)) else {
+            return false;
+        };
+        let out1 = match (pair, second.get_mut(..len), spare.get_mut(..len)) {
+            (true, Some(o), _) | (false, _, Some(o)) => o,
+            _ => return false,
+        };
+        kernel(params, out0, out1)
+    }
 }
 
 impl Epilogue for Fused<'_> {
@@ -180,8 +215,11 @@ where
     M: I32s + ?Sized,
     Z: I32s + ?Sized,
 {
-    #[cfg(any(bino_dsp, bino_mve))]
+    #[cfg(bino_dsp)]
     return matmul_requant_with(a, w, k, rq, zero, out, |a, w, k, m, epi| super::run(a, w, k, m, epi));
+    // Whole rows of column triples with their epilogue in one Helium kernel.
+    #[cfg(bino_mve)]
+    return matmul_requant_with(a, w, k, rq, zero, out, super::mve::gemm_fused);
     #[cfg(not(any(bino_dsp, bino_mve)))]
     {
         let _ = (a, w, k, rq, zero, out);

@@ -191,7 +191,7 @@ mod tests {
 
     type Driver = fn(&[i8], &[i8], usize, usize, &mut fused::Fused<'_>) -> bool;
     type StoreDriver = fn(&[i8], &[i8], usize, usize, &mut Store<'_>) -> bool;
-    const DRIVERS: [(&str, StoreDriver, Driver); 2] = [
+    const DRIVERS: [(&str, StoreDriver, Driver); 3] = [
         (
             "dsp",
             |a, w, k, m, e| dsp::gemm(a, w, k, m, e),
@@ -202,6 +202,8 @@ mod tests {
             |a, w, k, m, e| mve::gemm(a, w, k, m, e),
             |a, w, k, m, e| mve::gemm(a, w, k, m, e),
         ),
+        // The Helium fused driver: whole rows of column triples per kernel call.
+        ("mve", |a, w, k, m, e| mve::gemm(a, w, k, m, e), mve::gemm_fused),
     ];
 
     #[test]

@@ -6,6 +6,7 @@
 //! loads and multiplies only the elements left, so any `k` is taken and nothing is read past a
 //! row. Per 96 MACs: five `vldrb`, six `vmladava` and the loop end.
 
+use super::fused::{Col, Fused};
 use super::Epilogue;
 #[cfg(bino_mve)]
 use crate::config::HEAD_DIM;
@@ -43,6 +44,188 @@ pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mu
                 epi.put(r0 + 1, j, acc1);
             }
             j += 1;
+        }
+    }
+    true
+}
+
+/// The fused GEMM's driver: per pair of rows, every whole column triple of the chunk in one
+/// kernel call ([`rows_requant`]: tiles and epilogue without returning to Rust), then the
+/// chunk's last one or two columns through `tile1` and the scalar epilogue.
+pub(crate) fn gemm_fused(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut Fused<'_>) -> bool {
+    let channels = w.len() / k.max(1);
+    let whole = channels / 3 * 3;
+    let (w_whole, w_rest) = w.split_at(whole * k);
+    for r0 in (0..m).step_by(2) {
+        let row = |r: usize| a.get(r * k..(r + 1) * k).unwrap_or(&[]);
+        let (a0, a1) = (row(r0), row((r0 + 1).min(m - 1)));
+        let pair = r0 + 1 < m;
+        if whole > 0 && !epi.rows(r0, pair, whole, |p, o0, o1| rows_requant(a0, a1, w_whole, k, p, o0, o1)) {
+            return false;
+        }
+        for (i, w_row) in w_rest.chunks_exact(k).enumerate() {
+            let j = whole + i;
+            let [acc0, acc1] = tile1(a0, a1, w_row, epi.init(j));
+            epi.put(r0, j, acc0);
+            if pair {
+                epi.put(r0 + 1, j, acc1);
+            }
+        }
+    }
+    true
+}
+
+/// Byte offsets of `mult`, `addend` and `s` of channels 0, 1, 2 (and 2 again for the unused
+/// fourth lane) in an array of [`Col`] (`repr(C)`, 16 bytes each).
+#[cfg(bino_mve)]
+static COL_GATHER: [[u32; 4]; 3] = [[4, 20, 36, 36], [8, 24, 40, 40], [12, 28, 44, 44]];
+
+/// Rows `a0`, `a1` (`k` codes each) against `params.len()` weight rows of `w` (a multiple of
+/// three), outputs through the fused epilogue into `out0` and `out1`, in one Helium kernel:
+/// per column triple the bias into six accumulators, the 2 x 3 tile's loop, then both rows'
+/// requantisation in vector lanes (`mult`, `addend` and `s` gathered from three channels'
+/// [`Col`]s: `vmulh.s32`, add, `vshl.s32` by `-s`, two saturating narrowings) and a
+/// tail-predicated store of three bytes per row. `false` (nothing written) for other lengths.
+#[cfg(bino_mve)]
+fn rows_requant(a0: &[i8], a1: &[i8], w: &[i8], k: usize, params: &[Col], out0: &mut [i8], out1: &mut [i8]) -> bool {
+    let n = params.len();
+    if k == 0 || k > super::MAX_K || a0.len() != k || a1.len() != k {
+        return false;
+    }
+    if n == 0 || !n.is_multiple_of(3) || w.len() != n * k || out0.len() != n || out1.len() != n {
+        return false;
+    }
+    // SAFETY: per triple `t` (`n / 3` of them) the loop reads `k >= 1` bytes from each of
+    // `a0`, `a1` and weight rows `3t..3t + 3` of `w` (exactly `w`'s `n * k` bytes over the
+    // call), 12 words gathered from `params[3t..3t + 3]` (byte offsets 0-47 of three
+    // `repr(C)` 16-byte `Col`s) and 12 words of `COL_GATHER`, and writes bytes `3t..3t + 3`
+    // of `out0` and `out1` (the one-iteration tail-predicated loop of three 32-bit elements
+    // stores lanes 0-2 only). All lengths are checked above; `vldrb.u8` needs no alignment and
+    // `Col` and `COL_GATHER` are word aligned. The narrowing stores need low registers (r3, r5).
+    // Its loop state lives in 32 bytes below `sp`, restored before the end. It writes only its
+    // declared outputs: r0-r5, r8-r12, `lr` (whose loops' `letp` restore FPSCR.LTPSIZE) and
+    // q0-q6.
+    unsafe {
+        core::arch::asm!(
+            "vldrw.u32 q4, [{gather}]",
+            "vldrw.u32 q5, [{gather}, #16]",
+            "vldrw.u32 q6, [{gather}, #32]",
+            "sub sp, #32",
+            "strd r1, r3, [sp, #0]",
+            "strd r0, r2, [sp, #8]",
+            "strd r4, r5, [sp, #16]",
+            "strd lr, r11, [sp, #24]",
+            // One column triple: bias into the accumulators.
+            "3:",
+            "ldr r12, [sp, #8]",
+            "ldr r0, [r12, #0]",
+            "ldr r4, [r12, #16]",
+            "ldr r10, [r12, #32]",
+            "mov r2, r0",
+            "mov r8, r4",
+            "mov r12, r10",
+            // The weight rows (the loop's pointers end rounded up to 16 bytes, so the next
+            // triple's first row is kept in the frame).
+            "ldr r5, [sp, #28]",
+            "ldr lr, [sp, #24]",
+            "add r9, r5, lr",
+            "add r11, r9, lr",
+            "add r1, r11, lr",
+            "str r1, [sp, #28]",
+            "ldrd r1, r3, [sp, #0]",
+            "dlstp.8 lr, lr",
+            "4:",
+            "vldrb.u8 q0, [r1], #16",
+            "vldrb.u8 q1, [r3], #16",
+            "vldrb.u8 q2, [r5], #16",
+            "vmladava.s8 r0, q0, q2",
+            "vmladava.s8 r2, q1, q2",
+            "vldrb.u8 q3, [r9], #16",
+            "vmladava.s8 r4, q0, q3",
+            "vmladava.s8 r8, q1, q3",
+            "vldrb.u8 q2, [r11], #16",
+            "vmladava.s8 r10, q0, q2",
+            "vmladava.s8 r12, q1, q2",
+            "letp lr, 4b",
+            // The epilogue, both rows.
+            "vmov.32 q0[0], r0",
+            "vmov.32 q0[1], r4",
+            "vmov.32 q0[2], r10",
+            "vmov.32 q1[0], r2",
+            "vmov.32 q1[1], r8",
+            "vmov.32 q1[2], r12",
+            "ldr r1, [sp, #8]",
+            "vldrw.u32 q2, [r1, q4]",
+            "vmulh.s32 q0, q0, q2",
+            "vmulh.s32 q1, q1, q2",
+            "vldrw.u32 q2, [r1, q5]",
+            "vadd.i32 q0, q0, q2",
+            "vadd.i32 q1, q1, q2",
+            "vldrw.u32 q2, [r1, q6]",
+            "vneg.s32 q2, q2",
+            "vshl.s32 q0, q0, q2",
+            "vshl.s32 q1, q1, q2",
+            "vqmovnb.s32 q0, q0",
+            "vqmovnb.s32 q1, q1",
+            "vqmovnb.s16 q0, q0",
+            "vqmovnb.s16 q1, q1",
+            "adds r1, #48",
+            "str r1, [sp, #8]",
+            "ldrd r3, r5, [sp, #12]",
+            "mov lr, #3",
+            "dlstp.32 lr, lr",
+            "5:",
+            "vstrb.32 q0, [r3]",
+            "vstrb.32 q1, [r5]",
+            "letp lr, 5b",
+            "adds r3, #3",
+            "adds r5, #3",
+            "strd r3, r5, [sp, #12]",
+            "ldr r1, [sp, #20]",
+            "subs r1, #1",
+            "str r1, [sp, #20]",
+            "bne 3b",
+            "add sp, #32",
+            gather = in(reg) COL_GATHER.as_ptr(),
+            inout("r1") a0.as_ptr() => _,
+            inout("r3") a1.as_ptr() => _,
+            inout("r11") w.as_ptr() => _,
+            inout("lr") k => _,
+            inout("r0") params.as_ptr() => _,
+            inout("r2") out0.as_mut_ptr() => _,
+            inout("r4") out1.as_mut_ptr() => _,
+            inout("r5") n / 3 => _,
+            out("r8") _, out("r9") _, out("r10") _, out("r12") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _, out("d6") _,
+            out("d7") _, out("d8") _, out("d9") _, out("d10") _, out("d11") _, out("d12") _, out("d13") _,
+        );
+    }
+    true
+}
+
+/// The portable twin of [`rows_requant`] (host tests of the driver): the same tiles and
+/// epilogue, triple by triple.
+#[cfg(not(bino_mve))]
+fn rows_requant(a0: &[i8], a1: &[i8], w: &[i8], k: usize, params: &[Col], out0: &mut [i8], out1: &mut [i8]) -> bool {
+    let n = params.len();
+    if k == 0
+        || !n.is_multiple_of(3)
+        || w.len() != n * k
+        || out0.len() != n
+        || out1.len() != n
+        || a0.len() != k
+        || a1.len() != k
+    {
+        return false;
+    }
+    for (t, (cols, triple)) in params.chunks_exact(3).zip(w.chunks_exact(3 * k)).enumerate() {
+        let (w0, rest) = triple.split_at(k);
+        let (w1, w2) = rest.split_at(k);
+        let acc = tile3(a0, a1, [w0, w1, w2], [cols[0].bias(), cols[1].bias(), cols[2].bias()]);
+        for (out, row) in [&mut *out0, &mut *out1].into_iter().zip(acc) {
+            for (o, (c, v)) in out.iter_mut().skip(3 * t).zip(cols.iter().zip(row)) {
+                *o = c.apply(v);
+            }
         }
     }
     true
