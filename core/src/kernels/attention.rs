@@ -343,6 +343,25 @@ fn normalise(acc: &[i32; HEAD_DIM], total: u32, p: &AttentionQ, out: &mut [i8]) 
     }
     // total >= 255 (the maximum's own weight), so the reciprocal keeps >= 23 bits.
     let recip = ((1u64 << 31) + total as u64 / 2) / total as u64;
+    let (Ok(recip32), true) = (i32::try_from(recip), (1..=62).contains(&p.out.shift)) else {
+        normalise_reference(acc, recip, p, out);
+        return;
+    };
+    let half = 1i64 << (p.out.shift - 1);
+    for (o, &a) in out.iter_mut().zip(acc.iter()) {
+        // `round_shift` and `apply_i64` without their saturation, which these operands cannot
+        // reach: `|a * recip| < 2^62` leaves room for the rounding term, and so do an average
+        // that fits in 32 bits times a 32-bit multiplier (`|product| <= 2^62`, `half <= 2^61`).
+        let avg = (a as i64 * recip32 as i64 + (1 << (30 - AVG_FRAC_BITS))) >> (31 - AVG_FRAC_BITS);
+        *o = match i32::try_from(avg) {
+            Ok(avg) => sat_i8_i64((avg as i64 * p.out.mult as i64 + half) >> p.out.shift),
+            Err(_) => sat_i8_i64(p.out.apply_i64(avg)),
+        };
+    }
+}
+
+/// [`normalise`] by the saturating formulas: its specification.
+fn normalise_reference(acc: &[i32; HEAD_DIM], recip: u64, p: &AttentionQ, out: &mut [i8]) {
     for (o, &a) in out.iter_mut().zip(acc.iter()) {
         let avg = round_shift(a as i64 * recip as i64, 31 - AVG_FRAC_BITS);
         *o = sat_i8_i64(p.out.apply_i64(avg));
@@ -375,6 +394,46 @@ mod tests {
         let total: f64 = w.iter().sum();
         for d in 0..HEAD_DIM {
             out[d] = (0..n).map(|j| w[j] * values[j * HEAD_DIM + d] as f64).sum::<f64>() / total;
+        }
+    }
+
+    #[test]
+    fn normalise_equals_its_saturating_formula() {
+        let mut rng = Rng::new(8);
+        let extremes = [i32::MIN, i32::MIN + 1, -1, 0, 1, i32::MAX, 1 << 25, -(1 << 25)];
+        for trial in 0..4000 {
+            let total = match trial % 4 {
+                0 => rng.range(1, 300) as u32,
+                1 => rng.range(255, 1 << 20) as u32,
+                2 => rng.range(1, u32::MAX as i64) as u32,
+                _ => [1, 2, 255, u32::MAX][trial / 4 % 4],
+            };
+            let shift = if trial % 7 == 0 {
+                rng.range(0, 64) as u32
+            } else {
+                rng.range(20, 62) as u32
+            };
+            let mult = if trial % 5 == 0 {
+                [i32::MIN, i32::MAX, 1, -1][trial / 5 % 4]
+            } else {
+                rng.range(i32::MIN as i64, i32::MAX as i64) as i32
+            };
+            let p = AttentionQ {
+                to_log2_q8: Requant { mult: 1, shift: 1 },
+                out: Requant { mult, shift },
+            };
+            let acc: [i32; HEAD_DIM] = core::array::from_fn(|d| {
+                if d < extremes.len() {
+                    extremes[d]
+                } else {
+                    rng.range(-(1 << 26), 1 << 26) as i32
+                }
+            });
+            let (mut fast, mut want) = ([0i8; HEAD_DIM], [0i8; HEAD_DIM]);
+            normalise(&acc, total, &p, &mut fast);
+            let recip = ((1u64 << 31) + total as u64 / 2) / total as u64;
+            normalise_reference(&acc, recip, &p, &mut want);
+            assert_eq!(fast, want, "total {total} mult {mult} shift {shift}");
         }
     }
 

@@ -129,15 +129,6 @@ impl Epilogue for Fused<'_> {
             }
         }
     }
-    #[inline(always)]
-    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
-        let at = row * self.n + self.j0 + j;
-        if let (Some(o), Some(c)) = (self.out.get_mut(at..at + C), self.params.get(j..j + C)) {
-            for ((o, c), v) in o.iter_mut().zip(c).zip(acc) {
-                *o = c.apply(v);
-            }
-        }
-    }
 }
 
 /// `out = sat8(rq(a * w^T) + zero)` through `driver` (a tile driver: `a`, one chunk of `w`,

@@ -2,11 +2,12 @@
 //! behind safe wrappers.
 //!
 //! The only module of `bino-core` that may use `unsafe`, and only for `core::arch::asm!`.
-//! Each kernel computes a small tile of dot products in registers (`dsp`: 4 rows x 1 column
-//! with `sxtb16` + `smlad` on Cortex-M7; `mve`: 2 rows x 3 columns with `vmladava.s8` on
-//! Cortex-M55), and a shared Rust driver hands each finished tile to an `Epilogue` in the
-//! same pass: a plain `i32` store, or bias, per-channel requantisation, zero point and the
-//! int8 store (`Fused`). The portable kernels (`matmul::matmul_i8_reference`,
+//! Each kernel computes a small tile of dot products in registers. On Cortex-M7 (`dsp`: 4 rows
+//! x 1 column with `sxtb16` + `smlad`) a Rust driver hands each finished tile to an `Epilogue`
+//! in the same pass: a plain `i32` store, or bias, per-channel requantisation, zero point and
+//! the int8 store (`Fused`). On Cortex-M55 (`mve`: 2 rows x 3 columns with `vmladava.s8`) one
+//! kernel call runs a pair of rows against every column triple, the store or the fused
+//! requantisation (in vector lanes) included. The portable kernels (`matmul::matmul_i8_reference`,
 //! `epilogue::requant_rows`) stay the specification; the wrappers return `false` for shapes
 //! or parameters they do not handle, and the caller then runs the reference.
 //!
@@ -49,18 +50,10 @@ pub(crate) trait Epilogue {
             self.put(row0 + i, j, v);
         }
     }
-    /// Outputs `(row, j..j + C)` (one bounds check where the epilogue can; the MVE tiles'
-    /// rows).
-    #[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
-    #[inline(always)]
-    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
-        for (i, v) in acc.into_iter().enumerate() {
-            self.put(row, j + i, v);
-        }
-    }
 }
 
 /// Stores accumulators as they are: `out[row * n + j]`.
+#[cfg_attr(not(any(bino_dsp, test)), allow(dead_code))]
 pub(crate) struct Store<'o> {
     pub out: &'o mut [i32],
     pub n: usize,
@@ -75,13 +68,6 @@ impl Epilogue for Store<'_> {
     fn put(&mut self, row: usize, j: usize, acc: i32) {
         if let Some(o) = self.out.get_mut(row * self.n + j) {
             *o = acc;
-        }
-    }
-    #[inline(always)]
-    fn put_row<const C: usize>(&mut self, row: usize, j: usize, acc: [i32; C]) {
-        let at = row * self.n + j;
-        if let Some(o) = self.out.get_mut(at..at + C) {
-            o.copy_from_slice(&acc);
         }
     }
 }
@@ -101,9 +87,14 @@ pub(crate) fn shape(a: &[i8], w: &[i8], k: usize, out_len: usize) -> Option<(usi
 /// assembly kernel; `false` (nothing written) where there is none or the shape is not taken.
 #[inline]
 pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
-    #[cfg(any(bino_dsp, bino_mve))]
+    #[cfg(bino_dsp)]
     if let Some((m, n)) = shape(a, w, k, out.len()) {
         return run(a, w, k, m, &mut Store { out, n });
+    }
+    // Whole rows of column triples per Helium kernel call.
+    #[cfg(bino_mve)]
+    if let Some((m, n)) = shape(a, w, k, out.len()) {
+        return mve::gemm_i32(a, w, k, m, n, out);
     }
     let _ = (a, w, k, out);
     false
@@ -170,14 +161,12 @@ pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> 
     }
 }
 
-/// The tile driver of this core.
-#[cfg(any(bino_dsp, bino_mve))]
+/// The tile driver of the Cortex-M7 (the Cortex-M55's drivers are `mve::gemm_i32` and
+/// `mve::gemm_fused`).
+#[cfg(bino_dsp)]
 #[inline(always)]
 pub(crate) fn run<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
-    #[cfg(bino_dsp)]
-    return dsp::gemm(a, w, k, m, epi);
-    #[cfg(bino_mve)]
-    return mve::gemm(a, w, k, m, epi);
+    dsp::gemm(a, w, k, m, epi)
 }
 
 #[cfg(test)]
@@ -191,19 +180,18 @@ mod tests {
 
     type Driver = fn(&[i8], &[i8], usize, usize, &mut fused::Fused<'_>) -> bool;
     type StoreDriver = fn(&[i8], &[i8], usize, usize, &mut Store<'_>) -> bool;
-    const DRIVERS: [(&str, StoreDriver, Driver); 3] = [
+    const DRIVERS: [(&str, StoreDriver, Driver); 2] = [
         (
             "dsp",
             |a, w, k, m, e| dsp::gemm(a, w, k, m, e),
             |a, w, k, m, e| dsp::gemm(a, w, k, m, e),
         ),
+        // The Helium row drivers: whole rows of column triples per kernel call.
         (
             "mve",
-            |a, w, k, m, e| mve::gemm(a, w, k, m, e),
-            |a, w, k, m, e| mve::gemm(a, w, k, m, e),
+            |a, w, k, m, e| mve::gemm_i32(a, w, k, m, e.n, e.out),
+            mve::gemm_fused,
         ),
-        // The Helium fused driver: whole rows of column triples per kernel call.
-        ("mve", |a, w, k, m, e| mve::gemm(a, w, k, m, e), mve::gemm_fused),
     ];
 
     #[test]

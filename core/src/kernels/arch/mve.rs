@@ -1,6 +1,8 @@
-//! Cortex-M55 (Helium, MVE) kernels: the GEMM tiles, 2 rows x 3 columns (and 2 x 1 for the
-//! last columns), 16 MACs per `vmladava.s8`, accumulating into scalar registers; attention's
-//! scores with the queries held in vector registers; the softmax row.
+//! Cortex-M55 (Helium, MVE) kernels: the GEMMs, a pair of rows against every column triple in
+//! one kernel call (2 x 3 tiles, 16 MACs per `vmladava.s8` into scalar accumulators, then an
+//! `i32` store or the fused requantisation in vector lanes; a 2 x 1 tile for the last one or
+//! two columns); attention's scores with the queries held in vector registers; the softmax
+//! row; LayerNorm's and the residual add's lanes.
 //!
 //! One tail-predicated loop (`dlstp.8` / `letp`) runs over `k` in steps of 16: the last step
 //! loads and multiplies only the elements left, so any `k` is taken and nothing is read past a
@@ -12,42 +14,6 @@ use super::Epilogue;
 use crate::config::HEAD_DIM;
 #[cfg(bino_mve)]
 use crate::kernels::exp::{ExpQ32, EXP2_NEG_U8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
-
-/// The tile driver: `m` rows of `a` against every row of `w`, each finished accumulator to
-/// `epi`; the caller has checked `k` in `1..=MAX_K` and the lengths.
-#[inline(always)]
-pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut E) -> bool {
-    fn rows(x: &[i8], r: usize, k: usize) -> &[i8] {
-        x.get(r * k..(r + 1) * k).unwrap_or(&[])
-    }
-    for r0 in (0..m).step_by(2) {
-        // An odd last row is paired with itself; the copy's results are not stored.
-        let (a0, a1) = (rows(a, r0, k), rows(a, (r0 + 1).min(m - 1), k));
-        let pair = r0 + 1 < m;
-        let mut triples = w.chunks_exact(3 * k);
-        let mut j = 0;
-        for triple in &mut triples {
-            let (w0, rest) = triple.split_at(k);
-            let (w1, w2) = rest.split_at(k);
-            let init = [epi.init(j), epi.init(j + 1), epi.init(j + 2)];
-            let [acc0, acc1] = tile3(a0, a1, [w0, w1, w2], init);
-            epi.put_row(r0, j, acc0);
-            if pair {
-                epi.put_row(r0 + 1, j, acc1);
-            }
-            j += 3;
-        }
-        for w_row in triples.remainder().chunks_exact(k) {
-            let [acc0, acc1] = tile1(a0, a1, w_row, epi.init(j));
-            epi.put(r0, j, acc0);
-            if pair {
-                epi.put(r0 + 1, j, acc1);
-            }
-            j += 1;
-        }
-    }
-    true
-}
 
 /// The fused GEMM's driver: per pair of rows, every whole column triple of the chunk in one
 /// kernel call ([`rows_requant`]: tiles and epilogue without returning to Rust), then the
@@ -69,6 +35,146 @@ pub(crate) fn gemm_fused(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut Fused
             epi.put(r0, j, acc0);
             if pair {
                 epi.put(r0 + 1, j, acc1);
+            }
+        }
+    }
+    true
+}
+
+/// The plain GEMM's driver (`i32` out, `m x n`): per pair of rows, every whole column triple
+/// in one kernel call ([`rows_i32`]), then the last one or two columns through `tile1`.
+/// `false` where the lengths do not hold `m x n` (the caller has checked them).
+pub(crate) fn gemm_i32(a: &[i8], w: &[i8], k: usize, m: usize, n: usize, out: &mut [i32]) -> bool {
+    let whole = n / 3 * 3;
+    let Some((w_whole, w_rest)) = w.split_at_checked(whole * k) else {
+        return false;
+    };
+    for r0 in (0..m).step_by(2) {
+        let row = |r: usize| a.get(r * k..(r + 1) * k).unwrap_or(&[]);
+        let (a0, a1) = (row(r0), row((r0 + 1).min(m - 1)));
+        let pair = r0 + 1 < m;
+        let end = (r0 + if pair { 2 } else { 1 }) * n;
+        let Some((out0, out1)) = out.get_mut(r0 * n..end).and_then(|o| o.split_at_mut_checked(n)) else {
+            return false;
+        };
+        let (Some(whole0), whole1) = (out0.get_mut(..whole), out1.get_mut(..whole)) else {
+            return false;
+        };
+        if whole > 0 && !rows_i32(a0, a1, w_whole, k, whole0, whole1) {
+            return false;
+        }
+        for (i, w_row) in w_rest.chunks_exact(k).take(n - whole).enumerate() {
+            let [acc0, acc1] = tile1(a0, a1, w_row, 0);
+            for (o, acc) in [(out0.get_mut(whole + i), acc0), (out1.get_mut(whole + i), acc1)] {
+                if let Some(o) = o {
+                    *o = acc;
+                }
+            }
+        }
+    }
+    true
+}
+
+/// Rows `a0`, `a1` (`k` codes each) against `out0.len()` weight rows of `w` (a multiple of
+/// three) in one Helium kernel: per column triple six zeroed accumulators, the 2 x 3 tile's
+/// loop and two `stm`s. `out1` is `None` for an unpaired last row (`a1` is then `a0`'s copy,
+/// and its results are written over `out0`'s with the same values). `false` (nothing written)
+/// for other lengths.
+#[cfg(bino_mve)]
+fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
+    let n = out0.len();
+    if k == 0 || k > super::MAX_K || a0.len() != k || a1.len() != k {
+        return false;
+    }
+    if n == 0 || !n.is_multiple_of(3) || w.len() != n * k || out1.as_ref().is_some_and(|o| o.len() != n) {
+        return false;
+    }
+    let second = out1.as_mut().map_or(out0.as_mut_ptr(), |o| o.as_mut_ptr());
+    // SAFETY: per triple `t` (`n / 3` of them) the loop reads `k >= 1` bytes from each of
+    // `a0`, `a1` and weight rows `3t..3t + 3` of `w` (exactly `w`'s `n * k` bytes over the
+    // call) and writes words `3t..3t + 3` of `out0` and of `out1` (or of `out0` again, with the
+    // values just stored there: `a1` then equals `a0`). All lengths are checked above;
+    // `vldrb.u8` needs no alignment and `stm` gets word-aligned `i32` slices. Its loop state
+    // lives in 32 bytes below `sp`, restored before the end. It writes only its declared
+    // outputs: r0-r5, r8-r12, `lr` (the loop's `letp` restores FPSCR.LTPSIZE) and q0-q3.
+    unsafe {
+        core::arch::asm!(
+            "sub sp, #32",
+            "strd r1, r3, [sp, #0]",
+            "strd r2, r4, [sp, #8]",
+            "str r5, [sp, #16]",
+            "strd lr, r11, [sp, #24]",
+            // One column triple: its weight rows (the loop's pointers end rounded up to 16
+            // bytes, so the next triple's first row is kept in the frame).
+            "3:",
+            "ldr r5, [sp, #28]",
+            "ldr lr, [sp, #24]",
+            "add r9, r5, lr",
+            "add r11, r9, lr",
+            "add r1, r11, lr",
+            "str r1, [sp, #28]",
+            "ldrd r1, r3, [sp, #0]",
+            "movs r0, #0",
+            "movs r2, #0",
+            "movs r4, #0",
+            "mov.w r8, #0",
+            "mov.w r10, #0",
+            "mov.w r12, #0",
+            "dlstp.8 lr, lr",
+            "4:",
+            "vldrb.u8 q0, [r1], #16",
+            "vldrb.u8 q1, [r3], #16",
+            "vldrb.u8 q2, [r5], #16",
+            "vmladava.s8 r0, q0, q2",
+            "vmladava.s8 r2, q1, q2",
+            "vldrb.u8 q3, [r9], #16",
+            "vmladava.s8 r4, q0, q3",
+            "vmladava.s8 r8, q1, q3",
+            "vldrb.u8 q2, [r11], #16",
+            "vmladava.s8 r10, q0, q2",
+            "vmladava.s8 r12, q1, q2",
+            "letp lr, 4b",
+            "ldrd r1, r3, [sp, #8]",
+            "stm r1!, {{r0, r4, r10}}",
+            "stm r3!, {{r2, r8, r12}}",
+            "strd r1, r3, [sp, #8]",
+            "ldr r1, [sp, #16]",
+            "subs r1, #1",
+            "str r1, [sp, #16]",
+            "bne 3b",
+            "add sp, #32",
+            inout("r1") a0.as_ptr() => _,
+            inout("r3") a1.as_ptr() => _,
+            inout("r11") w.as_ptr() => _,
+            inout("lr") k => _,
+            inout("r2") out0.as_mut_ptr() => _,
+            inout("r4") second => _,
+            inout("r5") n / 3 => _,
+            out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+        );
+    }
+    true
+}
+
+/// The portable twin of [`rows_i32`] (host tests of the driver).
+#[cfg(not(bino_mve))]
+fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
+    let n = out0.len();
+    if k == 0 || !n.is_multiple_of(3) || w.len() != n * k || out1.as_ref().is_some_and(|o| o.len() != n) {
+        return false;
+    }
+    for (t, triple) in w.chunks_exact(3 * k).enumerate() {
+        let (w0, rest) = triple.split_at(k);
+        let (w1, w2) = rest.split_at(k);
+        let [acc0, acc1] = tile3(a0, a1, [w0, w1, w2], [0; 3]);
+        for (o, v) in out0.iter_mut().skip(3 * t).zip(acc0) {
+            *o = v;
+        }
+        if let Some(out1) = out1.as_mut() {
+            for (o, v) in out1.iter_mut().skip(3 * t).zip(acc1) {
+                *o = v;
             }
         }
     }
@@ -231,56 +337,6 @@ fn rows_requant(a0: &[i8], a1: &[i8], w: &[i8], k: usize, params: &[Col], out0: 
     true
 }
 
-/// `init[c] + a_r . w_c` for rows `a0`, `a1` and the three weight rows.
-#[cfg(bino_mve)]
-#[inline(always)]
-fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i32; 3]; 2] {
-    let k = a0.len();
-    if k == 0 || a1.len() != k || w.iter().any(|w| w.len() != k) {
-        return [init; 2];
-    }
-    let ([mut s00, mut s01, mut s02], [mut s10, mut s11, mut s12]) = (init, init);
-    // SAFETY: the tail-predicated loop reads exactly `k >= 1` bytes from each of the five
-    // pointers, all checked above to be rows of `k` bytes (`vldrb.u8` needs no alignment;
-    // predicated-off lanes of the last step are not accessed). It writes only its declared
-    // outputs: the accumulators, the pointers, `lr` (loop count) and q0-q3 (declared through
-    // their `d` aliases). `letp` restores FPSCR.LTPSIZE to 4 when the loop exits.
-    unsafe {
-        core::arch::asm!(
-            "dlstp.8 lr, lr",
-            "2:",
-            "vldrb.u8 q0, [{a0}], #16",
-            "vldrb.u8 q1, [{a1}], #16",
-            "vldrb.u8 q2, [{w0}], #16",
-            "vmladava.s8 r0, q0, q2",
-            "vmladava.s8 r2, q1, q2",
-            "vldrb.u8 q3, [{w1}], #16",
-            "vmladava.s8 r4, q0, q3",
-            "vmladava.s8 r8, q1, q3",
-            "vldrb.u8 q2, [{w2}], #16",
-            "vmladava.s8 r10, q0, q2",
-            "vmladava.s8 r12, q1, q2",
-            "letp lr, 2b",
-            a0 = inout(reg) a0.as_ptr() => _,
-            a1 = inout(reg) a1.as_ptr() => _,
-            w0 = inout(reg) w[0].as_ptr() => _,
-            w1 = inout(reg) w[1].as_ptr() => _,
-            w2 = inout(reg) w[2].as_ptr() => _,
-            inout("lr") k => _,
-            inout("r0") s00,
-            inout("r2") s10,
-            inout("r4") s01,
-            inout("r8") s11,
-            inout("r10") s02,
-            inout("r12") s12,
-            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-            options(nostack, readonly, pure),
-        );
-    }
-    [[s00, s01, s02], [s10, s11, s12]]
-}
-
 /// `init + a_r . w` for rows `a0`, `a1` and one weight row.
 #[cfg(bino_mve)]
 #[inline(always)]
@@ -290,7 +346,11 @@ fn tile1(a0: &[i8], a1: &[i8], w: &[i8], init: i32) -> [i32; 2] {
         return [init; 2];
     }
     let (mut s0, mut s1) = (init, init);
-    // SAFETY: as in `tile3`, with three rows of `k` bytes and q0-q2.
+    // SAFETY: the tail-predicated loop reads exactly `k >= 1` bytes from each of the three
+    // pointers, all checked above to be rows of `k` bytes (`vldrb.u8` needs no alignment;
+    // predicated-off lanes of the last step are not accessed). It writes only its declared
+    // outputs: the accumulators, the pointers, `lr` (loop count) and q0-q2 (declared through
+    // their `d` aliases). `letp` restores FPSCR.LTPSIZE to 4 when the loop exits.
     unsafe {
         core::arch::asm!(
             "dlstp.8 lr, lr",
@@ -618,7 +678,7 @@ pub(crate) fn residual_add_row(x: &mut [i8], acc: &[i32], params: &[i32]) -> boo
     true
 }
 
-/// Portable twins of the tiles (host tests of the driver).
+/// Portable twins of the tiles (host tests of the drivers).
 #[cfg(not(bino_mve))]
 fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i32; 3]; 2] {
     let dot = crate::kernels::matmul::dot;
