@@ -167,11 +167,20 @@ pub fn residual_add<Z, M, B, M2, Z2>(
         return;
     }
     let rows = x.len().min(acc.len()) / n;
+    // The lanes' bound on the accumulators, checked once for every chunk.
+    let small =
+        cfg!(any(bino_mve, bino_dsp, test)) && residual_lanes::accumulators_fit(acc.get(..rows * n).unwrap_or(&[]));
     let mut start = 0;
     while start < n {
         let len = (n - start).min(CHANNEL_CHUNK);
-        let chunk = residual_lanes::Chunk { n, start, len, rows };
-        if cfg!(any(bino_mve, bino_dsp, test)) && residual_lanes::add_chunk(x, acc, &chunk, carry, delta, new_zero) {
+        let chunk = residual_lanes::Chunk {
+            n,
+            start,
+            len,
+            rows,
+            small,
+        };
+        if small && residual_lanes::add_chunk(x, acc, &chunk, carry, delta, new_zero) {
             start += len;
             continue;
         }
@@ -258,12 +267,20 @@ mod residual_lanes {
     /// shift; delta bias, multiplier, rounding term, negated shift; the new zero point.
     const VECTORS: usize = 10;
 
-    /// Where a chunk lies: channels `start..start + len` of rows of `n`, `rows` rows.
+    /// Where a chunk lies: channels `start..start + len` of rows of `n`, `rows` rows; `small`:
+    /// the block's accumulators passed [`accumulators_fit`].
     pub(super) struct Chunk {
         pub n: usize,
         pub start: usize,
         pub len: usize,
         pub rows: usize,
+        pub small: bool,
+    }
+
+    /// Whether every accumulator of a block is below `2^30` in magnitude (the delta's bound).
+    #[cfg_attr(not(any(bino_mve, bino_dsp, test)), allow(dead_code))]
+    pub(super) fn accumulators_fit(acc: &[i32]) -> bool {
+        acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) < 1 << 30
     }
 
     /// The chunk added in lanes; `false` (nothing written) where an identity of the module
@@ -284,18 +301,23 @@ mod residual_lanes {
         M2: I32s + ?Sized,
         Z2: I32s + ?Sized,
     {
-        let Chunk { n, start, len, rows } = *chunk;
-        if len == 0 || len > CHANNEL_CHUNK || start + len > n {
-            return false;
-        }
-        // The accumulators of the whole block first (one pass): below 2^30 in magnitude.
-        let block = acc.get(..rows * n).unwrap_or(&[]);
-        if block.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 30 {
+        let Chunk {
+            n,
+            start,
+            len,
+            rows,
+            small,
+        } = *chunk;
+        if !small || len == 0 || len > CHANNEL_CHUNK || start + len > n {
             return false;
         }
         let mut params = [0i32; CHANNEL_CHUNK * VECTORS];
         let groups = len.div_ceil(4);
         for (g, group) in params.chunks_exact_mut(4 * VECTORS).take(groups).enumerate() {
+            // A fixed-size group: the stores below need no bounds checks.
+            let Ok(group) = <&mut [i32; 4 * VECTORS]>::try_from(group) else {
+                return false;
+            };
             for lane in 0..4 {
                 let c = start + 4 * g + lane;
                 if c >= start + len {
@@ -328,8 +350,10 @@ mod residual_lanes {
                     32 - ds as i32,
                     zero,
                 ];
-                for (slot, value) in group.iter_mut().skip(lane).step_by(4).zip(values) {
-                    *slot = value;
+                for (v, value) in values.into_iter().enumerate() {
+                    if let Some(slot) = group.get_mut(v * 4 + lane) {
+                        *slot = value;
+                    }
                 }
             }
         }
@@ -583,6 +607,7 @@ mod tests {
                         start,
                         len,
                         rows: ROWS,
+                        small: residual_lanes::accumulators_fit(&acc),
                     };
                     assert!(residual_lanes::add_chunk(
                         &mut lanes, &acc, &chunk, &carry, &delta, &new_zero
