@@ -5,7 +5,8 @@
 # with executed-instruction counts per stage, and per instruction class for the cycle model of
 # `bino budget` (firmware-sim/qemu-plugin/CYCLES.md), from the TCG plugin in firmware-sim/qemu-plugin/.
 #
-#   scripts/firmware.sh [--band full|small] [--out DIR] [--profile] [--kernels|--kernels-only] [--core m55|m7]
+#   scripts/firmware.sh [--band full|small] [--out DIR] [--profile] [--kernels|--kernels-only]
+#                       [--cmsis-nn DIR] [--core m55|m7]
 #
 #   --band full    one 48x160 band pair, the issue's target size (default; about 2 min of QEMU
 #                  for the M55 and 1 min for the M7 on a 2-core EPYC VM)
@@ -15,6 +16,10 @@
 #   --kernels      also the per-kernel table (<core>-kernels.md: executed instructions per MAC of
 #                  the encoder's GEMMs, assembly kernel against the portable reference, from the
 #                  kernel test firmware's markers); --kernels-only skips the band pair
+#   --cmsis-nn DIR with --kernels: also builds CMSIS-NN from the checkout DIR (github
+#                  ARM-software/CMSIS-NN; never committed) into a bench on the same shapes
+#                  (firmware-sim/cmsis-nn/, Debian's gcc-arm-none-eabi -O3), counts it in the
+#                  same plugin and puts its measured column into <core>-kernels.md
 #
 # Writes <out>/<core>.json (stages, instructions and their classes, arena, stack, digests, ELF sections) and
 # <out>/<core>.log (the decoded defmt log) per core; `bino budget --firmware <out>` reports them.
@@ -24,7 +29,7 @@ set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BINO_ROOT"
 
-band=full out="out/firmware" want_profile=0 want_kernels=0 kernels_only=0 cores="m55 m7"
+band=full out="out/firmware" want_profile=0 want_kernels=0 kernels_only=0 cores="m55 m7" cmsis_nn=""
 while [ $# -gt 0 ]; do
   case "$1" in
     --band) band="$2"; shift 2 ;;
@@ -33,7 +38,8 @@ while [ $# -gt 0 ]; do
     --kernels) want_kernels=1; shift ;;
     --kernels-only) want_kernels=1; kernels_only=1; shift ;;
     --core) cores="$2"; shift 2 ;;
-    -h|--help) sed -n '2,22p' "$0"; exit 0 ;;
+    --cmsis-nn) cmsis_nn="$(cd "$2" && pwd)"; want_kernels=1; shift 2 ;;
+    -h|--help) sed -n '2,27p' "$0"; exit 0 ;;
     *) echo "unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -65,6 +71,11 @@ for target in $THUMB_TARGETS; do
   grep -qx "$target" <<<"$installed" || rustup target add "$target"
 done
 rustup component list --installed | grep -q '^llvm-tools' || rustup component add llvm-tools
+if [ -n "$cmsis_nn" ] && ! command -v arm-none-eabi-gcc >/dev/null; then
+  echo "installing gcc-arm-none-eabi (for --cmsis-nn)"
+  as_root apt-get update -q
+  as_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q gcc-arm-none-eabi libnewlib-arm-none-eabi
+fi
 llvm_bin="$(rustc --print sysroot)/lib/rustlib/$(rustc -vV | sed -n 's/^host: //p')/bin"
 
 # ---- the instruction-count plugin
@@ -112,9 +123,23 @@ for core in $cores; do
     echo "kernel tests $core: FAILED (QEMU exit ${codes[0]}; see $out/$core-kernel-tests.log)" >&2
     status=1
   fi
+  cmsis_args=()
+  if [ -n "$cmsis_nn" ]; then
+    # CMSIS-NN on the same shapes, in the same plugin (firmware-sim/cmsis-nn/bench.c).
+    celf="$BINO_CACHE/cmsis-nn-$core.elf"
+    firmware-sim/cmsis-nn/build.sh "$cmsis_nn" "$core" "$celf"
+    cmarks="$("$llvm_bin/llvm-nm" "$celf" | awk '$3 ~ /^bino_mark_/ {
+      n = substr($3, 11); if (n == "end") n = "outside"; printf ",mark=%s:0x%s", n, $1 }')"
+    qemu-system-arm -machine "$machine" -cpu "$cpu" -display none -monitor none -serial null \
+      -semihosting-config enable=on,target=native \
+      -plugin "$plugin,out=$out/$core-cmsis-nn-counts.tsv$cmarks" \
+      -kernel "$celf" 2>&1 | tee "$out/$core-cmsis-nn.log" # semihosting's console is stderr
+    cmsis_args=(--cmsis-log "$out/$core-cmsis-nn.log" --cmsis-counts "$out/$core-cmsis-nn-counts.tsv"
+      --cmsis-commit "$(git -C "$cmsis_nn" rev-parse --short HEAD 2>/dev/null || echo unknown)")
+  fi
   if [ "$want_kernels" = 1 ]; then
     python3 firmware-sim/qemu-plugin/kernels.py --core "$core" --log "$out/$core-kernel-tests.log" \
-      --counts "$out/$core-kernel-counts.tsv" --out "$out/$core-kernels.md"
+      --counts "$out/$core-kernel-counts.tsv" --out "$out/$core-kernels.md" "${cmsis_args[@]}"
     [ "$kernels_only" = 1 ] && continue
   fi
   elf="$CARGO_TARGET_DIR/$target/release/bino-firmware"
