@@ -29,12 +29,11 @@ pub(crate) fn gemm_fused(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut Fused
         if whole > 0 && !epi.rows(r0, pair, whole, |p, o0, o1| rows_requant(a0, a1, w_whole, k, p, o0, o1)) {
             return false;
         }
-        for (i, w_row) in w_rest.chunks_exact(k).enumerate() {
-            let j = whole + i;
-            let [acc0, acc1] = tile1(a0, a1, w_row, epi.init(j));
-            epi.put(r0, j, acc0);
+        let acc = last_columns(a0, a1, w_rest, [epi.init(whole), epi.init(whole + 1)]);
+        for (c, j) in (whole..channels).enumerate().take(2) {
+            epi.put(r0, j, acc[0][c]);
             if pair {
-                epi.put(r0 + 1, j, acc1);
+                epi.put(r0 + 1, j, acc[1][c]);
             }
         }
     }
@@ -63,16 +62,36 @@ pub(crate) fn gemm_i32(a: &[i8], w: &[i8], k: usize, m: usize, n: usize, out: &m
         if whole > 0 && !rows_i32(a0, a1, w_whole, k, whole0, whole1) {
             return false;
         }
-        for (i, w_row) in w_rest.chunks_exact(k).take(n - whole).enumerate() {
-            let [acc0, acc1] = tile1(a0, a1, w_row, 0);
-            for (o, acc) in [(out0.get_mut(whole + i), acc0), (out1.get_mut(whole + i), acc1)] {
-                if let Some(o) = o {
-                    *o = acc;
-                }
+        let acc = last_columns(a0, a1, w_rest.get(..(n - whole) * k).unwrap_or(&[]), [0; 2]);
+        let rest = [out0.get_mut(whole..n), out1.get_mut(whole..n)];
+        for (out, row) in rest.into_iter().zip(acc) {
+            for (o, v) in out.into_iter().flatten().zip(row) {
+                *o = v;
             }
         }
     }
     true
+}
+
+/// The one or two columns a chunk has past its triples (`w_rest`: one or two weight rows of
+/// `a0.len()` codes), per row; columns not there keep their `init`.
+#[inline(always)]
+fn last_columns(a0: &[i8], a1: &[i8], w_rest: &[i8], init: [i32; 2]) -> [[i32; 2]; 2] {
+    let k = a0.len();
+    if k == 0 {
+        return [init; 2];
+    }
+    match w_rest.len() / k {
+        2 => {
+            let (w0, w1) = w_rest.split_at(k);
+            tile2(a0, a1, [w0, w1], init)
+        }
+        1 => {
+            let [acc0, acc1] = tile1(a0, a1, w_rest, init[0]);
+            [[acc0, init[1]], [acc1, init[1]]]
+        }
+        _ => [init; 2],
+    }
 }
 
 /// Rows `a0`, `a1` (`k` codes each) against `out0.len()` weight rows of `w` (a multiple of
@@ -335,6 +354,51 @@ fn rows_requant(a0: &[i8], a1: &[i8], w: &[i8], k: usize, params: &[Col], out0: 
         }
     }
     true
+}
+
+/// `init[c] + a_r . w_c` for rows `a0`, `a1` and two weight rows: per 64 MACs four `vldrb`,
+/// four `vmladava` and the loop end (two `tile1`s take six loads for the same work).
+#[cfg(bino_mve)]
+#[inline(always)]
+fn tile2(a0: &[i8], a1: &[i8], w: [&[i8]; 2], init: [i32; 2]) -> [[i32; 2]; 2] {
+    let k = a0.len();
+    if k == 0 || a1.len() != k || w.iter().any(|w| w.len() != k) {
+        return [init; 2];
+    }
+    let ([mut s00, mut s01], [mut s10, mut s11]) = (init, init);
+    // SAFETY: the tail-predicated loop reads exactly `k >= 1` bytes from each of the four
+    // pointers, all checked above to be rows of `k` bytes (`vldrb.u8` needs no alignment;
+    // predicated-off lanes of the last step are not accessed). It writes only its declared
+    // outputs: the accumulators, the pointers, `lr` (loop count) and q0-q3 (declared through
+    // their `d` aliases). `letp` restores FPSCR.LTPSIZE to 4 when the loop exits.
+    unsafe {
+        core::arch::asm!(
+            "dlstp.8 lr, lr",
+            "2:",
+            "vldrb.u8 q0, [{a0}], #16",
+            "vldrb.u8 q1, [{a1}], #16",
+            "vldrb.u8 q2, [{w0}], #16",
+            "vmladava.s8 r0, q0, q2",
+            "vmladava.s8 r2, q1, q2",
+            "vldrb.u8 q3, [{w1}], #16",
+            "vmladava.s8 r4, q0, q3",
+            "vmladava.s8 r8, q1, q3",
+            "letp lr, 2b",
+            a0 = inout(reg) a0.as_ptr() => _,
+            a1 = inout(reg) a1.as_ptr() => _,
+            w0 = inout(reg) w[0].as_ptr() => _,
+            w1 = inout(reg) w[1].as_ptr() => _,
+            inout("lr") k => _,
+            inout("r0") s00,
+            inout("r2") s10,
+            inout("r4") s01,
+            inout("r8") s11,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            options(nostack, readonly, pure),
+        );
+    }
+    [[s00, s01], [s10, s11]]
 }
 
 /// `init + a_r . w` for rows `a0`, `a1` and one weight row.
@@ -681,6 +745,15 @@ pub(crate) fn residual_add_row(x: &mut [i8], acc: &[i32], params: &[i32]) -> boo
 /// Portable twins of the tiles (host tests of the drivers).
 #[cfg(not(bino_mve))]
 fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i32; 3]; 2] {
+    let dot = crate::kernels::matmul::dot;
+    [
+        core::array::from_fn(|c| init[c].wrapping_add(dot(a0, w[c]))),
+        core::array::from_fn(|c| init[c].wrapping_add(dot(a1, w[c]))),
+    ]
+}
+
+#[cfg(not(bino_mve))]
+fn tile2(a0: &[i8], a1: &[i8], w: [&[i8]; 2], init: [i32; 2]) -> [[i32; 2]; 2] {
     let dot = crate::kernels::matmul::dot;
     [
         core::array::from_fn(|c| init[c].wrapping_add(dot(a0, w[c]))),
