@@ -74,6 +74,20 @@ pub static EXP2_NEG_U8_TABLE: [u8; EXP2_TABLE_LAST as usize + 1] = {
     t
 };
 
+/// [`EXP2_NEG_U8_TABLE`] minus 128, as int8: the weights as the attention's weighted sums store
+/// them (`w ^ 0x80`), so the Helium softmax gathers them sign-extended and stores them as they
+/// come (the row's sum is then the lanes' sum plus `128 * n`).
+#[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
+pub static EXP2_NEG_I8_TABLE: [i8; EXP2_TABLE_LAST as usize + 1] = {
+    let mut t = [0i8; EXP2_TABLE_LAST as usize + 1];
+    let mut x = 0;
+    while x < t.len() {
+        t[x] = (exp2_neg_u8_q8(x as u32) ^ 0x80) as i8;
+        x += 1;
+    }
+    t
+};
+
 /// `exp(-gap * scale)` as `0..=255`, where `to_log2_q8` turns a score gap into Q8 base-2 units.
 #[inline(always)]
 pub fn exp_neg_u8(gap: i64, to_log2_q8: Requant) -> u8 {
@@ -179,6 +193,16 @@ mod tests {
     use super::*;
 
     #[test]
+    fn rounding_term_is_half_the_divisor_for_every_shift() {
+        // The Helium softmax row relies on it (one `vrshl` for the add and the shift).
+        for shift in 22..=crate::fixed::MAX_SHIFT {
+            let e = ExpQ32::new(Requant { mult: 1 << 30, shift }).unwrap();
+            let (_, round, post) = e.shifts();
+            assert!(post >= 1 && round == 1 << (post - 1), "shift {shift}");
+        }
+    }
+
+    #[test]
     fn cubic_follows_the_table_rounding() {
         let mut differ = 0;
         for x in 0..EXP2_ZERO_FROM {
@@ -247,6 +271,9 @@ mod tests {
             }
         }
         assert_eq!(EXP2_NEG_U8_TABLE[EXP2_TABLE_LAST as usize], 0);
+        for (&w, &o) in EXP2_NEG_U8_TABLE.iter().zip(&EXP2_NEG_I8_TABLE) {
+            assert_eq!(o as i32, w as i32 - 128);
+        }
         // The bound is tight: the entry before it is not 0.
         assert!(EXP2_NEG_U8_TABLE[..EXP2_TABLE_LAST as usize]
             .iter()

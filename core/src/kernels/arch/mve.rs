@@ -13,7 +13,7 @@ use super::Epilogue;
 #[cfg(bino_mve)]
 use crate::config::HEAD_DIM;
 #[cfg(bino_mve)]
-use crate::kernels::exp::{ExpQ32, EXP2_NEG_U8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
+use crate::kernels::exp::{ExpQ32, EXP2_NEG_I8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// The fused GEMM's driver: per pair of rows, every whole column triple of the chunk in one
 /// kernel call ([`rows_requant`]: tiles and epilogue without returning to Rust), then the
@@ -503,23 +503,25 @@ pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u
     }
     // The immediates below are `vmov.i32` encodable; the table ends at its last entry.
     const _: () = assert!(EXP_Q32_MAX_GAP == 0x10_0000 && EXP2_TABLE_LAST == 0x900);
-    const _: () = assert!(EXP2_NEG_U8_TABLE.len() == EXP2_TABLE_LAST as usize + 1);
-    let (pre, round, post) = e.shifts();
-    let mut sum = 0u32;
+    const _: () = assert!(EXP2_NEG_I8_TABLE.len() == EXP2_TABLE_LAST as usize + 1);
+    let (pre, _round, post) = e.shifts();
+    // `_round` is `2^(post - 1)` (`ExpQ32::new`; `exp.rs` tests it for every shift), so the add
+    // and the right shift are one rounding shift (`vrshl.u32` by `-post`, exact: its
+    // intermediate cannot overflow).
+    let mut centred = 0u32;
     // SAFETY: the tail-predicated loop reads `n` words from `scores` and writes `n` bytes to
     // `weights` (both at least `n` long; predicated-off lanes of the last step are not
     // accessed). Every gather offset is clamped to `EXP2_TABLE_LAST` by the `vmin.u32` just
-    // before it, so each table read lies inside `EXP2_NEG_U8_TABLE`. The narrowing `vstrb.32`
-    // and the gather need low registers, hence the fixed r0-r2 (and `vaddva` an even one, r4). It writes only its declared
-    // outputs: the pointers, `sum`, `lr` and q0-q6 (through their `d` aliases); `letp`
-    // restores FPSCR.LTPSIZE when the loop exits.
+    // before it, so each table read lies inside `EXP2_NEG_I8_TABLE`. The narrowing `vstrb.32`
+    // and the gather need low registers, hence the fixed r0-r2 (and `vaddva` an even one, r4).
+    // It writes only its declared outputs: the pointers, the sum, `lr` and q0-q5 (through
+    // their `d` aliases); `letp` restores FPSCR.LTPSIZE when the loop exits.
     unsafe {
         core::arch::asm!(
             "vdup.32 q2, {max}",
             "vdup.32 q4, {mult}",
             "vmov.i32 q3, #0x100000",
             "vmov.i32 q5, #0x900",
-            "vmov.i32 q6, #0x80",
             "dlstp.32 lr, lr",
             "2:",
             "vldrw.u32 q0, [r0], #16",
@@ -527,31 +529,28 @@ pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u
             "vmin.u32 q0, q0, q3",
             "vshl.u32 q0, {pre}",
             "vmulh.u32 q0, q0, q4",
-            "vadd.i32 q0, q0, {round}",
-            "vshl.u32 q0, {neg_post}",
+            "vrshl.u32 q0, {neg_post}",
             "vmin.u32 q0, q0, q5",
-            "vldrb.u32 q1, [r2, q0]",
-            "vaddva.u32 r4, q1",
-            "veor q1, q1, q6",
+            "vldrb.s32 q1, [r2, q0]",
+            "vaddva.s32 r4, q1",
             "vstrb.32 q1, [r1], #4",
             "letp lr, 2b",
             max = in(reg) max,
             mult = in(reg) e.mult(),
             pre = in(reg) pre,
-            round = in(reg) round,
             neg_post = in(reg) (post as i32).wrapping_neg(),
             inout("r0") scores.as_ptr() => _,
             inout("r1") weights.as_mut_ptr() => _,
-            in("r2") EXP2_NEG_U8_TABLE.as_ptr(),
-            inout("r4") sum,
+            in("r2") EXP2_NEG_I8_TABLE.as_ptr(),
+            inout("r4") centred,
             inout("lr") n => _,
             out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _,
             out("d6") _, out("d7") _, out("d8") _, out("d9") _, out("d10") _, out("d11") _,
-            out("d12") _, out("d13") _,
             options(nostack),
         );
     }
-    sum
+    // Each lane held `w - 128`: the weights' sum is the lanes' sum plus 128 per element.
+    centred.wrapping_add((n as u32).wrapping_mul(128))
 }
 
 /// LayerNorm values of one row, four channels a step: `vldrb.s32`, `vsub`, `vmul`, the 64-bit
