@@ -103,7 +103,9 @@ def test_teacher_temperature_warmup_is_a_fraction_of_the_schedule() -> None:
     """A long schedule keeps the short warm-up that avoided collapse (p2 vs p1)."""
     args = parse_args(["--out", "x", "--pairs", "9", "--teacher-temp-warmup", "0.06"])
     assert build_config(args).dino.teacher_temp_warmup == pytest.approx(0.06)
-    assert build_config(parse_args(["--out", "x", "--pairs", "9"])).dino.teacher_temp_warmup == pytest.approx(0.3)
+    assert build_config(
+        parse_args(["--out", "x", "--pairs", "9"])
+    ).dino.teacher_temp_warmup == pytest.approx(0.3)
 
 
 def test_smoke_report_judges_the_kl() -> None:
