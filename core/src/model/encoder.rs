@@ -16,18 +16,17 @@ use super::ids::{residual_after_attention, residual_after_block};
 use super::probe::{Probe, Stage};
 use super::weights::{BlockWeights, EncoderWeights, LinearQ, ResidualFormat, RopeTables, EMBED_INPUTS};
 use crate::arena::{Carver, ALIGN_SLACK};
-use crate::blob::Blob;
+use crate::blob::{Blob, Le};
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::attention::{attend_block, value_sums, QUERY_BLOCK};
-use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant};
+use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant, ChannelRescale};
 use crate::kernels::gemm::matmul_requant_i8;
 use crate::kernels::layernorm::layernorm_rows;
 use crate::kernels::lut::apply_lut;
 use crate::kernels::matmul::matmul_i8;
 use crate::kernels::params::{Offset, Uniform};
 use crate::kernels::rope::{rope_token, RopeLanes};
-use crate::kernels::I32s;
 use crate::Error;
 
 /// Tokens processed together by the matrix multiplies (a multiple of the kernel's 4 rows).
@@ -635,7 +634,7 @@ impl AttentionPass<'_, '_> {
         };
         let query_lanes = RopeLanes::new(&query_rq);
         let proj = &self.w.proj;
-        let carry = self.w.carry_attention.from_format(self.input);
+        let residual = ResidualParams::new(&self.w.carry_attention.from_format(self.input), proj, &self.output.zero);
         let head_len = self.grid.tokens() * HEAD_DIM;
         let mut sums = [[0i32; HEAD_DIM]; HEADS];
         for (s, v_head) in sums.iter_mut().zip(values.chunks_exact(head_len)) {
@@ -680,25 +679,58 @@ impl AttentionPass<'_, '_> {
                     }
                 }
             }
-            project_add(proj, &attended[..count * DIM], acc, x_block, &carry, &self.output.zero);
+            project_add(proj, &attended[..count * DIM], acc, x_block, &residual);
         }
         Ok(())
     }
 }
 
-/// `x += proj(a)` with the residual format change `carry`.
-fn project_add<Z: I32s + ?Sized>(
-    proj: &LinearQ<'_>,
-    a: &[i8],
-    acc: &mut [i32],
-    x_block: &mut [i8],
-    carry: &crate::kernels::epilogue::ChannelRescale<'_, impl I32s + ?Sized, impl I32s + ?Sized>,
-    new_zero: &Z,
-) {
+/// A residual add's per-channel parameters read from the blob once per pass (the adds of each
+/// token block then index plain arrays, not little-endian blob bytes).
+struct ResidualParams<'w> {
+    carry_zero: [i32; DIM],
+    carry_mult: [i32; DIM],
+    carry_shift: &'w [u8],
+    bias: [i32; DIM],
+    mult: [i32; DIM],
+    shift: &'w [u8],
+    new_zero: [i32; DIM],
+}
+
+impl<'w> ResidualParams<'w> {
+    fn new(
+        carry: &crate::kernels::epilogue::ChannelRescale<'w, Le<'w, i32>, Le<'w, i32>>,
+        proj: &LinearQ<'w>,
+        new_zero: &Le<'w, i32>,
+    ) -> Self {
+        ResidualParams {
+            carry_zero: decode_channels(carry.zero, 0),
+            carry_mult: decode_channels(carry.mult, 0),
+            carry_shift: carry.shift,
+            bias: decode_channels(&proj.bias, 0),
+            mult: decode_channels(&proj.mult, 0),
+            shift: proj.shift,
+            new_zero: decode_channels(new_zero, 0),
+        }
+    }
+}
+
+/// `x += proj(a)` with the residual format change of `p`.
+fn project_add(proj: &LinearQ<'_>, a: &[i8], acc: &mut [i32], x_block: &mut [i8], p: &ResidualParams<'_>) {
     let count = x_block.len() / DIM;
     let inputs = a.len() / count.max(1);
     matmul_i8(a, proj.weight, inputs, &mut acc[..count * DIM]);
-    residual_add(x_block, carry, &acc[..count * DIM], &proj.requant(), new_zero);
+    let carry = ChannelRescale {
+        zero: &p.carry_zero,
+        mult: &p.carry_mult,
+        shift: p.carry_shift,
+    };
+    let delta = ChannelRequant {
+        bias: &p.bias,
+        mult: &p.mult,
+        shift: p.shift,
+    };
+    residual_add(x_block, &carry, &acc[..count * DIM], &delta, &p.new_zero);
 }
 
 /// Pass 3: the MLP of every token block (hidden layer only for one block at a time).
@@ -712,7 +744,7 @@ fn mlp(
     acc: &mut [i32],
 ) {
     let ln = w.norm2.with_input(input);
-    let carry = w.carry_mlp.from_format(input);
+    let residual = ResidualParams::new(&w.carry_mlp.from_format(input), &w.fc2, &output.zero);
     for x_block in x.chunks_mut(TOKEN_BLOCK * DIM) {
         let count = x_block.len() / DIM;
         layernorm_rows(x_block, DIM, &ln, normed);
@@ -728,7 +760,7 @@ fn mlp(
             hidden,
         );
         apply_lut(hidden, w.gelu);
-        project_add(&w.fc2, hidden, acc, x_block, &carry, &output.zero);
+        project_add(&w.fc2, hidden, acc, x_block, &residual);
     }
 }
 
