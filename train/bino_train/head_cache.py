@@ -1,7 +1,8 @@
 """A descriptor cache for head training: crops encoded once, reused by every head step.
 
     python -m bino_train.head_cache --encoder runs/PRE/last.pt --out runs/cache_NAME.pt \
-        --count 6000 [--label-weighting lr] [--synthetic-fraction 0.5] [--pathway native]
+        --count 6000 [--label-weighting lr] [--synthetic-fraction 0.5] [--pathway native] \
+        [--max-disp 16]
 
 Sample i is `HeadSampler(data, seed).sample(i)` (synthetic scenes and SGBM pseudo-labels of
 the head-training pairs: the train split less the validation pairs), encoded by the frozen
@@ -137,7 +138,16 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--pathway", choices=PATHWAYS, default="export", help="maps to store")
     p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
+    p.add_argument(
+        "--max-disp",
+        type=int,
+        default=DataConfig().max_disp,
+        help="disparity candidates in patch columns (labels and synthetic scenes up to "
+        "4 x (max_disp - 1) px; train the head with the same --max-disp)",
+    )
     args = p.parse_args(argv)
+    if not 2 <= args.max_disp <= 64:
+        sys.exit(f"error: --max-disp {args.max_disp} is outside 2..64")
     if args.threads > 0:
         torch.set_num_threads(args.threads)
     if not args.encoder.is_file():
@@ -150,6 +160,7 @@ def main(argv: list[str] | None = None) -> None:
         DataConfig(),
         synthetic_fraction=args.synthetic_fraction,
         label_weighting=args.label_weighting,
+        max_disp=args.max_disp,
     )
     digest = encoder_digest(encoder)
     cache = build_cache(

@@ -211,3 +211,19 @@ def test_validation_scores_synthetic_crops_without_the_eval_split(data_dir: Path
     result = val.score(head)
     assert result["val_sgbm"] is None and result["val_pairs"] == 0
     assert 0 < result["val_synthetic"]["epe"] < 50
+
+
+def test_head_cache_rejects_a_candidate_count_outside_its_range(tmp_path: Path) -> None:
+    from bino_train.head_cache import main
+
+    with pytest.raises(SystemExit, match="--max-disp 1 is outside 2..64"):
+        main(
+            [
+                "--encoder",
+                str(tmp_path / "e.pt"),
+                "--out",
+                str(tmp_path / "c.pt"),
+                "--max-disp",
+                "1",
+            ]
+        )
