@@ -53,11 +53,15 @@ pub fn requant_rows<B: I32s + ?Sized, M: I32s + ?Sized, Z: I32s + ?Sized>(
                 for (c, z) in zeros[..len].iter_mut().enumerate() {
                     *z = zero.at(start + c) as i64;
                 }
+                let narrow = NarrowChunk::new(&params, &zeros[..len]);
                 for r in 0..rows {
                     let at = r * n + start..r * n + start + len;
                     let (Some(acc_part), Some(out_part)) = (acc.get(at.clone()), out.get_mut(at)) else {
                         break;
                     };
+                    if narrow.as_ref().is_some_and(|nc| nc.row(acc_part, out_part)) {
+                        continue;
+                    }
                     for (i, (&a, o)) in acc_part.iter().zip(out_part.iter_mut()).enumerate() {
                         *o = sat_i8_i64(params.apply(i, a) + zeros[i]);
                     }
@@ -123,6 +127,67 @@ impl ChunkParams {
     }
 }
 
+/// A chunk whose every shift lies in `33..=62`, rewritten for 32-bit lanes (the identity
+/// proven in `kernels::arch`'s fused epilogue): for `|acc| < 2^30` and `|bias| < 2^30`,
+/// `sat8(rq(acc) + zero) = sat8((hi32((acc + bias) * mult) + addend) >> s)` with
+/// `s = shift - 32` and `addend = 2^(s-1) + zero * 2^s`. Host builds run it eight channels
+/// at a time (AVX2); elsewhere it is never built.
+#[cfg_attr(not(all(target_arch = "x86_64", target_feature = "avx2")), allow(dead_code))]
+pub(super) struct NarrowChunk {
+    pub bias: [i32; CHANNEL_CHUNK],
+    pub mult: [i32; CHANNEL_CHUNK],
+    pub addend: [i32; CHANNEL_CHUNK],
+    pub s: [i32; CHANNEL_CHUNK],
+    pub len: usize,
+}
+
+impl NarrowChunk {
+    /// `None` where a shift, bias or zero point is outside the identity's range (and on
+    /// targets without the vector row).
+    #[cfg_attr(not(all(target_arch = "x86_64", target_feature = "avx2")), allow(unused_variables))]
+    fn new(p: &ChunkParams, zeros: &[i64]) -> Option<Self> {
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+        return None;
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        {
+            let mut c = NarrowChunk {
+                bias: p.bias,
+                mult: p.mult,
+                addend: [0; CHANNEL_CHUNK],
+                s: [1; CHANNEL_CHUNK],
+                len: zeros.len().min(CHANNEL_CHUNK),
+            };
+            // Branch-free, so that it runs in vector lanes: this is paid per token block.
+            let mut in_range = true;
+            for ((&shift, &zero), (addend, s)) in p.shift.iter().zip(zeros).zip(c.addend.iter_mut().zip(&mut c.s)) {
+                let wide = (shift as i64).wrapping_sub(32);
+                let ok_shift = (1..=30).contains(&wide);
+                let e = wide.clamp(1, 30);
+                let a = (1i64 << (e - 1)) + (zero << e);
+                in_range &= ok_shift & (-(1i64 << 30)..1i64 << 30).contains(&a);
+                (*addend, *s) = (a as i32, e as i32);
+            }
+            if !in_range {
+                return None;
+            }
+            Some(c)
+        }
+    }
+
+    /// One row of the chunk (`acc` and `out` of `len` values); `false` where an accumulator
+    /// lies outside `-2^30..2^30` or the lengths differ (`out` is then to be recomputed).
+    #[inline]
+    fn row(&self, acc: &[i32], out: &mut [i8]) -> bool {
+        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        return super::matmul_avx2::requant_row_narrow(self, acc, out);
+        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+        {
+            let _ = (acc, out);
+            false
+        }
+    }
+}
+
 /// The residual stream's per-channel int8 format: real value = `scale[c] * (q - zero[c])`.
 /// The scales themselves never appear in the int8 path: only ratios between formats do.
 #[derive(Clone, Copy)]
@@ -168,6 +233,7 @@ pub fn residual_add<Z, M, B, M2, Z2>(
     }
     let rows = x.len().min(acc.len()) / n;
     // The lanes' bound on the accumulators, checked once for every chunk.
+    // (Not on x86 hosts: there the 64-bit chunk vectorises better than the lanes' groups of 4.)
     let small =
         cfg!(any(bino_mve, bino_dsp, test)) && residual_lanes::accumulators_fit(acc.get(..rows * n).unwrap_or(&[]));
     let mut start = 0;
@@ -500,6 +566,62 @@ mod tests {
                 }
             });
             let mut out = [0i8; 3 * N];
+            requant_rows(&acc, &rq, &zero, &mut out);
+            for (i, (&a, &o)) in acc.iter().zip(&out).enumerate() {
+                let c = i % N;
+                assert_eq!(
+                    o,
+                    sat_i8_i64(rq.apply(c, a) + zero[c] as i64),
+                    "trial {trial} index {i}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn requant_rows_in_32_bit_lanes_equal_the_per_channel_formula() {
+        // Shifts 33..=62 (the quantiser's GEMM outputs): the 32-bit lanes where the host has
+        // them, for accumulators at and around the lanes' bound of 2^30 and far beyond it.
+        const N: usize = 141; // two full chunks and a tail that is not a multiple of 8
+        let mut rng = Rng::new(21);
+        let edges = [
+            (1 << 30) - 1,
+            1 << 30,
+            -(1 << 30),
+            -(1 << 30) - 1,
+            i32::MAX,
+            i32::MIN,
+            0,
+            -1,
+        ];
+        for trial in 0..8 {
+            let mult: [i32; N] = core::array::from_fn(|_| rng.range(i32::MIN as i64, i32::MAX as i64) as i32);
+            // Up to 2^20 x 128 in the addend: every chunk in range, except in the last trial,
+            // whose larger shifts leave chunks to the 64-bit formula.
+            let top = if trial == 7 { 63 } else { 53 };
+            let shift: [u8; N] = core::array::from_fn(|_| rng.range(33, top) as u8);
+            let bias: [i32; N] = core::array::from_fn(|_| rng.range(-(1 << 30) + 1, 1 << 30) as i32);
+            let zero: [i32; N] = core::array::from_fn(|_| rng.range(-128, 128) as i32);
+            let rq = ChannelRequant {
+                bias: &bias,
+                mult: &mult,
+                shift: &shift,
+            };
+            #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+            if trial < 7 {
+                let params = ChunkParams::decode(&rq, 0, CHANNEL_CHUNK).unwrap();
+                let zeros: [i64; CHANNEL_CHUNK] = core::array::from_fn(|c| zero[c] as i64);
+                assert!(
+                    NarrowChunk::new(&params, &zeros).is_some(),
+                    "trial {trial}: lanes not taken"
+                );
+            }
+            let acc: [i32; 4 * N] = core::array::from_fn(|i| match (trial, i % 97) {
+                (0..=3, _) => rng.range(-(1 << 24), 1 << 24) as i32,
+                (_, 0..=7) => edges[i % 97],
+                _ => rng.range(-(1 << 30), 1 << 30) as i32,
+            });
+            let mut out = [0i8; 4 * N];
             requant_rows(&acc, &rq, &zero, &mut out);
             for (i, (&a, &o)) in acc.iter().zip(&out).enumerate() {
                 let c = i % N;

@@ -33,10 +33,10 @@ pub const EXP2_NEG_Q15: [u16; 256] = [
 const EXP2_ZERO_FROM: u32 = 23 * 256;
 /// `2^(-f/256) * 2^15 ~ C0 - f(C1 - f(C2 - f C3))` with each product shifted by 8: the
 /// minimax cubic, its coefficients tuned in the last digit against the exact function.
-const C0: u32 = 32768;
-const C1: u32 = 22657;
-const C2: u32 = 7566;
-const C3: u32 = 1295;
+pub(crate) const C0: u32 = 32768;
+pub(crate) const C1: u32 = 22657;
+pub(crate) const C2: u32 = 7566;
+pub(crate) const C3: u32 = 1295;
 
 /// `round(255 * 2^(-x/256))` (within 0.52) for `x >= 0` in Q8 base-2 units; 255 for
 /// negative `x`, 0 from `x >= 23 * 256`.

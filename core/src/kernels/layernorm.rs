@@ -111,7 +111,8 @@ impl NarrowParams {
             return;
         }
         let (row, out) = (&row[..dim], &mut out[..dim]);
-        if cfg!(any(bino_mve, bino_dsp, test)) && self.row_in_lanes(row, out) {
+        // On x86 hosts LLVM vectorises the lanes' 32-bit arithmetic as well.
+        if cfg!(any(bino_mve, bino_dsp, test, target_arch = "x86_64")) && self.row_in_lanes(row, out) {
             return;
         }
         let d = dim as i64;
@@ -173,7 +174,7 @@ impl NarrowParams {
     /// The output's `(n recip + 2^23) >> 24` is `vrmulh(n, recip << 8)`, and
     /// `(z mult + 2^(sh-1)) >> sh` for `sh >= 33` is `(vmulh(z, mult) + 2^(sh-33)) >> (sh - 32)`,
     /// as in the fused GEMM epilogue.
-    #[cfg_attr(not(any(bino_mve, bino_dsp, test)), allow(dead_code))]
+    #[cfg_attr(not(any(bino_mve, bino_dsp, test, target_arch = "x86_64")), allow(dead_code))]
     fn row_in_lanes(&self, row: &[i8], out: &mut [i8]) -> bool {
         let dim = row.len();
         if dim != LANE_DIM || out.len() != dim || self.out.shift < 33 {
@@ -215,8 +216,8 @@ impl NarrowParams {
 const LANE_DIM: usize = 128;
 
 /// The three lane passes of [`NarrowParams::row_in_lanes`]: the Helium loops of
-/// `kernels::arch` on Cortex-M55, these portable twins on Cortex-M7 and in host tests (the same 32-bit lane
-/// arithmetic, so the tests prove the identities the loops rely on).
+/// `kernels::arch` on Cortex-M55, these portable twins on Cortex-M7 and on hosts (the same
+/// 32-bit lane arithmetic, so the host tests prove the identities the loops rely on).
 mod lanes {
     /// `v = (q - zero) * rel` per channel; the 64-bit sum, the minimum and the maximum.
     #[inline(always)]

@@ -14,13 +14,17 @@
 use core::arch::x86_64::{
     __cpuid, __cpuid_count, __m128i, __m256i, _mm256_dpbusd_epi32, _mm256_permute2x128_si256, _mm256_set1_epi32,
     _mm256_set1_epi8, _mm256_setzero_si256, _mm256_sub_epi32, _mm256_unpackhi_epi32, _mm256_unpackhi_epi64,
-    _mm256_unpacklo_epi32, _mm256_unpacklo_epi64, _mm256_xor_si256, _mm_set1_epi32, _mm_sub_epi32, _xgetbv,
+    _mm256_unpacklo_epi32, _mm256_unpacklo_epi64, _mm256_xor_si256, _mm512_add_epi32, _mm512_and_si512,
+    _mm512_cvtepi32_epi8, _mm512_loadu_si512, _mm512_mask_blend_epi32, _mm512_min_epu32, _mm512_mul_epu32,
+    _mm512_mullo_epi32, _mm512_reduce_add_epi32, _mm512_set1_epi32, _mm512_setzero_si512, _mm512_sllv_epi32,
+    _mm512_srli_epi32, _mm512_srli_epi64, _mm512_srlv_epi32, _mm512_sub_epi32, _mm512_xor_si512, _mm_set1_epi32,
+    _mm_sub_epi32, _xgetbv,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
 use bytemuck::must_cast;
 
-use super::exp::ExpQ32;
+use super::exp::{ExpQ32, C0, C1, C2, C3, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 use super::matmul_avx2::{sum4, transpose4};
 
 /// Bytes per step: one 256-bit vector.
@@ -157,9 +161,59 @@ pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> 
     Some(unsafe { softmax_row_avx512(e, max, scores, weights) })
 }
 
+/// Scores per step of the softmax row: one 512-bit vector.
+const SOFTMAX_STEP: usize = 16;
+
+// `ExpQ32::weight` in 16 lanes: the gap's high product word from two `vpmuludq` (a 64-bit
+// product per even or odd lane; the portable code assembles it from 16-bit halves, which
+// `weight_by_table` and the exp tests show to be the same word), the gap clamped at the
+// table's last entry (where the cubic is already 0), the cubic, and `vpmovdb` for the bytes.
 #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
 fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
-    super::attention::softmax_row(e, max, scores, weights)
+    let (pre, round, post) = e.shifts();
+    let n = scores.len().min(weights.len());
+    let whole = n / SOFTMAX_STEP * SOFTMAX_STEP;
+    let (scores, scores_tail) = scores.split_at(whole.min(scores.len()));
+    let (weights, weights_tail) = weights.split_at_mut(whole.min(weights.len()));
+    let v = |x: u32| _mm512_set1_epi32(x as i32);
+    let (row_max, cap, pre, mult, round, post) = (
+        _mm512_set1_epi32(max),
+        v(EXP_Q32_MAX_GAP),
+        v(pre),
+        v(e.mult()),
+        v(round),
+        v(post),
+    );
+    let (last, low_byte, flip, half) = (v(EXP2_TABLE_LAST), v(255), v(0x80), v(1 << 14));
+    let (c0, c1, c2, c3) = (v(C0), v(C1), v(C2), v(C3));
+    let mut sums = _mm512_setzero_si512();
+    for (w, s) in weights
+        .chunks_exact_mut(SOFTMAX_STEP)
+        .zip(scores.chunks_exact(SOFTMAX_STEP))
+    {
+        // SAFETY: `s` is 16 `i32`s (exact chunks), the 64 bytes an unaligned load reads.
+        #[allow(unsafe_code)]
+        let s = unsafe { _mm512_loadu_si512(s.as_ptr().cast()) };
+        let gap = _mm512_sub_epi32(row_max, s);
+        let g = _mm512_sllv_epi32(_mm512_min_epu32(gap, cap), pre);
+        let even = _mm512_mul_epu32(g, mult);
+        let odd = _mm512_mul_epu32(_mm512_srli_epi64::<32>(g), mult);
+        let high = _mm512_mask_blend_epi32(0xAAAA, _mm512_srli_epi64::<32>(even), odd);
+        let x = _mm512_min_epu32(_mm512_srlv_epi32(_mm512_add_epi32(high, round), post), last);
+        // exp2_neg_u8_q8(x): the cubic of the fraction, shifted by the whole part.
+        let f = _mm512_and_si512(x, low_byte);
+        let t = _mm512_srli_epi32::<8>(_mm512_mullo_epi32(c3, f));
+        let t = _mm512_srli_epi32::<8>(_mm512_mullo_epi32(_mm512_sub_epi32(c2, t), f));
+        let t = _mm512_srli_epi32::<8>(_mm512_mullo_epi32(_mm512_sub_epi32(c1, t), f));
+        let scaled = _mm512_mullo_epi32(_mm512_sub_epi32(c0, t), low_byte);
+        let shifted = _mm512_srlv_epi32(scaled, _mm512_srli_epi32::<8>(x));
+        let weight = _mm512_srli_epi32::<15>(_mm512_add_epi32(shifted, half));
+        sums = _mm512_add_epi32(sums, weight);
+        let bytes: [u8; SOFTMAX_STEP] = must_cast(_mm512_cvtepi32_epi8(_mm512_xor_si512(weight, flip)));
+        w.copy_from_slice(&bytes);
+    }
+    let tail = super::attention::softmax_row(e, max, scores_tail, weights_tail);
+    (_mm512_reduce_add_epi32(sums) as u32).wrapping_add(tail)
 }
 
 #[inline(always)]
