@@ -836,23 +836,42 @@ impl ConvEpilogue {
             return false;
         }
         let high = |a: i32, b: i32| ((a as i64 * b as i64) >> 32) as i32;
-        let carry = self.carry.zip(center);
-        for (cell, (outs, accs)) in out
-            .chunks_exact_mut(HEAD_HIDDEN)
-            .zip(acc.chunks_exact(HEAD_HIDDEN))
-            .enumerate()
-        {
-            for (c, (o, &a)) in outs.iter_mut().zip(accs).enumerate() {
-                let relu = ((high(a + self.bias[c], self.mult[c]) + self.round[c]) >> (self.post[c] & 31)).max(0);
-                let carried = match carry {
-                    Some(((mult, pre, round, post), x)) => {
-                        let centred =
-                            (x.get(cell * HEAD_HIDDEN + c).copied().unwrap_or(0) as i32 - self.zero) << (pre & 31);
-                        (high(centred, mult) + round) >> (post & 31)
+        let params = self.bias.iter().zip(&self.mult).zip(self.round.iter().zip(&self.post));
+        // `max(rq(acc), 0)` of one channel (`|acc|, |bias| < 2^30`: the sum does not wrap).
+        let relu = |a: i32, ((&bias, &mult), (&round, &post)): ((&i32, &i32), (&i32, &u8))| {
+            ((high(a.wrapping_add(bias), mult) + round) >> (post & 31)).max(0)
+        };
+        let cells = out.chunks_exact_mut(HEAD_HIDDEN).zip(acc.chunks_exact(HEAD_HIDDEN));
+        // Each case its own loop over whole cells, so that the channels' loop has no branch or
+        // bounds check left and vectorises (MVE on the Cortex-M55).
+        match self.carry.zip(center) {
+            None => {
+                for (outs, accs) in cells {
+                    for ((o, &a), p) in outs.iter_mut().zip(accs).zip(params.clone()) {
+                        *o = (relu(a, p) + self.next_zero).clamp(-128, 127) as i8;
                     }
-                    None => 0,
+                }
+            }
+            Some(((mult, pre, round, post), x)) => {
+                let carried = |q: i8| (high((q as i32 - self.zero) << (pre & 31), mult) + round) >> (post & 31);
+                let add = |o: &mut i8, a: i32, p, q: i8| {
+                    *o = (carried(q) + relu(a, p) + self.next_zero).clamp(-128, 127) as i8;
                 };
-                *o = (carried + relu + self.next_zero).clamp(-128, 127) as i8;
+                if x.len() >= acc.len() {
+                    for ((outs, accs), xs) in cells.zip(x.chunks_exact(HEAD_HIDDEN)) {
+                        for (((o, &a), p), &q) in outs.iter_mut().zip(accs).zip(params.clone()).zip(xs) {
+                            add(o, a, p, q);
+                        }
+                    }
+                } else {
+                    // A short `center` (not reached: the stream passes whole rows): missing
+                    // codes count as 0.
+                    for (cell, (outs, accs)) in cells.enumerate() {
+                        for (c, ((o, &a), p)) in outs.iter_mut().zip(accs).zip(params.clone()).enumerate() {
+                            add(o, a, p, x.get(cell * HEAD_HIDDEN + c).copied().unwrap_or(0));
+                        }
+                    }
+                }
             }
         }
         true
@@ -967,12 +986,18 @@ mod tests {
             }
             let mut center = [0i8; 12 * HEAD_HIDDEN];
             rng.fill_i8(&mut center);
-            let center = (trial % 5 != 4).then_some(&center[..]);
+            // Every seventh trial a center shorter than the cells (its missing codes count as 0).
+            let center_len = if trial % 7 == 6 {
+                5 * HEAD_HIDDEN + 7
+            } else {
+                center.len()
+            };
+            let center = (trial % 5 != 4).then_some(&center[..center_len]);
             let mut want = [0i8; 12 * HEAD_HIDDEN];
             for (i, (o, &a)) in want.iter_mut().zip(&acc).enumerate().take(nd * HEAD_HIDDEN) {
                 let relu = rq.apply(i % HEAD_HIDDEN, a).max(0);
                 let carried = match (carry, center) {
-                    (Some(r), Some(x)) => r.apply_i64(x[i] as i64 - zero as i64),
+                    (Some(r), Some(x)) => r.apply_i64(x.get(i).copied().unwrap_or(0) as i64 - zero as i64),
                     _ => 0,
                 };
                 *o = sat_i8_i64(carried + relu + next_zero as i64);
