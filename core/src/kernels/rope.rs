@@ -136,10 +136,26 @@ impl RopeLanes {
         }
         let limit = PRE_ROPE_LIMIT as i32;
         let mut v = [0i32; DIM];
-        for c in 0..DIM {
-            let x = (acc[c] + self.bias[c]) << (self.pre[c] & 1);
-            let high = ((x as i64 * self.mult[c] as i64) >> 32) as i32;
-            v[c] = ((high + self.round[c]) >> (self.post[c] & 31)).clamp(-limit, limit);
+        // Helium lanes on Cortex-M55 (`kernels::arch`), this loop elsewhere.
+        #[cfg(bino_mve)]
+        let done = crate::kernels::arch::mve::rope_requant(
+            acc,
+            &self.bias,
+            &self.mult,
+            &self.round,
+            &self.pre,
+            &self.post,
+            limit,
+            &mut v,
+        );
+        #[cfg(not(bino_mve))]
+        let done = false;
+        if !done {
+            for c in 0..DIM {
+                let x = (acc[c] + self.bias[c]) << (self.pre[c] & 1);
+                let high = ((x as i64 * self.mult[c] as i64) >> 32) as i32;
+                v[c] = ((high + self.round[c]) >> (self.post[c] & 31)).clamp(-limit, limit);
+            }
         }
         for (v_head, out_head) in v.chunks_exact(HEAD_DIM).zip(out.chunks_exact_mut(HEAD_DIM)) {
             let (v_row, v_col) = v_head.split_at(HEAD_DIM / 2);

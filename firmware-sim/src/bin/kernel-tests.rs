@@ -480,6 +480,54 @@ impl ResidualCase {
 /// Cortex-M55 where both shifts are at least 33, the decoded scalar chunks elsewhere) against
 /// the saturating `residual_add_reference`: 1 to 130 channels (chunks of 64 and tails of every
 /// length mod 4), accumulators up to and past 2^30, shifts on both sides of 33.
+/// The rotary embedding in 32-bit lanes (`RopeLanes::token`: its requantisation pass is a
+/// Helium kernel on the Cortex-M55) against the 64-bit `rope_token`, on one token of `DIM`
+/// channels: shifts 32 to 62 (32 takes the lanes' extra left shift), biases and accumulators up
+/// to the lanes' 2^29 bound, clamped pre-rotation values, any cosine and sine.
+fn rope_cases(t: &mut Tally, rng: &mut Rng) {
+    use bino_core::config::DIM;
+    use bino_core::kernels::rope::{rope_token, Angles, RopeLanes};
+    let mut taken = 0;
+    for case in 0..40 {
+        let bias: [i32; DIM] = core::array::from_fn(|_| rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32);
+        let mult: [i32; DIM] = core::array::from_fn(|_| match case % 3 {
+            0 => rng.range(1 << 30, i32::MAX as i64) as i32,
+            _ => rng.range(i32::MIN as i64 + 1, i32::MAX as i64) as i32,
+        });
+        let shift: [u8; DIM] = core::array::from_fn(|c| match (case % 4, c % 7) {
+            (0, 0) => 32,
+            (1, _) => 32,
+            _ => rng.range(32, 62) as u8,
+        });
+        let rq = ChannelRequant {
+            bias: &bias,
+            mult: &mult,
+            shift: &shift,
+        };
+        let acc: [i32; DIM] = core::array::from_fn(|c| match (case % 5, c % 11) {
+            (0, 0) => (1 << 29) - 1,
+            (0, 1) => -(1 << 29) + 1,
+            (1, _) => rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32,
+            _ => rng.range(-(1 << 20), 1 << 20) as i32,
+        });
+        let angles = |rng: &mut Rng| Angles {
+            cos: core::array::from_fn(|_| rng.next() as i16),
+            sin: core::array::from_fn(|_| rng.next() as i16),
+        };
+        let (row, col) = (angles(rng), angles(rng));
+        let (mut found, mut want) = ([0i8; DIM], [0i8; DIM]);
+        rope_token(&acc, &rq, &row, &col, &mut want);
+        let Some(lanes) = RopeLanes::new(&rq) else { continue };
+        if lanes.token(&acc, &row, &col, &mut found) {
+            taken += 1;
+            t.check("rope_token", [1, DIM, 0], &found, &want);
+        }
+    }
+    if taken > 0 && cfg!(board = "an547") {
+        t.asm_cases += taken;
+    }
+}
+
 fn residual_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     const ROWS: usize = 8;
     for case in 0..40 {
@@ -920,6 +968,7 @@ fn main() -> ! {
     scores_cases(&mut t, &mut rng, buffers);
     layernorm_cases(&mut t, &mut rng, buffers);
     residual_cases(&mut t, &mut rng, buffers);
+    rope_cases(&mut t, &mut rng);
     bench(&mut rng, buffers);
     bench_softmax(&mut rng, buffers);
     bench_scores(&mut rng, buffers);

@@ -680,6 +680,75 @@ pub(crate) fn layernorm_output(n: &[i32], recip_q: i32, mult: i32, round: i32, p
     true
 }
 
+/// The rotary embedding's requantisation lanes (the first pass of `rope::RopeLanes::token`):
+/// `v = clamp((vmulh((acc + bias) << pre, mult) + round) >> post, -limit, limit)`, four
+/// channels a step (15 instructions and the loop end). `false` (nothing written) unless every
+/// slice has the length `n >= 1` of `v`. The caller's ranges (`|acc|, |bias| < 2^29`, `pre` 0
+/// or 1, `post` in `1..=30`) keep every lane in 32 bits, as in its portable loop.
+#[cfg(bino_mve)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn rope_requant(
+    acc: &[i32],
+    bias: &[i32],
+    mult: &[i32],
+    round: &[i32],
+    pre: &[u8],
+    post: &[u8],
+    limit: i32,
+    v: &mut [i32],
+) -> bool {
+    let n = v.len();
+    if n == 0
+        || [acc.len(), bias.len(), mult.len(), round.len(), pre.len(), post.len()]
+            .iter()
+            .any(|&l| l != n)
+    {
+        return false;
+    }
+    // SAFETY: the tail-predicated loop reads `n` words of `acc`, `bias`, `mult` and `round`,
+    // `n` bytes of `pre` and `post`, and writes `n` words of `v` (all checked above;
+    // predicated-off lanes of the last step are not accessed). The widening `vldrb.u32` needs
+    // low registers (r2, r3). It writes only its declared outputs: the pointers, `lr` and
+    // q0-q3.
+    unsafe {
+        core::arch::asm!(
+            "vdup.32 q2, {limit}",
+            "vneg.s32 q3, q2",
+            "dlstp.32 lr, lr",
+            "2:",
+            "vldrw.u32 q0, [{acc}], #16",
+            "vldrw.u32 q1, [{bias}], #16",
+            "vadd.i32 q0, q0, q1",
+            "vldrb.u32 q1, [r2], #4",
+            "vshl.s32 q0, q0, q1",
+            "vldrw.u32 q1, [{mult}], #16",
+            "vmulh.s32 q0, q0, q1",
+            "vldrw.u32 q1, [{round}], #16",
+            "vadd.i32 q0, q0, q1",
+            "vldrb.u32 q1, [r3], #4",
+            "vneg.s32 q1, q1",
+            "vshl.s32 q0, q0, q1",
+            "vmin.s32 q0, q0, q2",
+            "vmax.s32 q0, q0, q3",
+            "vstrw.32 q0, [{v}], #16",
+            "letp lr, 2b",
+            limit = in(reg) limit,
+            acc = inout(reg) acc.as_ptr() => _,
+            bias = inout(reg) bias.as_ptr() => _,
+            mult = inout(reg) mult.as_ptr() => _,
+            round = inout(reg) round.as_ptr() => _,
+            v = inout(reg) v.as_mut_ptr() => _,
+            inout("r2") pre.as_ptr() => _,
+            inout("r3") post.as_ptr() => _,
+            inout("lr") n => _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            options(nostack),
+        );
+    }
+    true
+}
+
 /// One row of a residual-add chunk, four channels a step: the carry `((x - zero) << e) * mult`
 /// and the delta `(acc + bias) * mult` each as `vmulh.s32`, a rounding add and a per-lane
 /// shift, then the new zero point and the int8 clamp (27 instructions per four channels).
