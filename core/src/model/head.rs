@@ -771,7 +771,7 @@ fn gather(rows: &[Option<&[i8]>; 3], at: (usize, usize, usize), cin: usize, zero
 }
 
 /// The epilogue of a hidden 3D convolution (`HEAD_HIDDEN` outputs per candidate) in 32-bit
-/// scalar lanes, bit for bit [`HeadStream::conv_row`]'s 64-bit one:
+/// scalar lanes, bit for bit `HeadStream::conv_row`'s 64-bit one:
 /// `sat8(carry(x - zero) + max(rq(acc), 0) + next_zero)`.
 ///
 /// As in `epilogue::residual_lanes`: a rounded shift `(P + 2^(s-1)) >> s` of a product is
@@ -779,11 +779,16 @@ fn gather(rows: &[Option<&[i8]>; 3], at: (usize, usize, usize), cin: usize, zero
 /// `e = 0` (shifts from 33, `|acc + bias| < 2^31` for `|acc|, |bias| < 2^30`); the carry's
 /// `x - zero`, below `2^16`, takes `e = 15` (shifts 18 to 47) or 0 (48 to 62). Each term is
 /// then below `2^29` in magnitude and, with `|next_zero| < 2^29`, so is their sum's reach.
-struct ConvEpilogue {
+/// On the Cortex-M55 the cells with a carry run as a Helium kernel (`kernels::arch`).
+pub struct ConvEpilogue {
     bias: [i32; HEAD_HIDDEN],
     mult: [i32; HEAD_HIDDEN],
     round: [i32; HEAD_HIDDEN],
     post: [u8; HEAD_HIDDEN],
+    /// The Helium kernel's parameters: bias, multiplier, rounding term and negated right
+    /// shift, each `HEAD_HIDDEN` words.
+    #[cfg(bino_mve)]
+    lanes: [i32; 4 * HEAD_HIDDEN],
     /// The carry's multiplier, left shift, rounding term and right shift (none at layer 0).
     carry: Option<(i32, u32, i32, u32)>,
     zero: i32,
@@ -791,7 +796,10 @@ struct ConvEpilogue {
 }
 
 impl ConvEpilogue {
-    fn new<B: I32s + ?Sized, M: I32s + ?Sized>(
+    /// The epilogue of a convolution with `HEAD_HIDDEN` output channels requantised by `rq`,
+    /// adding `carry` of its input (zero point `zero`; none at layer 0) and the next layer's
+    /// zero point; `None` for formats outside the 32-bit identities (see the type).
+    pub fn new<B: I32s + ?Sized, M: I32s + ?Sized>(
         rq: &ChannelRequant<'_, B, M>,
         carry: Option<Requant>,
         zero: i32,
@@ -805,6 +813,8 @@ impl ConvEpilogue {
             mult: [0; HEAD_HIDDEN],
             round: [0; HEAD_HIDDEN],
             post: [1; HEAD_HIDDEN],
+            #[cfg(bino_mve)]
+            lanes: [0; 4 * HEAD_HIDDEN],
             carry: None,
             zero,
             next_zero,
@@ -817,6 +827,16 @@ impl ConvEpilogue {
             (e.bias[c], e.mult[c]) = (bias, rq.mult.at(c));
             e.round[c] = 1 << (shift - 33);
             e.post[c] = (shift - 32) as u8;
+        }
+        #[cfg(bino_mve)]
+        for (c, lane) in e.lanes.iter_mut().enumerate() {
+            let (part, i) = (c / HEAD_HIDDEN, c % HEAD_HIDDEN);
+            *lane = match part {
+                0 => e.bias[i],
+                1 => e.mult[i],
+                2 => e.round[i],
+                _ => -(e.post[i] as i32),
+            };
         }
         if let Some(r) = carry {
             if !(18..=62).contains(&r.shift) {
@@ -831,7 +851,7 @@ impl ConvEpilogue {
     /// The outputs of one cell (`acc` and `out`: candidates x `HEAD_HIDDEN`; `center`: the
     /// cell's input, whose codes the carry adds); `false` (nothing written) for accumulators
     /// from `2^30` in magnitude or lengths that do not match.
-    fn apply(&self, acc: &[i32], center: Option<&[i8]>, out: &mut [i8]) -> bool {
+    pub fn apply(&self, acc: &[i32], center: Option<&[i8]>, out: &mut [i8]) -> bool {
         if out.len() != acc.len() || acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 30 {
             return false;
         }
@@ -841,11 +861,11 @@ impl ConvEpilogue {
         let relu = |a: i32, ((&bias, &mult), (&round, &post)): ((&i32, &i32), (&i32, &u8))| {
             ((high(a.wrapping_add(bias), mult) + round) >> (post & 31)).max(0)
         };
-        let cells = out.chunks_exact_mut(HEAD_HIDDEN).zip(acc.chunks_exact(HEAD_HIDDEN));
         // Each case its own loop over whole cells, so that the channels' loop has no branch or
         // bounds check left and vectorises (MVE on the Cortex-M55).
         match self.carry.zip(center) {
             None => {
+                let cells = out.chunks_exact_mut(HEAD_HIDDEN).zip(acc.chunks_exact(HEAD_HIDDEN));
                 for (outs, accs) in cells {
                     for ((o, &a), p) in outs.iter_mut().zip(accs).zip(params.clone()) {
                         *o = (relu(a, p) + self.next_zero).clamp(-128, 127) as i8;
@@ -857,6 +877,21 @@ impl ConvEpilogue {
                 let add = |o: &mut i8, a: i32, p, q: i8| {
                     *o = (carried(q) + relu(a, p) + self.next_zero).clamp(-128, 127) as i8;
                 };
+                #[cfg(bino_mve)]
+                if x.len() >= acc.len()
+                    && crate::kernels::arch::mve::conv_epilogue(
+                        acc,
+                        x,
+                        &self.lanes,
+                        (mult, pre as i32, round, -(post as i32)),
+                        self.zero,
+                        self.next_zero,
+                        out,
+                    )
+                {
+                    return true;
+                }
+                let cells = out.chunks_exact_mut(HEAD_HIDDEN).zip(acc.chunks_exact(HEAD_HIDDEN));
                 if x.len() >= acc.len() {
                     for ((outs, accs), xs) in cells.zip(x.chunks_exact(HEAD_HIDDEN)) {
                         for (((o, &a), p), &q) in outs.iter_mut().zip(accs).zip(params.clone()).zip(xs) {

@@ -528,6 +528,62 @@ fn rope_cases(t: &mut Tally, rng: &mut Rng) {
     }
 }
 
+/// The head's hidden-convolution epilogue (`ConvEpilogue::apply`: a Helium kernel on the
+/// Cortex-M55 for cells with a carry) against its 64-bit formula, on 12 cells of
+/// `HEAD_HIDDEN` channels: shifts 33 to 61, biases and accumulators up to the 2^30 bound,
+/// carry shifts 18 to 61 (both of the carry's left shifts), any multipliers and zero points.
+fn conv_epilogue_cases(t: &mut Tally, rng: &mut Rng) {
+    use bino_core::config::HEAD_HIDDEN;
+    use bino_core::fixed::{sat_i8_i64, Requant};
+    use bino_core::model::head::ConvEpilogue;
+    const N: usize = 12 * HEAD_HIDDEN;
+    let mut taken = 0;
+    for case in 0..40 {
+        let bias: [i32; HEAD_HIDDEN] = core::array::from_fn(|_| rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32);
+        let mult: [i32; HEAD_HIDDEN] = core::array::from_fn(|_| rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32);
+        let shift: [u8; HEAD_HIDDEN] = core::array::from_fn(|_| rng.range(33, 61) as u8);
+        let rq = ChannelRequant {
+            bias: &bias,
+            mult: &mult,
+            shift: &shift,
+        };
+        let carry = Requant {
+            mult: rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32,
+            shift: match case % 5 {
+                4 => rng.range(18, 61) as u32,
+                edge => [18, 47, 48, 61][edge],
+            },
+        };
+        let zero = rng.range(-(1 << 15) + 1, (1 << 15) - 1) as i32;
+        let next_zero = rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32;
+        let acc: [i32; N] = core::array::from_fn(|i| match (case % 3, i % 13) {
+            (0, 0) => (1 << 30) - 1,
+            (0, 1) => -(1 << 30) + 1,
+            (1, _) => rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32,
+            _ => rng.range(-(1 << 23), 1 << 23) as i32,
+        });
+        let mut center = [0i8; N];
+        rng.fill(&mut center, (case % 4) as u32);
+        let mut want = [0i8; N];
+        for (i, (o, &a)) in want.iter_mut().zip(&acc).enumerate() {
+            let relu = rq.apply(i % HEAD_HIDDEN, a).max(0);
+            let carried = carry.apply_i64(center[i] as i64 - zero as i64);
+            *o = sat_i8_i64(carried + relu + next_zero as i64);
+        }
+        let Some(e) = ConvEpilogue::new(&rq, Some(carry), zero, next_zero) else {
+            continue;
+        };
+        let mut found = [0i8; N];
+        if e.apply(&acc, Some(&center), &mut found) {
+            taken += 1;
+            t.check("conv_epilogue", [12, HEAD_HIDDEN, 0], &found, &want);
+        }
+    }
+    if taken > 0 && cfg!(board = "an547") {
+        t.asm_cases += taken;
+    }
+}
+
 fn residual_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     const ROWS: usize = 8;
     for case in 0..40 {
@@ -969,6 +1025,7 @@ fn main() -> ! {
     layernorm_cases(&mut t, &mut rng, buffers);
     residual_cases(&mut t, &mut rng, buffers);
     rope_cases(&mut t, &mut rng);
+    conv_epilogue_cases(&mut t, &mut rng);
     bench(&mut rng, buffers);
     bench_softmax(&mut rng, buffers);
     bench_scores(&mut rng, buffers);
