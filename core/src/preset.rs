@@ -1,6 +1,6 @@
 //! The readouts the firmware (`firmware-sim`) and the board apps (`boards/`) run, in one place so
 //! every target computes the same numbers: the `bino` CLI's defaults (16 candidates, SGM
-//! penalties 8 / 32, left-right tolerance one patch column, the head with its own left-right
+//! penalties 64 / 256 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch column, the head with its own left-right
 //! check), the pixel refinement of the head+lr grid, and (feature `depth`) the example board's
 //! calibration and sector count of the obstacle summary.
 //!
@@ -16,15 +16,14 @@
 //! ```
 
 use crate::pipeline::{self, Options, Pathway, Refine};
-use crate::sgm::Penalties;
 
-/// Readout options: 16 candidates, SGM penalties 8 / 32, left-right tolerance one patch
+/// Readout options: 16 candidates, SGM penalties 64 / 256 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch
 /// column (Q8 256), the head (its trained 12 candidates: a 160-px view's disparities stay
 /// below 44 px) with its own left-right check.
 pub const OPTIONS: Options = Options {
     pathway: Pathway::Export,
     max_cols: 16,
-    penalties: Penalties { p1: 8, p2: 32 },
+    penalties: crate::sgm::DEFAULT_PENALTIES,
     lr_max_diff_q8: 256,
     head: true,
     head_lr: true,

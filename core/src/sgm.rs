@@ -25,6 +25,13 @@ pub struct Penalties {
     pub p2: u16,
 }
 
+/// The penalties every command, the firmware and the board apps run (`preset::OPTIONS`):
+/// chosen off the eval split, on the 22 held-out train pairs against left-right-consistent
+/// StereoSGBM (`python -m bino_train.val_folder`, then `bino eval --split val`), where
+/// sgm+lr+ref's epe falls from 0.904 (p1 8, p2 32) to 0.661 px at 320 px and from 0.674 to
+/// 0.542 px at 160 px; p2 stays four times p1, and twice these scores worse at 320 px.
+pub const DEFAULT_PENALTIES: Penalties = Penalties { p1: 64, p2: 256 };
+
 /// Streaming SGM state over rows of `cols` cells with `candidates` disparities each.
 pub struct SgmStream<'a> {
     cols: usize,

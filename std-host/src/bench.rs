@@ -3,7 +3,7 @@
 //!
 //! Both compute the descriptor pathway's encoder pass, the encoder on (I, I) of one
 //! `48 x width` band of the built-in synthetic scene: tract its `tokens` output (f32 pixels
-//! p / 255), the int8 engine [`Encoder::describe`] on the same 8-bit pixels, its arena
+//! p / 255), the int8 engine [`bino_core::model::encoder::Encoder::describe`] on the same 8-bit pixels, its arena
 //! allocated before timing. Each gets one warm-up run, then `runs` timed runs. tract's time
 //! includes copying its output out of the tensor (about 0.5 MB, negligible next to the pass).
 //!

@@ -51,11 +51,10 @@ pub struct DemoOptions {
     pub penalties: Penalties,
 }
 
-/// SGM penalties of the demo, in cost units: p1 about the trained descriptors' median
-/// best-to-second cosine gap (0.002, i.e. 8 units), p2 four times that. Stronger penalties
-/// score better still on the demo's piecewise-flat scene (p1 = 32: epe 0.83 px against 1.02),
-/// which would overfit it; proper tuning needs train-split pairs with ground truth.
-pub const DEFAULT_PENALTIES: Penalties = Penalties { p1: 8, p2: 32 };
+/// SGM penalties of every command, in cost units: the core's (`bino_core::sgm::DEFAULT_PENALTIES`,
+/// chosen on held-out train pairs, not on the demo's scene nor on the eval split), so the host
+/// runs what the firmware runs.
+pub const DEFAULT_PENALTIES: Penalties = bino_core::sgm::DEFAULT_PENALTIES;
 
 /// One readout scored against the scene's true disparity.
 #[derive(Debug, Clone, PartialEq)]

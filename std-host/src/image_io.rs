@@ -50,12 +50,38 @@ pub fn rgb_to_gray(r: u8, g: u8, b: u8) -> u8 {
 /// under the `image` crate's allocation limit. Every error names the file.
 pub fn decode(path: &Path, what: &str) -> Result<image::DynamicImage> {
     let bytes = crate::files::read(path, what)?;
-    let reader = || {
-        image::ImageReader::new(Cursor::new(bytes.as_slice()))
-            .with_guessed_format()
-            .with_context(|| format!("cannot read {what} {}", path.display()))
-    };
-    let (width, height) = reader()?.into_dimensions().with_context(|| {
+    declared_size(&bytes, path, what)?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(MAX_IMAGE_SIDE);
+    limits.max_image_height = Some(MAX_IMAGE_SIDE);
+    limits.max_alloc = Some(MAX_IMAGE_BYTES);
+    let mut decoder = reader(&bytes, path, what)?;
+    decoder.limits(limits);
+    decoder.decode().with_context(|| {
+        format!(
+            "cannot decode {what} {} (PNG, PPM/PGM or JPEG expected)",
+            path.display()
+        )
+    })
+}
+
+/// Width and height the image file `path` declares, read from its header; errors as
+/// [`decode`]'s.
+pub fn dimensions(path: &Path, what: &str) -> Result<(usize, usize)> {
+    let bytes = crate::files::read(path, what)?;
+    let (width, height) = declared_size(&bytes, path, what)?;
+    Ok((width as usize, height as usize))
+}
+
+fn reader<'a>(bytes: &'a [u8], path: &Path, what: &str) -> Result<image::ImageReader<Cursor<&'a [u8]>>> {
+    image::ImageReader::new(Cursor::new(bytes))
+        .with_guessed_format()
+        .with_context(|| format!("cannot read {what} {}", path.display()))
+}
+
+/// The header's size, refused above [`MAX_IMAGE_SIDE`] a side.
+fn declared_size(bytes: &[u8], path: &Path, what: &str) -> Result<(u32, u32)> {
+    let (width, height) = reader(bytes, path, what)?.into_dimensions().with_context(|| {
         format!(
             "cannot decode {what} {} (PNG, PPM/PGM or JPEG expected)",
             path.display()
@@ -67,18 +93,7 @@ pub fn decode(path: &Path, what: &str) -> Result<image::DynamicImage> {
             path.display()
         );
     }
-    let mut limits = image::Limits::default();
-    limits.max_image_width = Some(MAX_IMAGE_SIDE);
-    limits.max_image_height = Some(MAX_IMAGE_SIDE);
-    limits.max_alloc = Some(MAX_IMAGE_BYTES);
-    let mut decoder = reader()?;
-    decoder.limits(limits);
-    decoder.decode().with_context(|| {
-        format!(
-            "cannot decode {what} {} (PNG, PPM/PGM or JPEG expected)",
-            path.display()
-        )
-    })
+    Ok((width, height))
 }
 
 /// Loads an image file as 8-bit gray. The error names the file and what is wrong with it.

@@ -15,6 +15,9 @@ pub enum Split {
     Train,
     /// Labeled pairs for evaluation only: never trained on, not even self-supervised.
     Eval,
+    /// Train pairs held out of head training with proxy ground truth (confident StereoSGBM),
+    /// written by `python -m bino_train.val_folder`: for choosing settings off the eval split.
+    Val,
 }
 
 impl fmt::Display for Split {
@@ -22,6 +25,7 @@ impl fmt::Display for Split {
         f.write_str(match self {
             Split::Train => "train",
             Split::Eval => "eval",
+            Split::Val => "val",
         })
     }
 }
@@ -185,7 +189,8 @@ fn parse_record<'a>(field: &dyn Fn(usize) -> &'a str, root: &Path) -> Result<Pai
     let split = match field(1) {
         "train" => Split::Train,
         "eval" => Split::Eval,
-        other => bail!("pair {pair_id}: split {other:?} is neither train nor eval"),
+        "val" => Split::Val,
+        other => bail!("pair {pair_id}: split {other:?} is none of train, eval, val"),
     };
     let path = |i: usize, what: &str| -> Result<PathBuf> {
         let value = field(i);
@@ -222,7 +227,7 @@ fn parse_record<'a>(field: &dyn Fn(usize) -> &'a str, root: &Path) -> Result<Pai
     };
     ensure!(
         split == Split::Train || gt.is_some(),
-        "pair {pair_id}: eval pair without ground truth"
+        "pair {pair_id}: {split} pair without ground truth"
     );
     let size = |i: usize, what: &str| -> Result<usize> {
         field(i)
@@ -295,7 +300,7 @@ mod tests {
         let text = format!("{HEADER}a\ttest\tmb\tl\tr\t\t\t\t\t4\t4\n");
         let err = format!("{:#}", parse_index(&text, Path::new(".")).unwrap_err());
         assert!(
-            err.contains("line 2") && err.contains("neither train nor eval"),
+            err.contains("line 2") && err.contains("none of train, eval, val"),
             "{err}"
         );
         let text = format!("{HEADER}a\teval\tmb\tl\tr\t\t\t\t\t4\t4\n");

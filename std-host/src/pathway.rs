@@ -45,16 +45,24 @@ impl Pathway {
         Ok(())
     }
 
-    /// The readout a command uses when none is given: sgm+lr on the export pathway (the lowest
-    /// unrefined eval-split error at w320, README), head+lr on the native one (its only checked
-    /// readout).
-    pub fn default_readout(self) -> Readout {
+    /// The readout a command uses when none is given, for views `view_width` px wide: on the
+    /// export pathway head+lr up to [`HEAD_DEFAULT_MAX_WIDTH`] and sgm+lr above, on the native
+    /// pathway head+lr (its only checked readout).
+    pub fn default_readout(self, view_width: usize) -> Readout {
         match self {
-            Pathway::Export => Readout::new(Method::Sgm, true),
-            Pathway::Native => Readout::HEAD_LR,
+            Pathway::Export if view_width > HEAD_DEFAULT_MAX_WIDTH => Readout::new(Method::Sgm, true),
+            Pathway::Export | Pathway::Native => Readout::HEAD_LR,
         }
     }
 }
+
+/// Widest view (px) whose default export readout is head+lr rather than sgm+lr. Chosen off the
+/// eval split, on the 22 held-out train pairs against left-right-consistent StereoSGBM
+/// (`bino_train.val_folder`, `bino eval --split val`), int8, refined (as `bino run` writes):
+/// head+lr+ref against sgm+lr+ref 0.483 / 0.542 px epe at 160 px, 0.522 / 0.506 at 200, 0.611 /
+/// 0.587 at 240, 0.718 / 0.591 at 280, 0.842 / 0.661 at 320. The head was trained on 0-44 px
+/// disparities, which a wider view exceeds; the boards' 160-px bands refine head+lr too.
+pub const HEAD_DEFAULT_MAX_WIDTH: usize = 160;
 
 impl Pathway {
     /// The readouts `bino eval` scores when none are named: every readout of the pathway,
@@ -88,8 +96,19 @@ mod tests {
         let native: Vec<_> = Pathway::Native.readouts().iter().map(|r| r.name()).collect();
         assert_eq!(native, ["head", "head+ref", "head+lr", "head+lr+ref"]);
         for pathway in [Pathway::Export, Pathway::Native] {
-            assert!(pathway.check(pathway.default_readout()).is_ok());
+            for width in [160, 320, 1280] {
+                assert!(pathway.check(pathway.default_readout(width)).is_ok());
+            }
             assert_eq!(pathway.core().pathway(), pathway.to_string());
         }
+    }
+
+    #[test]
+    fn default_readout_follows_the_view_width() {
+        let name = |p: Pathway, w: usize| p.default_readout(w).name();
+        assert_eq!(name(Pathway::Export, 160), "head+lr");
+        assert_eq!(name(Pathway::Export, 161), "sgm+lr");
+        assert_eq!(name(Pathway::Export, 320), "sgm+lr");
+        assert_eq!(name(Pathway::Native, 320), "head+lr");
     }
 }

@@ -202,6 +202,17 @@ pub fn resize_nearest<T: Copy>(src: &[T], sw: usize, sh: usize, dw: usize, dh: u
         .collect()
 }
 
+/// Width of the view `profile` makes of the image file `path` (its header only): what the
+/// width-dependent defaults (`Pathway::default_readout`) follow. Errors name the file.
+pub fn view_width(path: &std::path::Path, profile: Profile) -> Result<usize> {
+    use anyhow::Context;
+    let (width, height) = crate::image_io::dimensions(path, "image")?;
+    let size = profile
+        .size(width, height)
+        .with_context(|| format!("{}", path.display()))?;
+    Ok(size.resized.0)
+}
+
 /// Loads a stereo pair and applies `profile` to both views; views of different sizes, or a size
 /// the profile cannot take, are errors naming the files.
 pub fn load_profiled_pair(left: &std::path::Path, right: &std::path::Path, profile: Profile) -> Result<(View, View)> {
@@ -248,6 +259,21 @@ mod tests {
         assert!(Profile::W160.size(2000, 4).is_err(), "a sliver has no 4-row band left");
         assert!(Profile::Native.size(162, 48).is_err());
         assert_eq!(Profile::Native.size(160, 48).unwrap().kept_rows, 48);
+    }
+
+    #[test]
+    fn view_width_reads_the_header_and_applies_the_profile() {
+        let dir = crate::train_python::tempdir("view-width").unwrap();
+        let path = dir.join("view.pgm");
+        std::fs::write(&path, crate::train_python::pgm(&[0; 432 * 381], 432, 381)).unwrap();
+        assert_eq!(view_width(&path, Profile::W160).unwrap(), 160);
+        assert_eq!(view_width(&path, Profile::W320).unwrap(), 320);
+        // 381 rows do not fit `native` (not a multiple of 4): an error naming the file.
+        let err = format!("{:#}", view_width(&path, Profile::Native).unwrap_err());
+        assert!(err.contains("view.pgm") && err.contains("multiples of 4"), "{err}");
+        let missing = format!("{:#}", view_width(&dir.join("none.png"), Profile::W160).unwrap_err());
+        assert!(missing.contains("none.png"), "{missing}");
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 
     #[test]

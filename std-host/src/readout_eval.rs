@@ -241,7 +241,8 @@ pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &Pair
     check_severities(&opts.occlusions)?;
     let split = match opts.split.as_str() {
         "eval" => Split::Eval,
-        other => bail!("split {other:?}: only eval pairs carry ground truth here (use --split eval)"),
+        "val" => Split::Val,
+        other => bail!("split {other:?}: only eval and val pairs carry ground truth (use --split eval)"),
     };
     for &readout in &opts.readouts {
         opts.pathway.check(readout)?;
@@ -1009,7 +1010,7 @@ mod tests {
             occlusions: vec![],
         };
         let err = evaluate(&opts, |_, _, _| {}).unwrap_err().to_string();
-        assert!(err.contains("only eval pairs"), "{err}");
+        assert!(err.contains("only eval and val pairs"), "{err}");
         let none = EvalOptions {
             readouts: vec![],
             ..opts.clone()

@@ -304,7 +304,7 @@ fn malformed_pair_indexes_are_refused_with_file_and_line() {
         (
             "unknown-split",
             format!("{HEADER}{}", eval_row().replace("\teval\t", "\ttest\t")).into_bytes(),
-            &["line 2", "split \"test\" is neither train nor eval"],
+            &["line 2", "split \"test\" is none of train, eval, val"],
         ),
         (
             "outside",

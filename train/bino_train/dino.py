@@ -42,13 +42,13 @@ class DinoConfig:
         return asdict(self)
 
 
-def ema_momentum(step: int, total_steps: int, start: float) -> float:
+def ema_momentum(step: float, total_steps: int, start: float) -> float:
     """Cosine from `start` at step 0 to 1 at `total_steps` (then held at 1)."""
     progress = min(max(step / max(total_steps, 1), 0.0), 1.0)
     return 1.0 - (1.0 - start) * (math.cos(math.pi * progress) + 1.0) / 2.0
 
 
-def teacher_temperature(step: int, warmup_steps: int, start: float, end: float) -> float:
+def teacher_temperature(step: float, warmup_steps: int, start: float, end: float) -> float:
     """Linear warm-up from `start` to `end` over `warmup_steps`, then `end`."""
     if step >= warmup_steps:
         return end

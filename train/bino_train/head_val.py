@@ -43,7 +43,7 @@ from .head_eval import HeadInputs, fill_rejected, head_lr, pair_inputs
 from .model import BinoEncoder
 from .pairs import load_gray
 from .probe import CELL, mean_metrics, score, upsample_disparity
-from .profile import resize_image
+from .profile import resize_image, to_u8
 
 VAL_WIDTH = 160
 SYNTHETIC_SEED = 1_000_003
@@ -59,10 +59,6 @@ class HeldOutPair:
     """Those of the mirrored pair, for the head's left-right check."""
     disparity: NDArray[np.float32]
     valid: NDArray[np.bool_]
-
-
-def _u8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
-    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
 
 
 @dataclass(frozen=True)
@@ -88,7 +84,7 @@ class ValidationSet:
         for pair in validation_pairs(data_dir):
             left = resize_image(load_gray(pair.left), width)
             right = resize_image(load_gray(pair.right), width)
-            disparity, valid, _ = consistent_sgbm(_u8(left), _u8(right))
+            disparity, valid, _ = consistent_sgbm(to_u8(left), to_u8(right))
             inputs, mirrored = pair_inputs(encoder, pathway, left, right)
             pairs.append(HeldOutPair(pair.pair_id, inputs, mirrored, disparity, valid))
         samples = [

@@ -33,7 +33,7 @@ class MaskConfig:
         return asdict(self)
 
 
-def mask_ratio(step: int, total_steps: int, cfg: MaskConfig) -> float:
+def mask_ratio(step: float, total_steps: int, cfg: MaskConfig) -> float:
     """Linear from `ratio_start` at step 0 to `ratio_end` at `total_steps` (then held)."""
     progress = min(max(step / max(total_steps, 1), 0.0), 1.0)
     return cfg.ratio_start + (cfg.ratio_end - cfg.ratio_start) * progress

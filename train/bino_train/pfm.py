@@ -86,3 +86,12 @@ def decode_pfm(data: bytes) -> NDArray[np.float32]:
     dtype = np.dtype("<f4" if scale < 0 else ">f4")
     stored = np.frombuffer(data, dtype=dtype, count=width * height, offset=pos)
     return np.ascontiguousarray(stored.reshape(height, width)[::-1], dtype=np.float32)
+
+
+def encode_pfm(image: NDArray[np.float32]) -> bytes:
+    """The bytes of a grayscale little-endian PFM file of a (H, W) float32 map (top row first)."""
+    if image.ndim != 2 or 0 in image.shape:
+        raise ValueError(f"a PFM map is (H, W) and non-empty, got shape {image.shape}")
+    height, width = image.shape
+    rows = np.ascontiguousarray(image[::-1], dtype="<f4")
+    return f"Pf\n{width} {height}\n-1.0\n".encode() + rows.tobytes()

@@ -87,6 +87,11 @@ class TrainConfig:
     weight_decay: float = 0.04
     clip_grad: float = 3.0
     schedule_pairs: int = 16_000
+    anneal_from_pairs: int = 0
+    """With `anneal_pairs`: where a resumed run's remaining schedule was compressed (a fork)."""
+    anneal_pairs: int = 0
+    """0: the schedules run on pairs seen. Otherwise what remained of them after
+    `anneal_from_pairs` runs over this many pairs (`schedule_position`)."""
     seed: int = 0
     precision: str = "auto"
     """bf16 autocast, fp32, or auto: bf16 where the hardware has it (CUDA, or a CPU with
@@ -111,7 +116,22 @@ class TrainConfig:
         )
 
 
-def learning_rate(step: int, cfg: TrainConfig) -> float:
+def schedule_position(pairs: int, cfg: TrainConfig) -> float:
+    """Where `pairs` pairs seen put the run on its schedules, in pairs.
+
+    Without an anneal this is `pairs`. An anneal (`--anneal-pairs` on resume) maps the pairs
+    after `anneal_from_pairs` linearly onto the rest of the schedule, so every schedule (LR,
+    EMA momentum, mask ratio, teacher temperature) continues from where it stood and ends
+    `anneal_pairs` later: a short run's tail from a long run's middle.
+    """
+    start, length = cfg.anneal_from_pairs, cfg.anneal_pairs
+    if length <= 0 or pairs <= start:
+        return float(pairs)
+    rest = max(cfg.schedule_pairs - start, 0)
+    return start + min(pairs - start, length) * rest / length
+
+
+def learning_rate(step: float, cfg: TrainConfig) -> float:
     """Linear warm-up to `lr`, then cosine down to `min_lr` at the end of the schedule."""
     total = cfg.total_steps
     warm = max(1, round(cfg.warmup * total))
@@ -209,9 +229,10 @@ class Trainer:
         return self.cfg.batch * self.batch_multiplier
 
     @property
-    def schedule_step(self) -> int:
-        """Position on the schedules in steps of the configured batch (= step at that batch)."""
-        return self.pairs_seen // self.cfg.batch
+    def schedule_step(self) -> float:
+        """Position on the schedules in steps of the configured batch (= step at that batch,
+        unless annealing: `schedule_position`)."""
+        return schedule_position(self.pairs_seen, self.cfg) / self.cfg.batch
 
     def train_step(self) -> dict[str, Any]:
         cfg, step, dev = self.cfg, self.schedule_step, self.device
@@ -515,6 +536,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--minutes", type=float, help="wall-clock budget of this invocation")
     p.add_argument("--pairs", type=int, help="cumulative training pairs to reach")
     p.add_argument("--schedule-pairs", type=int, help="schedule length in pairs (fresh runs)")
+    p.add_argument(
+        "--anneal-pairs",
+        type=int,
+        help="with --resume: run what remains of every schedule over the next N pairs (a fork "
+        "that anneals a long run early; copy the run folder first)",
+    )
     p.add_argument("--config", choices=("small", "paper"), default="paper")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--batch", type=int)
@@ -586,6 +613,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         args.precision = "bf16"
     if args.resume and args.init_from is not None:
         p.error("--resume and --init-from exclude each other")
+    if args.anneal_pairs is not None and (not args.resume or args.anneal_pairs <= 0):
+        p.error("--anneal-pairs needs --resume and a positive pair count")
     if args.smoke:
         args.config, args.pairs, args.no_eval, args.log_every = "small", 80, True, 5
         args.schedule_pairs = args.schedule_pairs or 400
@@ -611,6 +640,10 @@ def main(argv: list[str] | None = None) -> None:
         trainer = Trainer(cfg, args.data, device, **scaling)
         trainer.load_state_dict(state)
         print(f"resumed {ckpt} at step {trainer.step} ({trainer.pairs_seen} pairs)")
+        if args.anneal_pairs is not None:
+            record = start_anneal(trainer, args.anneal_pairs)
+            with (args.out / "log.jsonl").open("a") as f:
+                f.write(json.dumps(record) + "\n")
     else:
         if ckpt.exists() and not args.smoke:
             sys.exit(f"error: {ckpt} exists; pass --resume or choose another --out")
@@ -644,6 +677,21 @@ def main(argv: list[str] | None = None) -> None:
     print(f"done: step {trainer.step}, {trainer.pairs_seen} pairs, checkpoint {ckpt}")
     if args.smoke:
         sys.exit(0 if smoke_report(records) else 1)
+
+
+def start_anneal(trainer: Trainer, pairs: int) -> dict[str, Any]:
+    """Compress the rest of the run's schedules into the next `pairs` pairs (once per run);
+    returns the log record."""
+    cfg = trainer.cfg
+    if cfg.anneal_pairs > 0:
+        sys.exit(f"error: this run already anneals from {cfg.anneal_from_pairs} pairs")
+    if trainer.pairs_seen >= cfg.schedule_pairs:
+        sys.exit(f"error: the schedule ended at {cfg.schedule_pairs} pairs; nothing to anneal")
+    trainer.cfg = replace(cfg, anneal_from_pairs=trainer.pairs_seen, anneal_pairs=pairs)
+    end = trainer.pairs_seen + pairs
+    rest = cfg.schedule_pairs - trainer.pairs_seen
+    print(f"annealing: the schedules' remaining {rest} pairs run over {pairs} (to {end} pairs)")
+    return {"kind": "anneal", "step": trainer.step, "pairs": trainer.pairs_seen, "until": end}
 
 
 def pick_device(name: str) -> torch.device:

@@ -34,7 +34,7 @@ from torch import Tensor
 
 from .model import BinoEncoder
 from .pairs import EVAL_SPLIT, load_gray, load_gt, load_pairs
-from .profile import profile_width, resize_gt, resize_image
+from .profile import profile_width, resize_gt, resize_image, to_u8
 
 Gray = NDArray[np.float32]
 Describe = Callable[[Sequence[Gray]], list[Tensor]]
@@ -270,10 +270,8 @@ def run_sgbm(items: Sequence[ProbeItem], width: int) -> dict[str, float]:
     )
     per_pair, density = [], []
     for item in items:
-        to_u8 = [
-            np.clip(np.rint(v * 255.0), 0, 255).astype(np.uint8) for v in (item.left, item.right)
-        ]
-        raw = sgbm.compute(to_u8[0], to_u8[1]).astype(np.float32) / 16.0
+        views = [to_u8(v) for v in (item.left, item.right)]
+        raw = sgbm.compute(views[0], views[1]).astype(np.float32) / 16.0
         valid = raw >= 0
         density.append(100.0 * float(valid[item.valid].mean()))  # over GT-valid pixels
         per_pair.append(score(fill_invalid(raw, valid), item.gt, item.valid))

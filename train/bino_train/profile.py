@@ -36,6 +36,11 @@ def profile_size(width: int, height: int, target_width: int) -> tuple[int, int]:
     return target_width, h - h % 4
 
 
+def to_u8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
+    """A [0, 1] view as the 8-bit image OpenCV's StereoSGBM and the Rust side read."""
+    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
+
+
 def resize_image(image: NDArray[np.float32], target_width: int) -> NDArray[np.float32]:
     """Area-resize a (H, W) image to the profile and drop the bottom rows to a multiple of 4."""
     h, w = image.shape[:2]

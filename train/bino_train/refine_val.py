@@ -31,17 +31,13 @@ from .head_eval import fill_rejected, head_lr, pair_inputs
 from .model import BinoEncoder
 from .pairs import load_gray
 from .probe import mean_metrics, score, upsample_disparity
-from .profile import resize_image
+from .profile import resize_image, to_u8
 from .refine import RefineParams, refine_int
 
 
 def to_q8(tokens: NDArray[np.float32]) -> NDArray[np.uint16]:
     """Patch-column disparities to the readouts' Q8 (rounded half up, saturated)."""
     return np.clip(np.floor(tokens.astype(np.float64) * 256.0 + 0.5), 0, 65535).astype(np.uint16)
-
-
-def _u8(image: NDArray[np.float32]) -> NDArray[np.uint8]:
-    return np.clip(np.rint(image * 255.0), 0, 255).astype(np.uint8)
 
 
 @torch.no_grad()
@@ -61,7 +57,7 @@ def validate(
     for pair in pairs:
         left_f = resize_image(load_gray(pair.left), width)
         right_f = resize_image(load_gray(pair.right), width)
-        left, right = _u8(left_f), _u8(right_f)
+        left, right = to_u8(left_f), to_u8(right_f)
         gt, valid, _ = consistent_sgbm(left, right)
         inputs, mirrored = pair_inputs(encoder, head.cfg.pathway, left_f, right_f)
         tokens, kept = head_lr(head, inputs, mirrored)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -17,6 +18,7 @@ from bino_train.pretrain import (
     learning_rate,
     main,
     parse_args,
+    schedule_position,
     smoke_report,
 )
 
@@ -128,3 +130,35 @@ def test_evaluation_logs_probe_and_benchmark_and_snapshots_teacher(
         assert key in evals[0]
     snapshot = out / "teacher_0000002.pt"
     assert load_encoder(snapshot).cfg.dim == 32
+
+
+def test_anneal_compresses_the_rest_of_the_schedule() -> None:
+    cfg = TrainConfig(lr=1e-3, min_lr=1e-5, warmup=0.1, schedule_pairs=1600, batch=16)
+    fork = dataclasses.replace(cfg, anneal_from_pairs=480, anneal_pairs=160)
+    # Unchanged up to the fork, continuous there, at the schedule's end 160 pairs later.
+    assert schedule_position(320, fork) == 320
+    assert schedule_position(480, fork) == 480
+    assert schedule_position(560, fork) == pytest.approx(480 + 80 * 1120 / 160)
+    assert schedule_position(640, fork) == pytest.approx(1600)
+    assert schedule_position(5000, fork) == pytest.approx(1600)
+    assert schedule_position(640, cfg) == 640
+    assert learning_rate(schedule_position(640, fork) / 16, fork) == pytest.approx(1e-5)
+
+
+def test_anneal_fork_ends_on_the_schedule_tail(data_dir: Path, tmp_path: Path) -> None:
+    data = ["--data", str(data_dir), "--no-eval", "--log-every", "1"]
+    run = tmp_path / "run"
+    main(["--out", str(run), "--pairs", "4", *COMMON, "--schedule-pairs", "64", *data])
+    # 4 pairs past the anneal's end: those steps run at the schedules' end values.
+    main(["--out", str(run), "--pairs", "12", "--resume", "--anneal-pairs", "4", *data])
+    state = torch.load(run / "last.pt", weights_only=False)
+    assert state["train_config"]["anneal_from_pairs"] == 4
+    assert state["train_config"]["anneal_pairs"] == 4
+    records = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    assert [r["pairs"] for r in records if r.get("kind") == "anneal"] == [4]
+    lrs = [r["lr"] for r in records if "loss" in r]
+    assert len(lrs) == 6 and lrs[1] > 1e-4
+    # Past the anneal's end the LR sits on the cosine's floor, as at a full schedule's end.
+    assert lrs[-1] == pytest.approx(TrainConfig().min_lr)
+    with pytest.raises(SystemExit, match="already anneals"):
+        main(["--out", str(run), "--pairs", "16", "--resume", "--anneal-pairs", "4", *data])

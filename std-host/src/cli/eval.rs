@@ -18,7 +18,8 @@ pub struct EvalArgs {
     /// Folder with PAIRS.tsv.
     #[arg(long, default_value = "../shared/data")]
     data: PathBuf,
-    /// Split: eval (the metrics need ground truth).
+    /// Split: eval (the metrics need ground truth), or val (held-out train pairs scored
+    /// against confident StereoSGBM, written by `python -m bino_train.val_folder`).
     #[arg(long, default_value = "eval")]
     split: String,
     /// Resolution profile of EVAL.md: w160, w320 or native.

@@ -119,9 +119,11 @@ mod tests {
             flag("eval", "max_cols").1,
             "Disparity candidates of nolink and sgm, in patch columns"
         );
+        // The firmware's penalties, so a default run computes what the board computes.
+        let firmware = bino_core::preset::OPTIONS.penalties;
         for verb in ["demo", "sim", "run", "eval"] {
-            assert_eq!(flag(verb, "sgm_p1").0, "8", "{verb}");
-            assert_eq!(flag(verb, "sgm_p2").0, "32", "{verb}");
+            assert_eq!(flag(verb, "sgm_p1").0, firmware.p1.to_string(), "{verb}");
+            assert_eq!(flag(verb, "sgm_p2").0, firmware.p2.to_string(), "{verb}");
         }
         for verb in ["sim", "run", "eval"] {
             assert_eq!(flag(verb, "lr_max_diff").0, "1", "{verb}");

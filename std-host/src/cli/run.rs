@@ -31,9 +31,9 @@ pub struct RunArgs {
     blob: PathBuf,
     /// Readout: nolink, sgm or head, each optionally with +lr (cells the method's own
     /// left-right check rejects filled from the nearest kept cell to their left), then
-    /// optionally +ref (the same as --refine on). The default on the export pathway, sgm+lr,
-    /// has the lowest unrefined eval-split error at the default profile, w320 (head+lr at
-    /// w160; README); on the native pathway, head+lr.
+    /// optionally +ref (the same as --refine on). Default: on the export pathway head+lr for
+    /// views up to 160 px wide and sgm+lr above (chosen on held-out train pairs; README), on
+    /// the native pathway head+lr.
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
@@ -57,9 +57,13 @@ pub struct RunArgs {
 /// Runs the verb.
 pub fn run(args: RunArgs) -> Result<()> {
     let pathway = args.pathway.pathway;
+    let default = match args.readout {
+        Some(readout) => readout,
+        None => pathway.default_readout(bino_host::profile::view_width(&args.left, args.profile)?),
+    };
     let readout = args
         .refine
-        .apply(args.readout.unwrap_or(pathway.default_readout()))
+        .apply(default)
         .unwrap_or_else(|msg| super::usage_error("run", msg));
     let opts = RunOptions {
         left: args.left,

@@ -33,7 +33,8 @@ pub struct SimArgs {
     /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval`
     /// scores), each token row as the pipeline streams it; or a +ref readout, its refined
     /// pixel rows as the pipeline's refinement stage streams them. The default is `bino run`'s
-    /// on the pathway, refined (sgm+lr+ref on export, head+lr+ref on native).
+    /// for the view's width, refined (export: head+lr+ref up to 160 px, sgm+lr+ref above;
+    /// native: head+lr+ref).
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
@@ -57,13 +58,18 @@ pub struct SimArgs {
 
 /// Runs the verb.
 pub fn run(args: SimArgs) -> Result<()> {
+    let width = match &args.left {
+        Some(left) => bino_host::profile::view_width(left, args.profile)?,
+        None => bino_host::sim::DEFAULT_SCENE.0,
+    };
     let opts = SimOptions {
         pair: args.left.zip(args.right),
         profile: args.profile,
         blob: args.blob,
-        readout: args
-            .readout
-            .unwrap_or(args.pathway.pathway.default_readout().refined(true)),
+        readout: match args.readout {
+            Some(readout) => readout,
+            None => args.pathway.pathway.default_readout(width).refined(true),
+        },
         pathway: args.pathway.pathway,
         max_cols: args.candidates.max_cols,
         penalties: args.sgm.penalties(),

@@ -146,7 +146,7 @@ impl HeadFormats {
     }
 
     /// The formats to try, labelled: [`HeadFormats::choose`] (MSE correlation bound), then the
-    /// same with the correlation clipped at each of [`CORRELATION_PERCENTILES`].
+    /// same with the correlation clipped at each of `CORRELATION_PERCENTILES`.
     pub fn candidates(stats: &HeadStats) -> Vec<(String, Self)> {
         let mse = Self::choose(stats);
         let mut abs: Vec<f32> = stats.correlation.values().iter().map(|v| v.abs()).collect();

@@ -439,8 +439,10 @@ fn tile1(a0: &[i8], a1: &[i8], w: &[i8], init: i32) -> [i32; 2] {
 }
 
 /// Attention scores of four queries (`HEAD_DIM` = 32 codes: two vectors each) against every
-/// key, two queries at a time held in q0-q3: per key two `vldrb`, four `vmladav(a)` and two
-/// stores (64 MACs). Declines (`false`) unless `scores` is exactly `4 * n` for `n >= 1` keys.
+/// key, two queries at a time held in q0-q3 and two keys a step in q4-q7: per key pair four
+/// `vldrb`, eight `vmladav(a)` and two `strd` (128 MACs; one key a step took 18 instructions
+/// per 128). An odd last key is scored in Rust. Declines (`false`) unless `scores` is exactly
+/// `4 * n` for `n >= 1` keys.
 #[cfg(bino_mve)]
 pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], scores: &mut [i32]) -> bool {
     const _: () = assert!(HEAD_DIM == 32);
@@ -448,44 +450,65 @@ pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], score
     if n == 0 || scores.len() != 4 * n {
         return false;
     }
+    let pairs = n / 2;
     let (first, second) = scores.split_at_mut(2 * n);
     let [q0, q1, q2, q3] = queries;
     for ((qa, qb), rows) in [((q0, q1), first), ((q2, q3), second)] {
         let (row_a, row_b) = rows.split_at_mut(n);
-        // SAFETY: reads the two 32-byte queries, then loops `n >= 1` times (`dls`/`le`), each
-        // time reading 32 bytes of `keys` (`n * 32` bytes in all, checked above) and writing one
-        // word to each of `row_a` and `row_b` (`n` words each). `vldrb.u8` and `str` need no
-        // alignment beyond the `i32` rows'. It writes only its declared outputs: the pointers,
-        // r0, r2, `lr` and q0-q5 (through their `d` aliases).
-        unsafe {
-            core::arch::asm!(
-                "vldrb.u8 q0, [{qa}]",
-                "vldrb.u8 q1, [{qa}, #16]",
-                "vldrb.u8 q2, [{qb}]",
-                "vldrb.u8 q3, [{qb}, #16]",
-                "dls lr, lr",
-                "2:",
-                "vldrb.u8 q4, [{k}], #16",
-                "vldrb.u8 q5, [{k}], #16",
-                "vmladav.s8 r0, q0, q4",
-                "vmladava.s8 r0, q1, q5",
-                "vmladav.s8 r2, q2, q4",
-                "vmladava.s8 r2, q3, q5",
-                "str r0, [{sa}], #4",
-                "str r2, [{sb}], #4",
-                "le lr, 2b",
-                qa = in(reg) qa.as_ptr(),
-                qb = in(reg) qb.as_ptr(),
-                k = inout(reg) keys.as_ptr() => _,
-                sa = inout(reg) row_a.as_mut_ptr() => _,
-                sb = inout(reg) row_b.as_mut_ptr() => _,
-                inout("lr") n => _,
-                out("r0") _,
-                out("r2") _,
-                out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _,
-                out("d6") _, out("d7") _, out("d8") _, out("d9") _, out("d10") _, out("d11") _,
-                options(nostack),
-            );
+        if pairs > 0 {
+            // SAFETY: reads the two 32-byte queries, then loops `pairs >= 1` times (`dls`/`le`),
+            // each time reading 64 bytes of `keys` (`2 * pairs * 32 <= n * 32` bytes in all,
+            // checked above) and writing two words to each of `row_a` and `row_b` (`2 * pairs
+            // <= n` words each). `vldrb.u8` needs no alignment; `strd` needs word alignment,
+            // which the `i32` rows have. It writes only its declared outputs: the pointers, r0,
+            // r2, r4, r8 (`vmladav` takes even accumulators), `lr` and q0-q7 (through their `d`
+            // aliases; the compiler saves the callee-saved d8-d15).
+            unsafe {
+                core::arch::asm!(
+                    "vldrb.u8 q0, [{qa}]",
+                    "vldrb.u8 q1, [{qa}, #16]",
+                    "vldrb.u8 q2, [{qb}]",
+                    "vldrb.u8 q3, [{qb}, #16]",
+                    "dls lr, lr",
+                    "2:",
+                    // Loads interleaved with products: the M55 overlaps a load's beats with
+                    // a multiply's (Software Optimization Guide), not two of one kind.
+                    "vldrb.u8 q4, [{k}], #16",
+                    "vldrb.u8 q5, [{k}], #16",
+                    "vmladav.s8 r0, q0, q4",
+                    "vldrb.u8 q6, [{k}], #16",
+                    "vmladava.s8 r0, q1, q5",
+                    "vldrb.u8 q7, [{k}], #16",
+                    "vmladav.s8 r4, q2, q4",
+                    "vmladava.s8 r4, q3, q5",
+                    "vmladav.s8 r2, q0, q6",
+                    "vmladava.s8 r2, q1, q7",
+                    "vmladav.s8 r8, q2, q6",
+                    "vmladava.s8 r8, q3, q7",
+                    "strd r0, r2, [{sa}], #8",
+                    "strd r4, r8, [{sb}], #8",
+                    "le lr, 2b",
+                    qa = in(reg) qa.as_ptr(),
+                    qb = in(reg) qb.as_ptr(),
+                    k = inout(reg) keys.as_ptr() => _,
+                    sa = inout(reg) row_a.as_mut_ptr() => _,
+                    sb = inout(reg) row_b.as_mut_ptr() => _,
+                    inout("lr") pairs => _,
+                    out("r0") _,
+                    out("r2") _,
+                    out("r4") _,
+                    out("r8") _,
+                    out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _,
+                    out("d6") _, out("d7") _, out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                    out("d12") _, out("d13") _, out("d14") _, out("d15") _,
+                    options(nostack),
+                );
+            }
+        }
+        if n % 2 == 1 {
+            let key = &keys[(n - 1) * HEAD_DIM..n * HEAD_DIM];
+            row_a[n - 1] = crate::kernels::matmul::dot(qa, key);
+            row_b[n - 1] = crate::kernels::matmul::dot(qb, key);
         }
     }
     true
