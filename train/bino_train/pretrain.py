@@ -508,6 +508,8 @@ def build_config(args: argparse.Namespace) -> TrainConfig:
         **_given(min_width=args.crop_widths and args.crop_widths[0]),
         **_given(max_width=args.crop_widths and args.crop_widths[1]),
         teacher_clean=args.teacher_clean,
+        **_given(blur_prob=args.blur_prob),
+        **_given(blur_sigma=args.blur_sigma and tuple(args.blur_sigma)),
     )
     return TrainConfig(
         encoder=SMALL_ENCODER if small else EncoderConfig(),
@@ -593,6 +595,16 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         "--teacher-clean",
         action="store_true",
         help="teacher sees the pair before photometric/noise/occlusion nuisances",
+    )
+    p.add_argument(
+        "--blur-prob", type=float, help="chance of a gaussian blur of one view (default 0)"
+    )
+    p.add_argument(
+        "--blur-sigma",
+        type=float,
+        nargs=2,
+        metavar=("MIN", "MAX"),
+        help="range of that blur's standard deviation in crop pixels (default 0.5 1.5)",
     )
     p.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
     p.add_argument("--device", choices=("auto", "cpu", "cuda"), default="auto")

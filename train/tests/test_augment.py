@@ -73,6 +73,35 @@ def test_occlusion_hits_exactly_one_view() -> None:
         assert sum(changed) == 1
 
 
+def test_blur_softens_exactly_one_view() -> None:
+    left, right = shifted_pair(seed=7, height=48, width=160, disparity=0)
+    cfg = AugmentConfig(
+        flip_prob=0.0, photometric_prob=0.0, noise_prob=0.0, occlusion_prob=0.0, blur_prob=1.0
+    )
+    for seed in range(10):
+        out = nuisances(left, right, np.random.default_rng(seed), cfg)
+        changed = [not np.array_equal(o, v) for o, v in zip(out, (left, right), strict=True)]
+        assert sum(changed) == 1
+        blurred, original = (out[0], left) if changed[0] else (out[1], right)
+        # Defocus lowers the local contrast: horizontal gradients shrink, the mean stays.
+        assert np.abs(np.diff(blurred, axis=1)).mean() < np.abs(np.diff(original, axis=1)).mean()
+        assert blurred.dtype == np.float32 and abs(blurred.mean() - original.mean()) < 0.01
+
+
+def test_blur_off_draws_nothing_so_older_runs_resume_exactly() -> None:
+    """Without blur the nuisances consume the random stream as they did before blur existed:
+    the values below were computed with augment.py as of commit 7bc173f (no blur option)."""
+    texture = smooth_texture(np.random.default_rng(8), 48, 160)
+    rng = np.random.default_rng(9)
+    left, right = nuisances(texture.copy(), texture.copy(), rng, AugmentConfig())
+    assert (float(left.sum()), float(right.sum())) == (3805.318359375, 3630.0244140625)
+    assert rng.random() == 0.0054420114812837594
+    legacy = {k: v for k, v in AugmentConfig().to_dict().items() if not k.startswith("blur")}
+    assert AugmentConfig.from_dict(legacy) == AugmentConfig()
+    restored = AugmentConfig.from_dict(AugmentConfig(blur_sigma=(1.0, 2.0)).to_dict())
+    assert restored.blur_sigma == (1.0, 2.0)
+
+
 def test_width_range_fits_the_crop_and_never_upsamples(data_dir: Path) -> None:
     cfg = AugmentConfig()
     for pair in training_pairs(data_dir):
