@@ -96,22 +96,19 @@ pub fn degrade(nuisance: Nuisance, right: &[u8], width: usize, height: usize, se
 /// `item` with its right view under `nuisance` (the left view and the ground truth untouched).
 /// The degraded view holds 8-bit levels (`k / 255`), as the pipeline's input does.
 pub fn degrade_item(item: &EvalItem, nuisance: Nuisance, seed: u64) -> EvalItem {
-    let right = &item.right;
-    let pixels = degrade(
-        nuisance,
-        &to_u8(&right.pixels),
-        right.width,
-        right.height,
-        seed,
-        &item.pair_id,
-    );
     EvalItem {
-        right: View {
-            width: right.width,
-            height: right.height,
-            pixels: pixels.iter().map(|&v| v as f32 / 255.0).collect(),
-        },
+        right: degrade_view(&item.right, nuisance, seed, &item.pair_id),
         ..item.clone()
+    }
+}
+
+/// `view` under `nuisance` as [`degrade_item`] degrades a right view (8-bit levels out).
+pub fn degrade_view(view: &View, nuisance: Nuisance, seed: u64, pair_id: &str) -> View {
+    let pixels = degrade(nuisance, &to_u8(&view.pixels), view.width, view.height, seed, pair_id);
+    View {
+        width: view.width,
+        height: view.height,
+        pixels: pixels.iter().map(|&v| v as f32 / 255.0).collect(),
     }
 }
 

@@ -133,6 +133,7 @@ fn quantize_reads_the_plain_shipped_export() {
         head: Some(weights().join("bino_head.onnx")),
         native_head: None,
         head_calib_pairs: 2,
+        head_calib_nuisances: Vec::new(),
         data: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
         profile: bino_host::profile::Profile::W160,
         calib_pairs: 2,

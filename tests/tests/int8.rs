@@ -30,6 +30,7 @@ fn fixture_options(native_head: Option<PathBuf>) -> QuantizeOptions {
         head: Some(fixtures().join("head_random_seed0.onnx")),
         native_head,
         head_calib_pairs: 2,
+        head_calib_nuisances: Vec::new(),
     }
 }
 
@@ -201,6 +202,7 @@ fn int8_native_pathway_follows_float() {
             profile: Profile::W160,
             max_cols: 10,
             limit: Some(1),
+            nuisance: None,
         },
         |_, _, _| {},
     );
@@ -269,4 +271,64 @@ fn int8_native_pathway_follows_float() {
     assert!(!model.has_head_of(HeadKind::Native));
     let err = model.native_head(&codes, rows, cols).unwrap_err();
     assert!(format!("{err:#}").contains("quantise with --native-head"), "{err:#}");
+}
+
+#[test]
+fn head_calibration_adds_each_pair_again_per_nuisance_with_only_its_right_view_changed() {
+    use bino_core::model::ids::HeadKind;
+    use bino_host::nuisance::Nuisance;
+    use bino_host::quantize::head::calibration_maps;
+    if !data_dir().join("PAIRS.tsv").is_file() {
+        eprintln!("skipped: no calibration data at {}", data_dir().display());
+        return;
+    }
+    let onnx = fixtures().join("encoder_random_seed0.onnx");
+    let maps = |nuisances: &[Nuisance]| {
+        calibration_maps(&onnx, HeadKind::Export, &data_dir(), Profile::W160, 2, nuisances).unwrap()
+    };
+    let clean = maps(&[]);
+    let degraded = maps(&[Nuisance::Blur, Nuisance::Noise]);
+    assert_eq!(degraded.len(), 3 * clean.len());
+    for (pair, group) in clean.iter().zip(degraded.chunks(3)) {
+        assert_eq!(group[0].0.data, pair.0.data);
+        assert_eq!(group[0].1.data, pair.1.data);
+        for (left, right) in &group[1..] {
+            assert_eq!(left.data, pair.0.data, "the left view is never degraded");
+            assert_ne!(right.data, pair.1.data, "the right view is");
+        }
+    }
+}
+
+#[test]
+fn compare_under_a_nuisance_degrades_the_right_views_and_says_so() {
+    use bino_host::compare::{compare, CompareOptions};
+    use bino_host::nuisance::Nuisance;
+    if !data_dir().join("PAIRS.tsv").is_file() {
+        eprintln!("skipped: no data at {}", data_dir().display());
+        return;
+    }
+    let (blob, _) = quantize(&fixture_options(None), |_, _| {}).unwrap();
+    let blob_path = std::env::temp_dir().join(format!("bino-nuisance-{}.bin", std::process::id()));
+    std::fs::write(&blob_path, &blob).unwrap();
+    let run = |nuisance| {
+        let opts = CompareOptions {
+            onnx: fixtures().join("encoder_random_seed0.onnx"),
+            blob: blob_path.clone(),
+            head: None,
+            native_head: None,
+            data: data_dir(),
+            split: "eval".into(),
+            profile: Profile::W160,
+            max_cols: 10,
+            limit: Some(1),
+            nuisance,
+        };
+        compare(&opts, |_, _, _| {}).unwrap()
+    };
+    let (clean, blurred) = (run(None), run(Some(Nuisance::Blur)));
+    std::fs::remove_file(&blob_path).unwrap();
+    assert_ne!(clean.mean.float.epe, blurred.mean.float.epe);
+    assert!(blurred.table().contains("right views under blur"));
+    assert!(blurred.to_json().contains("\"nuisance\": \"blur\""));
+    assert!(!clean.to_json().contains("\"nuisance\""));
 }

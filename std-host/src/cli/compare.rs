@@ -61,6 +61,9 @@ pub struct CompareArgs {
     /// Only the first N pairs of the split.
     #[arg(long)]
     limit: Option<usize>,
+    /// Degrade every right view first, as `bino eval --nuisance` does (seed 0).
+    #[arg(long, value_enum)]
+    nuisance: Option<bino_host::nuisance::Nuisance>,
 }
 
 /// Runs the verb.
@@ -78,6 +81,7 @@ pub fn run(args: CompareArgs) -> Result<()> {
         profile: args.profile,
         max_cols: args.candidates.max_cols,
         limit: args.limit,
+        nuisance: args.nuisance,
     };
     let progress = Progress::new(args.json.is_some());
     progress.status("comparing pairs");

@@ -34,6 +34,11 @@ pub struct QuantizeArgs {
     /// Train pairs whose input maps calibrate each head.
     #[arg(long, default_value_t = 16)]
     head_calib_pairs: usize,
+    /// Calibrate the heads on those pairs again with the right view under each of these
+    /// nuisances too (comma list of gain, gamma, noise, blur, occlude; `bino eval
+    /// --nuisance`'s images, seed 0).
+    #[arg(long, value_delimiter = ',', value_enum)]
+    head_calib_nuisance: Vec<bino_host::nuisance::Nuisance>,
     /// Folder with PAIRS.tsv; only `split = train` pairs are read.
     #[arg(long, default_value = "../shared/data")]
     calib: PathBuf,
@@ -58,6 +63,7 @@ pub fn run(args: QuantizeArgs) -> Result<()> {
         head: args.head,
         native_head: args.native_head,
         head_calib_pairs: args.head_calib_pairs,
+        head_calib_nuisances: args.head_calib_nuisance,
         data: args.calib,
         profile: args.profile,
         calib_pairs: args.calib_pairs,

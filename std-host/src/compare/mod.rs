@@ -34,6 +34,7 @@ use crate::eval::{
 use crate::files::sha256_hex;
 use crate::float_head::FloatHead;
 use crate::int8::{dequantise_residual, to_u8, HeadMaps, Int8Model, StageRecorder};
+use crate::nuisance::{degrade_item, Nuisance};
 use crate::pairs::{read_index, Split};
 use crate::profile::{Profile, View};
 use crate::readout_eval::head_candidates;
@@ -63,6 +64,9 @@ pub struct CompareOptions {
     pub max_cols: usize,
     /// Only the first this many pairs of the split.
     pub limit: Option<usize>,
+    /// Degrade each right view first (`bino eval --nuisance`'s images, seed 0): where under
+    /// that nuisance the two engines part.
+    pub nuisance: Option<Nuisance>,
 }
 
 /// The int8 head against the float head on one pair or on average (`bino compare --head`).
@@ -219,6 +223,8 @@ pub struct CompareReport {
     pub profile: Profile,
     /// Disparity candidates of the readout.
     pub max_cols: usize,
+    /// The nuisance on every right view, if any (seed [`NUISANCE_SEED`]).
+    pub nuisance: Option<Nuisance>,
     /// Where the float embedding stage came from.
     pub embed_source: EmbedSource,
     /// Per pair, in index order.
@@ -554,6 +560,9 @@ fn refined_metrics(tokens: &DisparityMap, views: &GrayViews, item: &EvalItem) ->
     score(&refine_pixels(tokens, views)?, &item.gt)
 }
 
+/// Seed of `CompareOptions::nuisance`: `bino eval --nuisance`'s default, so both see the same images.
+pub const NUISANCE_SEED: u64 = 0;
+
 /// Runs the comparison over the split's pairs; `progress(done, total, pair)` after each pair.
 pub fn compare(
     opts: &CompareOptions,
@@ -577,7 +586,10 @@ pub fn compare(
     let mut comparer = Comparer::load(&opts.onnx, &opts.blob, heads, opts.max_cols)?;
     let mut pairs = Vec::with_capacity(records.len());
     for (i, record) in records.iter().enumerate() {
-        let item = load_eval_item(record, opts.profile)?;
+        let mut item = load_eval_item(record, opts.profile)?;
+        if let Some(nuisance) = opts.nuisance {
+            item = degrade_item(&item, nuisance, NUISANCE_SEED);
+        }
         let pair = comparer
             .compare_pair(&item)
             .with_context(|| format!("pair {}", record.pair_id))?;
@@ -596,6 +608,7 @@ pub fn compare(
         split,
         profile: opts.profile,
         max_cols: opts.max_cols,
+        nuisance: opts.nuisance,
         embed_source: comparer.embed_source(),
         pairs,
         mean,

@@ -112,12 +112,14 @@ impl CompareReport {
         );
         let _ = writeln!(
             t,
-            "{} {} pairs of {} at {}, {} disparity candidates; mean over pairs",
+            "{} {} pairs of {} at {}, {} disparity candidates{}; mean over pairs",
             self.pairs.len(),
             self.split,
             self.data.display(),
             self.profile,
-            self.max_cols
+            self.max_cols,
+            self.nuisance
+                .map_or(String::new(), |n| format!(", right views under {}", n.name()))
         );
         let _ = writeln!(
             t,
@@ -217,6 +219,7 @@ impl CompareReport {
             split: self.split.to_string(),
             profile: self.profile.to_string(),
             max_cols: self.max_cols,
+            nuisance: self.nuisance.map(|n| n.name()),
             stage_pixels:
                 "float stages run on the int8 engine's u8 pixels / 255; descriptors and metrics on the exact views",
             embed_value: match self.embed_source {
@@ -249,6 +252,8 @@ struct CompareJson<'a> {
     split: String,
     profile: String,
     max_cols: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    nuisance: Option<&'static str>,
     stage_pixels: &'static str,
     embed_value: &'static str,
     stages: Vec<String>,
@@ -410,6 +415,7 @@ mod tests {
             split: Split::Eval,
             profile: Profile::W160,
             max_cols: 10,
+            nuisance: None,
             embed_source: EmbedSource::GraphOutput,
             pairs: vec![PairComparison {
                 pair_id: "p1".into(),

@@ -16,6 +16,7 @@ use super::scales::{asymmetric_format, percentile_sorted, quantize_rows, requant
 use crate::blob_writer::BlobWriter;
 use crate::float_head::{FloatConv3d, FloatHead};
 use crate::float_weights::FloatLinear;
+use crate::nuisance::{degrade_view, Nuisance};
 use crate::reference::FeatureMap;
 use crate::taps::TappedModel;
 
@@ -364,14 +365,19 @@ fn to_i32(x: f64) -> Result<i32> {
     Ok(r as i32)
 }
 
+/// Seed of the calibration nuisances (`bino eval --nuisance`'s default).
+pub const CALIBRATION_NUISANCE_SEED: u64 = 0;
+
 /// Float input maps of the `head` on the first `max_pairs` train pairs (spread over the split)
-/// for head calibration: D(L), D(R), or the even and odd phase maps of the pair's token grid.
+/// for head calibration: D(L), D(R), or the even and odd phase maps of the pair's token grid;
+/// then the same pair again with its right view under each of `nuisances`.
 pub fn calibration_maps(
     encoder_onnx: &Path,
     head: HeadKind,
     data: &Path,
     profile: crate::profile::Profile,
     max_pairs: usize,
+    nuisances: &[Nuisance],
 ) -> Result<Vec<(FeatureMap, FeatureMap)>> {
     use crate::image_io::load_gray;
     use crate::pairs::{read_index, Split};
@@ -384,13 +390,18 @@ pub fn calibration_maps(
     for pair in train.iter().step_by(step) {
         let left = profile.apply(&load_gray(&pair.left)?)?;
         let right = profile.apply(&load_gray(&pair.right)?)?;
-        let inputs = match head {
-            HeadKind::Export => encoder
-                .descriptors(&left)
-                .and_then(|dl| Ok((dl, encoder.descriptors(&right)?))),
-            HeadKind::Native => encoder.tokens(&left, &right).map(|t| t.phase_maps()),
-        };
-        maps.push(inputs.with_context(|| pair.pair_id.clone())?);
+        let degraded = nuisances
+            .iter()
+            .map(|&n| degrade_view(&right, n, CALIBRATION_NUISANCE_SEED, &pair.pair_id));
+        for right in std::iter::once(right.clone()).chain(degraded) {
+            let inputs = match head {
+                HeadKind::Export => encoder
+                    .descriptors(&left)
+                    .and_then(|dl| Ok((dl, encoder.descriptors(&right)?))),
+                HeadKind::Native => encoder.tokens(&left, &right).map(|t| t.phase_maps()),
+            };
+            maps.push(inputs.with_context(|| pair.pair_id.clone())?);
+        }
     }
     Ok(maps)
 }
