@@ -8,6 +8,12 @@ StereoSGBM's pixels that pass its own checks and the sub-pixel left-right check
 (`head_data.consistent_sgbm`: agreement with confident SGBM, a proxy, not accuracy).
 
     python -m bino_train.refine_val --encoder E --head H --width 320 --search 2 4 6
+    python -m bino_train.refine_val --encoder E --head H --nuisance blur --equalise
+
+`--nuisance blur|noise` degrades the right view first (a 5x5 box blur; gaussian noise of sigma 8
+grey levels, seeded), like `bino eval --nuisance`, the ground truth still from the clean pair;
+`--equalise` adds each parameter set again with the views sharpness-equalised before the
+census (`bino_train.sharpness`).
 
 prints one JSON object: per width and parameter set, the mean epe / bad1tok / bad2 and the
 change of epe against the unrefined (bilinear) grid.
@@ -33,6 +39,22 @@ from .pairs import load_gray
 from .probe import mean_metrics, score, upsample_disparity
 from .profile import resize_image, to_u8
 from .refine import RefineParams, refine_int
+from .sharpness import box, equalise
+
+NOISE_SIGMA = 8.0
+"""Grey levels of `--nuisance noise` (bino eval's `NOISE_SIGMA`)."""
+
+
+def degrade(right: NDArray[np.uint8], nuisance: str, seed: int) -> NDArray[np.uint8]:
+    """The right view under `nuisance` (none, blur or noise)."""
+    if nuisance == "none":
+        return right
+    if nuisance == "blur":
+        return box(right, 2)
+    if nuisance == "noise":
+        noise = np.random.default_rng(seed).normal(0.0, NOISE_SIGMA, right.shape)
+        return np.clip(np.round(right + noise), 0, 255).astype(np.uint8)
+    raise ValueError(f"unknown nuisance {nuisance!r} (none, blur, noise)")
 
 
 def to_q8(tokens: NDArray[np.float32]) -> NDArray[np.uint16]:
@@ -47,32 +69,47 @@ def validate(
     width: int,
     params: list[RefineParams],
     data_dir: Path | None = None,
+    nuisance: str = "none",
+    equalised: bool = False,
 ) -> dict[str, Any]:
-    """Mean metrics of head+lr unrefined and refined with each of `params` at `width`."""
+    """Mean metrics of head+lr unrefined and refined with each of `params` at `width` (and,
+    if `equalised`, each again on sharpness-equalised views), the right view under `nuisance`."""
     encoder.eval()
     head.eval()
     unrefined: list[dict[str, float]] = []
-    refined: list[list[dict[str, float]]] = [[] for _ in params]
+    variants = [(p, False) for p in params] + ([(p, True) for p in params] if equalised else [])
+    refined: list[list[dict[str, float]]] = [[] for _ in variants]
     pairs = validation_pairs(data_dir)
-    for pair in pairs:
+    for index, pair in enumerate(pairs):
         left_f = resize_image(load_gray(pair.left), width)
         right_f = resize_image(load_gray(pair.right), width)
         left, right = to_u8(left_f), to_u8(right_f)
         gt, valid, _ = consistent_sgbm(left, right)
+        right = degrade(right, nuisance, seed=index)
+        right_f = right.astype(np.float32) / np.float32(255.0)
         inputs, mirrored = pair_inputs(encoder, head.cfg.pathway, left_f, right_f)
         tokens, kept = head_lr(head, inputs, mirrored)
         filled = fill_rejected(tokens, kept)
         unrefined.append(score(upsample_disparity(filled), gt, valid))
         q8 = to_q8(filled)
-        for out, p in zip(refined, params, strict=True):
-            pixels = refine_int(left, right, q8, p).astype(np.float32) / np.float32(256.0)
+        equal_left, equal_right, _ = equalise(left, right) if equalised else (left, right, [])
+        for out, (p, eq) in zip(refined, variants, strict=True):
+            views = (equal_left, equal_right) if eq else (left, right)
+            pixels = refine_int(*views, q8, p).astype(np.float32) / np.float32(256.0)
             out.append(score(pixels, gt, valid))
     base = mean_metrics(unrefined)
     rows = []
-    for p, scores in zip(params, refined, strict=True):
+    for (p, eq), scores in zip(variants, refined, strict=True):
         m = mean_metrics(scores)
-        rows.append({**asdict(p), **m, "epe_change": m["epe"] / base["epe"] - 1.0})
-    return {"width": width, "pairs": len(pairs), "unrefined": base, "refined": rows}
+        change = m["epe"] / base["epe"] - 1.0
+        rows.append({**asdict(p), "equalised": eq, **m, "epe_change": change})
+    return {
+        "width": width,
+        "nuisance": nuisance,
+        "pairs": len(pairs),
+        "unrefined": base,
+        "refined": rows,
+    }
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -85,6 +122,16 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--search", type=int, nargs="+", default=[2], help="search radii (px)")
     parser.add_argument("--lam", type=int, nargs="+", default=[50], help="lambda values")
     parser.add_argument("--data", type=Path, default=None, help="folder with PAIRS.tsv")
+    parser.add_argument(
+        "--nuisance",
+        nargs="+",
+        default=["none"],
+        choices=("none", "blur", "noise"),
+        help="right-view nuisances, each scored in turn",
+    )
+    parser.add_argument(
+        "--equalise", action="store_true", help="also refine sharpness-equalised views"
+    )
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
     args = parser.parse_args(argv)
     if args.threads > 0:
@@ -98,7 +145,11 @@ def main(argv: list[str] | None = None) -> None:
         p.check()
     encoder = load_encoder(args.encoder)
     head = load_head(args.head)
-    results = [validate(encoder, head, w, params, args.data) for w in args.width]
+    results = [
+        validate(encoder, head, w, params, args.data, n, args.equalise)
+        for w in args.width
+        for n in args.nuisance
+    ]
     print(json.dumps(results, indent=1))
 
 

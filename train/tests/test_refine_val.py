@@ -34,3 +34,31 @@ def test_validation_scores_each_parameter_set_against_the_unrefined_grid(
     for row in out["refined"]:
         assert np.isfinite(row["epe"]) and 0.0 <= row["bad2"] <= 100.0
         assert row["epe_change"] == pytest.approx(row["epe"] / base - 1.0)
+
+
+def test_nuisances_degrade_the_right_view_and_equalised_rows_follow(
+    data_dir: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setattr(refine_val, "validation_pairs", lambda d: training_pairs(d))
+    torch.manual_seed(0)
+    params = [RefineParams()]
+    clean = refine_val.validate(random_encoder(0), StereoHead(), 160, params, data_dir)
+    blurred = refine_val.validate(
+        random_encoder(0), StereoHead(), 160, params, data_dir, "blur", equalised=True
+    )
+    assert blurred["nuisance"] == "blur"
+    assert [r["equalised"] for r in blurred["refined"]] == [False, True]
+    assert blurred["refined"][0]["epe"] != clean["refined"][0]["epe"]
+    assert blurred["refined"][1]["epe"] != blurred["refined"][0]["epe"]
+
+
+def test_degrade_is_seeded_and_refuses_unknown_nuisances() -> None:
+    view = np.tile(np.arange(0, 250, 10, dtype=np.uint8), (8, 1))
+    assert np.array_equal(refine_val.degrade(view, "none", 0), view)
+    assert np.array_equal(
+        refine_val.degrade(view, "noise", 3), refine_val.degrade(view, "noise", 3)
+    )
+    assert not np.array_equal(refine_val.degrade(view, "noise", 3), view)
+    assert np.abs(np.diff(refine_val.degrade(view, "blur", 0).astype(int), axis=1)).max() <= 10
+    with pytest.raises(ValueError, match="unknown nuisance"):
+        refine_val.degrade(view, "fog", 0)
