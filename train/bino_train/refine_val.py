@@ -12,8 +12,8 @@ StereoSGBM's pixels that pass its own checks and the sub-pixel left-right check
 
 `--nuisance blur|noise` degrades the right view first (a 5x5 box blur; gaussian noise of sigma 8
 grey levels, seeded), like `bino eval --nuisance`, the ground truth still from the clean pair;
-`--equalise` adds each parameter set again with the views sharpness-equalised before the
-census (`bino_train.sharpness`).
+`--equalise` adds each parameter set again with each row's census on sharpness-equalised views
+(`bino_train.sharpness`).
 
 prints one JSON object: per width and parameter set, the mean epe / bad1tok / bad2 and the
 change of epe against the unrefined (bilinear) grid.
@@ -39,7 +39,7 @@ from .pairs import load_gray
 from .probe import mean_metrics, score, upsample_disparity
 from .profile import resize_image, to_u8
 from .refine import RefineParams, refine_int
-from .sharpness import box, equalise
+from .sharpness import box, refine_equalised
 
 NOISE_SIGMA = 8.0
 """Grey levels of `--nuisance noise` (bino eval's `NOISE_SIGMA`)."""
@@ -92,10 +92,9 @@ def validate(
         filled = fill_rejected(tokens, kept)
         unrefined.append(score(upsample_disparity(filled), gt, valid))
         q8 = to_q8(filled)
-        equal_left, equal_right, _ = equalise(left, right) if equalised else (left, right, [])
         for out, (p, eq) in zip(refined, variants, strict=True):
-            views = (equal_left, equal_right) if eq else (left, right)
-            pixels = refine_int(*views, q8, p).astype(np.float32) / np.float32(256.0)
+            refine = refine_equalised if eq else refine_int
+            pixels = refine(left, right, q8, p).astype(np.float32) / np.float32(256.0)
             out.append(score(pixels, gt, valid))
     base = mean_metrics(unrefined)
     rows = []

@@ -5,45 +5,50 @@ blur, the nuisance every readout loses most to), the census codes of the sharp v
 match the blurred one and the refinement's gain vanishes: on the 22 held-out validation pairs
 at 160 px the refined head+lr readout goes from 0.491 epe clean to 0.892 under a 5x5 box blur of
 the right view, no better than the unrefined 0.889. Blurring the sharper view to the other's
-sharpness before the census restores most of it, and leaves a clean pair untouched (both views
-are equally sharp, so nothing is blurred).
+sharpness before the census restores most of it, and leaves a clean pair as it was (both views
+are about equally sharp, so nothing is blurred).
 
-The rules, per block of `BAND_ROWS` view rows (the last block may be shorter), so that a
-streaming pipeline can decide each band when its rows have arrived:
+The rules, per output row `y` of the refinement, so that a streaming refinement can apply them
+from the view rows around `y` alone:
 
 1. `box(v, k)`: the mean of the `(2k + 1)^2` window around each pixel, coordinates clamped to
    the image (edge replicate), rounded half up: `(sum + n // 2) // n`, `n = (2k + 1)^2`;
    `box(v, 0) = v`.
-2. `sharpness(v, rows)`: the sum over those rows of `|s(y, x + 1) - s(y, x)|`, `s = box(v, 1)`
-   (the 3x3 mean first keeps sensor noise from reading as sharpness).
-3. With `SL`, `SR` the two views' sharpness over the block: the sharper view is the left when
-   `SL >= SR`, else the right; the other's sharpness is the target. For `k` in
-   `0..=MAX_RADIUS` the candidate is `box(sharper, k)`, scored `|sharpness(candidate) -
-   target|`; the lowest wins, ties to the smaller `k`.
-4. The block's rows of the sharper view become those of `box(sharper, k)` (its vertical window
-   reads the original rows above and below the block); the other view is unchanged.
+2. `g(v, k, row)`: the sum over the row of `|s(x + 1) - s(x)|`, `s = box(box(v, k), 1)` (the
+   3x3 mean keeps sensor noise from reading as sharpness).
+3. `S(v, k)`: `g(v, k, row)` summed over the rows `y - WINDOW ..= y + WINDOW`, clamped to the
+   image (a clamped row counts each time it is named).
+4. The sharper view is the left when `S(left, 0) >= S(right, 0)`, else the right; `own` is its
+   `S(., 0)`, `target` the other's. When `100 own <= (100 + MARGIN_PCT) target` nothing is
+   blurred. Otherwise, of `k` in `0..=MAX_RADIUS` the lowest `|S(sharper, k) - target|` wins,
+   ties to the smaller `k`.
+5. Row `y` is refined with the census of `box(sharper, k)` in place of the sharper view (the
+   other view as it is).
 
-    python -m bino_train.refine_val ... --nuisance blur --equalise
+Chosen on the validation pairs (`python -m bino_train.refine_val --nuisance none blur noise
+--equalise`), never on the eval split; per-48-row blocks did as well under blur but cost more clean.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-BAND_ROWS = 48
-"""Rows decided together: the pipeline's band height."""
+WINDOW = 3
+"""Rows above and below the output row whose sharpness decides it."""
+
+MARGIN_PCT = 25
+"""How much sharper (%) the sharper view must be before it is blurred."""
 
 MAX_RADIUS = 2
 """Largest box radius tried (5x5)."""
 
 
 class Decision(NamedTuple):
-    """One block's choice: its first row, which view is blurred (0 left, 1 right), the radius."""
+    """One output row's choice: the view blurred (0 left, 1 right) and the box radius (0: none)."""
 
-    row: int
     view: int
     radius: int
 
@@ -63,44 +68,59 @@ def box(view: NDArray[np.uint8], radius: int) -> NDArray[np.uint8]:
 
 
 def sharpness_rows(view: NDArray[np.uint8]) -> NDArray[np.int64]:
-    """Per row, the sum of `|s(y, x + 1) - s(y, x)|` with `s = box(view, 1)` (rule 2)."""
+    """Per row, the sum of `|s(y, x + 1) - s(y, x)|` with `s = box(view, 1)` (rule 2, `k = 0`)."""
     smooth = box(view, 1).astype(np.int64)
     return np.abs(np.diff(smooth, axis=1)).sum(axis=1)
 
 
-def decide(left: NDArray[np.uint8], right: NDArray[np.uint8]) -> list[Decision]:
-    """Each block's sharper view and radius (rule 3)."""
+def decide_rows(
+    left: NDArray[np.uint8],
+    right: NDArray[np.uint8],
+    window: int = WINDOW,
+    margin_pct: int = MARGIN_PCT,
+) -> list[Decision]:
+    """Each output row's blurred view and radius (rules 2-4)."""
     if left.shape != right.shape or left.ndim != 2:
         raise ValueError(f"views must be equal 2-D arrays, got {left.shape} and {right.shape}")
-    rows_l, rows_r = sharpness_rows(left), sharpness_rows(right)
-    blurred = {
+    h = left.shape[0]
+    g = {
         (v, k): sharpness_rows(box(view, k))
         for v, view in enumerate((left, right))
-        for k in range(1, MAX_RADIUS + 1)
+        for k in range(MAX_RADIUS + 1)
     }
     decisions = []
-    for y0 in range(0, left.shape[0], BAND_ROWS):
-        rows = slice(y0, y0 + BAND_ROWS)
-        sl, sr = int(rows_l[rows].sum()), int(rows_r[rows].sum())
+    for y in range(h):
+        rows = np.clip(np.arange(y - window, y + window + 1), 0, h - 1)
+        sl, sr = int(g[0, 0][rows].sum()), int(g[1, 0][rows].sum())
         view, own, target = (0, sl, sr) if sl >= sr else (1, sr, sl)
-        scores = [abs(own - target)]
-        scores += [
-            abs(int(blurred[view, k][rows].sum()) - target) for k in range(1, MAX_RADIUS + 1)
-        ]
-        decisions.append(Decision(y0, view, int(np.argmin(scores))))
+        if own * 100 <= target * (100 + margin_pct):
+            decisions.append(Decision(view, 0))
+            continue
+        scores = [abs(int(g[view, k][rows].sum()) - target) for k in range(MAX_RADIUS + 1)]
+        decisions.append(Decision(view, int(np.argmin(scores))))
     return decisions
 
 
-def equalise(
-    left: NDArray[np.uint8], right: NDArray[np.uint8]
-) -> tuple[NDArray[np.uint8], NDArray[np.uint8], list[Decision]]:
-    """The two views with each block's sharper view blurred to the other's sharpness (rule 4)."""
-    out = [left.copy(), right.copy()]
-    decisions = decide(left, right)
-    for d in decisions:
-        if d.radius > 0:
-            source = (left, right)[d.view]
-            out[d.view][d.row : d.row + BAND_ROWS] = box(source, d.radius)[
-                d.row : d.row + BAND_ROWS
-            ]
-    return out[0], out[1], decisions
+def refine_equalised(
+    left: NDArray[np.uint8],
+    right: NDArray[np.uint8],
+    tokens_q8: NDArray[Any],
+    params: Any = None,
+    window: int = WINDOW,
+    margin_pct: int = MARGIN_PCT,
+) -> NDArray[np.uint16]:
+    """`refine.refine_int` with each output row's census on the views its decision smooths
+    (rule 5): a row of the refinement depends only on the views, so each row is taken from the
+    whole-image refinement of its decision's views."""
+    from .refine import refine_int
+
+    refined: dict[Decision, NDArray[np.uint16]] = {}
+    out = np.zeros(left.shape, dtype=np.uint16)
+    for y, decision in enumerate(decide_rows(left, right, window, margin_pct)):
+        key = decision if decision.radius else Decision(0, 0)
+        if key not in refined:
+            views = [left, right]
+            views[key.view] = box(views[key.view], key.radius)
+            refined[key] = refine_int(views[0], views[1], tokens_q8, params)
+        out[y] = refined[key][y]
+    return out

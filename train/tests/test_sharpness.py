@@ -5,11 +5,18 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bino_train.sharpness import BAND_ROWS, box, decide, equalise, sharpness_rows
+from bino_train.refine import CELL, refine_int
+from bino_train.sharpness import (
+    Decision,
+    box,
+    decide_rows,
+    refine_equalised,
+    sharpness_rows,
+)
 from bino_train.synthetic import smooth_texture
 
 
-def _texture(seed: int, height: int = 2 * BAND_ROWS + 16, width: int = 96) -> np.ndarray:
+def _texture(seed: int, height: int = 40, width: int = 96) -> np.ndarray:
     values = smooth_texture(np.random.default_rng(seed), height, width)
     return np.clip(np.round(values * 255.0), 0, 255).astype(np.uint8)
 
@@ -19,17 +26,24 @@ def test_box_is_the_rounded_window_mean_with_edges_replicated() -> None:
     assert box(view, 0).tolist() == view.tolist()
     # Centre: 36 / 9 = 4. Corner (0, 0) sees rows/cols clamped: 0 0 9 / 0 0 9 / 9 9 0 -> 36 / 9.
     assert box(view, 1)[1, 1] == 4 and box(view, 1)[0, 0] == 4
-    # Rounded half up: a 1 among eight 0s is 1/9 -> 0; five 1s of nine -> 5/9 -> 1.
+    # Rounded half up: one 1 among nine is 1/9 -> 0; nine 1s -> 1.
     assert box(np.eye(3, dtype=np.uint8), 1)[1, 1] == 0
     assert box(np.ones((3, 3), dtype=np.uint8), 1)[1, 1] == 1
 
 
+def test_sharpness_sums_the_gradient_of_the_3x3_mean() -> None:
+    ramp = np.tile(np.arange(0, 90, 9, dtype=np.uint8), (5, 1))
+    # The 3x3 mean of a ramp is the ramp inside, flattened at the two clamped ends.
+    smooth = box(ramp, 1).astype(int)
+    assert sharpness_rows(ramp).tolist() == [int(np.abs(np.diff(smooth[0])).sum())] * 5
+    assert sharpness_rows(np.full((4, 6), 7, dtype=np.uint8)).tolist() == [0] * 4
+
+
 def test_identical_views_are_left_alone() -> None:
     view = _texture(1)
-    left, right, decisions = equalise(view, view)
-    assert all(d.radius == 0 for d in decisions)
-    assert np.array_equal(left, view) and np.array_equal(right, view)
-    assert [d.row for d in decisions] == [0, BAND_ROWS, 2 * BAND_ROWS]
+    assert all(d.radius == 0 for d in decide_rows(view, view))
+    tokens = np.full((view.shape[0] // CELL, view.shape[1] // CELL), 3 * 256, dtype=np.uint16)
+    assert np.array_equal(refine_equalised(view, view, tokens), refine_int(view, view, tokens))
 
 
 @pytest.mark.parametrize("blurred_view", [0, 1])
@@ -37,21 +51,28 @@ def test_the_sharper_view_is_blurred_towards_the_other(blurred_view: int) -> Non
     sharp = _texture(2)
     views = [sharp, sharp]
     views[blurred_view] = box(sharp, 2)
-    decisions = decide(views[0], views[1])
+    decisions = decide_rows(views[0], views[1])
     assert all(d.view == 1 - blurred_view and d.radius >= 1 for d in decisions)
-    left, right, _ = equalise(views[0], views[1])
-    out = (left, right)
-    # The blurred view is untouched; the sharper one now matches it far better than before.
-    assert np.array_equal(out[blurred_view], views[blurred_view])
-    before = np.abs(views[0].astype(int) - views[1].astype(int)).mean()
-    after = np.abs(left.astype(int) - right.astype(int)).mean()
-    assert after < 0.5 * before
-    target = sharpness_rows(views[blurred_view]).sum()
-    assert abs(sharpness_rows(out[1 - blurred_view]).sum() - target) < abs(
-        sharpness_rows(sharp).sum() - target
-    )
+    # Each refined row is the refinement of the views its decision smooths.
+    tokens = np.full((sharp.shape[0] // CELL, sharp.shape[1] // CELL), 2 * 256, dtype=np.uint16)
+    out = refine_equalised(views[0], views[1], tokens)
+    for y, d in enumerate(decisions):
+        smoothed = list(views)
+        smoothed[d.view] = box(smoothed[d.view], d.radius)
+        assert np.array_equal(out[y], refine_int(smoothed[0], smoothed[1], tokens)[y])
+
+
+def test_a_view_within_the_margin_is_not_blurred() -> None:
+    # Every row alike, so each row's window has the whole view's sharpness ratio.
+    sharp = np.tile(_texture(3)[0], (12, 1))
+    slightly = box(sharp, 1)
+    own, target = sharpness_rows(sharp).sum(), sharpness_rows(slightly).sum()
+    margin = int(100 * own / target) - 100  # the views' sharpness ratio, in %
+    assert all(d.radius == 0 for d in decide_rows(sharp, slightly, margin_pct=margin + 1))
+    assert any(d.radius > 0 for d in decide_rows(sharp, slightly, margin_pct=max(margin - 5, 0)))
+    assert decide_rows(sharp, slightly, margin_pct=0)[0] == Decision(0, 1)
 
 
 def test_views_of_different_shapes_are_refused() -> None:
     with pytest.raises(ValueError, match="equal 2-D arrays"):
-        decide(_texture(3), _texture(3, width=64))
+        decide_rows(_texture(3), _texture(3, width=64))
