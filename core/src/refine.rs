@@ -503,6 +503,7 @@ fn check_len(what: &'static str, found: usize, expected: usize) -> Result<(), Er
 }
 
 pub mod ring;
+pub mod sharpness;
 
 pub use ring::RowRefiner;
 

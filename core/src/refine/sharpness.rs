@@ -1,0 +1,231 @@
+//! Sharpness equalisation of the views before the refinement's census (issue 14): where one view
+//! is defocused, the census codes of the sharp view no longer match, and the refinement's gain
+//! vanishes (160 px validation pairs, right view under a 5x5 box blur: refined 0.892 epe against
+//! 0.889 unrefined; with the sharper view blurred to the other's sharpness first, 0.702).
+//!
+//! The rules are those of `train/bino_train/sharpness.py` (the specification), per output row
+//! `y`:
+//! 1. `box(v, k)`: the mean of the `(2k + 1)^2` window, coordinates clamped to the image,
+//!    rounded half up (`(sum + n / 2) / n`); [`box_row`] makes one row of it.
+//! 2. `g(v, k, row)`: the sum of `|s(x + 1) - s(x)|` along the row, `s = box(box(v, k), 1)`
+//!    ([`gradient_sum`] of a row of `s`).
+//! 3. `S(v, k)`: `g` summed over the rows `y - WINDOW ..= y + WINDOW` (clamped).
+//! 4. [`decide`]: the sharper view (left on ties) is blurred only when `100 own > (100 +
+//!    MARGIN_PCT) target`, with the radius in `0..=MAX_RADIUS` whose `S` comes closest to the
+//!    other view's (ties to the smaller radius).
+//! 5. Row `y`'s census reads `box(sharper, k)` in place of the sharper view.
+//!
+//! Status: these are the rules' building blocks, tested here; [`RowRefiner`](super::RowRefiner)
+//! and the pipeline do not apply them yet (the next step of issue 14: the census ring keyed by
+//! row and radius, the refinement's reach from 4 to 6 rows, the Python twin pinned by a fixture).
+//!
+//! Integers only; every sum fits: `g <= 255 (W - 1)`, so `S < 2^32` for any `W <= 2^20 / 7`, and
+//! the comparisons run in `u64`.
+
+use crate::Error;
+
+/// Rows above and below the output row whose sharpness decides it.
+pub const WINDOW: usize = 3;
+/// How much sharper (%) the sharper view must be before it is blurred.
+pub const MARGIN_PCT: u64 = 25;
+/// Largest box radius tried (5x5).
+pub const MAX_RADIUS: usize = 2;
+
+/// Which view an output row's census reads blurred, and by how much.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Decision {
+    /// `true`: the right view; `false`: the left.
+    pub right: bool,
+    /// Box radius, `0` (nothing blurred) to [`MAX_RADIUS`].
+    pub radius: usize,
+}
+
+impl Decision {
+    /// Nothing blurred.
+    pub const NONE: Self = Self {
+        right: false,
+        radius: 0,
+    };
+}
+
+/// One row of `box(v, radius)`: `rows` are the `2 radius + 1` image rows `v - radius ..= v +
+/// radius` (clamped to the image by the caller, so a border row may appear several times), each
+/// `out.len()` pixels. Errors: [`Error::OutOfRange`] for a radius above [`MAX_RADIUS`],
+/// [`Error::BufferSize`] for the wrong number or length of rows, [`Error::EmptyImage`] for an
+/// empty `out`.
+pub fn box_row(rows: &[&[u8]], radius: usize, out: &mut [u8]) -> Result<(), Error> {
+    if radius > MAX_RADIUS {
+        return Err(Error::OutOfRange {
+            what: "box radius",
+            value: radius,
+            min: 0,
+            max: MAX_RADIUS,
+        });
+    }
+    let width = out.len();
+    if width == 0 {
+        return Err(Error::EmptyImage);
+    }
+    let taps = 2 * radius + 1;
+    super::check_len("box rows", rows.len(), taps)?;
+    for row in rows {
+        super::check_len("box row", row.len(), width)?;
+    }
+    // Column sums first (`u16`: at most 5 x 255), then the horizontal window over them.
+    let mut columns = [0u16; MAX_ROW];
+    let columns = columns.get_mut(..width).ok_or(Error::BufferSize {
+        what: "box row",
+        expected: MAX_ROW,
+        found: width,
+    })?;
+    for row in rows {
+        for (c, &p) in columns.iter_mut().zip(row.iter()) {
+            *c += p as u16;
+        }
+    }
+    let n = (taps * taps) as u32;
+    let last = width - 1;
+    for (x, o) in out.iter_mut().enumerate() {
+        let sum: u32 = (0..taps)
+            .map(|j| {
+                let u = (x + j).saturating_sub(radius).min(last);
+                columns.get(u).copied().unwrap_or(0) as u32
+            })
+            .sum();
+        *o = ((sum + n / 2) / n) as u8;
+    }
+    Ok(())
+}
+
+/// Widest row [`box_row`] takes (the widest view a blob supports).
+pub const MAX_ROW: usize = 640;
+
+/// `sum |row[x + 1] - row[x]|` (rule 2, on a row of `box(box(v, k), 1)`).
+pub fn gradient_sum(row: &[u8]) -> u32 {
+    row.windows(2).map(|w| w[0].abs_diff(w[1]) as u32).sum()
+}
+
+/// Rule 4 from the window sums `S(left, k)` and `S(right, k)`, `k = 0..=MAX_RADIUS`.
+pub fn decide(left: &[u64; MAX_RADIUS + 1], right: &[u64; MAX_RADIUS + 1], margin_pct: u64) -> Decision {
+    let (is_right, sharper, target) = if left[0] >= right[0] {
+        (false, left, right[0])
+    } else {
+        (true, right, left[0])
+    };
+    if sharper[0].saturating_mul(100) <= target.saturating_mul(100 + margin_pct) {
+        return Decision {
+            right: is_right,
+            radius: 0,
+        };
+    }
+    let mut best = 0;
+    for k in 1..=MAX_RADIUS {
+        if sharper[k].abs_diff(target) < sharper[best].abs_diff(target) {
+            best = k;
+        }
+    }
+    Decision {
+        right: is_right,
+        radius: best,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::Rng;
+
+    /// `box(v, k)` of a whole image, straight from rule 1.
+    fn box_image(v: &[u8], w: usize, h: usize, k: usize) -> [u8; 24 * 20] {
+        let mut out = [0u8; 24 * 20];
+        let n = ((2 * k + 1) * (2 * k + 1)) as u32;
+        for y in 0..h {
+            for x in 0..w {
+                let mut sum = 0u32;
+                for dy in 0..=2 * k {
+                    for dx in 0..=2 * k {
+                        let yy = (y + dy).saturating_sub(k).min(h - 1);
+                        let xx = (x + dx).saturating_sub(k).min(w - 1);
+                        sum += v[yy * w + xx] as u32;
+                    }
+                }
+                out[y * w + x] = ((sum + n / 2) / n) as u8;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn box_rows_equal_the_window_mean_with_clamped_edges() {
+        let (w, h) = (24, 20);
+        let mut rng = Rng::new(5);
+        let mut image = [0u8; 24 * 20];
+        for p in image.iter_mut() {
+            *p = (rng.next_u64() >> 24) as u8;
+        }
+        for k in 0..=MAX_RADIUS {
+            let want = box_image(&image, w, h, k);
+            for y in 0..h {
+                let mut rows: [&[u8]; 2 * MAX_RADIUS + 1] = [&[]; 2 * MAX_RADIUS + 1];
+                for (i, r) in rows.iter_mut().enumerate().take(2 * k + 1) {
+                    let v = (y + i).saturating_sub(k).min(h - 1);
+                    *r = &image[v * w..(v + 1) * w];
+                }
+                let mut out = [0u8; 24];
+                box_row(&rows[..2 * k + 1], k, &mut out).unwrap();
+                assert_eq!(out[..], want[y * w..(y + 1) * w], "radius {k}, row {y}");
+            }
+        }
+    }
+
+    #[test]
+    fn box_row_refuses_bad_shapes() {
+        let row = [1u8; 8];
+        let mut out = [0u8; 8];
+        assert!(matches!(box_row(&[&row], 3, &mut out), Err(Error::OutOfRange { .. })));
+        assert!(matches!(box_row(&[&row], 1, &mut out), Err(Error::BufferSize { .. })));
+        assert!(matches!(
+            box_row(&[&row, &row[..7], &row], 1, &mut out),
+            Err(Error::BufferSize { .. })
+        ));
+        assert!(matches!(box_row(&[&[]], 0, &mut []), Err(Error::EmptyImage)));
+        let wide = [0u8; MAX_ROW + 1];
+        let mut wide_out = [0u8; MAX_ROW + 1];
+        assert!(matches!(
+            box_row(&[&wide], 0, &mut wide_out),
+            Err(Error::BufferSize { .. })
+        ));
+    }
+
+    #[test]
+    fn gradient_sum_adds_absolute_steps() {
+        assert_eq!(gradient_sum(&[0, 10, 4, 4, 255]), 10 + 6 + 251);
+        assert_eq!(gradient_sum(&[7]), 0);
+        assert_eq!(gradient_sum(&[]), 0);
+    }
+
+    #[test]
+    fn decide_blurs_the_sharper_view_to_the_closest_radius_beyond_the_margin() {
+        // Equal: nothing. Left 20 % sharper: inside the 25 % margin.
+        assert_eq!(decide(&[100, 60, 40], &[100, 60, 40], MARGIN_PCT), Decision::NONE);
+        assert_eq!(decide(&[120, 70, 50], &[100, 60, 40], MARGIN_PCT).radius, 0);
+        // Right twice as sharp: radius 1 brings it to 100 exactly.
+        assert_eq!(
+            decide(&[100, 60, 40], &[200, 100, 70], MARGIN_PCT),
+            Decision { right: true, radius: 1 }
+        );
+        // Left three times as sharp: radius 2 (110) is closer to 100 than radius 1 (180).
+        assert_eq!(
+            decide(&[300, 180, 110], &[100, 60, 40], MARGIN_PCT),
+            Decision {
+                right: false,
+                radius: 2
+            }
+        );
+        // Ties go to the smaller radius; ties of the views to the left.
+        assert_eq!(decide(&[200, 150, 50], &[100, 0, 0], 0).radius, 1);
+        assert!(!decide(&[100, 0, 0], &[100, 0, 0], 0).right);
+        // Saturating, never overflowing.
+        assert_eq!(decide(&[u64::MAX, 1, 0], &[1, 0, 0], 0).radius, 1);
+    }
+}
