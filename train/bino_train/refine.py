@@ -299,20 +299,27 @@ def fixture_cases() -> list[
     return cases
 
 
-def write_fixture(path: Path) -> int:
-    """Writes the fixture: `BRF1`, u16 case count, then per case u16 height, width,
+def write_fixture(
+    path: Path,
+    cases: list[tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[Any], RefineParams]]
+    | None = None,
+    refine: Any = None,
+    magic: bytes = FIXTURE_MAGIC,
+) -> int:
+    """Writes the fixture: `magic` (`BRF1`), u16 case count, then per case u16 height, width,
     census radius, search, lambda, box radius, the left and right views (u8, row-major),
-    the tokens (u16, ceil(H/4) x ceil(W/4)) and the expected `refine_int` output (u16, H x W),
-    all little-endian. Returns the bytes written."""
-    out = bytearray(FIXTURE_MAGIC)
-    cases = fixture_cases()
+    the tokens (u16, ceil(H/4) x ceil(W/4)) and the expected output of `refine` (default
+    `refine_int`; u16, H x W), all little-endian. Returns the bytes written."""
+    out = bytearray(magic)
+    cases = fixture_cases() if cases is None else cases
+    refine = refine_int if refine is None else refine
     out += struct.pack("<H", len(cases))
     for left, right, tokens, p in cases:
         h, w = left.shape
         out += struct.pack("<6H", h, w, p.census_radius, p.search, p.lam, p.box_radius)
         out += left.astype(np.uint8).tobytes() + right.astype(np.uint8).tobytes()
         out += tokens.astype("<u2").tobytes()
-        out += refine_int(left, right, tokens, p).astype("<u2").tobytes()
+        out += refine(left, right, tokens, p).astype("<u2").tobytes()
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(bytes(out))
     return len(out)

@@ -25,12 +25,19 @@ from the view rows around `y` alone:
 5. Row `y` is refined with the census of `box(sharper, k)` in place of the sharper view (the
    other view as it is).
 
+The fixture that pins `bino_core::refine::sharpness::refine_map_equalised` to
+`refine_equalised`:
+
+    python -m bino_train.sharpness --fixture ../tests/fixtures/refine/equalised.bin
+
 Chosen on the validation pairs (`python -m bino_train.refine_val --nuisance none blur noise
 --equalise`), never on the eval split; per-48-row blocks did as well under blur but cost more clean.
 """
 
 from __future__ import annotations
 
+import argparse
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -124,3 +131,53 @@ def refine_equalised(
             refined[key] = refine_int(views[0], views[1], tokens_q8, params)
         out[y] = refined[key][y]
     return out
+
+
+FIXTURE_MAGIC = b"BRE1"
+"""First bytes of the equalised refinement's fixture (`refine.write_fixture`'s format)."""
+
+
+def fixture_cases() -> list[tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[Any], Any]]:
+    """16x24 textured pairs shifted by 3 px: the right view blurred (radius 1 and 2), the left
+    view blurred, both sharp, and the right view with noise; default refinement parameters."""
+    from .refine import RefineParams, grid_size
+
+    rng = np.random.default_rng(29)
+    h, w = 16, 24
+    t, pc = grid_size(h, w)
+    smooth = box(rng.integers(0, 256, size=(h, w + 8), dtype=np.int64).astype(np.uint8), 1)
+    base = np.clip(smooth.astype(np.int64) * 3 - 256, 0, 255).astype(np.uint8)
+    left, right = base[:, :w].copy(), base[:, 3 : w + 3].copy()
+    tokens = np.clip(np.round((3 + rng.uniform(-1.0, 1.0, size=(t, pc))) * 64), 0, None)
+    tokens = tokens.astype(np.uint16)
+    noisy = np.clip(right.astype(np.int64) + rng.integers(-20, 21, size=right.shape), 0, 255)
+    p = RefineParams()
+    return [
+        (left, box(right, 2), tokens, p),
+        (left, box(right, 1), tokens, p),
+        (box(left, 2), right, tokens, p),
+        (left, right, tokens, p),
+        (left, noisy.astype(np.uint8), tokens, p),
+    ]
+
+
+def write_fixture(path: Path) -> int:
+    """Writes the fixture (`refine.write_fixture`'s format, magic `BRE1`, `refine_equalised`'s
+    output); returns the bytes written."""
+    from .refine import write_fixture as write_refine_fixture
+
+    return write_refine_fixture(path, fixture_cases(), refine_equalised, FIXTURE_MAGIC)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--fixture", type=Path, required=True, help="fixture file to write")
+    args = parser.parse_args(argv)
+    size = write_fixture(args.fixture)
+    print(f"wrote {args.fixture} ({size} bytes)")
+
+
+if __name__ == "__main__":
+    main()

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -12,6 +14,7 @@ from bino_train.sharpness import (
     decide_rows,
     refine_equalised,
     sharpness_rows,
+    write_fixture,
 )
 from bino_train.synthetic import smooth_texture
 
@@ -76,3 +79,12 @@ def test_a_view_within_the_margin_is_not_blurred() -> None:
 def test_views_of_different_shapes_are_refused() -> None:
     with pytest.raises(ValueError, match="equal 2-D arrays"):
         decide_rows(_texture(3), _texture(3, width=64))
+
+
+def test_the_committed_fixture_is_current(tmp_path: Path) -> None:
+    """The Rust tests pin bino_core::refine::sharpness to this file; rewrite it with
+    `python -m bino_train.sharpness --fixture ../tests/fixtures/refine/equalised.bin`."""
+    fresh = tmp_path / "equalised.bin"
+    assert write_fixture(fresh) < 20_000
+    committed = Path(__file__).resolve().parents[2] / "tests/fixtures/refine/equalised.bin"
+    assert fresh.read_bytes() == committed.read_bytes()

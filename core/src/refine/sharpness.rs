@@ -15,13 +15,17 @@
 //!    other view's (ties to the smaller radius).
 //! 5. Row `y`'s census reads `box(sharper, k)` in place of the sharper view.
 //!
-//! Status: these are the rules' building blocks, tested here; [`RowRefiner`](super::RowRefiner)
-//! and the pipeline do not apply them yet (the next step of issue 14: the census ring keyed by
-//! row and radius, the refinement's reach from 4 to 6 rows, the Python twin pinned by a fixture).
+//! Status: the rules' building blocks and [`refine_map_equalised`], the whole-map reference
+//! (pinned bit for bit to the Python by `tests/fixtures/refine/equalised.bin`);
+//! [`RowRefiner`](super::RowRefiner) and the pipeline do not apply them yet (the next step of
+//! issue 14: the census ring keyed by row and radius, the window's sharpness sums kept per row,
+//! the refinement's reach from 4 to 6 rows, then the firmware and the budget).
 //!
 //! Integers only; every sum fits: `g <= 255 (W - 1)`, so `S < 2^32` for any `W <= 2^20 / 7`, and
 //! the comparisons run in `u64`.
 
+use super::{refine_row, token_rows, window_row, RefineParams, TokenRows, ViewRows, MAX_WINDOW_ROWS};
+use crate::config::{CELL_W, MAX_HEIGHT, PATCH_H};
 use crate::Error;
 
 /// Rows above and below the output row whose sharpness decides it.
@@ -130,6 +134,126 @@ pub fn decide(left: &[u64; MAX_RADIUS + 1], right: &[u64; MAX_RADIUS + 1], margi
     }
 }
 
+/// Row `v` of `box(view, k)` of an `H x W` map (rows clamped to the map).
+fn map_box_row(view: &[u8], width: usize, height: usize, v: usize, k: usize, out: &mut [u8]) -> Result<(), Error> {
+    let mut rows: [&[u8]; 2 * MAX_RADIUS + 1] = [&[]; 2 * MAX_RADIUS + 1];
+    for (i, row) in rows.iter_mut().enumerate().take(2 * k + 1) {
+        let r = window_row(v, i, k, height);
+        *row = view.get(r * width..(r + 1) * width).unwrap_or_default();
+    }
+    box_row(rows.get(..2 * k + 1).unwrap_or_default(), k, out)
+}
+
+/// `g(view, k, row)` of an `H x W` map (rule 2).
+fn map_gradient(view: &[u8], width: usize, height: usize, row: usize, k: usize) -> Result<u32, Error> {
+    let mut blurred = [[0u8; MAX_ROW]; 3];
+    for (i, b) in blurred.iter_mut().enumerate() {
+        let r = window_row(row, i, 1, height);
+        map_box_row(view, width, height, r, k, b.get_mut(..width).unwrap_or_default())?;
+    }
+    let mut smooth = [0u8; MAX_ROW];
+    let [a, b, c] = &blurred;
+    let rows = [
+        a.get(..width).unwrap_or_default(),
+        b.get(..width).unwrap_or_default(),
+        c.get(..width).unwrap_or_default(),
+    ];
+    let smooth = smooth.get_mut(..width).unwrap_or_default();
+    box_row(&rows, 1, smooth)?;
+    Ok(gradient_sum(smooth))
+}
+
+/// The decision for output row `y` of `H x W` maps (rules 2-4, [`WINDOW`], [`MARGIN_PCT`]).
+pub fn decide_map_row(left: &[u8], right: &[u8], width: usize, height: usize, y: usize) -> Result<Decision, Error> {
+    let mut sums = [[0u64; MAX_RADIUS + 1]; 2];
+    for (view, s) in [left, right].into_iter().zip(sums.iter_mut()) {
+        for (k, total) in s.iter_mut().enumerate() {
+            for i in 0..=2 * WINDOW {
+                *total += map_gradient(view, width, height, window_row(y, i, WINDOW, height), k)? as u64;
+            }
+        }
+    }
+    Ok(decide(&sums[0], &sums[1], MARGIN_PCT))
+}
+
+/// [`refine_map`](super::refine_map) with each output row's census on the views its
+/// [`decide_map_row`] decision smooths (rule 5): the reference of the equalised refinement, as
+/// `bino_train.sharpness.refine_equalised` computes it. Maps up to [`MAX_ROW`] pixels wide.
+pub fn refine_map_equalised(
+    left: &[u8],
+    right: &[u8],
+    width: usize,
+    tokens: &[u16],
+    params: &RefineParams,
+    scratch: &mut [u32],
+    out: &mut [u16],
+) -> Result<(), Error> {
+    params.check()?;
+    if width == 0 || left.is_empty() {
+        return Err(Error::EmptyImage);
+    }
+    if width > MAX_ROW {
+        return Err(Error::TooWide { width, max: MAX_ROW });
+    }
+    if !left.len().is_multiple_of(width) {
+        return Err(Error::BufferSize {
+            what: "left view",
+            expected: left.len() / width * width,
+            found: left.len(),
+        });
+    }
+    if right.len() != left.len() {
+        return Err(Error::PairMismatch);
+    }
+    let height = left.len() / width;
+    if height > MAX_HEIGHT {
+        return Err(Error::TooTall {
+            height,
+            max: MAX_HEIGHT,
+        });
+    }
+    let (grid_rows, cells) = (height.div_ceil(PATCH_H), width.div_ceil(CELL_W));
+    super::check_len("token grid", tokens.len(), grid_rows * cells)?;
+    super::check_len("refined disparity", out.len(), left.len())?;
+    let (reach, window) = (params.reach(), params.window_rows());
+    let token_row = |t: usize| tokens.get(t * cells..(t + 1) * cells).unwrap_or_default();
+    let mut smoothed = [[0u8; MAX_ROW]; MAX_WINDOW_ROWS];
+    for (y, out_row) in out.chunks_exact_mut(width).enumerate() {
+        let decision = decide_map_row(left, right, width, height, y)?;
+        let (sharper, other) = if decision.right { (right, left) } else { (left, right) };
+        let mut rows_sharp: [&[u8]; MAX_WINDOW_ROWS] = [&[]; MAX_WINDOW_ROWS];
+        let mut rows_other: [&[u8]; MAX_WINDOW_ROWS] = [&[]; MAX_WINDOW_ROWS];
+        for (e, buf) in smoothed.iter_mut().enumerate().take(window) {
+            let v = window_row(y, e, reach, height);
+            let buf = buf.get_mut(..width).unwrap_or_default();
+            map_box_row(sharper, width, height, v, decision.radius, buf)?;
+            if let Some(r) = rows_other.get_mut(e) {
+                *r = other.get(v * width..(v + 1) * width).unwrap_or_default();
+            }
+        }
+        for (r, buf) in rows_sharp.iter_mut().zip(smoothed.iter()).take(window) {
+            *r = buf.get(..width).unwrap_or_default();
+        }
+        let (rows_l, rows_r) = if decision.right {
+            (&rows_other, &rows_sharp)
+        } else {
+            (&rows_sharp, &rows_other)
+        };
+        let rows = ViewRows {
+            height,
+            left: rows_l.get(..window).unwrap_or_default(),
+            right: rows_r.get(..window).unwrap_or_default(),
+        };
+        let (first, second) = token_rows(y, grid_rows);
+        let grid = TokenRows {
+            first: token_row(first),
+            second: token_row(second),
+        };
+        refine_row(y, &rows, &grid, params, scratch, out_row)?;
+    }
+    Ok(())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -227,5 +351,56 @@ mod tests {
         assert!(!decide(&[100, 0, 0], &[100, 0, 0], 0).right);
         // Saturating, never overflowing.
         assert_eq!(decide(&[u64::MAX, 1, 0], &[1, 0, 0], 0).radius, 1);
+    }
+
+    /// `train/bino_train/sharpness.py` (`refine_equalised`) wrote these cases:
+    /// `python -m bino_train.sharpness --fixture ../tests/fixtures/refine/equalised.bin`.
+    #[test]
+    fn matches_the_python_fixture_bit_for_bit() {
+        const FIXTURE: &[u8] = include_bytes!("../../../tests/fixtures/refine/equalised.bin");
+        assert_eq!(&FIXTURE[..4], b"BRE1");
+        let mut at = 4;
+        let u16_at = |at: &mut usize| {
+            let v = u16::from_le_bytes([FIXTURE[*at], FIXTURE[*at + 1]]);
+            *at += 2;
+            v
+        };
+        let cases = u16_at(&mut at);
+        assert!(cases >= 4);
+        let mut blurred = [false; 2];
+        for case in 0..cases {
+            let fields: [u16; 6] = core::array::from_fn(|_| u16_at(&mut at));
+            let (h, w) = (fields[0] as usize, fields[1] as usize);
+            let p = RefineParams {
+                census_radius: fields[2] as usize,
+                search: fields[3] as usize,
+                lambda: fields[4] as u32,
+                box_radius: fields[5] as usize,
+            };
+            let n = h * w;
+            assert!(n <= 16 * 24);
+            let left = &FIXTURE[at..at + n];
+            let right = &FIXTURE[at + n..at + 2 * n];
+            at += 2 * n;
+            for y in 0..h {
+                let d = decide_map_row(left, right, w, h, y).unwrap();
+                if d.radius > 0 {
+                    blurred[d.right as usize] = true;
+                }
+            }
+            let cells = h.div_ceil(4) * w.div_ceil(4);
+            let mut tokens = [0u16; 4 * 6];
+            tokens[..cells].iter_mut().for_each(|t| *t = u16_at(&mut at));
+            let mut scratch = [0u32; 2 * 5 * 24];
+            let scratch = &mut scratch[..crate::refine::scratch_len(w, &p)];
+            let mut out = [0u16; 16 * 24];
+            refine_map_equalised(left, right, w, &tokens[..cells], &p, scratch, &mut out[..n]).unwrap();
+            for (i, &found) in out[..n].iter().enumerate() {
+                let expected = u16_at(&mut at);
+                assert_eq!(found, expected, "case {case}: index {i} = ({}, {})", i / w, i % w);
+            }
+        }
+        assert_eq!(at, FIXTURE.len());
+        assert_eq!(blurred, [true, true], "the cases blur each view somewhere");
     }
 }
