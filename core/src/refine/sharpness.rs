@@ -15,7 +15,8 @@
 //!    other view's (ties to the smaller radius).
 //! 5. Row `y`'s census reads `box(sharper, k)` in place of the sharper view.
 //!
-//! Status: the rules' building blocks and [`refine_map_equalised`], the whole-map reference
+//! Status: the rules' building blocks, [`SharpnessWindow`] (the decisions, streaming, equal to
+//! the whole-map ones) and [`refine_map_equalised`], the whole-map reference
 //! (pinned bit for bit to the Python by `tests/fixtures/refine/equalised.bin`);
 //! [`RowRefiner`](super::RowRefiner) and the pipeline do not apply them yet (the next step of
 //! issue 14: the census ring keyed by row and radius, the window's sharpness sums kept per row,
@@ -131,6 +132,126 @@ pub fn decide(left: &[u64; MAX_RADIUS + 1], right: &[u64; MAX_RADIUS + 1], margi
     Decision {
         right: is_right,
         radius: best,
+    }
+}
+
+/// View rows above and below an output row that its decision reads: the `WINDOW` rows of
+/// sums, each a row of `box(box(v, k), 1)`, so `1 + MAX_RADIUS` rows more.
+pub const DECISION_REACH: usize = WINDOW + 1 + MAX_RADIUS;
+
+/// Rows a decision window holds.
+pub const DECISION_ROWS: usize = 2 * DECISION_REACH + 1;
+
+/// Slots of the sums' ring: the `2 WINDOW + 1` rows one decision reads.
+const SUM_ROWS: usize = 2 * WINDOW + 1;
+
+/// The streaming form of [`decide_map_row`]: the sums `g(v, k, row)` of each image row computed
+/// once and kept in a ring of the `2 WINDOW + 1` rows a decision reads (consecutive output rows
+/// share all but one), from the view rows around the output row. The views must stay the same
+/// image between calls; for another image make a new window.
+pub struct SharpnessWindow {
+    width: usize,
+    height: usize,
+    /// Image row whose sums each slot holds.
+    held: [usize; SUM_ROWS],
+    /// Per slot, `g` of the left then the right view, `k = 0..=MAX_RADIUS`.
+    sums: [[[u32; MAX_RADIUS + 1]; 2]; SUM_ROWS],
+}
+
+impl SharpnessWindow {
+    /// A window for `width x height` views (`width <= MAX_ROW`).
+    pub fn new(width: usize, height: usize) -> Result<Self, Error> {
+        if width == 0 || height == 0 {
+            return Err(Error::EmptyImage);
+        }
+        if width > MAX_ROW {
+            return Err(Error::TooWide { width, max: MAX_ROW });
+        }
+        Ok(Self {
+            width,
+            height,
+            held: [usize::MAX; SUM_ROWS],
+            sums: [[[0; MAX_RADIUS + 1]; 2]; SUM_ROWS],
+        })
+    }
+
+    /// The decision for output row `y`: `left` and `right` hold [`DECISION_ROWS`] rows each,
+    /// entry `e` the image row [`window_row`]`(y, e, DECISION_REACH, height)`. Equal to
+    /// [`decide_map_row`] of the whole maps. Errors: [`Error::OutOfRange`] for `y`,
+    /// [`Error::BufferSize`] for a window or row of the wrong length.
+    pub fn decide(&mut self, y: usize, left: &[&[u8]], right: &[&[u8]]) -> Result<Decision, Error> {
+        if y >= self.height {
+            return Err(Error::OutOfRange {
+                what: "row",
+                value: y,
+                min: 0,
+                max: self.height - 1,
+            });
+        }
+        for rows in [left, right] {
+            super::check_len("decision window", rows.len(), DECISION_ROWS)?;
+            for row in rows {
+                super::check_len("decision window row", row.len(), self.width)?;
+            }
+        }
+        let mut totals = [[0u64; MAX_RADIUS + 1]; 2];
+        for i in 0..SUM_ROWS {
+            let r = window_row(y, i, WINDOW, self.height);
+            let slot = r % SUM_ROWS;
+            if self.held.get(slot) != Some(&r) {
+                let mut sums = [[0u32; MAX_RADIUS + 1]; 2];
+                for (g, rows) in sums.iter_mut().zip([left, right]) {
+                    for (k, v) in g.iter_mut().enumerate() {
+                        *v = self.gradient(y, r, k, rows)?;
+                    }
+                }
+                if let (Some(s), Some(h)) = (self.sums.get_mut(slot), self.held.get_mut(slot)) {
+                    *s = sums;
+                    *h = r;
+                }
+            }
+            let sums = self.sums.get(slot).copied().unwrap_or_default();
+            for (t, g) in totals.iter_mut().zip(sums) {
+                for (t, g) in t.iter_mut().zip(g) {
+                    *t += g as u64;
+                }
+            }
+        }
+        Ok(decide(&totals[0], &totals[1], MARGIN_PCT))
+    }
+
+    /// `g(view, k, r)` from the window around output row `y` (`rows`, as [`Self::decide`]).
+    fn gradient(&self, y: usize, r: usize, k: usize, rows: &[&[u8]]) -> Result<u32, Error> {
+        let (width, height) = (self.width, self.height);
+        // Image row q of the window: entry q + DECISION_REACH - y (every row read lies in it).
+        let entry = |q: usize| {
+            rows.get((q + DECISION_REACH).saturating_sub(y))
+                .copied()
+                .unwrap_or_default()
+        };
+        let mut blurred = [[0u8; MAX_ROW]; 3];
+        for (i, b) in blurred.iter_mut().enumerate() {
+            let q = window_row(r, i, 1, height);
+            let mut source: [&[u8]; 2 * MAX_RADIUS + 1] = [&[]; 2 * MAX_RADIUS + 1];
+            for (j, s) in source.iter_mut().enumerate().take(2 * k + 1) {
+                *s = entry(window_row(q, j, k, height));
+            }
+            box_row(
+                source.get(..2 * k + 1).unwrap_or_default(),
+                k,
+                b.get_mut(..width).unwrap_or_default(),
+            )?;
+        }
+        let [a, b, c] = &blurred;
+        let three = [
+            a.get(..width).unwrap_or_default(),
+            b.get(..width).unwrap_or_default(),
+            c.get(..width).unwrap_or_default(),
+        ];
+        let mut smooth = [0u8; MAX_ROW];
+        let smooth = smooth.get_mut(..width).unwrap_or_default();
+        box_row(&three, 1, smooth)?;
+        Ok(gradient_sum(smooth))
     }
 }
 
@@ -351,6 +472,44 @@ mod tests {
         assert!(!decide(&[100, 0, 0], &[100, 0, 0], 0).right);
         // Saturating, never overflowing.
         assert_eq!(decide(&[u64::MAX, 1, 0], &[1, 0, 0], 0).radius, 1);
+    }
+
+    fn window_rows(view: &[u8], w: usize, h: usize, y: usize) -> [&[u8]; DECISION_ROWS] {
+        core::array::from_fn(|e| {
+            let v = window_row(y, e, DECISION_REACH, h);
+            &view[v * w..(v + 1) * w]
+        })
+    }
+
+    #[test]
+    fn the_streaming_window_decides_as_the_whole_map_in_any_row_order() {
+        let (w, h) = (24usize, 20usize);
+        let mut rng = Rng::new(9);
+        let mut sharp = [0u8; 24 * 20];
+        for p in sharp.iter_mut() {
+            *p = (rng.next_u64() >> 24) as u8;
+        }
+        // The right view blurred (radius 2) in its lower half only: decisions change down the map.
+        let blurred = box_image(&sharp, w, h, 2);
+        let mut right = sharp;
+        right[10 * w..].copy_from_slice(&blurred[10 * w..h * w]);
+        let left = &sharp[..];
+        let mut window = SharpnessWindow::new(w, h).unwrap();
+        let order = (0..h).chain([5, 19, 0, 12, 12, 3]);
+        let mut seen = [false; 2];
+        for y in order {
+            let (l, r) = (window_rows(left, w, h, y), window_rows(&right, w, h, y));
+            let found = window.decide(y, &l, &r).unwrap();
+            assert_eq!(found, decide_map_row(left, &right, w, h, y).unwrap(), "row {y}");
+            seen[(found.radius > 0) as usize] = true;
+        }
+        assert_eq!(seen, [true, true], "rows with and without blur");
+        assert!(matches!(window.decide(h, &[], &[]), Err(Error::OutOfRange { .. })));
+        assert!(matches!(window.decide(0, &[], &[]), Err(Error::BufferSize { .. })));
+        assert!(matches!(
+            SharpnessWindow::new(MAX_ROW + 1, 4),
+            Err(Error::TooWide { .. })
+        ));
     }
 
     /// `train/bino_train/sharpness.py` (`refine_equalised`) wrote these cases:
