@@ -55,6 +55,12 @@ impl<'s> RowRefiner<'s> {
         })
     }
 
+    /// Drops the census rows kept so far: the next row computes its own (for a caller that
+    /// changed what the views hold, as the sharpness equalisation does between rows).
+    pub fn forget(&mut self) {
+        self.held = [EMPTY; MAX_BOX];
+    }
+
     /// [`refine_row`](super::refine_row) of output row `y` (same arguments, same result, same
     /// errors), reusing the census rows earlier calls computed.
     pub fn refine_row(

@@ -16,16 +16,17 @@
 //! 5. Row `y`'s census reads `box(sharper, k)` in place of the sharper view.
 //!
 //! Status: the rules' building blocks, [`SharpnessWindow`] (the decisions, streaming, equal to
-//! the whole-map ones) and [`refine_map_equalised`], the whole-map reference
+//! the whole-map ones), [`EqualisedRefiner`] (the streaming refinement with them, equal to the
+//! whole-map one row for row) and [`refine_map_equalised`], the whole-map reference
 //! (pinned bit for bit to the Python by `tests/fixtures/refine/equalised.bin`);
-//! [`RowRefiner`](super::RowRefiner) and the pipeline do not apply them yet (the next step of
-//! issue 14: the census ring keyed by row and radius, the window's sharpness sums kept per row,
-//! the refinement's reach from 4 to 6 rows, then the firmware and the budget).
+//! the pipeline's refinement stage does not use it yet (the next step of issue 14: its windows
+//! widened from the refinement's reach of 4 rows to [`equalised_reach`]'s 6, the smoothed rows
+//! in its scratch, then the firmware and the budget).
 //!
 //! Integers only; every sum fits: `g <= 255 (W - 1)`, so `S < 2^32` for any `W <= 2^20 / 7`, and
 //! the comparisons run in `u64`.
 
-use super::{refine_row, token_rows, window_row, RefineParams, TokenRows, ViewRows, MAX_WINDOW_ROWS};
+use super::{refine_row, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows, MAX_WINDOW_ROWS};
 use crate::config::{CELL_W, MAX_HEIGHT, PATCH_H};
 use crate::Error;
 
@@ -252,6 +253,122 @@ impl SharpnessWindow {
         let smooth = smooth.get_mut(..width).unwrap_or_default();
         box_row(&three, 1, smooth)?;
         Ok(gradient_sum(smooth))
+    }
+}
+
+/// View rows above and below an output row that [`EqualisedRefiner`] reads with `params`: the
+/// refinement's reach plus the widest box, and at least the decision's.
+pub const fn equalised_reach(params: &RefineParams) -> usize {
+    let census = params.reach() + MAX_RADIUS;
+    if census > DECISION_REACH {
+        census
+    } else {
+        DECISION_REACH
+    }
+}
+
+/// Most rows an [`EqualisedRefiner`] window holds.
+pub const MAX_EQUALISED_ROWS: usize = 2 * (super::MAX_CENSUS_RADIUS + super::MAX_BOX_RADIUS + MAX_RADIUS) + 1;
+
+/// `u8` entries of the smoothed-rows scratch an [`EqualisedRefiner`] needs for rows of `width`.
+pub const fn smoothed_len(width: usize, params: &RefineParams) -> usize {
+    params.window_rows().saturating_mul(width)
+}
+
+/// The streaming refinement with sharpness equalisation: per output row the decision of a
+/// [`SharpnessWindow`], the sharper view's window rows box-blurred into a scratch when it says
+/// so, then a [`RowRefiner`] on those rows (its census rows dropped whenever the decision
+/// changes). Equal to [`refine_map_equalised`] row for row, in any order.
+pub struct EqualisedRefiner<'s> {
+    refiner: RowRefiner<'s>,
+    window: SharpnessWindow,
+    smoothed: &'s mut [u8],
+    params: RefineParams,
+    last: Option<Decision>,
+}
+
+impl<'s> EqualisedRefiner<'s> {
+    /// A refiner for `width x height` views: `census` of [`scratch_len`](super::scratch_len)
+    /// and `smoothed` of [`smoothed_len`] entries (contents unused).
+    pub fn new(
+        census: &'s mut [u32],
+        smoothed: &'s mut [u8],
+        width: usize,
+        height: usize,
+        params: &RefineParams,
+    ) -> Result<Self, Error> {
+        super::check_len("smoothed rows", smoothed.len(), smoothed_len(width, params))?;
+        Ok(Self {
+            refiner: RowRefiner::new(census, width, params)?,
+            window: SharpnessWindow::new(width, height)?,
+            smoothed,
+            params: *params,
+            last: None,
+        })
+    }
+
+    /// Refines output row `y` into `out`: `rows` holds `2 equalised_reach(params) + 1` rows of
+    /// each view around `y` (entry `e` the image row [`window_row`]`(y, e, equalised_reach,
+    /// H)`), `tokens` as for [`RowRefiner::refine_row`]. Errors as that and
+    /// [`SharpnessWindow::decide`].
+    pub fn refine_row(
+        &mut self,
+        y: usize,
+        rows: &ViewRows<'_>,
+        tokens: &TokenRows<'_>,
+        out: &mut [u16],
+    ) -> Result<(), Error> {
+        // Entries `wide - half ..= wide + half` of a window around `y`: the same clamped rows.
+        fn middle<'r, 'a>(side: &'r [&'a [u8]], wide: usize, half: usize) -> &'r [&'a [u8]] {
+            side.get(wide - half..wide + half + 1).unwrap_or_default()
+        }
+        let params = self.params;
+        let (reach, wide) = (params.reach(), equalised_reach(&params));
+        for side in [rows.left, rows.right] {
+            super::check_len("equalised window", side.len(), 2 * wide + 1)?;
+        }
+        let decision = self.window.decide(
+            y,
+            middle(rows.left, wide, DECISION_REACH),
+            middle(rows.right, wide, DECISION_REACH),
+        )?;
+        let decision = if decision.radius == 0 { Decision::NONE } else { decision };
+        if self.last != Some(decision) {
+            self.refiner.forget();
+            self.last = Some(decision);
+        }
+        let (left, right) = (middle(rows.left, wide, reach), middle(rows.right, wide, reach));
+        if decision.radius == 0 {
+            let plain = ViewRows {
+                height: rows.height,
+                left,
+                right,
+            };
+            return self.refiner.refine_row(y, &plain, tokens, out);
+        }
+        let (width, height, k) = (out.len(), rows.height, decision.radius);
+        let source = if decision.right { rows.right } else { rows.left };
+        for (e, buf) in self.smoothed.chunks_exact_mut(width).enumerate() {
+            let v = window_row(y, e, reach, height);
+            let mut taps: [&[u8]; 2 * MAX_RADIUS + 1] = [&[]; 2 * MAX_RADIUS + 1];
+            for (j, t) in taps.iter_mut().enumerate().take(2 * k + 1) {
+                let q = window_row(v, j, k, height);
+                *t = source.get((q + wide).saturating_sub(y)).copied().unwrap_or_default();
+            }
+            box_row(taps.get(..2 * k + 1).unwrap_or_default(), k, buf)?;
+        }
+        let mut smooth_rows: [&[u8]; MAX_WINDOW_ROWS] = [&[]; MAX_WINDOW_ROWS];
+        for (r, buf) in smooth_rows.iter_mut().zip(self.smoothed.chunks_exact(width)) {
+            *r = buf;
+        }
+        let smooth = smooth_rows.get(..2 * reach + 1).unwrap_or_default();
+        let (left, right) = if decision.right {
+            (left, smooth)
+        } else {
+            (smooth, right)
+        };
+        let equalised = ViewRows { height, left, right };
+        self.refiner.refine_row(y, &equalised, tokens, out)
     }
 }
 
@@ -510,6 +627,76 @@ mod tests {
             SharpnessWindow::new(MAX_ROW + 1, 4),
             Err(Error::TooWide { .. })
         ));
+    }
+
+    fn eq_window(view: &[u8], w: usize, h: usize, y: usize, wide: usize) -> [&[u8]; MAX_EQUALISED_ROWS] {
+        core::array::from_fn(|e| {
+            let v = window_row(y, e.min(2 * wide), wide, h);
+            &view[v * w..(v + 1) * w]
+        })
+    }
+
+    #[test]
+    fn the_equalised_refiner_gives_the_reference_rows_in_any_order() {
+        use crate::refine::scratch_len;
+        let (w, h) = (24usize, 20usize);
+        let mut rng = Rng::new(12);
+        let mut base = [0u8; 28 * 20];
+        for p in base.iter_mut() {
+            *p = (rng.next_u64() >> 24) as u8;
+        }
+        let mut left = [0u8; 24 * 20];
+        let mut sharp_right = [0u8; 24 * 20];
+        for y in 0..h {
+            left[y * w..(y + 1) * w].copy_from_slice(&base[y * 28..y * 28 + w]);
+            sharp_right[y * w..(y + 1) * w].copy_from_slice(&base[y * 28 + 3..y * 28 + 3 + w]);
+        }
+        // The right view defocused below row 8, the left one above row 4: every kind of row.
+        let blurred_right = box_image(&sharp_right, w, h, 2);
+        let blurred_left = box_image(&left, w, h, 1);
+        let mut right = sharp_right;
+        right[8 * w..].copy_from_slice(&blurred_right[8 * w..h * w]);
+        left[..4 * w].copy_from_slice(&blurred_left[..4 * w]);
+        let (grid_rows, cells) = (h.div_ceil(4), w.div_ceil(4));
+        let mut grid = [0u16; 5 * 6];
+        for g in grid.iter_mut() {
+            *g = (3 * 64 + rng.range(0, 96)) as u16;
+        }
+        let params = RefineParams::DEFAULT;
+        let mut want = [0u16; 24 * 20];
+        let mut s_ref = [0u32; 2 * 5 * 24];
+        let n = scratch_len(w, &params);
+        refine_map_equalised(&left, &right, w, &grid, &params, &mut s_ref[..n], &mut want).unwrap();
+        let wide = equalised_reach(&params);
+        let (mut census, mut smoothed) = ([0u32; 2 * 5 * 24], [0u8; 9 * 24]);
+        let mut refiner = EqualisedRefiner::new(
+            &mut census[..n],
+            &mut smoothed[..smoothed_len(w, &params)],
+            w,
+            h,
+            &params,
+        )
+        .unwrap();
+        let mut kinds = [false; 3];
+        for y in (0..h).chain([7, 3, 19, 0, 9, 9, 4]) {
+            let (wl, wr) = (eq_window(&left, w, h, y, wide), eq_window(&right, w, h, y, wide));
+            let rows = ViewRows {
+                height: h,
+                left: &wl[..2 * wide + 1],
+                right: &wr[..2 * wide + 1],
+            };
+            let (a, b) = token_rows(y, grid_rows);
+            let tokens = TokenRows {
+                first: &grid[a * cells..(a + 1) * cells],
+                second: &grid[b * cells..(b + 1) * cells],
+            };
+            let mut got = [0u16; 24];
+            refiner.refine_row(y, &rows, &tokens, &mut got).unwrap();
+            assert_eq!(got[..], want[y * w..(y + 1) * w], "row {y}");
+            let d = decide_map_row(&left, &right, w, h, y).unwrap();
+            kinds[if d.radius == 0 { 0 } else { 1 + d.right as usize }] = true;
+        }
+        assert_eq!(kinds, [true, true, true], "plain rows and rows blurring each view");
     }
 
     /// `train/bino_train/sharpness.py` (`refine_equalised`) wrote these cases:
