@@ -297,15 +297,26 @@ pub struct Refine {
     pub input: RefineInput,
     /// The refinement's parameters.
     pub params: RefineParams,
+    /// Sharpness equalisation of the views before each row's census
+    /// ([`crate::refine::sharpness`]): the refinement's gain survives one defocused view; the
+    /// stage then reads [`crate::refine::sharpness::equalised_reach`] rows around each row.
+    pub equalise: bool,
 }
 
 impl Refine {
-    /// The default parameters on the readout [`RefineInput::for_options`] picks.
+    /// The default parameters on the readout [`RefineInput::for_options`] picks (no
+    /// equalisation).
     pub const fn for_options(opts: &Options) -> Self {
         Self {
             input: RefineInput::for_options(opts),
             params: RefineParams::DEFAULT,
+            equalise: false,
         }
+    }
+
+    /// View rows above and below a pixel row the stage reads.
+    pub const fn reach(&self) -> usize {
+        refine_stage::stage_reach(&self.params, self.equalise)
     }
 }
 
@@ -561,11 +572,11 @@ const fn refine_parts(height: usize, width: usize, refine: &Refine) -> (usize, u
     let ring = if height <= band_pixel_rows(height) {
         0
     } else {
-        refine_stage::ring_rows(refine.params.reach(), refine.input.lag())
+        refine_stage::ring_rows(refine.reach(), refine.input.lag())
     };
     (
         refine_stage::state_bytes(width, ring),
-        refine_stage::scratch_bytes(width, &refine.params),
+        refine_stage::scratch_bytes(width, &refine.params, refine.equalise),
     )
 }
 
@@ -858,7 +869,7 @@ impl Context<'_, '_> {
     /// without the refinement).
     fn refine_io<'b>(&self, view: BandView<'b>, arena: &'b mut [u8]) -> Result<RefineIo<'b>, Error> {
         let scratch = match self.refine {
-            Some(r) => Scratch::new(arena, self.width, &r.params)?,
+            Some(r) => Scratch::new(arena, self.width, self.height, &r.params, r.equalise)?,
             None => Scratch::none(),
         };
         Ok(RefineIo { view, scratch })
@@ -1113,7 +1124,7 @@ impl<'a, 'w> Streams<'a, 'w> {
             Some(r) => {
                 let (state, _) = refine_parts(ctx.height, ctx.width, r);
                 let ring = if streaming {
-                    refine_stage::ring_rows(r.params.reach(), r.input.lag())
+                    refine_stage::ring_rows(r.reach(), r.input.lag())
                 } else {
                     0
                 };
@@ -1122,7 +1133,10 @@ impl<'a, 'w> Streams<'a, 'w> {
                     needed: streams.saturating_add(state),
                     available,
                 })?;
-                Some((r.input, RefineStage::new(r.params, ctx.width, ctx.height, ring, arena)?))
+                Some((
+                    r.input,
+                    RefineStage::new(r.params, r.equalise, ctx.width, ctx.height, ring, arena)?,
+                ))
             }
             None => None,
         };

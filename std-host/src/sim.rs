@@ -150,6 +150,7 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     let refine = opts.readout.refine.then(|| Refine {
         input: refine_input(opts.readout),
         params: RefineParams::DEFAULT,
+        equalise: false,
     });
     let layout = Layout::new(opts.display, width, height)?;
     let arena_bytes = match &refine {

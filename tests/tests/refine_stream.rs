@@ -208,6 +208,7 @@ fn every_readout_refines_as_the_whole_map_on_one_band_and_many() {
             let refine = Refine {
                 input,
                 params: RefineParams::DEFAULT,
+                equalise: false,
             };
             let what = format!("{width}x{height} {}", input.name());
             let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
@@ -260,6 +261,7 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
         Some(&Refine {
             input: RefineInput::Head,
             params: RefineParams::DEFAULT,
+            equalise: false,
         }),
     )
     .unwrap();
@@ -275,6 +277,7 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
         let refine = Refine {
             input,
             params: RefineParams::DEFAULT,
+            equalise: false,
         };
         let err = run(&pipeline, &s, &opts, Some(&refine)).err();
         assert_eq!(err, Some(Error::MissingReadout { readout: input.name() }));
@@ -285,6 +288,7 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
             search: 99,
             ..RefineParams::DEFAULT
         },
+        equalise: false,
     };
     assert!(matches!(
         run(&pipeline, &s, &opts, Some(&bad)),
@@ -346,6 +350,7 @@ fn the_native_pathway_refines_its_head_as_the_whole_map() {
             let refine = Refine {
                 input,
                 params: RefineParams::DEFAULT,
+                equalise: false,
             };
             let what = format!("native {width}x{height} {}", input.name());
             if !input.uses_head() {

@@ -235,11 +235,11 @@ impl<'a> Readouts<'a> {
         let refine = match ctx.refine {
             Some(r) => {
                 let ring = if streaming {
-                    refine_stage::ring_rows(r.params.reach(), r.input.lag())
+                    refine_stage::ring_rows(r.reach(), r.input.lag())
                 } else {
                     0
                 };
-                let stage = RefineStage::new(r.params, ctx.width, ctx.height, ring, state)?;
+                let stage = RefineStage::new(r.params, r.equalise, ctx.width, ctx.height, ring, state)?;
                 Some((r.input, stage))
             }
             None => None,

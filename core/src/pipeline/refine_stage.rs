@@ -30,9 +30,8 @@ use crate::arena::{Carver, ALIGN_SLACK};
 use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS, CELL_W, PATCH_H};
 use crate::lr::fill_rejected;
 use crate::model::ids::HEAD_CONVS;
-use crate::refine::{
-    scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows, MAX_WINDOW_ROWS,
-};
+use crate::refine::sharpness::{equalised_reach, smoothed_len, EqualisedRefiner, MAX_EQUALISED_ROWS};
+use crate::refine::{scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows};
 use crate::Error;
 
 /// Token rows the head's output trails its input by (one per convolution).
@@ -68,13 +67,25 @@ pub(super) const fn state_bytes(width: usize, ring: usize) -> usize {
     ])
 }
 
-/// Arena bytes of the scratch one pixel row uses: the census codes (`u32`) and the output row
-/// (`u16`).
-pub(super) const fn scratch_bytes(width: usize, params: &RefineParams) -> usize {
+/// Arena bytes of the scratch one pixel row uses: the census codes (`u32`), the output row
+/// (`u16`) and, with the sharpness equalisation, the smoothed window rows (`u8`).
+pub(super) const fn scratch_bytes(width: usize, params: &RefineParams, equalise: bool) -> usize {
+    let smoothed = if equalise { smoothed_len(width, params) } else { 0 };
     sum(&[
         scratch_len(width, params).saturating_mul(4).saturating_add(ALIGN_SLACK),
         width.saturating_mul(2).saturating_add(1),
+        smoothed,
     ])
+}
+
+/// View rows above and below a pixel row the stage reads: the refinement's reach, or the
+/// equalisation's ([`equalised_reach`]).
+pub(super) const fn stage_reach(params: &RefineParams, equalise: bool) -> usize {
+    if equalise {
+        equalised_reach(params)
+    } else {
+        params.reach()
+    }
 }
 
 /// The pixel rows the band buffer holds now.
@@ -101,22 +112,43 @@ impl<'b> BandView<'b> {
     }
 }
 
+/// A row refiner, with or without the sharpness equalisation.
+// The equalised one carries its window's sums (under 300 bytes); core has no heap to box it in,
+// and the difference is stack the row scratch's owner holds anyway.
+#[allow(clippy::large_enum_variant)]
+enum Refiner<'s> {
+    Plain(RowRefiner<'s>),
+    Equalised(EqualisedRefiner<'s>),
+}
+
 /// The scratch of the pixel rows: the refiner's ring of census rows (valid while the scratch
 /// is not lent to the encoder: a new one per band) and the output row.
 pub(super) struct Scratch<'s> {
-    refiner: Option<RowRefiner<'s>>,
+    refiner: Option<Refiner<'s>>,
     out: &'s mut [u16],
     used: usize,
 }
 
 impl<'s> Scratch<'s> {
-    /// Cuts the scratch for rows of `width` from the front of `arena`.
-    pub fn new(arena: &'s mut [u8], width: usize, params: &RefineParams) -> Result<Self, Error> {
-        let mut carver = Carver::new(arena, scratch_bytes(width, params))?;
+    /// Cuts the scratch for rows of `width` of a `height`-row image from the front of `arena`.
+    pub fn new(
+        arena: &'s mut [u8],
+        width: usize,
+        height: usize,
+        params: &RefineParams,
+        equalise: bool,
+    ) -> Result<Self, Error> {
+        let mut carver = Carver::new(arena, scratch_bytes(width, params, equalise))?;
         let census = carver.u32s(scratch_len(width, params))?;
         let out = carver.u16s(width)?;
+        let refiner = if equalise {
+            let smoothed = carver.u8s(smoothed_len(width, params))?;
+            Refiner::Equalised(EqualisedRefiner::new(census, smoothed, width, height, params)?)
+        } else {
+            Refiner::Plain(RowRefiner::new(census, width, params)?)
+        };
         Ok(Self {
-            refiner: Some(RowRefiner::new(census, width, params)?),
+            refiner: Some(refiner),
             out,
             used: carver.used(),
         })
@@ -148,6 +180,8 @@ pub(super) struct RefineIo<'b> {
 /// The stage's state across bands.
 pub(super) struct RefineStage<'a> {
     params: RefineParams,
+    /// View rows above and below a pixel row it reads ([`stage_reach`]).
+    reach: usize,
     width: usize,
     height: usize,
     cols: usize,
@@ -171,9 +205,10 @@ pub(super) struct RefineStage<'a> {
 
 impl<'a> RefineStage<'a> {
     /// The stage for `height x width` views, its state cut from `arena`, with a ring of
-    /// `ring_rows` rows.
+    /// `ring_rows` rows; `equalise`: with the sharpness equalisation.
     pub fn new(
         params: RefineParams,
+        equalise: bool,
         width: usize,
         height: usize,
         ring_rows: usize,
@@ -187,6 +222,7 @@ impl<'a> RefineStage<'a> {
         let ring_right = carver.u8s(ring_rows * width)?;
         Ok(Self {
             params,
+            reach: stage_reach(&params, equalise),
             width,
             height,
             cols,
@@ -286,7 +322,7 @@ impl<'a> RefineStage<'a> {
     /// Before the band buffer drops its rows above `new_first`: copies the rows the stage still
     /// needs from there into the ring.
     pub fn keep_before(&mut self, view: &BandView<'_>, new_first: usize) -> Result<(), Error> {
-        let need_from = self.next_y.saturating_sub(self.params.reach());
+        let need_from = self.next_y.saturating_sub(self.reach);
         if need_from >= new_first {
             (self.ring_from, self.ring_to) = (new_first, new_first);
             return Ok(());
@@ -345,15 +381,16 @@ impl<'a> RefineStage<'a> {
 
     /// Emits pixel rows while their token rows and view rows are at hand.
     fn emit(&mut self, io: &mut RefineIo<'_>, sink: &mut impl Sink) -> Result<(), Error> {
-        let (reach, window, height) = (self.params.reach(), self.params.window_rows(), self.height);
+        let (reach, height) = (self.reach, self.height);
+        let window = 2 * reach + 1;
         while self.next_y < height {
             let y = self.next_y;
             let (first, second) = token_rows(y, self.grid_rows);
             if second >= self.received || self.view_row(&io.view, (y + reach).min(height - 1)).is_none() {
                 break;
             }
-            let mut left: [&[u8]; MAX_WINDOW_ROWS] = [&[]; MAX_WINDOW_ROWS];
-            let mut right: [&[u8]; MAX_WINDOW_ROWS] = [&[]; MAX_WINDOW_ROWS];
+            let mut left: [&[u8]; MAX_EQUALISED_ROWS] = [&[]; MAX_EQUALISED_ROWS];
+            let mut right: [&[u8]; MAX_EQUALISED_ROWS] = [&[]; MAX_EQUALISED_ROWS];
             for (e, (l, r)) in left.iter_mut().zip(right.iter_mut()).take(window).enumerate() {
                 let v = window_row(y, e, reach, height);
                 let Some(rows) = self.view_row(&io.view, v) else {
@@ -383,7 +420,10 @@ impl<'a> RefineStage<'a> {
                     found: 0,
                 });
             };
-            refiner.refine_row(y, &rows, &tokens, scratch.out)?;
+            match refiner {
+                Refiner::Plain(r) => r.refine_row(y, &rows, &tokens, scratch.out)?,
+                Refiner::Equalised(r) => r.refine_row(y, &rows, &tokens, scratch.out)?,
+            }
             sink.refined(y, scratch.out);
             self.next_y += 1;
         }
@@ -396,6 +436,7 @@ mod tests {
     use super::*;
     use crate::band::BandPlan;
     use crate::refine::refine_map;
+    use crate::refine::sharpness::{decide_map_row, refine_map_equalised};
     use crate::testutil::Rng;
 
     const W: usize = 16;
@@ -434,12 +475,28 @@ mod tests {
     /// rows each band's push makes, the rest at the end. The pixel rows must equal
     /// `refine_map` on the filled grid, and the ring must be large enough.
     fn streams_like_the_whole_map(height: usize, lag: usize, params: &RefineParams, seed: u64) {
+        streams_like_the_whole_map_with(height, lag, params, false, seed);
+    }
+
+    /// The same, with or without the sharpness equalisation; with it, the right view is
+    /// smoothed below the middle so that rows of both kinds occur.
+    fn streams_like_the_whole_map_with(height: usize, lag: usize, params: &RefineParams, equalise: bool, seed: u64) {
         let mut rng = Rng::new(seed);
         let (t_rows, cols) = (height / PATCH_H, W / CELL_W);
         let (mut left, mut right) = ([0u8; MAX_H * W], [0u8; MAX_H * W]);
         let n = height * W;
         for (l, r) in left.iter_mut().zip(right.iter_mut()).take(n) {
             (*l, *r) = (rng.range(0, 255) as u8, rng.range(0, 255) as u8);
+        }
+        if equalise {
+            for y in height / 2..height {
+                let row = &mut right[y * W..(y + 1) * W];
+                let copy: [u8; W] = core::array::from_fn(|x| row[x]);
+                for (x, v) in row.iter_mut().enumerate() {
+                    let (a, c) = (copy[x.saturating_sub(1)] as u32, copy[(x + 1).min(W - 1)] as u32);
+                    *v = ((a + 2 * copy[x] as u32 + c + 2) / 4) as u8;
+                }
+            }
         }
         let mut grid = [0u16; MAX_H / PATCH_H * W / CELL_W];
         let mut mask = [0u8; MAX_H / PATCH_H * W / CELL_W];
@@ -456,7 +513,14 @@ mod tests {
         let mut scratch = [0u32; 2 * 7 * W];
         let mut expected = [0u16; MAX_H * W];
         let len = scratch_len(W, params);
-        refine_map(
+        if equalise && height >= 8 {
+            let blurs = (0..height)
+                .filter(|&y| decide_map_row(&left[..n], &right[..n], W, height, y).unwrap().radius > 0)
+                .count();
+            assert!(blurs > 0 && blurs < height, "h {height}: {blurs} rows blurred");
+        }
+        let whole = if equalise { refine_map_equalised } else { refine_map };
+        whole(
             &left[..n],
             &right[..n],
             W,
@@ -469,12 +533,12 @@ mod tests {
 
         let plan = BandPlan::new(t_rows).unwrap();
         let ring = if plan.len() > 1 {
-            ring_rows(params.reach(), lag)
+            ring_rows(stage_reach(params, equalise), lag)
         } else {
             0
         };
         let mut state = [0u8; 4096];
-        let mut stage = RefineStage::new(*params, W, height, ring, &mut state).unwrap();
+        let mut stage = RefineStage::new(*params, equalise, W, height, ring, &mut state).unwrap();
         let mut row_arena = [0u8; 2048];
         let mut got = [0u16; MAX_H * W];
         let mut sink = Rows {
@@ -509,7 +573,7 @@ mod tests {
             assert!(loaded - first <= band_px);
             let mut io = RefineIo {
                 view: band_view(&buf_l, &buf_r, first, loaded),
-                scratch: Scratch::new(&mut row_arena, W, params).unwrap(),
+                scratch: Scratch::new(&mut row_arena, W, height, params, equalise).unwrap(),
             };
             for row in band.keep_from..band.keep_to {
                 if row >= lag {
@@ -530,7 +594,7 @@ mod tests {
                 left: &buf_l,
                 right: &buf_r,
             },
-            scratch: Scratch::new(&mut row_arena, W, params).unwrap(),
+            scratch: Scratch::new(&mut row_arena, W, height, params, equalise).unwrap(),
         };
         for t in pushed..t_rows {
             let at = t * cols..(t + 1) * cols;
@@ -564,6 +628,14 @@ mod tests {
                 streams_like_the_whole_map(height, 0, &wide, 7);
             }
         }
+        // With the sharpness equalisation (reach 6): every height, both lags that matter.
+        for height in (4..=MAX_H).step_by(12) {
+            for lag in [0, HEAD_LAG] {
+                streams_like_the_whole_map_with(height, lag, &RefineParams::DEFAULT, true, height as u64);
+            }
+        }
+        assert_eq!(stage_reach(&RefineParams::DEFAULT, true), 6);
+        assert_eq!(ring_rows(6, 0), 0, "the matching readouts still need no ring");
         // The sizes the budget quotes.
         assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), HEAD_LAG), 22);
         assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), 0), 0);
@@ -576,7 +648,7 @@ mod tests {
         let params = RefineParams::DEFAULT;
         let ring = ring_rows(params.reach(), HEAD_LAG) - 1;
         let mut state = [0u8; 4096];
-        let mut stage = RefineStage::new(params, W, 80, ring, &mut state).unwrap();
+        let mut stage = RefineStage::new(params, false, W, 80, ring, &mut state).unwrap();
         let (buf_l, buf_r) = ([0u8; BAND_PX * W], [0u8; BAND_PX * W]);
         let view = BandView {
             first: 0,
@@ -588,7 +660,7 @@ mod tests {
         let mut row_arena = [0u8; 2048];
         let mut io = RefineIo {
             view,
-            scratch: Scratch::new(&mut row_arena, W, &params).unwrap(),
+            scratch: Scratch::new(&mut row_arena, W, 80, &params, false).unwrap(),
         };
         let mut out = [0u16; 80 * W];
         let mut sink = Rows {

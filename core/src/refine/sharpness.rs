@@ -17,11 +17,11 @@
 //!
 //! Status: the rules' building blocks, [`SharpnessWindow`] (the decisions, streaming, equal to
 //! the whole-map ones), [`EqualisedRefiner`] (the streaming refinement with them, equal to the
-//! whole-map one row for row) and [`refine_map_equalised`], the whole-map reference
-//! (pinned bit for bit to the Python by `tests/fixtures/refine/equalised.bin`);
-//! the pipeline's refinement stage does not use it yet (the next step of issue 14: its windows
-//! widened from the refinement's reach of 4 rows to [`equalised_reach`]'s 6, the smoothed rows
-//! in its scratch, then the firmware and the budget).
+//! whole-map one row for row), [`refine_map_equalised`] (the whole-map reference, pinned bit for
+//! bit to the Python by `tests/fixtures/refine/equalised.bin`), and the pipeline's refinement
+//! stage behind `pipeline::Refine::equalise` (its windows widened to [`equalised_reach`], equal
+//! to the whole-map reference over every band layout). Off by default: the host commands, the
+//! firmware presets, the budget and the eval tables do not use it yet (the next step of issue 14).
 //!
 //! Integers only; every sum fits: `g <= 255 (W - 1)`, so `S < 2^32` for any `W <= 2^20 / 7`, and
 //! the comparisons run in `u64`.
