@@ -1,12 +1,14 @@
 //! The pixel refinement with arbitrary sizes, parameters, views, token grids and buffer
 //! lengths: `refine_map` over whole maps and `refine_row` with arbitrary windows and rows; and,
-//! on well-formed inputs, `RowRefiner` against the reference `refine_row`, rows in any order.
+//! on well-formed inputs, `RowRefiner` against the reference `refine_row`, rows in any order;
+//! and the sharpness-equalised whole-map refinement on the same inputs.
 #![no_main]
 
 use arbitrary::Arbitrary;
 use bino_core::refine::{
     refine_map, refine_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
 };
+use bino_core::refine::sharpness::refine_map_equalised;
 use libfuzzer_sys::fuzz_target;
 
 #[derive(Debug, Arbitrary)]
@@ -58,6 +60,9 @@ fuzz_target!(|input: Input| {
     let mut scratch = vec![0u32; adjust(scratch_len(w, &params), input.scratch_delta)];
     let mut out = vec![0u16; adjust(w * h, input.out_delta)];
     let whole = refine_map(&left, &right, w, &tokens, &params, &mut scratch, &mut out);
+    let equalised = refine_map_equalised(&left, &right, w, &tokens, &params, &mut scratch, &mut out);
+    // The same checks of sizes and parameters: both accept the same inputs.
+    assert_eq!(whole.is_ok(), equalised.is_ok(), "{whole:?} {equalised:?}");
     if whole.is_ok() {
         faster_equals_reference(&input, &left, &right, &tokens, w, h, &params);
     }
