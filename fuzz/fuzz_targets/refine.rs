@@ -5,10 +5,10 @@
 #![no_main]
 
 use arbitrary::Arbitrary;
+use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{
     refine_map, refine_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
 };
-use bino_core::refine::sharpness::refine_map_equalised;
 use libfuzzer_sys::fuzz_target;
 
 #[derive(Debug, Arbitrary)]
