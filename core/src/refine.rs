@@ -339,29 +339,7 @@ pub fn refine_map(
     out: &mut [u16],
 ) -> Result<(), Error> {
     params.check()?;
-    if width == 0 || left.is_empty() {
-        return Err(Error::EmptyImage);
-    }
-    if !left.len().is_multiple_of(width) {
-        return Err(Error::BufferSize {
-            what: "left view",
-            expected: left.len() / width * width,
-            found: left.len(),
-        });
-    }
-    if right.len() != left.len() {
-        return Err(Error::PairMismatch);
-    }
-    let height = left.len() / width;
-    if height > MAX_HEIGHT {
-        return Err(Error::TooTall {
-            height,
-            max: MAX_HEIGHT,
-        });
-    }
-    let (grid_rows, cells) = (height.div_ceil(PATCH_H), width.div_ceil(CELL_W));
-    check_len("token grid", tokens.len(), grid_rows * cells)?;
-    check_len("refined disparity", out.len(), left.len())?;
+    let (height, grid_rows, cells) = map_shape(left, right, width, tokens.len(), out.len())?;
 
     let (reach, window) = (params.reach(), params.window_rows());
     let mut rows_l: [&[u8]; MAX_WINDOW_ROWS] = [&[]; MAX_WINDOW_ROWS];
@@ -386,6 +364,40 @@ pub fn refine_map(
         refine_row(y, &rows, &grid, params, scratch, out_row)?;
     }
     Ok(())
+}
+
+/// `(H, grid rows, cells)` of whole maps after checking them as [`refine_map`] documents.
+pub(crate) fn map_shape(
+    left: &[u8],
+    right: &[u8],
+    width: usize,
+    tokens: usize,
+    out: usize,
+) -> Result<(usize, usize, usize), Error> {
+    if width == 0 || left.is_empty() {
+        return Err(Error::EmptyImage);
+    }
+    if !left.len().is_multiple_of(width) {
+        return Err(Error::BufferSize {
+            what: "left view",
+            expected: left.len() / width * width,
+            found: left.len(),
+        });
+    }
+    if right.len() != left.len() {
+        return Err(Error::PairMismatch);
+    }
+    let height = left.len() / width;
+    if height > MAX_HEIGHT {
+        return Err(Error::TooTall {
+            height,
+            max: MAX_HEIGHT,
+        });
+    }
+    let (grid_rows, cells) = (height.div_ceil(PATCH_H), width.div_ceil(CELL_W));
+    check_len("token grid", tokens, grid_rows * cells)?;
+    check_len("refined disparity", out, left.len())?;
+    Ok((height, grid_rows, cells))
 }
 
 /// The two cells (or grid rows) pixel `x` reads: `(c - 1, c)` or `(c, c + 1)`, `c = x / 4`,

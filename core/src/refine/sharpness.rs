@@ -27,7 +27,6 @@
 //! the comparisons run in `u64`.
 
 use super::{refine_row, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows, MAX_WINDOW_ROWS};
-use crate::config::{CELL_W, MAX_HEIGHT, PATCH_H};
 use crate::Error;
 
 /// Rows above and below the output row whose sharpness decides it.
@@ -427,32 +426,10 @@ pub fn refine_map_equalised(
     out: &mut [u16],
 ) -> Result<(), Error> {
     params.check()?;
-    if width == 0 || left.is_empty() {
-        return Err(Error::EmptyImage);
-    }
     if width > MAX_ROW {
         return Err(Error::TooWide { width, max: MAX_ROW });
     }
-    if !left.len().is_multiple_of(width) {
-        return Err(Error::BufferSize {
-            what: "left view",
-            expected: left.len() / width * width,
-            found: left.len(),
-        });
-    }
-    if right.len() != left.len() {
-        return Err(Error::PairMismatch);
-    }
-    let height = left.len() / width;
-    if height > MAX_HEIGHT {
-        return Err(Error::TooTall {
-            height,
-            max: MAX_HEIGHT,
-        });
-    }
-    let (grid_rows, cells) = (height.div_ceil(PATCH_H), width.div_ceil(CELL_W));
-    super::check_len("token grid", tokens.len(), grid_rows * cells)?;
-    super::check_len("refined disparity", out.len(), left.len())?;
+    let (height, grid_rows, cells) = super::map_shape(left, right, width, tokens.len(), out.len())?;
     let (reach, window) = (params.reach(), params.window_rows());
     let token_row = |t: usize| tokens.get(t * cells..(t + 1) * cells).unwrap_or_default();
     let mut smoothed = [[0u8; MAX_ROW]; MAX_WINDOW_ROWS];
