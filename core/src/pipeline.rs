@@ -22,10 +22,12 @@
 //!
 //! # The refinement
 //! [`Refine`] names the readout whose token grid is refined ([`RefineInput`]; the rule of
-//! [`Refine::for_options`]: head+lr when the run checks the head, else sgm+lr) and the
-//! parameters. A `+lr` input is the readout's row filled by its own left-right check
-//! ([`crate::lr::fill_rejected`], as the host fills), so the pixel rows equal
-//! [`crate::refine::refine_map`] on the filled token map. The stage reads the view rows from the
+//! [`Refine::for_options`]: head+lr when the run checks the head, else sgm+lr), the
+//! parameters and whether the views' sharpness is equalised first (on in every preset). A `+lr`
+//! input is the readout's row filled by its own left-right check ([`crate::lr::fill_rejected`],
+//! as the host fills), so the pixel rows equal
+//! [`crate::refine::sharpness::refine_map_equalised`] (or, without equalisation,
+//! [`crate::refine::refine_map`]) on the filled token map. The stage reads the view rows from the
 //! band buffer; only the head's rows, which trail the band by six token rows, need a small
 //! ring of view rows with several bands (see `refine_stage.rs`). For a 48x160 band pair the
 //! arena does not grow: the refinement fits beside the streams in the encoder's scratch.
@@ -304,14 +306,24 @@ pub struct Refine {
 }
 
 impl Refine {
-    /// The default parameters on the readout [`RefineInput::for_options`] picks (no
-    /// equalisation).
-    pub const fn for_options(opts: &Options) -> Self {
+    /// Whether the shipped refinement equalises the views' sharpness (chosen on the validation
+    /// pairs: it halves the refinement's epe rise under one defocused view at no clean cost).
+    pub const EQUALISE: bool = true;
+
+    /// The shipped refinement of `input`: [`RefineParams::DEFAULT`] with the sharpness
+    /// equalisation (every command, preset and the firmware refine so).
+    pub const fn of(input: RefineInput) -> Self {
         Self {
-            input: RefineInput::for_options(opts),
+            input,
             params: RefineParams::DEFAULT,
-            equalise: false,
+            equalise: Self::EQUALISE,
         }
+    }
+
+    /// The shipped refinement ([`Refine::of`]) of the readout [`RefineInput::for_options`]
+    /// picks.
+    pub const fn for_options(opts: &Options) -> Self {
+        Self::of(RefineInput::for_options(opts))
     }
 
     /// View rows above and below a pixel row the stage reads.

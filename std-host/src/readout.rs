@@ -11,7 +11,7 @@
 //! | suffix | pixels |
 //! |---|---|
 //! | (none) | the token grid upsampled bilinearly (EVAL.md) |
-//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::refine_map` (census 5x5, +-2 px, [`bino_core::refine::RefineParams::DEFAULT`]) on the pair's 8-bit gray views, Q8 px / 256 |
+//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, +-2 px, [`bino_core::refine::RefineParams::DEFAULT`]) on the pair's 8-bit gray views, Q8 px / 256 |
 //!
 //! Every pixel gets a value (the maps are dense); the pixels of rejected cells are known from
 //! the method's mask, not from the disparity.
@@ -269,11 +269,13 @@ mod tests {
         assert!(maps.tokens(Readout::HEAD).is_err(), "no head in this run");
     }
 
-    /// A `+ref` readout's pixels are `bino_core::refine::refine_map` of the readout's token grid
-    /// (after the fill) in Q8 on the views, Q8 px / 256; without `+ref` the bilinear upsampling.
+    /// A `+ref` readout's pixels are the core's whole-map refinement (equalised:
+    /// `refine_map_equalised`) of the readout's token grid (after the fill) in Q8 on the views,
+    /// Q8 px / 256; without `+ref` the bilinear upsampling.
     #[test]
-    fn the_refined_pixels_are_the_cores_refine_map() {
-        use bino_core::refine::{refine_map, scratch_len, RefineParams};
+    fn the_refined_pixels_are_the_cores_equalised_whole_map() {
+        use bino_core::refine::sharpness::refine_map_equalised;
+        use bino_core::refine::{scratch_len, RefineParams};
         let q8: Vec<u16> = (0..24).map(|i| 250 + (i * 37 % 11) as u16 * 9).collect();
         let mask: Vec<bool> = (0..24).map(|i| i % 5 != 2).collect();
         let map = DisparityMap {
@@ -309,7 +311,7 @@ mod tests {
             let params = RefineParams::DEFAULT;
             let mut scratch = vec![0u32; scratch_len(32, &params)];
             let mut out = vec![0u16; 32 * 12];
-            refine_map(&v.left, &v.right, 32, &grid, &params, &mut scratch, &mut out).unwrap();
+            refine_map_equalised(&v.left, &v.right, 32, &grid, &params, &mut scratch, &mut out).unwrap();
             let core: Vec<f32> = out.iter().map(|&d| d as f32 / 256.0).collect();
             assert_eq!(pixels.values, core, "{readout}");
         }

@@ -1,6 +1,7 @@
 //! The pixel refinement of a readout (issue 14) on the host: a token-grid disparity (patch
-//! columns, `f32`) to Q8 patch columns, then [`bino_core::refine::refine_map`] on the pair's
-//! 8-bit gray views, then pixels. Every readout's `+ref` variant comes from here
+//! columns, `f32`) to Q8 patch columns, then the core's whole-map refinement on the pair's
+//! 8-bit gray views ([`bino_core::refine::sharpness::refine_map_equalised`], the shipped one, or
+//! [`bino_core::refine::refine_map`] without equalisation), then pixels. Every readout's `+ref` variant comes from here
 //! ([`crate::readout::MethodMaps::pixels`]), for the int8 and the float precision alike: one
 //! integer refinement, one definition.
 //!
@@ -10,6 +11,8 @@
 use anyhow::{ensure, Result};
 use bino_core::config::{CELL_W, PATCH_H};
 use bino_core::matching::DISPARITY_FRAC_BITS;
+use bino_core::pipeline::Refine;
+use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{refine_map, scratch_len, RefineParams};
 
 use crate::eval::DisparityMap;
@@ -58,15 +61,21 @@ pub fn tokens_q8(map: &DisparityMap) -> Vec<u16> {
     map.values.iter().map(|&d| (d * unit).round() as u16).collect()
 }
 
-/// The refined pixel disparity (px) of a token grid on `views`, with
-/// [`RefineParams::DEFAULT`]. The grid must be the views' (`H / 4` x `W / 4` cells); the result
-/// has the views' size, as the bilinear upsampling of the unrefined readout.
+/// The refined pixel disparity (px) of a token grid on `views` by the shipped refinement
+/// ([`RefineParams::DEFAULT`], equalised as [`Refine::EQUALISE`] says: the pipeline's and the
+/// firmware's). The grid must be the views' (`H / 4` x `W / 4` cells); the result has the
+/// views' size, as the bilinear upsampling of the unrefined readout.
 pub fn refine_pixels(tokens: &DisparityMap, views: &GrayViews) -> Result<DisparityMap> {
-    refine_pixels_with(tokens, views, &RefineParams::DEFAULT)
+    refine_pixels_with(tokens, views, &RefineParams::DEFAULT, Refine::EQUALISE)
 }
 
-/// [`refine_pixels`] with explicit parameters.
-pub fn refine_pixels_with(tokens: &DisparityMap, views: &GrayViews, params: &RefineParams) -> Result<DisparityMap> {
+/// [`refine_pixels`] with explicit parameters, with or without the sharpness equalisation.
+pub fn refine_pixels_with(
+    tokens: &DisparityMap,
+    views: &GrayViews,
+    params: &RefineParams,
+    equalise: bool,
+) -> Result<DisparityMap> {
     let (width, height) = (views.width, views.height);
     ensure!(
         tokens.width * CELL_W == width && tokens.height * PATCH_H == height,
@@ -76,7 +85,8 @@ pub fn refine_pixels_with(tokens: &DisparityMap, views: &GrayViews, params: &Ref
     );
     let mut scratch = vec![0u32; scratch_len(width, params)];
     let mut out = vec![0u16; width * height];
-    refine_map(
+    let whole_map = if equalise { refine_map_equalised } else { refine_map };
+    whole_map(
         &views.left,
         &views.right,
         width,
@@ -128,11 +138,38 @@ mod tests {
         assert_eq!(tokens_q8(&map(q8.len(), values)), q8);
     }
 
+    /// The core's whole-map refinement of `q8` on `views`, as pixels.
+    fn core_pixels(views: &GrayViews, q8: &[u16], equalise: bool) -> Vec<f32> {
+        let params = RefineParams::DEFAULT;
+        let mut scratch = vec![0u32; scratch_len(views.width, &params)];
+        let mut out = vec![0u16; views.width * views.height];
+        let whole_map = if equalise { refine_map_equalised } else { refine_map };
+        whole_map(
+            &views.left,
+            &views.right,
+            views.width,
+            q8,
+            &params,
+            &mut scratch,
+            &mut out,
+        )
+        .unwrap();
+        out.iter().map(|&d| d as f32 / 256.0).collect()
+    }
+
     #[test]
-    fn the_refinement_is_the_cores_refine_map() {
+    fn the_refinement_is_the_cores_equalised_whole_map() {
         let (w, h) = (24, 12);
         let left: Vec<u8> = (0..w * h).map(|i| ((i * 97 + i / w * 31) % 251) as u8).collect();
-        let right: Vec<u8> = (0..w * h).map(|i| left[(i / w) * w + (i % w + 3).min(w - 1)]).collect();
+        let shifted: Vec<u8> = (0..w * h).map(|i| left[(i / w) * w + (i % w + 3).min(w - 1)]).collect();
+        // The right view defocused (3-tap horizontal mean), so the equalisation engages.
+        let right: Vec<u8> = (0..w * h)
+            .map(|i| {
+                let (y, x) = (i / w, i % w);
+                let tap = |dx: isize| shifted[y * w + (x as isize + dx).clamp(0, w as isize - 1) as usize] as u32;
+                ((tap(-1) + tap(0) + tap(1) + 1) / 3) as u8
+            })
+            .collect();
         let views = GrayViews {
             width: w,
             height: h,
@@ -141,17 +178,16 @@ mod tests {
         };
         let q8: Vec<u16> = (0..18).map(|i| (150 + i * 23 % 90) as u16).collect();
         let grid = map(6, q8.iter().map(|&d| d as f32 / 256.0).collect());
-        let host = refine_pixels(&grid, &views).unwrap();
 
-        let params = RefineParams::DEFAULT;
-        let mut scratch = vec![0u32; scratch_len(w, &params)];
-        let mut core = vec![0u16; w * h];
-        refine_map(&views.left, &views.right, w, &q8, &params, &mut scratch, &mut core).unwrap();
-        assert_eq!((host.width, host.height), (w, h));
-        let core: Vec<f32> = core.iter().map(|&d| d as f32 / 256.0).collect();
-        assert_eq!(host.values, core);
+        let shipped = refine_pixels(&grid, &views).unwrap();
+        assert_eq!((shipped.width, shipped.height), (w, h));
+        assert_eq!(shipped.values, core_pixels(&views, &q8, Refine::EQUALISE));
+        assert!(Refine::EQUALISE, "the shipped refinement equalises");
+        let plain = refine_pixels_with(&grid, &views, &RefineParams::DEFAULT, false).unwrap();
+        assert_eq!(plain.values, core_pixels(&views, &q8, false));
+        assert_ne!(plain.values, shipped.values, "the equalisation changes pixels here");
         assert!(
-            host.values.iter().filter(|&&d| (d - 3.0).abs() < 0.25).count() > w * h / 2,
+            shipped.values.iter().filter(|&&d| (d - 3.0).abs() < 0.25).count() > w * h / 2,
             "finds the 3 px shift"
         );
 

@@ -20,7 +20,6 @@ use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
     self, HeadChecked, MatchedRow, Options as PipelineOptions, Pipeline, Refine, RefineInput, Report, Sink, Stage,
 };
-use bino_core::refine::RefineParams;
 use bino_core::sgm::Penalties;
 use embedded_graphics::mono_font::ascii::FONT_6X10;
 use embedded_graphics::mono_font::MonoTextStyle;
@@ -147,11 +146,7 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         head_candidates: crate::readout_eval::head_candidates(width),
     };
     // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
-    let refine = opts.readout.refine.then(|| Refine {
-        input: refine_input(opts.readout),
-        params: RefineParams::DEFAULT,
-        equalise: false,
-    });
+    let refine = opts.readout.refine.then(|| Refine::of(refine_input(opts.readout)));
     let layout = Layout::new(opts.display, width, height)?;
     let arena_bytes = match &refine {
         Some(r) => pipeline::arena_bytes_refined(height, width, &pipeline_opts, r),

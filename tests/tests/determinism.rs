@@ -3,8 +3,9 @@
 //! run after run and on several threads at once on the host, and the same digests the
 //! Cortex-M55 and Cortex-M7 firmwares computed under QEMU (`firmware-sim/measured/*.json`,
 //! written by `scripts/firmware.sh --profile --out firmware-sim/measured`). The refined rows'
-//! digest is also recomputed from the specification: `refine::refine_map` on the whole head+lr
-//! token map of a plain pipeline run.
+//! digest is also recomputed from the specification: the whole-map refinement the preset names
+//! (`refine::sharpness::refine_map_equalised`, or `refine::refine_map` without equalisation) on
+//! the whole head+lr token map of a plain pipeline run.
 
 use std::path::{Path, PathBuf};
 
@@ -17,6 +18,7 @@ use bino_core::crc32::Crc32;
 use bino_core::lr::fill_rejected;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{HeadChecked, MatchedRow, Pathway, Pipeline, RefineInput, Sink, SlicePair};
+use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{refine_map, scratch_len};
 use workload::{Hooks, Stage, OUTPUTS};
 
@@ -82,7 +84,7 @@ impl Sink for HeadMaps {
     }
 }
 
-/// CRC-32 of `refine_map` on the filled head+lr grid of `pathway`'s run without the refinement
+/// CRC-32 of the preset's whole-map refinement on the filled head+lr grid of `pathway`'s run without the refinement
 /// stage, rows top to bottom, values little-endian: what the workload's `refined` digest must be.
 fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8], right: &[u8]) -> u32 {
     let (height, width) = (48, 160);
@@ -105,7 +107,12 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
     }
     let mut scratch = vec![0u32; scratch_len(width, &refine.params)];
     let mut refined = vec![0u16; width * height];
-    refine_map(left, right, width, &grid, &refine.params, &mut scratch, &mut refined).unwrap();
+    let whole = if refine.equalise {
+        refine_map_equalised
+    } else {
+        refine_map
+    };
+    whole(left, right, width, &grid, &refine.params, &mut scratch, &mut refined).unwrap();
     let mut crc = Crc32::new();
     for v in refined {
         crc.update(&v.to_le_bytes());
@@ -127,7 +134,7 @@ fn outputs_are_bit_identical_across_runs_threads_and_targets() {
         assert_eq!(
             first[refined],
             refined_digest_from_the_whole_map(&blob, pathway, &left, &right),
-            "{pathway:?}: the streamed refinement against refine_map on the whole head+lr map"
+            "{pathway:?}: the streamed refinement against the whole head+lr map's"
         );
         assert_eq!(
             digests(&blob, pathway, &left, &right),

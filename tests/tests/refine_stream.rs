@@ -1,8 +1,10 @@
 //! The pixel refinement as a stage of `bino_core::pipeline` (issue 14): for every readout it can
 //! refine, on one band and on images of several bands, with and without the head and its
-//! left-right check, the pixel rows it streams equal `refine::refine_map` on the whole token map
-//! of that readout (filled by its left-right check for the `+lr` ones), computed from the same
-//! run's token rows; the other outputs do not change, and the arena grows as documented.
+//! left-right check, with and without the sharpness equalisation, the pixel rows it streams
+//! equal the whole-map refinement (`refine::sharpness::refine_map_equalised` or
+//! `refine::refine_map`) of that readout's token map (filled by its left-right check for the
+//! `+lr` ones), computed from the same run's token rows; the other outputs do not change, and
+//! the arena grows as documented.
 
 use bino_core::lr::fill_rejected;
 use bino_core::model::head::HeadRow;
@@ -10,6 +12,7 @@ use bino_core::pipeline::{
     arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes, HeadChecked, MatchedRow, Options,
     Pipeline, Refine, RefineInput, Sink, SlicePair, Stage,
 };
+use bino_core::refine::sharpness::{decide_map_row, refine_map_equalised};
 use bino_core::refine::{refine_map, scratch_len, RefineParams};
 use bino_core::Error;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
@@ -17,6 +20,9 @@ use bino_host::int8::Int8Model;
 use bino_host::synthetic;
 
 const MAX_COLS: usize = 16;
+
+/// One band; 2 bands; 3 bands 8 token rows apart (the ring's worst case); an odd stride; 4.
+const SIZES: [(usize, usize); 5] = [(160, 48), (32, 56), (32, 80), (48, 100), (32, 144)];
 
 const INPUTS: [RefineInput; 6] = [
     RefineInput::Nolink,
@@ -139,6 +145,40 @@ fn scene(width: usize, height: usize) -> Scene {
     }
 }
 
+/// [`scene`] with the right view's lower half defocused (twice a 5-tap mean along the row), so
+/// that the equalisation blurs some rows and not others.
+fn half_defocused_scene(width: usize, height: usize) -> Scene {
+    let mut s = scene(width, height);
+    for row in s.right.chunks_exact_mut(width).skip(height / 2) {
+        for _ in 0..2 {
+            let copy = row.to_vec();
+            for (x, v) in row.iter_mut().enumerate() {
+                let sum: u32 = (x as isize - 2..=x as isize + 2)
+                    .map(|u| copy[u.clamp(0, width as isize - 1) as usize] as u32)
+                    .sum();
+                *v = ((sum + 2) / 5) as u8;
+            }
+        }
+    }
+    let blurred = (0..height)
+        .filter(|&y| decide_map_row(&s.left, &s.right, width, height, y).unwrap().radius > 0)
+        .count();
+    assert!(
+        blurred > 0 && blurred < height,
+        "{width}x{height}: {blurred} rows blurred"
+    );
+    s
+}
+
+/// The scene a refinement is tested on: half defocused when it equalises.
+fn scene_for(width: usize, height: usize, equalise: bool) -> Scene {
+    if equalise {
+        half_defocused_scene(width, height)
+    } else {
+        scene(width, height)
+    }
+}
+
 fn run(pipeline: &Pipeline<'_>, s: &Scene, opts: &Options, refine: Option<&Refine>) -> Result<Collect, Error> {
     let mut out = Collect::new(s.width, s.height);
     let mut source = SlicePair::new(&s.left, &s.right, s.width, s.height)?;
@@ -165,16 +205,21 @@ fn run(pipeline: &Pipeline<'_>, s: &Scene, opts: &Options, refine: Option<&Refin
     Ok(out)
 }
 
-/// The whole-map refinement of `input`'s grid from the run's own token rows.
-fn whole_map(s: &Scene, out: &Collect, input: RefineInput, params: &RefineParams) -> Vec<u16> {
-    let mut scratch = vec![0u32; scratch_len(s.width, params)];
+/// The whole-map refinement of `refine.input`'s grid from the run's own token rows.
+fn whole_map(s: &Scene, out: &Collect, refine: &Refine) -> Vec<u16> {
+    let mut scratch = vec![0u32; scratch_len(s.width, &refine.params)];
     let mut expected = vec![0u16; s.width * s.height];
-    refine_map(
+    let whole = if refine.equalise {
+        refine_map_equalised
+    } else {
+        refine_map
+    };
+    whole(
         &s.left,
         &s.right,
         s.width,
-        &out.grid(input),
-        params,
+        &out.grid(refine.input),
+        &refine.params,
         &mut scratch,
         &mut expected,
     )
@@ -200,17 +245,15 @@ fn every_readout_refines_as_the_whole_map_on_one_band_and_many() {
     let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
     let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
     let opts = options(true, true);
-    // One band; 2 bands; 3 bands 8 token rows apart (the ring's worst case); an odd stride; 4.
-    for (width, height) in [(160, 48), (32, 56), (32, 80), (48, 100), (32, 144)] {
-        let s = scene(width, height);
+    for ((width, height), equalise) in SIZES.into_iter().flat_map(|size| [(size, false), (size, true)]) {
+        let s = scene_for(width, height, equalise);
         let plain = run(&pipeline, &s, &opts, None).unwrap();
         for input in INPUTS {
             let refine = Refine {
-                input,
-                params: RefineParams::DEFAULT,
-                equalise: false,
+                equalise,
+                ..Refine::of(input)
             };
-            let what = format!("{width}x{height} {}", input.name());
+            let what = format!("{width}x{height} {} equalise {equalise}", input.name());
             let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
             assert_eq!(
                 out.refined_rows,
@@ -218,7 +261,7 @@ fn every_readout_refines_as_the_whole_map_on_one_band_and_many() {
                 "{what}: rows in order, once"
             );
             assert!(out.refine_stage_ok, "{what}: refined rows come in the refine stage");
-            let want = whole_map(&s, &out, input, &refine.params);
+            let want = whole_map(&s, &out, &refine);
             assert!(
                 out.refined == want,
                 "{what}: {}",
@@ -251,34 +294,18 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
     assert_eq!(Refine::for_options(&options(true, true)).input, RefineInput::HeadLr);
     assert_eq!(Refine::for_options(&options(true, false)).input, RefineInput::SgmLr);
     let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap();
-    assert_eq!(out.refined, whole_map(&s, &out, RefineInput::SgmLr, &refine.params));
+    assert_eq!(out.refined, whole_map(&s, &out, &refine));
     // The head alone (no check): head is refinable, head+lr is not.
     let head_only = options(true, false);
-    let out = run(
-        &pipeline,
-        &s,
-        &head_only,
-        Some(&Refine {
-            input: RefineInput::Head,
-            params: RefineParams::DEFAULT,
-            equalise: false,
-        }),
-    )
-    .unwrap();
-    assert_eq!(
-        out.refined,
-        whole_map(&s, &out, RefineInput::Head, &RefineParams::DEFAULT)
-    );
+    let head = Refine::of(RefineInput::Head);
+    let out = run(&pipeline, &s, &head_only, Some(&head)).unwrap();
+    assert_eq!(out.refined, whole_map(&s, &out, &head));
     for (opts, input) in [
         (opts, RefineInput::Head),
         (opts, RefineInput::HeadLr),
         (head_only, RefineInput::HeadLr),
     ] {
-        let refine = Refine {
-            input,
-            params: RefineParams::DEFAULT,
-            equalise: false,
-        };
+        let refine = Refine::of(input);
         let err = run(&pipeline, &s, &opts, Some(&refine)).err();
         assert_eq!(err, Some(Error::MissingReadout { readout: input.name() }));
     }
@@ -288,7 +315,7 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
             search: 99,
             ..RefineParams::DEFAULT
         },
-        equalise: false,
+        ..Refine::of(RefineInput::Sgm)
     };
     assert!(matches!(
         run(&pipeline, &s, &opts, Some(&bad)),
@@ -310,7 +337,13 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
         arena_bytes_refined(48, 160, &sgm, &Refine::for_options(&sgm)),
         arena_bytes_for(48, 160, &sgm)
     );
-    assert_eq!(refine_bytes(48, 160, &refine), 6_885);
+    // The equalisation's smoothed rows: one window, 9 rows of 160 px, beyond the plain 6,885.
+    assert_eq!(refine_bytes(48, 160, &refine), 6_885 + 9 * 160);
+    let plain = Refine {
+        equalise: false,
+        ..refine
+    };
+    assert_eq!(refine_bytes(48, 160, &plain), 6_885);
     // Several bands: the state (and for a head input the view ring) adds to the streams; the
     // row scratch lives in the encoder's.
     for (height, opts) in [(96, head_lr), (96, sgm), (480, head_lr)] {
@@ -319,7 +352,10 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
         let state = refine_bytes(height, 160, &r) - refine_bytes(48, 160, &r) + 161;
         assert_eq!(growth, state, "{height} {}", r.input.name());
     }
-    assert_eq!(refine_bytes(96, 160, &refine), 6_885 + 22 * 160 * 2);
+    // The head's ring: 4 lag + 2 + reach - 4 CUT_MARGIN rows of both views (reach 6 equalised,
+    // 4 plain).
+    assert_eq!(refine_bytes(96, 160, &refine), 6_885 + 9 * 160 + 24 * 160 * 2);
+    assert_eq!(refine_bytes(96, 160, &plain), 6_885 + 22 * 160 * 2);
     // Too small by a byte is an error, not a wrong row.
     let s = scene(32, 80);
     let needed = arena_bytes_refined(80, 32, &head_lr, &refine);
@@ -343,16 +379,15 @@ fn the_native_pathway_refines_its_head_as_the_whole_map() {
     let unchecked = Options { head_lr: false, ..opts };
     assert_eq!(Refine::for_options(&opts).input, RefineInput::HeadLr);
     assert_eq!(Refine::for_options(&unchecked).input, RefineInput::Head);
-    for (width, height) in [(160, 48), (32, 56), (32, 80), (48, 100), (32, 144)] {
-        let s = scene(width, height);
+    for ((width, height), equalise) in SIZES.into_iter().flat_map(|size| [(size, false), (size, true)]) {
+        let s = scene_for(width, height, equalise);
         let plain = run(&pipeline, &s, &opts, None).unwrap();
         for input in INPUTS {
             let refine = Refine {
-                input,
-                params: RefineParams::DEFAULT,
-                equalise: false,
+                equalise,
+                ..Refine::of(input)
             };
-            let what = format!("native {width}x{height} {}", input.name());
+            let what = format!("native {width}x{height} {} equalise {equalise}", input.name());
             if !input.uses_head() {
                 let err = run(&pipeline, &s, &opts, Some(&refine)).unwrap_err();
                 assert_eq!(err, Error::MissingReadout { readout: input.name() }, "{what}");
@@ -361,7 +396,7 @@ fn the_native_pathway_refines_its_head_as_the_whole_map() {
             let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
             assert_eq!(out.refined_rows, (0..height).collect::<Vec<_>>(), "{what}");
             assert!(out.refine_stage_ok, "{what}");
-            let want = whole_map(&s, &out, input, &refine.params);
+            let want = whole_map(&s, &out, &refine);
             assert!(
                 out.refined == want,
                 "{what}: {}",

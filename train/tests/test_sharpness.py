@@ -71,9 +71,22 @@ def test_a_view_within_the_margin_is_not_blurred() -> None:
     slightly = box(sharp, 1)
     own, target = sharpness_rows(sharp).sum(), sharpness_rows(slightly).sum()
     margin = int(100 * own / target) - 100  # the views' sharpness ratio, in %
-    assert all(d.radius == 0 for d in decide_rows(sharp, slightly, margin_pct=margin + 1))
-    assert any(d.radius > 0 for d in decide_rows(sharp, slightly, margin_pct=max(margin - 5, 0)))
-    assert decide_rows(sharp, slightly, margin_pct=0)[0] == Decision(0, 1)
+    def decide(margin_pct: int) -> list[Decision]:
+        return decide_rows(sharp, slightly, margin_pct=margin_pct, contrast_margin_pct=None)
+
+    assert all(d.radius == 0 for d in decide(margin + 1))
+    assert any(d.radius > 0 for d in decide(max(margin - 5, 0)))
+    assert decide(0)[0] == Decision(0, 1)
+
+
+def test_a_view_with_less_contrast_is_not_read_as_defocused() -> None:
+    # Exposure gain 0.7 (bino eval's `gain`): every gradient 30 % smaller, at every scale.
+    sharp = _texture(4)
+    dim = np.clip(np.floor(0.7 * sharp.astype(np.float64) + 20.5), 0, 255).astype(np.uint8)
+    assert any(d.radius > 0 for d in decide_rows(sharp, dim, contrast_margin_pct=None))
+    assert all(d.radius == 0 for d in decide_rows(sharp, dim))
+    # A defocused view still is.
+    assert all(d.radius > 0 for d in decide_rows(sharp, box(dim, 2)))
 
 
 def test_views_of_different_shapes_are_refused() -> None:

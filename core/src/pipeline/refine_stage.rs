@@ -489,12 +489,16 @@ mod tests {
             (*l, *r) = (rng.range(0, 255) as u8, rng.range(0, 255) as u8);
         }
         if equalise {
+            // Twice a 5-tap mean along the row: defocus that rule 4a does not take for a
+            // contrast change.
             for y in height / 2..height {
                 let row = &mut right[y * W..(y + 1) * W];
-                let copy: [u8; W] = core::array::from_fn(|x| row[x]);
-                for (x, v) in row.iter_mut().enumerate() {
-                    let (a, c) = (copy[x.saturating_sub(1)] as u32, copy[(x + 1).min(W - 1)] as u32);
-                    *v = ((a + 2 * copy[x] as u32 + c + 2) / 4) as u8;
+                for _ in 0..2 {
+                    let copy: [u8; W] = core::array::from_fn(|x| row[x]);
+                    for (x, v) in row.iter_mut().enumerate() {
+                        let sum: u32 = (x..x + 5).map(|u| copy[u.saturating_sub(2).min(W - 1)] as u32).sum();
+                        *v = ((sum + 2) / 5) as u8;
+                    }
                 }
             }
         }

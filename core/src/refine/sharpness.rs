@@ -12,19 +12,23 @@
 //! 3. `S(v, k)`: `g` summed over the rows `y - WINDOW ..= y + WINDOW` (clamped).
 //! 4. [`decide`]: the sharper view (left on ties) is blurred only when `100 own > (100 +
 //!    MARGIN_PCT) target`, with the radius in `0..=MAX_RADIUS` whose `S` comes closest to the
-//!    other view's (ties to the smaller radius).
+//!    other view's (ties to the smaller radius);
+//!    4a. and only when it is also sharper relative to its own coarse gradients: `100 S(s, 0)
+//!    S(o, MAX_RADIUS) > (100 + CONTRAST_MARGIN_PCT) S(o, 0) S(s, MAX_RADIUS)`, so that a view
+//!    with less contrast (exposure gain, a tone curve: smaller gradients at every scale) is not
+//!    read as a defocused one (which loses its fine gradients more than its coarse ones).
 //! 5. Row `y`'s census reads `box(sharper, k)` in place of the sharper view.
 //!
-//! Status: the rules' building blocks, [`SharpnessWindow`] (the decisions, streaming, equal to
-//! the whole-map ones), [`EqualisedRefiner`] (the streaming refinement with them, equal to the
+//! The rules' building blocks, [`SharpnessWindow`] (the decisions, streaming, equal to the
+//! whole-map ones), [`EqualisedRefiner`] (the streaming refinement with them, equal to the
 //! whole-map one row for row), [`refine_map_equalised`] (the whole-map reference, pinned bit for
 //! bit to the Python by `tests/fixtures/refine/equalised.bin`), and the pipeline's refinement
 //! stage behind `pipeline::Refine::equalise` (its windows widened to [`equalised_reach`], equal
-//! to the whole-map reference over every band layout). Off by default: the host commands, the
-//! firmware presets, the budget and the eval tables do not use it yet (the next step of issue 14).
+//! to the whole-map reference over every band layout). On in every command, preset and the
+//! firmware (`pipeline::Refine::EQUALISE`).
 //!
 //! Integers only; every sum fits: `g <= 255 (W - 1)`, so `S < 2^32` for any `W <= 2^20 / 7`, and
-//! the comparisons run in `u64`.
+//! the comparisons run in `u64` (rule 4a's products of two sums in `u128`).
 
 use super::{refine_row, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows, MAX_WINDOW_ROWS};
 use crate::Error;
@@ -35,6 +39,8 @@ pub const WINDOW: usize = 3;
 pub const MARGIN_PCT: u64 = 25;
 /// Largest box radius tried (5x5).
 pub const MAX_RADIUS: usize = 2;
+/// How much sharper (%) relative to its coarse gradients the sharper view must be (rule 4a).
+pub const CONTRAST_MARGIN_PCT: u64 = 15;
 
 /// Which view an output row's census reads blurred, and by how much.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -110,13 +116,20 @@ pub fn gradient_sum(row: &[u8]) -> u32 {
     row.windows(2).map(|w| w[0].abs_diff(w[1]) as u32).sum()
 }
 
-/// Rule 4 from the window sums `S(left, k)` and `S(right, k)`, `k = 0..=MAX_RADIUS`.
-pub fn decide(left: &[u64; MAX_RADIUS + 1], right: &[u64; MAX_RADIUS + 1], margin_pct: u64) -> Decision {
-    let (is_right, sharper, target) = if left[0] >= right[0] {
-        (false, left, right[0])
+/// Rules 4 and 4a from the window sums `S(left, k)` and `S(right, k)`, `k = 0..=MAX_RADIUS`;
+/// `contrast_margin_pct` `None` leaves rule 4a out.
+pub fn decide(
+    left: &[u64; MAX_RADIUS + 1],
+    right: &[u64; MAX_RADIUS + 1],
+    margin_pct: u64,
+    contrast_margin_pct: Option<u64>,
+) -> Decision {
+    let (is_right, sharper, other) = if left[0] >= right[0] {
+        (false, left, right)
     } else {
-        (true, right, left[0])
+        (true, right, left)
     };
+    let target = other[0];
     if sharper[0].saturating_mul(100) <= target.saturating_mul(100 + margin_pct) {
         return Decision {
             right: is_right,
@@ -127,6 +140,16 @@ pub fn decide(left: &[u64; MAX_RADIUS + 1], right: &[u64; MAX_RADIUS + 1], margi
     for k in 1..=MAX_RADIUS {
         if sharper[k].abs_diff(target) < sharper[best].abs_diff(target) {
             best = k;
+        }
+    }
+    if let Some(margin) = contrast_margin_pct {
+        // Both sides are products of two sums (< 2^64 each for real images); saturating, so
+        // any input is defined.
+        let wide = |a: u64, b: u64, pct: u64| (a as u128).saturating_mul(b as u128).saturating_mul(pct as u128);
+        let own = wide(sharper[0], other[MAX_RADIUS], 100);
+        let theirs = wide(target, sharper[MAX_RADIUS], 100u64.saturating_add(margin));
+        if own <= theirs {
+            best = 0;
         }
     }
     Decision {
@@ -217,7 +240,7 @@ impl SharpnessWindow {
                 }
             }
         }
-        Ok(decide(&totals[0], &totals[1], MARGIN_PCT))
+        Ok(decide(&totals[0], &totals[1], MARGIN_PCT, Some(CONTRAST_MARGIN_PCT)))
     }
 
     /// `g(view, k, r)` from the window around output row `y` (`rows`, as [`Self::decide`]).
@@ -410,7 +433,7 @@ pub fn decide_map_row(left: &[u8], right: &[u8], width: usize, height: usize, y:
             }
         }
     }
-    Ok(decide(&sums[0], &sums[1], MARGIN_PCT))
+    Ok(decide(&sums[0], &sums[1], MARGIN_PCT, Some(CONTRAST_MARGIN_PCT)))
 }
 
 /// [`refine_map`](super::refine_map) with each output row's census on the views its
@@ -546,26 +569,48 @@ mod tests {
     #[test]
     fn decide_blurs_the_sharper_view_to_the_closest_radius_beyond_the_margin() {
         // Equal: nothing. Left 20 % sharper: inside the 25 % margin.
-        assert_eq!(decide(&[100, 60, 40], &[100, 60, 40], MARGIN_PCT), Decision::NONE);
-        assert_eq!(decide(&[120, 70, 50], &[100, 60, 40], MARGIN_PCT).radius, 0);
+        assert_eq!(decide(&[100, 60, 40], &[100, 60, 40], MARGIN_PCT, None), Decision::NONE);
+        assert_eq!(decide(&[120, 70, 50], &[100, 60, 40], MARGIN_PCT, None).radius, 0);
         // Right twice as sharp: radius 1 brings it to 100 exactly.
         assert_eq!(
-            decide(&[100, 60, 40], &[200, 100, 70], MARGIN_PCT),
+            decide(&[100, 60, 40], &[200, 100, 70], MARGIN_PCT, None),
             Decision { right: true, radius: 1 }
         );
         // Left three times as sharp: radius 2 (110) is closer to 100 than radius 1 (180).
         assert_eq!(
-            decide(&[300, 180, 110], &[100, 60, 40], MARGIN_PCT),
+            decide(&[300, 180, 110], &[100, 60, 40], MARGIN_PCT, None),
             Decision {
                 right: false,
                 radius: 2
             }
         );
         // Ties go to the smaller radius; ties of the views to the left.
-        assert_eq!(decide(&[200, 150, 50], &[100, 0, 0], 0).radius, 1);
-        assert!(!decide(&[100, 0, 0], &[100, 0, 0], 0).right);
+        assert_eq!(decide(&[200, 150, 50], &[100, 0, 0], 0, None).radius, 1);
+        assert!(!decide(&[100, 0, 0], &[100, 0, 0], 0, None).right);
         // Saturating, never overflowing.
-        assert_eq!(decide(&[u64::MAX, 1, 0], &[1, 0, 0], 0).radius, 1);
+        assert_eq!(decide(&[u64::MAX, 1, 0], &[1, 0, 0], 0, None).radius, 1);
+    }
+
+    #[test]
+    fn a_view_sharper_at_every_scale_alike_has_more_contrast_and_is_not_blurred() {
+        let c = Some(CONTRAST_MARGIN_PCT);
+        // Right twice the left at every scale (less contrast on the left): rule 4 alone blurs
+        // the right, rule 4a keeps it (200 * 40 * 100 <= 100 * 80 * 115).
+        let (left, flat) = ([100, 60, 40], [200, 120, 80]);
+        assert_eq!(
+            decide(&left, &flat, MARGIN_PCT, None),
+            Decision { right: true, radius: 1 }
+        );
+        assert_eq!(decide(&left, &flat, MARGIN_PCT, c), Decision { right: true, radius: 0 });
+        // Right sharper at the fine scale only (the left defocused): blurred as before.
+        let fine = [200, 100, 45];
+        assert_eq!(decide(&left, &fine, MARGIN_PCT, c), Decision { right: true, radius: 1 });
+        // The margin: 200 * 40 * 100 against 100 * x * 115 decides at x = 69.56...
+        assert_eq!(decide(&left, &[200, 100, 69], MARGIN_PCT, c).radius, 1);
+        assert_eq!(decide(&left, &[200, 100, 70], MARGIN_PCT, c).radius, 0);
+        // Saturating, never overflowing.
+        assert_eq!(decide(&[u64::MAX; 3], &[1, 0, 0], 0, Some(u64::MAX)).radius, 0);
+        assert_eq!(decide(&[u64::MAX, 1, 0], &[1, 0, u64::MAX], 0, c).radius, 1);
     }
 
     fn window_rows(view: &[u8], w: usize, h: usize, y: usize) -> [&[u8]; DECISION_ROWS] {
