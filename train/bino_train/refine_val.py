@@ -10,8 +10,11 @@ StereoSGBM's pixels that pass its own checks and the sub-pixel left-right check
     python -m bino_train.refine_val --encoder E --head H --width 320 --search 2 4 6
     python -m bino_train.refine_val --encoder E --head H --nuisance blur --equalise
 
-`--nuisance blur|noise` degrades the right view first (a 5x5 box blur; gaussian noise of sigma 8
-grey levels, seeded), like `bino eval --nuisance`, the ground truth still from the clean pair;
+`--nuisance blur|noise|gain|gamma|occlude` degrades the right view first (a 5x5 box blur;
+gaussian noise of sigma 8 grey levels, seeded; exposure `0.7 v + 20`; the tone curve
+`255 (v / 255)^0.6`; mid-grey rectangles over 20 % of the area, seeded), like `bino eval
+--nuisance` (the random draws are numpy's, not its SplitMix64), the ground truth still from the
+clean pair;
 `--equalise` adds each parameter set again with each row's census on sharpness-equalised views
 (`bino_train.sharpness`).
 
@@ -44,17 +47,41 @@ from .sharpness import box, refine_equalised
 NOISE_SIGMA = 8.0
 """Grey levels of `--nuisance noise` (bino eval's `NOISE_SIGMA`)."""
 
+NUISANCES = ("none", "blur", "noise", "gain", "gamma", "occlude")
+"""The right-view degradations `degrade` knows (bino eval's, and none)."""
+
+
+def occlude(right: NDArray[np.uint8], rng: np.random.Generator) -> NDArray[np.uint8]:
+    """Mid-grey rectangles (each at most 1/5 of the width and height) until 20 % is covered."""
+    out = right.copy()
+    h, w = right.shape
+    covered = np.zeros(right.shape, dtype=bool)
+    while covered.mean() < 0.2:
+        rw = int(rng.integers(max(w // 20, 1), max(w // 5, 1) + 1))
+        rh = int(rng.integers(max(h // 20, 1), max(h // 5, 1) + 1))
+        x, y = int(rng.integers(0, w - rw + 1)), int(rng.integers(0, h - rh + 1))
+        out[y : y + rh, x : x + rw] = 128
+        covered[y : y + rh, x : x + rw] = True
+    return out
+
 
 def degrade(right: NDArray[np.uint8], nuisance: str, seed: int) -> NDArray[np.uint8]:
-    """The right view under `nuisance` (none, blur or noise)."""
+    """The right view under `nuisance` (one of `NUISANCES`)."""
+    values = right.astype(np.float64)
     if nuisance == "none":
         return right
     if nuisance == "blur":
         return box(right, 2)
     if nuisance == "noise":
         noise = np.random.default_rng(seed).normal(0.0, NOISE_SIGMA, right.shape)
-        return np.clip(np.round(right + noise), 0, 255).astype(np.uint8)
-    raise ValueError(f"unknown nuisance {nuisance!r} (none, blur, noise)")
+        return np.clip(np.round(values + noise), 0, 255).astype(np.uint8)
+    if nuisance == "gain":
+        return np.clip(np.floor(0.7 * values + 20.0 + 0.5), 0, 255).astype(np.uint8)
+    if nuisance == "gamma":
+        return np.clip(np.floor(255.0 * (values / 255.0) ** 0.6 + 0.5), 0, 255).astype(np.uint8)
+    if nuisance == "occlude":
+        return occlude(right, np.random.default_rng(seed))
+    raise ValueError(f"unknown nuisance {nuisance!r} ({', '.join(NUISANCES)})")
 
 
 def to_q8(tokens: NDArray[np.float32]) -> NDArray[np.uint16]:
@@ -125,7 +152,7 @@ def main(argv: list[str] | None = None) -> None:
         "--nuisance",
         nargs="+",
         default=["none"],
-        choices=("none", "blur", "noise"),
+        choices=NUISANCES,
         help="right-view nuisances, each scored in turn",
     )
     parser.add_argument(

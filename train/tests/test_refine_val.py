@@ -62,3 +62,16 @@ def test_degrade_is_seeded_and_refuses_unknown_nuisances() -> None:
     assert np.abs(np.diff(refine_val.degrade(view, "blur", 0).astype(int), axis=1)).max() <= 10
     with pytest.raises(ValueError, match="unknown nuisance"):
         refine_val.degrade(view, "fog", 0)
+
+
+def test_gain_gamma_and_occlusion_follow_bino_evals_definitions() -> None:
+    view = np.array([[0, 100, 250, 64]], dtype=np.uint8)
+    # 0.7 v + 20 rounded (bino_host::nuisance's own test: 20, 90, 195, 65).
+    assert refine_val.degrade(view, "gain", 0).tolist() == [[20, 90, 195, 65]]
+    gamma = refine_val.degrade(view, "gamma", 0)
+    assert gamma[0, 0] == 0 and gamma[0, 1] == round(255 * (100 / 255) ** 0.6)
+    big = np.full((60, 100), 7, dtype=np.uint8)
+    occluded = refine_val.degrade(big, "occlude", 1)
+    share = float((occluded == 128).mean())
+    assert 0.2 <= share < 0.24
+    assert np.array_equal(occluded, refine_val.degrade(big, "occlude", 1))

@@ -71,6 +71,7 @@ def test_a_view_within_the_margin_is_not_blurred() -> None:
     slightly = box(sharp, 1)
     own, target = sharpness_rows(sharp).sum(), sharpness_rows(slightly).sum()
     margin = int(100 * own / target) - 100  # the views' sharpness ratio, in %
+
     def decide(margin_pct: int) -> list[Decision]:
         return decide_rows(sharp, slightly, margin_pct=margin_pct, contrast_margin_pct=None)
 
