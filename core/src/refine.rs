@@ -520,4 +520,6 @@ pub mod sharpness;
 pub use ring::RowRefiner;
 
 #[cfg(test)]
+mod fixture;
+#[cfg(test)]
 mod tests;

@@ -425,6 +425,18 @@ fn map_gradient(view: &[u8], width: usize, height: usize, row: usize, k: usize) 
 
 /// The decision for output row `y` of `H x W` maps (rules 2-4, [`WINDOW`], [`MARGIN_PCT`]).
 pub fn decide_map_row(left: &[u8], right: &[u8], width: usize, height: usize, y: usize) -> Result<Decision, Error> {
+    let sums = map_window_sums(left, right, width, height, y)?;
+    Ok(decide(&sums[0], &sums[1], MARGIN_PCT, Some(CONTRAST_MARGIN_PCT)))
+}
+
+/// `S(left, k)` and `S(right, k)` around output row `y` of whole maps (rule 3).
+fn map_window_sums(
+    left: &[u8],
+    right: &[u8],
+    width: usize,
+    height: usize,
+    y: usize,
+) -> Result<[[u64; MAX_RADIUS + 1]; 2], Error> {
     let mut sums = [[0u64; MAX_RADIUS + 1]; 2];
     for (view, s) in [left, right].into_iter().zip(sums.iter_mut()) {
         for (k, total) in s.iter_mut().enumerate() {
@@ -433,7 +445,7 @@ pub fn decide_map_row(left: &[u8], right: &[u8], width: usize, height: usize, y:
             }
         }
     }
-    Ok(decide(&sums[0], &sums[1], MARGIN_PCT, Some(CONTRAST_MARGIN_PCT)))
+    Ok(sums)
 }
 
 /// [`refine_map`](super::refine_map) with each output row's census on the views its
@@ -726,49 +738,32 @@ mod tests {
     #[test]
     fn matches_the_python_fixture_bit_for_bit() {
         const FIXTURE: &[u8] = include_bytes!("../../../tests/fixtures/refine/equalised.bin");
-        assert_eq!(&FIXTURE[..4], b"BRE1");
-        let mut at = 4;
-        let u16_at = |at: &mut usize| {
-            let v = u16::from_le_bytes([FIXTURE[*at], FIXTURE[*at + 1]]);
-            *at += 2;
-            v
-        };
-        let cases = u16_at(&mut at);
-        assert!(cases >= 4);
         let mut blurred = [false; 2];
-        for case in 0..cases {
-            let fields: [u16; 6] = core::array::from_fn(|_| u16_at(&mut at));
-            let (h, w) = (fields[0] as usize, fields[1] as usize);
-            let p = RefineParams {
-                census_radius: fields[2] as usize,
-                search: fields[3] as usize,
-                lambda: fields[4] as u32,
-                box_radius: fields[5] as usize,
-            };
-            let n = h * w;
+        let mut vetoed = false;
+        let cases = crate::refine::fixture::for_each_case(FIXTURE, b"BRE1", |i, case| {
+            let (w, h, n) = (case.width, case.height, case.width * case.height);
             assert!(n <= 16 * 24);
-            let left = &FIXTURE[at..at + n];
-            let right = &FIXTURE[at + n..at + 2 * n];
-            at += 2 * n;
             for y in 0..h {
-                let d = decide_map_row(left, right, w, h, y).unwrap();
+                let d = decide_map_row(case.left, case.right, w, h, y).unwrap();
                 if d.radius > 0 {
                     blurred[d.right as usize] = true;
                 }
             }
-            let cells = h.div_ceil(4) * w.div_ceil(4);
             let mut tokens = [0u16; 4 * 6];
-            tokens[..cells].iter_mut().for_each(|t| *t = u16_at(&mut at));
+            let tokens = case.tokens(&mut tokens);
             let mut scratch = [0u32; 2 * 5 * 24];
-            let scratch = &mut scratch[..crate::refine::scratch_len(w, &p)];
+            let scratch = &mut scratch[..crate::refine::scratch_len(w, &case.params)];
             let mut out = [0u16; 16 * 24];
-            refine_map_equalised(left, right, w, &tokens[..cells], &p, scratch, &mut out[..n]).unwrap();
-            for (i, &found) in out[..n].iter().enumerate() {
-                let expected = u16_at(&mut at);
-                assert_eq!(found, expected, "case {case}: index {i} = ({}, {})", i / w, i % w);
-            }
-        }
-        assert_eq!(at, FIXTURE.len());
+            refine_map_equalised(case.left, case.right, w, tokens, &case.params, scratch, &mut out[..n]).unwrap();
+            case.check(i, &out[..n]);
+            vetoed |= (0..h).any(|y| {
+                let [l, r] = map_window_sums(case.left, case.right, w, h, y).unwrap();
+                decide(&l, &r, MARGIN_PCT, None).radius > 0
+                    && decide_map_row(case.left, case.right, w, h, y).unwrap().radius == 0
+            });
+        });
+        assert!(cases >= 4);
         assert_eq!(blurred, [true, true], "the cases blur each view somewhere");
+        assert!(vetoed, "a case where rule 4a keeps a blur rule 4 would make");
     }
 }

@@ -587,43 +587,13 @@ fn sizes_for_the_budget() {
 #[test]
 fn matches_the_python_fixture_bit_for_bit() {
     const FIXTURE: &[u8] = include_bytes!("../../../tests/fixtures/refine/cases.bin");
-    assert_eq!(&FIXTURE[..4], b"BRF1");
-    let mut at = 4;
-    let u16_at = |at: &mut usize| {
-        let v = u16::from_le_bytes([FIXTURE[*at], FIXTURE[*at + 1]]);
-        *at += 2;
-        v
-    };
-    let cases = u16_at(&mut at);
-    assert!(cases >= 4);
-    for case in 0..cases {
-        let fields: [u16; 6] = core::array::from_fn(|_| u16_at(&mut at));
-        let (h, w) = (fields[0] as usize, fields[1] as usize);
-        let p = RefineParams {
-            census_radius: fields[2] as usize,
-            search: fields[3] as usize,
-            lambda: fields[4] as u32,
-            box_radius: fields[5] as usize,
-        };
-        let n = h * w;
-        let left = &FIXTURE[at..at + n];
-        let right = &FIXTURE[at + n..at + 2 * n];
-        at += 2 * n;
-        let cells = h.div_ceil(4) * w.div_ceil(4);
+    let cases = super::fixture::for_each_case(FIXTURE, b"BRF1", |i, case| {
         let mut tokens = [0u16; MAX_CELLS];
-        tokens[..cells].iter_mut().for_each(|t| *t = u16_at(&mut at));
         let mut out = [0u16; MAX_PIXELS];
-        run_map(left, right, w, &tokens[..cells], &p, &mut out[..n]).unwrap();
-        for (i, &found) in out[..n].iter().enumerate() {
-            let expected = u16_at(&mut at);
-            assert_eq!(
-                found,
-                expected,
-                "case {case} ({p:?}): index {i} = ({}, {})",
-                i / w,
-                i % w
-            );
-        }
-    }
-    assert_eq!(at, FIXTURE.len());
+        let n = case.height * case.width;
+        let tokens = case.tokens(&mut tokens);
+        run_map(case.left, case.right, case.width, tokens, &case.params, &mut out[..n]).unwrap();
+        case.check(i, &out[..n]);
+    });
+    assert!(cases >= 4);
 }
