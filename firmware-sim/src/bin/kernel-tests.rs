@@ -7,7 +7,9 @@
 //! values (all -128, all 127, alternating), every rounding case of the requantisation
 //! (`(acc + bias) / 2^s` at, below and above each half, both signs, at the saturation edges),
 //! and parameters the kernels must decline; the softmax row of each core's fastest path against
-//! the portable one. Prints `index / found / expected` on the first
+//! the portable one. Also the sharpness-equalised refinement (portable code, no assembly) on a
+//! half-defocused pair against the host's CRC (`src/equalise_case.rs`, baked in by `build.rs`):
+//! the main firmware's band blurs no row. Prints `index / found / expected` on the first
 //! mismatch of a case and exits non-zero if any case fails.
 #![no_std]
 #![no_main]
@@ -22,6 +24,14 @@ use cortex_m as _;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
 use defmt_semihosting as _;
+
+#[path = "../equalise_case.rs"]
+mod equalise_case;
+
+/// The host's figures for `equalise_case`.
+mod host {
+    include!(concat!(env!("OUT_DIR"), "/equalised.rs"));
+}
 
 #[cfg(board = "an547")]
 const BOARD: &str = "mps3-an547 (Cortex-M55)";
@@ -992,6 +1002,25 @@ fn bench_residual(rng: &mut Rng, b: &mut Buffers) {
     );
 }
 
+/// The sharpness-equalised refinement of a half-defocused pair: the rows it blurs and the
+/// CRC of its output equal the host's.
+fn equalised_refinement_case(t: &mut Tally) {
+    let found = match equalise_case::views().and_then(|(l, r)| equalise_case::blurred_rows(&l, &r)) {
+        Ok(rows) => [rows as u32, equalise_case::refined_crc().unwrap_or(0)],
+        Err(e) => {
+            defmt::println!("kernel-tests error kernel=refine_equalised {}", e);
+            [u32::MAX; 2]
+        }
+    };
+    let expected = [host::EQUALISED_BLURRED_ROWS as u32, host::EQUALISED_CRC];
+    t.check(
+        "refine_equalised (blurred rows, crc)",
+        [equalise_case::HEIGHT, equalise_case::WIDTH, 0],
+        &found,
+        &expected,
+    );
+}
+
 #[entry]
 fn main() -> ! {
     defmt::println!("kernel-tests board={=str}", BOARD);
@@ -1026,6 +1055,7 @@ fn main() -> ! {
     residual_cases(&mut t, &mut rng, buffers);
     rope_cases(&mut t, &mut rng);
     conv_epilogue_cases(&mut t, &mut rng);
+    equalised_refinement_case(&mut t);
     bench(&mut rng, buffers);
     bench_softmax(&mut rng, buffers);
     bench_scores(&mut rng, buffers);

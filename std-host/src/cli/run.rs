@@ -38,9 +38,10 @@ pub struct RunArgs {
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
     pathway: PathwayChoice,
-    /// Pixel refinement of the readout: on (its +ref: census 5x5 search +-2 px around the
-    /// upsampled token disparity, bino_core::refine) or off (the token grid upsampled
-    /// bilinearly, as before the refinement).
+    /// Pixel refinement of the readout: on (its +ref: the views' sharpness equalised where one
+    /// is defocused, then a census 5x5 search +-2 px around the upsampled token disparity,
+    /// bino_core::refine) or off (the token grid upsampled bilinearly, as before the
+    /// refinement).
     #[arg(long, value_enum, default_value = "on")]
     refine: bino_host::run::Refine,
     #[command(flatten)]
