@@ -7,6 +7,7 @@
 //! over hundreds of keys keeps its mass instead of rounding every probability to zero.
 
 use super::arch;
+use super::epilogue::scaled_requant_lanes;
 use super::exp::{exp_neg_u8_u32, ExpQ32};
 use super::matmul::{dot, dot4};
 use crate::config::HEAD_DIM;
@@ -65,7 +66,7 @@ pub fn attend(
             *a = a.wrapping_add(w * x as i32);
         }
     }
-    normalise(&acc, total, p, out);
+    normalise_exact(&acc, total, p, out);
 }
 
 /// Queries attended together by [`attend_block`]: each key and value is read once per block.
@@ -341,8 +342,10 @@ fn normalise(acc: &[i32; HEAD_DIM], total: u32, p: &AttentionQ, out: &mut [i8]) 
         out.iter_mut().for_each(|o| *o = 0);
         return;
     }
-    // total >= 255 (the maximum's own weight), so the reciprocal keeps >= 23 bits.
-    let recip = ((1u64 << 31) + total as u64 / 2) / total as u64;
+    let recip = reciprocal(total);
+    if normalise_in_lanes(acc, recip, p, out) {
+        return;
+    }
     let (Ok(recip32), true) = (i32::try_from(recip), (1..=62).contains(&p.out.shift)) else {
         normalise_reference(acc, recip, p, out);
         return;
@@ -358,6 +361,51 @@ fn normalise(acc: &[i32; HEAD_DIM], total: u32, p: &AttentionQ, out: &mut [i8]) 
             Err(_) => sat_i8_i64(p.out.apply_i64(avg)),
         };
     }
+}
+
+/// `2^31 / total`, rounded: one division per query row. `total >= 255` (the maximum's own
+/// weight) keeps at least 23 bits.
+#[inline(always)]
+fn reciprocal(total: u32) -> u64 {
+    ((1u64 << 31) + total as u64 / 2) / total.max(1) as u64
+}
+
+/// Shift that turns `vrmulh`'s `>> 32` into the average's `>> (31 - AVG_FRAC_BITS)`.
+const LANE_PRODUCT_SHIFT: u32 = 1 + AVG_FRAC_BITS;
+
+/// [`normalise`] in 32-bit lanes (`epilogue::scaled_requant_lanes`: Helium on Cortex-M55,
+/// `smmulr` / `smmul` on Cortex-M7), bit for bit; `false` (nothing written) where its
+/// identities need more room.
+///
+/// The average `(a recip + 2^14) >> 15` is `vrmulh(a 2^x, recip 2^y)` for `x + y = 17`, exact
+/// while both factors fit 31 bits: `y` is as large as `recip` allows (17 once `total >= 2^17`)
+/// and `|a| <= 128 total` leaves `a` room for the rest. The output's `(avg mult + 2^(sh-1)) >>
+/// sh` for `sh >= 33` is `(vmulh(avg, mult) + 2^(sh-33)) >> (sh - 32)`, as in the fused GEMM.
+#[inline(always)]
+fn normalise_in_lanes(acc: &[i32; HEAD_DIM], recip: u64, p: &AttentionQ, out: &mut [i8]) -> bool {
+    let Ok(recip32) = u32::try_from(recip) else {
+        return false;
+    };
+    if recip32 == 0 || recip32 >= 1 << 31 || !(33..=62).contains(&p.out.shift) {
+        return false;
+    }
+    let y = LANE_PRODUCT_SHIFT.min(recip32.leading_zeros() - 1);
+    let x = LANE_PRODUCT_SHIFT - y;
+    if acc.iter().fold(0u32, |m, a| m.max(a.unsigned_abs())) >= 1 << (31 - x) {
+        return false;
+    }
+    let scaled: [i32; HEAD_DIM] = core::array::from_fn(|d| acc[d] << x);
+    let post = p.out.shift - 32;
+    scaled_requant_lanes(&scaled, (recip32 << y) as i32, p.out.mult, 1 << (post - 1), post, out)
+}
+
+/// [`normalise`] by the saturating formulas only: [`attend`]'s, the specification.
+fn normalise_exact(acc: &[i32; HEAD_DIM], total: u32, p: &AttentionQ, out: &mut [i8]) {
+    if total == 0 {
+        out.iter_mut().for_each(|o| *o = 0);
+        return;
+    }
+    normalise_reference(acc, reciprocal(total), p, out);
 }
 
 /// [`normalise`] by the saturating formulas: its specification.
@@ -395,6 +443,57 @@ mod tests {
         for d in 0..HEAD_DIM {
             out[d] = (0..n).map(|j| w[j] * values[j * HEAD_DIM + d] as f64).sum::<f64>() / total;
         }
+    }
+
+    #[test]
+    fn normalise_takes_the_lanes_for_real_averages_and_matches_the_specification() {
+        let mut rng = Rng::new(81);
+        let edges = [
+            2u32,
+            3,
+            255,
+            256,
+            (1 << 17) - 1,
+            1 << 17,
+            (1 << 17) + 1,
+            255 * 960,
+            u32::MAX,
+        ];
+        let mut in_lanes = 0;
+        for trial in 0..6000 {
+            let total = match trial % 3 {
+                0 => edges[trial / 3 % edges.len()],
+                1 => rng.range(255, 255 * 960) as u32,
+                _ => rng.range(2, 1 << 31) as u32,
+            };
+            let shift = rng.range(33, 62) as u32;
+            let mult = rng.range(i32::MIN as i64, i32::MAX as i64) as i32;
+            let p = AttentionQ {
+                to_log2_q8: Requant { mult: 1, shift: 1 },
+                out: Requant { mult, shift },
+            };
+            // An average of int8 values under weights summing to `total`: |a| <= 128 total.
+            let bound = (128 * total as i64).min(i32::MAX as i64);
+            let acc: [i32; HEAD_DIM] = core::array::from_fn(|d| match d {
+                0 => bound as i32,
+                1 => -(bound as i32),
+                _ => rng.range(-bound, bound + 1) as i32,
+            });
+            let recip = reciprocal(total);
+            let (mut lanes, mut want) = ([0i8; HEAD_DIM], [0i8; HEAD_DIM]);
+            normalise_reference(&acc, recip, &p, &mut want);
+            if normalise_in_lanes(&acc, recip, &p, &mut lanes) {
+                in_lanes += 1;
+                assert_eq!(lanes, want, "total {total} mult {mult} shift {shift}");
+            } else {
+                // Only where 128 total no longer fits beside the reciprocal (totals from 2^24).
+                assert!(total >= 1 << 24, "declined total {total} shift {shift}");
+            }
+            let mut fast = [0i8; HEAD_DIM];
+            normalise(&acc, total, &p, &mut fast);
+            assert_eq!(fast, want, "total {total} mult {mult} shift {shift}");
+        }
+        assert!(in_lanes > 4000, "{in_lanes} of 6000 in lanes");
     }
 
     #[test]

@@ -501,6 +501,26 @@ impl CarryParams {
     }
 }
 
+/// `out = sat8((hi32(rnd_hi32(n * recip_q) * mult) + round) >> post)` per lane: a rounded
+/// high-half scale, then a requantisation whose shift is `32 + post` (LayerNorm's output and
+/// attention's normalised average). Helium on Cortex-M55, `smmulr` / `smmul` in scalar code
+/// elsewhere. `false` (nothing written) on Cortex-M55 unless `n` and `out` have one length
+/// `>= 1` and `post` is in `1..=31`; elsewhere the common length is taken.
+#[inline(always)]
+pub(crate) fn scaled_requant_lanes(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
+    #[cfg(bino_mve)]
+    return super::arch::scaled_requant_lanes(n, recip_q, mult, round, post, out);
+    #[cfg(not(bino_mve))]
+    {
+        for (o, &y) in out.iter_mut().zip(n) {
+            let z = ((y as i64 * recip_q as i64 + (1 << 31)) >> 32) as i32;
+            let high = ((z as i64 * mult as i64) >> 32) as i32;
+            *o = (high.wrapping_add(round) >> (post & 31)).clamp(-128, 127) as i8;
+        }
+        true
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

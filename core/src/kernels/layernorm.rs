@@ -40,8 +40,9 @@ pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
         return;
     }
     if let Some(narrow) = NarrowParams::decode(p, dim) {
+        let mut scratch = LaneScratch::new();
         for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
-            narrow.row(row, out_row);
+            narrow.row(row, out_row, &mut scratch);
         }
         return;
     }
@@ -105,14 +106,14 @@ impl NarrowParams {
     }
 
     /// [`layernorm_row`] of one row (`dim` codes).
-    fn row(&self, row: &[i8], out: &mut [i8]) {
+    fn row(&self, row: &[i8], out: &mut [i8], scratch: &mut LaneScratch) {
         let dim = self.dim.min(row.len()).min(out.len());
         if dim == 0 {
             return;
         }
         let (row, out) = (&row[..dim], &mut out[..dim]);
         // On x86 hosts LLVM vectorises the lanes' 32-bit arithmetic as well.
-        if cfg!(any(bino_mve, bino_dsp, test, target_arch = "x86_64")) && self.row_in_lanes(row, out) {
+        if cfg!(any(bino_mve, bino_dsp, test, target_arch = "x86_64")) && self.row_in_lanes(row, out, scratch) {
             return;
         }
         let d = dim as i64;
@@ -175,14 +176,14 @@ impl NarrowParams {
     /// `(z mult + 2^(sh-1)) >> sh` for `sh >= 33` is `(vmulh(z, mult) + 2^(sh-33)) >> (sh - 32)`,
     /// as in the fused GEMM epilogue.
     #[cfg_attr(not(any(bino_mve, bino_dsp, test, target_arch = "x86_64")), allow(dead_code))]
-    fn row_in_lanes(&self, row: &[i8], out: &mut [i8]) -> bool {
+    fn row_in_lanes(&self, row: &[i8], out: &mut [i8], scratch: &mut LaneScratch) -> bool {
         let dim = row.len();
         if dim != LANE_DIM || out.len() != dim || self.out.shift < 33 {
             return false;
         }
         let (zero, rel) = (&self.zero[..dim], &self.rel[..dim]);
-        let mut v = [0i32; LANE_DIM];
-        let Some((sum, lo, hi)) = lanes::values(row, zero, rel, &mut v) else {
+        let (v, n) = (&mut scratch.values, &mut scratch.normalised);
+        let Some((sum, lo, hi)) = lanes::values(row, zero, rel, v) else {
             return false;
         };
         let d = dim as i64;
@@ -198,8 +199,7 @@ impl NarrowParams {
             8..=13 => (0, (((1i64 << (shift - 1)) - sum) >> 7) as i32, (shift - 7) as u32),
             _ => return false,
         };
-        let mut n = [0i32; LANE_DIM];
-        let Some(sum_sq) = lanes::normalise(&v, left, add, right, &mut n) else {
+        let Some(sum_sq) = lanes::normalise(v, left, add, right, n) else {
             return false;
         };
         // `sum_sq / d` for d = 2^7: a sum of squares below 2^58 is not negative.
@@ -208,7 +208,23 @@ impl NarrowParams {
             return false;
         }
         let post = self.out.shift - 32;
-        lanes::output(&n, (recip << 8) as i32, self.out.mult, 1 << (post - 1), post, out)
+        lanes::output(n, (recip << 8) as i32, self.out.mult, 1 << (post - 1), post, out)
+    }
+}
+
+/// The lane passes' values and normalised values, kept by [`layernorm_rows`] for all its rows
+/// (zeroing them per row cost a 1 KiB `memclr` each).
+struct LaneScratch {
+    values: [i32; LANE_DIM],
+    normalised: [i32; LANE_DIM],
+}
+
+impl LaneScratch {
+    fn new() -> Self {
+        LaneScratch {
+            values: [0; LANE_DIM],
+            normalised: [0; LANE_DIM],
+        }
     }
 }
 
@@ -256,17 +272,7 @@ mod lanes {
     /// `out = sat8((hi32(rnd_hi32(n * recip_q) * mult) + round) >> post)`.
     #[inline(always)]
     pub(super) fn output(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
-        #[cfg(bino_mve)]
-        return crate::kernels::arch::layernorm_output(n, recip_q, mult, round, post, out);
-        #[cfg(not(bino_mve))]
-        {
-            for (o, &y) in out.iter_mut().zip(n) {
-                let z = ((y as i64 * recip_q as i64 + (1 << 31)) >> 32) as i32;
-                let high = ((z as i64 * mult as i64) >> 32) as i32;
-                *o = (high.wrapping_add(round) >> (post & 31)).clamp(-128, 127) as i8;
-            }
-            true
-        }
+        crate::kernels::epilogue::scaled_requant_lanes(n, recip_q, mult, round, post, out)
     }
 }
 
@@ -519,7 +525,7 @@ mod tests {
             }
             let (mut lanes, mut slow) = ([0i8; D], [0i8; D]);
             layernorm_row_unbuffered(&x, &p, &mut slow);
-            if narrow.row_in_lanes(&x, &mut lanes) {
+            if narrow.row_in_lanes(&x, &mut lanes, &mut LaneScratch::new()) {
                 assert_eq!(lanes, slow, "trial {trial}");
                 let v: [i64; D] = core::array::from_fn(|c| (x[c] as i64 - zero[c] as i64) * rel[c] as i64);
                 let sum: i64 = v.iter().sum();

@@ -94,6 +94,9 @@ pub struct RopeLanes {
     pre: [u8; DIM],
     /// `s - 32 + e`, the right shift after it.
     post: [u8; DIM],
+    /// The requantised token, reused token after token (zeroing it per token cost a 512-byte
+    /// `memclr` each).
+    values: [i32; DIM],
 }
 
 impl RopeLanes {
@@ -109,6 +112,7 @@ impl RopeLanes {
             round: [0; DIM],
             pre: [0; DIM],
             post: [1; DIM],
+            values: [0; DIM],
         };
         for c in 0..DIM {
             let (bias, shift) = (rq.bias.at(c), rq.shift.get(c).copied().unwrap_or(0) as u32);
@@ -127,7 +131,7 @@ impl RopeLanes {
 
     /// [`rope_token`] of one token's `DIM` accumulators; `false` (nothing written) for
     /// accumulators from `2^29` in magnitude or slices of another length.
-    pub fn token(&self, acc: &[i32], row: &Angles, col: &Angles, out: &mut [i8]) -> bool {
+    pub fn token(&mut self, acc: &[i32], row: &Angles, col: &Angles, out: &mut [i8]) -> bool {
         let (Some(acc), Some(out)) = (acc.first_chunk::<DIM>(), out.first_chunk_mut::<DIM>()) else {
             return false;
         };
@@ -135,26 +139,24 @@ impl RopeLanes {
             return false;
         }
         let limit = PRE_ROPE_LIMIT as i32;
-        let mut v = [0i32; DIM];
+        let RopeLanes {
+            bias,
+            mult,
+            round,
+            pre,
+            post,
+            values: v,
+        } = self;
         // Helium lanes on Cortex-M55 (`kernels::arch`), this loop elsewhere.
         #[cfg(bino_mve)]
-        let done = crate::kernels::arch::mve::rope_requant(
-            acc,
-            &self.bias,
-            &self.mult,
-            &self.round,
-            &self.pre,
-            &self.post,
-            limit,
-            &mut v,
-        );
+        let done = crate::kernels::arch::mve::rope_requant(acc, bias, mult, round, pre, post, limit, v);
         #[cfg(not(bino_mve))]
         let done = false;
         if !done {
             for c in 0..DIM {
-                let x = (acc[c] + self.bias[c]) << (self.pre[c] & 1);
-                let high = ((x as i64 * self.mult[c] as i64) >> 32) as i32;
-                v[c] = ((high + self.round[c]) >> (self.post[c] & 31)).clamp(-limit, limit);
+                let x = (acc[c] + bias[c]) << (pre[c] & 1);
+                let high = ((x as i64 * mult[c] as i64) >> 32) as i32;
+                v[c] = ((high + round[c]) >> (post[c] & 31)).clamp(-limit, limit);
             }
         }
         for (v_head, out_head) in v.chunks_exact(HEAD_DIM).zip(out.chunks_exact_mut(HEAD_DIM)) {
@@ -230,7 +232,7 @@ mod tests {
             let mut want = [0i8; DIM];
             rope_token(&acc, &rq, &row, &col, &mut want);
             match RopeLanes::new(&rq) {
-                Some(lanes) => {
+                Some(mut lanes) => {
                     let mut got = [0i8; DIM];
                     if lanes.token(&acc, &row, &col, &mut got) {
                         assert_eq!(got, want, "trial {trial}");

@@ -407,8 +407,15 @@ impl<'w> Encoder<'w> {
                 EMBED_INPUTS,
                 &mut acc[..count * DIM],
             );
-            for (i, (acc_row, x_row)) in acc.chunks_exact(DIM).zip(x_block.chunks_exact_mut(DIM)).enumerate() {
+            // Tokens of one token row share their bias: requantised together (one parameter
+            // decode per run of the block, not per token).
+            let mut i = 0;
+            while i < count {
                 let (row, _) = grid.position(first + i);
+                let run = (i + 1..count)
+                    .take_while(|&j| grid.position(first + j).0 == row)
+                    .count()
+                    + 1;
                 // The bias table has one row per token row: the row embedding is folded in.
                 let bias = Offset {
                     inner: &embed.bias,
@@ -419,7 +426,11 @@ impl<'w> Encoder<'w> {
                     mult: &embed.mult,
                     shift: embed.shift,
                 };
-                requant_rows(acc_row, &rq, &format.zero, x_row);
+                let span = i * DIM..(i + run) * DIM;
+                if let (Some(acc_rows), Some(x_rows)) = (acc.get(span.clone()), x_block.get_mut(span)) {
+                    requant_rows(acc_rows, &rq, &format.zero, x_rows);
+                }
+                i += run;
             }
         }
         Ok(())
@@ -573,7 +584,7 @@ impl AttentionPass<'_, '_> {
             shift: qkv.shift.get(2 * DIM..).unwrap_or(&[]),
         };
         // The keys' rotation in 32-bit lanes where the blob's formats allow (quantiser-made ones do).
-        let key_lanes = RopeLanes::new(&key_rq);
+        let mut key_lanes = RopeLanes::new(&key_rq);
         let tokens = self.grid.tokens();
         let mut rotated = [0i8; DIM];
         let mut block_values = [0i8; TOKEN_BLOCK * DIM];
@@ -598,7 +609,7 @@ impl AttentionPass<'_, '_> {
                 let (row, col) = self.grid.position(t);
                 let (row_angles, col_angles) = self.rope.angles(row, col / 2);
                 if !key_lanes
-                    .as_ref()
+                    .as_mut()
                     .is_some_and(|l| l.token(k_acc, &row_angles, &col_angles, &mut rotated))
                 {
                     rope_token(k_acc, &key_rq, &row_angles, &col_angles, &mut rotated);
@@ -632,7 +643,7 @@ impl AttentionPass<'_, '_> {
             mult: &query_mult,
             shift: qkv.shift.get(..DIM).unwrap_or(&[]),
         };
-        let query_lanes = RopeLanes::new(&query_rq);
+        let mut query_lanes = RopeLanes::new(&query_rq);
         let proj = &self.w.proj;
         let residual = ResidualParams::new(&self.w.carry_attention.from_format(self.input), proj, &self.output.zero);
         let head_len = self.grid.tokens() * HEAD_DIM;
@@ -653,7 +664,7 @@ impl AttentionPass<'_, '_> {
                 let (row, col) = self.grid.position(block * TOKEN_BLOCK + i);
                 let (row_angles, col_angles) = self.rope.angles(row, col / 2);
                 if !query_lanes
-                    .as_ref()
+                    .as_mut()
                     .is_some_and(|l| l.token(q_acc, &row_angles, &col_angles, query))
                 {
                     rope_token(q_acc, &query_rq, &row_angles, &col_angles, query);

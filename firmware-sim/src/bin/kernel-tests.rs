@@ -527,7 +527,7 @@ fn rope_cases(t: &mut Tally, rng: &mut Rng) {
         let (row, col) = (angles(rng), angles(rng));
         let (mut found, mut want) = ([0i8; DIM], [0i8; DIM]);
         rope_token(&acc, &rq, &row, &col, &mut want);
-        let Some(lanes) = RopeLanes::new(&rq) else { continue };
+        let Some(mut lanes) = RopeLanes::new(&rq) else { continue };
         if lanes.token(&acc, &row, &col, &mut found) {
             taken += 1;
             t.check("rope_token", [1, DIM, 0], &found, &want);

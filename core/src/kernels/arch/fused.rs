@@ -74,6 +74,8 @@ impl Col {
 /// [`Epilogue`] of the fused kernels: one chunk of output channels starting at `j0`.
 pub(crate) struct Fused<'o> {
     params: [Col; CHUNK],
+    /// Where an unpaired last row's second outputs go (zeroed once per chunk, not per row).
+    spare: [i8; CHUNK],
     out: &'o mut [i8],
     n: usize,
     j0: usize,
@@ -93,12 +95,11 @@ impl Fused<'_> {
         kernel: impl FnOnce(&[Col], &mut [i8], &mut [i8]) -> bool,
     ) -> bool {
         let at = row0 * self.n + self.j0;
-        let mut spare = [0i8; CHUNK];
         let (first, second) = self.out.split_at_mut((at + self.n).min(self.out.len()));
         let (Some(params), Some(out0)) = (self.params.get(..len), first.get_mut(at..at + len)) else {
             return false;
         };
-        let out1 = match (pair, second.get_mut(..len), spare.get_mut(..len)) {
+        let out1 = match (pair, second.get_mut(..len), self.spare.get_mut(..len)) {
             (true, Some(o), _) | (false, _, Some(o)) => o,
             _ => return false,
         };
@@ -170,6 +171,7 @@ where
         let len = (n - j0).min(CHUNK);
         let mut epi = Fused {
             params: [Col::ZERO; CHUNK],
+            spare: [0; CHUNK],
             out: &mut *out,
             n,
             j0,

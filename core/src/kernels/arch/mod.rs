@@ -131,11 +131,12 @@ pub(crate) fn layernorm_normalise(v: &[i32], left: u32, add: i32, right: u32, n:
     mve::layernorm_normalise(v, left, add, right, n)
 }
 
-/// LayerNorm's output pass: `sat8((vmulh(vrmulh(n, recip_q), mult) + round) >> post)`.
+/// LayerNorm's output pass and attention's normalised average:
+/// `sat8((vmulh(vrmulh(n, recip_q), mult) + round) >> post)`.
 #[cfg(bino_mve)]
 #[inline]
-pub(crate) fn layernorm_output(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
-    mve::layernorm_output(n, recip_q, mult, round, post, out)
+pub(crate) fn scaled_requant_lanes(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
+    mve::scaled_requant_lanes(n, recip_q, mult, round, post, out)
 }
 
 /// One row of a residual-add chunk on Cortex-M55 (`epilogue::residual_lanes`): `x <-

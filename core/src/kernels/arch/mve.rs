@@ -659,11 +659,11 @@ pub(crate) fn layernorm_normalise(v: &[i32], left: u32, add: i32, right: u32, n:
     Some((((sq_hi as u64) << 32) | sq_lo as u64) as i64)
 }
 
-/// LayerNorm output of one row: `z = vrmulh(n, recip_q)`, `sat8((vmulh(z, mult) + round) >>
-/// post)`, stored as bytes. `false` unless `n` and `out` have one length `>= 1` and `post` is
+/// LayerNorm's output of one row and attention's normalised average: `z = vrmulh(n, recip_q)`,
+/// `sat8((vmulh(z, mult) + round) >> post)`, stored as bytes. `false` unless `n` and `out` have one length `>= 1` and `post` is
 /// in `1..=31`.
 #[cfg(bino_mve)]
-pub(crate) fn layernorm_output(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
+pub(crate) fn scaled_requant_lanes(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
     let len = n.len();
     if len == 0 || out.len() != len || !(1..=31).contains(&post) {
         return false;
