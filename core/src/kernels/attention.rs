@@ -188,7 +188,7 @@ pub fn attend_block(
 }
 
 /// The scores of the [`QUERY_BLOCK`] queries against the first `n` keys: `scores[q * n + j] =
-/// queries[q] . keys[j]`, on this core's fastest kernel (the GEMM tile on Cortex-M7, the
+/// queries[q] . keys[j]`, on this core's fastest kernel (the DSP scores kernel on Cortex-M7, the
 /// Helium score kernel on Cortex-M55, AVX-512 VNNI or AVX2 on x86 hosts), else
 /// [`scores_block_reference`]. `keys` needs `n * HEAD_DIM` codes and `scores` `QUERY_BLOCK * n`
 /// entries; with less, what fits is computed.
@@ -199,8 +199,7 @@ pub fn scores_block(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usi
     let Some(scores) = scores.get_mut(..QUERY_BLOCK * n) else {
         return;
     };
-    let taken = (cfg!(bino_dsp) && arch::matmul_i32(queries.as_flattened(), keys_n, HEAD_DIM, scores))
-        || arch::attention_scores(queries, keys_n, scores)
+    let taken = arch::attention_scores(queries, keys_n, scores)
         || avx2_scores(queries, keys_n, n, scores);
     if !taken {
         scores_block_reference(queries, keys_n, scores);

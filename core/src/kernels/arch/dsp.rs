@@ -8,6 +8,7 @@
 //! reused for every output column.
 
 use super::{Epilogue, MAX_K};
+use crate::config::HEAD_DIM;
 
 /// Activation rows per tile.
 const ROWS: usize = 4;
@@ -55,6 +56,199 @@ fn gemm_in<E: Epilogue, const WORDS: usize>(a: &[i8], w: &[i8], k: usize, m: usi
         for (j, w_row) in w.chunks_exact(k).enumerate() {
             let acc = tile(scratch, w_row, [epi.init(j); ROWS]);
             epi.put_col(r0, j, acc, m - r0);
+        }
+    }
+    true
+}
+
+/// Attention scores of four queries against every key (`HEAD_DIM` codes each, `keys` word
+/// aligned): `scores[q * n + j] = queries[q] . keys[j]`, `scores` exactly `4 n` long. The queries
+/// are widened once into the tile's interleaved layout, then one assembly loop runs every key:
+/// the eight 4-element groups unrolled (per group one `ldr`, two `sxtb16`, four `ldrd` at fixed
+/// offsets and eight `smlad`, the first group's `smuad` starting the sums) and the four scores
+/// stored at the query rows' stride. `false` (nothing written) for other lengths or alignments.
+#[cfg(bino_dsp)]
+pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; ROWS], keys: &[i8], scores: &mut [i32]) -> bool {
+    const { assert!(HEAD_DIM == 32, "the unrolled loop takes eight groups of four") };
+    let n = keys.len() / HEAD_DIM;
+    if n == 0 || keys.len() != n * HEAD_DIM || scores.len() != ROWS * n || !(keys.as_ptr() as usize).is_multiple_of(4) {
+        return false;
+    }
+    let mut x = [0u32; words(HEAD_DIM)];
+    widen(queries.each_ref().map(|q| &q[..]), &mut x);
+    // SAFETY: the loop runs `n >= 1` times; each pass reads one key's 32 bytes through `w`
+    // (word loads: `keys` is word-aligned, checked, and holds exactly `n` keys), 256 bytes of
+    // `x` at fixed offsets 0..=248 (`x` is 64 words, a `[u32]`, so word-aligned for `ldrd`), and
+    // writes `scores[j]`, `scores[n + j]`, `scores[2n + j]`, `scores[3n + j]` for the key `j`
+    // (`scores` is exactly `4 n` words: checked). The row stride in bytes, `4 n`, waits in one
+    // word pushed below `sp` and popped before the end. Only declared outputs are written;
+    // the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "push {{{t0}}}",
+            "2:",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}, #0]",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smuad {a0}, {x0}, {t1}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}, #8]",
+                "smuad {a1}, {x0}, {t1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}, #16]",
+                "smuad {a2}, {x0}, {t1}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}, #24]",
+                "smuad {a3}, {x0}, {t1}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}, #32]",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}, #40]",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}, #48]",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}, #56]",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}, #64]",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}, #72]",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}, #80]",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}, #88]",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}, #96]",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}, #104]",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}, #112]",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}, #120]",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}, #128]",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}, #136]",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}, #144]",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}, #152]",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}, #160]",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}, #168]",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}, #176]",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}, #184]",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}, #192]",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}, #200]",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}, #208]",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}, #216]",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+                "ldr {t0}, [{w}], #4",
+                "ldrd {x0}, {x1}, [{x}, #224]",
+                "sxtb16 {t1}, {t0}",
+                "sxtb16 {t0}, {t0}, ror #8",
+                "smlad {a0}, {x0}, {t1}, {a0}",
+                "smlad {a0}, {x1}, {t0}, {a0}",
+                "ldrd {x0}, {x1}, [{x}, #232]",
+                "smlad {a1}, {x0}, {t1}, {a1}",
+                "smlad {a1}, {x1}, {t0}, {a1}",
+                "ldrd {x0}, {x1}, [{x}, #240]",
+                "smlad {a2}, {x0}, {t1}, {a2}",
+                "smlad {a2}, {x1}, {t0}, {a2}",
+                "ldrd {x0}, {x1}, [{x}, #248]",
+                "smlad {a3}, {x0}, {t1}, {a3}",
+                "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [sp]",
+            "str {a0}, [{s}]",
+            "str {a1}, [{s}, {t0}]",
+            "add {t1}, {s}, {t0}, lsl #1",
+            "str {a2}, [{t1}]",
+            "str {a3}, [{t1}, {t0}]",
+            "add {s}, {s}, #4",
+            "subs {cnt}, {cnt}, #1",
+            "bne 2b",
+            "add sp, sp, #4",
+            w = inout(reg) keys.as_ptr() => _,
+            x = in(reg) x.as_ptr(),
+            s = inout(reg) scores.as_mut_ptr() => _,
+            cnt = inout(reg) n => _,
+            t0 = inout(reg) 4 * n => _,
+            t1 = out(reg) _,
+            x0 = out(reg) _,
+            x1 = out(reg) _,
+            a0 = out(reg) _,
+            a1 = out(reg) _,
+            a2 = out(reg) _,
+            a3 = out(reg) _,
+        );
+    }
+    true
+}
+
+/// The portable twin of the Cortex-M7 scores kernel (host tests of its layout): the same
+/// widening, the tile per key.
+#[cfg(not(bino_dsp))]
+pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; ROWS], keys: &[i8], scores: &mut [i32]) -> bool {
+    let n = keys.len() / HEAD_DIM;
+    if n == 0 || keys.len() != n * HEAD_DIM || scores.len() != ROWS * n {
+        return false;
+    }
+    let mut x = [0u32; words(HEAD_DIM)];
+    widen(queries.each_ref().map(|q| &q[..]), &mut x);
+    for (j, key) in keys.chunks_exact(HEAD_DIM).enumerate() {
+        for (r, v) in tile(&x, key, [0; ROWS]).into_iter().enumerate() {
+            if let Some(s) = scores.get_mut(r * n + j) {
+                *s = v;
+            }
         }
     }
     true

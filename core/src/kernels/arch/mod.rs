@@ -103,12 +103,16 @@ pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
 /// Attention scores of four queries against `keys.len() / HEAD_DIM` keys (`scores[q * n + j]`,
 /// `scores` exactly `4 * n` long), bit for bit
 /// [`attention::scores_block_reference`](crate::kernels::attention::scores_block_reference), on
-/// this core's assembly kernel (Cortex-M55); `false` (nothing written) where there is none.
+/// this core's assembly kernel (Cortex-M55: two queries in vector registers; Cortex-M7: the
+/// DSP tile's widened queries against every key in one loop); `false` (nothing written) where
+/// there is none.
 #[inline]
 pub fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], scores: &mut [i32]) -> bool {
     #[cfg(bino_mve)]
     return mve::attention_scores(queries, keys, scores);
-    #[cfg(not(bino_mve))]
+    #[cfg(bino_dsp)]
+    return dsp::attention_scores(queries, keys, scores);
+    #[cfg(not(any(bino_mve, bino_dsp)))]
     {
         let _ = (queries, keys, scores);
         false
@@ -243,6 +247,31 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn dsp_scores_layout_matches_the_reference() {
+        // The Cortex-M7 scores kernel's widening and row-strided stores, through its portable
+        // twin (the kernel test firmware checks the assembly on 1 to 960 keys).
+        let mut rng = Rng::new(34);
+        for (n, extreme) in [(1usize, false), (2, true), (7, false), (33, false), (33, true)] {
+            let mut queries = [[0i8; HEAD_DIM]; 4];
+            let mut keys = [0i8; 33 * HEAD_DIM];
+            if extreme {
+                queries = [[-128; HEAD_DIM]; 4];
+                keys.fill(-128);
+                keys[..HEAD_DIM].fill(127);
+            } else {
+                queries.iter_mut().for_each(|q| rng.fill_i8(q));
+                rng.fill_i8(&mut keys);
+            }
+            let keys = &keys[..n * HEAD_DIM];
+            let (mut got, mut want) = ([0i32; 4 * 33], [0i32; 4 * 33]);
+            assert!(dsp::attention_scores(&queries, keys, &mut got[..4 * n]));
+            crate::kernels::attention::scores_block_reference(&queries, keys, &mut want[..4 * n]);
+            assert_eq!(got[..4 * n], want[..4 * n], "n {n}");
+        }
+        assert!(!dsp::attention_scores(&[[0; HEAD_DIM]; 4], &[0; HEAD_DIM], &mut [0; 3]));
     }
 
     #[test]
