@@ -199,8 +199,7 @@ pub fn scores_block(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usi
     let Some(scores) = scores.get_mut(..QUERY_BLOCK * n) else {
         return;
     };
-    let taken = arch::attention_scores(queries, keys_n, scores)
-        || avx2_scores(queries, keys_n, n, scores);
+    let taken = arch::attention_scores(queries, keys_n, scores) || avx2_scores(queries, keys_n, n, scores);
     if !taken {
         scores_block_reference(queries, keys_n, scores);
     }

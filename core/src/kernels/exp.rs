@@ -88,6 +88,25 @@ pub static EXP2_NEG_I8_TABLE: [i8; EXP2_TABLE_LAST as usize + 1] = {
     t
 };
 
+/// [`EXP2_NEG_I8_TABLE`] continued to 4,096 entries (`w = 0`, stored as -128, from
+/// [`EXP2_TABLE_LAST`] on): the Cortex-M7 softmax clamps its index with one `usat #12` instead of
+/// a compare and a conditional move.
+#[cfg_attr(not(any(bino_dsp, test)), allow(dead_code))]
+pub static EXP2_NEG_I8_TABLE_4K: [i8; 4096] = {
+    let mut t = [0i8; 4096];
+    let mut x = 0;
+    while x < t.len() {
+        let q = if x < EXP2_TABLE_LAST as usize {
+            x as u32
+        } else {
+            EXP2_TABLE_LAST
+        };
+        t[x] = (exp2_neg_u8_q8(q) ^ 0x80) as i8;
+        x += 1;
+    }
+    t
+};
+
 /// `exp(-gap * scale)` as `0..=255`, where `to_log2_q8` turns a score gap into Q8 base-2 units.
 #[inline(always)]
 pub fn exp_neg_u8(gap: i64, to_log2_q8: Requant) -> u8 {

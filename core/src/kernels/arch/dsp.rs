@@ -9,6 +9,8 @@
 
 use super::{Epilogue, MAX_K};
 use crate::config::HEAD_DIM;
+#[cfg(any(bino_dsp, test))]
+use crate::kernels::exp::{ExpQ32, EXP2_NEG_I8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// Activation rows per tile.
 const ROWS: usize = 4;
@@ -252,6 +254,89 @@ pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; ROWS], keys: &[i8], sc
         }
     }
     true
+}
+
+/// A softmax row on Cortex-M7, bit for bit
+/// [`attention::softmax_row`](crate::kernels::attention::softmax_row): per score one `ldr`, the
+/// gap, one `umull` by the multiplier with the gap's pre-shift folded in, the rounding add and
+/// shift, `usat #12` into [`EXP2_NEG_I8_TABLE_4K`], and the weight stored as `w - 128` and summed
+/// (the row's sum is then that sum plus `128 n`). `None` (nothing written) unless `weights` is
+/// as long as `scores` and the row's parameters allow the loop's shortcuts:
+///
+/// - the multiplier shifted by `pre` stays below `2^31`, so the product's high word plus the
+///   rounding term cannot wrap and is the specification's `hi((gap << pre) mult) + round`;
+/// - the gap [`EXP_Q32_MAX_GAP`] already maps to the table's last entry (weight 0): the index
+///   grows with the gap, so gaps beyond it, which the specification clamps there, and scores
+///   above `max` (wrapped gaps) give weight 0 as well, and no clamp of the gap is needed.
+#[cfg(any(bino_dsp, test))]
+pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> Option<u32> {
+    let n = scores.len();
+    let (pre, round, post) = e.shifts();
+    let mult = (e.mult() as u64) << pre;
+    if n == 0 || weights.len() != n || mult >= 1 << 31 {
+        return None;
+    }
+    let mult = mult as u32;
+    let index = |gap: u32| ((((gap as u64 * mult as u64) >> 32) as u32) + round) >> post;
+    if index(EXP_Q32_MAX_GAP) < EXP2_TABLE_LAST {
+        return None;
+    }
+    let sum = signed_weights(max, mult, round, post, scores, weights);
+    Some(sum.wrapping_add(128u32.wrapping_mul(n as u32)))
+}
+
+/// The loop of [`softmax_row`]: stores `w - 128` per score and returns their sum.
+#[cfg(bino_dsp)]
+#[inline(always)]
+fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], weights: &mut [u8]) -> u32 {
+    let mut sum = 0u32;
+    // SAFETY: the caller gives `scores` and `weights` one length `n >= 1`; the loop runs `n`
+    // times, reads `n` words of `scores` (an `[i32]`, word-aligned) and writes `n` bytes of
+    // `weights`; its table index is `usat`urated to `0..=4095`, inside the 4,096-byte
+    // `EXP2_NEG_I8_TABLE_4K`. Only declared outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldr {t}, [{s}], #4",
+            "sub {t}, {max}, {t}",
+            "umull {lo}, {t}, {t}, {mult}",
+            "add {t}, {t}, {round}",
+            "lsr {t}, {t}, {post}",
+            "usat {t}, #12, {t}",
+            "ldrsb {t}, [{table}, {t}]",
+            "strb {t}, [{w}], #1",
+            "add {sum}, {sum}, {t}",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            s = inout(reg) scores.as_ptr() => _,
+            w = inout(reg) weights.as_mut_ptr() => _,
+            n = inout(reg) scores.len() => _,
+            sum = inout(reg) sum,
+            max = in(reg) max,
+            mult = in(reg) mult,
+            round = in(reg) round,
+            post = in(reg) post,
+            table = in(reg) EXP2_NEG_I8_TABLE_4K.as_ptr(),
+            t = out(reg) _,
+            lo = out(reg) _,
+            options(nostack),
+        );
+    }
+    sum
+}
+
+/// The portable twin of the Cortex-M7 softmax loop (host tests of its shortcuts).
+#[cfg(all(test, not(bino_dsp)))]
+fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], weights: &mut [u8]) -> u32 {
+    let mut sum = 0u32;
+    for (w, &s) in weights.iter_mut().zip(scores) {
+        let gap = max.wrapping_sub(s) as u32;
+        let index = ((((gap as u64 * mult as u64) >> 32) as u32 + round) >> post).min(4095);
+        let t = EXP2_NEG_I8_TABLE_4K[index as usize];
+        *w = t as u8;
+        sum = sum.wrapping_add(t as i32 as u32);
+    }
+    sum
 }
 
 /// Rows of int8 to the interleaved 16-bit layout: for group `g` and row `r`, word

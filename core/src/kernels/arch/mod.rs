@@ -154,12 +154,15 @@ pub(crate) fn residual_add_row(x: &mut [i8], acc: &[i32], params: &[i32]) -> boo
 
 /// One softmax row and their sum, bit for bit
 /// [`attention::softmax_row`](crate::kernels::attention::softmax_row), on this core's assembly
-/// kernel (Cortex-M55); `None` (nothing written) where there is none.
+/// kernel (Cortex-M55; Cortex-M7 where the row's parameters allow its shortcuts); `None`
+/// (nothing written) where there is none.
 #[inline]
 pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> Option<u32> {
     #[cfg(bino_mve)]
     return Some(mve::softmax_row(e, max, scores, weights));
-    #[cfg(not(bino_mve))]
+    #[cfg(bino_dsp)]
+    return dsp::softmax_row(e, max, scores, weights);
+    #[cfg(not(any(bino_mve, bino_dsp)))]
     {
         let _ = (e, max, scores, weights);
         None
@@ -272,6 +275,47 @@ mod tests {
             assert_eq!(got[..4 * n], want[..4 * n], "n {n}");
         }
         assert!(!dsp::attention_scores(&[[0; HEAD_DIM]; 4], &[0; HEAD_DIM], &mut [0; 3]));
+    }
+
+    #[test]
+    fn dsp_softmax_shortcuts_match_the_specification() {
+        use crate::fixed::Requant;
+        use crate::kernels::attention::softmax_row as specification;
+        let mut rng = Rng::new(35);
+        let mut taken = 0;
+        for trial in 0..3000 {
+            let shift = rng.range(22, 40) as u32;
+            let mult = if trial % 4 == 0 {
+                rng.range(1, 1 << 20) as i32
+            } else {
+                rng.range(1 << 29, i32::MAX as i64) as i32
+            };
+            let Some(e) = ExpQ32::new(Requant { mult, shift }) else {
+                continue;
+            };
+            let n = rng.range(1, 40) as usize;
+            let mut scores = [0i32; 40];
+            for s in scores[..n].iter_mut() {
+                *s = rng.range(-(1 << 19), 1 << 19) as i32;
+            }
+            // Mostly the row's true maximum; sometimes one below a score (wrapped gaps) or
+            // far above every score (gaps past the clamp).
+            let top = scores[..n].iter().copied().max().unwrap_or(0);
+            let max = match trial % 5 {
+                0 => top - 1,
+                1 => top + (1 << 21),
+                _ => top,
+            };
+            let (mut got, mut want) = ([0u8; 40], [0u8; 40]);
+            let want_sum = specification(&e, max, &scores[..n], &mut want[..n]);
+            if let Some(sum) = dsp::softmax_row(&e, max, &scores[..n], &mut got[..n]) {
+                taken += 1;
+                assert_eq!((got, sum), (want, want_sum), "mult {mult} shift {shift} max {max}");
+            } else {
+                assert_eq!(got, [0; 40], "declined rows are not written");
+            }
+        }
+        assert!(taken > 1000, "{taken} rows taken");
     }
 
     #[test]
