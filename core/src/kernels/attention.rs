@@ -163,7 +163,14 @@ pub fn attend_block(
     // AVX2 hosts: the weights widened once into the scores' room (no longer needed).
     // Cortex-M55 too: the 2 x 3 Helium tile (12 instructions per 96 MACs) beats the four-row
     // loop, which reloads every weight row for each value channel.
-    let tile = arch::matmul_i32(weights_i8, values_n, n, acc.as_flattened_mut());
+    // Cortex-M7: the weight rows widened into the scores' room as well.
+    let tile = arch::matmul_i32_rows_in(
+        weights_i8,
+        values_n,
+        n,
+        acc.as_flattened_mut(),
+        bytemuck::cast_slice_mut(&mut *scores),
+    ) || arch::matmul_i32(weights_i8, values_n, n, acc.as_flattened_mut());
     if tile || avx2_weighted_sums(weights_i8, values_n, n, sums, scores, &mut acc) {
         for acc_q in acc.iter_mut() {
             for (a, &sum) in acc_q.iter_mut().zip(sums) {

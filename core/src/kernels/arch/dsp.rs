@@ -38,6 +38,37 @@ const fn words(k: usize) -> usize {
     k / 4 * 2 * ROWS
 }
 
+/// [`gemm`] for one block of at most four rows, widened into the caller's `scratch` (at least
+/// `k / 2` words per row block of four: attention's weighted sums lend it the scores' room,
+/// no longer needed, so no stack scratch is zeroed for each call). Declines as [`gemm`] does,
+/// and for more than four rows or a short scratch.
+#[cfg_attr(not(any(bino_dsp, test)), allow(dead_code))]
+pub(crate) fn gemm_rows_in<E: Epilogue>(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    m: usize,
+    epi: &mut E,
+    scratch: &mut [u32],
+) -> bool {
+    if k == 0 || !k.is_multiple_of(4) || k > MAX_K || m == 0 || m > ROWS || !(w.as_ptr() as usize).is_multiple_of(4) {
+        return false;
+    }
+    let Some(x) = scratch.get_mut(..k / 4 * 2 * ROWS) else {
+        return false;
+    };
+    let rows: [&[i8]; ROWS] = core::array::from_fn(|i| {
+        let r = i.min(m - 1);
+        a.get(r * k..(r + 1) * k).unwrap_or(&[])
+    });
+    widen(rows, x);
+    for (j, w_row) in w.chunks_exact(k).enumerate() {
+        let acc = tile(x, w_row, [epi.init(j); ROWS]);
+        epi.put_col(0, j, acc, m);
+    }
+    true
+}
+
 /// [`gemm`] with a `WORDS`-word scratch (`k <= 4 * WORDS / (2 * ROWS)`). Never inlined: the
 /// scratch then lives on the stack only while it runs, instead of in the frame of every
 /// caller (the encoder's GEMMs and attention would each add one to the stack peak).

@@ -100,6 +100,19 @@ pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
     false
 }
 
+/// [`matmul_i32`] for at most four rows of `a` with the Cortex-M7 tile's widened rows in the
+/// caller's `scratch` (`k / 2` words at least) instead of a zeroed stack scratch; `false`
+/// (nothing written) on other cores or shapes.
+#[inline]
+pub fn matmul_i32_rows_in(a: &[i8], w: &[i8], k: usize, out: &mut [i32], scratch: &mut [u32]) -> bool {
+    #[cfg(bino_dsp)]
+    if let Some((m, n)) = shape(a, w, k, out.len()) {
+        return dsp::gemm_rows_in(a, w, k, m, &mut Store { out, n }, scratch);
+    }
+    let _ = (a, w, k, out, scratch);
+    false
+}
+
 /// Attention scores of four queries against `keys.len() / HEAD_DIM` keys (`scores[q * n + j]`,
 /// `scores` exactly `4 * n` long), bit for bit
 /// [`attention::scores_block_reference`](crate::kernels::attention::scores_block_reference), on
@@ -250,6 +263,48 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn dsp_rows_with_a_lent_scratch_match_the_reference() {
+        let mut rng = Rng::new(36);
+        let mut scratch = [0u32; 2 * 960];
+        for (m, n, k) in [(1usize, 1usize, 4usize), (3, 5, 36), (4, 32, 960), (4, 3, 128)] {
+            let mut a = [0i8; 4 * 960];
+            let mut w = [0i8; 32 * 960];
+            rng.fill_i8(&mut a[..m * k]);
+            rng.fill_i8(&mut w[..n * k]);
+            let (mut got, mut want) = ([0i32; 4 * 32], [0i32; 4 * 32]);
+            let took = dsp::gemm_rows_in(
+                &a[..m * k],
+                &w[..n * k],
+                k,
+                m,
+                &mut Store { out: &mut got, n },
+                &mut scratch,
+            );
+            assert!(took, "m={m} n={n} k={k}");
+            matmul_i8_reference(&a[..m * k], &w[..n * k], k, &mut want[..m * n]);
+            assert_eq!(got[..m * n], want[..m * n], "m={m} n={n} k={k}");
+        }
+        // Five rows, or a scratch short of k / 2 words, are declined.
+        let (a, w) = ([1i8; 5 * 8], [1i8; 8]);
+        assert!(!dsp::gemm_rows_in(
+            &a,
+            &w,
+            8,
+            5,
+            &mut Store { out: &mut [0; 5], n: 1 },
+            &mut scratch
+        ));
+        assert!(!dsp::gemm_rows_in(
+            &a[..8],
+            &w,
+            8,
+            1,
+            &mut Store { out: &mut [0; 1], n: 1 },
+            &mut [0u32; 3]
+        ));
     }
 
     #[test]
