@@ -7,13 +7,15 @@
 //! eight `smlad`, the loop unrolled over eight groups where their count allows (two where it is
 //! even). The scratch is reused for every output column.
 
+#[cfg(bino_dsp)]
+use super::fused::Col;
 use super::{Epilogue, MAX_K};
 use crate::config::HEAD_DIM;
 #[cfg(any(bino_dsp, test))]
 use crate::kernels::exp::{ExpQ32, EXP2_NEG_I8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// Activation rows per tile.
-const ROWS: usize = 4;
+pub(super) const ROWS: usize = 4;
 
 /// The tile driver: `m` rows of `a` against every row of `w`, each finished accumulator to
 /// `epi`. Declines (`false`) `k` not a multiple of 4 or `w` not word-aligned (the kernel loads
@@ -62,6 +64,9 @@ pub(crate) fn gemm_rows_in<E: Epilogue>(
         a.get(r * k..(r + 1) * k).unwrap_or(&[])
     });
     widen(rows, x);
+    if m == ROWS && epi.block_of_rows(0, x, w, k) {
+        return true;
+    }
     for (j, w_row) in w.chunks_exact(k).enumerate() {
         let acc = tile(x, w_row, [epi.init(j); ROWS]);
         epi.put_col(0, j, acc, m);
@@ -86,10 +91,411 @@ fn gemm_in<E: Epilogue, const WORDS: usize>(a: &[i8], w: &[i8], k: usize, m: usi
             a.get(r * k..(r + 1) * k).unwrap_or(&[])
         });
         widen(rows, scratch);
+        if m - r0 >= ROWS && epi.block_of_rows(r0, scratch, w, k) {
+            continue;
+        }
         for (j, w_row) in w.chunks_exact(k).enumerate() {
             let acc = tile(scratch, w_row, [epi.init(j); ROWS]);
             epi.put_col(r0, j, acc, m - r0);
         }
+    }
+    true
+}
+
+/// Four widened rows (`x`, from [`widen`]) against every row of `w` (`k` codes each, `k` a
+/// multiple of 32, `w` word-aligned) in one assembly call, the sums stored as `i32` into `out`
+/// (four rows of `n = w.len() / k` values at a stride of `n`): per column the accumulators
+/// zeroed, the eight-group loop of [`tile`] and four row-strided stores, without returning to
+/// Rust (the per-column driver spent about 100 instructions a column around the loop). `false`
+/// (nothing written) for other lengths or alignments.
+#[cfg(bino_dsp)]
+pub(super) fn rows_i32(x: &[u32], w: &[i8], k: usize, out: &mut [i32]) -> bool {
+    let n = w.len() / k.max(1);
+    if k == 0 || !k.is_multiple_of(32) || w.len() != n * k || n == 0 || out.len() != ROWS * n {
+        return false;
+    }
+    if x.len() < k / 4 * 2 * ROWS || !(w.as_ptr() as usize).is_multiple_of(4) {
+        return false;
+    }
+    // SAFETY: per column `j` (`n` of them) the loop reads the `k` bytes of weight row `j` (word
+    // loads: `w` is word-aligned and exactly `n * k` bytes, checked) and the first `2 k` words
+    // of `x` (checked), and writes `out[j]`, `out[n + j]`, `out[2n + j]`, `out[3n + j]` (`out`
+    // is exactly `4 n` words, checked). The row stride, the loop count, the output pointer and
+    // the column count live in 16 bytes pushed below `sp` and dropped before the end. Only
+    // declared outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "sub sp, sp, #16",
+            "strd {t0}, {t1}, [sp]",
+            "strd {x0}, {x1}, [sp, #8]",
+            "3:",
+            "movs {a0}, #0",
+            "movs {a1}, #0",
+            "movs {a2}, #0",
+            "movs {a3}, #0",
+            "mov {xp}, {xb}",
+            "ldr {g}, [sp, #4]",
+            "2:",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "subs {g}, {g}, #1",
+            "bne 2b",
+            "ldr {t0}, [sp, #0]",
+            "ldr {t1}, [sp, #8]",
+            "str {a0}, [{t1}]",
+            "str {a1}, [{t1}, {t0}]",
+            "add {x0}, {t1}, {t0}, lsl #1",
+            "str {a2}, [{x0}]",
+            "str {a3}, [{x0}, {t0}]",
+            "add {t1}, {t1}, #4",
+            "str {t1}, [sp, #8]",
+            "ldr {x1}, [sp, #12]",
+            "subs {x1}, {x1}, #1",
+            "str {x1}, [sp, #12]",
+            "bne 3b",
+            "add sp, sp, #16",
+            w = inout(reg) w.as_ptr() => _,
+            xb = in(reg) x.as_ptr(),
+            xp = out(reg) _,
+            g = out(reg) _,
+            t0 = inout(reg) 4 * n => _,
+            t1 = inout(reg) k / 32 => _,
+            x0 = inout(reg) out.as_mut_ptr() => _,
+            x1 = inout(reg) n => _,
+            a0 = out(reg) _,
+            a1 = out(reg) _,
+            a2 = out(reg) _,
+            a3 = out(reg) _,
+        );
+    }
+    true
+}
+
+/// [`rows_i32`] with the fused epilogue: each column's accumulators start from its `Col`'s bias,
+/// and each sum leaves as `ssat8((smmul(acc, mult) + addend) >> s)` (`Col::apply`), stored as a
+/// byte into four rows of `out` at a stride of `stride` bytes (`out` starts at the first row's
+/// first column; `params` holds one `Col` per row of `w`). `false` (nothing written) for other
+/// lengths or alignments.
+#[cfg(bino_dsp)]
+pub(super) fn rows_requant(x: &[u32], w: &[i8], k: usize, params: &[Col], out: &mut [i8], stride: usize) -> bool {
+    let n = params.len();
+    if k == 0 || !k.is_multiple_of(32) || n == 0 || w.len() != n * k || stride < n {
+        return false;
+    }
+    if out.len() < (ROWS - 1) * stride + n || x.len() < k / 4 * 2 * ROWS || !(w.as_ptr() as usize).is_multiple_of(4) {
+        return false;
+    }
+    // SAFETY: per column `j` (`n` of them) the loop reads the `k` bytes of weight row `j` (word
+    // loads: `w` is word-aligned and exactly `n * k` bytes, checked), the first `2 k` words of
+    // `x` (checked) and the four words of `params[j]` (`repr(C)` `Col`: bias, mult, addend,
+    // s), and writes bytes `j`, `stride + j`, `2 stride + j`, `3 stride + j` of `out` (checked:
+    // `out` holds `3 stride + n` bytes). The row stride, the loop count, the parameter and
+    // output pointers and the column count live in 24 bytes below `sp`, dropped before the
+    // end. Only declared outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "sub sp, sp, #24",
+            "strd {t0}, {t1}, [sp]",
+            "strd {x0}, {x1}, [sp, #8]",
+            "str {g}, [sp, #16]",
+            "3:",
+            "ldr {t0}, [sp, #8]",
+            "ldr {a0}, [{t0}]",
+            "mov {a1}, {a0}",
+            "mov {a2}, {a0}",
+            "mov {a3}, {a0}",
+            "mov {xp}, {xb}",
+            "ldr {g}, [sp, #4]",
+            "2:",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "subs {g}, {g}, #1",
+            "bne 2b",
+            "ldr {t0}, [sp, #8]",
+            "ldr {x0}, [{t0}, #4]",
+            "ldr {x1}, [{t0}, #8]",
+            "ldr {g}, [{t0}, #12]",
+            "add {t0}, {t0}, #16",
+            "str {t0}, [sp, #8]",
+            "ldr {t0}, [sp, #16]",
+            "ldr {t1}, [sp, #0]",
+            "smmul {xp}, {a0}, {x0}",
+            "add {xp}, {xp}, {x1}",
+            "asr {xp}, {xp}, {g}",
+            "ssat {xp}, #8, {xp}",
+            "strb {xp}, [{t0}]",
+            "smmul {xp}, {a1}, {x0}",
+            "add {xp}, {xp}, {x1}",
+            "asr {xp}, {xp}, {g}",
+            "ssat {xp}, #8, {xp}",
+            "strb {xp}, [{t0}, {t1}]",
+            "add {a1}, {t0}, {t1}, lsl #1",
+            "smmul {xp}, {a2}, {x0}",
+            "add {xp}, {xp}, {x1}",
+            "asr {xp}, {xp}, {g}",
+            "ssat {xp}, #8, {xp}",
+            "strb {xp}, [{a1}]",
+            "smmul {xp}, {a3}, {x0}",
+            "add {xp}, {xp}, {x1}",
+            "asr {xp}, {xp}, {g}",
+            "ssat {xp}, #8, {xp}",
+            "strb {xp}, [{a1}, {t1}]",
+            "add {t0}, {t0}, #1",
+            "str {t0}, [sp, #16]",
+            "ldr {x1}, [sp, #12]",
+            "subs {x1}, {x1}, #1",
+            "str {x1}, [sp, #12]",
+            "bne 3b",
+            "add sp, sp, #24",
+            w = inout(reg) w.as_ptr() => _,
+            xb = in(reg) x.as_ptr(),
+            xp = out(reg) _,
+            g = inout(reg) out.as_mut_ptr() => _,
+            t0 = inout(reg) stride => _,
+            t1 = inout(reg) k / 32 => _,
+            x0 = inout(reg) params.as_ptr() => _,
+            x1 = inout(reg) n => _,
+            a0 = out(reg) _,
+            a1 = out(reg) _,
+            a2 = out(reg) _,
+            a3 = out(reg) _,
+        );
     }
     true
 }

@@ -118,6 +118,16 @@ impl Epilogue for Fused<'_> {
             *o = c.apply(acc);
         }
     }
+    #[cfg(bino_dsp)]
+    #[inline(always)]
+    fn block_of_rows(&mut self, row0: usize, x: &[u32], w: &[i8], k: usize) -> bool {
+        let len = w.len() / k.max(1);
+        let at = row0 * self.n + self.j0;
+        match (self.params.get(..len), self.out.get_mut(at..)) {
+            (Some(params), Some(out)) => super::dsp::rows_requant(x, w, k, params, out, self.n),
+            _ => false,
+        }
+    }
     #[inline(always)]
     fn put_col<const R: usize>(&mut self, row0: usize, j: usize, acc: [i32; R], rows: usize) {
         let Some(&c) = self.params.get(j) else {

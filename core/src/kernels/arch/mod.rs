@@ -50,6 +50,15 @@ pub(crate) trait Epilogue {
             self.put(row0 + i, j, v);
         }
     }
+    /// Rows `row0..row0 + 4` against every row of `w` in one assembly call, from the DSP
+    /// tile's widened rows `x` (Cortex-M7), where this epilogue has such a kernel; `false`
+    /// (nothing written) otherwise, and the driver goes column by column.
+    #[cfg_attr(not(any(bino_dsp, test)), allow(dead_code))]
+    #[inline(always)]
+    fn block_of_rows(&mut self, row0: usize, x: &[u32], w: &[i8], k: usize) -> bool {
+        let _ = (row0, x, w, k);
+        false
+    }
 }
 
 /// Stores accumulators as they are: `out[row * n + j]`.
@@ -69,6 +78,14 @@ impl Epilogue for Store<'_> {
         if let Some(o) = self.out.get_mut(row * self.n + j) {
             *o = acc;
         }
+    }
+    #[cfg(bino_dsp)]
+    #[inline(always)]
+    fn block_of_rows(&mut self, row0: usize, x: &[u32], w: &[i8], k: usize) -> bool {
+        let n = self.n;
+        self.out
+            .get_mut(row0 * n..(row0 + dsp::ROWS) * n)
+            .is_some_and(|out| dsp::rows_i32(x, w, k, out))
     }
 }
 
