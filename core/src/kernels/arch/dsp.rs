@@ -103,15 +103,16 @@ fn gemm_in<E: Epilogue, const WORDS: usize>(a: &[i8], w: &[i8], k: usize, m: usi
 }
 
 /// Four widened rows (`x`, from [`widen`]) against every row of `w` (`k` codes each, `k` a
-/// multiple of 32, `w` word-aligned) in one assembly call, the sums stored as `i32` into `out`
+/// multiple of 8, `w` word-aligned) in one assembly call, the sums stored as `i32` into `out`
 /// (four rows of `n = w.len() / k` values at a stride of `n`): per column the accumulators
-/// zeroed, the eight-group loop of [`tile`] and four row-strided stores, without returning to
+/// zeroed, the eight-group loop of [`tile`] then a two-group loop for the rest of `k` (the
+/// head's convolutions: `k` = 27 x 16 or 27 x 24), and four row-strided stores, without returning to
 /// Rust (the per-column driver spent about 100 instructions a column around the loop). `false`
 /// (nothing written) for other lengths or alignments.
 #[cfg(bino_dsp)]
 pub(super) fn rows_i32(x: &[u32], w: &[i8], k: usize, out: &mut [i32]) -> bool {
     let n = w.len() / k.max(1);
-    if k == 0 || !k.is_multiple_of(32) || w.len() != n * k || n == 0 || out.len() != ROWS * n {
+    if k == 0 || !k.is_multiple_of(8) || w.len() != n * k || n == 0 || out.len() != ROWS * n {
         return false;
     }
     if x.len() < k / 4 * 2 * ROWS || !(w.as_ptr() as usize).is_multiple_of(4) {
@@ -125,9 +126,10 @@ pub(super) fn rows_i32(x: &[u32], w: &[i8], k: usize, out: &mut [i32]) -> bool {
     // declared outputs are written; the flags are clobbered.
     unsafe {
         core::arch::asm!(
-            "sub sp, sp, #16",
+            "sub sp, sp, #24",
             "strd {t0}, {t1}, [sp]",
             "strd {x0}, {x1}, [sp, #8]",
+            "str {g}, [sp, #16]",
             "3:",
             "movs {a0}, #0",
             "movs {a1}, #0",
@@ -135,6 +137,8 @@ pub(super) fn rows_i32(x: &[u32], w: &[i8], k: usize, out: &mut [i32]) -> bool {
             "movs {a3}, #0",
             "mov {xp}, {xb}",
             "ldr {g}, [sp, #4]",
+            "cmp {g}, #0",
+            "beq 4f",
             "2:",
             "ldr {t0}, [{w}], #4",
             "ldrd {x0}, {x1}, [{xp}], #8",
@@ -258,6 +262,44 @@ pub(super) fn rows_i32(x: &[u32], w: &[i8], k: usize, out: &mut [i32]) -> bool {
             "smlad {a3}, {x1}, {t0}, {a3}",
             "subs {g}, {g}, #1",
             "bne 2b",
+            "4:",
+            "ldr {g}, [sp, #16]",
+            "cmp {g}, #0",
+            "beq 5f",
+            "6:",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "subs {g}, {g}, #1",
+            "bne 6b",
+            "5:",
             "ldr {t0}, [sp, #0]",
             "ldr {t1}, [sp, #8]",
             "str {a0}, [{t1}]",
@@ -271,11 +313,11 @@ pub(super) fn rows_i32(x: &[u32], w: &[i8], k: usize, out: &mut [i32]) -> bool {
             "subs {x1}, {x1}, #1",
             "str {x1}, [sp, #12]",
             "bne 3b",
-            "add sp, sp, #16",
+            "add sp, sp, #24",
             w = inout(reg) w.as_ptr() => _,
             xb = in(reg) x.as_ptr(),
             xp = out(reg) _,
-            g = out(reg) _,
+            g = inout(reg) k % 32 / 8 => _,
             t0 = inout(reg) 4 * n => _,
             t1 = inout(reg) k / 32 => _,
             x0 = inout(reg) out.as_mut_ptr() => _,
@@ -297,7 +339,7 @@ pub(super) fn rows_i32(x: &[u32], w: &[i8], k: usize, out: &mut [i32]) -> bool {
 #[cfg(bino_dsp)]
 pub(super) fn rows_requant(x: &[u32], w: &[i8], k: usize, params: &[Col], out: &mut [i8], stride: usize) -> bool {
     let n = params.len();
-    if k == 0 || !k.is_multiple_of(32) || n == 0 || w.len() != n * k || stride < n {
+    if k == 0 || !k.is_multiple_of(8) || n == 0 || w.len() != n * k || stride < n {
         return false;
     }
     if out.len() < (ROWS - 1) * stride + n || x.len() < k / 4 * 2 * ROWS || !(w.as_ptr() as usize).is_multiple_of(4) {
@@ -315,7 +357,7 @@ pub(super) fn rows_requant(x: &[u32], w: &[i8], k: usize, params: &[Col], out: &
             "sub sp, sp, #24",
             "strd {t0}, {t1}, [sp]",
             "strd {x0}, {x1}, [sp, #8]",
-            "str {g}, [sp, #16]",
+            "strd {g}, {a0}, [sp, #16]",
             "3:",
             "ldr {t0}, [sp, #8]",
             "ldr {a0}, [{t0}]",
@@ -324,6 +366,8 @@ pub(super) fn rows_requant(x: &[u32], w: &[i8], k: usize, params: &[Col], out: &
             "mov {a3}, {a0}",
             "mov {xp}, {xb}",
             "ldr {g}, [sp, #4]",
+            "cmp {g}, #0",
+            "beq 4f",
             "2:",
             "ldr {t0}, [{w}], #4",
             "ldrd {x0}, {x1}, [{xp}], #8",
@@ -447,6 +491,44 @@ pub(super) fn rows_requant(x: &[u32], w: &[i8], k: usize, params: &[Col], out: &
             "smlad {a3}, {x1}, {t0}, {a3}",
             "subs {g}, {g}, #1",
             "bne 2b",
+            "4:",
+            "ldr {g}, [sp, #20]",
+            "cmp {g}, #0",
+            "beq 5f",
+            "6:",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "ldr {t0}, [{w}], #4",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "sxtb16 {t1}, {t0}",
+            "sxtb16 {t0}, {t0}, ror #8",
+            "smlad {a0}, {x0}, {t1}, {a0}",
+            "smlad {a0}, {x1}, {t0}, {a0}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a1}, {x0}, {t1}, {a1}",
+            "smlad {a1}, {x1}, {t0}, {a1}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a2}, {x0}, {t1}, {a2}",
+            "smlad {a2}, {x1}, {t0}, {a2}",
+            "ldrd {x0}, {x1}, [{xp}], #8",
+            "smlad {a3}, {x0}, {t1}, {a3}",
+            "smlad {a3}, {x1}, {t0}, {a3}",
+            "subs {g}, {g}, #1",
+            "bne 6b",
+            "5:",
             "ldr {t0}, [sp, #8]",
             "ldr {x0}, [{t0}, #4]",
             "ldr {x1}, [{t0}, #8]",
@@ -491,7 +573,7 @@ pub(super) fn rows_requant(x: &[u32], w: &[i8], k: usize, params: &[Col], out: &
             t1 = inout(reg) k / 32 => _,
             x0 = inout(reg) params.as_ptr() => _,
             x1 = inout(reg) n => _,
-            a0 = out(reg) _,
+            a0 = inout(reg) k % 32 / 8 => _,
             a1 = out(reg) _,
             a2 = out(reg) _,
             a3 = out(reg) _,
