@@ -292,7 +292,8 @@ pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> 
 }
 
 /// [`softmax_row`] on this core's fastest path, bit for bit the same: AVX-512 on x86 hosts that
-/// have it, the Helium assembly on Cortex-M55, the byte table on Cortex-M7.
+/// have it, the Helium assembly on Cortex-M55, the DSP row (or, for rows it declines, the byte
+/// table) on Cortex-M7.
 #[inline(always)]
 pub fn softmax_row_fastest(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
     if let Some(sum) = x86_softmax_row(e, max, scores, weights) {

@@ -626,7 +626,8 @@ fn row_max(scores: &[i32]) -> i32 {
 }
 
 /// The softmax row on this core's fastest path (`softmax_row_fastest`: the Helium assembly on
-/// Cortex-M55, the DSP row or the byte table on Cortex-M7) against the portable `softmax_row`, bit for bit:
+/// Cortex-M55, the DSP row or the byte table on Cortex-M7) against the portable `softmax_row`,
+/// bit for bit:
 /// rows of 1 to 960 scores (every tail length of a 4-lane step), spreads from a few codes to
 /// 2^31, the extreme scores (gaps that wrap, or pass the 2^20 clamp), a maximum below the
 /// row's own (negative gaps), and the shifts and multipliers an attention can hold.

@@ -1,11 +1,13 @@
-//! Assembly kernels for the Cortex-M cores (GEMM tiles, and the softmax row on Cortex-M55),
-//! behind safe wrappers.
+//! Assembly kernels for the Cortex-M cores (GEMM tiles, attention's scores and softmax rows,
+//! and on Cortex-M55 LayerNorm's, the residual add's and the rotary embedding's lanes), behind
+//! safe wrappers.
 //!
 //! The only module of `bino-core` that may use `unsafe`, and only for `core::arch::asm!`.
 //! Each kernel computes a small tile of dot products in registers. On Cortex-M7 (`dsp`: 4 rows
-//! x 1 column with `sxtb16` + `smlad`) a Rust driver hands each finished tile to an `Epilogue`
-//! in the same pass: a plain `i32` store, or bias, per-channel requantisation, zero point and
-//! the int8 store (`Fused`). On Cortex-M55 (`mve`: 2 rows x 3 columns with `vmladava.s8`) one
+//! x 1 column with `sxtb16` + `smlad`) one kernel call runs a block of four rows against every
+//! column with the `Epilogue`'s store (a plain `i32`, or bias, per-channel requantisation, zero
+//! point and the int8 store: `Fused`); partial row blocks go through a Rust driver that hands
+//! each finished tile to the epilogue. On Cortex-M55 (`mve`: 2 rows x 3 columns with `vmladava.s8`) one
 //! kernel call runs a pair of rows against every column triple, the store or the fused
 //! requantisation (in vector lanes) included. The portable kernels (`matmul::matmul_i8_reference`,
 //! `epilogue::requant_rows`) stay the specification; the wrappers return `false` for shapes
