@@ -141,7 +141,7 @@ pub fn attend_block(
     let mut total = [0u32; QUERY_BLOCK];
     let rows = [(s0, &mut *w0), (s1, &mut *w1), (s2, &mut *w2), (s3, &mut *w3)];
     for ((s_row, w_row), t) in rows.into_iter().zip(total.iter_mut()) {
-        let m = s_row.iter().fold(i32::MIN, |m, &v| m.max(v));
+        let m = row_max(s_row);
         let mut sum = 0u32;
         match fast {
             Some(e) => sum = softmax_row_fastest(&e, m, s_row, w_row),
@@ -289,6 +289,13 @@ pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> 
         sum = sum.wrapping_add(x as u32);
     }
     sum
+}
+
+/// The largest of `scores` (`i32::MIN` for none): the Cortex-M7's assembly loop where it takes
+/// the length, else a fold (which other cores vectorise).
+#[inline(always)]
+pub fn row_max(scores: &[i32]) -> i32 {
+    arch::row_max(scores).unwrap_or_else(|| scores.iter().fold(i32::MIN, |m, &v| m.max(v)))
 }
 
 /// [`softmax_row`] on this core's fastest path, bit for bit the same: AVX-512 on x86 hosts that

@@ -625,6 +625,16 @@ fn row_max(scores: &[i32]) -> i32 {
     scores.iter().fold(i32::MIN, |m, &v| m.max(v))
 }
 
+/// The engine's row maximum (`attention::row_max`: the Cortex-M7's assembly loop on lengths
+/// that are a multiple of 4) against the fold, on the softmax cases' rows.
+fn row_max_case(t: &mut Tally, scores: &[i32]) {
+    let found = bino_core::kernels::attention::row_max(scores);
+    t.check("row_max", [1, scores.len(), 0], &[found], &[row_max(scores)]);
+    if cfg!(board = "an500") && scores.len().is_multiple_of(4) {
+        t.asm_cases += 1;
+    }
+}
+
 /// The softmax row on this core's fastest path (`softmax_row_fastest`: the Helium assembly on
 /// Cortex-M55, the DSP row or the byte table on Cortex-M7) against the portable `softmax_row`,
 /// bit for bit:
@@ -647,6 +657,7 @@ fn softmax_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
                 _ => rng.range(-(1 << spread), 1 << spread) as i32,
             };
         }
+        row_max_case(t, scores);
         let max = match case % 4 {
             3 => row_max(scores).wrapping_sub(rng.range(1, 1 << 12) as i32),
             _ => row_max(scores),
@@ -840,7 +851,7 @@ fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
     let (mut sum_fast, mut sum_reference) = (0u32, 0u32);
     bino_mark_softmax_fast();
     for _ in 0..ROWS {
-        let m = row_max(scores);
+        let m = bino_core::kernels::attention::row_max(scores);
         sum_fast = sum_fast.wrapping_add(softmax_row_fastest(&e, m, scores, fast));
     }
     bino_mark_softmax_reference();

@@ -804,18 +804,73 @@ pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u
     Some(sum.wrapping_add(128u32.wrapping_mul(n as u32)))
 }
 
+/// The largest of `scores` on Cortex-M7 (lengths that are a multiple of 4): per four scores two
+/// `ldrd` and four compare-and-moves. `None` (nothing read) for other lengths.
+#[cfg(bino_dsp)]
+pub(crate) fn row_max(scores: &[i32]) -> Option<i32> {
+    let n = scores.len();
+    if n == 0 || !n.is_multiple_of(4) {
+        return None;
+    }
+    let mut max = i32::MIN;
+    // SAFETY: the loop runs `n / 4 >= 1` times and reads the `n` words of `scores` (an
+    // `[i32]`, so word-aligned for `ldrd`). Only declared outputs are written; the flags are
+    // clobbered.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldrd {a}, {b}, [{s}], #8",
+            "cmp {a}, {m}",
+            "it gt",
+            "movgt {m}, {a}",
+            "cmp {b}, {m}",
+            "it gt",
+            "movgt {m}, {b}",
+            "ldrd {a}, {b}, [{s}], #8",
+            "cmp {a}, {m}",
+            "it gt",
+            "movgt {m}, {a}",
+            "cmp {b}, {m}",
+            "it gt",
+            "movgt {m}, {b}",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            s = inout(reg) scores.as_ptr() => _,
+            n = inout(reg) n / 4 => _,
+            m = inout(reg) max,
+            a = out(reg) _,
+            b = out(reg) _,
+            options(nostack, readonly),
+        );
+    }
+    Some(max)
+}
+
 /// The loop of [`softmax_row`]: stores `w - 128` per score and returns their sum.
 #[cfg(bino_dsp)]
 #[inline(always)]
 fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], weights: &mut [u8]) -> u32 {
     let mut sum = 0u32;
-    // SAFETY: the caller gives `scores` and `weights` one length `n >= 1`; the loop runs `n`
-    // times, reads `n` words of `scores` (an `[i32]`, word-aligned) and writes `n` bytes of
-    // `weights`; its table index is `usat`urated to `0..=4095`, inside the 4,096-byte
-    // `EXP2_NEG_I8_TABLE_4K`. Only declared outputs are written; the flags are clobbered.
+    let n = scores.len().min(weights.len());
+    // SAFETY: the loop runs `n / 2` times over two scores, then once more if `n` is odd: it
+    // reads the first `n` words of `scores` (an `[i32]`, word-aligned) and writes the first `n`
+    // bytes of `weights` (`n` is the shorter length); its table index is `usat`urated to
+    // `0..=4095`, inside the 4,096-byte `EXP2_NEG_I8_TABLE_4K`. Only declared outputs are
+    // written; the flags are clobbered.
     unsafe {
         core::arch::asm!(
+            "cmp {n}, #0",
+            "beq 3f",
             "2:",
+            "ldr {t}, [{s}], #4",
+            "sub {t}, {max}, {t}",
+            "umull {lo}, {t}, {t}, {mult}",
+            "add {t}, {t}, {round}",
+            "lsr {t}, {t}, {post}",
+            "usat {t}, #12, {t}",
+            "ldrsb {t}, [{table}, {t}]",
+            "strb {t}, [{w}], #1",
+            "add {sum}, {sum}, {t}",
             "ldr {t}, [{s}], #4",
             "sub {t}, {max}, {t}",
             "umull {lo}, {t}, {t}, {mult}",
@@ -827,9 +882,23 @@ fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], we
             "add {sum}, {sum}, {t}",
             "subs {n}, {n}, #1",
             "bne 2b",
+            "3:",
+            "cmp {odd}, #0",
+            "beq 4f",
+            "ldr {t}, [{s}], #4",
+            "sub {t}, {max}, {t}",
+            "umull {lo}, {t}, {t}, {mult}",
+            "add {t}, {t}, {round}",
+            "lsr {t}, {t}, {post}",
+            "usat {t}, #12, {t}",
+            "ldrsb {t}, [{table}, {t}]",
+            "strb {t}, [{w}], #1",
+            "add {sum}, {sum}, {t}",
+            "4:",
             s = inout(reg) scores.as_ptr() => _,
             w = inout(reg) weights.as_mut_ptr() => _,
-            n = inout(reg) scores.len() => _,
+            n = inout(reg) n / 2 => _,
+            odd = in(reg) n % 2,
             sum = inout(reg) sum,
             max = in(reg) max,
             mult = in(reg) mult,

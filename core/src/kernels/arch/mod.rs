@@ -184,6 +184,19 @@ pub(crate) fn residual_add_row(x: &mut [i8], acc: &[i32], params: &[i32]) -> boo
     mve::residual_add_row(x, acc, params)
 }
 
+/// The largest score of a row on this core's assembly kernel (Cortex-M7, rows of a multiple of 4
+/// scores); `None` (nothing read) where there is none.
+#[inline]
+pub fn row_max(scores: &[i32]) -> Option<i32> {
+    #[cfg(bino_dsp)]
+    return dsp::row_max(scores);
+    #[cfg(not(bino_dsp))]
+    {
+        let _ = scores;
+        None
+    }
+}
+
 /// One softmax row and their sum, bit for bit
 /// [`attention::softmax_row`](crate::kernels::attention::softmax_row), on this core's assembly
 /// kernel (Cortex-M55; Cortex-M7 where the row's parameters allow its shortcuts); `None`
