@@ -121,9 +121,11 @@ pub(super) fn rows_i32(x: &[u32], w: &[i8], k: usize, out: &mut [i32]) -> bool {
     // SAFETY: per column `j` (`n` of them) the loop reads the `k` bytes of weight row `j` (word
     // loads: `w` is word-aligned and exactly `n * k` bytes, checked) and the first `2 k` words
     // of `x` (checked), and writes `out[j]`, `out[n + j]`, `out[2n + j]`, `out[3n + j]` (`out`
-    // is exactly `4 n` words, checked). The row stride, the loop count, the output pointer and
-    // the column count live in 16 bytes pushed below `sp` and dropped before the end. Only
-    // declared outputs are written; the flags are clobbered.
+    // is exactly `4 n` words, checked); the eight-group loop runs `k / 32` times and the
+    // two-group loop `k % 32 / 8` times, `k` bytes of `w` and `2 k` words of `x` together. The
+    // row stride, both loop counts, the output pointer and the column count live in 24 bytes
+    // below `sp`, dropped before the end. Only declared outputs are written; the flags are
+    // clobbered.
     unsafe {
         core::arch::asm!(
             "sub sp, sp, #24",
@@ -349,7 +351,8 @@ pub(super) fn rows_requant(x: &[u32], w: &[i8], k: usize, params: &[Col], out: &
     // loads: `w` is word-aligned and exactly `n * k` bytes, checked), the first `2 k` words of
     // `x` (checked) and the four words of `params[j]` (`repr(C)` `Col`: bias, mult, addend,
     // s), and writes bytes `j`, `stride + j`, `2 stride + j`, `3 stride + j` of `out` (checked:
-    // `out` holds `3 stride + n` bytes). The row stride, the loop count, the parameter and
+    // `out` holds `3 stride + n` bytes); the two loops read `k` bytes of `w` and `2 k` words of
+    // `x` together, as in `rows_i32`. The row stride, both loop counts, the parameter and
     // output pointers and the column count live in 24 bytes below `sp`, dropped before the
     // end. Only declared outputs are written; the flags are clobbered.
     unsafe {
