@@ -527,11 +527,52 @@ pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u
     // The immediates below are `vmov.i32` encodable; the table ends at its last entry.
     const _: () = assert!(EXP_Q32_MAX_GAP == 0x10_0000 && EXP2_TABLE_LAST == 0x900);
     const _: () = assert!(EXP2_NEG_I8_TABLE.len() == EXP2_TABLE_LAST as usize + 1);
-    let (pre, _round, post) = e.shifts();
-    // `_round` is `2^(post - 1)` (`ExpQ32::new`; `exp.rs` tests it for every shift), so the add
+    let (pre, round, post) = e.shifts();
+    // `round` is `2^(post - 1)` (`ExpQ32::new`; `exp.rs` tests it for every shift), so the add
     // and the right shift are one rounding shift (`vrshl.u32` by `-post`, exact: its
     // intermediate cannot overflow).
     let mut centred = 0u32;
+    // Where the multiplier shifted by `pre` fits 32 bits and the gap 2^20 already maps to the
+    // table's last entry (weight 0), the gap needs neither its clamp nor its shift: the index
+    // grows with the gap, so larger gaps (which the specification clamps to 2^20) and wrapped
+    // ones land on weight 0 too, and `hi(gap * (mult << pre))` is `hi((gap << pre) * mult)`.
+    // Nine instructions per four scores instead of eleven (every attention of the shipped blob).
+    let folded = (e.mult() as u64) << pre;
+    let index = |gap: u64| (((gap * folded) >> 32) + round as u64) >> post;
+    if folded < 1 << 32 && index(EXP_Q32_MAX_GAP as u64) >= EXP2_TABLE_LAST as u64 {
+        // SAFETY: as below, with the gap's clamp and shift left out: every gather offset is
+        // still clamped to `EXP2_TABLE_LAST` by the `vmin.u32` just before it.
+        unsafe {
+            core::arch::asm!(
+                "vdup.32 q2, {max}",
+                "vdup.32 q4, {mult}",
+                "vmov.i32 q5, #0x900",
+                "dlstp.32 lr, lr",
+                "2:",
+                "vldrw.u32 q0, [r0], #16",
+                "vsub.i32 q0, q2, q0",
+                "vmulh.u32 q0, q0, q4",
+                "vrshl.u32 q0, {neg_post}",
+                "vmin.u32 q0, q0, q5",
+                "vldrb.s32 q1, [r2, q0]",
+                "vaddva.s32 r4, q1",
+                "vstrb.32 q1, [r1], #4",
+                "letp lr, 2b",
+                max = in(reg) max,
+                mult = in(reg) folded as u32,
+                neg_post = in(reg) (post as i32).wrapping_neg(),
+                inout("r0") scores.as_ptr() => _,
+                inout("r1") weights.as_mut_ptr() => _,
+                in("r2") EXP2_NEG_I8_TABLE.as_ptr(),
+                inout("r4") centred,
+                inout("lr") n => _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _,
+                out("d8") _, out("d9") _, out("d10") _, out("d11") _,
+                options(nostack),
+            );
+        }
+        return centred.wrapping_add((n as u32).wrapping_mul(128));
+    }
     // SAFETY: the tail-predicated loop reads `n` words from `scores` and writes `n` bytes to
     // `weights` (both at least `n` long; predicated-off lanes of the last step are not
     // accessed). Every gather offset is clamped to `EXP2_TABLE_LAST` by the `vmin.u32` just
