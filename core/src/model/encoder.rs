@@ -14,7 +14,7 @@
 
 use super::ids::{residual_after_attention, residual_after_block};
 use super::probe::{Probe, Stage};
-use super::weights::{BlockWeights, EncoderWeights, LinearQ, ResidualFormat, RopeTables, EMBED_INPUTS};
+use super::weights::{AngleCache, BlockWeights, EncoderWeights, LinearQ, ResidualFormat, RopeTables, EMBED_INPUTS};
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::{Blob, Le};
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
@@ -586,6 +586,7 @@ impl AttentionPass<'_, '_> {
         // The keys' rotation in 32-bit lanes where the blob's formats allow (quantiser-made ones do).
         let mut key_lanes = RopeLanes::new(&key_rq);
         let tokens = self.grid.tokens();
+        let mut angles = AngleCache::new(self.rope);
         let mut rotated = [0i8; DIM];
         let mut block_values = [0i8; TOKEN_BLOCK * DIM];
         for (block, x_block) in x.chunks(TOKEN_BLOCK * DIM).enumerate() {
@@ -607,7 +608,7 @@ impl AttentionPass<'_, '_> {
             for (i, (k_acc, value)) in k_acc.chunks_exact(DIM).zip(v_out.chunks_exact(DIM)).enumerate() {
                 let t = block * TOKEN_BLOCK + i;
                 let (row, col) = self.grid.position(t);
-                let (row_angles, col_angles) = self.rope.angles(row, col / 2);
+                let (row_angles, col_angles) = angles.angles(row, col / 2);
                 if !key_lanes
                     .as_mut()
                     .is_some_and(|l| l.token(k_acc, &row_angles, &col_angles, &mut rotated))
@@ -647,6 +648,7 @@ impl AttentionPass<'_, '_> {
         let proj = &self.w.proj;
         let residual = ResidualParams::new(&self.w.carry_attention.from_format(self.input), proj, &self.output.zero);
         let head_len = self.grid.tokens() * HEAD_DIM;
+        let mut angles = AngleCache::new(self.rope);
         let mut sums = [[0i32; HEAD_DIM]; HEADS];
         for (s, v_head) in sums.iter_mut().zip(values.chunks_exact(head_len)) {
             *s = value_sums(v_head, self.grid.tokens());
@@ -662,7 +664,7 @@ impl AttentionPass<'_, '_> {
                 .enumerate()
             {
                 let (row, col) = self.grid.position(block * TOKEN_BLOCK + i);
-                let (row_angles, col_angles) = self.rope.angles(row, col / 2);
+                let (row_angles, col_angles) = angles.angles(row, col / 2);
                 if !query_lanes
                     .as_mut()
                     .is_some_and(|l| l.token(q_acc, &row_angles, &col_angles, query))

@@ -290,7 +290,58 @@ pub struct RopeTables<'w> {
 impl RopeTables<'_> {
     /// Angles of token row `row` and patch column `col` (zeros past the tables' ends).
     pub fn angles(&self, row: usize, col: usize) -> (Angles, Angles) {
-        (read_angles(&self.rows, row), read_angles(&self.cols, col))
+        (self.row_angles(row), self.col_angles(col))
+    }
+
+    /// Angles of token row `row` (zeros past the table's end).
+    pub fn row_angles(&self, row: usize) -> Angles {
+        read_angles(&self.rows, row)
+    }
+
+    /// Angles of patch column `col` (zeros past the table's end).
+    pub fn col_angles(&self, col: usize) -> Angles {
+        read_angles(&self.cols, col)
+    }
+}
+
+/// [`RopeTables::angles`] for positions visited in order: a token row's angles are read once
+/// per row and a patch column's once per run of tokens on it (a pass walks the tokens row by
+/// row, two fused columns per patch column), not once per token.
+pub struct AngleCache<'t, 'w> {
+    tables: &'t RopeTables<'w>,
+    row: Option<(usize, Angles)>,
+    col: Option<(usize, Angles)>,
+}
+
+impl<'t, 'w> AngleCache<'t, 'w> {
+    /// An empty cache over `tables`.
+    pub fn new(tables: &'t RopeTables<'w>) -> Self {
+        AngleCache {
+            tables,
+            row: None,
+            col: None,
+        }
+    }
+
+    /// [`RopeTables::angles`] of (`row`, `col`), read from the tables only when they change.
+    pub fn angles(&mut self, row: usize, col: usize) -> (Angles, Angles) {
+        let row_angles = match self.row {
+            Some((r, a)) if r == row => a,
+            _ => {
+                let a = self.tables.row_angles(row);
+                self.row = Some((row, a));
+                a
+            }
+        };
+        let col_angles = match self.col {
+            Some((c, a)) if c == col => a,
+            _ => {
+                let a = self.tables.col_angles(col);
+                self.col = Some((col, a));
+                a
+            }
+        };
+        (row_angles, col_angles)
     }
 }
 
