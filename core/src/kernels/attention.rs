@@ -119,6 +119,16 @@ pub fn attend_block(
         return;
     };
     scores_block(queries, keys, n, scores);
+    let fast = ExpQ32::new(p.to_log2_q8);
+    let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
+    let mut acc = [[0i32; HEAD_DIM]; QUERY_BLOCK];
+    // Cortex-M7: the softmax written straight into the GEMM tile's widened rows.
+    if let Some(total) = fast.and_then(|e| arch::softmax_weighted_sums(&e, scores, weights, values_n, &mut acc)) {
+        for ((out_q, acc_q), &t) in out.iter_mut().zip(&acc).zip(&total) {
+            normalise(acc_q, t, p, out_q);
+        }
+        return;
+    }
     let mut score_rows = scores.chunks_exact(n);
     let mut weight_rows = weights.chunks_exact_mut(n);
     let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
@@ -137,7 +147,6 @@ pub fn attend_block(
     ) else {
         return;
     };
-    let fast = ExpQ32::new(p.to_log2_q8);
     let mut total = [0u32; QUERY_BLOCK];
     let rows = [(s0, &mut *w0), (s1, &mut *w1), (s2, &mut *w2), (s3, &mut *w3)];
     for ((s_row, w_row), t) in rows.into_iter().zip(total.iter_mut()) {
@@ -155,11 +164,9 @@ pub fn attend_block(
         }
         *t = sum;
     }
-    let mut acc = [[0i32; HEAD_DIM]; QUERY_BLOCK];
     // Cortex-M7 and M55: the four weight rows (consecutive) against every value channel on the
     // assembly GEMM tile, then the offset; elsewhere, and where it declines, as below.
     let weights_i8: &[i8] = bytemuck::cast_slice(&*weights);
-    let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
     // AVX2 hosts: the weights widened once into the scores' room (no longer needed).
     // Cortex-M55 too: the 2 x 3 Helium tile (12 instructions per 96 MACs) beats the four-row
     // loop, which reloads every weight row for each value channel.

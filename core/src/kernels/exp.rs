@@ -88,12 +88,12 @@ pub static EXP2_NEG_I8_TABLE: [i8; EXP2_TABLE_LAST as usize + 1] = {
     t
 };
 
-/// [`EXP2_NEG_I8_TABLE`] continued to 4,096 entries (`w = 0`, stored as -128, from
-/// [`EXP2_TABLE_LAST`] on): the Cortex-M7 softmax clamps its index with one `usat #12` instead of
-/// a compare and a conditional move.
+/// [`EXP2_NEG_U8_TABLE`] continued to 4,096 entries (weight 0 from [`EXP2_TABLE_LAST`] on): the
+/// Cortex-M7 softmax clamps its index with one `usat #12` instead of a compare and a
+/// conditional move.
 #[cfg_attr(not(any(bino_dsp, test)), allow(dead_code))]
-pub static EXP2_NEG_I8_TABLE_4K: [i8; 4096] = {
-    let mut t = [0i8; 4096];
+pub static EXP2_NEG_U8_TABLE_4K: [u8; 4096] = {
+    let mut t = [0u8; 4096];
     let mut x = 0;
     while x < t.len() {
         let q = if x < EXP2_TABLE_LAST as usize {
@@ -101,7 +101,7 @@ pub static EXP2_NEG_I8_TABLE_4K: [i8; 4096] = {
         } else {
             EXP2_TABLE_LAST
         };
-        t[x] = (exp2_neg_u8_q8(q) ^ 0x80) as i8;
+        t[x] = exp2_neg_u8_q8(q);
         x += 1;
     }
     t

@@ -161,7 +161,7 @@ struct Buffers {
     found8: [i8; MAX_OUT],
     expected8: [i8; MAX_OUT],
     acc: [i32; MAX_OUT],
-    weights: [u8; MAX_OUT],
+    weights: Aligned<[u8; MAX_OUT]>,
 }
 
 fn random_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
@@ -310,7 +310,7 @@ fn attention_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
             rng.fill(q, 3);
         }
         let sums = value_sums(values_t, n);
-        for shift in [34u32, 40, 46] {
+        for shift in [33u32, 34, 35, 36, 37, 40, 46] {
             let p = AttentionQ {
                 to_log2_q8: Requant { mult: 1 << 30, shift },
                 out: Requant {
@@ -319,7 +319,7 @@ fn attention_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
                 },
             };
             let mut out = [[0i8; HEAD_DIM]; QUERY_BLOCK];
-            let (scores, weights) = (&mut b.found[..QUERY_BLOCK * n], &mut b.weights[..QUERY_BLOCK * n]);
+            let (scores, weights) = (&mut b.found[..QUERY_BLOCK * n], &mut b.weights.0[..QUERY_BLOCK * n]);
             attend_block(&queries, keys, values_t, &sums, &p, scores, weights, &mut out);
             for (q, got) in queries.iter().zip(&out) {
                 let mut want = [0i8; HEAD_DIM];
@@ -674,7 +674,7 @@ fn softmax_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
             t.failed += 1;
             continue;
         };
-        let (found, rest) = b.weights.split_at_mut(n);
+        let (found, rest) = b.weights.0.split_at_mut(n);
         let expected = &mut rest[..n];
         let sum_found = softmax_row_fastest(&e, max, scores, found);
         let sum_expected = softmax_row(&e, max, scores, expected);
@@ -687,6 +687,73 @@ fn softmax_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
             || (cfg!(board = "an500")
                 && bino_core::kernels::arch::softmax_row(&e, max, &scores[..1], &mut probe).is_some());
         if assembly {
+            t.asm_cases += 1;
+        }
+    }
+}
+
+/// Attention's softmax and weighted sums of four queries on this core's assembly path
+/// (`arch::softmax_weighted_sums`: on Cortex-M7 the softmax written into the DSP tile's widened
+/// rows) against the portable `softmax_row` of each row and the plain weighted sums: 8 to 960
+/// keys, spreads up to the extremes of i32 (gaps past 2^31, which the kernel saturates), each
+/// right shift of the index it specialises and one it does not.
+fn softmax_block_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    use bino_core::config::HEAD_DIM;
+    use bino_core::fixed::Requant;
+    use bino_core::kernels::attention::softmax_row;
+    use bino_core::kernels::exp::ExpQ32;
+    for (case, n) in [8usize, 16, 40, 200, 960, 960].into_iter().enumerate() {
+        for shift in [33u32, 34, 35, 36, 38] {
+            let extremes = case % 2 == 1;
+            let scores = &mut b.found[..4 * n];
+            for s in scores.iter_mut() {
+                *s = match rng.range(0, 15) {
+                    0 if extremes => i32::MIN,
+                    1 if extremes => i32::MAX,
+                    _ => rng.range(-(1 << 19), 1 << 19) as i32,
+                };
+            }
+            let values_t = &mut b.w.0[..HEAD_DIM * n];
+            rng.fill(values_t, 3);
+            let mult = if case % 3 == 0 { i32::MAX } else { 1 << 30 };
+            let Some(e) = ExpQ32::new(Requant { mult, shift }) else {
+                continue;
+            };
+            let mut expected = [[0i32; HEAD_DIM]; 4];
+            let mut totals = [0u32; 4];
+            for (q, row) in scores.chunks_exact(n).enumerate() {
+                let w = &mut b.weights.0[..n];
+                totals[q] = softmax_row(&e, row_max(row), row, w);
+                for (d, channel) in values_t.chunks_exact(n).enumerate() {
+                    expected[q][d] = channel
+                        .iter()
+                        .zip(w.iter())
+                        .map(|(&v, &w)| v as i32 * (w ^ 0x80) as i32)
+                        .sum();
+                }
+            }
+            let mut found = [[0i32; HEAD_DIM]; 4];
+            let scratch = &mut b.weights.0[..4 * n];
+            let Some(found_totals) =
+                bino_core::kernels::arch::softmax_weighted_sums(&e, scores, scratch, values_t, &mut found)
+            else {
+                if cfg!(board = "an500") {
+                    defmt::println!(
+                        "kernel-tests mismatch kernel=softmax_block n={=usize} shift={=u32} declined",
+                        n,
+                        shift
+                    );
+                    t.failed += 1;
+                }
+                continue;
+            };
+            t.check(
+                "softmax_block",
+                [4, n, HEAD_DIM],
+                found.as_flattened(),
+                expected.as_flattened(),
+            );
+            t.check("softmax_block/totals", [4, n, 0], &found_totals, &totals);
             t.asm_cases += 1;
         }
     }
@@ -846,7 +913,7 @@ fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
         defmt::println!("kernel-bench kernel=softmax rejected");
         return;
     };
-    let (scores, (fast, rest)) = (&b.found[..N], b.weights.split_at_mut(N));
+    let (scores, (fast, rest)) = (&b.found[..N], b.weights.0.split_at_mut(N));
     let reference = &mut rest[..N];
     let (mut sum_fast, mut sum_reference) = (0u32, 0u32);
     bino_mark_softmax_fast();
@@ -1058,7 +1125,7 @@ fn main() -> ! {
         found8: [0; MAX_OUT],
         expected8: [0; MAX_OUT],
         acc: [0; MAX_OUT],
-        weights: [0; MAX_OUT],
+        weights: Aligned([0; MAX_OUT]),
     }) else {
         defmt::println!("kernel-tests result=fail buffers taken");
         exit(EXIT_FAILURE);
@@ -1070,6 +1137,7 @@ fn main() -> ! {
     unaligned_cases(&mut t, &mut rng);
     attention_cases(&mut t, &mut rng, buffers);
     softmax_cases(&mut t, &mut rng, buffers);
+    softmax_block_cases(&mut t, &mut rng, buffers);
     scores_cases(&mut t, &mut rng, buffers);
     layernorm_cases(&mut t, &mut rng, buffers);
     residual_cases(&mut t, &mut rng, buffers);

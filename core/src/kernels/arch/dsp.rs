@@ -12,7 +12,7 @@ use super::fused::Col;
 use super::{Epilogue, MAX_K};
 use crate::config::HEAD_DIM;
 #[cfg(any(bino_dsp, test))]
-use crate::kernels::exp::{ExpQ32, EXP2_NEG_I8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
+use crate::kernels::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// One 4-element group of a tile column as assembly text: a weight word from `{w}` widened by
 /// two `sxtb16` into `(w0, w2)` and `(w1, w3)`, then per row one `ldrd` of its widened pair from
@@ -466,8 +466,8 @@ pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; ROWS], keys: &[i8], sc
 /// A softmax row on Cortex-M7, bit for bit
 /// [`attention::softmax_row`](crate::kernels::attention::softmax_row): per score one `ldr`, the
 /// gap, one `umull` by the multiplier with the gap's pre-shift folded in, the rounding add and
-/// shift, `usat #12` into [`EXP2_NEG_I8_TABLE_4K`], and the weight stored as `w - 128` and summed
-/// (the row's sum is then that sum plus `128 n`). `None` (nothing written) unless `weights` is
+/// shift, `usat #12` into [`EXP2_NEG_U8_TABLE_4K`], the weight summed and stored as `w - 128`.
+/// `None` (nothing written) unless `weights` is
 /// as long as `scores` and the row's parameters allow the loop's shortcuts:
 ///
 /// - the multiplier shifted by `pre` stays below `2^31`, so the product's high word plus the
@@ -488,8 +488,7 @@ pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u
     if index(EXP_Q32_MAX_GAP) < EXP2_TABLE_LAST {
         return None;
     }
-    let sum = signed_weights(max, mult, round, post, scores, weights);
-    Some(sum.wrapping_add(128u32.wrapping_mul(n as u32)))
+    Some(signed_weights(max, mult, round, post, scores, weights))
 }
 
 /// The largest of `scores` on Cortex-M7 (lengths that are a multiple of 4): per four scores two
@@ -534,7 +533,7 @@ pub(crate) fn row_max(scores: &[i32]) -> Option<i32> {
     Some(max)
 }
 
-/// The loop of [`softmax_row`]: stores `w - 128` per score and returns their sum.
+/// The loop of [`softmax_row`]: stores `w - 128` per score and returns the sum of the `w`.
 #[cfg(bino_dsp)]
 #[inline(always)]
 fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], weights: &mut [u8]) -> u32 {
@@ -543,7 +542,7 @@ fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], we
     // SAFETY: the loop runs `n / 2` times over two scores, then once more if `n` is odd: it
     // reads the first `n` words of `scores` (an `[i32]`, word-aligned) and writes the first `n`
     // bytes of `weights` (`n` is the shorter length); its table index is `usat`urated to
-    // `0..=4095`, inside the 4,096-byte `EXP2_NEG_I8_TABLE_4K`. Only declared outputs are
+    // `0..=4095`, inside the 4,096-byte `EXP2_NEG_U8_TABLE_4K`. Only declared outputs are
     // written; the flags are clobbered.
     unsafe {
         core::arch::asm!(
@@ -556,18 +555,20 @@ fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], we
             "add {t}, {t}, {round}",
             "lsr {t}, {t}, {post}",
             "usat {t}, #12, {t}",
-            "ldrsb {t}, [{table}, {t}]",
-            "strb {t}, [{w}], #1",
+            "ldrb {t}, [{table}, {t}]",
             "add {sum}, {sum}, {t}",
+            "eor {t}, {t}, #128",
+            "strb {t}, [{w}], #1",
             "ldr {t}, [{s}], #4",
             "sub {t}, {max}, {t}",
             "umull {lo}, {t}, {t}, {mult}",
             "add {t}, {t}, {round}",
             "lsr {t}, {t}, {post}",
             "usat {t}, #12, {t}",
-            "ldrsb {t}, [{table}, {t}]",
-            "strb {t}, [{w}], #1",
+            "ldrb {t}, [{table}, {t}]",
             "add {sum}, {sum}, {t}",
+            "eor {t}, {t}, #128",
+            "strb {t}, [{w}], #1",
             "subs {n}, {n}, #1",
             "bne 2b",
             "3:",
@@ -579,9 +580,10 @@ fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], we
             "add {t}, {t}, {round}",
             "lsr {t}, {t}, {post}",
             "usat {t}, #12, {t}",
-            "ldrsb {t}, [{table}, {t}]",
-            "strb {t}, [{w}], #1",
+            "ldrb {t}, [{table}, {t}]",
             "add {sum}, {sum}, {t}",
+            "eor {t}, {t}, #128",
+            "strb {t}, [{w}], #1",
             "4:",
             s = inout(reg) scores.as_ptr() => _,
             w = inout(reg) weights.as_mut_ptr() => _,
@@ -592,7 +594,7 @@ fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], we
             mult = in(reg) mult,
             round = in(reg) round,
             post = in(reg) post,
-            table = in(reg) EXP2_NEG_I8_TABLE_4K.as_ptr(),
+            table = in(reg) EXP2_NEG_U8_TABLE_4K.as_ptr(),
             t = out(reg) _,
             lo = out(reg) _,
             options(nostack),
@@ -608,11 +610,275 @@ fn signed_weights(max: i32, mult: u32, round: u32, post: u32, scores: &[i32], we
     for (w, &s) in weights.iter_mut().zip(scores) {
         let gap = max.wrapping_sub(s) as u32;
         let index = ((((gap as u64 * mult as u64) >> 32) as u32 + round) >> post).min(4095);
-        let t = EXP2_NEG_I8_TABLE_4K[index as usize];
-        *w = t as u8;
-        sum = sum.wrapping_add(t as i32 as u32);
+        let t = EXP2_NEG_U8_TABLE_4K[index as usize];
+        *w = t ^ 0x80;
+        sum = sum.wrapping_add(t as u32);
     }
     sum
+}
+
+/// The first half of a pair of softmax weights: two scores by `ldrd`, their gaps to the row's
+/// maximum by `qsub` (saturating: the maximum is the row's own, so a gap is never negative and
+/// one of `2^31` or more, whose weight is 0 in any case, stays large), and by `smmla` the high
+/// word of the gap times the multiplier plus the rounding term.
+#[cfg(bino_dsp)]
+macro_rules! weight_pair_head {
+    () => {
+        concat!(
+            "ldrd {a}, {b}, [{s}], #8\n",
+            "qsub {a}, {max}, {a}\n",
+            "qsub {b}, {max}, {b}\n",
+            "smmla {a}, {a}, {mult}, {round}\n",
+            "smmla {b}, {b}, {mult}, {round}\n",
+        )
+    };
+}
+
+/// The second half: the weights from the 4,096-entry table (the index `usat`urated into it
+/// before), stored as halfwords at the byte offsets `$o0` and `$o1` of `{p}`, and summed.
+#[cfg(bino_dsp)]
+macro_rules! weight_pair_tail {
+    ($o0:literal, $o1:literal) => {
+        concat!(
+            "ldrb {a}, [{table}, {a}]\n",
+            "ldrb {b}, [{table}, {b}]\n",
+            "strh {a}, [{p}, #",
+            $o0,
+            "]\n",
+            "strh {b}, [{p}, #",
+            $o1,
+            "]\n",
+            "add {sum}, {sum}, {a}\n",
+            "add {sum}, {sum}, {b}\n",
+        )
+    };
+}
+
+/// The loop of [`widened_weights`] for one right shift `$post` (an immediate of `usat`): per
+/// group of four scores two pairs, the first stored as elements 0 and 1 of the group (byte
+/// offsets 0 and 4: the low halfwords of the row's two words), the second as 2 and 3 (the high
+/// halfwords); 29 instructions per four weights.
+#[cfg(bino_dsp)]
+macro_rules! widened_weights_loop {
+    ($post:literal, $s:expr, $p:expr, $groups:expr, $sum:expr, $max:expr, $mult:expr, $round:expr, $stride:expr) => {
+        // SAFETY: see `widened_weights`.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                weight_pair_head!(),
+                concat!("usat {a}, #12, {a}, asr #", $post),
+                concat!("usat {b}, #12, {b}, asr #", $post),
+                weight_pair_tail!(0, 4),
+                weight_pair_head!(),
+                concat!("usat {a}, #12, {a}, asr #", $post),
+                concat!("usat {b}, #12, {b}, asr #", $post),
+                weight_pair_tail!(2, 6),
+                "add {p}, {p}, {stride}",
+                "subs {cnt}, {cnt}, #1",
+                "bne 2b",
+                s = inout(reg) $s => _,
+                p = inout(reg) $p => _,
+                cnt = inout(reg) $groups => _,
+                sum = inout(reg) $sum,
+                max = in(reg) $max,
+                mult = in(reg) $mult,
+                round = in(reg) $round,
+                stride = in(reg) $stride,
+                table = in(reg) EXP2_NEG_U8_TABLE_4K.as_ptr(),
+                a = out(reg) _,
+                b = out(reg) _,
+                options(nostack),
+            );
+        }
+    };
+}
+
+/// One softmax row into the tile's widened layout (see [`widen`]), bit for bit
+/// [`attention::softmax_row`](crate::kernels::attention::softmax_row) with `row.max` the row's
+/// maximum: the weight of element `4g + e` goes, unsigned, to word `first + g stride + (e & 1)`,
+/// its low halfword for `e < 2` and its high one else.
+/// Returns the sum of the weights. The caller has checked the row's parameters
+/// ([`softmax_weighted_sums`]); `scores.len()` a multiple of 4, `out` long enough, else nothing
+/// is written and the sum is 0.
+#[cfg(bino_dsp)]
+fn widened_weights(row: &WeightRow, scores: &[i32], out: &mut [u32], first: usize, stride: usize) -> u32 {
+    let groups = scores.len() / 4;
+    if groups == 0 || !scores.len().is_multiple_of(4) || stride < 2 || out.len() < first + (groups - 1) * stride + 2 {
+        return 0;
+    }
+    let (s, p) = (scores.as_ptr(), out.as_mut_ptr().wrapping_add(first));
+    let (max, mult, round, post) = (row.max, row.mult, row.round, row.post);
+    let mut sum = 0u32;
+    let stride = 4 * stride;
+    // SAFETY (every arm): the loop runs `groups >= 1` times; each pass reads four words of
+    // `scores` (an `[i32]`, word-aligned for `ldrd`; `4 groups` words, checked) and writes the
+    // four halfwords of words `first + g stride` and `first + g stride + 1` of `out` (the last
+    // group's are `first + (groups - 1) stride + 1 < out.len()`, checked); its table index is
+    // `usat`urated to `0..=4095`, inside the 4,096-byte `EXP2_NEG_U8_TABLE_4K`. Only declared
+    // outputs are written; the flags are clobbered.
+    match post {
+        1 => widened_weights_loop!(1, s, p, groups, sum, max, mult, round, stride),
+        2 => widened_weights_loop!(2, s, p, groups, sum, max, mult, round, stride),
+        3 => widened_weights_loop!(3, s, p, groups, sum, max, mult, round, stride),
+        4 => widened_weights_loop!(4, s, p, groups, sum, max, mult, round, stride),
+        // SAFETY: as above.
+        _ => unsafe {
+            core::arch::asm!(
+                "2:",
+                weight_pair_head!(),
+                "asr {a}, {a}, {post}",
+                "asr {b}, {b}, {post}",
+                "usat {a}, #12, {a}",
+                "usat {b}, #12, {b}",
+                weight_pair_tail!(0, 4),
+                weight_pair_head!(),
+                "asr {a}, {a}, {post}",
+                "asr {b}, {b}, {post}",
+                "usat {a}, #12, {a}",
+                "usat {b}, #12, {b}",
+                weight_pair_tail!(2, 6),
+                "add {p}, {p}, {stride}",
+                "subs {cnt}, {cnt}, #1",
+                "bne 2b",
+                s = inout(reg) s => _,
+                p = inout(reg) p => _,
+                cnt = inout(reg) groups => _,
+                sum = inout(reg) sum,
+                max = in(reg) max,
+                mult = in(reg) mult,
+                round = in(reg) round,
+                stride = in(reg) stride,
+                post = in(reg) post,
+                table = in(reg) EXP2_NEG_U8_TABLE_4K.as_ptr(),
+                a = out(reg) _,
+                b = out(reg) _,
+                options(nostack),
+            );
+        },
+    }
+    sum
+}
+
+/// The portable twin of [`widened_weights`] (host tests of its arithmetic and layout): the
+/// saturating gap, the signed high word plus the rounding term, the arithmetic shift, the
+/// clamp to the table.
+#[cfg(all(test, not(bino_dsp)))]
+fn widened_weights(row: &WeightRow, scores: &[i32], out: &mut [u32], first: usize, stride: usize) -> u32 {
+    let groups = scores.len() / 4;
+    if groups == 0 || !scores.len().is_multiple_of(4) || stride < 2 || out.len() < first + (groups - 1) * stride + 2 {
+        return 0;
+    }
+    let mut sum = 0u32;
+    for (g, four) in scores.chunks_exact(4).enumerate() {
+        let mut w = [0u32; 4];
+        for (w, &s) in w.iter_mut().zip(four) {
+            let gap = row.max.saturating_sub(s);
+            let hi = ((gap as i64 * row.mult as i64) >> 32) as i32 + row.round as i32;
+            *w = EXP2_NEG_U8_TABLE_4K[(hi >> row.post).clamp(0, 4095) as usize] as u32;
+            sum = sum.wrapping_add(*w);
+        }
+        let at = first + g * stride;
+        out[at] = w[0] | (w[2] << 16);
+        out[at + 1] = w[1] | (w[3] << 16);
+    }
+    sum
+}
+
+/// A row's softmax parameters for [`widened_weights`]: its maximum, the multiplier with the
+/// gap's pre-shift folded in (below `2^31`), the rounding term and the right shift.
+#[cfg(any(bino_dsp, test))]
+struct WeightRow {
+    max: i32,
+    mult: u32,
+    round: u32,
+    post: u32,
+}
+
+/// Attention's softmax and weighted sums (P·V) for four queries on Cortex-M7, bit for bit the
+/// specification's (`attention::attend_block`'s general path): `scores` holds the four rows of
+/// `n` scores; returns the four rows' weight totals and sets `acc[q][d] = sum_j w_qj v_dj`
+/// (`values_t`: the `HEAD_DIM` value channels, `n` codes each).
+///
+/// The softmax writes each row's weights (unsigned, at most 255) straight into the tile's
+/// widened 16-bit layout, so the weighted sums need neither a widening pass nor the offset of
+/// int8 weights: rows 2 and 3 first into `scratch` (the block's softmax bytes, `n` words),
+/// then rows 0 and 1 into the upper half of `scores` (rows 2 and 3, read by then), rows 2 and
+/// 3 copied beside them, and the four-row block kernel against the value channels.
+///
+/// `None` (nothing written) unless `n` is a multiple of 8, the lengths match, `values_t` and
+/// `scratch` are word-aligned and the parameters allow [`softmax_row`]'s shortcuts (with the
+/// right shift of the index from the row's own maximum).
+#[cfg(any(bino_dsp, test))]
+pub(crate) fn softmax_weighted_sums(
+    e: &ExpQ32,
+    scores: &mut [i32],
+    scratch: &mut [u8],
+    values_t: &[i8],
+    acc: &mut [[i32; HEAD_DIM]; ROWS],
+) -> Option<[u32; ROWS]> {
+    let n = scores.len() / ROWS;
+    if n == 0 || !n.is_multiple_of(8) || scores.len() != ROWS * n || values_t.len() != HEAD_DIM * n {
+        return None;
+    }
+    if !(values_t.as_ptr() as usize).is_multiple_of(4) {
+        return None;
+    }
+    let (pre, round, post) = e.shifts();
+    let mult = (e.mult() as u64) << pre;
+    if mult >= 1 << 31 {
+        return None;
+    }
+    let mult = mult as u32;
+    let index = |gap: u32| ((((gap as u64 * mult as u64) >> 32) as u32) + round) >> post;
+    if index(EXP_Q32_MAX_GAP) < EXP2_TABLE_LAST {
+        return None;
+    }
+    let temp: &mut [u32] = bytemuck::try_cast_slice_mut(scratch.get_mut(..4 * n)?).ok()?;
+    let (low, high) = scores.split_at_mut(2 * n);
+    let mut total = [0u32; ROWS];
+    let row = |scores: &[i32]| WeightRow {
+        max: row_max_of(scores),
+        mult,
+        round,
+        post,
+    };
+    for (r, scores) in high.chunks_exact(n).enumerate() {
+        total[2 + r] = widened_weights(&row(scores), scores, temp, 2 * r, 4);
+    }
+    let x: &mut [u32] = bytemuck::cast_slice_mut(high);
+    for (r, scores) in low.chunks_exact(n).enumerate() {
+        total[r] = widened_weights(&row(scores), scores, x, 2 * r, 2 * ROWS);
+    }
+    for (group, rows23) in x.chunks_exact_mut(2 * ROWS).zip(temp.chunks_exact(4)) {
+        group[4..].copy_from_slice(rows23);
+    }
+    weighted_sums(x, values_t, n, acc);
+    Some(total)
+}
+
+/// A row's maximum (`n` a multiple of 4): the assembly loop on Cortex-M7.
+#[cfg(any(bino_dsp, test))]
+fn row_max_of(scores: &[i32]) -> i32 {
+    #[cfg(bino_dsp)]
+    if let Some(m) = row_max(scores) {
+        return m;
+    }
+    scores.iter().fold(i32::MIN, |m, &s| m.max(s))
+}
+
+/// `acc[r][d]`: widened row `r` of `x` against value channel `d` (`n` codes each, `n` a
+/// multiple of 8): the four-row block kernel, else the tile per channel.
+#[cfg(any(bino_dsp, test))]
+fn weighted_sums(x: &[u32], values_t: &[i8], n: usize, acc: &mut [[i32; HEAD_DIM]; ROWS]) {
+    #[cfg(bino_dsp)]
+    if rows_i32(x, values_t, n, acc.as_flattened_mut()) {
+        return;
+    }
+    for (d, channel) in values_t.chunks_exact(n).enumerate() {
+        for (acc_r, s) in acc.iter_mut().zip(tile(x, channel, [0; ROWS])) {
+            acc_r[d] = s;
+        }
+    }
 }
 
 /// Rows of int8 to the interleaved 16-bit layout: for group `g` and row `r`, word

@@ -214,6 +214,29 @@ pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> 
     }
 }
 
+/// Attention's softmax and weighted sums for four queries (`scores`: four rows of `n`), bit for
+/// bit [`attention::attend_block`](crate::kernels::attention::attend_block)'s general path: the
+/// rows' weight totals, and `acc[q][d]` the sum over keys of weight times value channel `d`
+/// (`values_t`: `HEAD_DIM` rows of `n`), on this core's assembly path (Cortex-M7: the softmax
+/// written straight into the DSP tile's widened layout, `scores` and `scratch` overwritten);
+/// `None` (nothing written) where there is none or it declines the shape or parameters.
+#[inline]
+pub fn softmax_weighted_sums(
+    e: &ExpQ32,
+    scores: &mut [i32],
+    scratch: &mut [u8],
+    values_t: &[i8],
+    acc: &mut [[i32; HEAD_DIM]; 4],
+) -> Option<[u32; 4]> {
+    #[cfg(bino_dsp)]
+    return dsp::softmax_weighted_sums(e, scores, scratch, values_t, acc);
+    #[cfg(not(bino_dsp))]
+    {
+        let _ = (e, scores, scratch, values_t, acc);
+        None
+    }
+}
+
 /// The tile driver of the Cortex-M7 (the Cortex-M55's drivers are `mve::gemm_i32` and
 /// `mve::gemm_fused`).
 #[cfg(bino_dsp)]
@@ -403,6 +426,82 @@ mod tests {
             }
         }
         assert!(taken > 1000, "{taken} rows taken");
+    }
+
+    #[test]
+    fn dsp_softmax_into_the_widened_rows_matches_the_specification() {
+        use crate::fixed::Requant;
+        use crate::kernels::attention::softmax_row as specification;
+        let mut rng = Rng::new(36);
+        let mut taken = 0;
+        for trial in 0..1500 {
+            let shift = rng.range(22, 40) as u32;
+            let mult = rng.range(1 << 29, i32::MAX as i64) as i32;
+            let Some(e) = ExpQ32::new(Requant { mult, shift }) else {
+                continue;
+            };
+            let n = 8 * rng.range(1, 12) as usize;
+            let mut scores = [0i32; 4 * 96];
+            // Attention's range, and every fifth block the extremes of i32 (gaps past 2^31,
+            // which the kernel saturates).
+            let span = if trial % 5 == 0 { i32::MAX as i64 } else { 1 << 19 };
+            for s in scores[..4 * n].iter_mut() {
+                *s = rng.range(-span, span) as i32;
+            }
+            if trial % 5 == 0 {
+                scores[0] = i32::MIN;
+                scores[1] = i32::MAX;
+            }
+            let mut values_t = [0i8; HEAD_DIM * 96];
+            for v in values_t[..HEAD_DIM * n].iter_mut() {
+                *v = rng.range(-128, 127) as i8;
+            }
+            let mut want_acc = [[0i32; HEAD_DIM]; 4];
+            let mut want_total = [0u32; 4];
+            for (q, row) in scores[..4 * n].chunks_exact(n).enumerate() {
+                let max = row.iter().copied().max().unwrap_or(0);
+                let mut w = [0u8; 96];
+                want_total[q] = specification(&e, max, row, &mut w[..n]);
+                for (d, channel) in values_t[..HEAD_DIM * n].chunks_exact(n).enumerate() {
+                    // The specification stores `w ^ 0x80`.
+                    want_acc[q][d] = channel
+                        .iter()
+                        .zip(&w[..n])
+                        .map(|(&v, &w)| v as i32 * (w ^ 0x80) as i32)
+                        .sum();
+                }
+            }
+            let mut scratch = [0u32; 96];
+            let scratch: &mut [u8] = bytemuck::cast_slice_mut(&mut scratch[..]);
+            let mut acc = [[7i32; HEAD_DIM]; 4];
+            let before = scores;
+            match dsp::softmax_weighted_sums(
+                &e,
+                &mut scores[..4 * n],
+                &mut scratch[..4 * n],
+                &values_t[..HEAD_DIM * n],
+                &mut acc,
+            ) {
+                Some(total) => {
+                    taken += 1;
+                    assert_eq!((total, acc), (want_total, want_acc), "mult {mult} shift {shift} n {n}");
+                }
+                None => assert_eq!(
+                    (scores, acc),
+                    (before, [[7; HEAD_DIM]; 4]),
+                    "declined blocks are not written"
+                ),
+            }
+        }
+        assert!(taken > 500, "{taken} blocks taken");
+        // Rows of a length the four-row kernel does not take are declined.
+        let e = ExpQ32::new(Requant {
+            mult: 1 << 30,
+            shift: 34,
+        })
+        .unwrap();
+        let mut acc = [[0; HEAD_DIM]; 4];
+        assert!(dsp::softmax_weighted_sums(&e, &mut [0; 16], &mut [0; 16], &[0; HEAD_DIM * 4], &mut acc).is_none());
     }
 
     #[test]
