@@ -327,11 +327,23 @@ pub fn residual_add_reference<Z, M, B, M2, Z2>(
 /// sum of the three stays in 32 bits. Other chunks take the scalar path.
 mod residual_lanes {
     use super::{ChannelRequant, ChannelRescale, CHANNEL_CHUNK};
+    /// The Cortex-M7's block shape for its per-channel kernel (never matched elsewhere).
+    #[cfg(bino_dsp)]
+    use crate::kernels::arch::dsp::{RESIDUAL_ROWS, RESIDUAL_STRIDE, RESIDUAL_WORDS};
     use crate::kernels::I32s;
+    #[cfg(not(bino_dsp))]
+    const RESIDUAL_ROWS: usize = 0;
+    #[cfg(not(bino_dsp))]
+    const RESIDUAL_STRIDE: usize = 0;
 
     /// Per group of four channels: carry zero, left shift, multiplier, rounding term, negated
     /// shift; delta bias, multiplier, rounding term, negated shift; the new zero point.
     const VECTORS: usize = 10;
+    #[cfg(bino_dsp)]
+    const _: () = assert!(
+        RESIDUAL_WORDS == VECTORS,
+        "a channel's parameters fill one group's lane"
+    );
 
     /// Where a chunk lies: channels `start..start + len` of rows of `n`, `rows` rows; `small`:
     /// the block's accumulators passed [`accumulators_fit`].
@@ -377,6 +389,9 @@ mod residual_lanes {
         if !small || len == 0 || len > CHANNEL_CHUNK || start + len > n {
             return false;
         }
+        // Cortex-M7, a full block of the encoder's stream: one channel's ten parameters
+        // together (`arch::residual_rows8`), in place of the lanes' groups of four.
+        let per_channel = cfg!(bino_dsp) && rows == RESIDUAL_ROWS && n == RESIDUAL_STRIDE;
         let mut params = [0i32; CHANNEL_CHUNK * VECTORS];
         let groups = len.div_ceil(4);
         for (g, group) in params.chunks_exact_mut(4 * VECTORS).take(groups).enumerate() {
@@ -404,6 +419,24 @@ mod residual_lanes {
                     return false;
                 }
                 let pre = if ks <= 47 { 15 } else { 0 };
+                if per_channel {
+                    let values = [
+                        bias,
+                        delta.mult.at(c),
+                        1 << (ds - 33),
+                        ds as i32 - 32,
+                        zero,
+                        czero,
+                        pre as i32,
+                        carry.mult.at(c),
+                        1 << (ks + pre - 33),
+                        (ks + pre) as i32 - 32,
+                    ];
+                    if let Some(slots) = group.get_mut(lane * VECTORS..(lane + 1) * VECTORS) {
+                        slots.copy_from_slice(&values);
+                    }
+                    continue;
+                }
                 let values = [
                     czero,
                     pre as i32,
@@ -424,6 +457,13 @@ mod residual_lanes {
             }
         }
         let params = &params[..groups * 4 * VECTORS];
+        #[cfg(bino_dsp)]
+        if per_channel {
+            let (Some(x_part), Some(acc_part)) = (x.get_mut(start..), acc.get(start..)) else {
+                return false;
+            };
+            return crate::kernels::arch::residual_rows8(x_part, acc_part, params, len);
+        }
         for r in 0..rows {
             let at = r * n + start..r * n + start + len;
             let (Some(x_part), Some(acc_part)) = (x.get_mut(at.clone()), acc.get(at)) else {

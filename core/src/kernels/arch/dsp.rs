@@ -881,6 +881,126 @@ fn weighted_sums(x: &[u32], values_t: &[i8], n: usize, acc: &mut [[i32; HEAD_DIM
     }
 }
 
+/// Rows in one call of [`residual_rows8`], and their stride in codes: a block of the encoder's
+/// residual stream (`TOKEN_BLOCK` tokens of `DIM` channels), at fixed offsets in the assembly.
+pub(crate) const RESIDUAL_ROWS: usize = 8;
+pub(crate) const RESIDUAL_STRIDE: usize = 128;
+
+/// Words per channel of [`residual_rows8`]'s parameters: the delta's bias, multiplier, rounding
+/// term and shift, the new zero point; the carry's zero point, left shift, multiplier,
+/// rounding term and shift.
+pub(crate) const RESIDUAL_WORDS: usize = 10;
+
+/// Phase one of a residual channel for row `$r`: `delta + zero` into the stack slot `$r`.
+#[cfg(bino_dsp)]
+macro_rules! residual_delta {
+    ($acc:literal, $slot:literal) => {
+        concat!(
+            "ldr {u}, [{ap}, #",
+            $acc,
+            "]\n",
+            "add {u}, {u}, {p0}\n",
+            "smmla {u}, {u}, {p1}, {p2}\n",
+            "asr {u}, {u}, {p3}\n",
+            "add {u}, {u}, {p4}\n",
+            "str {u}, [sp, #",
+            $slot,
+            "]\n",
+        )
+    };
+}
+
+/// Phase two for row `$r`: the carried code plus the slot, saturated and stored.
+#[cfg(bino_dsp)]
+macro_rules! residual_carry {
+    ($x:literal, $slot:literal) => {
+        concat!(
+            "ldrsb {t}, [{xp}, #",
+            $x,
+            "]\n",
+            "sub {t}, {t}, {p0}\n",
+            "lsl {t}, {t}, {p1}\n",
+            "smmla {t}, {t}, {p2}, {p3}\n",
+            "asr {t}, {t}, {p4}\n",
+            "ldr {u}, [sp, #",
+            $slot,
+            "]\n",
+            "add {t}, {t}, {u}\n",
+            "ssat {t}, #8, {t}\n",
+            "strb {t}, [{xp}, #",
+            $x,
+            "]\n",
+        )
+    };
+}
+
+/// The residual add of `len` channels of a block of [`RESIDUAL_ROWS`] rows of
+/// [`RESIDUAL_STRIDE`] codes on Cortex-M7, bit for bit the lanes' formula
+/// (`epilogue::residual_lanes`): per channel its ten parameters loaded once (`params`, see
+/// [`RESIDUAL_WORDS`]), then for the eight rows `delta = ((acc + bias) * mult >> 32) + round) >>
+/// shift` plus the zero point into a stack slot, and `x <- ssat8(carry(x) + slot)` with
+/// `carry(x) = ((((x - zero) << left) * mult >> 32) + round) >> shift`: 16 instructions per code,
+/// where the lanes' portable loop took about 42. `x` and `acc` start at the chunk's first
+/// channel of the block's first row. `false` (nothing written) for short slices.
+#[cfg(bino_dsp)]
+pub(crate) fn residual_rows8(x: &mut [i8], acc: &[i32], params: &[i32], len: usize) -> bool {
+    const { assert!(RESIDUAL_ROWS == 8 && RESIDUAL_STRIDE == 128, "the offsets below") };
+    let span = (RESIDUAL_ROWS - 1) * RESIDUAL_STRIDE + len;
+    if len == 0 || x.len() < span || acc.len() < span || params.len() < len * RESIDUAL_WORDS {
+        return false;
+    }
+    // SAFETY: the loop runs `len >= 1` times; pass `c` reads the ten words `10c..10c + 10` of
+    // `params` (checked), and for the rows `r < 8` word `128 r + c` of `acc` and byte
+    // `128 r + c` of `x` (both hold `7 * 128 + len` elements, checked), which it writes; the
+    // eight delta slots live in 32 bytes below `sp`, dropped before the end. Only declared
+    // outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "sub sp, sp, #32",
+            "2:",
+            "ldrd {p0}, {p1}, [{p}], #8",
+            "ldrd {p2}, {p3}, [{p}], #8",
+            "ldr {p4}, [{p}], #4",
+            residual_delta!(0, 0),
+            residual_delta!(512, 4),
+            residual_delta!(1024, 8),
+            residual_delta!(1536, 12),
+            residual_delta!(2048, 16),
+            residual_delta!(2560, 20),
+            residual_delta!(3072, 24),
+            residual_delta!(3584, 28),
+            "ldrd {p0}, {p1}, [{p}], #8",
+            "ldrd {p2}, {p3}, [{p}], #8",
+            "ldr {p4}, [{p}], #4",
+            residual_carry!(0, 0),
+            residual_carry!(128, 4),
+            residual_carry!(256, 8),
+            residual_carry!(384, 12),
+            residual_carry!(512, 16),
+            residual_carry!(640, 20),
+            residual_carry!(768, 24),
+            residual_carry!(896, 28),
+            "add {xp}, {xp}, #1",
+            "add {ap}, {ap}, #4",
+            "subs {cnt}, {cnt}, #1",
+            "bne 2b",
+            "add sp, sp, #32",
+            p = inout(reg) params.as_ptr() => _,
+            ap = inout(reg) acc.as_ptr() => _,
+            xp = inout(reg) x.as_mut_ptr() => _,
+            cnt = inout(reg) len => _,
+            p0 = out(reg) _,
+            p1 = out(reg) _,
+            p2 = out(reg) _,
+            p3 = out(reg) _,
+            p4 = out(reg) _,
+            t = out(reg) _,
+            u = out(reg) _,
+        );
+    }
+    true
+}
+
 /// Rows of int8 to the interleaved 16-bit layout: for group `g` and row `r`, word
 /// `8g + 2r` holds elements `(4g, 4g + 2)` and word `8g + 2r + 1` holds `(4g + 1, 4g + 3)`,
 /// low halfword first (what `sxtb16` makes of a weight word).
@@ -890,12 +1010,59 @@ fn widen(rows: [&[i8]; ROWS], x: &mut [u32]) {
         (lo as i16 as u16 as u32) | ((hi as i16 as u16 as u32) << 16)
     }
     for (r, row) in rows.iter().enumerate() {
+        if widen_row(row, x, r) {
+            continue;
+        }
         for (q, dst) in row.chunks_exact(4).zip(x.chunks_exact_mut(2 * ROWS)) {
             if let (Some(&[e0, e1, e2, e3]), Some(d)) = (q.first_chunk::<4>(), dst.get_mut(2 * r..2 * r + 2)) {
                 d[0] = pair(e0, e2);
                 d[1] = pair(e1, e3);
             }
         }
+    }
+}
+
+/// Row `r` of [`widen`] on Cortex-M7: per four codes one word load, the two `sxtb16` a weight
+/// word gets in the tile, and one `strd` (the portable loop spent about five instructions a
+/// code). `false` (nothing written) for a row that is not word-aligned, or where `x` has fewer
+/// groups than the row: the caller's loop then runs.
+#[inline(always)]
+fn widen_row(row: &[i8], x: &mut [u32], r: usize) -> bool {
+    #[cfg(bino_dsp)]
+    {
+        let groups = row.len() / 4;
+        if groups == 0 || !(row.as_ptr() as usize).is_multiple_of(4) || x.len() < groups * 2 * ROWS || r >= ROWS {
+            return false;
+        }
+        // SAFETY: the loop runs `groups >= 1` times; each pass reads one word of `row` (word-
+        // aligned, checked; `4 groups <= row.len()` bytes in all) and writes words `8g + 2r`
+        // and `8g + 2r + 1` of `x` (`x` holds `8 groups` words, checked, and `r < 4`), an
+        // `[u32]`, so word-aligned for `strd`. Only declared outputs are written; the flags are
+        // clobbered.
+        unsafe {
+            core::arch::asm!(
+                "2:",
+                "ldr {t}, [{s}], #4",
+                "sxtb16 {a}, {t}",
+                "sxtb16 {b}, {t}, ror #8",
+                "strd {a}, {b}, [{d}], #32",
+                "subs {g}, {g}, #1",
+                "bne 2b",
+                s = inout(reg) row.as_ptr() => _,
+                d = inout(reg) x.as_mut_ptr().wrapping_add(2 * r) => _,
+                g = inout(reg) groups => _,
+                t = out(reg) _,
+                a = out(reg) _,
+                b = out(reg) _,
+                options(nostack),
+            );
+        }
+        true
+    }
+    #[cfg(not(bino_dsp))]
+    {
+        let _ = (row, x, r);
+        false
     }
 }
 

@@ -184,6 +184,14 @@ pub(crate) fn residual_add_row(x: &mut [i8], acc: &[i32], params: &[i32]) -> boo
     mve::residual_add_row(x, acc, params)
 }
 
+/// The residual add of a chunk of channels over a block of eight rows of 128 on Cortex-M7
+/// (`epilogue::residual_lanes`), with per-channel parameters (`dsp::RESIDUAL_WORDS` each).
+#[cfg(bino_dsp)]
+#[inline]
+pub(crate) fn residual_rows8(x: &mut [i8], acc: &[i32], params: &[i32], len: usize) -> bool {
+    dsp::residual_rows8(x, acc, params, len)
+}
+
 /// The largest score of a row on this core's assembly kernel (Cortex-M7, rows of a multiple of 4
 /// scores); `None` (nothing read) where there is none.
 #[inline]
