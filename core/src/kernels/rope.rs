@@ -169,9 +169,42 @@ impl RopeLanes {
     }
 }
 
-/// One half of a head rotated in 32-bit lanes (see [`RopeLanes`]).
+/// One half of a head rotated: `(a c - b s + 2^21) >> 22` and `(b c + a s + 2^21) >> 22`,
+/// saturated. With a Helium unit in the 32-bit lanes of [`rotate_half_in_lanes`]; elsewhere in
+/// 64-bit products, one multiply-accumulate each on Cortex-M7 (`smlal`), which that function
+/// equals because `a = 2^12 (a >> 12) + (a & 0xFFF)` and nested floors of powers of two are
+/// one floor.
 #[inline(always)]
 fn rotate_half_lanes(v: &[i32], angles: &Angles, out: &mut [i8]) {
+    #[cfg(bino_mve)]
+    rotate_half_in_lanes(v, angles, out);
+    #[cfg(not(bino_mve))]
+    {
+        let (Some(va), Some(vb)) = (
+            v.first_chunk::<QUARTER>(),
+            v.get(QUARTER..).and_then(|b| b.first_chunk::<QUARTER>()),
+        ) else {
+            return;
+        };
+        let Some(out) = out.first_chunk_mut::<{ 2 * QUARTER }>() else {
+            return;
+        };
+        let (out_a, out_b) = out.split_at_mut(QUARTER);
+        for i in 0..QUARTER {
+            let (a, b) = (va[i] as i64, vb[i] as i64);
+            let (c, s) = (angles.cos[i] as i64, angles.sin[i] as i64);
+            let half = 1 << 21;
+            out_a[i] = ((a * c - b * s + half) >> 22).clamp(-128, 127) as i8;
+            out_b[i] = ((b * c + a * s + half) >> 22).clamp(-128, 127) as i8;
+        }
+    }
+}
+
+/// [`rotate_half_lanes`] in 32-bit lanes: the operands split at bit 12 so that no product
+/// needs more than 32 bits.
+#[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
+#[inline(always)]
+fn rotate_half_in_lanes(v: &[i32], angles: &Angles, out: &mut [i8]) {
     let (Some(va), Some(vb)) = (
         v.first_chunk::<QUARTER>(),
         v.get(QUARTER..).and_then(|b| b.first_chunk::<QUARTER>()),
@@ -204,6 +237,32 @@ mod tests {
     use super::*;
     use crate::kernels::params::Uniform;
     use crate::testutil::Rng;
+
+    #[test]
+    fn split_lanes_rotate_as_the_64_bit_products() {
+        let mut rng = Rng::new(92);
+        let limit = PRE_ROPE_LIMIT;
+        for trial in 0..4000 {
+            let v: [i32; 2 * QUARTER] = core::array::from_fn(|i| match (trial + i) % 5 {
+                0 => limit as i32,
+                1 => -limit as i32,
+                _ => rng.range(-limit, limit) as i32,
+            });
+            let angles = Angles {
+                cos: core::array::from_fn(|_| rng.range(i16::MIN as i64, i16::MAX as i64) as i16),
+                sin: core::array::from_fn(|_| rng.range(i16::MIN as i64, i16::MAX as i64) as i16),
+            };
+            let (mut lanes, mut wide) = ([0i8; 2 * QUARTER], [0i8; 2 * QUARTER]);
+            rotate_half_in_lanes(&v, &angles, &mut lanes);
+            for i in 0..QUARTER {
+                let (a, b) = (v[i] as i64, v[QUARTER + i] as i64);
+                let (c, s) = (angles.cos[i] as i64, angles.sin[i] as i64);
+                wide[i] = ((a * c - b * s + (1 << 21)) >> 22).clamp(-128, 127) as i8;
+                wide[QUARTER + i] = ((b * c + a * s + (1 << 21)) >> 22).clamp(-128, 127) as i8;
+            }
+            assert_eq!(lanes, wide, "trial {trial}");
+        }
+    }
 
     #[test]
     fn lanes_equal_rope_token() {
