@@ -21,6 +21,7 @@ const PRE_ROPE_LIMIT: i64 = 1 << 24;
 
 /// Cosines and sines (Q14) of one position's angles, one per frequency.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[repr(C)]
 pub struct Angles {
     /// `round(cos(angle_i) * 2^14)`.
     pub cos: [i16; QUARTER],
@@ -97,6 +98,9 @@ pub struct RopeLanes {
     /// The requantised token, reused token after token (zeroing it per token cost a 512-byte
     /// `memclr` each).
     values: [i32; DIM],
+    /// Whether some channel has `e = 1` (the Cortex-M7's assembly takes only `e = 0`).
+    #[cfg_attr(not(bino_dsp), allow(dead_code))]
+    any_pre: bool,
 }
 
 impl RopeLanes {
@@ -113,6 +117,7 @@ impl RopeLanes {
             pre: [0; DIM],
             post: [1; DIM],
             values: [0; DIM],
+            any_pre: false,
         };
         for c in 0..DIM {
             let (bias, shift) = (rq.bias.at(c), rq.shift.get(c).copied().unwrap_or(0) as u32);
@@ -125,6 +130,7 @@ impl RopeLanes {
             lanes.round[c] = 1 << (shift + pre - 33);
             lanes.pre[c] = pre as u8;
             lanes.post[c] = (shift + pre - 32) as u8;
+            lanes.any_pre |= pre == 1;
         }
         Some(lanes)
     }
@@ -135,6 +141,10 @@ impl RopeLanes {
         let (Some(acc), Some(out)) = (acc.first_chunk::<DIM>(), out.first_chunk_mut::<DIM>()) else {
             return false;
         };
+        #[cfg(bino_dsp)]
+        if !self.any_pre && self.token_on_m7(acc, row, col, out) {
+            return true;
+        }
         if acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 29 {
             return false;
         }
@@ -146,6 +156,7 @@ impl RopeLanes {
             pre,
             post,
             values: v,
+            ..
         } = self;
         // Helium lanes on Cortex-M55 (`kernels::arch`), this loop elsewhere.
         #[cfg(bino_mve)]
@@ -164,6 +175,26 @@ impl RopeLanes {
             let (out_row, out_col) = out_head.split_at_mut(HEAD_DIM / 2);
             rotate_half_lanes(v_row, row, out_row);
             rotate_half_lanes(v_col, col, out_col);
+        }
+        true
+    }
+}
+
+impl RopeLanes {
+    /// [`RopeLanes::token`] in the Cortex-M7's assembly (`kernels::arch::dsp`): the
+    /// requantisation, then the eight half heads' rotations; `false` (nothing written) where
+    /// an accumulator passes `2^29` in magnitude.
+    #[cfg(bino_dsp)]
+    fn token_on_m7(&mut self, acc: &[i32; DIM], row: &Angles, col: &Angles, out: &mut [i8; DIM]) -> bool {
+        use crate::kernels::arch::dsp::{rope_requant, rope_rotate_half};
+        let bits = rope_requant(acc, &self.bias, &self.mult, &self.round, &self.post, &mut self.values);
+        if bits >= 1 << 29 {
+            return false;
+        }
+        for (half, (v, o)) in self.values.chunks_exact(16).zip(out.chunks_exact_mut(16)).enumerate() {
+            if let (Ok(v), Ok(o)) = (<&[i32; 16]>::try_from(v), <&mut [i8; 16]>::try_from(o)) {
+                rope_rotate_half(v, if half % 2 == 0 { row } else { col }, o);
+            }
         }
         true
     }

@@ -10,6 +10,8 @@
 #[cfg(bino_dsp)]
 use super::fused::Col;
 use super::{Epilogue, MAX_K};
+#[cfg(bino_dsp)]
+use crate::config::DIM;
 use crate::config::HEAD_DIM;
 #[cfg(any(bino_dsp, test))]
 use crate::kernels::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
@@ -491,8 +493,31 @@ pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u
     Some(signed_weights(max, mult, round, post, scores, weights))
 }
 
-/// The largest of `scores` on Cortex-M7 (lengths that are a multiple of 4): per four scores two
-/// `ldrd` and four compare-and-moves. `None` (nothing read) for other lengths.
+/// Four scores loaded by `ldm` into `r0`-`r3` and compared with `{m}` in turn.
+#[cfg(bino_dsp)]
+macro_rules! max_of_four {
+    () => {
+        concat!(
+            "ldm {s}!, {{r0, r1, r2, r3}}\n",
+            "cmp r0, {m}\n",
+            "it gt\n",
+            "movgt {m}, r0\n",
+            "cmp r1, {m}\n",
+            "it gt\n",
+            "movgt {m}, r1\n",
+            "cmp r2, {m}\n",
+            "it gt\n",
+            "movgt {m}, r2\n",
+            "cmp r3, {m}\n",
+            "it gt\n",
+            "movgt {m}, r3\n",
+        )
+    };
+}
+
+/// The largest of `scores` on Cortex-M7 (lengths that are a multiple of 4): per eight scores two
+/// `ldm` and eight compare-and-moves, then four more where the length is not a multiple of 8.
+/// `None` (nothing read) for other lengths.
 #[cfg(bino_dsp)]
 pub(crate) fn row_max(scores: &[i32]) -> Option<i32> {
     let n = scores.len();
@@ -500,33 +525,32 @@ pub(crate) fn row_max(scores: &[i32]) -> Option<i32> {
         return None;
     }
     let mut max = i32::MIN;
-    // SAFETY: the loop runs `n / 4 >= 1` times and reads the `n` words of `scores` (an
-    // `[i32]`, so word-aligned for `ldrd`). Only declared outputs are written; the flags are
-    // clobbered.
+    // SAFETY: the eight-score loop runs `n / 8` times (none when `n` is 4) and the four-score
+    // step once more when `n % 8 == 4`: `n` words of `scores` (an `[i32]`, word-aligned for
+    // `ldm`) in all. `r0`-`r3` are declared clobbered. Only declared outputs are written; the
+    // flags are clobbered.
     unsafe {
         core::arch::asm!(
+            "cmp {n}, #0",
+            "beq 3f",
             "2:",
-            "ldrd {a}, {b}, [{s}], #8",
-            "cmp {a}, {m}",
-            "it gt",
-            "movgt {m}, {a}",
-            "cmp {b}, {m}",
-            "it gt",
-            "movgt {m}, {b}",
-            "ldrd {a}, {b}, [{s}], #8",
-            "cmp {a}, {m}",
-            "it gt",
-            "movgt {m}, {a}",
-            "cmp {b}, {m}",
-            "it gt",
-            "movgt {m}, {b}",
+            max_of_four!(),
+            max_of_four!(),
             "subs {n}, {n}, #1",
             "bne 2b",
+            "3:",
+            "cmp {odd}, #0",
+            "beq 4f",
+            max_of_four!(),
+            "4:",
             s = inout(reg) scores.as_ptr() => _,
-            n = inout(reg) n / 4 => _,
+            n = inout(reg) n / 8 => _,
+            odd = in(reg) n % 8,
             m = inout(reg) max,
-            a = out(reg) _,
-            b = out(reg) _,
+            out("r0") _,
+            out("r1") _,
+            out("r2") _,
+            out("r3") _,
             options(nostack, readonly),
         );
     }
@@ -654,26 +678,43 @@ macro_rules! weight_pair_tail {
     };
 }
 
-/// The loop of [`widened_weights`] for one right shift `$post` (an immediate of `usat`): per
-/// group of four scores two pairs, the first stored as elements 0 and 1 of the group (byte
-/// offsets 0 and 4: the low halfwords of the row's two words), the second as 2 and 3 (the high
-/// halfwords); 29 instructions per four weights.
+/// The loop of [`widened_weights`] for one right shift `$post` (an immediate of `usat`) and one
+/// output stride `$stride` (bytes, the immediate of `strd`'s post-increment): per group of four
+/// scores two `ldrd`, per score `qsub`, `smmla`, `usat`, `ldrb` and the sum's `add`, then the
+/// four weights paired into the group's two words by `pkhbt` (elements 0 and 2 in the first,
+/// 1 and 3 in the second, low halfword first) and one `strd`: 27 instructions per four weights.
 #[cfg(bino_dsp)]
 macro_rules! widened_weights_loop {
-    ($post:literal, $s:expr, $p:expr, $groups:expr, $sum:expr, $max:expr, $mult:expr, $round:expr, $stride:expr) => {
+    ($post:literal, $stride:literal, $s:expr, $p:expr, $groups:expr, $sum:expr, $max:expr, $mult:expr, $round:expr) => {
         // SAFETY: see `widened_weights`.
         unsafe {
             core::arch::asm!(
                 "2:",
-                weight_pair_head!(),
+                "ldrd {a}, {b}, [{s}], #8",
+                "ldrd {c}, {d}, [{s}], #8",
+                "qsub {a}, {max}, {a}",
+                "qsub {b}, {max}, {b}",
+                "qsub {c}, {max}, {c}",
+                "qsub {d}, {max}, {d}",
+                "smmla {a}, {a}, {mult}, {round}",
+                "smmla {b}, {b}, {mult}, {round}",
+                "smmla {c}, {c}, {mult}, {round}",
+                "smmla {d}, {d}, {mult}, {round}",
                 concat!("usat {a}, #12, {a}, asr #", $post),
                 concat!("usat {b}, #12, {b}, asr #", $post),
-                weight_pair_tail!(0, 4),
-                weight_pair_head!(),
-                concat!("usat {a}, #12, {a}, asr #", $post),
-                concat!("usat {b}, #12, {b}, asr #", $post),
-                weight_pair_tail!(2, 6),
-                "add {p}, {p}, {stride}",
+                concat!("usat {c}, #12, {c}, asr #", $post),
+                concat!("usat {d}, #12, {d}, asr #", $post),
+                "ldrb {a}, [{table}, {a}]",
+                "ldrb {b}, [{table}, {b}]",
+                "ldrb {c}, [{table}, {c}]",
+                "ldrb {d}, [{table}, {d}]",
+                "add {sum}, {sum}, {a}",
+                "add {sum}, {sum}, {b}",
+                "add {sum}, {sum}, {c}",
+                "add {sum}, {sum}, {d}",
+                "pkhbt {a}, {a}, {c}, lsl #16",
+                "pkhbt {b}, {b}, {d}, lsl #16",
+                concat!("strd {a}, {b}, [{p}], #", $stride),
                 "subs {cnt}, {cnt}, #1",
                 "bne 2b",
                 s = inout(reg) $s => _,
@@ -683,10 +724,11 @@ macro_rules! widened_weights_loop {
                 max = in(reg) $max,
                 mult = in(reg) $mult,
                 round = in(reg) $round,
-                stride = in(reg) $stride,
                 table = in(reg) EXP2_NEG_U8_TABLE_4K.as_ptr(),
                 a = out(reg) _,
                 b = out(reg) _,
+                c = out(reg) _,
+                d = out(reg) _,
                 options(nostack),
             );
         }
@@ -716,11 +758,15 @@ fn widened_weights(row: &WeightRow, scores: &[i32], out: &mut [u32], first: usiz
     // group's are `first + (groups - 1) stride + 1 < out.len()`, checked); its table index is
     // `usat`urated to `0..=4095`, inside the 4,096-byte `EXP2_NEG_U8_TABLE_4K`. Only declared
     // outputs are written; the flags are clobbered.
-    match post {
-        1 => widened_weights_loop!(1, s, p, groups, sum, max, mult, round, stride),
-        2 => widened_weights_loop!(2, s, p, groups, sum, max, mult, round, stride),
-        3 => widened_weights_loop!(3, s, p, groups, sum, max, mult, round, stride),
-        4 => widened_weights_loop!(4, s, p, groups, sum, max, mult, round, stride),
+    match (post, stride) {
+        (1, 32) => widened_weights_loop!(1, 32, s, p, groups, sum, max, mult, round),
+        (2, 32) => widened_weights_loop!(2, 32, s, p, groups, sum, max, mult, round),
+        (3, 32) => widened_weights_loop!(3, 32, s, p, groups, sum, max, mult, round),
+        (4, 32) => widened_weights_loop!(4, 32, s, p, groups, sum, max, mult, round),
+        (1, 16) => widened_weights_loop!(1, 16, s, p, groups, sum, max, mult, round),
+        (2, 16) => widened_weights_loop!(2, 16, s, p, groups, sum, max, mult, round),
+        (3, 16) => widened_weights_loop!(3, 16, s, p, groups, sum, max, mult, round),
+        (4, 16) => widened_weights_loop!(4, 16, s, p, groups, sum, max, mult, round),
         // SAFETY: as above.
         _ => unsafe {
             core::arch::asm!(
@@ -878,6 +924,153 @@ fn weighted_sums(x: &[u32], values_t: &[i8], n: usize, acc: &mut [[i32; HEAD_DIM
         for (acc_r, s) in acc.iter_mut().zip(tile(x, channel, [0; ROWS])) {
             acc_r[d] = s;
         }
+    }
+}
+
+/// The OR of `a ^ (a >> 31)` over `values` (`|a|`, or `|a| - 1` for a negative `a`) on
+/// Cortex-M7, for lengths that are a multiple of 4: per four values one `ldm` and two
+/// instructions each. `None` (nothing read) for other lengths.
+#[cfg(bino_dsp)]
+pub(crate) fn magnitude_bits(values: &[i32]) -> Option<u32> {
+    let n = values.len();
+    if n == 0 || !n.is_multiple_of(4) {
+        return None;
+    }
+    let mut bits = 0u32;
+    // SAFETY: the loop runs `n / 4 >= 1` times and reads the `n` words of `values` (an
+    // `[i32]`, word-aligned for `ldm`); `r0`-`r3` are declared clobbered. Only declared outputs
+    // are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldm {s}!, {{r0, r1, r2, r3}}",
+            "eor r0, r0, r0, asr #31",
+            "eor r1, r1, r1, asr #31",
+            "eor r2, r2, r2, asr #31",
+            "eor r3, r3, r3, asr #31",
+            "orr {m}, {m}, r0",
+            "orr {m}, {m}, r1",
+            "orr {m}, {m}, r2",
+            "orr {m}, {m}, r3",
+            "subs {n}, {n}, #1",
+            "bne 2b",
+            s = inout(reg) values.as_ptr() => _,
+            n = inout(reg) n / 4 => _,
+            m = inout(reg) bits,
+            out("r0") _,
+            out("r1") _,
+            out("r2") _,
+            out("r3") _,
+            options(nostack, readonly),
+        );
+    }
+    Some(bits)
+}
+
+/// RoPE's requantisation of one token on Cortex-M7 (`rope::RopeLanes` with no left shift):
+/// per channel `v = clamp((hi32((acc + bias) mult) + round) >> post, -2^24, 2^24)` (`smmla`,
+/// then `ssat #25` and one more where the value reaches `2^24`), 17 instructions a channel.
+/// Returns the OR of `a ^ (a >> 31)` over the accumulators: the caller keeps `v` only where it
+/// is below `2^29` (every `|acc| <= 2^29`, where the lanes' identities hold).
+#[cfg(bino_dsp)]
+pub(crate) fn rope_requant(
+    acc: &[i32; DIM],
+    bias: &[i32; DIM],
+    mult: &[i32; DIM],
+    round: &[i32; DIM],
+    post: &[u8; DIM],
+    v: &mut [i32; DIM],
+) -> u32 {
+    let mut bits = 0u32;
+    // SAFETY: the loop runs `DIM` times, reading one word of each of `acc`, `bias`, `mult`,
+    // `round` (`[i32; DIM]`) and one byte of `post` (`[u8; DIM]`) and writing one word of `v`
+    // (`[i32; DIM]`) per pass. Only declared outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldr {a}, [{ap}], #4",
+            "eor {t}, {a}, {a}, asr #31",
+            "orr {m}, {m}, {t}",
+            "ldr {t}, [{bp}], #4",
+            "add {a}, {a}, {t}",
+            "ldr {t}, [{mp}], #4",
+            "ldr {u}, [{rp}], #4",
+            "smmla {a}, {a}, {t}, {u}",
+            "ldrb {t}, [{qp}], #1",
+            "asr {a}, {a}, {t}",
+            "ssat {t}, #25, {a}",
+            "cmp {a}, #0x1000000",
+            "it ge",
+            "addge {t}, {t}, #1",
+            "str {t}, [{vp}], #4",
+            "subs {cnt}, {cnt}, #1",
+            "bne 2b",
+            ap = inout(reg) acc.as_ptr() => _,
+            bp = inout(reg) bias.as_ptr() => _,
+            mp = inout(reg) mult.as_ptr() => _,
+            rp = inout(reg) round.as_ptr() => _,
+            qp = inout(reg) post.as_ptr() => _,
+            vp = inout(reg) v.as_mut_ptr() => _,
+            cnt = inout(reg) DIM => _,
+            m = inout(reg) bits,
+            a = out(reg) _,
+            t = out(reg) _,
+            u = out(reg) _,
+            options(nostack),
+        );
+    }
+    bits
+}
+
+/// One half of a head rotated on Cortex-M7 (`rope`'s rotation): per pair `(a, b)` of `v`
+/// (`a = v[i]`, `b = v[8 + i]`) the two 64-bit sums `a c - b s` and `b c + a s` by `smlal` from
+/// `2^21`, bits 22 to 53 by `lsr` and `orr`, `ssat #8`, into `out[i]` and `out[8 + i]`.
+#[cfg(bino_dsp)]
+pub(crate) fn rope_rotate_half(v: &[i32; 16], angles: &crate::kernels::rope::Angles, out: &mut [i8; 16]) {
+    // SAFETY: the loop runs 8 times; pass `i` reads words `i` and `8 + i` of `v` (`[i32; 16]`),
+    // halfwords `i` of `angles.cos` and of `angles.sin` (`Angles` is `repr(C)`: `sin` 16 bytes
+    // after `cos`, eight `i16` each) and writes bytes `i` and `8 + i` of `out` (`[i8; 16]`).
+    // Only declared outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldr {vb}, [{vp}, #32]",
+            "ldr {va}, [{vp}], #4",
+            "ldrsh {s}, [{cp}, #16]",
+            "ldrsh {c}, [{cp}], #2",
+            "mov {lo}, #0x200000",
+            "mov {hi}, #0",
+            "smlal {lo}, {hi}, {va}, {c}",
+            "rsb {t}, {s}, #0",
+            "smlal {lo}, {hi}, {vb}, {t}",
+            "lsr {lo}, {lo}, #22",
+            "orr {lo}, {lo}, {hi}, lsl #10",
+            "ssat {lo}, #8, {lo}",
+            "strb {lo}, [{op}]",
+            "mov {lo}, #0x200000",
+            "mov {hi}, #0",
+            "smlal {lo}, {hi}, {vb}, {c}",
+            "smlal {lo}, {hi}, {va}, {s}",
+            "lsr {lo}, {lo}, #22",
+            "orr {lo}, {lo}, {hi}, lsl #10",
+            "ssat {lo}, #8, {lo}",
+            "strb {lo}, [{op}, #8]",
+            "add {op}, {op}, #1",
+            "subs {cnt}, {cnt}, #1",
+            "bne 2b",
+            vp = inout(reg) v.as_ptr() => _,
+            cp = inout(reg) angles.cos.as_ptr() => _,
+            op = inout(reg) out.as_mut_ptr() => _,
+            cnt = inout(reg) 8usize => _,
+            va = out(reg) _,
+            vb = out(reg) _,
+            c = out(reg) _,
+            s = out(reg) _,
+            lo = out(reg) _,
+            hi = out(reg) _,
+            t = out(reg) _,
+            options(nostack),
+        );
     }
 }
 
