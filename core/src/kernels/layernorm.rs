@@ -232,14 +232,19 @@ impl LaneScratch {
 const LANE_DIM: usize = 128;
 
 /// The three lane passes of [`NarrowParams::row_in_lanes`]: the Helium loops of
-/// `kernels::arch` on Cortex-M55, these portable twins on Cortex-M7 and on hosts (the same
-/// 32-bit lane arithmetic, so the host tests prove the identities the loops rely on).
+/// `kernels::arch` on Cortex-M55 (and the first pass's DSP loop on Cortex-M7), these portable
+/// twins elsewhere (the same 32-bit lane arithmetic, so the host tests prove the identities
+/// the loops rely on).
 mod lanes {
     /// `v = (q - zero) * rel` per channel; the 64-bit sum, the minimum and the maximum.
     #[inline(always)]
     pub(super) fn values(row: &[i8], zero: &[i32], rel: &[i32], v: &mut [i32]) -> Option<(i64, i32, i32)> {
         #[cfg(bino_mve)]
         return crate::kernels::arch::layernorm_values(row, zero, rel, v);
+        #[cfg(bino_dsp)]
+        if let Some(found) = crate::kernels::arch::dsp::layernorm_values(row, zero, rel, v) {
+            return Some(found);
+        }
         #[cfg(not(bino_mve))]
         {
             let (mut sum, mut lo, mut hi) = (0i64, i32::MAX, i32::MIN);

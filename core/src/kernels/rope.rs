@@ -98,9 +98,6 @@ pub struct RopeLanes {
     /// The requantised token, reused token after token (zeroing it per token cost a 512-byte
     /// `memclr` each).
     values: [i32; DIM],
-    /// Whether some channel has `e = 1` (the Cortex-M7's assembly takes only `e = 0`).
-    #[cfg_attr(not(bino_dsp), allow(dead_code))]
-    any_pre: bool,
 }
 
 impl RopeLanes {
@@ -117,7 +114,6 @@ impl RopeLanes {
             pre: [0; DIM],
             post: [1; DIM],
             values: [0; DIM],
-            any_pre: false,
         };
         for c in 0..DIM {
             let (bias, shift) = (rq.bias.at(c), rq.shift.get(c).copied().unwrap_or(0) as u32);
@@ -130,7 +126,6 @@ impl RopeLanes {
             lanes.round[c] = 1 << (shift + pre - 33);
             lanes.pre[c] = pre as u8;
             lanes.post[c] = (shift + pre - 32) as u8;
-            lanes.any_pre |= pre == 1;
         }
         Some(lanes)
     }
@@ -142,7 +137,7 @@ impl RopeLanes {
             return false;
         };
         #[cfg(bino_dsp)]
-        if !self.any_pre && self.token_on_m7(acc, row, col, out) {
+        if self.token_on_m7(acc, row, col, out) {
             return true;
         }
         if acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 29 {
@@ -156,7 +151,6 @@ impl RopeLanes {
             pre,
             post,
             values: v,
-            ..
         } = self;
         // Helium lanes on Cortex-M55 (`kernels::arch`), this loop elsewhere.
         #[cfg(bino_mve)]
@@ -187,7 +181,15 @@ impl RopeLanes {
     #[cfg(bino_dsp)]
     fn token_on_m7(&mut self, acc: &[i32; DIM], row: &Angles, col: &Angles, out: &mut [i8; DIM]) -> bool {
         use crate::kernels::arch::dsp::{rope_requant, rope_rotate_half};
-        let bits = rope_requant(acc, &self.bias, &self.mult, &self.round, &self.post, &mut self.values);
+        let bits = rope_requant(
+            acc,
+            &self.bias,
+            &self.mult,
+            &self.round,
+            &self.pre,
+            &self.post,
+            &mut self.values,
+        );
         if bits >= 1 << 29 {
             return false;
         }

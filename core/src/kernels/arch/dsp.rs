@@ -967,23 +967,25 @@ pub(crate) fn magnitude_bits(values: &[i32]) -> Option<u32> {
     Some(bits)
 }
 
-/// RoPE's requantisation of one token on Cortex-M7 (`rope::RopeLanes` with no left shift):
-/// per channel `v = clamp((hi32((acc + bias) mult) + round) >> post, -2^24, 2^24)` (`smmla`,
-/// then `ssat #25` and one more where the value reaches `2^24`), 17 instructions a channel.
+/// RoPE's requantisation of one token on Cortex-M7 (`rope::RopeLanes`): per channel
+/// `v = clamp((hi32(((acc + bias) << pre) mult) + round) >> post, -2^24, 2^24)` (`smmla`, then
+/// `ssat #25` and one more where the value reaches `2^24`), 19 instructions a channel.
 /// Returns the OR of `a ^ (a >> 31)` over the accumulators: the caller keeps `v` only where it
 /// is below `2^29` (every `|acc| <= 2^29`, where the lanes' identities hold).
 #[cfg(bino_dsp)]
+#[inline(never)]
 pub(crate) fn rope_requant(
     acc: &[i32; DIM],
     bias: &[i32; DIM],
     mult: &[i32; DIM],
     round: &[i32; DIM],
+    pre: &[u8; DIM],
     post: &[u8; DIM],
     v: &mut [i32; DIM],
 ) -> u32 {
     let mut bits = 0u32;
     // SAFETY: the loop runs `DIM` times, reading one word of each of `acc`, `bias`, `mult`,
-    // `round` (`[i32; DIM]`) and one byte of `post` (`[u8; DIM]`) and writing one word of `v`
+    // `round` (`[i32; DIM]`) and one byte of `pre` and `post` (`[u8; DIM]`) and writing one word of `v`
     // (`[i32; DIM]`) per pass. Only declared outputs are written; the flags are clobbered.
     unsafe {
         core::arch::asm!(
@@ -993,6 +995,8 @@ pub(crate) fn rope_requant(
             "orr {m}, {m}, {t}",
             "ldr {t}, [{bp}], #4",
             "add {a}, {a}, {t}",
+            "ldrb {t}, [{ep}], #1",
+            "lsl {a}, {a}, {t}",
             "ldr {t}, [{mp}], #4",
             "ldr {u}, [{rp}], #4",
             "smmla {a}, {a}, {t}, {u}",
@@ -1009,6 +1013,7 @@ pub(crate) fn rope_requant(
             bp = inout(reg) bias.as_ptr() => _,
             mp = inout(reg) mult.as_ptr() => _,
             rp = inout(reg) round.as_ptr() => _,
+            ep = inout(reg) pre.as_ptr() => _,
             qp = inout(reg) post.as_ptr() => _,
             vp = inout(reg) v.as_mut_ptr() => _,
             cnt = inout(reg) DIM => _,
@@ -1072,6 +1077,56 @@ pub(crate) fn rope_rotate_half(v: &[i32; 16], angles: &crate::kernels::rope::Ang
             options(nostack),
         );
     }
+}
+
+/// LayerNorm's first lane pass on Cortex-M7 (`layernorm::lanes::values`): `v = (q - zero) rel`
+/// per channel, their 64-bit sum (`smlal` by one), minimum and maximum; 15 instructions a
+/// channel. `None` (nothing written) unless the four slices have one non-zero length.
+#[cfg(bino_dsp)]
+#[inline(never)]
+pub(crate) fn layernorm_values(row: &[i8], zero: &[i32], rel: &[i32], v: &mut [i32]) -> Option<(i64, i32, i32)> {
+    let n = row.len();
+    if n == 0 || zero.len() != n || rel.len() != n || v.len() != n {
+        return None;
+    }
+    let (mut lo, mut hi, mut min, mut max) = (0u32, 0u32, i32::MAX, i32::MIN);
+    // SAFETY: the loop runs `n >= 1` times, reading one byte of `row` and one word of `zero`
+    // and `rel` and writing one word of `v` per pass (all `n` long, checked). Only declared
+    // outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldrsb {q}, [{rp}], #1",
+            "ldr {t}, [{zp}], #4",
+            "sub {q}, {q}, {t}",
+            "ldr {t}, [{lp}], #4",
+            "mul {q}, {q}, {t}",
+            "str {q}, [{vp}], #4",
+            "smlal {lo}, {hi}, {q}, {one}",
+            "cmp {q}, {min}",
+            "it lt",
+            "movlt {min}, {q}",
+            "cmp {q}, {max}",
+            "it gt",
+            "movgt {max}, {q}",
+            "subs {cnt}, {cnt}, #1",
+            "bne 2b",
+            rp = inout(reg) row.as_ptr() => _,
+            zp = inout(reg) zero.as_ptr() => _,
+            lp = inout(reg) rel.as_ptr() => _,
+            vp = inout(reg) v.as_mut_ptr() => _,
+            cnt = inout(reg) n => _,
+            one = in(reg) 1u32,
+            lo = inout(reg) lo,
+            hi = inout(reg) hi,
+            min = inout(reg) min,
+            max = inout(reg) max,
+            q = out(reg) _,
+            t = out(reg) _,
+            options(nostack),
+        );
+    }
+    Some((((hi as u64) << 32 | lo as u64) as i64, min, max))
 }
 
 /// Rows in one call of [`residual_rows8`], and their stride in codes: a block of the encoder's
