@@ -793,6 +793,14 @@ pub struct ConvEpilogue {
     carry: Option<(i32, u32, i32, u32)>,
     zero: i32,
     next_zero: i32,
+    /// The Cortex-M7 kernel's parameters: per channel bias, multiplier, rounding term, right
+    /// shift.
+    #[cfg(bino_dsp)]
+    channel_params: [[i32; 4]; HEAD_HIDDEN],
+    /// The carry of each input code `q` plus the next zero point, at `q + 128` (the next zero
+    /// point alone without a carry), for the Cortex-M7 kernel.
+    #[cfg(bino_dsp)]
+    carried: [i32; 256],
 }
 
 impl ConvEpilogue {
@@ -818,6 +826,10 @@ impl ConvEpilogue {
             carry: None,
             zero,
             next_zero,
+            #[cfg(bino_dsp)]
+            channel_params: [[0; 4]; HEAD_HIDDEN],
+            #[cfg(bino_dsp)]
+            carried: [next_zero; 256],
         };
         for c in 0..HEAD_HIDDEN {
             let (bias, shift) = (rq.bias.at(c), rq.shift.get(c).copied().unwrap_or(0) as u32);
@@ -845,15 +857,45 @@ impl ConvEpilogue {
             let pre = if r.shift <= 47 { 15 } else { 0 };
             e.carry = Some((r.mult, pre, 1 << (r.shift + pre - 33), r.shift + pre - 32));
         }
+        #[cfg(bino_dsp)]
+        {
+            for (c, p) in e.channel_params.iter_mut().enumerate() {
+                *p = [e.bias[c], e.mult[c], e.round[c], e.post[c] as i32];
+            }
+            if let Some(carry) = e.carry {
+                let carried: [i32; 256] =
+                    core::array::from_fn(|i| e.carry_of(carry, (i as i32 - 128) as i8) + next_zero);
+                e.carried = carried;
+            }
+        }
         Some(e)
     }
 
+    /// The carry of one input code: `(hi32(((q - zero) << pre) mult) + round) >> post`.
+    #[inline(always)]
+    fn carry_of(&self, (mult, pre, round, post): (i32, u32, i32, u32), q: i8) -> i32 {
+        let high = ((((q as i32 - self.zero) << (pre & 31)) as i64 * mult as i64) >> 32) as i32;
+        (high + round) >> (post & 31)
+    }
+
     /// The outputs of one cell (`acc` and `out`: candidates x `HEAD_HIDDEN`; `center`: the
-    /// cell's input, whose codes the carry adds); `false` (nothing written) for accumulators
-    /// from `2^30` in magnitude or lengths that do not match.
+    /// cell's input, whose codes the carry adds); `false` for accumulators from `2^30` in
+    /// magnitude or lengths that do not match: nothing written (on Cortex-M7, codes written
+    /// beside an accumulator past the bound, which the caller then recomputes, every one).
     pub fn apply(&self, acc: &[i32], center: Option<&[i8]>, out: &mut [i8]) -> bool {
         if out.len() != acc.len() || acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 30 {
             return false;
+        }
+        // Cortex-M7: one assembly loop (which reads the bound's bits as it goes; past it the
+        // codes are recomputed by the caller, which writes every one).
+        #[cfg(bino_dsp)]
+        if self.carry.is_none() || center.is_some() {
+            let x = center.filter(|_| self.carry.is_some());
+            if let Some(bits) =
+                crate::kernels::arch::dsp::conv_epilogue(acc, x, &self.channel_params, &self.carried, out)
+            {
+                return bits < 1 << 30;
+            }
         }
         let high = |a: i32, b: i32| ((a as i64 * b as i64) >> 32) as i32;
         let params = self.bias.iter().zip(&self.mult).zip(self.round.iter().zip(&self.post));
@@ -872,8 +914,10 @@ impl ConvEpilogue {
                     }
                 }
             }
-            Some(((mult, pre, round, post), x)) => {
-                let carried = |q: i8| (high((q as i32 - self.zero) << (pre & 31), mult) + round) >> (post & 31);
+            Some((carry, x)) => {
+                #[cfg(bino_mve)]
+                let (mult, pre, round, post) = carry;
+                let carried = |q: i8| self.carry_of(carry, q);
                 let add = |o: &mut i8, a: i32, p, q: i8| {
                     *o = (carried(q) + relu(a, p) + self.next_zero).clamp(-128, 127) as i8;
                 };
