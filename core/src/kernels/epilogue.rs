@@ -549,13 +549,17 @@ impl CarryParams {
 
 /// `out = sat8((hi32(rnd_hi32(n * recip_q) * mult) + round) >> post)` per lane: a rounded
 /// high-half scale, then a requantisation whose shift is `32 + post` (LayerNorm's output and
-/// attention's normalised average). Helium on Cortex-M55, `smmulr` / `smmul` in scalar code
-/// elsewhere. `false` (nothing written) on Cortex-M55 unless `n` and `out` have one length
+/// attention's normalised average). Helium on Cortex-M55, a DSP loop on Cortex-M7 (even
+/// lengths), portable scalar code elsewhere. `false` (nothing written) on Cortex-M55 unless `n` and `out` have one length
 /// `>= 1` and `post` is in `1..=31`; elsewhere the common length is taken.
 #[inline(always)]
 pub(crate) fn scaled_requant_lanes(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
     #[cfg(bino_mve)]
     return super::arch::scaled_requant_lanes(n, recip_q, mult, round, post, out);
+    #[cfg(bino_dsp)]
+    if super::arch::dsp::scaled_requant(n, recip_q, mult, round, post, out) {
+        return true;
+    }
     #[cfg(not(bino_mve))]
     {
         for (o, &y) in out.iter_mut().zip(n) {

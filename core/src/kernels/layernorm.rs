@@ -232,7 +232,7 @@ impl LaneScratch {
 const LANE_DIM: usize = 128;
 
 /// The three lane passes of [`NarrowParams::row_in_lanes`]: the Helium loops of
-/// `kernels::arch` on Cortex-M55 (and the first pass's DSP loop on Cortex-M7), these portable
+/// `kernels::arch` on Cortex-M55 (and DSP loops on Cortex-M7), these portable
 /// twins elsewhere (the same 32-bit lane arithmetic, so the host tests prove the identities
 /// the loops rely on).
 mod lanes {
@@ -263,6 +263,10 @@ mod lanes {
     pub(super) fn normalise(v: &[i32], left: u32, add: i32, right: u32, n: &mut [i32]) -> Option<i64> {
         #[cfg(bino_mve)]
         return crate::kernels::arch::layernorm_normalise(v, left, add, right, n);
+        #[cfg(bino_dsp)]
+        if let Some(sum_sq) = crate::kernels::arch::dsp::layernorm_normalise(v, left, add, right, n) {
+            return Some(sum_sq);
+        }
         #[cfg(not(bino_mve))]
         {
             let mut sum_sq = 0i64;

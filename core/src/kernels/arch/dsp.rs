@@ -110,6 +110,8 @@ pub(crate) fn gemm<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mu
         0..=32 => gemm_in::<E, { words(32) }>(a, w, k, m, epi),
         33..=128 => gemm_in::<E, { words(128) }>(a, w, k, m, epi),
         129..=512 => gemm_in::<E, { words(512) }>(a, w, k, m, epi),
+        // The head's hidden convolutions (27 taps of 24 channels).
+        513..=648 => gemm_in::<E, { words(648) }>(a, w, k, m, epi),
         _ => gemm_in::<E, { words(MAX_K) }>(a, w, k, m, epi),
     }
 }
@@ -1198,6 +1200,95 @@ pub(crate) fn conv_epilogue(
         );
     }
     Some(bits)
+}
+
+/// LayerNorm's second lane pass on Cortex-M7 (`layernorm::lanes::normalise`): `n = ((v << left)
+/// + add) >> right` (wrapping, arithmetic shift) and the 64-bit sum of the squares (`smlal`),
+/// two values a pass (`ldrd`, `strd`): 6 instructions a value. `None` (nothing written) unless
+/// both slices have one even, non-zero length.
+#[cfg(bino_dsp)]
+pub(crate) fn layernorm_normalise(v: &[i32], left: u32, add: i32, right: u32, n: &mut [i32]) -> Option<i64> {
+    let len = v.len();
+    if len == 0 || !len.is_multiple_of(2) || n.len() != len {
+        return None;
+    }
+    let (mut lo, mut hi) = (0u32, 0u32);
+    // SAFETY: the loop runs `len / 2 >= 1` times, reading two words of `v` and writing two of
+    // `n` per pass (`[i32]`s of `len` words, word-aligned for `ldrd`/`strd`). Only declared
+    // outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldrd {a}, {b}, [{vp}], #8",
+            "lsl {a}, {a}, {left}",
+            "lsl {b}, {b}, {left}",
+            "add {a}, {a}, {add}",
+            "add {b}, {b}, {add}",
+            "asr {a}, {a}, {right}",
+            "asr {b}, {b}, {right}",
+            "strd {a}, {b}, [{np}], #8",
+            "smlal {lo}, {hi}, {a}, {a}",
+            "smlal {lo}, {hi}, {b}, {b}",
+            "subs {cnt}, {cnt}, #1",
+            "bne 2b",
+            vp = inout(reg) v.as_ptr() => _,
+            np = inout(reg) n.as_mut_ptr() => _,
+            cnt = inout(reg) len / 2 => _,
+            left = in(reg) left & 31,
+            add = in(reg) add,
+            right = in(reg) right & 31,
+            lo = inout(reg) lo,
+            hi = inout(reg) hi,
+            a = out(reg) _,
+            b = out(reg) _,
+            options(nostack),
+        );
+    }
+    Some(((hi as u64) << 32 | lo as u64) as i64)
+}
+
+/// LayerNorm's output pass and attention's normalised average on Cortex-M7
+/// (`epilogue::scaled_requant_lanes`): `sat8((hi32(rnd_hi32(n recip_q) mult) + round) >> post)`
+/// by `smmulr`, `smmla`, `asr` and `ssat #8`, two values a pass: 6.5 instructions a value.
+/// `false` (nothing written) unless both slices have one even, non-zero length.
+#[cfg(bino_dsp)]
+pub(crate) fn scaled_requant(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
+    let len = n.len();
+    if len == 0 || !len.is_multiple_of(2) || out.len() != len {
+        return false;
+    }
+    // SAFETY: the loop runs `len / 2 >= 1` times, reading two words of `n` (an `[i32]`,
+    // word-aligned for `ldrd`) and writing two bytes of `out` per pass (`len` of each). Only
+    // declared outputs are written; the flags are clobbered.
+    unsafe {
+        core::arch::asm!(
+            "2:",
+            "ldrd {a}, {b}, [{np}], #8",
+            "smmulr {a}, {a}, {recip}",
+            "smmulr {b}, {b}, {recip}",
+            "smmla {a}, {a}, {mult}, {round}",
+            "smmla {b}, {b}, {mult}, {round}",
+            "asr {a}, {a}, {post}",
+            "asr {b}, {b}, {post}",
+            "ssat {a}, #8, {a}",
+            "ssat {b}, #8, {b}",
+            "strb {a}, [{op}], #1",
+            "strb {b}, [{op}], #1",
+            "subs {cnt}, {cnt}, #1",
+            "bne 2b",
+            np = inout(reg) n.as_ptr() => _,
+            op = inout(reg) out.as_mut_ptr() => _,
+            cnt = inout(reg) len / 2 => _,
+            recip = in(reg) recip_q,
+            mult = in(reg) mult,
+            round = in(reg) round,
+            post = in(reg) post & 31,
+            a = out(reg) _,
+            b = out(reg) _,
+            options(nostack),
+        );
+    }
+    true
 }
 
 /// Rows in one call of [`residual_rows8`], and their stride in codes: a block of the encoder's
