@@ -162,6 +162,9 @@ struct Buffers {
     expected8: [i8; MAX_OUT],
     acc: [i32; MAX_OUT],
     weights: Aligned<[u8; MAX_OUT]>,
+    /// The softmax bench's widened weights on Cortex-M7 (two words per four scores of a row,
+    /// at a stride of eight words).
+    widened: [u32; 2 * 960],
 }
 
 fn random_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
@@ -902,8 +905,9 @@ fn bench(rng: &mut Rng, b: &mut Buffers) {
 }
 
 /// Softmax rows as attention computes them (the row maximum, then the weights and their sum),
-/// this core's fastest path and the portable reference between markers; rows of 960 scores, a
-/// band's tokens, spread like the products of 32 int8 pairs.
+/// this core's fastest path (on Cortex-M7 the engine's, into the DSP tile's widened layout)
+/// and the portable reference between markers; rows of 960 scores, a band's tokens, spread
+/// like the products of 32 int8 pairs.
 fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
     use bino_core::fixed::Requant;
     use bino_core::kernels::attention::{softmax_row, softmax_row_fastest};
@@ -925,10 +929,32 @@ fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
     let (scores, (fast, rest)) = (&b.found[..N], b.weights.0.split_at_mut(N));
     let reference = &mut rest[..N];
     let (mut sum_fast, mut sum_reference) = (0u32, 0u32);
+    // Cortex-M7: the engine's softmax (into the DSP tile's widened layout).
+    let widened = &mut b.widened;
     bino_mark_softmax_fast();
     for _ in 0..ROWS {
-        let m = bino_core::kernels::attention::row_max(scores);
-        sum_fast = sum_fast.wrapping_add(softmax_row_fastest(&e, m, scores, fast));
+        let into_tile = if cfg!(board = "an500") {
+            bino_core::kernels::arch::softmax_row_widened(&e, scores, widened)
+        } else {
+            None
+        };
+        sum_fast = sum_fast.wrapping_add(match into_tile {
+            Some(sum) => sum,
+            None => {
+                let m = bino_core::kernels::attention::row_max(scores);
+                softmax_row_fastest(&e, m, scores, fast)
+            }
+        });
+    }
+    if cfg!(board = "an500") {
+        // The weights back to the bytes `softmax_row` stores (`w ^ 0x80`).
+        for (g, four) in fast.chunks_exact_mut(4).enumerate() {
+            let (lo, hi) = (widened[8 * g], widened[8 * g + 1]);
+            let w = [lo & 0xFFFF, hi & 0xFFFF, lo >> 16, hi >> 16];
+            for (f, w) in four.iter_mut().zip(w) {
+                *f = (w as u8) ^ 0x80;
+            }
+        }
     }
     bino_mark_softmax_reference();
     for _ in 0..ROWS {
@@ -984,7 +1010,8 @@ fn bench_scores(rng: &mut Rng, b: &mut Buffers) {
 
 /// Attention's weighted sums (P·V) as the engine computes them: four rows of 960 softmax
 /// weights (as int8) against the 32 value channels (transposed, 960 each), 240 blocks, through
-/// `matmul_i8` (this core's GEMM tile) and the portable reference between markers.
+/// `matmul_i8` (this core's GEMM tile; on Cortex-M7 the block kernel on rows the softmax
+/// already widened) and the portable reference between markers.
 fn bench_pv(rng: &mut Rng, b: &mut Buffers) {
     use bino_core::config::HEAD_DIM;
     use bino_core::kernels::attention::QUERY_BLOCK;
@@ -997,9 +1024,28 @@ fn bench_pv(rng: &mut Rng, b: &mut Buffers) {
         &mut b.found[..QUERY_BLOCK * HEAD_DIM],
         &mut b.expected[..QUERY_BLOCK * HEAD_DIM],
     );
+    // Cortex-M7: the engine's softmax leaves the weights widened, so its weighted sums are
+    // the block kernel alone; the rows are widened here, outside the markers.
+    if cfg!(board = "an500") {
+        for (r, row) in weights.chunks_exact(N).enumerate() {
+            for (g, q) in row.chunks_exact(4).enumerate() {
+                let pair = |lo: i8, hi: i8| (lo as i16 as u16 as u32) | ((hi as i16 as u16 as u32) << 16);
+                b.widened[8 * g + 2 * r] = pair(q[0], q[2]);
+                b.widened[8 * g + 2 * r + 1] = pair(q[1], q[3]);
+            }
+        }
+    }
+    let mut block = [[0i32; HEAD_DIM]; QUERY_BLOCK];
     bino_mark_pv_fast();
     for _ in 0..CALLS {
-        matmul_i8(weights, values_t, N, found);
+        if !(cfg!(board = "an500")
+            && bino_core::kernels::arch::weighted_sums_widened(&b.widened, values_t, N, &mut block))
+        {
+            matmul_i8(weights, values_t, N, found);
+        }
+    }
+    if cfg!(board = "an500") {
+        found.copy_from_slice(block.as_flattened());
     }
     bino_mark_pv_reference();
     for _ in 0..CALLS {
@@ -1135,6 +1181,7 @@ fn main() -> ! {
         expected8: [0; MAX_OUT],
         acc: [0; MAX_OUT],
         weights: Aligned([0; MAX_OUT]),
+        widened: [0; 2 * 960],
     }) else {
         defmt::println!("kernel-tests result=fail buffers taken");
         exit(EXIT_FAILURE);

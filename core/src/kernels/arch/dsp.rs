@@ -871,16 +871,7 @@ pub(crate) fn softmax_weighted_sums(
     if !(values_t.as_ptr() as usize).is_multiple_of(4) {
         return None;
     }
-    let (pre, round, post) = e.shifts();
-    let mult = (e.mult() as u64) << pre;
-    if mult >= 1 << 31 {
-        return None;
-    }
-    let mult = mult as u32;
-    let index = |gap: u32| ((((gap as u64 * mult as u64) >> 32) as u32) + round) >> post;
-    if index(EXP_Q32_MAX_GAP) < EXP2_TABLE_LAST {
-        return None;
-    }
+    let (mult, round, post) = weight_params(e)?;
     let temp: &mut [u32] = bytemuck::try_cast_slice_mut(scratch.get_mut(..4 * n)?).ok()?;
     let (low, high) = scores.split_at_mut(2 * n);
     let mut total = [0u32; ROWS];
@@ -902,6 +893,40 @@ pub(crate) fn softmax_weighted_sums(
     }
     weighted_sums(x, values_t, n, acc);
     Some(total)
+}
+
+/// The multiplier (pre-shift folded in), rounding term and right shift of [`widened_weights`],
+/// where [`softmax_row`]'s shortcuts hold (see there); `None` elsewhere.
+#[cfg(any(bino_dsp, test))]
+fn weight_params(e: &ExpQ32) -> Option<(u32, u32, u32)> {
+    let (pre, round, post) = e.shifts();
+    let mult = (e.mult() as u64) << pre;
+    if mult >= 1 << 31 {
+        return None;
+    }
+    let mult = mult as u32;
+    let index = |gap: u32| ((((gap as u64 * mult as u64) >> 32) as u32) + round) >> post;
+    (index(EXP_Q32_MAX_GAP) >= EXP2_TABLE_LAST).then_some((mult, round, post))
+}
+
+/// One row of [`softmax_weighted_sums`]' softmax, as the block's row 0: its maximum, then its
+/// weights into words `8g` and `8g + 1` of `x` (the widened layout); the sum of the weights.
+/// `None` (nothing written) for rows not a multiple of 4 long, a short `x`, or parameters
+/// outside the shortcuts. The kernel bench's measure of the engine's softmax on Cortex-M7.
+#[cfg(any(bino_dsp, test))]
+pub(crate) fn softmax_row_widened(e: &ExpQ32, scores: &[i32], x: &mut [u32]) -> Option<u32> {
+    let n = scores.len();
+    if n == 0 || !n.is_multiple_of(4) || x.len() < 2 * n {
+        return None;
+    }
+    let (mult, round, post) = weight_params(e)?;
+    let row = WeightRow {
+        max: row_max_of(scores),
+        mult,
+        round,
+        post,
+    };
+    Some(widened_weights(&row, scores, x, 0, 2 * ROWS))
 }
 
 /// A row's maximum (`n` a multiple of 4): the assembly loop on Cortex-M7.

@@ -245,6 +245,37 @@ pub fn softmax_weighted_sums(
     }
 }
 
+/// One softmax row as the Cortex-M7's attention computes it (its maximum, then the weights
+/// into the DSP tile's widened layout: weight `4g + e` in word `8g + (e & 1)` of `x`, low
+/// halfword for `e < 2`), returning the sum of the weights; `None` (nothing written) on other
+/// cores and where the row's length or parameters are outside the kernel. For the kernel
+/// bench.
+#[inline]
+pub fn softmax_row_widened(e: &ExpQ32, scores: &[i32], x: &mut [u32]) -> Option<u32> {
+    #[cfg(bino_dsp)]
+    return dsp::softmax_row_widened(e, scores, x);
+    #[cfg(not(bino_dsp))]
+    {
+        let _ = (e, scores, x);
+        None
+    }
+}
+
+/// Attention's weighted sums as the Cortex-M7 computes them: four rows already in the DSP
+/// tile's widened layout (`x`, `2 n` words) against the `HEAD_DIM` value channels (`n` codes
+/// each), the four-row block kernel; `false` (nothing written) on other cores and for shapes
+/// it declines. For the kernel bench.
+#[inline]
+pub fn weighted_sums_widened(x: &[u32], values_t: &[i8], n: usize, acc: &mut [[i32; HEAD_DIM]; 4]) -> bool {
+    #[cfg(bino_dsp)]
+    return dsp::rows_i32(x, values_t, n, acc.as_flattened_mut());
+    #[cfg(not(bino_dsp))]
+    {
+        let _ = (x, values_t, n, acc);
+        false
+    }
+}
+
 /// The tile driver of the Cortex-M7 (the Cortex-M55's drivers are `mve::gemm_i32` and
 /// `mve::gemm_fused`).
 #[cfg(bino_dsp)]
