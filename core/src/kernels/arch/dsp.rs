@@ -1318,12 +1318,15 @@ pub(crate) fn scaled_requant(n: &[i32], recip_q: i32, mult: i32, round: i32, pos
 
 /// Rows in one call of [`residual_rows8`], and their stride in codes: a block of the encoder's
 /// residual stream (`TOKEN_BLOCK` tokens of `DIM` channels), at fixed offsets in the assembly.
+#[cfg(bino_dsp)]
 pub(crate) const RESIDUAL_ROWS: usize = 8;
+#[cfg(bino_dsp)]
 pub(crate) const RESIDUAL_STRIDE: usize = 128;
 
 /// Words per channel of [`residual_rows8`]'s parameters: the delta's bias, multiplier, rounding
 /// term and shift, the new zero point; the carry's zero point, left shift, multiplier,
 /// rounding term and shift.
+#[cfg(bino_dsp)]
 pub(crate) const RESIDUAL_WORDS: usize = 10;
 
 /// Phase one of a residual channel for row `$r`: `delta + zero` into the stack slot `$r`.

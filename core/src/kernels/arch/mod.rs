@@ -544,6 +544,32 @@ mod tests {
     }
 
     #[test]
+    fn dsp_softmax_row_into_the_widened_layout_matches_the_specification() {
+        use crate::fixed::Requant;
+        use crate::kernels::attention::softmax_row as specification;
+        let mut rng = Rng::new(37);
+        let e = ExpQ32::new(Requant {
+            mult: 1_431_142_052,
+            shift: 34,
+        })
+        .unwrap();
+        for n in [4usize, 8, 36, 960] {
+            let scores: [i32; 960] = core::array::from_fn(|_| rng.range(-(1 << 19), 1 << 19) as i32);
+            let (scores, mut x) = (&scores[..n], [0u32; 2 * 960]);
+            let max = scores.iter().copied().max().unwrap_or(0);
+            let mut want = [0u8; 960];
+            let want_sum = specification(&e, max, scores, &mut want[..n]);
+            assert_eq!(dsp::softmax_row_widened(&e, scores, &mut x), Some(want_sum), "n {n}");
+            for (j, &w) in want[..n].iter().enumerate() {
+                let word = x[8 * (j / 4) + (j & 1)];
+                let got = if j % 4 < 2 { word & 0xFFFF } else { word >> 16 };
+                assert_eq!(got, (w ^ 0x80) as u32, "n {n} score {j}");
+            }
+        }
+        assert_eq!(dsp::softmax_row_widened(&e, &[0; 6], &mut [0; 16]), None);
+    }
+
+    #[test]
     fn fused_epilogue_equals_the_64_bit_formula_in_its_range() {
         let mut rng = Rng::new(5);
         for _ in 0..20_000 {
