@@ -35,6 +35,30 @@ pub fn matmul_requant_i8<B, M, Z>(
     requant_rows(acc, rq, zero, out);
 }
 
+/// [`matmul_requant_i8`] with the columns of `rq` and `zero` prepared once for the calls of a
+/// pass ([`arch::PreparedRequant`], on cores with an assembly kernel); without them, or where
+/// the kernel declines, as [`matmul_requant_i8`].
+#[allow(clippy::too_many_arguments)]
+pub fn matmul_requant_i8_prepared<B, M, Z>(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    prepared: Option<&arch::PreparedRequant<'_>>,
+    rq: &ChannelRequant<'_, B, M>,
+    zero: &Z,
+    acc: &mut [i32],
+    out: &mut [i8],
+) where
+    B: I32s + ?Sized,
+    M: I32s + ?Sized,
+    Z: I32s + ?Sized,
+{
+    if prepared.is_some_and(|p| arch::matmul_requant_prepared(a, w, k, p, out)) {
+        return;
+    }
+    matmul_requant_i8(a, w, k, rq, zero, acc, out);
+}
+
 /// The portable [`matmul_requant_i8`], output by output: the specification.
 pub fn matmul_requant_reference<B, M, Z>(
     a: &[i8],

@@ -19,9 +19,10 @@ use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::{Blob, Le};
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
+use crate::kernels::arch::PreparedRequant;
 use crate::kernels::attention::{attend_block, value_sums, QUERY_BLOCK};
 use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant, ChannelRescale};
-use crate::kernels::gemm::matmul_requant_i8;
+use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::layernorm_rows;
 use crate::kernels::lut::apply_lut;
 use crate::kernels::matmul::matmul_i8;
@@ -368,10 +369,10 @@ impl<'w> Encoder<'w> {
                 input: &input,
                 output: &middle,
             };
-            attention.keys_values(x, normed, acc, keys, values);
+            attention.keys_values(x, normed, acc, keys, values, scores);
             attention.queries_attend(x, normed, acc, queries, attended, keys, values, scores, softmax)?;
             probe.observe(Stage::Attention(b), rows, fused_cols, x);
-            mlp(&w, &middle, &output, x, normed, hidden, acc);
+            mlp(&w, &middle, &output, x, normed, hidden, acc, scores);
             probe.observe(Stage::Block(b), rows, fused_cols, x);
         }
         Ok((
@@ -563,7 +564,18 @@ struct AttentionPass<'p, 'w> {
 impl AttentionPass<'_, '_> {
     /// Pass 1: keys (rotated) of every token stored `[head][token][HEAD_DIM]`, values
     /// channel-major `[head][HEAD_DIM][token]`.
-    fn keys_values(&self, x: &[i8], normed: &mut [i8], acc: &mut [i32], keys: &mut [i8], values: &mut [i8]) {
+    /// `scratch` (the attention scores' room, idle in this pass) keeps the values' prepared
+    /// requantisation.
+    #[allow(clippy::too_many_arguments)]
+    fn keys_values(
+        &self,
+        x: &[i8],
+        normed: &mut [i8],
+        acc: &mut [i32],
+        keys: &mut [i8],
+        values: &mut [i8],
+        scratch: &mut [i32],
+    ) {
         let ln = self.w.norm1.with_input(self.input);
         let qkv = &self.w.qkv;
         let k_weights = qkv.weight.get(DIM * DIM..2 * DIM * DIM).unwrap_or(&[]);
@@ -583,6 +595,7 @@ impl AttentionPass<'_, '_> {
             mult: &value_mult,
             shift: qkv.shift.get(2 * DIM..).unwrap_or(&[]),
         };
+        let value_prepared = prepare(&value_rq, scratch);
         // The keys' rotation in 32-bit lanes where the blob's formats allow (quantiser-made ones do).
         let mut key_lanes = RopeLanes::new(&key_rq);
         let tokens = self.grid.tokens();
@@ -596,10 +609,11 @@ impl AttentionPass<'_, '_> {
             matmul_i8(&normed[..count * DIM], k_weights, DIM, k_acc);
             // Values need no rotation: requantised in the matrix multiply itself.
             let v_out = &mut block_values[..count * DIM];
-            matmul_requant_i8(
+            matmul_requant_i8_prepared(
                 &normed[..count * DIM],
                 v_weights,
                 DIM,
+                value_prepared.as_ref(),
                 &value_rq,
                 &Uniform(0),
                 v_acc,
@@ -746,7 +760,9 @@ fn project_add(proj: &LinearQ<'_>, a: &[i8], acc: &mut [i32], x_block: &mut [i8]
     residual_add(x_block, &carry, &acc[..count * DIM], &delta, &p.new_zero);
 }
 
-/// Pass 3: the MLP of every token block (hidden layer only for one block at a time).
+/// Pass 3: the MLP of every token block (hidden layer only for one block at a time); `scratch`
+/// (the attention scores' room, idle in this pass) keeps fc1's prepared requantisation.
+#[allow(clippy::too_many_arguments)]
 fn mlp(
     w: &BlockWeights<'_>,
     input: &ResidualFormat<'_>,
@@ -755,18 +771,21 @@ fn mlp(
     normed: &mut [i8],
     hidden: &mut [i8],
     acc: &mut [i32],
+    scratch: &mut [i32],
 ) {
     let ln = w.norm2.with_input(input);
     let residual = ResidualParams::new(&w.carry_mlp.from_format(input), &w.fc2, &output.zero);
+    let fc1 = w.fc1.requant();
+    let fc1_prepared = prepare(&fc1, scratch);
     for x_block in x.chunks_mut(TOKEN_BLOCK * DIM) {
         let count = x_block.len() / DIM;
         layernorm_rows(x_block, DIM, &ln, normed);
         let hidden = &mut hidden[..count * MLP_HIDDEN];
-        let fc1 = w.fc1.requant();
-        matmul_requant_i8(
+        matmul_requant_i8_prepared(
             &normed[..count * DIM],
             w.fc1.weight,
             DIM,
+            fc1_prepared.as_ref(),
             &fc1,
             &Uniform(0),
             acc,
@@ -774,6 +793,21 @@ fn mlp(
         );
         apply_lut(hidden, w.gelu);
         project_add(&w.fc2, hidden, acc, x_block, &residual);
+    }
+}
+
+/// `rq`'s columns with output zero point 0 prepared in `scratch` for a pass's fused GEMMs, on
+/// cores with an assembly kernel (elsewhere the call-by-call path costs the same); `None` where
+/// `scratch` is too small (bands under 480 tokens for fc1) or a channel is out of range.
+fn prepare<'s, B, M>(rq: &ChannelRequant<'_, B, M>, scratch: &'s mut [i32]) -> Option<PreparedRequant<'s>>
+where
+    B: crate::kernels::I32s + ?Sized,
+    M: crate::kernels::I32s + ?Sized,
+{
+    if cfg!(any(bino_dsp, bino_mve)) {
+        PreparedRequant::new(rq, &Uniform(0), scratch)
+    } else {
+        None
     }
 }
 

@@ -61,6 +61,22 @@ impl Col {
         self.bias
     }
 
+    /// The four words a [`PreparedRequant`] keeps: bias, multiplier, addend, shift.
+    fn to_words(self) -> [i32; 4] {
+        [self.bias, self.mult, self.addend, self.s as i32]
+    }
+
+    /// The column [`Col::to_words`] kept (checked by [`Col::new`] when it was prepared).
+    #[inline(always)]
+    fn from_words(w: &[i32; 4]) -> Col {
+        Col {
+            bias: w[0],
+            mult: w[1],
+            addend: w[2],
+            s: w[3] as u32 & 31,
+        }
+    }
+
     /// The int8 output of an accumulator that already holds the bias (`|acc| < 2^31`).
     #[inline(always)]
     pub(crate) fn apply(&self, acc: i32) -> i8 {
@@ -142,6 +158,54 @@ impl Epilogue for Fused<'_> {
     }
 }
 
+/// A requantisation's columns prepared once (every channel checked by [`Col::new`]), for the
+/// calls of a pass that share it: each call then copies four words a column instead of reading
+/// and checking its parameters (the engine's values and MLP-up GEMMs run once per token block).
+/// The words live in storage the caller lends (four per channel).
+pub struct PreparedRequant<'a> {
+    words: &'a [[i32; 4]],
+}
+
+impl<'a> PreparedRequant<'a> {
+    /// `rq` with output zero points `zero`, in `storage`; `None` where a channel is outside the
+    /// fused kernels' range or `storage` holds fewer than four words a channel.
+    pub fn new<B, M, Z>(rq: &ChannelRequant<'_, B, M>, zero: &Z, storage: &'a mut [i32]) -> Option<Self>
+    where
+        B: I32s + ?Sized,
+        M: I32s + ?Sized,
+        Z: I32s + ?Sized,
+    {
+        let n = rq.channels();
+        let (words, _) = storage.as_chunks_mut::<4>();
+        let words = words.get_mut(..n)?;
+        for (c, slot) in words.iter_mut().enumerate() {
+            *slot = requant_col(rq, zero, c)?.to_words();
+        }
+        Some(PreparedRequant { words })
+    }
+
+    /// Channels prepared.
+    pub fn channels(&self) -> usize {
+        self.words.len()
+    }
+}
+
+/// Column `c` of `rq` and `zero` (see [`Col::new`]).
+#[inline(always)]
+fn requant_col<B, M, Z>(rq: &ChannelRequant<'_, B, M>, zero: &Z, c: usize) -> Option<Col>
+where
+    B: I32s + ?Sized,
+    M: I32s + ?Sized,
+    Z: I32s + ?Sized,
+{
+    Col::new(
+        rq.bias.at(c),
+        rq.mult.at(c),
+        rq.shift.get(c).copied().unwrap_or(0),
+        zero.at(c),
+    )
+}
+
 /// `out = sat8(rq(a * w^T) + zero)` through `driver` (a tile driver: `a`, one chunk of `w`,
 /// `k`, `m`, the epilogue), chunk by chunk of [`CHUNK`] channels, each chunk's parameters
 /// checked as they are prepared (one pass: the engine calls this per token block). `false`
@@ -155,27 +219,50 @@ pub(crate) fn matmul_requant_with<B, M, Z>(
     rq: &ChannelRequant<'_, B, M>,
     zero: &Z,
     out: &mut [i8],
-    mut driver: impl FnMut(&[i8], &[i8], usize, usize, &mut Fused<'_>) -> bool,
+    driver: impl FnMut(&[i8], &[i8], usize, usize, &mut Fused<'_>) -> bool,
 ) -> bool
 where
     B: I32s + ?Sized,
     M: I32s + ?Sized,
     Z: I32s + ?Sized,
 {
+    if rq.channels() != w.len() / k.max(1) {
+        return false;
+    }
+    matmul_cols_with(a, w, k, |c| requant_col(rq, zero, c), out, driver)
+}
+
+/// [`matmul_requant_with`] on prepared columns (`false` unless there is one per row of `w`).
+#[cfg_attr(not(any(bino_dsp, bino_mve, test)), allow(dead_code))]
+#[inline(always)]
+pub(crate) fn matmul_prepared_with(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    prepared: &PreparedRequant<'_>,
+    out: &mut [i8],
+    driver: impl FnMut(&[i8], &[i8], usize, usize, &mut Fused<'_>) -> bool,
+) -> bool {
+    if prepared.channels() != w.len() / k.max(1) {
+        return false;
+    }
+    let words = prepared.words;
+    matmul_cols_with(a, w, k, |c| words.get(c).map(Col::from_words), out, driver)
+}
+
+/// The chunk loop of [`matmul_requant_with`] with column `c`'s parameters from `col`.
+#[inline(always)]
+fn matmul_cols_with(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    col: impl Fn(usize) -> Option<Col>,
+    out: &mut [i8],
+    mut driver: impl FnMut(&[i8], &[i8], usize, usize, &mut Fused<'_>) -> bool,
+) -> bool {
     let Some((m, n)) = shape(a, w, k, out.len()) else {
         return false;
     };
-    let col = |c: usize| {
-        Col::new(
-            rq.bias.at(c),
-            rq.mult.at(c),
-            rq.shift.get(c).copied().unwrap_or(0),
-            zero.at(c),
-        )
-    };
-    if rq.channels() != n {
-        return false;
-    }
     let mut j0 = 0;
     while j0 < n {
         let len = (n - j0).min(CHUNK);
@@ -226,6 +313,20 @@ where
     #[cfg(not(any(bino_dsp, bino_mve)))]
     {
         let _ = (a, w, k, rq, zero, out);
+        false
+    }
+}
+
+/// [`matmul_requant`] on columns prepared once ([`PreparedRequant`]).
+#[inline]
+pub fn matmul_requant_prepared(a: &[i8], w: &[i8], k: usize, prepared: &PreparedRequant<'_>, out: &mut [i8]) -> bool {
+    #[cfg(bino_dsp)]
+    return matmul_prepared_with(a, w, k, prepared, out, |a, w, k, m, epi| super::run(a, w, k, m, epi));
+    #[cfg(bino_mve)]
+    return matmul_prepared_with(a, w, k, prepared, out, super::mve::gemm_fused);
+    #[cfg(not(any(bino_dsp, bino_mve)))]
+    {
+        let _ = (a, w, k, prepared, out);
         false
     }
 }

@@ -26,7 +26,7 @@ mod fused;
 #[cfg(any(bino_mve, test))]
 pub(crate) mod mve;
 
-pub use fused::matmul_requant;
+pub use fused::{matmul_requant, matmul_requant_prepared, PreparedRequant};
 
 use super::exp::ExpQ32;
 use crate::config::HEAD_DIM;
@@ -286,7 +286,7 @@ pub(crate) fn run<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut
 
 #[cfg(test)]
 mod tests {
-    use super::fused::{matmul_requant_with, Col};
+    use super::fused::{matmul_prepared_with, matmul_requant_with, Col};
     use super::*;
     use crate::kernels::epilogue::ChannelRequant;
     use crate::kernels::gemm::matmul_requant_reference;
@@ -354,6 +354,15 @@ mod tests {
                 assert_eq!(took, takes, "{name} fused m={m} n={n} k={k}");
                 if took {
                     assert_eq!(got8[..m * n], want8[..m * n], "{name} fused m={m} n={n} k={k}");
+                }
+                // The same columns prepared once.
+                let mut storage = [0i32; 4 * 131];
+                let prepared = PreparedRequant::new(&rq, &zero[..n], &mut storage).expect("columns in range");
+                let mut got8 = [0i8; 5 * 131];
+                let took = matmul_prepared_with(a, w, k, &prepared, &mut got8[..m * n], fused);
+                assert_eq!(took, takes, "{name} prepared m={m} n={n} k={k}");
+                if took {
+                    assert_eq!(got8[..m * n], want8[..m * n], "{name} prepared m={m} n={n} k={k}");
                 }
             }
         }
