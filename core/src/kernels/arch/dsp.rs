@@ -1227,10 +1227,10 @@ pub(crate) fn conv_epilogue(
     Some(bits)
 }
 
-/// LayerNorm's second lane pass on Cortex-M7 (`layernorm::lanes::normalise`): `n = ((v << left)
-/// + add) >> right` (wrapping, arithmetic shift) and the 64-bit sum of the squares (`smlal`),
-/// two values a pass (`ldrd`, `strd`): 6 instructions a value. `None` (nothing written) unless
-/// both slices have one even, non-zero length.
+/// LayerNorm's second lane pass on Cortex-M7 (`layernorm::lanes::normalise`):
+/// `n = ((v << left) + add) >> right` (wrapping, arithmetic shift) and the 64-bit sum of the
+/// squares (`smlal`), two values a pass (`ldrd`, `strd`): 6 instructions a value. `None`
+/// (nothing written) unless both slices have one even, non-zero length.
 #[cfg(bino_dsp)]
 pub(crate) fn layernorm_normalise(v: &[i32], left: u32, add: i32, right: u32, n: &mut [i32]) -> Option<i64> {
     let len = v.len();

@@ -158,7 +158,8 @@ impl Epilogue for Fused<'_> {
     }
 }
 
-/// A requantisation's columns prepared once (every channel checked by [`Col::new`]), for the
+/// A requantisation's columns prepared once (every channel checked for the fused range, see the
+/// module), for the
 /// calls of a pass that share it: each call then copies four words a column instead of reading
 /// and checking its parameters (the engine's values and MLP-up GEMMs run once per token block).
 /// The words live in storage the caller lends (four per channel).
