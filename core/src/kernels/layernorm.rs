@@ -39,11 +39,9 @@ pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
     if dim == 0 {
         return;
     }
-    if let Some(narrow) = NarrowParams::decode(p, dim) {
-        let mut scratch = LaneScratch::new();
-        for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
-            narrow.row(row, out_row, &mut scratch);
-        }
+    let mut storage = [0i32; 2 * BUFFERED_DIM];
+    if let Some(narrow) = NarrowParams::decode(p, dim, &mut storage) {
+        narrow.rows(x, out);
         return;
     }
     for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
@@ -72,37 +70,79 @@ pub fn layernorm_rows_reference<Z: I32s + ?Sized, R: I32s + ?Sized>(
 /// have `|zero| < 2^9` and `rel <= 2^15`) and rows of at most [`BUFFERED_DIM`] channels. Gives
 /// the codes of [`layernorm_row`] bit for bit, with 32-bit values and one 32 x 32 -> 64-bit
 /// product per step where 64 bits are needed (the bounds are at each step).
-struct NarrowParams {
-    zero: [i32; BUFFERED_DIM],
-    rel: [i32; BUFFERED_DIM],
+struct NarrowParams<'s> {
+    zero: &'s [i32],
+    rel: &'s [i32],
     dim: usize,
     eps: i64,
     out: Requant,
 }
 
+/// A LayerNorm's parameters decoded and checked once for the calls of a pass that share them
+/// (the encoder normalises one token block at a time), in storage the caller lends (two words
+/// a channel), instead of once per call.
+pub struct PreparedLayerNorm<'s> {
+    narrow: NarrowParams<'s>,
+}
+
+impl<'s> PreparedLayerNorm<'s> {
+    /// `p` for rows of `dim` channels, in `storage`; `None` for formats outside the narrow
+    /// path's bounds (zero points and scales within `2^15`, `dim` at most 256) or a `storage`
+    /// of fewer than `2 dim` words (then [`layernorm_rows`]).
+    pub fn new<Z: I32s + ?Sized, R: I32s + ?Sized>(
+        p: &LayerNormQ<'_, Z, R>,
+        dim: usize,
+        storage: &'s mut [i32],
+    ) -> Option<Self> {
+        NarrowParams::decode(p, dim, storage).map(|narrow| PreparedLayerNorm { narrow })
+    }
+}
+
+/// [`layernorm_rows`] with the parameters prepared once.
+pub fn layernorm_rows_prepared(x: &[i8], p: &PreparedLayerNorm<'_>, out: &mut [i8]) {
+    p.narrow.rows(x, out);
+}
+
 /// Bound on `|zero|` and `|rel|` of [`NarrowParams`].
 const NARROW_LIMIT: u32 = 1 << 15;
 
-impl NarrowParams {
-    fn decode<Z: I32s + ?Sized, R: I32s + ?Sized>(p: &LayerNormQ<'_, Z, R>, dim: usize) -> Option<Self> {
+impl<'s> NarrowParams<'s> {
+    /// `p`'s zero points and scales for `dim` channels copied into `storage` (`2 dim` words)
+    /// and checked; `None` outside the bounds.
+    fn decode<Z: I32s + ?Sized, R: I32s + ?Sized>(
+        p: &LayerNormQ<'_, Z, R>,
+        dim: usize,
+        storage: &'s mut [i32],
+    ) -> Option<Self> {
         if dim > BUFFERED_DIM || p.eps < 0 || !(1..=crate::fixed::MAX_SHIFT).contains(&p.out.shift) {
             return None;
         }
-        let mut n = NarrowParams {
-            zero: [0; BUFFERED_DIM],
-            rel: [0; BUFFERED_DIM],
-            dim,
-            eps: p.eps,
-            out: p.out,
-        };
-        for c in 0..dim {
+        let (zeros, rels) = storage.get_mut(..2 * dim)?.split_at_mut(dim);
+        for (c, (z, r)) in zeros.iter_mut().zip(rels.iter_mut()).enumerate() {
             let (zero, rel) = (p.zero.at(c), p.rel.at(c));
             if zero.unsigned_abs() > NARROW_LIMIT || rel.unsigned_abs() > NARROW_LIMIT {
                 return None;
             }
-            (n.zero[c], n.rel[c]) = (zero, rel);
+            (*z, *r) = (zero, rel);
         }
-        Some(n)
+        Some(NarrowParams {
+            zero: zeros,
+            rel: rels,
+            dim,
+            eps: p.eps,
+            out: p.out,
+        })
+    }
+
+    /// Every `dim`-channel row of `x` into `out`.
+    fn rows(&self, x: &[i8], out: &mut [i8]) {
+        if self.dim == 0 {
+            return;
+        }
+        let mut scratch = LaneScratch::new();
+        for (row, out_row) in x.chunks_exact(self.dim).zip(out.chunks_exact_mut(self.dim)) {
+            self.row(row, out_row, &mut scratch);
+        }
     }
 
     /// [`layernorm_row`] of one row (`dim` codes).
@@ -120,7 +160,7 @@ impl NarrowParams {
         // |q - zero| <= 2^15 + 128 and |rel| <= 2^15: every value fits 31 bits.
         let mut v = [0i32; BUFFERED_DIM];
         let v = &mut v[..dim];
-        for (((x, &q), &zero), &rel) in v.iter_mut().zip(row).zip(&self.zero).zip(&self.rel) {
+        for (((x, &q), &zero), &rel) in v.iter_mut().zip(row).zip(self.zero).zip(self.rel) {
             *x = (q as i32 - zero).wrapping_mul(rel);
         }
         let sum = v.iter().fold(0i64, |a, &x| a + x as i64);
@@ -160,7 +200,7 @@ impl NarrowParams {
     }
 }
 
-impl NarrowParams {
+impl NarrowParams<'_> {
     /// [`NarrowParams::row`] in 32-bit lanes, three passes that are Helium loops on Cortex-M55
     /// (`kernels::arch`; portable twins below on Cortex-M7, where 32-bit lanes in scalar code
     /// also beat 64-bit arithmetic, and in host tests), for rows of [`LANE_DIM`]
@@ -181,7 +221,9 @@ impl NarrowParams {
         if dim != LANE_DIM || out.len() != dim || self.out.shift < 33 {
             return false;
         }
-        let (zero, rel) = (&self.zero[..dim], &self.rel[..dim]);
+        let (Some(zero), Some(rel)) = (self.zero.get(..dim), self.rel.get(..dim)) else {
+            return false;
+        };
         let (v, n) = (&mut scratch.values, &mut scratch.normalised);
         let Some((sum, lo, hi)) = lanes::values(row, zero, rel, v) else {
             return false;
@@ -474,7 +516,7 @@ mod tests {
                     shift: rng.range(20, 62) as u32,
                 },
             };
-            assert!(NarrowParams::decode(&p, D).is_some());
+            assert!(NarrowParams::decode(&p, D, &mut [0; 2 * D]).is_some());
             let mut x = [0i8; D * ROWS];
             rng.fill_i8(&mut x);
             x[..D].fill(if trial % 2 == 0 { -128 } else { 127 }); // a constant row
@@ -490,6 +532,44 @@ mod tests {
                 assert_eq!(fast[r * D..(r + 1) * D], slow, "trial {trial} row {r}");
             }
         }
+    }
+
+    #[test]
+    fn prepared_parameters_give_the_same_rows() {
+        const D: usize = LANE_DIM;
+        let mut rng = Rng::new(43);
+        for trial in 0..50 {
+            let zero: [i32; D] = core::array::from_fn(|_| rng.range(-600, 600) as i32);
+            let rel: [i32; D] = core::array::from_fn(|_| rng.range(1, 30_000) as i32);
+            let p = LayerNormQ {
+                zero: &zero,
+                rel: &rel,
+                eps: rng.range(0, 1 << 30),
+                out: Requant {
+                    mult: rng.range(1 << 30, i32::MAX as i64) as i32,
+                    shift: rng.range(33, 50) as u32,
+                },
+            };
+            let mut x = [0i8; 3 * D];
+            rng.fill_i8(&mut x);
+            let (mut want, mut got) = ([0i8; 3 * D], [0i8; 3 * D]);
+            layernorm_rows(&x, D, &p, &mut want);
+            let mut storage = [0i32; 2 * D];
+            let prepared = PreparedLayerNorm::new(&p, D, &mut storage).expect("narrow formats");
+            layernorm_rows_prepared(&x, &prepared, &mut got);
+            assert_eq!(got, want, "trial {trial}");
+        }
+        // Too little storage: not prepared.
+        let p = LayerNormQ {
+            zero: &[0; D],
+            rel: &[1; D],
+            eps: 0,
+            out: Requant {
+                mult: 1 << 30,
+                shift: 40,
+            },
+        };
+        assert!(PreparedLayerNorm::new(&p, D, &mut [0; D]).is_none());
     }
 
     #[test]
@@ -519,7 +599,8 @@ mod tests {
                     shift: rng.range(30, 62) as u32,
                 },
             };
-            let Some(narrow) = NarrowParams::decode(&p, D) else {
+            let mut storage = [0i32; 2 * D];
+            let Some(narrow) = NarrowParams::decode(&p, D, &mut storage) else {
                 panic!("trial {trial}: {:?} {:?} {}", p.out, &rel[..4], p.eps);
             };
             let mut x = [0i8; D];

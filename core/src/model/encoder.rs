@@ -24,6 +24,7 @@ use crate::kernels::attention::{attend_block, value_sums, QUERY_BLOCK};
 use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant, ChannelRescale};
 use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::layernorm_rows;
+use crate::kernels::layernorm::{layernorm_rows_prepared, LayerNormQ, PreparedLayerNorm};
 use crate::kernels::lut::apply_lut;
 use crate::kernels::matmul::matmul_i8;
 use crate::kernels::params::{Offset, Uniform};
@@ -370,7 +371,7 @@ impl<'w> Encoder<'w> {
                 output: &middle,
             };
             attention.keys_values(x, normed, acc, keys, values, scores);
-            attention.queries_attend(x, normed, acc, queries, attended, keys, values, scores, softmax)?;
+            attention.queries_attend(x, normed, acc, queries, attended, keys, values, scores, softmax, hidden)?;
             probe.observe(Stage::Attention(b), rows, fused_cols, x);
             mlp(&w, &middle, &output, x, normed, hidden, acc, scores);
             probe.observe(Stage::Block(b), rows, fused_cols, x);
@@ -595,6 +596,8 @@ impl AttentionPass<'_, '_> {
             mult: &value_mult,
             shift: qkv.shift.get(2 * DIM..).unwrap_or(&[]),
         };
+        let (ln_storage, scratch) = scratch.split_at_mut(2 * DIM.min(scratch.len() / 2));
+        let ln_prepared = PreparedLayerNorm::new(&ln, DIM, ln_storage);
         let value_prepared = prepare(&value_rq, scratch);
         // The keys' rotation in 32-bit lanes where the blob's formats allow (quantiser-made ones do).
         let mut key_lanes = RopeLanes::new(&key_rq);
@@ -604,7 +607,7 @@ impl AttentionPass<'_, '_> {
         let mut block_values = [0i8; TOKEN_BLOCK * DIM];
         for (block, x_block) in x.chunks(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
-            layernorm_rows(x_block, DIM, &ln, normed);
+            normalise_block(x_block, &ln, ln_prepared.as_ref(), normed);
             let (k_acc, v_acc) = acc.split_at_mut(count * DIM);
             matmul_i8(&normed[..count * DIM], k_weights, DIM, k_acc);
             // Values need no rotation: requantised in the matrix multiply itself.
@@ -648,6 +651,7 @@ impl AttentionPass<'_, '_> {
         values: &[i8],
         scores: &mut [i32],
         softmax: &mut [u8],
+        hidden: &mut [i8],
     ) -> Result<(), Error> {
         let ln = self.w.norm1.with_input(self.input);
         let qkv = &self.w.qkv;
@@ -667,9 +671,12 @@ impl AttentionPass<'_, '_> {
         for (s, v_head) in sums.iter_mut().zip(values.chunks_exact(head_len)) {
             *s = value_sums(v_head, self.grid.tokens());
         }
+        // The MLP's hidden buffer is idle in this pass: it keeps the LayerNorm's parameters.
+        let ln_storage = bytemuck::try_cast_slice_mut::<i8, i32>(hidden.get_mut(..8 * DIM).unwrap_or_default());
+        let ln_prepared = ln_storage.ok().and_then(|st| PreparedLayerNorm::new(&ln, DIM, st));
         for (block, x_block) in x.chunks_mut(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
-            layernorm_rows(x_block, DIM, &ln, normed);
+            normalise_block(x_block, &ln, ln_prepared.as_ref(), normed);
             matmul_i8(&normed[..count * DIM], q_weights, DIM, &mut acc[..count * DIM]);
             for (i, (q_acc, query)) in acc
                 .chunks_exact(DIM)
@@ -776,10 +783,12 @@ fn mlp(
     let ln = w.norm2.with_input(input);
     let residual = ResidualParams::new(&w.carry_mlp.from_format(input), &w.fc2, &output.zero);
     let fc1 = w.fc1.requant();
+    let (ln_storage, scratch) = scratch.split_at_mut(2 * DIM.min(scratch.len() / 2));
+    let ln_prepared = PreparedLayerNorm::new(&ln, DIM, ln_storage);
     let fc1_prepared = prepare(&fc1, scratch);
     for x_block in x.chunks_mut(TOKEN_BLOCK * DIM) {
         let count = x_block.len() / DIM;
-        layernorm_rows(x_block, DIM, &ln, normed);
+        normalise_block(x_block, &ln, ln_prepared.as_ref(), normed);
         let hidden = &mut hidden[..count * MLP_HIDDEN];
         matmul_requant_i8_prepared(
             &normed[..count * DIM],
@@ -808,6 +817,23 @@ where
         PreparedRequant::new(rq, &Uniform(0), scratch)
     } else {
         None
+    }
+}
+
+/// A token block's LayerNorm into `normed`: on the parameters prepared for the pass where
+/// they are, else decoded for this call.
+fn normalise_block<Z, R>(
+    x_block: &[i8],
+    ln: &LayerNormQ<'_, Z, R>,
+    prepared: Option<&PreparedLayerNorm<'_>>,
+    normed: &mut [i8],
+) where
+    Z: crate::kernels::I32s + ?Sized,
+    R: crate::kernels::I32s + ?Sized,
+{
+    match prepared {
+        Some(p) => layernorm_rows_prepared(x_block, p, normed),
+        None => layernorm_rows(x_block, DIM, ln, normed),
     }
 }
 
