@@ -227,6 +227,69 @@ pub fn residual_add<Z, M, B, M2, Z2>(
     M2: I32s + ?Sized,
     Z2: I32s + ?Sized,
 {
+    residual_add_prepared(x, carry, acc, delta, new_zero, None);
+}
+
+/// A residual add's lane parameters prepared once for the calls of a pass that share them (the
+/// encoder adds one token block at a time), in storage the caller lends (ten words a channel,
+/// rounded up to whole chunks of 64), instead of once per call.
+pub struct PreparedResidual<'s> {
+    params: &'s [i32],
+    n: usize,
+    per_channel: bool,
+}
+
+impl<'s> PreparedResidual<'s> {
+    /// The parameters for blocks of `rows` rows; `None` where a channel is outside the lanes'
+    /// bounds or `storage` is short (then [`residual_add`]).
+    pub fn new<Z, M, B, M2, Z2>(
+        carry: &ChannelRescale<'_, Z, M>,
+        delta: &ChannelRequant<'_, B, M2>,
+        new_zero: &Z2,
+        rows: usize,
+        storage: &'s mut [i32],
+    ) -> Option<Self>
+    where
+        Z: I32s + ?Sized,
+        M: I32s + ?Sized,
+        B: I32s + ?Sized,
+        M2: I32s + ?Sized,
+        Z2: I32s + ?Sized,
+    {
+        let n = delta.channels();
+        let per_channel = residual_lanes::per_channel(rows, n);
+        let words = n.div_ceil(CHANNEL_CHUNK) * CHUNK_WORDS;
+        let params = storage.get_mut(..words).filter(|_| n > 0)?;
+        for (i, chunk) in params.chunks_exact_mut(CHUNK_WORDS).enumerate() {
+            let start = i * CHANNEL_CHUNK;
+            let len = (n - start).min(CHANNEL_CHUNK);
+            if !residual_lanes::chunk_params(carry, delta, new_zero, start, len, per_channel, chunk) {
+                return None;
+            }
+        }
+        Some(PreparedResidual { params, n, per_channel })
+    }
+}
+
+/// Words of one chunk's lane parameters.
+const CHUNK_WORDS: usize = CHANNEL_CHUNK * residual_lanes::VECTORS;
+
+/// [`residual_add`] with the lanes' parameters prepared once where `prepared` has them for
+/// this call's shape (else decoded for this call).
+pub fn residual_add_prepared<Z, M, B, M2, Z2>(
+    x: &mut [i8],
+    carry: &ChannelRescale<'_, Z, M>,
+    acc: &[i32],
+    delta: &ChannelRequant<'_, B, M2>,
+    new_zero: &Z2,
+    prepared: Option<&PreparedResidual<'_>>,
+) where
+    Z: I32s + ?Sized,
+    M: I32s + ?Sized,
+    B: I32s + ?Sized,
+    M2: I32s + ?Sized,
+    Z2: I32s + ?Sized,
+{
     let n = delta.channels();
     if n == 0 {
         return;
@@ -246,7 +309,17 @@ pub fn residual_add<Z, M, B, M2, Z2>(
             rows,
             small,
         };
-        if small && residual_lanes::add_chunk(x, acc, &chunk, carry, delta, new_zero) {
+        let prepared_params = prepared
+            .filter(|p| p.n == n && p.per_channel == residual_lanes::per_channel(rows, n))
+            .and_then(|p| p.params.get(start / CHANNEL_CHUNK * CHUNK_WORDS..))
+            .and_then(|p| p.get(..len.div_ceil(4) * 4 * residual_lanes::VECTORS));
+        let done = match prepared_params {
+            Some(params) if small => {
+                residual_lanes::run_chunk(x, acc, &chunk, params, residual_lanes::per_channel(rows, n))
+            }
+            _ => small && residual_lanes::add_chunk(x, acc, &chunk, carry, delta, new_zero),
+        };
+        if done {
             start += len;
             continue;
         }
@@ -338,7 +411,7 @@ mod residual_lanes {
 
     /// Per group of four channels: carry zero, left shift, multiplier, rounding term, negated
     /// shift; delta bias, multiplier, rounding term, negated shift; the new zero point.
-    const VECTORS: usize = 10;
+    pub(super) const VECTORS: usize = 10;
     #[cfg(bino_dsp)]
     const _: () = assert!(
         RESIDUAL_WORDS == VECTORS,
@@ -395,11 +468,44 @@ mod residual_lanes {
         if !small || len == 0 || len > CHANNEL_CHUNK || start + len > n {
             return false;
         }
-        // Cortex-M7, a full block of the encoder's stream: one channel's ten parameters
-        // together (`arch::residual_rows8`), in place of the lanes' groups of four.
-        let per_channel = cfg!(bino_dsp) && rows == RESIDUAL_ROWS && n == RESIDUAL_STRIDE;
+        let per_channel = per_channel(rows, n);
         let mut params = [0i32; CHANNEL_CHUNK * VECTORS];
+        if !chunk_params(carry, delta, new_zero, start, len, per_channel, &mut params) {
+            return false;
+        }
+        run_chunk(x, acc, chunk, &params[..len.div_ceil(4) * 4 * VECTORS], per_channel)
+    }
+
+    /// Cortex-M7, a full block of the encoder's stream: one channel's ten parameters together
+    /// (`arch::residual_rows8`), in place of the lanes' groups of four.
+    #[inline(always)]
+    pub(super) fn per_channel(rows: usize, n: usize) -> bool {
+        cfg!(bino_dsp) && rows == RESIDUAL_ROWS && n == RESIDUAL_STRIDE
+    }
+
+    /// The parameters of channels `start..start + len` in `params` (groups of four lanes, ten
+    /// vectors each, or with `per_channel` ten words per channel); `false` where a channel is
+    /// outside this module's bounds.
+    pub(super) fn chunk_params<Z, M, B, M2, Z2>(
+        carry: &ChannelRescale<'_, Z, M>,
+        delta: &ChannelRequant<'_, B, M2>,
+        new_zero: &Z2,
+        start: usize,
+        len: usize,
+        per_channel: bool,
+        params: &mut [i32],
+    ) -> bool
+    where
+        Z: I32s + ?Sized,
+        M: I32s + ?Sized,
+        B: I32s + ?Sized,
+        M2: I32s + ?Sized,
+        Z2: I32s + ?Sized,
+    {
         let groups = len.div_ceil(4);
+        if params.len() < groups * 4 * VECTORS {
+            return false;
+        }
         for (g, group) in params.chunks_exact_mut(4 * VECTORS).take(groups).enumerate() {
             // A fixed-size group: the stores below need no bounds checks.
             let Ok(group) = <&mut [i32; 4 * VECTORS]>::try_from(group) else {
@@ -462,7 +568,14 @@ mod residual_lanes {
                 }
             }
         }
-        let params = &params[..groups * 4 * VECTORS];
+        true
+    }
+
+    /// The chunk's rows on its parameters (from [`chunk_params`] with the same `per_channel`).
+    pub(super) fn run_chunk(x: &mut [i8], acc: &[i32], chunk: &Chunk, params: &[i32], per_channel: bool) -> bool {
+        let Chunk {
+            n, start, len, rows, ..
+        } = *chunk;
         #[cfg(bino_dsp)]
         if per_channel {
             let (Some(x_part), Some(acc_part)) = (x.get_mut(start..), acc.get(start..)) else {
@@ -470,6 +583,7 @@ mod residual_lanes {
             };
             return crate::kernels::arch::residual_rows8(x_part, acc_part, params, len);
         }
+        let _ = per_channel;
         for r in 0..rows {
             let at = r * n + start..r * n + start + len;
             let (Some(x_part), Some(acc_part)) = (x.get_mut(at.clone()), acc.get(at)) else {
@@ -809,9 +923,16 @@ mod tests {
                 assert_eq!(lanes, want, "trial {trial}: lanes");
                 want = x;
             }
+            // With the parameters prepared once (where every channel is in the lanes' bounds).
+            let mut storage = [0i32; N * residual_lanes::VECTORS];
+            let prepared = PreparedResidual::new(&carry, &delta, &new_zero, ROWS, &mut storage);
+            assert_eq!(prepared.is_some(), trial % 5 != 4, "trial {trial}: prepared");
+            let mut with_prepared = x;
+            residual_add_prepared(&mut with_prepared, &carry, &acc, &delta, &new_zero, prepared.as_ref());
             residual_add(&mut x, &carry, &acc, &delta, &new_zero);
             residual_add_reference(&mut want, &carry, &acc, &delta, &new_zero);
             assert_eq!(x, want, "trial {trial}");
+            assert_eq!(with_prepared, want, "trial {trial}: prepared");
         }
     }
 

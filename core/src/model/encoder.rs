@@ -21,7 +21,7 @@ use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, 
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::arch::PreparedRequant;
 use crate::kernels::attention::{attend_block, value_sums, QUERY_BLOCK};
-use crate::kernels::epilogue::{requant_rows, residual_add, ChannelRequant, ChannelRescale};
+use crate::kernels::epilogue::{requant_rows, residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
 use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::layernorm_rows;
 use crate::kernels::layernorm::{layernorm_rows_prepared, LayerNormQ, PreparedLayerNorm};
@@ -713,7 +713,7 @@ impl AttentionPass<'_, '_> {
                     }
                 }
             }
-            project_add(proj, &attended[..count * DIM], acc, x_block, &residual);
+            project_add(proj, &attended[..count * DIM], acc, x_block, &residual, None);
         }
         Ok(())
     }
@@ -732,6 +732,33 @@ struct ResidualParams<'w> {
 }
 
 impl<'w> ResidualParams<'w> {
+    /// The carry and the delta as the residual add takes them.
+    fn views(
+        &self,
+    ) -> (
+        ChannelRescale<'_, [i32; DIM], [i32; DIM]>,
+        ChannelRequant<'_, [i32; DIM], [i32; DIM]>,
+    ) {
+        (
+            ChannelRescale {
+                zero: &self.carry_zero,
+                mult: &self.carry_mult,
+                shift: self.carry_shift,
+            },
+            ChannelRequant {
+                bias: &self.bias,
+                mult: &self.mult,
+                shift: self.shift,
+            },
+        )
+    }
+
+    /// The lane parameters prepared once for the pass's full token blocks, in `storage`.
+    fn prepare<'s>(&self, storage: &'s mut [i32]) -> Option<PreparedResidual<'s>> {
+        let (carry, delta) = self.views();
+        PreparedResidual::new(&carry, &delta, &self.new_zero, TOKEN_BLOCK, storage)
+    }
+
     fn new(
         carry: &crate::kernels::epilogue::ChannelRescale<'w, Le<'w, i32>, Le<'w, i32>>,
         proj: &LinearQ<'w>,
@@ -750,21 +777,19 @@ impl<'w> ResidualParams<'w> {
 }
 
 /// `x += proj(a)` with the residual format change of `p`.
-fn project_add(proj: &LinearQ<'_>, a: &[i8], acc: &mut [i32], x_block: &mut [i8], p: &ResidualParams<'_>) {
+fn project_add(
+    proj: &LinearQ<'_>,
+    a: &[i8],
+    acc: &mut [i32],
+    x_block: &mut [i8],
+    p: &ResidualParams<'_>,
+    prepared: Option<&PreparedResidual<'_>>,
+) {
     let count = x_block.len() / DIM;
     let inputs = a.len() / count.max(1);
     matmul_i8(a, proj.weight, inputs, &mut acc[..count * DIM]);
-    let carry = ChannelRescale {
-        zero: &p.carry_zero,
-        mult: &p.carry_mult,
-        shift: p.carry_shift,
-    };
-    let delta = ChannelRequant {
-        bias: &p.bias,
-        mult: &p.mult,
-        shift: p.shift,
-    };
-    residual_add(x_block, &carry, &acc[..count * DIM], &delta, &p.new_zero);
+    let (carry, delta) = p.views();
+    residual_add_prepared(x_block, &carry, &acc[..count * DIM], &delta, &p.new_zero, prepared);
 }
 
 /// Pass 3: the MLP of every token block (hidden layer only for one block at a time); `scratch`
@@ -785,7 +810,9 @@ fn mlp(
     let fc1 = w.fc1.requant();
     let (ln_storage, scratch) = scratch.split_at_mut(2 * DIM.min(scratch.len() / 2));
     let ln_prepared = PreparedLayerNorm::new(&ln, DIM, ln_storage);
-    let fc1_prepared = prepare(&fc1, scratch);
+    let (fc1_storage, residual_storage) = scratch.split_at_mut((4 * MLP_HIDDEN).min(scratch.len()));
+    let fc1_prepared = prepare(&fc1, fc1_storage);
+    let residual_prepared = residual.prepare(residual_storage);
     for x_block in x.chunks_mut(TOKEN_BLOCK * DIM) {
         let count = x_block.len() / DIM;
         normalise_block(x_block, &ln, ln_prepared.as_ref(), normed);
@@ -801,7 +828,7 @@ fn mlp(
             hidden,
         );
         apply_lut(hidden, w.gelu);
-        project_add(&w.fc2, hidden, acc, x_block, &residual);
+        project_add(&w.fc2, hidden, acc, x_block, &residual, residual_prepared.as_ref());
     }
 }
 
