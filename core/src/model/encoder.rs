@@ -721,6 +721,10 @@ impl AttentionPass<'_, '_> {
 
 /// A residual add's per-channel parameters read from the blob once per pass (the adds of each
 /// token block then index plain arrays, not little-endian blob bytes).
+/// A residual add's carry and its delta over decoded per-channel arrays.
+type Carried<'p> = ChannelRescale<'p, [i32; DIM], [i32; DIM]>;
+type Delta<'p> = ChannelRequant<'p, [i32; DIM], [i32; DIM]>;
+
 struct ResidualParams<'w> {
     carry_zero: [i32; DIM],
     carry_mult: [i32; DIM],
@@ -733,12 +737,7 @@ struct ResidualParams<'w> {
 
 impl<'w> ResidualParams<'w> {
     /// The carry and the delta as the residual add takes them.
-    fn views(
-        &self,
-    ) -> (
-        ChannelRescale<'_, [i32; DIM], [i32; DIM]>,
-        ChannelRequant<'_, [i32; DIM], [i32; DIM]>,
-    ) {
+    fn views(&self) -> (Carried<'_>, Delta<'_>) {
         (
             ChannelRescale {
                 zero: &self.carry_zero,
