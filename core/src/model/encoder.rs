@@ -671,9 +671,12 @@ impl AttentionPass<'_, '_> {
         for (s, v_head) in sums.iter_mut().zip(values.chunks_exact(head_len)) {
             *s = value_sums(v_head, self.grid.tokens());
         }
-        // The MLP's hidden buffer is idle in this pass: it keeps the LayerNorm's parameters.
+        // The MLP's hidden buffer is idle in this pass: it keeps the LayerNorm's parameters;
+        // the accumulators past a token block's (the keys and values' room) the residual add's.
         let ln_storage = bytemuck::try_cast_slice_mut::<i8, i32>(hidden.get_mut(..8 * DIM).unwrap_or_default());
         let ln_prepared = ln_storage.ok().and_then(|st| PreparedLayerNorm::new(&ln, DIM, st));
+        let (acc, acc_spare) = acc.split_at_mut((TOKEN_BLOCK * DIM).min(acc.len()));
+        let residual_prepared = residual.prepare(acc_spare);
         for (block, x_block) in x.chunks_mut(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
             normalise_block(x_block, &ln, ln_prepared.as_ref(), normed);
@@ -713,7 +716,14 @@ impl AttentionPass<'_, '_> {
                     }
                 }
             }
-            project_add(proj, &attended[..count * DIM], acc, x_block, &residual, None);
+            project_add(
+                proj,
+                &attended[..count * DIM],
+                acc,
+                x_block,
+                &residual,
+                residual_prepared.as_ref(),
+            );
         }
         Ok(())
     }
