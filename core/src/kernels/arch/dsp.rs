@@ -1462,18 +1462,20 @@ fn widen(rows: [&[i8]; ROWS], x: &mut [u32]) {
 
 /// Row `r` of [`widen`] on Cortex-M7: per four codes one word load, the two `sxtb16` a weight
 /// word gets in the tile, and one `strd` (the portable loop spent about five instructions a
-/// code). `false` (nothing written) for a row that is not word-aligned, or where `x` has fewer
-/// groups than the row: the caller's loop then runs.
+/// code). The row may sit at any address: Armv7-M's `ldr` takes unaligned words (with
+/// `CCR.UNALIGN_TRP` clear, its reset value, which the compiler's own code for these targets
+/// assumes too). `false` (nothing written) where `x` has fewer groups than the row: the
+/// caller's loop then runs.
 #[inline(always)]
 fn widen_row(row: &[i8], x: &mut [u32], r: usize) -> bool {
     #[cfg(bino_dsp)]
     {
         let groups = row.len() / 4;
-        if groups == 0 || !(row.as_ptr() as usize).is_multiple_of(4) || x.len() < groups * 2 * ROWS || r >= ROWS {
+        if groups == 0 || x.len() < groups * 2 * ROWS || r >= ROWS {
             return false;
         }
-        // SAFETY: the loop runs `groups >= 1` times; each pass reads one word of `row` (word-
-        // aligned, checked; `4 groups <= row.len()` bytes in all) and writes words `8g + 2r`
+        // SAFETY: the loop runs `groups >= 1` times; each pass reads one word of `row` (`ldr`,
+        // any alignment, see above; `4 groups <= row.len()` bytes in all) and writes words `8g + 2r`
         // and `8g + 2r + 1` of `x` (`x` holds `8 groups` words, checked, and `r < 4`), an
         // `[u32]`, so word-aligned for `strd`. Only declared outputs are written; the flags are
         // clobbered.
