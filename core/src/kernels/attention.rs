@@ -121,14 +121,14 @@ pub fn attend_block(
     scores_block(queries, keys, n, scores);
     let fast = ExpQ32::new(p.to_log2_q8);
     let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
-    let mut acc = [[0i32; HEAD_DIM]; QUERY_BLOCK];
     // Cortex-M7: the softmax written straight into the GEMM tile's widened rows.
-    if let Some(total) = fast.and_then(|e| arch::softmax_weighted_sums(&e, scores, weights, values_n, &mut acc)) {
-        for ((out_q, acc_q), &t) in out.iter_mut().zip(&acc).zip(&total) {
+    if let Some((total, acc)) = fast.and_then(|e| arch::softmax_weighted_sums(&e, scores, weights, values_n)) {
+        for ((out_q, acc_q), &t) in out.iter_mut().zip(acc).zip(&total) {
             normalise(acc_q, t, p, out_q);
         }
         return;
     }
+    let mut acc = [[0i32; HEAD_DIM]; QUERY_BLOCK];
     let mut score_rows = scores.chunks_exact(n);
     let mut weight_rows = weights.chunks_exact_mut(n);
     let (Some(s0), Some(s1), Some(s2), Some(s3)) = (

@@ -29,7 +29,9 @@ pub struct LayerNormQ<'p, Z: I32s + ?Sized, R: I32s + ?Sized> {
     pub out: Requant,
 }
 
-/// Normalises each `dim`-channel row of `x` into `out`.
+/// Normalises each `dim`-channel row of `x` into `out`. Never inlined: its parameter and lane
+/// buffers (3 KiB) then live on the stack only while it runs.
+#[inline(never)]
 pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
     x: &[i8],
     dim: usize,
@@ -83,24 +85,39 @@ struct NarrowParams<'s> {
 /// a channel), instead of once per call.
 pub struct PreparedLayerNorm<'s> {
     narrow: NarrowParams<'s>,
+    values: &'s mut [i32],
+    normalised: &'s mut [i32],
 }
 
 impl<'s> PreparedLayerNorm<'s> {
+    /// Words of storage [`PreparedLayerNorm::new`] takes for rows of `dim` channels: the
+    /// parameters and the lanes' two buffers.
+    pub const fn storage_words(dim: usize) -> usize {
+        2 * dim + 2 * LANE_DIM
+    }
+
     /// `p` for rows of `dim` channels, in `storage`; `None` for formats outside the narrow
     /// path's bounds (zero points and scales within `2^15`, `dim` at most 256) or a `storage`
-    /// of fewer than `2 dim` words (then [`layernorm_rows`]).
+    /// of fewer than [`PreparedLayerNorm::storage_words`] (then [`layernorm_rows`]).
     pub fn new<Z: I32s + ?Sized, R: I32s + ?Sized>(
         p: &LayerNormQ<'_, Z, R>,
         dim: usize,
         storage: &'s mut [i32],
     ) -> Option<Self> {
-        NarrowParams::decode(p, dim, storage).map(|narrow| PreparedLayerNorm { narrow })
+        let (params, lanes) = storage.get_mut(..Self::storage_words(dim))?.split_at_mut(2 * dim);
+        let (values, normalised) = lanes.split_at_mut(LANE_DIM);
+        let narrow = NarrowParams::decode(p, dim, params)?;
+        Some(PreparedLayerNorm {
+            narrow,
+            values,
+            normalised,
+        })
     }
 }
 
 /// [`layernorm_rows`] with the parameters prepared once.
-pub fn layernorm_rows_prepared(x: &[i8], p: &PreparedLayerNorm<'_>, out: &mut [i8]) {
-    p.narrow.rows(x, out);
+pub fn layernorm_rows_prepared(x: &[i8], p: &mut PreparedLayerNorm<'_>, out: &mut [i8]) {
+    p.narrow.rows_with(x, out, p.values, p.normalised);
 }
 
 /// Bound on `|zero|` and `|rel|` of [`NarrowParams`].
@@ -136,10 +153,16 @@ impl<'s> NarrowParams<'s> {
 
     /// Every `dim`-channel row of `x` into `out`.
     fn rows(&self, x: &[i8], out: &mut [i8]) {
+        let (mut values, mut normalised) = ([0i32; LANE_DIM], [0i32; LANE_DIM]);
+        self.rows_with(x, out, &mut values, &mut normalised);
+    }
+
+    /// [`NarrowParams::rows`] with the lanes' buffers lent (`LANE_DIM` words each).
+    fn rows_with(&self, x: &[i8], out: &mut [i8], values: &mut [i32], normalised: &mut [i32]) {
         if self.dim == 0 {
             return;
         }
-        let mut scratch = LaneScratch::new();
+        let mut scratch = LaneScratch { values, normalised };
         for (row, out_row) in x.chunks_exact(self.dim).zip(out.chunks_exact_mut(self.dim)) {
             self.row(row, out_row, &mut scratch);
         }
@@ -224,7 +247,9 @@ impl NarrowParams<'_> {
         let (Some(zero), Some(rel)) = (self.zero.get(..dim), self.rel.get(..dim)) else {
             return false;
         };
-        let (v, n) = (&mut scratch.values, &mut scratch.normalised);
+        let (Some(v), Some(n)) = (scratch.values.get_mut(..dim), scratch.normalised.get_mut(..dim)) else {
+            return false;
+        };
         let Some((sum, lo, hi)) = lanes::values(row, zero, rel, v) else {
             return false;
         };
@@ -254,20 +279,12 @@ impl NarrowParams<'_> {
     }
 }
 
-/// The lane passes' values and normalised values, kept by [`layernorm_rows`] for all its rows
-/// (zeroing them per row cost a 1 KiB `memclr` each).
-struct LaneScratch {
-    values: [i32; LANE_DIM],
-    normalised: [i32; LANE_DIM],
-}
-
-impl LaneScratch {
-    fn new() -> Self {
-        LaneScratch {
-            values: [0; LANE_DIM],
-            normalised: [0; LANE_DIM],
-        }
-    }
+/// The lane passes' values and normalised values (`LANE_DIM` each), kept by
+/// [`layernorm_rows`] for all its rows and by a [`PreparedLayerNorm`] for a whole pass (zeroing
+/// them per row cost a 1 KiB `memclr` each).
+struct LaneScratch<'w> {
+    values: &'w mut [i32],
+    normalised: &'w mut [i32],
 }
 
 /// Row length of [`NarrowParams::row_in_lanes`]: the encoder's width, `2^7`.
@@ -554,9 +571,9 @@ mod tests {
             rng.fill_i8(&mut x);
             let (mut want, mut got) = ([0i8; 3 * D], [0i8; 3 * D]);
             layernorm_rows(&x, D, &p, &mut want);
-            let mut storage = [0i32; 2 * D];
-            let prepared = PreparedLayerNorm::new(&p, D, &mut storage).expect("narrow formats");
-            layernorm_rows_prepared(&x, &prepared, &mut got);
+            let mut storage = [0i32; PreparedLayerNorm::storage_words(D)];
+            let mut prepared = PreparedLayerNorm::new(&p, D, &mut storage).expect("narrow formats");
+            layernorm_rows_prepared(&x, &mut prepared, &mut got);
             assert_eq!(got, want, "trial {trial}");
         }
         // Too little storage: not prepared.
@@ -569,7 +586,7 @@ mod tests {
                 shift: 40,
             },
         };
-        assert!(PreparedLayerNorm::new(&p, D, &mut [0; D]).is_none());
+        assert!(PreparedLayerNorm::new(&p, D, &mut [0; 2 * D]).is_none());
     }
 
     #[test]
@@ -615,7 +632,12 @@ mod tests {
             }
             let (mut lanes, mut slow) = ([0i8; D], [0i8; D]);
             layernorm_row_unbuffered(&x, &p, &mut slow);
-            if narrow.row_in_lanes(&x, &mut lanes, &mut LaneScratch::new()) {
+            let (mut values, mut normalised) = ([0i32; LANE_DIM], [0i32; LANE_DIM]);
+            let mut scratch = LaneScratch {
+                values: &mut values,
+                normalised: &mut normalised,
+            };
+            if narrow.row_in_lanes(&x, &mut lanes, &mut scratch) {
                 assert_eq!(lanes, slow, "trial {trial}");
                 let v: [i64; D] = core::array::from_fn(|c| (x[c] as i64 - zero[c] as i64) * rel[c] as i64);
                 let sum: i64 = v.iter().sum();

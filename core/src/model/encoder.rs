@@ -596,8 +596,8 @@ impl AttentionPass<'_, '_> {
             mult: &value_mult,
             shift: qkv.shift.get(2 * DIM..).unwrap_or(&[]),
         };
-        let (ln_storage, scratch) = scratch.split_at_mut(2 * DIM.min(scratch.len() / 2));
-        let ln_prepared = PreparedLayerNorm::new(&ln, DIM, ln_storage);
+        let (ln_storage, scratch) = scratch.split_at_mut(PreparedLayerNorm::storage_words(DIM).min(scratch.len() / 2));
+        let mut ln_prepared = PreparedLayerNorm::new(&ln, DIM, ln_storage);
         let value_prepared = prepare(&value_rq, scratch);
         // The keys' rotation in 32-bit lanes where the blob's formats allow (quantiser-made ones do).
         let mut key_lanes = RopeLanes::new(&key_rq);
@@ -607,7 +607,7 @@ impl AttentionPass<'_, '_> {
         let mut block_values = [0i8; TOKEN_BLOCK * DIM];
         for (block, x_block) in x.chunks(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
-            normalise_block(x_block, &ln, ln_prepared.as_ref(), normed);
+            normalise_block(x_block, &ln, ln_prepared.as_mut(), normed);
             let (k_acc, v_acc) = acc.split_at_mut(count * DIM);
             matmul_i8(&normed[..count * DIM], k_weights, DIM, k_acc);
             // Values need no rotation: requantised in the matrix multiply itself.
@@ -673,13 +673,15 @@ impl AttentionPass<'_, '_> {
         }
         // The MLP's hidden buffer is idle in this pass: it keeps the LayerNorm's parameters;
         // the accumulators past a token block's (the keys and values' room) the residual add's.
-        let ln_storage = bytemuck::try_cast_slice_mut::<i8, i32>(hidden.get_mut(..8 * DIM).unwrap_or_default());
-        let ln_prepared = ln_storage.ok().and_then(|st| PreparedLayerNorm::new(&ln, DIM, st));
+        let ln_bytes = 4 * PreparedLayerNorm::storage_words(DIM);
+        let ln_storage = bytemuck::try_cast_slice_mut::<i8, i32>(hidden.get_mut(..ln_bytes).unwrap_or_default());
+        let mut ln_prepared = ln_storage.ok().and_then(|st| PreparedLayerNorm::new(&ln, DIM, st));
         let (acc, acc_spare) = acc.split_at_mut((TOKEN_BLOCK * DIM).min(acc.len()));
         let residual_prepared = residual.prepare(acc_spare);
+        let (mut q_block, mut out_block) = ([[0i8; HEAD_DIM]; QUERY_BLOCK], [[0i8; HEAD_DIM]; QUERY_BLOCK]);
         for (block, x_block) in x.chunks_mut(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
-            normalise_block(x_block, &ln, ln_prepared.as_ref(), normed);
+            normalise_block(x_block, &ln, ln_prepared.as_mut(), normed);
             matmul_i8(&normed[..count * DIM], q_weights, DIM, &mut acc[..count * DIM]);
             for (i, (q_acc, query)) in acc
                 .chunks_exact(DIM)
@@ -705,11 +707,14 @@ impl AttentionPass<'_, '_> {
                     .unwrap_or_default()
                     .chunks_mut(QUERY_BLOCK * DIM);
                 for (q_tokens, o_tokens) in query_tokens.zip(out_tokens) {
-                    let mut q_block = [[0i8; HEAD_DIM]; QUERY_BLOCK];
-                    for (q, token) in q_block.iter_mut().zip(q_tokens.chunks_exact(DIM)) {
-                        q.copy_from_slice(&token[part.clone()]);
+                    // Every query slot rewritten (past the block's last token: zeros), and the
+                    // outputs all written by `attend_block`: no arrays zeroed per block.
+                    for (i, q) in q_block.iter_mut().enumerate() {
+                        match q_tokens.get(i * DIM..).and_then(|t| t.get(part.clone())) {
+                            Some(src) => q.copy_from_slice(src),
+                            None => *q = [0; HEAD_DIM],
+                        }
                     }
-                    let mut out_block = [[0i8; HEAD_DIM]; QUERY_BLOCK];
                     attend_block(&q_block, k_head, v_head, sums, p, scores, softmax, &mut out_block);
                     for (o, token) in out_block.iter().zip(o_tokens.chunks_exact_mut(DIM)) {
                         token[part.clone()].copy_from_slice(o);
@@ -817,14 +822,14 @@ fn mlp(
     let ln = w.norm2.with_input(input);
     let residual = ResidualParams::new(&w.carry_mlp.from_format(input), &w.fc2, &output.zero);
     let fc1 = w.fc1.requant();
-    let (ln_storage, scratch) = scratch.split_at_mut(2 * DIM.min(scratch.len() / 2));
-    let ln_prepared = PreparedLayerNorm::new(&ln, DIM, ln_storage);
+    let (ln_storage, scratch) = scratch.split_at_mut(PreparedLayerNorm::storage_words(DIM).min(scratch.len() / 2));
+    let mut ln_prepared = PreparedLayerNorm::new(&ln, DIM, ln_storage);
     let (fc1_storage, residual_storage) = scratch.split_at_mut((4 * MLP_HIDDEN).min(scratch.len()));
     let fc1_prepared = prepare(&fc1, fc1_storage);
     let residual_prepared = residual.prepare(residual_storage);
     for x_block in x.chunks_mut(TOKEN_BLOCK * DIM) {
         let count = x_block.len() / DIM;
-        normalise_block(x_block, &ln, ln_prepared.as_ref(), normed);
+        normalise_block(x_block, &ln, ln_prepared.as_mut(), normed);
         let hidden = &mut hidden[..count * MLP_HIDDEN];
         matmul_requant_i8_prepared(
             &normed[..count * DIM],
@@ -861,7 +866,7 @@ where
 fn normalise_block<Z, R>(
     x_block: &[i8],
     ln: &LayerNormQ<'_, Z, R>,
-    prepared: Option<&PreparedLayerNorm<'_>>,
+    prepared: Option<&mut PreparedLayerNorm<'_>>,
     normed: &mut [i8],
 ) where
     Z: crate::kernels::I32s + ?Sized,

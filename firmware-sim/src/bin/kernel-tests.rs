@@ -706,15 +706,15 @@ fn softmax_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
 
 /// Attention's softmax and weighted sums of four queries on this core's assembly path
 /// (`arch::softmax_weighted_sums`: on Cortex-M7 the softmax written into the DSP tile's widened
-/// rows) against the portable `softmax_row` of each row and the plain weighted sums: 8 to 960
-/// keys, spreads up to the extremes of i32 (gaps past 2^31, which the kernel saturates), each
+/// rows) against the portable `softmax_row` of each row and the plain weighted sums: 128 to
+/// 960 keys (8 keys: declined), spreads up to the extremes of i32 (gaps past 2^31, which the kernel saturates), each
 /// right shift of the index it specialises and one it does not.
 fn softmax_block_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     use bino_core::config::HEAD_DIM;
     use bino_core::fixed::Requant;
     use bino_core::kernels::attention::softmax_row;
     use bino_core::kernels::exp::ExpQ32;
-    for (case, n) in [8usize, 16, 40, 200, 960, 960].into_iter().enumerate() {
+    for (case, n) in [8usize, 128, 136, 200, 960, 960].into_iter().enumerate() {
         for shift in [33u32, 34, 35, 36, 38] {
             let extremes = case % 2 == 1;
             let scores = &mut b.found[..4 * n];
@@ -744,12 +744,12 @@ fn softmax_block_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
                         .sum();
                 }
             }
-            let mut found = [[0i32; HEAD_DIM]; 4];
             let scratch = &mut b.weights.0[..4 * n];
-            let Some(found_totals) =
-                bino_core::kernels::arch::softmax_weighted_sums(&e, scores, scratch, values_t, &mut found)
+            let Some((found_totals, found)) =
+                bino_core::kernels::arch::softmax_weighted_sums(&e, scores, scratch, values_t)
             else {
-                if cfg!(board = "an500") {
+                // The kernel keeps the sums in the softmax bytes: rows of 128 keys at least.
+                if cfg!(board = "an500") && n >= 128 {
                     defmt::println!(
                         "kernel-tests mismatch kernel=softmax_block n={=usize} shift={=u32} declined",
                         n,

@@ -844,8 +844,8 @@ struct WeightRow {
 
 /// Attention's softmax and weighted sums (P·V) for four queries on Cortex-M7, bit for bit the
 /// specification's (`attention::attend_block`'s general path): `scores` holds the four rows of
-/// `n` scores; returns the four rows' weight totals and sets `acc[q][d] = sum_j w_qj v_dj`
-/// (`values_t`: the `HEAD_DIM` value channels, `n` codes each).
+/// `n` scores; returns the four rows' weight totals and `acc[q][d] = sum_j w_qj v_dj`
+/// (`values_t`: the `HEAD_DIM` value channels, `n` codes each), which lives in `scratch`.
 ///
 /// The softmax writes each row's weights (unsigned, at most 255) straight into the tile's
 /// widened 16-bit layout, so the weighted sums need neither a widening pass nor the offset of
@@ -853,19 +853,18 @@ struct WeightRow {
 /// then rows 0 and 1 into the upper half of `scores` (rows 2 and 3, read by then), rows 2 and
 /// 3 copied beside them, and the four-row block kernel against the value channels.
 ///
-/// `None` (nothing written) unless `n` is a multiple of 8, the lengths match, `values_t` and
+/// `None` (nothing written) unless `n` is a multiple of 8 and at least 128, the lengths match, `values_t` and
 /// `scratch` are word-aligned and the parameters allow [`softmax_row`]'s shortcuts (with the
 /// right shift of the index from the row's own maximum).
 #[cfg(any(bino_dsp, test))]
-pub(crate) fn softmax_weighted_sums(
+pub(crate) fn softmax_weighted_sums<'s>(
     e: &ExpQ32,
     scores: &mut [i32],
-    scratch: &mut [u8],
+    scratch: &'s mut [u8],
     values_t: &[i8],
-    acc: &mut [[i32; HEAD_DIM]; ROWS],
-) -> Option<[u32; ROWS]> {
+) -> Option<([u32; ROWS], &'s [[i32; HEAD_DIM]; ROWS])> {
     let n = scores.len() / ROWS;
-    if n == 0 || !n.is_multiple_of(8) || scores.len() != ROWS * n || values_t.len() != HEAD_DIM * n {
+    if n < ROWS * HEAD_DIM || !n.is_multiple_of(8) || scores.len() != ROWS * n || values_t.len() != HEAD_DIM * n {
         return None;
     }
     if !(values_t.as_ptr() as usize).is_multiple_of(4) {
@@ -891,8 +890,13 @@ pub(crate) fn softmax_weighted_sums(
     for (group, rows23) in x.chunks_exact_mut(2 * ROWS).zip(temp.chunks_exact(4)) {
         group[4..].copy_from_slice(rows23);
     }
+    // The sums go to the softmax bytes, free again (`n >= 128` words: checked), so that no
+    // zeroed array is needed for them.
+    let sums: &mut [i32] = bytemuck::cast_slice_mut(temp);
+    let (sums, _) = sums.as_chunks_mut::<HEAD_DIM>();
+    let acc: &mut [[i32; HEAD_DIM]; ROWS] = sums.get_mut(..ROWS)?.try_into().ok()?;
     weighted_sums(x, values_t, n, acc);
-    Some(total)
+    Some((total, acc))
 }
 
 /// The multiplier (pre-shift folded in), rounding term and right shift of [`widened_weights`],

@@ -225,22 +225,22 @@ pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> 
 /// Attention's softmax and weighted sums for four queries (`scores`: four rows of `n`), bit for
 /// bit [`attention::attend_block`](crate::kernels::attention::attend_block)'s general path: the
 /// rows' weight totals, and `acc[q][d]` the sum over keys of weight times value channel `d`
-/// (`values_t`: `HEAD_DIM` rows of `n`), on this core's assembly path (Cortex-M7: the softmax
-/// written straight into the DSP tile's widened layout, `scores` and `scratch` overwritten);
+/// (`values_t`: `HEAD_DIM` rows of `n`; `acc` lives in `scratch`), on this core's assembly path
+/// (Cortex-M7: the softmax written straight into the DSP tile's widened layout, `scores` and
+/// `scratch` overwritten);
 /// `None` (nothing written) where there is none or it declines the shape or parameters.
 #[inline]
-pub fn softmax_weighted_sums(
+pub fn softmax_weighted_sums<'s>(
     e: &ExpQ32,
     scores: &mut [i32],
-    scratch: &mut [u8],
+    scratch: &'s mut [u8],
     values_t: &[i8],
-    acc: &mut [[i32; HEAD_DIM]; 4],
-) -> Option<[u32; 4]> {
+) -> Option<([u32; 4], &'s [[i32; HEAD_DIM]; 4])> {
     #[cfg(bino_dsp)]
-    return dsp::softmax_weighted_sums(e, scores, scratch, values_t, acc);
+    return dsp::softmax_weighted_sums(e, scores, scratch, values_t);
     #[cfg(not(bino_dsp))]
     {
-        let _ = (e, scores, scratch, values_t, acc);
+        let _ = (e, scores, scratch, values_t);
         None
     }
 }
@@ -482,14 +482,14 @@ mod tests {
         use crate::kernels::attention::softmax_row as specification;
         let mut rng = Rng::new(36);
         let mut taken = 0;
-        for trial in 0..1500 {
+        for trial in 0..600 {
             let shift = rng.range(22, 40) as u32;
             let mult = rng.range(1 << 29, i32::MAX as i64) as i32;
             let Some(e) = ExpQ32::new(Requant { mult, shift }) else {
                 continue;
             };
-            let n = 8 * rng.range(1, 12) as usize;
-            let mut scores = [0i32; 4 * 96];
+            let n = 8 * rng.range(16, 32) as usize;
+            let mut scores = [0i32; 4 * 256];
             // Attention's range, and every fifth block the extremes of i32 (gaps past 2^31,
             // which the kernel saturates).
             let span = if trial % 5 == 0 { i32::MAX as i64 } else { 1 << 19 };
@@ -500,7 +500,7 @@ mod tests {
                 scores[0] = i32::MIN;
                 scores[1] = i32::MAX;
             }
-            let mut values_t = [0i8; HEAD_DIM * 96];
+            let mut values_t = [0i8; HEAD_DIM * 256];
             for v in values_t[..HEAD_DIM * n].iter_mut() {
                 *v = rng.range(-128, 127) as i8;
             }
@@ -508,7 +508,7 @@ mod tests {
             let mut want_total = [0u32; 4];
             for (q, row) in scores[..4 * n].chunks_exact(n).enumerate() {
                 let max = row.iter().copied().max().unwrap_or(0);
-                let mut w = [0u8; 96];
+                let mut w = [0u8; 256];
                 want_total[q] = specification(&e, max, row, &mut w[..n]);
                 for (d, channel) in values_t[..HEAD_DIM * n].chunks_exact(n).enumerate() {
                     // The specification stores `w ^ 0x80`.
@@ -519,37 +519,32 @@ mod tests {
                         .sum();
                 }
             }
-            let mut scratch = [0u32; 96];
+            let mut scratch = [0u32; 256];
             let scratch: &mut [u8] = bytemuck::cast_slice_mut(&mut scratch[..]);
-            let mut acc = [[7i32; HEAD_DIM]; 4];
             let before = scores;
             match dsp::softmax_weighted_sums(
                 &e,
                 &mut scores[..4 * n],
                 &mut scratch[..4 * n],
                 &values_t[..HEAD_DIM * n],
-                &mut acc,
             ) {
-                Some(total) => {
+                Some((total, acc)) => {
                     taken += 1;
-                    assert_eq!((total, acc), (want_total, want_acc), "mult {mult} shift {shift} n {n}");
+                    assert_eq!((total, *acc), (want_total, want_acc), "mult {mult} shift {shift} n {n}");
                 }
-                None => assert_eq!(
-                    (scores, acc),
-                    (before, [[7; HEAD_DIM]; 4]),
-                    "declined blocks are not written"
-                ),
+                None => assert_eq!(scores, before, "declined blocks are not written"),
             }
         }
-        assert!(taken > 500, "{taken} blocks taken");
+        assert!(taken > 200, "{taken} blocks taken");
         // Rows of a length the four-row kernel does not take are declined.
         let e = ExpQ32::new(Requant {
             mult: 1 << 30,
             shift: 34,
         })
         .unwrap();
-        let mut acc = [[0; HEAD_DIM]; 4];
-        assert!(dsp::softmax_weighted_sums(&e, &mut [0; 16], &mut [0; 16], &[0; HEAD_DIM * 4], &mut acc).is_none());
+        assert!(dsp::softmax_weighted_sums(&e, &mut [0; 16], &mut [0; 16], &[0; HEAD_DIM * 4]).is_none());
+        // And rows too short to hold the sums in the softmax bytes (fewer than 128 keys).
+        assert!(dsp::softmax_weighted_sums(&e, &mut [0; 4 * 120], &mut [0; 4 * 120], &[0; HEAD_DIM * 120]).is_none());
     }
 
     #[test]
