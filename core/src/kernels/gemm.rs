@@ -53,7 +53,7 @@ pub fn matmul_requant_i8_prepared<B, M, Z>(
     M: I32s + ?Sized,
     Z: I32s + ?Sized,
 {
-    if prepared.is_some_and(|p| arch::matmul_requant_prepared(a, w, k, p, out)) {
+    if prepared.is_some_and(|p| arch::matmul_requant_prepared(a, w, k, p, acc, out)) {
         return;
     }
     matmul_requant_i8(a, w, k, rq, zero, acc, out);

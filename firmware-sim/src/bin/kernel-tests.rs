@@ -18,7 +18,7 @@ use bino_core::kernels::arch::{self, MAX_K};
 use core::sync::atomic::{AtomicU32, Ordering};
 
 use bino_core::kernels::epilogue::{requant_rows, ChannelRequant};
-use bino_core::kernels::gemm::{matmul_requant_i8, matmul_requant_reference};
+use bino_core::kernels::gemm::{matmul_requant_i8, matmul_requant_i8_prepared, matmul_requant_reference};
 use bino_core::kernels::matmul::{matmul_i8, matmul_i8_reference};
 use cortex_m as _;
 use cortex_m_rt::entry;
@@ -220,6 +220,24 @@ fn random_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
             }
             matmul_requant_i8(a, w, k, &rq, &p.zero[..n], &mut b.acc, &mut found[..m * n]);
             t.check("matmul_requant_i8", shape, &found[..m * n], &expected[..m * n]);
+
+            // The same columns prepared once (the engine's values and MLP-up GEMMs).
+            let mut storage = [0i32; 4 * MAX_N];
+            if let Some(prepared) = arch::PreparedRequant::new(&rq, &p.zero[..n], &mut storage) {
+                let took = arch::matmul_requant_prepared(a, w, k, &prepared, &mut b.acc, &mut found[..m * n]);
+                if took != takes(k) {
+                    defmt::println!(
+                        "kernel-tests wrong-path kernel=matmul_requant_prepared k={=usize} took={=bool}",
+                        k,
+                        took
+                    );
+                    t.failed += 1;
+                }
+                t.asm_cases += usize::from(took);
+                if took {
+                    t.check("matmul_requant_prepared", shape, &found[..m * n], &expected[..m * n]);
+                }
+            }
         }
     }
 }
@@ -865,9 +883,12 @@ fn bench(rng: &mut Rng, b: &mut Buffers) {
             shift: &shift[..n],
         };
         let (out, want, acc) = (&mut b.found8, &mut b.expected8, &mut b.acc);
+        // The columns prepared once, as the engine prepares them once per pass.
+        let mut storage = [0i32; 4 * 480];
+        let prepared = arch::PreparedRequant::new(&rq, &zero[..n], &mut storage);
         fused();
         for _ in 0..BENCH_CALLS {
-            matmul_requant_i8(a, w, k, &rq, &zero[..n], acc, &mut out[..M * n]);
+            matmul_requant_i8_prepared(a, w, k, prepared.as_ref(), &rq, &zero[..n], acc, &mut out[..M * n]);
         }
         reference();
         for _ in 0..BENCH_CALLS {

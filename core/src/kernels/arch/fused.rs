@@ -87,6 +87,49 @@ impl Col {
     }
 }
 
+/// Column parameters as the Helium requantisation reads them: `count()` records of 16 bytes
+/// from `base()`, each `bias`, `mult`, `addend`, `s` ([`Col`]'s layout), checked by
+/// [`Col::new`] when they were made.
+#[cfg(any(bino_mve, test))]
+pub(crate) trait ColRecords {
+    /// Records held.
+    fn count(&self) -> usize;
+    /// The first record's first word.
+    #[cfg_attr(not(bino_mve), allow(dead_code))]
+    fn base(&self) -> *const i32;
+    /// Column `j` (the portable kernels).
+    #[cfg_attr(bino_mve, allow(dead_code))]
+    fn col(&self, j: usize) -> Option<Col>;
+}
+
+const _: () = assert!(core::mem::size_of::<Col>() == 16 && core::mem::align_of::<Col>() == 4);
+
+#[cfg(any(bino_mve, test))]
+impl ColRecords for [Col] {
+    fn count(&self) -> usize {
+        self.len()
+    }
+    fn base(&self) -> *const i32 {
+        self.as_ptr().cast()
+    }
+    fn col(&self, j: usize) -> Option<Col> {
+        self.get(j).copied()
+    }
+}
+
+#[cfg(any(bino_mve, test))]
+impl ColRecords for [[i32; 4]] {
+    fn count(&self) -> usize {
+        self.len()
+    }
+    fn base(&self) -> *const i32 {
+        self.as_ptr().cast()
+    }
+    fn col(&self, j: usize) -> Option<Col> {
+        self.get(j).map(Col::from_words)
+    }
+}
+
 /// [`Epilogue`] of the fused kernels: one chunk of output channels starting at `j0`.
 pub(crate) struct Fused<'o> {
     params: [Col; CHUNK],
@@ -189,6 +232,12 @@ impl<'a> PreparedRequant<'a> {
     pub fn channels(&self) -> usize {
         self.words.len()
     }
+
+    /// The prepared columns, one 16-byte record each.
+    #[cfg_attr(not(any(bino_mve, test)), allow(dead_code))]
+    pub(crate) fn records(&self) -> &[[i32; 4]] {
+        self.words
+    }
 }
 
 /// Column `c` of `rq` and `zero` (see [`Col::new`]).
@@ -234,7 +283,7 @@ where
 }
 
 /// [`matmul_requant_with`] on prepared columns (`false` unless there is one per row of `w`).
-#[cfg_attr(not(any(bino_dsp, bino_mve, test)), allow(dead_code))]
+#[cfg_attr(not(any(bino_dsp, test)), allow(dead_code))]
 #[inline(always)]
 pub(crate) fn matmul_prepared_with(
     a: &[i8],
@@ -318,16 +367,27 @@ where
     }
 }
 
-/// [`matmul_requant`] on columns prepared once ([`PreparedRequant`]).
+/// [`matmul_requant`] on columns prepared once ([`PreparedRequant`]); `acc` (at least the
+/// output's length) holds the Cortex-M55's accumulators between its two kernels.
 #[inline]
-pub fn matmul_requant_prepared(a: &[i8], w: &[i8], k: usize, prepared: &PreparedRequant<'_>, out: &mut [i8]) -> bool {
+pub fn matmul_requant_prepared(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    prepared: &PreparedRequant<'_>,
+    acc: &mut [i32],
+    out: &mut [i8],
+) -> bool {
+    #[cfg(bino_dsp)]
+    let _ = acc;
     #[cfg(bino_dsp)]
     return matmul_prepared_with(a, w, k, prepared, out, |a, w, k, m, epi| super::run(a, w, k, m, epi));
+    // Every accumulator first, then the requantisation two rows at a time in vector lanes.
     #[cfg(bino_mve)]
-    return matmul_prepared_with(a, w, k, prepared, out, super::mve::gemm_fused);
+    return super::mve::gemm_prepared(a, w, k, prepared.records(), acc, out);
     #[cfg(not(any(bino_dsp, bino_mve)))]
     {
-        let _ = (a, w, k, prepared, out);
+        let _ = (a, w, k, prepared, acc, out);
         false
     }
 }

@@ -40,6 +40,7 @@ pub const MAX_K: usize = 1024;
 /// compiler no free registers).
 pub(crate) trait Epilogue {
     /// The value an accumulator of column `j` starts from (the bias, or 0).
+    #[cfg_attr(not(any(bino_dsp, test)), allow(dead_code))]
     fn init(&self, j: usize) -> i32;
     /// Output `(row, j)` from its finished accumulator (`init` plus the dot product).
     fn put(&mut self, row: usize, j: usize, acc: i32);
@@ -363,6 +364,16 @@ mod tests {
                 assert_eq!(took, takes, "{name} prepared m={m} n={n} k={k}");
                 if took {
                     assert_eq!(got8[..m * n], want8[..m * n], "{name} prepared m={m} n={n} k={k}");
+                }
+                if name == "mve" {
+                    // The Cortex-M55's prepared path: every accumulator, then two rows at a time.
+                    let (mut got8, mut acc) = ([0i8; 5 * 131], [0i32; 5 * 131]);
+                    let took = mve::gemm_prepared(a, w, k, prepared.records(), &mut acc, &mut got8[..m * n]);
+                    assert!(took, "mve gemm_prepared m={m} n={n} k={k}");
+                    assert_eq!(got8[..m * n], want8[..m * n], "mve gemm_prepared m={m} n={n} k={k}");
+                    let short =
+                        mve::gemm_prepared(a, w, k, prepared.records(), &mut acc[..m * n - 1], &mut got8[..m * n]);
+                    assert!(!short, "an accumulator scratch shorter than the output is declined");
                 }
             }
         }

@@ -1,53 +1,89 @@
 //! Cortex-M55 (Helium, MVE) kernels: the GEMMs, a pair of rows against every column triple in
-//! one kernel call (2 x 3 tiles, 16 MACs per `vmladava.s8` into scalar accumulators, then an
-//! `i32` store or the fused requantisation in vector lanes; a 2 x 1 tile for the last one or
-//! two columns); attention's scores with the queries held in vector registers; the softmax
-//! row; LayerNorm's and the residual add's lanes.
+//! one kernel call (2 x 3 tiles, 16 MACs per `vmladava.s8` into scalar accumulators and an
+//! `i32` store; a 2 x 1 or 2 x 2 tile for the last one or two columns), the fused
+//! requantisation of two rows of accumulators in vector lanes; attention's scores with the
+//! queries held in vector registers; the softmax row; LayerNorm's and the residual add's lanes.
 //!
-//! One tail-predicated loop (`dlstp.8` / `letp`) runs over `k` in steps of 16: the last step
-//! loads and multiplies only the elements left, so any `k` is taken and nothing is read past a
-//! row. Per 96 MACs: five `vldrb`, six `vmladava` and the loop end.
+//! Where `k` is a multiple of 32 (the encoder's GEMMs and attention) the first 32 codes start
+//! the accumulators and a plain loop runs two 16-code steps per iteration: per 192 MACs ten
+//! `vldrb`, twelve `vmladava` and the loop end. Any other `k` runs one tail-predicated loop
+//! (`dlstp.8` / `letp`) in steps of 16, whose last step loads and multiplies only the elements
+//! left, so nothing is read past a row.
 
-use super::fused::{Col, Fused};
-use super::Epilogue;
+use super::fused::{ColRecords, Fused, CHUNK};
+use super::shape;
 #[cfg(bino_mve)]
 use crate::config::HEAD_DIM;
 #[cfg(bino_mve)]
 use crate::kernels::exp::{ExpQ32, EXP2_NEG_I8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
-/// The fused GEMM's driver: per pair of rows, every whole column triple of the chunk in one
-/// kernel call ([`rows_requant`]: tiles and epilogue without returning to Rust), then the
-/// chunk's last one or two columns through `tile1` and the scalar epilogue.
+/// The fused GEMM's driver (one chunk of at most [`CHUNK`] channels): per pair of rows their
+/// accumulators ([`pair_i32`], into a stack scratch), then both rows' requantisation in one
+/// Helium kernel ([`requant_pair`]) on the chunk's columns.
 pub(crate) fn gemm_fused(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut Fused<'_>) -> bool {
     let channels = w.len() / k.max(1);
-    let whole = channels / 3 * 3;
-    let (w_whole, w_rest) = w.split_at(whole * k);
+    if k == 0 || channels > CHUNK {
+        return false;
+    }
+    let mut acc = [[0i32; CHUNK]; 2];
+    let [acc0, acc1] = &mut acc;
+    let (acc0, acc1) = (&mut acc0[..channels], &mut acc1[..channels]);
     for r0 in (0..m).step_by(2) {
         let row = |r: usize| a.get(r * k..(r + 1) * k).unwrap_or(&[]);
         let (a0, a1) = (row(r0), row((r0 + 1).min(m - 1)));
         let pair = r0 + 1 < m;
-        if whole > 0 && !epi.rows(r0, pair, whole, |p, o0, o1| rows_requant(a0, a1, w_whole, k, p, o0, o1)) {
+        if !pair_i32(a0, a1, w, k, acc0, Some(&mut *acc1)) {
             return false;
         }
-        let acc = last_columns(a0, a1, w_rest, [epi.init(whole), epi.init(whole + 1)]);
-        for (c, j) in (whole..channels).enumerate().take(2) {
-            epi.put(r0, j, acc[0][c]);
-            if pair {
-                epi.put(r0 + 1, j, acc[1][c]);
-            }
+        if !epi.rows(r0, pair, channels, |p, o0, o1| {
+            requant_pair(acc0, acc1, p, o0, Some(o1))
+        }) {
+            return false;
         }
     }
     true
 }
 
-/// The plain GEMM's driver (`i32` out, `m x n`): per pair of rows, every whole column triple
-/// in one kernel call ([`rows_i32`]), then the last one or two columns through `tile1`.
-/// `false` where the lengths do not hold `m x n` (the caller has checked them).
-pub(crate) fn gemm_i32(a: &[i8], w: &[i8], k: usize, m: usize, n: usize, out: &mut [i32]) -> bool {
-    let whole = n / 3 * 3;
-    let Some((w_whole, w_rest)) = w.split_at_checked(whole * k) else {
+/// The prepared GEMM (the engine's values and MLP-up): every accumulator through
+/// [`gemm_i32`] into `acc`, then the rows' requantisation on the prepared columns `cols`, two
+/// rows per [`requant_pair`] call. `false` (the caller runs the reference) for shapes
+/// [`shape`] declines, `cols` not one per row of `w`, or `acc` shorter than the output.
+pub(crate) fn gemm_prepared<C: ColRecords + ?Sized>(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    cols: &C,
+    acc: &mut [i32],
+    out: &mut [i8],
+) -> bool {
+    let Some((m, n)) = shape(a, w, k, out.len()) else {
         return false;
     };
+    if cols.count() != n {
+        return false;
+    }
+    let (Some(acc), Some(out)) = (acc.get_mut(..m * n), out.get_mut(..m * n)) else {
+        return false;
+    };
+    if !gemm_i32(a, w, k, m, n, acc) {
+        return false;
+    }
+    let mut rows = acc.chunks_exact(n).zip(out.chunks_exact_mut(n));
+    while let Some((acc0, out0)) = rows.next() {
+        let done = match rows.next() {
+            Some((acc1, out1)) => requant_pair(acc0, acc1, cols, out0, Some(out1)),
+            None => requant_pair(acc0, acc0, cols, out0, None),
+        };
+        if !done {
+            return false;
+        }
+    }
+    true
+}
+
+/// The plain GEMM's driver (`i32` out, `m x n`): [`pair_i32`] per pair of rows. `false`
+/// where the lengths do not hold `m x n` (the caller has checked them).
+pub(crate) fn gemm_i32(a: &[i8], w: &[i8], k: usize, m: usize, n: usize, out: &mut [i32]) -> bool {
     for r0 in (0..m).step_by(2) {
         let row = |r: usize| a.get(r * k..(r + 1) * k).unwrap_or(&[]);
         let (a0, a1) = (row(r0), row((r0 + 1).min(m - 1)));
@@ -56,18 +92,44 @@ pub(crate) fn gemm_i32(a: &[i8], w: &[i8], k: usize, m: usize, n: usize, out: &m
         let Some((out0, out1)) = out.get_mut(r0 * n..end).and_then(|o| o.split_at_mut_checked(n)) else {
             return false;
         };
-        let (Some(whole0), whole1) = (out0.get_mut(..whole), out1.get_mut(..whole)) else {
-            return false;
-        };
-        if whole > 0 && !rows_i32(a0, a1, w_whole, k, whole0, whole1) {
+        let out1 = if pair { Some(out1) } else { None };
+        if !pair_i32(a0, a1, w, k, out0, out1) {
             return false;
         }
-        let acc = last_columns(a0, a1, w_rest.get(..(n - whole) * k).unwrap_or(&[]), [0; 2]);
-        let rest = [out0.get_mut(whole..n), out1.get_mut(whole..n)];
-        for (out, row) in rest.into_iter().zip(acc) {
-            for (o, v) in out.into_iter().flatten().zip(row) {
-                *o = v;
-            }
+    }
+    true
+}
+
+/// Rows `a0`, `a1` (`k` codes each) against every row of `w` (`out0.len()` of them): every
+/// whole column triple in one kernel call ([`rows_i32`]), then the last one or two columns
+/// through `tile1` / `tile2`. `out1` is `None` for an unpaired last row (`a1` then repeats
+/// `a0`). `false` where the lengths do not fit.
+fn pair_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
+    let n = out0.len();
+    let whole = n / 3 * 3;
+    if out1.as_ref().is_some_and(|o| o.len() != n) {
+        return false;
+    }
+    let Some((w_whole, w_rest)) = w.get(..n * k).map(|w| w.split_at(whole * k)) else {
+        return false;
+    };
+    if whole > 0
+        && !rows_i32(
+            a0,
+            a1,
+            w_whole,
+            k,
+            &mut out0[..whole],
+            out1.as_mut().map(|o| &mut o[..whole]),
+        )
+    {
+        return false;
+    }
+    let acc = last_columns(a0, a1, w_rest, [0; 2]);
+    for (c, j) in (whole..n).enumerate() {
+        out0[j] = acc[0][c];
+        if let Some(out1) = out1.as_mut() {
+            out1[j] = acc[1][c];
         }
     }
     true
@@ -109,6 +171,10 @@ fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1
         return false;
     }
     let second = out1.as_mut().map_or(out0.as_mut_ptr(), |o| o.as_mut_ptr());
+    if k.is_multiple_of(32) {
+        rows_i32_steps32(a0, a1, w, k, out0, second);
+        return true;
+    }
     // SAFETY: per triple `t` (`n / 3` of them) the loop reads `k >= 1` bytes from each of
     // `a0`, `a1` and weight rows `3t..3t + 3` of `w` (exactly `w`'s `n * k` bytes over the
     // call) and writes words `3t..3t + 3` of `out0` and of `out1` (or of `out0` again, with the
@@ -177,6 +243,117 @@ fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1
     true
 }
 
+/// [`rows_i32`] for `k` a multiple of 32 (every dot product of the encoder's GEMMs and
+/// attention): per triple the first 32 codes start the accumulators (`vmladav`, no zeroing),
+/// then a plain low-overhead loop (`wls` / `le`) of two 16-code steps per iteration: one loop
+/// end per 192 MACs instead of per 96. `out0` holds `n` words (a multiple of three) and
+/// `second` points at `n` words of `out1` or at `out0` itself (the caller checked every length).
+#[cfg(bino_mve)]
+#[inline(always)]
+fn rows_i32_steps32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], second: *mut i32) {
+    let n = out0.len();
+    // SAFETY: the caller checked `a0.len() == a1.len() == k`, `k` a multiple of 32 in
+    // `32..=MAX_K`, `w.len() == n * k`, `n` a positive multiple of three and `second` pointing at
+    // `n` writable words (`out1`'s, or `out0`'s: then `a1` equals `a0` and the same values are
+    // written twice). Per triple `t` the kernel reads exactly `k` bytes of `a0`, `a1` and of
+    // weight rows `3t..3t + 3` (32 in the first two steps, then `k / 32 - 1` iterations of 32;
+    // the pointers advance by exactly `k`, so the next triple starts where this one ended) and
+    // writes words `3t..3t + 3` through `out0` and `second`. `vldrb.u8` needs no alignment and
+    // `stm` gets word-aligned `i32` slices. `r6` and `r7` (which Rust reserves) are saved and
+    // restored; its loop state lives in 24 bytes below them. It writes only its declared
+    // outputs: r0-r5, r8-r12, `lr` and q0-q3.
+    unsafe {
+        core::arch::asm!(
+            "push {{r6, r7}}",
+            "sub sp, #24",
+            "strd r1, r3, [sp, #0]",
+            "strd r2, r4, [sp, #8]",
+            "str r5, [sp, #16]",
+            "mov r6, lr",
+            "lsrs lr, lr, #5",
+            "subs lr, #1",
+            "str lr, [sp, #20]",
+            "mov r7, r11",
+            // One column triple: its three weight rows, `k` apart.
+            "3:",
+            "mov r5, r7",
+            "add r9, r5, r6",
+            "add r11, r9, r6",
+            "add r7, r11, r6",
+            "ldrd r1, r3, [sp, #0]",
+            "vldrb.u8 q0, [r1], #16",
+            "vldrb.u8 q1, [r3], #16",
+            "vldrb.u8 q2, [r5], #16",
+            "vmladav.s8 r0, q0, q2",
+            "vmladav.s8 r2, q1, q2",
+            "vldrb.u8 q3, [r9], #16",
+            "vmladav.s8 r4, q0, q3",
+            "vmladav.s8 r8, q1, q3",
+            "vldrb.u8 q2, [r11], #16",
+            "vmladav.s8 r10, q0, q2",
+            "vmladav.s8 r12, q1, q2",
+            "vldrb.u8 q0, [r1], #16",
+            "vldrb.u8 q1, [r3], #16",
+            "vldrb.u8 q2, [r5], #16",
+            "vmladava.s8 r0, q0, q2",
+            "vmladava.s8 r2, q1, q2",
+            "vldrb.u8 q3, [r9], #16",
+            "vmladava.s8 r4, q0, q3",
+            "vmladava.s8 r8, q1, q3",
+            "vldrb.u8 q2, [r11], #16",
+            "vmladava.s8 r10, q0, q2",
+            "vmladava.s8 r12, q1, q2",
+            "ldr lr, [sp, #20]",
+            "wls lr, lr, 5f",
+            "4:",
+            "vldrb.u8 q0, [r1], #16",
+            "vldrb.u8 q1, [r3], #16",
+            "vldrb.u8 q2, [r5], #16",
+            "vmladava.s8 r0, q0, q2",
+            "vmladava.s8 r2, q1, q2",
+            "vldrb.u8 q3, [r9], #16",
+            "vmladava.s8 r4, q0, q3",
+            "vmladava.s8 r8, q1, q3",
+            "vldrb.u8 q2, [r11], #16",
+            "vmladava.s8 r10, q0, q2",
+            "vmladava.s8 r12, q1, q2",
+            "vldrb.u8 q0, [r1], #16",
+            "vldrb.u8 q1, [r3], #16",
+            "vldrb.u8 q2, [r5], #16",
+            "vmladava.s8 r0, q0, q2",
+            "vmladava.s8 r2, q1, q2",
+            "vldrb.u8 q3, [r9], #16",
+            "vmladava.s8 r4, q0, q3",
+            "vmladava.s8 r8, q1, q3",
+            "vldrb.u8 q2, [r11], #16",
+            "vmladava.s8 r10, q0, q2",
+            "vmladava.s8 r12, q1, q2",
+            "le lr, 4b",
+            "5:",
+            "ldrd r1, r3, [sp, #8]",
+            "stm r1!, {{r0, r4, r10}}",
+            "stm r3!, {{r2, r8, r12}}",
+            "strd r1, r3, [sp, #8]",
+            "ldr r1, [sp, #16]",
+            "subs r1, #1",
+            "str r1, [sp, #16]",
+            "bne 3b",
+            "add sp, #24",
+            "pop {{r6, r7}}",
+            inout("r1") a0.as_ptr() => _,
+            inout("r3") a1.as_ptr() => _,
+            inout("r11") w.as_ptr() => _,
+            inout("lr") k => _,
+            inout("r2") out0.as_mut_ptr() => _,
+            inout("r4") second => _,
+            inout("r5") n / 3 => _,
+            out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+        );
+    }
+}
+
 /// The portable twin of [`rows_i32`] (host tests of the driver).
 #[cfg(not(bino_mve))]
 fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
@@ -200,156 +377,104 @@ fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1
     true
 }
 
-/// Byte offsets of `mult`, `addend` and `s` of channels 0, 1, 2 (and 2 again for the unused
-/// fourth lane) in an array of [`Col`] (`repr(C)`, 16 bytes each).
+/// Byte offsets of `bias`, `mult`, `addend` and `s` of four consecutive columns in an array
+/// of 16-byte column records ([`ColRecords`]): the gathers of [`requant_pair`].
 #[cfg(bino_mve)]
-static COL_GATHER: [[u32; 4]; 3] = [[4, 20, 36, 36], [8, 24, 40, 40], [12, 28, 44, 44]];
+static COL_GATHER: [[u32; 4]; 4] = [[0, 16, 32, 48], [4, 20, 36, 52], [8, 24, 40, 56], [12, 28, 44, 60]];
 
-/// Rows `a0`, `a1` (`k` codes each) against `params.len()` weight rows of `w` (a multiple of
-/// three), outputs through the fused epilogue into `out0` and `out1`, in one Helium kernel:
-/// per column triple the bias into six accumulators, the 2 x 3 tile's loop, then both rows'
-/// requantisation in vector lanes (`mult`, `addend` and `s` gathered from three channels'
-/// [`Col`]s: `vmulh.s32`, add, `vshl.s32` by `-s`, two saturating narrowings) and a
-/// tail-predicated store of three bytes per row. `false` (nothing written) for other lengths.
+/// Two rows of accumulators (`acc0`, `acc1`: dot products without the bias, one per column of
+/// `cols`) through the fused requantisation into `out0` and `out1` (`None`: an unpaired row,
+/// `acc1` then repeats `acc0`), in one tail-predicated Helium loop, four columns a step:
+/// the columns' `bias`, `mult`, `addend` and `s` gathered from their records, then per row
+/// `vadd`, `vmulh.s32`, `vadd`, `vshl.s32` by `-s`, two saturating narrowings and a 4-byte
+/// store (23 instructions per 8 outputs). `false` (nothing written) for other lengths.
 #[cfg(bino_mve)]
-fn rows_requant(a0: &[i8], a1: &[i8], w: &[i8], k: usize, params: &[Col], out0: &mut [i8], out1: &mut [i8]) -> bool {
-    let n = params.len();
-    if k == 0 || k > super::MAX_K || a0.len() != k || a1.len() != k {
+fn requant_pair<C: ColRecords + ?Sized>(
+    acc0: &[i32],
+    acc1: &[i32],
+    cols: &C,
+    out0: &mut [i8],
+    out1: Option<&mut [i8]>,
+) -> bool {
+    let n = cols.count();
+    if n == 0 || acc0.len() != n || acc1.len() != n || out0.len() != n || out1.as_ref().is_some_and(|o| o.len() != n) {
         return false;
     }
-    if n == 0 || !n.is_multiple_of(3) || w.len() != n * k || out0.len() != n || out1.len() != n {
-        return false;
-    }
-    // SAFETY: per triple `t` (`n / 3` of them) the loop reads `k >= 1` bytes from each of
-    // `a0`, `a1` and weight rows `3t..3t + 3` of `w` (exactly `w`'s `n * k` bytes over the
-    // call), 12 words gathered from `params[3t..3t + 3]` (byte offsets 0-47 of three
-    // `repr(C)` 16-byte `Col`s) and 12 words of `COL_GATHER`, and writes bytes `3t..3t + 3`
-    // of `out0` and `out1` (the one-iteration tail-predicated loop of three 32-bit elements
-    // stores lanes 0-2 only). All lengths are checked above; `vldrb.u8` needs no alignment and
-    // `Col` and `COL_GATHER` are word aligned. The narrowing stores need low registers (r3, r5).
-    // Its loop state lives in 32 bytes below `sp`, restored before the end. It writes only its
-    // declared outputs: r0-r5, r8-r12, `lr` (whose loops' `letp` restore FPSCR.LTPSIZE) and
-    // q0-q6.
+    let second = out1.map_or(out0.as_mut_ptr(), |o| o.as_mut_ptr());
+    // SAFETY: the tail-predicated loop (`n >= 1` 32-bit lanes, four a step) reads exactly
+    // `n` words of `acc0` and of `acc1`, the four gathered words of each of the `n` 16-byte
+    // records at `cols.base()` (`ColRecords` promises `count()` of them; offsets from
+    // `COL_GATHER`, 64 bytes a step) and writes exactly `n` bytes through `out0` and
+    // `second` (`out1`'s, or `out0`'s again with the same values: then `acc1` is `acc0`).
+    // Predicated-off lanes of the last step are not accessed. All lengths are checked above;
+    // `vldrw` gets word-aligned `i32` data, `vstrb.32` needs no alignment (and low registers,
+    // r3 and r5). It writes only its declared outputs: the pointers, `lr` (`letp` restores
+    // FPSCR.LTPSIZE) and q0-q7.
     unsafe {
         core::arch::asm!(
             "vldrw.u32 q4, [{gather}]",
             "vldrw.u32 q5, [{gather}, #16]",
             "vldrw.u32 q6, [{gather}, #32]",
-            "sub sp, #32",
-            "strd r1, r3, [sp, #0]",
-            "strd r0, r2, [sp, #8]",
-            "strd r4, r5, [sp, #16]",
-            "strd lr, r11, [sp, #24]",
-            // One column triple: bias into the accumulators.
-            "3:",
-            "ldr r12, [sp, #8]",
-            "ldr r0, [r12, #0]",
-            "ldr r4, [r12, #16]",
-            "ldr r10, [r12, #32]",
-            "mov r2, r0",
-            "mov r8, r4",
-            "mov r12, r10",
-            // The weight rows (the loop's pointers end rounded up to 16 bytes, so the next
-            // triple's first row is kept in the frame).
-            "ldr r5, [sp, #28]",
-            "ldr lr, [sp, #24]",
-            "add r9, r5, lr",
-            "add r11, r9, lr",
-            "add r1, r11, lr",
-            "str r1, [sp, #28]",
-            "ldrd r1, r3, [sp, #0]",
-            "dlstp.8 lr, lr",
-            "4:",
-            "vldrb.u8 q0, [r1], #16",
-            "vldrb.u8 q1, [r3], #16",
-            "vldrb.u8 q2, [r5], #16",
-            "vmladava.s8 r0, q0, q2",
-            "vmladava.s8 r2, q1, q2",
-            "vldrb.u8 q3, [r9], #16",
-            "vmladava.s8 r4, q0, q3",
-            "vmladava.s8 r8, q1, q3",
-            "vldrb.u8 q2, [r11], #16",
-            "vmladava.s8 r10, q0, q2",
-            "vmladava.s8 r12, q1, q2",
-            "letp lr, 4b",
-            // The epilogue, both rows.
-            "vmov.32 q0[0], r0",
-            "vmov.32 q0[1], r4",
-            "vmov.32 q0[2], r10",
-            "vmov.32 q1[0], r2",
-            "vmov.32 q1[1], r8",
-            "vmov.32 q1[2], r12",
-            "ldr r1, [sp, #8]",
-            "vldrw.u32 q2, [r1, q4]",
-            "vmulh.s32 q0, q0, q2",
-            "vmulh.s32 q1, q1, q2",
-            "vldrw.u32 q2, [r1, q5]",
+            "vldrw.u32 q7, [{gather}, #48]",
+            "dlstp.32 lr, lr",
+            "2:",
+            "vldrw.u32 q0, [r0], #16",
+            "vldrw.u32 q1, [r1], #16",
+            "vldrw.u32 q2, [r2, q4]",
             "vadd.i32 q0, q0, q2",
             "vadd.i32 q1, q1, q2",
-            "vldrw.u32 q2, [r1, q6]",
-            "vneg.s32 q2, q2",
-            "vshl.s32 q0, q0, q2",
-            "vshl.s32 q1, q1, q2",
+            "vldrw.u32 q2, [r2, q5]",
+            "vmulh.s32 q0, q0, q2",
+            "vmulh.s32 q1, q1, q2",
+            "vldrw.u32 q2, [r2, q6]",
+            "vadd.i32 q0, q0, q2",
+            "vadd.i32 q1, q1, q2",
+            "vldrw.u32 q3, [r2, q7]",
+            "vneg.s32 q3, q3",
+            "vshl.s32 q0, q0, q3",
+            "vshl.s32 q1, q1, q3",
             "vqmovnb.s32 q0, q0",
             "vqmovnb.s32 q1, q1",
             "vqmovnb.s16 q0, q0",
             "vqmovnb.s16 q1, q1",
-            "adds r1, #48",
-            "str r1, [sp, #8]",
-            "ldrd r3, r5, [sp, #12]",
-            "mov lr, #3",
-            "dlstp.32 lr, lr",
-            "5:",
-            "vstrb.32 q0, [r3]",
-            "vstrb.32 q1, [r5]",
-            "letp lr, 5b",
-            "adds r3, #3",
-            "adds r5, #3",
-            "strd r3, r5, [sp, #12]",
-            "ldr r1, [sp, #20]",
-            "subs r1, #1",
-            "str r1, [sp, #20]",
-            "bne 3b",
-            "add sp, #32",
+            "vstrb.32 q0, [r3], #4",
+            "vstrb.32 q1, [r5], #4",
+            "adds r2, #64",
+            "letp lr, 2b",
             gather = in(reg) COL_GATHER.as_ptr(),
-            inout("r1") a0.as_ptr() => _,
-            inout("r3") a1.as_ptr() => _,
-            inout("r11") w.as_ptr() => _,
-            inout("lr") k => _,
-            inout("r0") params.as_ptr() => _,
-            inout("r2") out0.as_mut_ptr() => _,
-            inout("r4") out1.as_mut_ptr() => _,
-            inout("r5") n / 3 => _,
-            out("r8") _, out("r9") _, out("r10") _, out("r12") _,
+            inout("r0") acc0.as_ptr() => _,
+            inout("r1") acc1.as_ptr() => _,
+            inout("r2") cols.base() => _,
+            inout("r3") out0.as_mut_ptr() => _,
+            inout("r5") second => _,
+            inout("lr") n => _,
             out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _, out("d6") _,
             out("d7") _, out("d8") _, out("d9") _, out("d10") _, out("d11") _, out("d12") _, out("d13") _,
+            out("d14") _, out("d15") _,
+            options(nostack),
         );
     }
     true
 }
 
-/// The portable twin of [`rows_requant`] (host tests of the driver): the same tiles and
-/// epilogue, triple by triple.
+/// The portable twin of [`requant_pair`] (host tests of the drivers).
 #[cfg(not(bino_mve))]
-fn rows_requant(a0: &[i8], a1: &[i8], w: &[i8], k: usize, params: &[Col], out0: &mut [i8], out1: &mut [i8]) -> bool {
-    let n = params.len();
-    if k == 0
-        || !n.is_multiple_of(3)
-        || w.len() != n * k
-        || out0.len() != n
-        || out1.len() != n
-        || a0.len() != k
-        || a1.len() != k
-    {
+fn requant_pair<C: ColRecords + ?Sized>(
+    acc0: &[i32],
+    acc1: &[i32],
+    cols: &C,
+    out0: &mut [i8],
+    out1: Option<&mut [i8]>,
+) -> bool {
+    let n = cols.count();
+    if n == 0 || acc0.len() != n || acc1.len() != n || out0.len() != n || out1.as_ref().is_some_and(|o| o.len() != n) {
         return false;
     }
-    for (t, (cols, triple)) in params.chunks_exact(3).zip(w.chunks_exact(3 * k)).enumerate() {
-        let (w0, rest) = triple.split_at(k);
-        let (w1, w2) = rest.split_at(k);
-        let acc = tile3(a0, a1, [w0, w1, w2], [cols[0].bias(), cols[1].bias(), cols[2].bias()]);
-        for (out, row) in [&mut *out0, &mut *out1].into_iter().zip(acc) {
-            for (o, (c, v)) in out.iter_mut().skip(3 * t).zip(cols.iter().zip(row)) {
-                *o = c.apply(v);
+    let rows = [(acc0, Some(out0)), (acc1, out1)];
+    for (acc, out) in rows {
+        for (j, (o, &v)) in out.into_iter().flatten().zip(acc).enumerate() {
+            if let Some(c) = cols.col(j) {
+                *o = c.apply(v.wrapping_add(c.bias()));
             }
         }
     }
