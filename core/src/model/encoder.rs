@@ -21,7 +21,7 @@ use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, 
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::arch::PreparedRequant;
 use crate::kernels::attention::{attend_block, value_sums, QUERY_BLOCK};
-use crate::kernels::epilogue::{requant_rows, residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
+use crate::kernels::epilogue::{residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
 use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::layernorm_rows;
 use crate::kernels::layernorm::{layernorm_rows_prepared, LayerNormQ, PreparedLayerNorm};
@@ -344,7 +344,7 @@ impl<'w> Encoder<'w> {
         let buf = Buffers::carve(&mut carver, tokens)?;
         let rope = self.weights.rope()?;
         let grid = Grid { rows, fused_cols };
-        self.embed(fused, grid, buf.x, buf.normed, buf.acc)?;
+        self.embed(fused, grid, buf.x, buf.normed, buf.acc, buf.scores)?;
         probe.observe(Stage::Embed, rows, fused_cols, buf.x);
         let Buffers {
             x,
@@ -386,6 +386,8 @@ impl<'w> Encoder<'w> {
         ))
     }
 
+    /// The patch embedding of every token into `x`; `scratch` (the attention scores' room,
+    /// idle in this pass) keeps the requantisation prepared for the current token row.
     fn embed(
         &self,
         fused: Fused<'_>,
@@ -393,9 +395,12 @@ impl<'w> Encoder<'w> {
         x: &mut [i8],
         patches: &mut [i8],
         acc: &mut [i32],
+        scratch: &mut [i32],
     ) -> Result<(), Error> {
         let embed = self.weights.embed()?;
         let format = self.weights.residual(0)?;
+        let mut prepared_row = None;
+        let mut prepared = None;
         for (block, x_block) in x.chunks_mut(TOKEN_BLOCK * DIM).enumerate() {
             let first = block * TOKEN_BLOCK;
             let count = x_block.len() / DIM;
@@ -403,14 +408,9 @@ impl<'w> Encoder<'w> {
                 let (row, col) = grid.position(first + i);
                 fused.patch(row, col, patch);
             }
-            matmul_i8(
-                &patches[..count * EMBED_INPUTS],
-                embed.weight,
-                EMBED_INPUTS,
-                &mut acc[..count * DIM],
-            );
-            // Tokens of one token row share their bias: requantised together (one parameter
-            // decode per run of the block, not per token).
+            // Tokens of one token row share their bias: multiplied and requantised together
+            // (one parameter decode per token row where they are prepared, per run of the
+            // block otherwise).
             let mut i = 0;
             while i < count {
                 let (row, _) = grid.position(first + i);
@@ -428,9 +428,23 @@ impl<'w> Encoder<'w> {
                     mult: &embed.mult,
                     shift: embed.shift,
                 };
+                if prepared_row != Some(row) {
+                    prepared = prepare_with(&rq, &format.zero, &mut *scratch);
+                    prepared_row = Some(row);
+                }
                 let span = i * DIM..(i + run) * DIM;
-                if let (Some(acc_rows), Some(x_rows)) = (acc.get(span.clone()), x_block.get_mut(span)) {
-                    requant_rows(acc_rows, &rq, &format.zero, x_rows);
+                let inputs = i * EMBED_INPUTS..(i + run) * EMBED_INPUTS;
+                if let (Some(patch_rows), Some(x_rows)) = (patches.get(inputs), x_block.get_mut(span)) {
+                    matmul_requant_i8_prepared(
+                        patch_rows,
+                        embed.weight,
+                        EMBED_INPUTS,
+                        prepared.as_ref(),
+                        &rq,
+                        &format.zero,
+                        acc,
+                        x_rows,
+                    );
                 }
                 i += run;
             }
@@ -854,8 +868,22 @@ where
     B: crate::kernels::I32s + ?Sized,
     M: crate::kernels::I32s + ?Sized,
 {
+    prepare_with(rq, &Uniform(0), scratch)
+}
+
+/// [`prepare`] with the output zero points `zero`.
+fn prepare_with<'s, B, M, Z>(
+    rq: &ChannelRequant<'_, B, M>,
+    zero: &Z,
+    scratch: &'s mut [i32],
+) -> Option<PreparedRequant<'s>>
+where
+    B: crate::kernels::I32s + ?Sized,
+    M: crate::kernels::I32s + ?Sized,
+    Z: crate::kernels::I32s + ?Sized,
+{
     if cfg!(any(bino_dsp, bino_mve)) {
-        PreparedRequant::new(rq, &Uniform(0), scratch)
+        PreparedRequant::new(rq, zero, scratch)
     } else {
         None
     }
