@@ -209,8 +209,15 @@ impl RopeLanes {
 /// one floor.
 #[inline(always)]
 fn rotate_half_lanes(v: &[i32], angles: &Angles, out: &mut [i8]) {
+    // Helium lanes on Cortex-M55 (`kernels::arch`; the same as `rotate_half_in_lanes`).
     #[cfg(bino_mve)]
-    rotate_half_in_lanes(v, angles, out);
+    match (
+        v.first_chunk::<{ 2 * QUARTER }>(),
+        out.first_chunk_mut::<{ 2 * QUARTER }>(),
+    ) {
+        (Some(v), Some(out)) => crate::kernels::arch::mve::rope_rotate_half(v, &angles.cos, &angles.sin, out),
+        _ => rotate_half_in_lanes(v, angles, out),
+    }
     #[cfg(not(bino_mve))]
     {
         let (Some(va), Some(vb)) = (

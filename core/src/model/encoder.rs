@@ -915,6 +915,9 @@ fn decode_channels(values: &crate::blob::Le<'_, i32>, start: usize) -> [i32; DIM
 /// Stores token `t`'s values channel-major (`DIM x tokens`): each head's slice is then the
 /// `HEAD_DIM x tokens` transposed layout [`attend_block`] reads.
 fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
+    if crate::kernels::arch::scatter_channels(token, store, tokens, t) {
+        return;
+    }
     for (channel, &v) in store.chunks_exact_mut(tokens).zip(token) {
         if let Some(slot) = channel.get_mut(t) {
             *slot = v;

@@ -19,10 +19,15 @@ use super::ids::{self, kind, HeadKind, Linear, HEAD_CONVS};
 use super::weights::{LayerNormScalars, LinearQ};
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::Blob;
-use crate::config::{DIM, HEAD_CANDIDATES_LIMIT, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
+use crate::config::{
+    DIM, HEAD_CANDIDATES_LIMIT, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM,
+    NATIVE_HEAD_PROJ_DIM,
+};
 use crate::fixed::{sat_i8_i64, Requant, MAX_SHIFT};
-use crate::kernels::epilogue::{requant_rows, ChannelRequant};
+use crate::kernels::arch::PreparedRequant;
+use crate::kernels::epilogue::ChannelRequant;
 use crate::kernels::exp::exp_neg_u8;
+use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::{layernorm_rows, LayerNormQ};
 use crate::kernels::matmul::{dot, matmul_i8};
 use crate::kernels::params::Uniform;
@@ -696,6 +701,9 @@ struct ProjectBuffers<'a> {
     acc: &'a mut [i32],
 }
 
+/// The widest head projection (output channels).
+const MAX_PROJ_DIM: usize = max(HEAD_PROJ_DIM, NATIVE_HEAD_PROJ_DIM);
+
 /// LayerNorm of each `dim`-code input cell, then projection `k` of the block into `outs[k]`,
 /// [`CELL_BLOCK`] cells at a time (one normalisation serves every projection).
 fn project_cells<const N: usize>(
@@ -712,18 +720,39 @@ fn project_cells<const N: usize>(
     }
     // Every projection has the same shape: its output channels from its weights' length.
     let proj_dim = first.weight.len() / dim;
+    // Each projection's requantisation prepared once per call (a row of cells) for its blocks'
+    // fused GEMMs, on cores with an assembly kernel (on the stack: 1.5 KiB a projection).
+    let mut storage = [[0i32; 4 * MAX_PROJ_DIM]; N];
+    let mut slots = storage.iter_mut();
+    let prepared: [Option<PreparedRequant<'_>>; N] = core::array::from_fn(|i| {
+        let slot = slots.next()?;
+        let proj = projections.get(i)?;
+        if cfg!(any(bino_dsp, bino_mve)) {
+            PreparedRequant::new(&proj.requant(), &Uniform(0), slot)
+        } else {
+            None
+        }
+    });
     for (block, block_cells) in cells.chunks(CELL_BLOCK * dim).enumerate() {
         let count = block_cells.len() / dim;
         let normed = &mut buffers.normed[..count * dim];
         layernorm_rows(block_cells, dim, norm, normed);
         let acc = &mut buffers.acc[..count * proj_dim];
-        for (proj, out) in projections.iter().zip(outs.iter_mut()) {
+        for ((proj, out), prepared) in projections.iter().zip(outs.iter_mut()).zip(&prepared) {
             let Some(out_cells) = out.get_mut(block * CELL_BLOCK * proj_dim..(block * CELL_BLOCK + count) * proj_dim)
             else {
                 return;
             };
-            matmul_i8(normed, proj.weight, dim, acc);
-            requant_rows(acc, &proj.requant(), &Uniform(0), out_cells);
+            matmul_requant_i8_prepared(
+                normed,
+                proj.weight,
+                dim,
+                prepared.as_ref(),
+                &proj.requant(),
+                &Uniform(0),
+                acc,
+                out_cells,
+            );
         }
     }
 }

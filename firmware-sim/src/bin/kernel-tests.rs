@@ -660,8 +660,72 @@ fn row_max(scores: &[i32]) -> i32 {
 fn row_max_case(t: &mut Tally, scores: &[i32]) {
     let found = bino_core::kernels::attention::row_max(scores);
     t.check("row_max", [1, scores.len(), 0], &[found], &[row_max(scores)]);
-    if cfg!(board = "an500") && scores.len().is_multiple_of(4) {
+    if (cfg!(board = "an500") && scores.len().is_multiple_of(4))
+        || (cfg!(board = "an547") && scores.len().is_multiple_of(16))
+    {
         t.asm_cases += 1;
+    }
+}
+
+/// The values' channel-major scatter (`arch::scatter_channels`, Cortex-M55) against its
+/// definition over the whole store: channel counts of 8 to 128 and some it declines, token
+/// counts up to the 16-bit offsets' limit and one past it, the first, a middle and the last
+/// token; every byte the scatter must not write keeps its value.
+fn scatter_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
+    let cases = [
+        (128usize, 960usize),
+        (128, 8),
+        (8, 1),
+        (8, 9362),
+        (24, 100),
+        (12, 40),
+        (8, 9363),
+    ];
+    let pattern = |pos: usize| (pos.wrapping_mul(31) ^ (pos >> 7)) as i8;
+    for (n, tokens) in cases {
+        for at in [0, tokens / 2, tokens - 1] {
+            rng.fill(&mut b.a.0[..n], 3);
+            let token = &b.a.0[..n];
+            let store = &mut b.w.0[..n * tokens];
+            for (pos, v) in store.iter_mut().enumerate() {
+                *v = pattern(pos);
+            }
+            let took = bino_core::kernels::arch::scatter_channels(token, store, tokens, at);
+            let takes = cfg!(board = "an547") && n % 8 == 0 && 7 * tokens <= u16::MAX as usize;
+            if took != takes {
+                defmt::println!(
+                    "kernel-tests wrong-path kernel=scatter_channels n={=usize} tokens={=usize} took={=bool}",
+                    n,
+                    tokens,
+                    took
+                );
+                t.failed += 1;
+            }
+            if !took {
+                continue;
+            }
+            t.asm_cases += 1;
+            let wrong = store.iter().enumerate().position(|(pos, &v)| {
+                let want = if pos % tokens == at {
+                    token[pos / tokens]
+                } else {
+                    pattern(pos)
+                };
+                v != want
+            });
+            let (found, expected) = match wrong {
+                Some(pos) => (
+                    store[pos],
+                    if pos % tokens == at {
+                        token[pos / tokens]
+                    } else {
+                        pattern(pos)
+                    },
+                ),
+                None => (0, 0),
+            };
+            t.check("scatter_channels", [1, n, tokens], &[found], &[expected]);
+        }
     }
 }
 
@@ -1214,6 +1278,7 @@ fn main() -> ! {
     unaligned_cases(&mut t, &mut rng);
     attention_cases(&mut t, &mut rng, buffers);
     softmax_cases(&mut t, &mut rng, buffers);
+    scatter_cases(&mut t, &mut rng, buffers);
     softmax_block_cases(&mut t, &mut rng, buffers);
     scores_cases(&mut t, &mut rng, buffers);
     layernorm_cases(&mut t, &mut rng, buffers);

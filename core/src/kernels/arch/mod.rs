@@ -194,15 +194,32 @@ pub(crate) fn residual_rows8(x: &mut [i8], acc: &[i32], params: &[i32], len: usi
 }
 
 /// The largest score of a row on this core's assembly kernel (Cortex-M7, rows of a multiple of 4
-/// scores); `None` (nothing read) where there is none.
+/// scores; Cortex-M55, a multiple of 16); `None` (nothing read) where there is none.
 #[inline]
 pub fn row_max(scores: &[i32]) -> Option<i32> {
     #[cfg(bino_dsp)]
     return dsp::row_max(scores);
-    #[cfg(not(bino_dsp))]
+    #[cfg(bino_mve)]
+    return mve::row_max(scores);
+    #[cfg(not(any(bino_dsp, bino_mve)))]
     {
         let _ = scores;
         None
+    }
+}
+
+/// `store[c * tokens + t] = token[c]` for every channel `c` (a token's values written
+/// channel-major) on this core's assembly kernel (Cortex-M55: multiples of eight channels,
+/// `7 * tokens` below 2^16); `false` (nothing written) where there is none or the shape is not
+/// taken.
+#[inline]
+pub fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) -> bool {
+    #[cfg(bino_mve)]
+    return mve::scatter_channels(token, store, tokens, t);
+    #[cfg(not(bino_mve))]
+    {
+        let _ = (token, store, tokens, t);
+        false
     }
 }
 

@@ -171,7 +171,7 @@ fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1
         return false;
     }
     let second = out1.as_mut().map_or(out0.as_mut_ptr(), |o| o.as_mut_ptr());
-    if k.is_multiple_of(32) {
+    if k >= 32 {
         rows_i32_steps32(a0, a1, w, k, out0, second);
         return true;
     }
@@ -243,114 +243,173 @@ fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1
     true
 }
 
-/// [`rows_i32`] for `k` a multiple of 32 (every dot product of the encoder's GEMMs and
-/// attention): per triple the first 32 codes start the accumulators (`vmladav`, no zeroing),
-/// then a plain low-overhead loop (`wls` / `le`) of two 16-code steps per iteration: one loop
-/// end per 192 MACs instead of per 96. `out0` holds `n` words (a multiple of three) and
-/// `second` points at `n` words of `out1` or at `out0` itself (the caller checked every length).
+/// One 16-code step of the 2 x 3 tile (rows from r1 and r3, weight rows from r5, r9 and r11,
+/// accumulators r0, r2, r4, r8, r10, r12) as assembly text: `vmladav` starting the
+/// accumulators ([`tile_step_first`]) or `vmladava` adding to them.
+#[cfg(bino_mve)]
+macro_rules! tile_step_first {
+    () => {
+        concat!(
+            "vldrb.u8 q0, [r1], #16\n",
+            "vldrb.u8 q1, [r3], #16\n",
+            "vldrb.u8 q2, [r5], #16\n",
+            "vmladav.s8 r0, q0, q2\n",
+            "vmladav.s8 r2, q1, q2\n",
+            "vldrb.u8 q3, [r9], #16\n",
+            "vmladav.s8 r4, q0, q3\n",
+            "vmladav.s8 r8, q1, q3\n",
+            "vldrb.u8 q2, [r11], #16\n",
+            "vmladav.s8 r10, q0, q2\n",
+            "vmladav.s8 r12, q1, q2\n",
+        )
+    };
+}
+
+/// [`tile_step_first`] adding to the accumulators.
+#[cfg(bino_mve)]
+macro_rules! tile_step {
+    () => {
+        concat!(
+            "vldrb.u8 q0, [r1], #16\n",
+            "vldrb.u8 q1, [r3], #16\n",
+            "vldrb.u8 q2, [r5], #16\n",
+            "vmladava.s8 r0, q0, q2\n",
+            "vmladava.s8 r2, q1, q2\n",
+            "vldrb.u8 q3, [r9], #16\n",
+            "vmladava.s8 r4, q0, q3\n",
+            "vmladava.s8 r8, q1, q3\n",
+            "vldrb.u8 q2, [r11], #16\n",
+            "vmladava.s8 r10, q0, q2\n",
+            "vmladava.s8 r12, q1, q2\n",
+        )
+    };
+}
+
+/// The entry of [`rows_i32_steps32`] as assembly text: r6 and r7 saved, then the frame at
+/// `sp` (`a0`, `a1` from r1 and r3, the output pointers from r2 and r4, the triples from r5,
+/// the two-step iterations after the first 32 codes), `k` into r6 and the first weight row
+/// (r11) into r7.
+#[cfg(bino_mve)]
+macro_rules! triples_prologue {
+    () => {
+        concat!(
+            "push {{r6, r7}}\n",
+            "sub sp, #32\n",
+            "strd r1, r3, [sp, #0]\n",
+            "strd r2, r4, [sp, #8]\n",
+            "str r5, [sp, #16]\n",
+            "mov r6, lr\n",
+            "lsrs lr, lr, #5\n",
+            "subs lr, #1\n",
+            "str lr, [sp, #20]\n",
+            "mov r7, r11\n",
+        )
+    };
+}
+
+/// The column-triple loop of [`rows_i32_steps32`] as assembly text, with `$tail` (text run
+/// after the two-step loop, before the stores) in the middle: the frame at `sp` holds `a0`,
+/// `a1`, the two output pointers, the triples left, the two-step iterations after the first 32
+/// codes and (for [`rows_i32_steps32`]'s tail) the codes past them; r6 holds `k`, r7 the next
+/// triple's first weight row.
+#[cfg(bino_mve)]
+macro_rules! triples_loop {
+    ($tail:expr) => {
+        concat!(
+            "3:\n",
+            "mov r5, r7\n",
+            "add r9, r5, r6\n",
+            "add r11, r9, r6\n",
+            "add r7, r11, r6\n",
+            "ldrd r1, r3, [sp, #0]\n",
+            tile_step_first!(),
+            tile_step!(),
+            "ldr lr, [sp, #20]\n",
+            "wls lr, lr, 5f\n",
+            "4:\n",
+            tile_step!(),
+            tile_step!(),
+            "le lr, 4b\n",
+            "5:\n",
+            $tail,
+            "ldrd r1, r3, [sp, #8]\n",
+            "stm r1!, {{r0, r4, r10}}\n",
+            "stm r3!, {{r2, r8, r12}}\n",
+            "strd r1, r3, [sp, #8]\n",
+            "ldr r1, [sp, #16]\n",
+            "subs r1, #1\n",
+            "str r1, [sp, #16]\n",
+            "bne 3b\n",
+        )
+    };
+}
+
+/// [`rows_i32`] for `k >= 32` (every dot product of the encoder's GEMMs and attention, the
+/// head's 3D convolutions): per triple the first 32 codes start the accumulators (`vmladav`,
+/// no zeroing), then a plain low-overhead loop (`wls` / `le`) of two 16-code steps per
+/// iteration (one loop end per 192 MACs instead of per 96) and, where `k` is not a multiple of
+/// 32, one tail-predicated loop (`dlstp` / `letp`) over the last `k % 32` codes. `out0` holds
+/// `n` words (a multiple of three) and `second` points at `n` words of `out1` or at `out0`
+/// itself (the caller checked every length).
 #[cfg(bino_mve)]
 #[inline(always)]
 fn rows_i32_steps32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], second: *mut i32) {
     let n = out0.len();
-    // SAFETY: the caller checked `a0.len() == a1.len() == k`, `k` a multiple of 32 in
-    // `32..=MAX_K`, `w.len() == n * k`, `n` a positive multiple of three and `second` pointing at
-    // `n` writable words (`out1`'s, or `out0`'s: then `a1` equals `a0` and the same values are
+    // SAFETY: the caller checked `a0.len() == a1.len() == k` with `32 <= k <= MAX_K`,
+    // `w.len() == n * k`, `n` a positive multiple of three and `second` pointing at `n`
+    // writable words (`out1`'s, or `out0`'s: then `a1` equals `a0` and the same values are
     // written twice). Per triple `t` the kernel reads exactly `k` bytes of `a0`, `a1` and of
-    // weight rows `3t..3t + 3` (32 in the first two steps, then `k / 32 - 1` iterations of 32;
-    // the pointers advance by exactly `k`, so the next triple starts where this one ended) and
-    // writes words `3t..3t + 3` through `out0` and `second`. `vldrb.u8` needs no alignment and
-    // `stm` gets word-aligned `i32` slices. `r6` and `r7` (which Rust reserves) are saved and
-    // restored; its loop state lives in 24 bytes below them. It writes only its declared
-    // outputs: r0-r5, r8-r12, `lr` and q0-q3.
+    // weight rows `3t..3t + 3` (32 in the first two steps, 32 per iteration of `k / 32 - 1`,
+    // then the `k % 32` left through a tail-predicated step whose inactive lanes are not
+    // accessed) and writes words `3t..3t + 3` through `out0` and `second`. The weight pointers
+    // for the next triple are computed from `k` (r6), never from where the loads stopped.
+    // `vldrb.u8` needs no alignment and `stm` gets word-aligned `i32` slices. `r6` and `r7`
+    // (which Rust reserves) are saved and restored; the loop state lives in 32 bytes below
+    // them. It writes only its declared outputs: r0-r5, r8-r12, `lr` and q0-q3.
     unsafe {
-        core::arch::asm!(
-            "push {{r6, r7}}",
-            "sub sp, #24",
-            "strd r1, r3, [sp, #0]",
-            "strd r2, r4, [sp, #8]",
-            "str r5, [sp, #16]",
-            "mov r6, lr",
-            "lsrs lr, lr, #5",
-            "subs lr, #1",
-            "str lr, [sp, #20]",
-            "mov r7, r11",
-            // One column triple: its three weight rows, `k` apart.
-            "3:",
-            "mov r5, r7",
-            "add r9, r5, r6",
-            "add r11, r9, r6",
-            "add r7, r11, r6",
-            "ldrd r1, r3, [sp, #0]",
-            "vldrb.u8 q0, [r1], #16",
-            "vldrb.u8 q1, [r3], #16",
-            "vldrb.u8 q2, [r5], #16",
-            "vmladav.s8 r0, q0, q2",
-            "vmladav.s8 r2, q1, q2",
-            "vldrb.u8 q3, [r9], #16",
-            "vmladav.s8 r4, q0, q3",
-            "vmladav.s8 r8, q1, q3",
-            "vldrb.u8 q2, [r11], #16",
-            "vmladav.s8 r10, q0, q2",
-            "vmladav.s8 r12, q1, q2",
-            "vldrb.u8 q0, [r1], #16",
-            "vldrb.u8 q1, [r3], #16",
-            "vldrb.u8 q2, [r5], #16",
-            "vmladava.s8 r0, q0, q2",
-            "vmladava.s8 r2, q1, q2",
-            "vldrb.u8 q3, [r9], #16",
-            "vmladava.s8 r4, q0, q3",
-            "vmladava.s8 r8, q1, q3",
-            "vldrb.u8 q2, [r11], #16",
-            "vmladava.s8 r10, q0, q2",
-            "vmladava.s8 r12, q1, q2",
-            "ldr lr, [sp, #20]",
-            "wls lr, lr, 5f",
-            "4:",
-            "vldrb.u8 q0, [r1], #16",
-            "vldrb.u8 q1, [r3], #16",
-            "vldrb.u8 q2, [r5], #16",
-            "vmladava.s8 r0, q0, q2",
-            "vmladava.s8 r2, q1, q2",
-            "vldrb.u8 q3, [r9], #16",
-            "vmladava.s8 r4, q0, q3",
-            "vmladava.s8 r8, q1, q3",
-            "vldrb.u8 q2, [r11], #16",
-            "vmladava.s8 r10, q0, q2",
-            "vmladava.s8 r12, q1, q2",
-            "vldrb.u8 q0, [r1], #16",
-            "vldrb.u8 q1, [r3], #16",
-            "vldrb.u8 q2, [r5], #16",
-            "vmladava.s8 r0, q0, q2",
-            "vmladava.s8 r2, q1, q2",
-            "vldrb.u8 q3, [r9], #16",
-            "vmladava.s8 r4, q0, q3",
-            "vmladava.s8 r8, q1, q3",
-            "vldrb.u8 q2, [r11], #16",
-            "vmladava.s8 r10, q0, q2",
-            "vmladava.s8 r12, q1, q2",
-            "le lr, 4b",
-            "5:",
-            "ldrd r1, r3, [sp, #8]",
-            "stm r1!, {{r0, r4, r10}}",
-            "stm r3!, {{r2, r8, r12}}",
-            "strd r1, r3, [sp, #8]",
-            "ldr r1, [sp, #16]",
-            "subs r1, #1",
-            "str r1, [sp, #16]",
-            "bne 3b",
-            "add sp, #24",
-            "pop {{r6, r7}}",
-            inout("r1") a0.as_ptr() => _,
-            inout("r3") a1.as_ptr() => _,
-            inout("r11") w.as_ptr() => _,
-            inout("lr") k => _,
-            inout("r2") out0.as_mut_ptr() => _,
-            inout("r4") second => _,
-            inout("r5") n / 3 => _,
-            out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
-            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-        );
+        if k.is_multiple_of(32) {
+            core::arch::asm!(
+                triples_prologue!(),
+                triples_loop!(""),
+                "add sp, #32",
+                "pop {{r6, r7}}",
+                inout("r1") a0.as_ptr() => _,
+                inout("r3") a1.as_ptr() => _,
+                inout("r11") w.as_ptr() => _,
+                inout("lr") k => _,
+                inout("r2") out0.as_mut_ptr() => _,
+                inout("r4") second => _,
+                inout("r5") n / 3 => _,
+                out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            );
+        } else {
+            core::arch::asm!(
+                triples_prologue!(),
+                "and r8, r6, #31",
+                "str r8, [sp, #24]",
+                triples_loop!(concat!(
+                    "ldr lr, [sp, #24]\n",
+                    "dlstp.8 lr, lr\n",
+                    "6:\n",
+                    tile_step!(),
+                    "letp lr, 6b\n",
+                )),
+                "add sp, #32",
+                "pop {{r6, r7}}",
+                inout("r1") a0.as_ptr() => _,
+                inout("r3") a1.as_ptr() => _,
+                inout("r11") w.as_ptr() => _,
+                inout("lr") k => _,
+                inout("r2") out0.as_mut_ptr() => _,
+                inout("r4") second => _,
+                inout("r5") n / 3 => _,
+                out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
+                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            );
+        }
     }
 }
 
@@ -816,6 +875,166 @@ pub(crate) fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u
     }
     // Each lane held `w - 128`: the weights' sum is the lanes' sum plus 128 per element.
     centred.wrapping_add((n as u32).wrapping_mul(128))
+}
+
+/// One half of a head rotated, bit for bit `rope::rotate_half_in_lanes`: pairs
+/// `(a_i, b_i) = (v[i], v[8 + i])` with angles `(cos[i], sin[i])`, four pairs a step in 32-bit
+/// lanes, the operands split at bit 12 (`a = 2^12 a_h + a_l`) so that no product passes 32 bits:
+/// `((a_h c - b_h s) + ((a_l c - b_l s + 2^21) >> 12)) >> 10` into `out[i]` and
+/// `((b_h c + a_h s) + ((b_l c + a_l s + 2^21) >> 12)) >> 10` into `out[8 + i]`, each saturated
+/// to int8 (37 instructions per four pairs).
+#[cfg(bino_mve)]
+pub(crate) fn rope_rotate_half(v: &[i32; 16], cos: &[i16; 8], sin: &[i16; 8], out: &mut [i8; 16]) {
+    // SAFETY: two iterations (`dls`/`le`), each reading four words of each half of `v` (from
+    // `v` and `v + 8`), four halfwords of `cos` and of `sin`, and writing four bytes of each half
+    // of `out` (from `out` and `out + 8`): exactly the arrays' sizes. `vldrw` gets word-aligned
+    // `i32`s and `vldrh` halfword-aligned `i16`s; the widening loads and narrowing stores use low
+    // registers (r0-r5). It writes only its declared outputs: the pointers, `lr` and q0-q7.
+    unsafe {
+        core::arch::asm!(
+            "dls lr, lr",
+            "2:",
+            "vldrw.u32 q0, [r0], #16",
+            "vldrw.u32 q1, [r1], #16",
+            "vldrh.s32 q2, [r2], #8",
+            "vldrh.s32 q3, [r3], #8",
+            // a_h, b_h, then a_l = a - 2^12 a_h and b_l likewise.
+            "vshr.s32 q4, q0, #12",
+            "vshr.s32 q5, q1, #12",
+            "vshl.i32 q6, q4, #12",
+            "vsub.i32 q0, q0, q6",
+            "vshl.i32 q6, q5, #12",
+            "vsub.i32 q1, q1, q6",
+            // The first output of each pair in q6.
+            "vmul.i32 q6, q0, q2",
+            "vmul.i32 q7, q1, q3",
+            "vsub.i32 q6, q6, q7",
+            "vadd.i32 q6, q6, {half}",
+            "vshr.s32 q6, q6, #12",
+            "vmul.i32 q7, q4, q2",
+            "vadd.i32 q6, q6, q7",
+            "vmul.i32 q7, q5, q3",
+            "vsub.i32 q6, q6, q7",
+            "vshr.s32 q6, q6, #10",
+            // The second in q7 (a_l's register reused once it is read).
+            "vmul.i32 q7, q1, q2",
+            "vmul.i32 q0, q0, q3",
+            "vadd.i32 q7, q7, q0",
+            "vadd.i32 q7, q7, {half}",
+            "vshr.s32 q7, q7, #12",
+            "vmul.i32 q0, q5, q2",
+            "vadd.i32 q7, q7, q0",
+            "vmul.i32 q0, q4, q3",
+            "vadd.i32 q7, q7, q0",
+            "vshr.s32 q7, q7, #10",
+            "vqmovnb.s32 q6, q6",
+            "vqmovnb.s32 q7, q7",
+            "vqmovnb.s16 q6, q6",
+            "vqmovnb.s16 q7, q7",
+            "vstrb.32 q6, [r4], #4",
+            "vstrb.32 q7, [r5], #4",
+            "le lr, 2b",
+            half = in(reg) 1i32 << 21,
+            inout("r0") v.as_ptr() => _,
+            inout("r1") v[8..].as_ptr() => _,
+            inout("r2") cos.as_ptr() => _,
+            inout("r3") sin.as_ptr() => _,
+            inout("r4") out.as_mut_ptr() => _,
+            inout("r5") out[8..].as_mut_ptr() => _,
+            inout("lr") 2usize => _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _, out("d6") _,
+            out("d7") _, out("d8") _, out("d9") _, out("d10") _, out("d11") _, out("d12") _, out("d13") _,
+            out("d14") _, out("d15") _,
+            options(nostack),
+        );
+    }
+}
+
+/// The largest of `scores` for a multiple of 16 of them: sixteen a step, four vector loads
+/// and four running `vmax.s32`, then one `vmaxv` per accumulator (9 instructions per 16
+/// scores, where the compiler's loop takes 12). `None` (nothing read) for other lengths.
+#[cfg(bino_mve)]
+pub(crate) fn row_max(scores: &[i32]) -> Option<i32> {
+    let n = scores.len();
+    if n == 0 || !n.is_multiple_of(16) {
+        return None;
+    }
+    let mut max = i32::MIN;
+    // SAFETY: the loop runs `n / 16 >= 1` times (`dls`/`le`), each time reading 64 bytes
+    // (sixteen words) of `scores`, `n` words in all (checked above); `vldrw` gets word-aligned
+    // `i32` data. It writes only its declared outputs: the pointer, the maximum, `lr` and
+    // q0-q7.
+    unsafe {
+        core::arch::asm!(
+            "vdup.32 q4, {max}",
+            "vmov q5, q4",
+            "vmov q6, q4",
+            "vmov q7, q4",
+            "dls lr, lr",
+            "2:",
+            "vldrw.u32 q0, [{p}], #16",
+            "vldrw.u32 q1, [{p}], #16",
+            "vmax.s32 q4, q4, q0",
+            "vldrw.u32 q2, [{p}], #16",
+            "vmax.s32 q5, q5, q1",
+            "vldrw.u32 q3, [{p}], #16",
+            "vmax.s32 q6, q6, q2",
+            "vmax.s32 q7, q7, q3",
+            "le lr, 2b",
+            "vmaxv.s32 {max}, q4",
+            "vmaxv.s32 {max}, q5",
+            "vmaxv.s32 {max}, q6",
+            "vmaxv.s32 {max}, q7",
+            max = inout(reg) max,
+            p = inout(reg) scores.as_ptr() => _,
+            inout("lr") n / 16 => _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _, out("d4") _, out("d5") _, out("d6") _,
+            out("d7") _, out("d8") _, out("d9") _, out("d10") _, out("d11") _, out("d12") _, out("d13") _,
+            out("d14") _, out("d15") _,
+            options(nostack, readonly, pure),
+        );
+    }
+    Some(max)
+}
+
+/// `store[c * tokens + t] = token[c]` for every channel `c` (the attention values stored
+/// channel-major, `[channel][token]`): eight channels a step, one widening `vldrb.s16` and one
+/// scatter `vstrb.16` through the offsets `0, tokens, .., 7 tokens` (four instructions per
+/// eight channels, where the byte loop takes about 50). `false` (nothing written) unless
+/// `token` holds a positive multiple of eight channels, `t < tokens`, `7 * tokens` fits the
+/// scatter's 16-bit offsets and `store` holds `token.len() * tokens` bytes.
+#[cfg(bino_mve)]
+pub(crate) fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) -> bool {
+    let n = token.len();
+    let fits = n.checked_mul(tokens).is_some_and(|len| len <= store.len());
+    if n == 0 || !n.is_multiple_of(8) || t >= tokens || 7 * tokens > u16::MAX as usize || !fits {
+        return false;
+    }
+    let offsets: [u16; 8] = core::array::from_fn(|i| (i * tokens) as u16);
+    // SAFETY: the loop runs `n / 8 >= 1` times (`dls`/`le`), each time reading eight bytes of
+    // `token` (`n` in all) and writing eight bytes at `store + t + 8 s tokens + i tokens` for
+    // step `s` and lane `i < 8`: channel `c = 8 s + i < n` at `c * tokens + t < n * tokens <=
+    // store.len()` (checked above), each offset below 2^16. Bytes need no alignment; `offsets`
+    // is a `u16` array. It writes only its declared outputs: the pointers, `lr`, q0 and q1.
+    unsafe {
+        core::arch::asm!(
+            "vldrh.u16 q1, [{off}]",
+            "dls lr, lr",
+            "2:",
+            "vldrb.s16 q0, [{src}], #8",
+            "vstrb.16 q0, [{dst}, q1]",
+            "add {dst}, {step}",
+            "le lr, 2b",
+            off = in(reg) offsets.as_ptr(),
+            src = inout(reg) token.as_ptr() => _,
+            dst = inout(reg) store.as_mut_ptr().wrapping_add(t) => _,
+            step = in(reg) 8 * tokens,
+            inout("lr") n / 8 => _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            options(nostack),
+        );
+    }
+    true
 }
 
 /// LayerNorm values of one row, four channels a step: `vldrb.s32`, `vsub`, `vmul`, the 64-bit
