@@ -544,6 +544,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="with --resume: run what remains of every schedule over the next N pairs (a fork "
         "that anneals a long run early; copy the run folder first)",
     )
+    p.add_argument(
+        "--fork-mask-ratio",
+        type=float,
+        nargs=2,
+        metavar=("START", "END"),
+        help="with --resume: replace the mask ratio's schedule (linear from START at step 0 to "
+        "END at the schedule's end, so it jumps where the run stands; a fork: copy the run "
+        "folder first)",
+    )
     p.add_argument("--config", choices=("small", "paper"), default="paper")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--batch", type=int)
@@ -627,6 +636,10 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         p.error("--resume and --init-from exclude each other")
     if args.anneal_pairs is not None and (not args.resume or args.anneal_pairs <= 0):
         p.error("--anneal-pairs needs --resume and a positive pair count")
+    if args.fork_mask_ratio is not None and (
+        not args.resume or not all(0.0 <= r < 1.0 for r in args.fork_mask_ratio)
+    ):
+        p.error("--fork-mask-ratio needs --resume and ratios in [0, 1)")
     if args.smoke:
         args.config, args.pairs, args.no_eval, args.log_every = "small", 80, True, 5
         args.schedule_pairs = args.schedule_pairs or 400
@@ -654,6 +667,10 @@ def main(argv: list[str] | None = None) -> None:
         print(f"resumed {ckpt} at step {trainer.step} ({trainer.pairs_seen} pairs)")
         if args.anneal_pairs is not None:
             record = start_anneal(trainer, args.anneal_pairs)
+            with (args.out / "log.jsonl").open("a") as f:
+                f.write(json.dumps(record) + "\n")
+        if args.fork_mask_ratio is not None:
+            record = fork_mask_ratio(trainer, args.fork_mask_ratio[0], args.fork_mask_ratio[1])
             with (args.out / "log.jsonl").open("a") as f:
                 f.write(json.dumps(record) + "\n")
     else:
@@ -704,6 +721,24 @@ def start_anneal(trainer: Trainer, pairs: int) -> dict[str, Any]:
     rest = cfg.schedule_pairs - trainer.pairs_seen
     print(f"annealing: the schedules' remaining {rest} pairs run over {pairs} (to {end} pairs)")
     return {"kind": "anneal", "step": trainer.step, "pairs": trainer.pairs_seen, "until": end}
+
+
+def fork_mask_ratio(trainer: Trainer, start: float, end: float) -> dict[str, Any]:
+    """Replace the mask ratio's schedule of a resumed run (a fork asking whether the share of
+    masked cells, not the learning rate, drives a long run's probe); returns the log record."""
+    cfg = trainer.cfg
+    before = mask_ratio(trainer.schedule_step, cfg.total_steps, cfg.mask)
+    trainer.cfg = replace(cfg, mask=replace(cfg.mask, ratio_start=start, ratio_end=end))
+    after = mask_ratio(trainer.schedule_step, cfg.total_steps, trainer.cfg.mask)
+    print(f"fork: mask ratio {before:.3f} -> {after:.3f} (schedule {start} -> {end})")
+    return {
+        "kind": "fork_mask_ratio",
+        "step": trainer.step,
+        "pairs": trainer.pairs_seen,
+        "mask_ratio": [start, end],
+        "ratio_before": before,
+        "ratio_after": after,
+    }
 
 
 def pick_device(name: str) -> torch.device:

@@ -162,3 +162,34 @@ def test_anneal_fork_ends_on_the_schedule_tail(data_dir: Path, tmp_path: Path) -
     assert lrs[-1] == pytest.approx(TrainConfig().min_lr)
     with pytest.raises(SystemExit, match="already anneals"):
         main(["--out", str(run), "--pairs", "16", "--resume", "--anneal-pairs", "4", *data])
+
+
+def test_mask_ratio_fork_replaces_the_schedule_from_where_the_run_stands(
+    data_dir: Path, tmp_path: Path
+) -> None:
+    data = ["--data", str(data_dir), "--no-eval", "--log-every", "1"]
+    run = tmp_path / "run"
+    main(["--out", str(run), "--pairs", "4", *COMMON, "--schedule-pairs", "64", *data])
+    main(["--out", str(run), "--pairs", "8", "--resume", "--fork-mask-ratio", "0.5", "0.5", *data])
+    state = torch.load(run / "last.pt", weights_only=False)
+    mask = state["train_config"]["mask"]
+    assert (mask["ratio_start"], mask["ratio_end"]) == (0.5, 0.5)
+    records = [json.loads(line) for line in (run / "log.jsonl").read_text().splitlines()]
+    fork = [r for r in records if r.get("kind") == "fork_mask_ratio"]
+    assert len(fork) == 1 and fork[0]["pairs"] == 4 and fork[0]["ratio_after"] == 0.5
+    assert fork[0]["ratio_before"] < 0.5
+    ratios = [r["mask_ratio"] for r in records if "loss" in r]
+    assert ratios[0] < 0.5 and ratios[-1] == pytest.approx(0.5)
+    with pytest.raises(SystemExit):
+        main(
+            [
+                "--out",
+                str(tmp_path / "fresh"),
+                "--pairs",
+                "4",
+                "--fork-mask-ratio",
+                "0.5",
+                "0.5",
+                *data,
+            ]
+        )

@@ -1007,7 +1007,8 @@ pub(crate) fn row_max(scores: &[i32]) -> Option<i32> {
 pub(crate) fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) -> bool {
     let n = token.len();
     let fits = n.checked_mul(tokens).is_some_and(|len| len <= store.len());
-    if n == 0 || !n.is_multiple_of(8) || t >= tokens || 7 * tokens > u16::MAX as usize || !fits {
+    let offsets_fit = tokens.checked_mul(7).is_some_and(|last| last <= u16::MAX as usize);
+    if n == 0 || !n.is_multiple_of(8) || t >= tokens || !offsets_fit || !fits {
         return false;
     }
     let offsets: [u16; 8] = core::array::from_fn(|i| (i * tokens) as u16);
