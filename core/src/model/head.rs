@@ -989,29 +989,35 @@ impl ConvEpilogue {
 // The fixed-width gathers copy words.
 const _: () = assert!(HEAD_GROUPS.is_multiple_of(4) && HEAD_HIDDEN.is_multiple_of(4));
 
-/// [`gather`] for `CIN` input channels (a multiple of 4).
+/// [`gather`] for `CIN` input channels (a multiple of 4): the nine (row, column) blocks of the
+/// patch column's neighbourhood (`nd` candidates of `CIN` codes each, or `None` outside the
+/// band) looked up once per column, then per candidate and tap a copy word by word (a copy of 4
+/// bytes is always inlined: one load, one store; a whole-array copy became a `memcpy` call).
 fn gather_fixed<const CIN: usize>(
     rows: &[Option<&[i8]>; 3],
     (p, cols, nd): (usize, usize, usize),
     zero: i8,
     out: &mut [i8],
 ) {
+    let block = nd * CIN;
+    let blocks: [[Option<&[i8]>; 3]; 3] = core::array::from_fn(|r| {
+        core::array::from_fn(|k| {
+            let pp = (p + k).checked_sub(1).filter(|&pp| pp < cols)?;
+            rows[r]?.get(pp * block..(pp + 1) * block)
+        })
+    });
     for (d, taps) in out.chunks_exact_mut(TAPS * CIN).enumerate() {
         let mut chunks = taps.chunks_exact_mut(CIN);
-        for row in rows {
+        for row_blocks in &blocks {
             for dd in [d.wrapping_sub(1), d, d + 1] {
-                for pp in [p.wrapping_sub(1), p, p + 1] {
+                // Candidate `dd` of a block: `None` past its ends (`d - 1` wraps to a huge
+                // offset, `d + 1 = nd` starts at the block's end).
+                let at = dd.wrapping_mul(CIN);
+                for b in row_blocks {
                     let Some(dst) = chunks.next().and_then(|c| c.first_chunk_mut::<CIN>()) else {
                         return;
                     };
-                    let src = match row {
-                        Some(r) if dd < nd && pp < cols => {
-                            r.get((pp * nd + dd) * CIN..).and_then(|s| s.first_chunk::<CIN>())
-                        }
-                        _ => None,
-                    };
-                    // Word by word: a copy of 4 bytes is always inlined (one load, one store).
-                    match src {
+                    match b.and_then(|b| b.get(at..)).and_then(|s| s.first_chunk::<CIN>()) {
                         Some(s) => {
                             for (d, s) in dst.chunks_exact_mut(4).zip(s.chunks_exact(4)) {
                                 d.copy_from_slice(s);
