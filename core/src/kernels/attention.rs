@@ -106,6 +106,64 @@ pub fn attend_block(
     weights: &mut [u8],
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
+    attend_block_in(KeyLayout::Rows, queries, keys, values_t, sums, p, scores, weights, out);
+}
+
+/// How a head's keys are stored for [`attend_block_in`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KeyLayout {
+    /// Token by token, `HEAD_DIM` codes each (every core).
+    Rows,
+    /// Blocks of eight tokens transposed into groups of four codes, flipped to unsigned
+    /// ([`store_key`]; x86 hosts with AVX-512 VNNI, where [`key_layout`] picks it).
+    Transposed,
+}
+
+/// The key layout of a band of `tokens` on this machine: [`KeyLayout::Transposed`] where the
+/// x86 VNNI scores run and the tokens fill blocks of eight, else [`KeyLayout::Rows`].
+pub fn key_layout(tokens: usize) -> KeyLayout {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    if super::x86_vnni::keys_transposed(tokens) {
+        return KeyLayout::Transposed;
+    }
+    let _ = tokens;
+    KeyLayout::Rows
+}
+
+/// Token `t`'s key (`HEAD_DIM` codes) into a head's store of `layout`.
+pub fn store_key(layout: KeyLayout, key: &[i8], store: &mut [i8], t: usize) {
+    match layout {
+        KeyLayout::Rows => {
+            if let (Some(dst), Some(key)) = (store.get_mut(t * HEAD_DIM..(t + 1) * HEAD_DIM), key.get(..HEAD_DIM)) {
+                dst.copy_from_slice(key);
+            }
+        }
+        KeyLayout::Transposed => {
+            let base = t / 8 * 8 * HEAD_DIM + t % 8 * 4;
+            for (g, group) in key.chunks_exact(4).take(HEAD_DIM / 4).enumerate() {
+                if let Some(dst) = store.get_mut(base + 32 * g..base + 32 * g + 4) {
+                    for (d, &c) in dst.iter_mut().zip(group) {
+                        *d = c ^ i8::MIN;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// [`attend_block`] on keys stored in `layout`.
+#[allow(clippy::too_many_arguments)]
+pub fn attend_block_in(
+    layout: KeyLayout,
+    queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
+    keys: &[i8],
+    values_t: &[i8],
+    sums: &[i32; HEAD_DIM],
+    p: &AttentionQ,
+    scores: &mut [i32],
+    weights: &mut [u8],
+    out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
+) {
     let n = (keys.len() / HEAD_DIM)
         .min(values_t.len() / HEAD_DIM)
         .min(scores.len() / QUERY_BLOCK)
@@ -118,7 +176,10 @@ pub fn attend_block(
     let (Some(scores), Some(weights)) = (scores.get_mut(..QUERY_BLOCK * n), weights.get_mut(..QUERY_BLOCK * n)) else {
         return;
     };
-    scores_block(queries, keys, n, scores);
+    match layout {
+        KeyLayout::Rows => scores_block(queries, keys, n, scores),
+        KeyLayout::Transposed => scores_block_transposed(queries, keys, n, scores),
+    }
     let fast = ExpQ32::new(p.to_log2_q8);
     let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
     // Cortex-M7: the softmax written straight into the GEMM tile's widened rows.
@@ -216,6 +277,39 @@ pub fn scores_block(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usi
     let taken = arch::attention_scores(queries, keys_n, scores) || avx2_scores(queries, keys_n, n, scores);
     if !taken {
         scores_block_reference(queries, keys_n, scores);
+    }
+}
+
+/// [`scores_block`] on keys in [`KeyLayout::Transposed`] (`n` a multiple of eight): the x86
+/// VNNI kernel, else the same sums read through the layout.
+#[inline(always)]
+fn scores_block_transposed(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys_t: &[i8], n: usize, scores: &mut [i32]) {
+    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    if super::x86_vnni::scores4_transposed(queries, keys_t, n, scores) {
+        return;
+    }
+    scores_block_transposed_reference(queries, keys_t, n, scores);
+}
+
+/// [`scores_block_transposed`] in portable Rust (where the kernel declines).
+fn scores_block_transposed_reference(
+    queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
+    keys_t: &[i8],
+    n: usize,
+    scores: &mut [i32],
+) {
+    for (q, row) in queries.iter().zip(scores.chunks_exact_mut(n.max(1))) {
+        for (t, s) in row.iter_mut().enumerate().take(n) {
+            let base = t / 8 * 8 * HEAD_DIM + t % 8 * 4;
+            let mut sum = 0i32;
+            for (g, qg) in q.chunks_exact(4).enumerate() {
+                for (j, &qc) in qg.iter().enumerate() {
+                    let k = keys_t.get(base + 32 * g + j).copied().unwrap_or(i8::MIN) ^ i8::MIN;
+                    sum = sum.wrapping_add(i32::from(qc) * i32::from(k));
+                }
+            }
+            *s = sum;
+        }
     }
 }
 
@@ -680,6 +774,45 @@ mod tests {
         let (mut scores, mut weights, mut out) = ([0i32; N], [0u8; N], [0i8; HEAD_DIM]);
         attend(&[3; HEAD_DIM], &keys, &values, &p, &mut scores, &mut weights, &mut out);
         assert_eq!(out, [75; HEAD_DIM]);
+    }
+
+    #[test]
+    fn transposed_keys_score_as_the_rows() {
+        let mut rng = Rng::new(64);
+        for n in [8usize, 16, 120, 960] {
+            let mut keys = [0i8; 960 * HEAD_DIM];
+            rng.fill_i8(&mut keys[..n * HEAD_DIM]);
+            let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+            queries.iter_mut().for_each(|q| rng.fill_i8(q));
+            if n == 960 {
+                keys.fill(-128);
+                queries[0] = [-128; HEAD_DIM];
+            }
+            let mut keys_t = [0i8; 960 * HEAD_DIM];
+            for (t, key) in keys[..n * HEAD_DIM].chunks_exact(HEAD_DIM).enumerate() {
+                store_key(KeyLayout::Transposed, key, &mut keys_t[..n * HEAD_DIM], t);
+            }
+            let mut want = [0i32; QUERY_BLOCK * 960];
+            scores_block_reference(&queries, &keys[..n * HEAD_DIM], &mut want[..QUERY_BLOCK * n]);
+            for fast in [false, true] {
+                let mut got = [i32::MIN; QUERY_BLOCK * 960];
+                if fast {
+                    scores_block_transposed(&queries, &keys_t[..n * HEAD_DIM], n, &mut got[..QUERY_BLOCK * n]);
+                } else {
+                    scores_block_transposed_reference(
+                        &queries,
+                        &keys_t[..n * HEAD_DIM],
+                        n,
+                        &mut got[..QUERY_BLOCK * n],
+                    );
+                }
+                assert_eq!(got[..QUERY_BLOCK * n], want[..QUERY_BLOCK * n], "n={n} fast={fast}");
+            }
+            // The rows layout stores the key as it is.
+            let mut rows = [0i8; 2 * HEAD_DIM];
+            store_key(KeyLayout::Rows, &keys[..HEAD_DIM], &mut rows, 1);
+            assert_eq!(rows[HEAD_DIM..], keys[..HEAD_DIM]);
+        }
     }
 
     #[test]

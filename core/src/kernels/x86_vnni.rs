@@ -109,6 +109,30 @@ pub fn scores4(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [i
     true
 }
 
+/// Whether a band of `tokens` keeps its attention keys transposed (`attention::KeyLayout`, for
+/// [`scores4_transposed`]): the kernels run and the tokens fill blocks of eight.
+pub fn keys_transposed(tokens: usize) -> bool {
+    tokens > 0 && tokens.is_multiple_of(8) && available()
+}
+
+/// [`scores4`] on keys stored in `attention::KeyLayout::Transposed` (`n` a multiple of eight): the
+/// eight group vectors of a block loaded as they are. `false` where the kernels do not run or
+/// the slices do not fit.
+pub fn scores4_transposed(queries: &[[i8; HEAD]; 4], keys_t: &[i8], n: usize, scores: &mut [i32]) -> bool {
+    let (Some(key_bytes), Some(score_len)) = (n.checked_mul(HEAD), n.checked_mul(4)) else {
+        return false;
+    };
+    if !n.is_multiple_of(8) || keys_t.len() < key_bytes || scores.len() < score_len || !available() {
+        return false;
+    }
+    // SAFETY: as in `matmul_i32`.
+    #[allow(unsafe_code)]
+    unsafe {
+        scores4_transposed_vnni(queries, &keys_t[..key_bytes], n, &mut scores[..score_len])
+    };
+    true
+}
+
 /// Weighted sums of attention, `acc[q][d] = weights_q . values_t_d` for four weight rows
 /// (`4 x n`) and the `HEAD_DIM` value channels (`HEAD_DIM x n`), given the channels' wrapping
 /// sums `sums` (`attention::value_sums`). `false` where the kernels do not run, `n` is not a
@@ -339,6 +363,32 @@ fn scores4_vnni(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [
     }
 }
 
+// [`scores4_vnni`] on keys already transposed and flipped (`attention::store_key`): per block of
+// eight keys eight loads instead of eight loads, eight flips and the 24-shuffle transpose.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn scores4_transposed_vnni(queries: &[[i8; HEAD]; 4], keys_t: &[i8], n: usize, scores: &mut [i32]) {
+    let flip = _mm256_set1_epi8(-128);
+    let groups: [[i32; 8]; 4] = queries.map(bytemuck::cast);
+    let corrections: [__m256i; 4] = core::array::from_fn(|q| {
+        let lanes: [i32; 8] = must_cast(_mm256_dpbusd_epi32(_mm256_setzero_si256(), flip, load(&queries[q])));
+        _mm256_set1_epi32(lanes.iter().fold(0i32, |s, &v| s.wrapping_add(v)))
+    });
+    for (b, block) in keys_t.chunks_exact(8 * HEAD).enumerate() {
+        let zero = _mm256_setzero_si256();
+        let mut vectors = block.chunks_exact(STEP).map(load);
+        let g: [__m256i; 8] = core::array::from_fn(|_| vectors.next().unwrap_or(zero));
+        for (q, q_groups) in groups.iter().enumerate() {
+            let (mut even, mut odd) = (_mm256_setzero_si256(), _mm256_setzero_si256());
+            for (gv, qg) in g.chunks_exact(2).zip(q_groups.chunks_exact(2)) {
+                even = _mm256_dpbusd_epi32(even, gv[0], _mm256_set1_epi32(qg[0]));
+                odd = _mm256_dpbusd_epi32(odd, gv[1], _mm256_set1_epi32(qg[1]));
+            }
+            let lanes: [i32; 8] = must_cast(_mm256_sub_epi32(_mm256_add_epi32(even, odd), corrections[q]));
+            store(scores, q * n + b * 8, &lanes, 8);
+        }
+    }
+}
+
 /// 8 x 8 transpose of 32-bit elements: `out[g]` lane `i` = `rows[i]` lane `g`.
 #[inline]
 #[target_feature(enable = "avx2")]
@@ -468,6 +518,30 @@ mod tests {
                 queries = [[-128; HEAD]; 4];
             }
             let mut scores = [i32::MIN; 4 * 960];
+            if n % 8 == 0 {
+                // The transposed layout gives the same scores.
+                let mut keys_t = [0i8; 960 * HEAD];
+                for (t, key) in keys[..n * HEAD].chunks_exact(HEAD).enumerate() {
+                    crate::kernels::attention::store_key(
+                        crate::kernels::attention::KeyLayout::Transposed,
+                        key,
+                        &mut keys_t[..n * HEAD],
+                        t,
+                    );
+                }
+                assert!(scores4_transposed(
+                    &queries,
+                    &keys_t[..n * HEAD],
+                    n,
+                    &mut scores[..4 * n]
+                ));
+                for (q, row) in queries.iter().zip(scores.chunks_exact(n)) {
+                    for (j, &s) in row.iter().enumerate() {
+                        assert_eq!(s, dot(q, &keys[j * HEAD..(j + 1) * HEAD]), "transposed n={n} key {j}");
+                    }
+                }
+                scores.fill(i32::MIN);
+            }
             assert!(scores4(&queries, &keys[..n * HEAD], n, &mut scores[..4 * n]));
             for (q, row) in queries.iter().zip(scores.chunks_exact(n)) {
                 for (j, &s) in row.iter().enumerate() {

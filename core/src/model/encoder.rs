@@ -20,7 +20,7 @@ use crate::blob::{Blob, Le};
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::arch::PreparedRequant;
-use crate::kernels::attention::{attend_block, value_sums, QUERY_BLOCK};
+use crate::kernels::attention::{attend_block_in, key_layout, store_key, value_sums, KeyLayout, QUERY_BLOCK};
 use crate::kernels::epilogue::{residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
 use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::layernorm_rows;
@@ -369,6 +369,7 @@ impl<'w> Encoder<'w> {
                 grid,
                 input: &input,
                 output: &middle,
+                keys: key_layout(grid.tokens()),
             };
             attention.keys_values(x, normed, acc, keys, values, scores);
             attention.queries_attend(x, normed, acc, queries, attended, keys, values, scores, softmax, hidden)?;
@@ -574,6 +575,8 @@ struct AttentionPass<'p, 'w> {
     grid: Grid,
     input: &'p ResidualFormat<'w>,
     output: &'p ResidualFormat<'w>,
+    /// How the keys are stored between the two passes.
+    keys: KeyLayout,
 }
 
 impl AttentionPass<'_, '_> {
@@ -646,7 +649,7 @@ impl AttentionPass<'_, '_> {
                 {
                     rope_token(k_acc, &key_rq, &row_angles, &col_angles, &mut rotated);
                 }
-                scatter_heads(&rotated, keys, tokens, t);
+                scatter_heads(self.keys, &rotated, keys, tokens, t);
                 scatter_channels(value, values, tokens, t);
             }
         }
@@ -729,7 +732,17 @@ impl AttentionPass<'_, '_> {
                             None => *q = [0; HEAD_DIM],
                         }
                     }
-                    attend_block(&q_block, k_head, v_head, sums, p, scores, softmax, &mut out_block);
+                    attend_block_in(
+                        self.keys,
+                        &q_block,
+                        k_head,
+                        v_head,
+                        sums,
+                        p,
+                        scores,
+                        softmax,
+                        &mut out_block,
+                    );
                     for (o, token) in out_block.iter().zip(o_tokens.chunks_exact_mut(DIM)) {
                         token[part.clone()].copy_from_slice(o);
                     }
@@ -925,14 +938,12 @@ fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
     }
 }
 
-fn scatter_heads(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
+fn scatter_heads(layout: KeyLayout, token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
     for (head, part) in store
         .chunks_exact_mut(tokens * HEAD_DIM)
         .zip(token.chunks_exact(HEAD_DIM))
         .take(HEADS)
     {
-        if let Some(dst) = head.get_mut(t * HEAD_DIM..(t + 1) * HEAD_DIM) {
-            dst.copy_from_slice(part);
-        }
+        store_key(layout, part, head, t);
     }
 }
