@@ -106,7 +106,33 @@ pub fn attend_block(
     weights: &mut [u8],
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
-    attend_block_in(KeyLayout::Rows, queries, keys, values_t, sums, p, scores, weights, out);
+    attend_block_with(scores_block, queries, keys, values_t, sums, p, scores, weights, out);
+}
+
+/// [`attend_block`] on keys stored in [`KeyLayout::Transposed`] (x86 hosts with AVX-512 VNNI).
+#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[allow(clippy::too_many_arguments)]
+pub fn attend_block_keys_transposed(
+    queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
+    keys: &[i8],
+    values_t: &[i8],
+    sums: &[i32; HEAD_DIM],
+    p: &AttentionQ,
+    scores: &mut [i32],
+    weights: &mut [u8],
+    out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
+) {
+    attend_block_with(
+        scores_block_transposed,
+        queries,
+        keys,
+        values_t,
+        sums,
+        p,
+        scores,
+        weights,
+        out,
+    );
 }
 
 /// How a head's keys are stored for [`attend_block_in`].
@@ -151,10 +177,11 @@ pub fn store_key(layout: KeyLayout, key: &[i8], store: &mut [i8], t: usize) {
     }
 }
 
-/// [`attend_block`] on keys stored in `layout`.
+/// [`attend_block`] with its scores from `block_scores` (the keys' layout decides which).
 #[allow(clippy::too_many_arguments)]
-pub fn attend_block_in(
-    layout: KeyLayout,
+#[inline(always)]
+fn attend_block_with(
+    block_scores: impl FnOnce(&[[i8; HEAD_DIM]; QUERY_BLOCK], &[i8], usize, &mut [i32]),
     queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
     keys: &[i8],
     values_t: &[i8],
@@ -176,10 +203,7 @@ pub fn attend_block_in(
     let (Some(scores), Some(weights)) = (scores.get_mut(..QUERY_BLOCK * n), weights.get_mut(..QUERY_BLOCK * n)) else {
         return;
     };
-    match layout {
-        KeyLayout::Rows => scores_block(queries, keys, n, scores),
-        KeyLayout::Transposed => scores_block_transposed(queries, keys, n, scores),
-    }
+    block_scores(queries, keys, n, scores);
     let fast = ExpQ32::new(p.to_log2_q8);
     let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
     // Cortex-M7: the softmax written straight into the GEMM tile's widened rows.
@@ -282,6 +306,7 @@ pub fn scores_block(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usi
 
 /// [`scores_block`] on keys in [`KeyLayout::Transposed`] (`n` a multiple of eight): the x86
 /// VNNI kernel, else the same sums read through the layout.
+#[cfg(any(test, all(target_arch = "x86_64", target_feature = "avx2")))]
 #[inline(always)]
 fn scores_block_transposed(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys_t: &[i8], n: usize, scores: &mut [i32]) {
     #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
@@ -292,6 +317,7 @@ fn scores_block_transposed(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys_t: &[i8
 }
 
 /// [`scores_block_transposed`] in portable Rust (where the kernel declines).
+#[cfg(any(test, all(target_arch = "x86_64", target_feature = "avx2")))]
 fn scores_block_transposed_reference(
     queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
     keys_t: &[i8],
