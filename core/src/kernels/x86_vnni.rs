@@ -104,7 +104,7 @@ pub fn scores4(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [i
     // SAFETY: as in `matmul_i32`.
     #[allow(unsafe_code)]
     unsafe {
-        scores4_vnni(queries, &keys[..key_bytes], n, &mut scores[..score_len])
+        scores4_vnni(queries, &keys[..key_bytes], n, &mut scores[..score_len], false)
     };
     true
 }
@@ -128,7 +128,7 @@ pub fn scores4_transposed(queries: &[[i8; HEAD]; 4], keys_t: &[i8], n: usize, sc
     // SAFETY: as in `matmul_i32`.
     #[allow(unsafe_code)]
     unsafe {
-        scores4_transposed_vnni(queries, &keys_t[..key_bytes], n, &mut scores[..score_len])
+        scores4_vnni(queries, &keys_t[..key_bytes], n, &mut scores[..score_len], true)
     };
     true
 }
@@ -334,57 +334,38 @@ fn tile(a4: &[i8], w4: &[i8], k: usize, rows: usize, cols: usize) -> [[__m256i; 
 // transposed, so that vector `g` holds group `g` of each of the eight keys, and each query's
 // group `g` broadcast against it. Eight scores per query come out in one vector, no horizontal
 // sums; each query then loses `128 * sum(q)`. Keys past the last full eight run as a zero-padded
-// block whose extra scores are not stored.
+// block whose extra scores are not stored. With `transposed` the keys are stored that way
+// already (`attention::store_key`, flipped too; `n` a multiple of eight): eight loads a block
+// instead of eight loads, eight flips and the 24-shuffle transpose.
 #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-fn scores4_vnni(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [i32]) {
+fn scores4_vnni(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [i32], transposed: bool) {
     let flip = _mm256_set1_epi8(-128);
+    let zero = _mm256_setzero_si256();
     let groups: [[i32; 8]; 4] = queries.map(bytemuck::cast);
     let corrections: [__m256i; 4] = core::array::from_fn(|q| {
-        let lanes: [i32; 8] = must_cast(_mm256_dpbusd_epi32(_mm256_setzero_si256(), flip, load(&queries[q])));
+        let lanes: [i32; 8] = must_cast(_mm256_dpbusd_epi32(zero, flip, load(&queries[q])));
         _mm256_set1_epi32(lanes.iter().fold(0i32, |s, &v| s.wrapping_add(v)))
     });
     for (b, block) in keys.chunks(8 * HEAD).enumerate() {
-        let rows: [__m256i; 8] =
-            core::array::from_fn(|i| _mm256_xor_si256(load(block.get(i * HEAD..(i + 1) * HEAD).unwrap_or(&[])), flip));
-        let g = transpose8(rows);
+        let g: [__m256i; 8] = if transposed {
+            let mut vectors = block.chunks_exact(STEP).map(load);
+            core::array::from_fn(|_| vectors.next().unwrap_or(zero))
+        } else {
+            transpose8(core::array::from_fn(|i| {
+                _mm256_xor_si256(load(block.get(i * HEAD..(i + 1) * HEAD).unwrap_or(&[])), flip)
+            }))
+        };
         for (q, q_groups) in groups.iter().enumerate() {
             // Even and odd groups into two accumulators: two dependency chains of four
             // `vpdpbusd` instead of one of eight (the chain's latency, not the multiplier's
             // throughput, bounded this loop).
-            let (mut even, mut odd) = (_mm256_setzero_si256(), _mm256_setzero_si256());
-            for (gv, qg) in g.chunks_exact(2).zip(q_groups.chunks_exact(2)) {
-                even = _mm256_dpbusd_epi32(even, gv[0], _mm256_set1_epi32(qg[0]));
-                odd = _mm256_dpbusd_epi32(odd, gv[1], _mm256_set1_epi32(qg[1]));
-            }
-            let acc = _mm256_add_epi32(even, odd);
-            let lanes: [i32; 8] = must_cast(_mm256_sub_epi32(acc, corrections[q]));
-            store(scores, q * n + b * 8, &lanes, block.len() / HEAD);
-        }
-    }
-}
-
-// [`scores4_vnni`] on keys already transposed and flipped (`attention::store_key`): per block of
-// eight keys eight loads instead of eight loads, eight flips and the 24-shuffle transpose.
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-fn scores4_transposed_vnni(queries: &[[i8; HEAD]; 4], keys_t: &[i8], n: usize, scores: &mut [i32]) {
-    let flip = _mm256_set1_epi8(-128);
-    let groups: [[i32; 8]; 4] = queries.map(bytemuck::cast);
-    let corrections: [__m256i; 4] = core::array::from_fn(|q| {
-        let lanes: [i32; 8] = must_cast(_mm256_dpbusd_epi32(_mm256_setzero_si256(), flip, load(&queries[q])));
-        _mm256_set1_epi32(lanes.iter().fold(0i32, |s, &v| s.wrapping_add(v)))
-    });
-    for (b, block) in keys_t.chunks_exact(8 * HEAD).enumerate() {
-        let zero = _mm256_setzero_si256();
-        let mut vectors = block.chunks_exact(STEP).map(load);
-        let g: [__m256i; 8] = core::array::from_fn(|_| vectors.next().unwrap_or(zero));
-        for (q, q_groups) in groups.iter().enumerate() {
-            let (mut even, mut odd) = (_mm256_setzero_si256(), _mm256_setzero_si256());
+            let (mut even, mut odd) = (zero, zero);
             for (gv, qg) in g.chunks_exact(2).zip(q_groups.chunks_exact(2)) {
                 even = _mm256_dpbusd_epi32(even, gv[0], _mm256_set1_epi32(qg[0]));
                 odd = _mm256_dpbusd_epi32(odd, gv[1], _mm256_set1_epi32(qg[1]));
             }
             let lanes: [i32; 8] = must_cast(_mm256_sub_epi32(_mm256_add_epi32(even, odd), corrections[q]));
-            store(scores, q * n + b * 8, &lanes, 8);
+            store(scores, q * n + b * 8, &lanes, block.len() / HEAD);
         }
     }
 }

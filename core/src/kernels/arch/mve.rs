@@ -156,93 +156,6 @@ fn last_columns(a0: &[i8], a1: &[i8], w_rest: &[i8], init: [i32; 2]) -> [[i32; 2
     }
 }
 
-/// Rows `a0`, `a1` (`k` codes each) against `out0.len()` weight rows of `w` (a multiple of
-/// three) in one Helium kernel: per column triple six zeroed accumulators, the 2 x 3 tile's
-/// loop and two `stm`s. `out1` is `None` for an unpaired last row (`a1` is then `a0`'s copy,
-/// and its results are written over `out0`'s with the same values). `false` (nothing written)
-/// for other lengths.
-#[cfg(bino_mve)]
-fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
-    let n = out0.len();
-    if k == 0 || k > super::MAX_K || a0.len() != k || a1.len() != k {
-        return false;
-    }
-    if n == 0 || !n.is_multiple_of(3) || w.len() != n * k || out1.as_ref().is_some_and(|o| o.len() != n) {
-        return false;
-    }
-    let second = out1.as_mut().map_or(out0.as_mut_ptr(), |o| o.as_mut_ptr());
-    if k >= 32 {
-        rows_i32_steps32(a0, a1, w, k, out0, second);
-        return true;
-    }
-    // SAFETY: per triple `t` (`n / 3` of them) the loop reads `k >= 1` bytes from each of
-    // `a0`, `a1` and weight rows `3t..3t + 3` of `w` (exactly `w`'s `n * k` bytes over the
-    // call) and writes words `3t..3t + 3` of `out0` and of `out1` (or of `out0` again, with the
-    // values just stored there: `a1` then equals `a0`). All lengths are checked above;
-    // `vldrb.u8` needs no alignment and `stm` gets word-aligned `i32` slices. Its loop state
-    // lives in 32 bytes below `sp`, restored before the end. It writes only its declared
-    // outputs: r0-r5, r8-r12, `lr` (the loop's `letp` restores FPSCR.LTPSIZE) and q0-q3.
-    unsafe {
-        core::arch::asm!(
-            "sub sp, #32",
-            "strd r1, r3, [sp, #0]",
-            "strd r2, r4, [sp, #8]",
-            "str r5, [sp, #16]",
-            "strd lr, r11, [sp, #24]",
-            // One column triple: its weight rows (the loop's pointers end rounded up to 16
-            // bytes, so the next triple's first row is kept in the frame).
-            "3:",
-            "ldr r5, [sp, #28]",
-            "ldr lr, [sp, #24]",
-            "add r9, r5, lr",
-            "add r11, r9, lr",
-            "add r1, r11, lr",
-            "str r1, [sp, #28]",
-            "ldrd r1, r3, [sp, #0]",
-            "movs r0, #0",
-            "movs r2, #0",
-            "movs r4, #0",
-            "mov.w r8, #0",
-            "mov.w r10, #0",
-            "mov.w r12, #0",
-            "dlstp.8 lr, lr",
-            "4:",
-            "vldrb.u8 q0, [r1], #16",
-            "vldrb.u8 q1, [r3], #16",
-            "vldrb.u8 q2, [r5], #16",
-            "vmladava.s8 r0, q0, q2",
-            "vmladava.s8 r2, q1, q2",
-            "vldrb.u8 q3, [r9], #16",
-            "vmladava.s8 r4, q0, q3",
-            "vmladava.s8 r8, q1, q3",
-            "vldrb.u8 q2, [r11], #16",
-            "vmladava.s8 r10, q0, q2",
-            "vmladava.s8 r12, q1, q2",
-            "letp lr, 4b",
-            "ldrd r1, r3, [sp, #8]",
-            "stm r1!, {{r0, r4, r10}}",
-            "stm r3!, {{r2, r8, r12}}",
-            "strd r1, r3, [sp, #8]",
-            "ldr r1, [sp, #16]",
-            "subs r1, #1",
-            "str r1, [sp, #16]",
-            "bne 3b",
-            "add sp, #32",
-            inout("r1") a0.as_ptr() => _,
-            inout("r3") a1.as_ptr() => _,
-            inout("r11") w.as_ptr() => _,
-            inout("lr") k => _,
-            inout("r2") out0.as_mut_ptr() => _,
-            inout("r4") second => _,
-            inout("r5") n / 3 => _,
-            out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
-            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
-        );
-    }
-    true
-}
-
 /// One 16-code step of the 2 x 3 tile (rows from r1 and r3, weight rows from r5, r9 and r11,
 /// accumulators r0, r2, r4, r8, r10, r12) as assembly text: `vmladav` starting the
 /// accumulators ([`tile_step_first`]) or `vmladava` adding to them.
@@ -285,43 +198,28 @@ macro_rules! tile_step {
     };
 }
 
-/// The entry of [`rows_i32_steps32`] as assembly text: r6 and r7 saved, then the frame at
-/// `sp` (`a0`, `a1` from r1 and r3, the output pointers from r2 and r4, the triples from r5,
-/// the two-step iterations after the first 32 codes), `k` into r6 and the first weight row
-/// (r11) into r7.
+/// Six accumulators zeroed (the steps for `k < 32` add to them).
 #[cfg(bino_mve)]
-macro_rules! triples_prologue {
+macro_rules! zero_accumulators {
     () => {
         concat!(
-            "push {{r6, r7}}\n",
-            "sub sp, #32\n",
-            "strd r1, r3, [sp, #0]\n",
-            "strd r2, r4, [sp, #8]\n",
-            "str r5, [sp, #16]\n",
-            "mov r6, lr\n",
-            "lsrs lr, lr, #5\n",
-            "subs lr, #1\n",
-            "str lr, [sp, #20]\n",
-            "mov r7, r11\n",
+            "movs r0, #0\n",
+            "movs r2, #0\n",
+            "movs r4, #0\n",
+            "mov.w r8, #0\n",
+            "mov.w r10, #0\n",
+            "mov.w r12, #0\n",
         )
     };
 }
 
-/// The column-triple loop of [`rows_i32_steps32`] as assembly text, with `$tail` (text run
-/// after the two-step loop, before the stores) in the middle: the frame at `sp` holds `a0`,
-/// `a1`, the two output pointers, the triples left, the two-step iterations after the first 32
-/// codes and (for [`rows_i32_steps32`]'s tail) the codes past them; r6 holds `k`, r7 the next
-/// triple's first weight row.
+/// The first 32 codes starting the accumulators (`vmladav`, no zeroing), then a plain
+/// low-overhead loop (`wls` / `le`) of two 16-code steps per iteration over the next
+/// `k / 32 - 1` pairs of steps (the frame's word 5): one loop end per 192 MACs.
 #[cfg(bino_mve)]
-macro_rules! triples_loop {
-    ($tail:expr) => {
+macro_rules! two_steps {
+    () => {
         concat!(
-            "3:\n",
-            "mov r5, r7\n",
-            "add r9, r5, r6\n",
-            "add r11, r9, r6\n",
-            "add r7, r11, r6\n",
-            "ldrd r1, r3, [sp, #0]\n",
             tile_step_first!(),
             tile_step!(),
             "ldr lr, [sp, #20]\n",
@@ -331,86 +229,126 @@ macro_rules! triples_loop {
             tile_step!(),
             "le lr, 4b\n",
             "5:\n",
-            $tail,
-            "ldrd r1, r3, [sp, #8]\n",
-            "stm r1!, {{r0, r4, r10}}\n",
-            "stm r3!, {{r2, r8, r12}}\n",
-            "strd r1, r3, [sp, #8]\n",
-            "ldr r1, [sp, #16]\n",
-            "subs r1, #1\n",
-            "str r1, [sp, #16]\n",
-            "bne 3b\n",
         )
     };
 }
 
-/// [`rows_i32`] for `k >= 32` (every dot product of the encoder's GEMMs and attention, the
-/// head's 3D convolutions): per triple the first 32 codes start the accumulators (`vmladav`,
-/// no zeroing), then a plain low-overhead loop (`wls` / `le`) of two 16-code steps per
-/// iteration (one loop end per 192 MACs instead of per 96) and, where `k` is not a multiple of
-/// 32, one tail-predicated loop (`dlstp` / `letp`) over the last `k % 32` codes. `out0` holds
-/// `n` words (a multiple of three) and `second` points at `n` words of `out1` or at `out0`
-/// itself (the caller checked every length).
+/// A tail-predicated loop (`dlstp` / `letp`) over `lr` codes, 16 a step.
 #[cfg(bino_mve)]
-#[inline(always)]
-fn rows_i32_steps32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], second: *mut i32) {
+macro_rules! tail_steps {
+    () => {
+        concat!("dlstp.8 lr, lr\n", "6:\n", tile_step!(), "letp lr, 6b\n")
+    };
+}
+
+/// [`rows_i32`]'s kernel with `$entry` (assembly run once after the frame is laid out) and
+/// `$steps` (one triple's dot products into r0, r2, r4, r8, r10, r12): r6 and r7 saved, the frame
+/// at `sp` (`a0`, `a1`, the two output pointers, the triples left, the two-step iterations after
+/// the first 32 codes, a spare word for `$entry`), `k` in r6 and the next triple's first weight
+/// row in r7; per triple the three weight rows `k` apart, the steps, two `stm`s.
+#[cfg(bino_mve)]
+macro_rules! rows_i32_kernel {
+    ($entry:expr, $steps:expr, $a0:expr, $a1:expr, $w:expr, $k:expr, $out0:expr, $second:expr, $n:expr) => {
+        core::arch::asm!(
+            "push {{r6, r7}}",
+            "sub sp, #32",
+            "strd r1, r3, [sp, #0]",
+            "strd r2, r4, [sp, #8]",
+            "str r5, [sp, #16]",
+            "mov r6, lr",
+            "lsrs lr, lr, #5",
+            "subs lr, #1",
+            "str lr, [sp, #20]",
+            "mov r7, r11",
+            $entry,
+            "3:",
+            "mov r5, r7",
+            "add r9, r5, r6",
+            "add r11, r9, r6",
+            "add r7, r11, r6",
+            "ldrd r1, r3, [sp, #0]",
+            $steps,
+            "ldrd r1, r3, [sp, #8]",
+            "stm r1!, {{r0, r4, r10}}",
+            "stm r3!, {{r2, r8, r12}}",
+            "strd r1, r3, [sp, #8]",
+            "ldr r1, [sp, #16]",
+            "subs r1, #1",
+            "str r1, [sp, #16]",
+            "bne 3b",
+            "add sp, #32",
+            "pop {{r6, r7}}",
+            inout("r1") $a0.as_ptr() => _,
+            inout("r3") $a1.as_ptr() => _,
+            inout("r11") $w.as_ptr() => _,
+            inout("lr") $k => _,
+            inout("r2") $out0.as_mut_ptr() => _,
+            inout("r4") $second => _,
+            inout("r5") $n / 3 => _,
+            out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
+            out("d0") _, out("d1") _, out("d2") _, out("d3") _,
+            out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+        )
+    };
+}
+
+/// Rows `a0`, `a1` (`k` codes each) against `out0.len()` weight rows of `w` (a multiple of
+/// three) in one Helium kernel: per column triple the 2 x 3 tile's dot products (for `k >= 32`
+/// the first 32 codes start the accumulators, then two 16-code steps per `wls`/`le` iteration and
+/// a tail-predicated step for the codes past them; for `k < 32` zeroed accumulators and the
+/// tail-predicated steps alone) and two `stm`s. `out1` is `None` for an unpaired last row (`a1`
+/// is then `a0`'s copy, and its results are written over `out0`'s with the same values).
+/// `false` (nothing written) for other lengths.
+#[cfg(bino_mve)]
+fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
     let n = out0.len();
-    // SAFETY: the caller checked `a0.len() == a1.len() == k` with `32 <= k <= MAX_K`,
-    // `w.len() == n * k`, `n` a positive multiple of three and `second` pointing at `n`
-    // writable words (`out1`'s, or `out0`'s: then `a1` equals `a0` and the same values are
-    // written twice). Per triple `t` the kernel reads exactly `k` bytes of `a0`, `a1` and of
-    // weight rows `3t..3t + 3` (32 in the first two steps, 32 per iteration of `k / 32 - 1`,
-    // then the `k % 32` left through a tail-predicated step whose inactive lanes are not
-    // accessed) and writes words `3t..3t + 3` through `out0` and `second`. The weight pointers
-    // for the next triple are computed from `k` (r6), never from where the loads stopped.
-    // `vldrb.u8` needs no alignment and `stm` gets word-aligned `i32` slices. `r6` and `r7`
-    // (which Rust reserves) are saved and restored; the loop state lives in 32 bytes below
-    // them. It writes only its declared outputs: r0-r5, r8-r12, `lr` and q0-q3.
+    if k == 0 || k > super::MAX_K || a0.len() != k || a1.len() != k {
+        return false;
+    }
+    if n == 0 || !n.is_multiple_of(3) || w.len() != n * k || out1.as_ref().is_some_and(|o| o.len() != n) {
+        return false;
+    }
+    let second = out1.as_mut().map_or(out0.as_mut_ptr(), |o| o.as_mut_ptr());
+    // SAFETY: per triple `t` (`n / 3` of them) the kernel reads exactly `k` bytes of `a0`, `a1`
+    // and of weight rows `3t..3t + 3` of `w` (`w`'s `n * k` bytes over the call: whole 16-code
+    // steps, and a tail-predicated step whose inactive lanes are not accessed for the codes
+    // past them) and writes words `3t..3t + 3` through `out0` and `second` (`out1`'s, or
+    // `out0`'s again with the values just stored there: `a1` then equals `a0`). The weight
+    // pointers of the next triple come from `k` (r6), never from where the loads stopped. All
+    // lengths are checked above; `vldrb.u8` needs no alignment and `stm` gets word-aligned
+    // `i32` slices. `r6` and `r7` (which Rust reserves) are saved and restored; the loop state
+    // lives in 32 bytes below them. It writes only its declared outputs: r0-r5, r8-r12, `lr`
+    // (a `letp` restores FPSCR.LTPSIZE) and q0-q3.
     unsafe {
-        if k.is_multiple_of(32) {
-            core::arch::asm!(
-                triples_prologue!(),
-                triples_loop!(""),
-                "add sp, #32",
-                "pop {{r6, r7}}",
-                inout("r1") a0.as_ptr() => _,
-                inout("r3") a1.as_ptr() => _,
-                inout("r11") w.as_ptr() => _,
-                inout("lr") k => _,
-                inout("r2") out0.as_mut_ptr() => _,
-                inout("r4") second => _,
-                inout("r5") n / 3 => _,
-                out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
-                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+        if k < 32 {
+            rows_i32_kernel!(
+                "",
+                concat!(zero_accumulators!(), "mov lr, r6\n", tail_steps!()),
+                a0,
+                a1,
+                w,
+                k,
+                out0,
+                second,
+                n
             );
+        } else if k.is_multiple_of(32) {
+            rows_i32_kernel!("", two_steps!(), a0, a1, w, k, out0, second, n);
         } else {
-            core::arch::asm!(
-                triples_prologue!(),
-                "and r8, r6, #31",
-                "str r8, [sp, #24]",
-                triples_loop!(concat!(
-                    "ldr lr, [sp, #24]\n",
-                    "dlstp.8 lr, lr\n",
-                    "6:\n",
-                    tile_step!(),
-                    "letp lr, 6b\n",
-                )),
-                "add sp, #32",
-                "pop {{r6, r7}}",
-                inout("r1") a0.as_ptr() => _,
-                inout("r3") a1.as_ptr() => _,
-                inout("r11") w.as_ptr() => _,
-                inout("lr") k => _,
-                inout("r2") out0.as_mut_ptr() => _,
-                inout("r4") second => _,
-                inout("r5") n / 3 => _,
-                out("r0") _, out("r8") _, out("r9") _, out("r10") _, out("r12") _,
-                out("d0") _, out("d1") _, out("d2") _, out("d3") _,
-                out("d4") _, out("d5") _, out("d6") _, out("d7") _,
+            rows_i32_kernel!(
+                "and r8, r6, #31\nstr r8, [sp, #24]\n",
+                concat!(two_steps!(), "ldr lr, [sp, #24]\n", tail_steps!()),
+                a0,
+                a1,
+                w,
+                k,
+                out0,
+                second,
+                n
             );
         }
     }
+    true
 }
 
 /// The portable twin of [`rows_i32`] (host tests of the driver).
@@ -700,9 +638,11 @@ pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], score
             }
         }
         for j in 3 * triples..n {
-            let key = &keys[j * HEAD_DIM..(j + 1) * HEAD_DIM];
-            row_a[j] = crate::kernels::matmul::dot(qa, key);
-            row_b[j] = crate::kernels::matmul::dot(qb, key);
+            let key = keys.get(j * HEAD_DIM..(j + 1) * HEAD_DIM).unwrap_or(&[]);
+            if let (Some(a), Some(b)) = (row_a.get_mut(j), row_b.get_mut(j)) {
+                *a = crate::kernels::matmul::dot(qa, key);
+                *b = crate::kernels::matmul::dot(qb, key);
+            }
         }
     }
     true
