@@ -135,7 +135,8 @@ pub fn attend_block_keys_transposed(
     );
 }
 
-/// How a head's keys are stored for [`attend_block_in`].
+/// How a head's keys are stored: as rows for [`attend_block`] (every core), transposed for the
+/// x86 VNNI `attend_block_keys_transposed`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum KeyLayout {
     /// Token by token, `HEAD_DIM` codes each (every core).
