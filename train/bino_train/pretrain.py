@@ -83,7 +83,10 @@ class TrainConfig:
     lr: float = 5e-4
     min_lr: float = 1e-6
     warmup: float = 0.05
-    """Fraction of the schedule with a linear LR warm-up."""
+    """Fraction of the LR's cosine (`lr_decay_pairs`, else the schedule) spent warming up."""
+    lr_decay_pairs: int = 0
+    """0: the LR's cosine spans the schedule. Otherwise it ends after this many pairs and the LR
+    stays at `min_lr` for the rest of the schedule (whose other schedules still span it all)."""
     weight_decay: float = 0.04
     clip_grad: float = 3.0
     schedule_pairs: int = 16_000
@@ -132,8 +135,11 @@ def schedule_position(pairs: int, cfg: TrainConfig) -> float:
 
 
 def learning_rate(step: float, cfg: TrainConfig) -> float:
-    """Linear warm-up to `lr`, then cosine down to `min_lr` at the end of the schedule."""
+    """Linear warm-up to `lr`, then cosine down to `min_lr` at the end of the schedule (or after
+    `lr_decay_pairs`, then `min_lr` to the end)."""
     total = cfg.total_steps
+    if 0 < cfg.lr_decay_pairs < cfg.schedule_pairs:
+        total = math.ceil(cfg.lr_decay_pairs / cfg.batch)
     warm = max(1, round(cfg.warmup * total))
     if step < warm:
         return cfg.lr * (step + 1) / warm
@@ -517,7 +523,13 @@ def build_config(args: argparse.Namespace) -> TrainConfig:
         mask=mask,
         augment=augment,
         seed=args.seed,
-        **_given(batch=args.batch or (4 if small else None), lr=args.lr, precision=args.precision),
+        **_given(
+            batch=args.batch or (4 if small else None),
+            lr=args.lr,
+            min_lr=args.min_lr,
+            lr_decay_pairs=args.lr_decay_pairs,
+            precision=args.precision,
+        ),
     )
 
 
@@ -557,6 +569,13 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--batch", type=int)
     p.add_argument("--lr", type=float)
+    p.add_argument("--min-lr", type=float, help="the LR's floor (default 1e-6)")
+    p.add_argument(
+        "--lr-decay-pairs",
+        type=int,
+        help="the LR's warm-up and cosine end after N pairs, then it stays at --min-lr (fresh "
+        "runs; default: the cosine spans the schedule)",
+    )
     p.add_argument("--prototypes", type=int, help="K")
     p.add_argument("--mask-ratio", type=float, nargs=2, metavar=("START", "END"))
     p.add_argument("--mask-block", help="mask block in cells, e.g. 2x3")

@@ -101,6 +101,25 @@ def test_learning_rate_schedule_endpoints() -> None:
     assert learning_rate(10, cfg) > learning_rate(50, cfg) > learning_rate(90, cfg)
 
 
+def test_learning_rate_can_decay_early_then_hold_its_floor() -> None:
+    """--lr-decay-pairs: p1's 30,000-pair cosine inside a longer schedule, then the floor."""
+    args = parse_args(
+        ["--out", "x", "--pairs", "9", "--lr-decay-pairs", "1600", "--min-lr", "2e-5"]
+    )
+    cfg = dataclasses.replace(
+        build_config(args), lr=1e-3, warmup=0.1, schedule_pairs=16000, batch=16
+    )
+    assert cfg.lr_decay_pairs == 1600 and cfg.min_lr == pytest.approx(2e-5)
+    assert learning_rate(0, cfg) == pytest.approx(1e-4)
+    assert learning_rate(9, cfg) == pytest.approx(1e-3)
+    assert learning_rate(50, cfg) < learning_rate(20, cfg)
+    for step in (100, 500, 999):
+        assert learning_rate(step, cfg) == pytest.approx(2e-5)
+    spanning = dataclasses.replace(cfg, lr_decay_pairs=0)
+    assert learning_rate(500, spanning) > 10 * learning_rate(500, cfg)
+    assert TrainConfig.from_dict(cfg.to_dict()).lr_decay_pairs == 1600
+
+
 def test_teacher_temperature_warmup_is_a_fraction_of_the_schedule() -> None:
     """A long schedule keeps the short warm-up that avoided collapse (p2 vs p1)."""
     args = parse_args(["--out", "x", "--pairs", "9", "--teacher-temp-warmup", "0.06"])

@@ -754,7 +754,12 @@ mod tests {
     #[test]
     fn every_softmax_path_equals_the_specification() {
         let mut rng = Rng::new(29);
-        for (case, n) in [1usize, 3, 4, 5, 17, 64, 960].into_iter().cycle().take(28).enumerate() {
+        for (case, n) in [1usize, 3, 4, 5, 17, 64, 960, 80, 127]
+            .into_iter()
+            .cycle()
+            .take(36)
+            .enumerate()
+        {
             let spread = [6u32, 14, 20, 31][case % 4];
             let scores: [i32; 960] = core::array::from_fn(|_| match rng.next_u64() % 16 {
                 0 => i32::MIN,

@@ -12,13 +12,14 @@
 //! fit; the caller then runs the AVX2 or portable kernel.
 
 use core::arch::x86_64::{
-    __cpuid, __cpuid_count, __m128i, __m256i, _mm256_add_epi32, _mm256_dpbusd_epi32, _mm256_permute2x128_si256,
-    _mm256_set1_epi32, _mm256_set1_epi8, _mm256_setzero_si256, _mm256_sub_epi32, _mm256_unpackhi_epi32,
-    _mm256_unpackhi_epi64, _mm256_unpacklo_epi32, _mm256_unpacklo_epi64, _mm256_xor_si256, _mm512_add_epi32,
-    _mm512_and_si512, _mm512_cvtepi32_epi8, _mm512_loadu_si512, _mm512_mask_blend_epi32, _mm512_min_epu32,
-    _mm512_mul_epu32, _mm512_mullo_epi32, _mm512_reduce_add_epi32, _mm512_set1_epi32, _mm512_setzero_si512,
-    _mm512_sllv_epi32, _mm512_srli_epi32, _mm512_srli_epi64, _mm512_srlv_epi32, _mm512_sub_epi32, _mm512_xor_si512,
-    _mm_set1_epi32, _mm_sub_epi32, _xgetbv,
+    __cpuid, __cpuid_count, __m128i, __m256i, __m512i, _mm256_add_epi32, _mm256_dpbusd_epi32,
+    _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_set1_epi8, _mm256_setzero_si256, _mm256_sub_epi32,
+    _mm256_unpackhi_epi32, _mm256_unpackhi_epi64, _mm256_unpacklo_epi32, _mm256_unpacklo_epi64, _mm256_xor_si256,
+    _mm512_add_epi32, _mm512_add_epi64, _mm512_and_si512, _mm512_cvtepi32_epi8, _mm512_mask_blend_epi32,
+    _mm512_min_epu32, _mm512_mul_epu32, _mm512_mullo_epi32, _mm512_packus_epi16, _mm512_packus_epi32,
+    _mm512_permutexvar_epi32, _mm512_reduce_add_epi32, _mm512_reduce_add_epi64, _mm512_sad_epu8, _mm512_set1_epi32,
+    _mm512_set1_epi8, _mm512_set_epi32, _mm512_setzero_si512, _mm512_sllv_epi32, _mm512_srli_epi32, _mm512_srli_epi64,
+    _mm512_srlv_epi32, _mm512_sub_epi32, _mm512_xor_si512, _mm_set1_epi32, _mm_sub_epi32, _xgetbv,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
@@ -185,59 +186,133 @@ pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> 
     Some(unsafe { softmax_row_avx512(e, max, scores, weights) })
 }
 
-/// Scores per step of the softmax row: one 512-bit vector.
+/// Scores per step of the softmax row's tail loop: one 512-bit vector.
 const SOFTMAX_STEP: usize = 16;
+/// Scores per step of its main loop: four vectors, packed to bytes together.
+const SOFTMAX_WIDE: usize = 4 * SOFTMAX_STEP;
 
-// `ExpQ32::weight` in 16 lanes: the gap's high product word from two `vpmuludq` (a 64-bit
-// product per even or odd lane; the portable code assembles it from 16-bit halves, which
-// `weight_by_table` and the exp tests show to be the same word), the gap clamped at the
-// table's last entry (where the cubic is already 0), the cubic, and `vpmovdb` for the bytes.
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
-    let (pre, round, post) = e.shifts();
-    let n = scores.len().min(weights.len());
-    let whole = n / SOFTMAX_STEP * SOFTMAX_STEP;
-    let (scores, scores_tail) = scores.split_at(whole.min(scores.len()));
-    let (weights, weights_tail) = weights.split_at_mut(whole.min(weights.len()));
-    let v = |x: u32| _mm512_set1_epi32(x as i32);
-    let (row_max, cap, pre, mult, round, post) = (
-        _mm512_set1_epi32(max),
-        v(EXP_Q32_MAX_GAP),
-        v(pre),
-        v(e.mult()),
-        v(round),
-        v(post),
-    );
-    let (last, low_byte, flip, half) = (v(EXP2_TABLE_LAST), v(255), v(0x80), v(1 << 14));
-    let (c0, c1, c2, c3) = (v(C0), v(C1), v(C2), v(C3));
-    let mut sums = _mm512_setzero_si512();
-    for (w, s) in weights
-        .chunks_exact_mut(SOFTMAX_STEP)
-        .zip(scores.chunks_exact(SOFTMAX_STEP))
-    {
-        // SAFETY: `s` is 16 `i32`s (exact chunks), the 64 bytes an unaligned load reads.
-        #[allow(unsafe_code)]
-        let s = unsafe { _mm512_loadu_si512(s.as_ptr().cast()) };
-        let gap = _mm512_sub_epi32(row_max, s);
-        let g = _mm512_sllv_epi32(_mm512_min_epu32(gap, cap), pre);
-        let even = _mm512_mul_epu32(g, mult);
-        let odd = _mm512_mul_epu32(_mm512_srli_epi64::<32>(g), mult);
+/// `ExpQ32::weight` of sixteen gaps' worth of constants, broadcast once per row.
+struct ExpLanes {
+    row_max: __m512i,
+    cap: __m512i,
+    pre: __m512i,
+    mult: __m512i,
+    round: __m512i,
+    post: __m512i,
+    last: __m512i,
+    low_byte: __m512i,
+    half: __m512i,
+    c: [__m512i; 4],
+}
+
+impl ExpLanes {
+    #[inline]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+    fn new(e: &ExpQ32, max: i32) -> Self {
+        let (pre, round, post) = e.shifts();
+        let v = |x: u32| _mm512_set1_epi32(x as i32);
+        Self {
+            row_max: _mm512_set1_epi32(max),
+            cap: v(EXP_Q32_MAX_GAP),
+            pre: v(pre),
+            mult: v(e.mult()),
+            round: v(round),
+            post: v(post),
+            last: v(EXP2_TABLE_LAST),
+            low_byte: v(255),
+            half: v(1 << 14),
+            c: [v(C0), v(C1), v(C2), v(C3)],
+        }
+    }
+
+    // `ExpQ32::weight` in 16 lanes: the gap's high product word from two `vpmuludq` (a 64-bit
+    // product per even or odd lane; the portable code assembles it from 16-bit halves, which
+    // `weight_by_table` and the exp tests show to be the same word), the gap clamped at the
+    // table's last entry (where the cubic is already 0), then the cubic. Weights 0..=255.
+    #[inline]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+    fn weights(&self, scores: &[i32; SOFTMAX_STEP]) -> __m512i {
+        let s: __m512i = must_cast(*scores);
+        let gap = _mm512_sub_epi32(self.row_max, s);
+        let g = _mm512_sllv_epi32(_mm512_min_epu32(gap, self.cap), self.pre);
+        let even = _mm512_mul_epu32(g, self.mult);
+        let odd = _mm512_mul_epu32(_mm512_srli_epi64::<32>(g), self.mult);
         let high = _mm512_mask_blend_epi32(0xAAAA, _mm512_srli_epi64::<32>(even), odd);
-        let x = _mm512_min_epu32(_mm512_srlv_epi32(_mm512_add_epi32(high, round), post), last);
-        // exp2_neg_u8_q8(x): the cubic of the fraction, shifted by the whole part.
-        let f = _mm512_and_si512(x, low_byte);
+        let x = _mm512_min_epu32(
+            _mm512_srlv_epi32(_mm512_add_epi32(high, self.round), self.post),
+            self.last,
+        );
+        // exp2_neg_u8_q8(x): the cubic of the fraction, shifted by the whole part (a gather
+        // from its table measured slower on Zen 4).
+        let [c0, c1, c2, c3] = self.c;
+        let f = _mm512_and_si512(x, self.low_byte);
         let t = _mm512_srli_epi32::<8>(_mm512_mullo_epi32(c3, f));
         let t = _mm512_srli_epi32::<8>(_mm512_mullo_epi32(_mm512_sub_epi32(c2, t), f));
         let t = _mm512_srli_epi32::<8>(_mm512_mullo_epi32(_mm512_sub_epi32(c1, t), f));
-        let scaled = _mm512_mullo_epi32(_mm512_sub_epi32(c0, t), low_byte);
+        let scaled = _mm512_mullo_epi32(_mm512_sub_epi32(c0, t), self.low_byte);
         let shifted = _mm512_srlv_epi32(scaled, _mm512_srli_epi32::<8>(x));
-        let weight = _mm512_srli_epi32::<15>(_mm512_add_epi32(shifted, half));
+        _mm512_srli_epi32::<15>(_mm512_add_epi32(shifted, self.half))
+    }
+}
+
+// Sixty-four scores a step: four vectors of weights packed to bytes together (two `vpackusdw`,
+// one `vpackuswb`, one `vpermd` to undo the packs' 128-bit lanes; one `vpmovdb` per vector was
+// the loop's bottleneck) and summed with one `vpsadbw`; sixteen a step for the rest.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
+    let n = scores.len().min(weights.len());
+    let lanes = ExpLanes::new(e, max);
+    let flip = _mm512_set1_epi8(-128);
+    let zero = _mm512_setzero_si512();
+    // After the packs, 128-bit lane `l` holds elements 4l..4l+3 of each of the four vectors in
+    // turn: dword `4l + i`. Dword `4i + l` of the output takes it.
+    let unlane = _mm512_set_epi32(15, 11, 7, 3, 14, 10, 6, 2, 13, 9, 5, 1, 12, 8, 4, 0);
+    let mut byte_sums = zero;
+    let wide = n / SOFTMAX_WIDE * SOFTMAX_WIDE;
+    let (scores_wide, scores_rest) = scores.split_at(wide);
+    let (weights_wide, weights_rest) = weights.split_at_mut(wide);
+    for (w, s) in weights_wide
+        .chunks_exact_mut(SOFTMAX_WIDE)
+        .zip(scores_wide.chunks_exact(SOFTMAX_WIDE))
+    {
+        // Four plain calls: a closure (`array::from_fn`) would not inherit the target features
+        // and stays an out-of-line call through the stack.
+        let (s0, s123) = s.split_at(SOFTMAX_STEP);
+        let (s1, s23) = s123.split_at(SOFTMAX_STEP);
+        let (s2, s3) = s23.split_at(SOFTMAX_STEP);
+        let sixteen = |x: &[i32]| -> [i32; SOFTMAX_STEP] { x.try_into().unwrap_or([0; SOFTMAX_STEP]) };
+        let v = [
+            lanes.weights(&sixteen(s0)),
+            lanes.weights(&sixteen(s1)),
+            lanes.weights(&sixteen(s2)),
+            lanes.weights(&sixteen(s3)),
+        ];
+        let bytes = _mm512_permutexvar_epi32(
+            unlane,
+            _mm512_packus_epi16(_mm512_packus_epi32(v[0], v[1]), _mm512_packus_epi32(v[2], v[3])),
+        );
+        byte_sums = _mm512_add_epi64(byte_sums, _mm512_sad_epu8(bytes, zero));
+        let out: [u8; SOFTMAX_WIDE] = must_cast(_mm512_xor_si512(bytes, flip));
+        w.copy_from_slice(&out);
+    }
+    let mut sums = zero;
+    let step = (n - wide) / SOFTMAX_STEP * SOFTMAX_STEP;
+    let (scores_step, scores_tail) = scores_rest.split_at(step.min(scores_rest.len()));
+    let (weights_step, weights_tail) = weights_rest.split_at_mut(step.min(weights_rest.len()));
+    for (w, s) in weights_step
+        .chunks_exact_mut(SOFTMAX_STEP)
+        .zip(scores_step.chunks_exact(SOFTMAX_STEP))
+    {
+        let weight = lanes.weights(s.try_into().unwrap_or(&[0; SOFTMAX_STEP]));
         sums = _mm512_add_epi32(sums, weight);
         let bytes: [u8; SOFTMAX_STEP] = must_cast(_mm512_cvtepi32_epi8(_mm512_xor_si512(weight, flip)));
         w.copy_from_slice(&bytes);
     }
     let tail = super::attention::softmax_row(e, max, scores_tail, weights_tail);
-    (_mm512_reduce_add_epi32(sums) as u32).wrapping_add(tail)
+    let wide_sum = _mm512_reduce_add_epi64(byte_sums) as u32;
+    wide_sum
+        .wrapping_add(_mm512_reduce_add_epi32(sums) as u32)
+        .wrapping_add(tail)
 }
 
 #[inline(always)]
@@ -465,16 +540,26 @@ mod tests {
             return; // nothing more to check on this CPU: the callers fall back (tested there)
         }
         let mut rng = Rng::new(41);
-        let mut a = [0i8; 9 * 480];
-        let mut w = [0i8; 7 * 480];
-        for (m, n, k) in [(4, 4, 32), (9, 7, 64), (5, 3, 128), (8, 7, 480), (1, 1, 32), (3, 6, 96)] {
+        let mut a = [0i8; 17 * 480];
+        let mut w = [0i8; 21 * 480];
+        let shapes = [
+            (4, 4, 32),
+            (9, 7, 64),
+            (5, 3, 128),
+            (8, 7, 480),
+            (1, 1, 32),
+            (3, 6, 96),
+            (17, 21, 128),
+            (8, 16, 480),
+        ];
+        for (m, n, k) in shapes {
             rng.fill_i8(&mut a[..m * k]);
             rng.fill_i8(&mut w[..n * k]);
             if k == 480 {
                 a[..m * k].fill(-128);
                 w[..n * k].fill(-128);
             }
-            let mut out = [i32::MIN; 9 * 7];
+            let mut out = [i32::MIN; 17 * 21];
             assert!(matmul_i32(&a[..m * k], &w[..n * k], k, &mut out[..m * n]));
             for i in 0..m {
                 for j in 0..n {
