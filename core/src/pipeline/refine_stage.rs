@@ -619,8 +619,9 @@ mod tests {
 
     #[test]
     fn every_height_streams_like_the_whole_map_with_a_ring_just_large_enough() {
-        let wide = RefineParams {
-            box_radius: 3,
+        // The default box (7x7) and the 5x5 box it replaced.
+        let narrow = RefineParams {
+            box_radius: 2,
             ..RefineParams::DEFAULT
         };
         for height in (4..=MAX_H).step_by(4) {
@@ -628,22 +629,23 @@ mod tests {
                 streams_like_the_whole_map(height, lag, &RefineParams::DEFAULT, height as u64);
             }
             if height % 20 == 0 {
-                streams_like_the_whole_map(height, HEAD_LAG, &wide, 7);
-                streams_like_the_whole_map(height, 0, &wide, 7);
+                streams_like_the_whole_map(height, HEAD_LAG, &narrow, 7);
+                streams_like_the_whole_map(height, 0, &narrow, 7);
             }
         }
-        // With the sharpness equalisation (reach 6): every height, both lags that matter.
+        // With the sharpness equalisation (reach 7): every height, both lags that matter.
         for height in (4..=MAX_H).step_by(12) {
             for lag in [0, HEAD_LAG] {
                 streams_like_the_whole_map_with(height, lag, &RefineParams::DEFAULT, true, height as u64);
             }
         }
-        assert_eq!(stage_reach(&RefineParams::DEFAULT, true), 6);
-        assert_eq!(ring_rows(6, 0), 0, "the matching readouts still need no ring");
+        assert_eq!(stage_reach(&RefineParams::DEFAULT, true), 7);
+        assert_eq!(ring_rows(7, 0), 1, "the matching readouts keep one row of each view");
         // The sizes the budget quotes.
-        assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), HEAD_LAG), 22);
+        assert_eq!(ring_rows(7, HEAD_LAG), 25);
+        assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), HEAD_LAG), 23);
         assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), 0), 0);
-        assert_eq!(ring_rows(5, 0), 0);
+        assert_eq!(ring_rows(6, 0), 0);
     }
 
     #[test]

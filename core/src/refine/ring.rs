@@ -345,12 +345,13 @@ mod tests {
 
     #[test]
     fn bad_shapes_are_errors() {
-        let mut scratch = [0u32; 100];
+        let mut scratch = [0u32; scratch_len(10, &RefineParams::DEFAULT)];
         assert!(RowRefiner::new(&mut scratch, 0, &RefineParams::DEFAULT).is_err());
-        assert!(RowRefiner::new(&mut scratch[..99], 10, &RefineParams::DEFAULT).is_err());
+        let short = scratch.len() - 1;
+        assert!(RowRefiner::new(&mut scratch[..short], 10, &RefineParams::DEFAULT).is_err());
         let mut refiner = RowRefiner::new(&mut scratch, 10, &RefineParams::DEFAULT).unwrap();
         let row = [0u8; 10];
-        let window = [&row[..]; 9];
+        let window = [&row[..]; RefineParams::DEFAULT.window_rows()];
         let rows = ViewRows {
             height: 4,
             left: &window,

@@ -508,6 +508,7 @@ pub fn refine_map_equalised(
 mod tests {
     use super::*;
     use crate::testutil::Rng;
+    use crate::refine::scratch_len;
 
     /// `box(v, k)` of a whole image, straight from rule 1.
     fn box_image(v: &[u8], w: usize, h: usize, k: usize) -> [u8; 24 * 20] {
@@ -672,7 +673,6 @@ mod tests {
 
     #[test]
     fn the_equalised_refiner_gives_the_reference_rows_in_any_order() {
-        use crate::refine::scratch_len;
         let (w, h) = (24usize, 20usize);
         let mut rng = Rng::new(12);
         let mut base = [0u8; 28 * 20];
@@ -698,11 +698,14 @@ mod tests {
         }
         let params = RefineParams::DEFAULT;
         let mut want = [0u16; 24 * 20];
-        let mut s_ref = [0u32; 2 * 5 * 24];
+        let mut s_ref = [0u32; scratch_len(24, &RefineParams::DEFAULT)];
         let n = scratch_len(w, &params);
         refine_map_equalised(&left, &right, w, &grid, &params, &mut s_ref[..n], &mut want).unwrap();
         let wide = equalised_reach(&params);
-        let (mut census, mut smoothed) = ([0u32; 2 * 5 * 24], [0u8; 9 * 24]);
+        let (mut census, mut smoothed) = (
+            [0u32; scratch_len(24, &RefineParams::DEFAULT)],
+            [0u8; smoothed_len(24, &RefineParams::DEFAULT)],
+        );
         let mut refiner = EqualisedRefiner::new(
             &mut census[..n],
             &mut smoothed[..smoothed_len(w, &params)],
@@ -751,7 +754,7 @@ mod tests {
             }
             let mut tokens = [0u16; 4 * 6];
             let tokens = case.tokens(&mut tokens);
-            let mut scratch = [0u32; 2 * 5 * 24];
+            let mut scratch = [0u32; scratch_len(24, &RefineParams::DEFAULT)];
             let scratch = &mut scratch[..crate::refine::scratch_len(w, &case.params)];
             let mut out = [0u16; 16 * 24];
             refine_map_equalised(case.left, case.right, w, tokens, &case.params, scratch, &mut out[..n]).unwrap();

@@ -463,7 +463,7 @@ fn bad_parameters_and_shapes_are_errors() {
         },
     ];
     let mut out = [0u16; 64];
-    let mut scratch = [0u32; 2 * 5 * 8];
+    let mut scratch = [0u32; scratch_len(8, &P)];
     for p in bad {
         assert!(matches!(p.check(), Err(Error::OutOfRange { .. })), "{p:?}");
         let r = refine_map(&[0; 64], &[0; 64], 8, &[0; 4], &p, &mut scratch, &mut out);
@@ -492,7 +492,7 @@ fn bad_parameters_and_shapes_are_errors() {
         Err(Error::BufferSize { .. })
     ));
     assert!(matches!(
-        map(&[0; 64], &[0; 64], 8, &[0; 4], &mut scratch[..79], &mut out),
+        map(&[0; 64], &[0; 64], 8, &[0; 4], &mut scratch[..scratch_len(8, &P) - 1], &mut out),
         Err(Error::BufferSize { .. })
     ));
     assert!(matches!(
@@ -501,7 +501,7 @@ fn bad_parameters_and_shapes_are_errors() {
     ));
 
     let row = [0u8; 8];
-    let window = [&row[..]; 9];
+    let window = [&row[..]; P.window_rows()];
     let tokens = TokenRows {
         first: &[0; 2],
         second: &[0; 2],
@@ -525,7 +525,7 @@ fn bad_parameters_and_shapes_are_errors() {
         refine_row(0, &short, &tokens, &P, &mut scratch, &mut line),
         Err(Error::BufferSize { .. })
     ));
-    let narrow = [&row[..7]; 9];
+    let narrow = [&row[..7]; P.window_rows()];
     let narrow = ViewRows { right: &narrow, ..good };
     assert!(matches!(
         refine_row(0, &narrow, &tokens, &P, &mut scratch, &mut line),
@@ -560,19 +560,19 @@ fn bad_parameters_and_shapes_are_errors() {
 
 #[test]
 fn sizes_for_the_budget() {
-    assert_eq!((P.reach(), P.window_rows()), (4, 9));
-    assert_eq!(scratch_len(160, &P), 2 * 5 * 160);
-    assert_eq!(stream_bytes(160, &P), 2 * 9 * 160 + 2 * 2 * 40 + 4 * 2 * 5 * 160);
-    assert_eq!(stream_bytes(160, &P), 9440);
+    assert_eq!((P.reach(), P.window_rows()), (5, 11));
+    assert_eq!(scratch_len(160, &P), 2 * 7 * 160);
+    assert_eq!(stream_bytes(160, &P), 2 * 11 * 160 + 2 * 2 * 40 + 4 * 2 * 7 * 160);
+    assert_eq!(stream_bytes(160, &P), 12640);
     assert_eq!(stream_bytes(usize::MAX, &P), usize::MAX, "saturates");
     // The clamped window rows of the first and last output rows.
     assert_eq!(
-        core::array::from_fn::<_, 9, _>(|e| window_row(0, e, 4, 6)),
-        [0, 0, 0, 0, 0, 1, 2, 3, 4]
+        core::array::from_fn::<_, 11, _>(|e| window_row(0, e, 5, 6)),
+        [0, 0, 0, 0, 0, 0, 1, 2, 3, 4, 5]
     );
     assert_eq!(
-        core::array::from_fn::<_, 9, _>(|e| window_row(5, e, 4, 6)),
-        [1, 2, 3, 4, 5, 5, 5, 5, 5]
+        core::array::from_fn::<_, 11, _>(|e| window_row(5, e, 5, 6)),
+        [0, 1, 2, 3, 4, 5, 5, 5, 5, 5, 5]
     );
     assert_eq!(
         [0, 1, 2, 3, 4, 5, 8, 9].map(|y| token_rows(y, 3)),
