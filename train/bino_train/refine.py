@@ -8,8 +8,8 @@ pixel, guided by both views:
 2. base = round(d0); a 5x5 census transform of each view (bit set where the neighbour is darker
    than the centre, coordinates clamped to the image).
 3. Each candidate d = base + k, |k| <= search, with d >= 0 and x - d >= 0, costs the Hamming
-   distance of the census codes summed over the box around the pixel (7x7 by default) (every box pixel at
-   the centre's d; box and matched columns clamped to the image) plus lam * |d - d0|.
+   distance of the census codes summed over the box around the pixel (7x7 by default; every box
+   pixel at the centre's d; box and matched columns clamped to the image) plus lam * |d - d0|.
 4. The lowest cost wins (ties: smaller |k|, then smaller d); a parabola through its two
    neighbours (when both are valid and it opens upwards) moves it by at most half a pixel;
    without any valid candidate the pixel keeps d0.

@@ -507,8 +507,8 @@ pub fn refine_map_equalised(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::testutil::Rng;
     use crate::refine::scratch_len;
+    use crate::testutil::Rng;
 
     /// `box(v, k)` of a whole image, straight from rule 1.
     fn box_image(v: &[u8], w: usize, h: usize, k: usize) -> [u8; 24 * 20] {

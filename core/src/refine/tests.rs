@@ -492,7 +492,14 @@ fn bad_parameters_and_shapes_are_errors() {
         Err(Error::BufferSize { .. })
     ));
     assert!(matches!(
-        map(&[0; 64], &[0; 64], 8, &[0; 4], &mut scratch[..scratch_len(8, &P) - 1], &mut out),
+        map(
+            &[0; 64],
+            &[0; 64],
+            8,
+            &[0; 4],
+            &mut scratch[..scratch_len(8, &P) - 1],
+            &mut out
+        ),
         Err(Error::BufferSize { .. })
     ));
     assert!(matches!(
