@@ -8,7 +8,7 @@ pixel, guided by both views:
 2. base = round(d0); a 5x5 census transform of each view (bit set where the neighbour is darker
    than the centre, coordinates clamped to the image).
 3. Each candidate d = base + k, |k| <= search, with d >= 0 and x - d >= 0, costs the Hamming
-   distance of the census codes summed over the box around the pixel (7x7 by default; every box
+   distance of the census codes summed over the box around the pixel (9x9 by default; every box
    pixel at the centre's d; box and matched columns clamped to the image) plus lam * |d - d0|.
 4. The lowest cost wins (ties: smaller |k|, then smaller d); a parabola through its two
    neighbours (when both are valid and it opens upwards) moves it by at most half a pixel;
@@ -56,8 +56,8 @@ class RefineParams:
     lam: int = 50
     """Cost of one pixel away from d0, in summed-Hamming units (2 per mean Hamming of a 5x5
     box). 0 to 4096."""
-    box_radius: int = 3
-    """Aggregation box radius (3: 7x7; 2, 5x5, until session 34). 0 to 3."""
+    box_radius: int = 4
+    """Aggregation box radius (4: 9x9; 2, 5x5, until session 34). 0 to 4."""
 
     def check(self) -> None:
         """Raises ValueError for a parameter outside the Rust module's range."""
@@ -65,7 +65,7 @@ class RefineParams:
             ("census radius", self.census_radius, 1, 2),
             ("search", self.search, 0, 8),
             ("lambda", self.lam, 0, 4096),
-            ("box radius", self.box_radius, 0, 3),
+            ("box radius", self.box_radius, 0, 4),
         ):
             if not lo <= value <= hi:
                 raise ValueError(f"{name} {value} is outside {lo}..={hi}")

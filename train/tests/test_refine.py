@@ -138,7 +138,7 @@ def test_bad_parameters_and_shapes_are_refused() -> None:
         RefineParams(census_radius=0),
         RefineParams(search=9),
         RefineParams(lam=4097),
-        RefineParams(box_radius=4),
+        RefineParams(box_radius=5),
     ):
         with pytest.raises(ValueError, match="outside"):
             refine_int(view, view, tokens, params)

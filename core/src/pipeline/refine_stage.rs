@@ -514,7 +514,7 @@ mod tests {
         {
             fill_rejected(row, m).unwrap();
         }
-        let mut scratch = [0u32; 2 * 7 * W];
+        let mut scratch = [0u32; 2 * (2 * crate::refine::MAX_BOX_RADIUS + 1) * W];
         let mut expected = [0u16; MAX_H * W];
         let len = scratch_len(W, params);
         if equalise && height >= 8 {
@@ -619,7 +619,7 @@ mod tests {
 
     #[test]
     fn every_height_streams_like_the_whole_map_with_a_ring_just_large_enough() {
-        // The default box (7x7) and the 5x5 box it replaced.
+        // The default box (9x9) and the 5x5 box it replaced.
         let narrow = RefineParams {
             box_radius: 2,
             ..RefineParams::DEFAULT
@@ -633,17 +633,17 @@ mod tests {
                 streams_like_the_whole_map(height, 0, &narrow, 7);
             }
         }
-        // With the sharpness equalisation (reach 7): every height, both lags that matter.
+        // With the sharpness equalisation (reach 8): every height, both lags that matter.
         for height in (4..=MAX_H).step_by(12) {
             for lag in [0, HEAD_LAG] {
                 streams_like_the_whole_map_with(height, lag, &RefineParams::DEFAULT, true, height as u64);
             }
         }
-        assert_eq!(stage_reach(&RefineParams::DEFAULT, true), 7);
-        assert_eq!(ring_rows(7, 0), 1, "the matching readouts keep one row of each view");
+        assert_eq!(stage_reach(&RefineParams::DEFAULT, true), 8);
+        assert_eq!(ring_rows(8, 0), 2, "the matching readouts keep two rows of each view");
         // The sizes the budget quotes.
-        assert_eq!(ring_rows(7, HEAD_LAG), 25);
-        assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), HEAD_LAG), 23);
+        assert_eq!(ring_rows(8, HEAD_LAG), 26);
+        assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), HEAD_LAG), 24);
         assert_eq!(ring_rows(RefineParams::DEFAULT.reach(), 0), 0);
         assert_eq!(ring_rows(6, 0), 0);
     }

@@ -287,7 +287,7 @@ fn row_by_row_equals_the_whole_map() {
         let (reach, window) = (p.reach(), p.window_rows());
         let mut ring_l = [[0u8; 48]; MAX_WINDOW_ROWS];
         let mut ring_r = [[0u8; 48]; MAX_WINDOW_ROWS];
-        let mut scratch = [0u32; 2 * 7 * 48];
+        let mut scratch = [0u32; 2 * (2 * MAX_BOX_RADIUS + 1) * 48];
         let mut pushed = 0;
         for y in 0..h {
             while pushed < h.min(y + reach + 1) {
@@ -567,19 +567,19 @@ fn bad_parameters_and_shapes_are_errors() {
 
 #[test]
 fn sizes_for_the_budget() {
-    assert_eq!((P.reach(), P.window_rows()), (5, 11));
-    assert_eq!(scratch_len(160, &P), 2 * 7 * 160);
-    assert_eq!(stream_bytes(160, &P), 2 * 11 * 160 + 2 * 2 * 40 + 4 * 2 * 7 * 160);
-    assert_eq!(stream_bytes(160, &P), 12640);
+    assert_eq!((P.reach(), P.window_rows()), (6, 13));
+    assert_eq!(scratch_len(160, &P), 2 * 9 * 160);
+    assert_eq!(stream_bytes(160, &P), 2 * 13 * 160 + 2 * 2 * 40 + 4 * 2 * 9 * 160);
+    assert_eq!(stream_bytes(160, &P), 15840);
     assert_eq!(stream_bytes(usize::MAX, &P), usize::MAX, "saturates");
     // The clamped window rows of the first and last output rows.
     assert_eq!(
-        core::array::from_fn::<_, 11, _>(|e| window_row(0, e, 5, 6)),
-        [0, 0, 0, 0, 0, 0, 1, 2, 3, 4, 5]
+        core::array::from_fn::<_, 13, _>(|e| window_row(0, e, 6, 6)),
+        [0, 0, 0, 0, 0, 0, 0, 1, 2, 3, 4, 5, 5]
     );
     assert_eq!(
-        core::array::from_fn::<_, 11, _>(|e| window_row(5, e, 5, 6)),
-        [0, 1, 2, 3, 4, 5, 5, 5, 5, 5, 5]
+        core::array::from_fn::<_, 13, _>(|e| window_row(5, e, 6, 6)),
+        [0, 0, 1, 2, 3, 4, 5, 5, 5, 5, 5, 5, 5]
     );
     assert_eq!(
         [0, 1, 2, 3, 4, 5, 8, 9].map(|y| token_rows(y, 3)),
