@@ -138,12 +138,13 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
             Ok(fill_invalid(&tokens, &kept))
         })?;
         readouts.push(scored("head+lr", &filled, &truth)?);
-        readouts.push(
-            steps.run("head+lr+ref: integer pixel refinement (census 5x5, +-2 px)", || {
+        readouts.push(steps.run(
+            "head+lr+ref: integer pixel refinement (census 5x5, 9x9 box, +-2 px)",
+            || {
                 let disparity = refine_pixels(&filled, &GrayViews::from_views(&left, &right)?)?;
                 scored_pixels("head+lr+ref", disparity, &truth)
-            })?,
-        );
+            },
+        )?);
     }
     if model.has_head_of(HeadKind::Native) {
         let native = PipelineOptions {

@@ -11,7 +11,7 @@
 //! | suffix | pixels |
 //! |---|---|
 //! | (none) | the token grid upsampled bilinearly (EVAL.md) |
-//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, +-2 px, [`bino_core::refine::RefineParams::DEFAULT`]) on the pair's 8-bit gray views, Q8 px / 256 |
+//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, 9x9 box of costs, +-2 px, [`bino_core::refine::RefineParams::DEFAULT`]) on the pair's 8-bit gray views, Q8 px / 256 |
 //!
 //! Every pixel gets a value (the maps are dense); the pixels of rejected cells are known from
 //! the method's mask, not from the disparity.
