@@ -572,8 +572,9 @@ const fn arena_bytes_run(height: usize, width: usize, opts: &Options, refine: Op
 
 /// Bytes of the refinement's buffers in a run of a `height x width` pair: its state kept
 /// across bands (two token rows; with several bands and a head input a ring of view rows) and
-/// its row scratch (census codes and the output row). 6,885 at 48x160 with the defaults;
-/// 13,925 for a taller image at width 160 refining a head readout (the 22-row view ring).
+/// its row scratch (census codes and the output row). 14,085 at 48x160 with the defaults (the
+/// equalisation's 13 smoothed rows included; 12,005 without); 22,405 for a taller image at width
+/// 160 refining a head readout (the 26-row view ring).
 pub const fn refine_bytes(height: usize, width: usize, refine: &Refine) -> usize {
     let (state, scratch) = refine_parts(height, width, refine);
     state.saturating_add(scratch)

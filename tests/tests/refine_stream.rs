@@ -337,13 +337,14 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
         arena_bytes_refined(48, 160, &sgm, &Refine::for_options(&sgm)),
         arena_bytes_for(48, 160, &sgm)
     );
-    // The equalisation's smoothed rows: one window, 9 rows of 160 px, beyond the plain 6,885.
-    assert_eq!(refine_bytes(48, 160, &refine), 6_885 + 9 * 160);
+    // The equalisation's smoothed rows: one window, 13 rows of 160 px (the 9x9 box), beyond the
+    // plain 12,005 (6,885 with the 5x5 box: the census scratch holds 2 x 9 rows of 160 codes).
+    assert_eq!(refine_bytes(48, 160, &refine), 12_005 + 13 * 160);
     let plain = Refine {
         equalise: false,
         ..refine
     };
-    assert_eq!(refine_bytes(48, 160, &plain), 6_885);
+    assert_eq!(refine_bytes(48, 160, &plain), 12_005);
     // Several bands: the state (and for a head input the view ring) adds to the streams; the
     // row scratch lives in the encoder's.
     for (height, opts) in [(96, head_lr), (96, sgm), (480, head_lr)] {
@@ -352,10 +353,10 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
         let state = refine_bytes(height, 160, &r) - refine_bytes(48, 160, &r) + 161;
         assert_eq!(growth, state, "{height} {}", r.input.name());
     }
-    // The head's ring: 4 lag + 2 + reach - 4 CUT_MARGIN rows of both views (reach 6 equalised,
-    // 4 plain).
-    assert_eq!(refine_bytes(96, 160, &refine), 6_885 + 9 * 160 + 24 * 160 * 2);
-    assert_eq!(refine_bytes(96, 160, &plain), 6_885 + 22 * 160 * 2);
+    // The head's ring: 4 lag + 2 + reach - 4 CUT_MARGIN rows of both views (reach 8 equalised,
+    // 6 plain).
+    assert_eq!(refine_bytes(96, 160, &refine), 12_005 + 13 * 160 + 26 * 160 * 2);
+    assert_eq!(refine_bytes(96, 160, &plain), 12_005 + 24 * 160 * 2);
     // Too small by a byte is an error, not a wrong row.
     let s = scene(32, 80);
     let needed = arena_bytes_refined(80, 32, &head_lr, &refine);
