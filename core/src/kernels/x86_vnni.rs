@@ -15,11 +15,13 @@ use core::arch::x86_64::{
     __cpuid, __cpuid_count, __m128i, __m256i, __m512i, _mm256_add_epi32, _mm256_dpbusd_epi32,
     _mm256_permute2x128_si256, _mm256_set1_epi32, _mm256_set1_epi8, _mm256_setzero_si256, _mm256_sub_epi32,
     _mm256_unpackhi_epi32, _mm256_unpackhi_epi64, _mm256_unpacklo_epi32, _mm256_unpacklo_epi64, _mm256_xor_si256,
-    _mm512_add_epi32, _mm512_add_epi64, _mm512_and_si512, _mm512_cvtepi32_epi8, _mm512_mask_blend_epi32,
-    _mm512_min_epu32, _mm512_mul_epu32, _mm512_mullo_epi32, _mm512_packus_epi16, _mm512_packus_epi32,
-    _mm512_permutexvar_epi32, _mm512_reduce_add_epi32, _mm512_reduce_add_epi64, _mm512_sad_epu8, _mm512_set1_epi32,
-    _mm512_set1_epi8, _mm512_set_epi32, _mm512_setzero_si512, _mm512_sllv_epi32, _mm512_srli_epi32, _mm512_srli_epi64,
-    _mm512_srlv_epi32, _mm512_sub_epi32, _mm512_xor_si512, _mm_set1_epi32, _mm_sub_epi32, _xgetbv,
+    _mm512_add_epi16, _mm512_add_epi32, _mm512_add_epi64, _mm512_and_si512, _mm512_cvtepi32_epi8,
+    _mm512_mask_blend_epi32, _mm512_min_epu32, _mm512_mul_epu32, _mm512_mulhi_epu16, _mm512_mullo_epi32,
+    _mm512_packus_epi16, _mm512_packus_epi32, _mm512_permutexvar_epi32, _mm512_reduce_add_epi32,
+    _mm512_reduce_add_epi64, _mm512_sad_epu8, _mm512_set1_epi16, _mm512_set1_epi32, _mm512_set1_epi8, _mm512_set_epi32,
+    _mm512_setzero_si512, _mm512_slli_epi16, _mm512_sllv_epi16, _mm512_sllv_epi32, _mm512_srli_epi16,
+    _mm512_srli_epi32, _mm512_srli_epi64, _mm512_srlv_epi16, _mm512_srlv_epi32, _mm512_sub_epi16, _mm512_sub_epi32,
+    _mm512_xor_si512, _mm_set1_epi32, _mm_sub_epi32, _xgetbv,
 };
 use core::sync::atomic::{AtomicU8, Ordering};
 
@@ -203,6 +205,11 @@ struct ExpLanes {
     low_byte: __m512i,
     half: __m512i,
     c: [__m512i; 4],
+    // The cubic in 16-bit lanes ([`ExpLanes::cubic16`]).
+    c16: [__m512i; 4],
+    scale16: __m512i,
+    round16: __m512i,
+    shift16: __m512i,
 }
 
 impl ExpLanes {
@@ -222,28 +229,44 @@ impl ExpLanes {
             low_byte: v(255),
             half: v(1 << 14),
             c: [v(C0), v(C1), v(C2), v(C3)],
+            c16: [C0, C1, C2, C3].map(|c| _mm512_set1_epi16(c as u16 as i16)),
+            scale16: _mm512_set1_epi16(0xFF00u16 as i16),
+            round16: _mm512_set1_epi16(1 << 6),
+            shift16: _mm512_set1_epi16(7),
         }
     }
 
-    // `ExpQ32::weight` in 16 lanes: the gap's high product word from two `vpmuludq` (a 64-bit
-    // product per even or odd lane; the portable code assembles it from 16-bit halves, which
-    // `weight_by_table` and the exp tests show to be the same word), the gap clamped at the
-    // table's last entry (where the cubic is already 0), then the cubic. Weights 0..=255.
+    // `ExpQ32::weight` in 16 lanes: the exponents, then the cubic. Weights 0..=255.
     #[inline]
     #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
     fn weights(&self, scores: &[i32; SOFTMAX_STEP]) -> __m512i {
+        self.cubic(self.exponents(scores))
+    }
+
+    // The exponent `x` (Q8 base 2, `0..=EXP2_TABLE_LAST`) of sixteen scores: the gap's high
+    // product word from two `vpmuludq` (a 64-bit product per even or odd lane; the portable
+    // code assembles it from 16-bit halves, which `weight_by_table` and the exp tests show to
+    // be the same word), clamped at the table's last entry (where the cubic is already 0).
+    #[inline]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+    fn exponents(&self, scores: &[i32; SOFTMAX_STEP]) -> __m512i {
         let s: __m512i = must_cast(*scores);
         let gap = _mm512_sub_epi32(self.row_max, s);
         let g = _mm512_sllv_epi32(_mm512_min_epu32(gap, self.cap), self.pre);
         let even = _mm512_mul_epu32(g, self.mult);
         let odd = _mm512_mul_epu32(_mm512_srli_epi64::<32>(g), self.mult);
         let high = _mm512_mask_blend_epi32(0xAAAA, _mm512_srli_epi64::<32>(even), odd);
-        let x = _mm512_min_epu32(
+        _mm512_min_epu32(
             _mm512_srlv_epi32(_mm512_add_epi32(high, self.round), self.post),
             self.last,
-        );
-        // exp2_neg_u8_q8(x): the cubic of the fraction, shifted by the whole part (a gather
-        // from its table measured slower on Zen 4).
+        )
+    }
+
+    // exp2_neg_u8_q8(x) in 32-bit lanes: the cubic of the fraction, shifted by the whole part (a
+    // gather from its table measured slower on Zen 4).
+    #[inline]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+    fn cubic(&self, x: __m512i) -> __m512i {
         let [c0, c1, c2, c3] = self.c;
         let f = _mm512_and_si512(x, self.low_byte);
         let t = _mm512_srli_epi32::<8>(_mm512_mullo_epi32(c3, f));
@@ -253,11 +276,32 @@ impl ExpLanes {
         let shifted = _mm512_srlv_epi32(scaled, _mm512_srli_epi32::<8>(x));
         _mm512_srli_epi32::<15>(_mm512_add_epi32(shifted, self.half))
     }
+
+    // The same cubic in 32 16-bit lanes (`x` as `u16`), exactly: `(C * f) >> 8` is
+    // `mulhi(C, f << 8)` (and `x << 8` in 16 bits *is* `f << 8`), every coefficient and
+    // `C0 - t <= 2^15` fit a `u16`, and the rounding `((P * 255 >> w) + 2^14) >> 15` equals
+    // `(mulhi(P, 255 << 8) + 2^(6 + w)) >> (7 + w)` (nested floors of power-of-two divisions
+    // compose; the sum stays below 2^16), the shift reaching 16 only at `w = 9`, where
+    // `vpsrlvw` gives the 0 the cubic gives. Checked for every `x` by the tests.
+    #[inline]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+    fn cubic16(&self, x: __m512i) -> __m512i {
+        let [c0, c1, c2, c3] = self.c16;
+        let f8 = _mm512_slli_epi16::<8>(x);
+        let t = _mm512_mulhi_epu16(c3, f8);
+        let t = _mm512_mulhi_epu16(_mm512_sub_epi16(c2, t), f8);
+        let t = _mm512_mulhi_epu16(_mm512_sub_epi16(c1, t), f8);
+        let scaled = _mm512_mulhi_epu16(_mm512_sub_epi16(c0, t), self.scale16);
+        let whole = _mm512_srli_epi16::<8>(x);
+        let rounded = _mm512_add_epi16(scaled, _mm512_sllv_epi16(self.round16, whole));
+        _mm512_srlv_epi16(rounded, _mm512_add_epi16(whole, self.shift16))
+    }
 }
 
-// Sixty-four scores a step: four vectors of weights packed to bytes together (two `vpackusdw`,
-// one `vpackuswb`, one `vpermd` to undo the packs' 128-bit lanes; one `vpmovdb` per vector was
-// the loop's bottleneck) and summed with one `vpsadbw`; sixteen a step for the rest.
+// Sixty-four scores a step: four vectors of exponents packed to words (two `vpackusdw`), the
+// cubic on those 32 lanes a vector, the weights packed to bytes (one `vpackuswb`, one `vpermd`
+// to undo the packs' 128-bit lanes; one `vpmovdb` per vector was the loop's bottleneck) and
+// summed with one `vpsadbw`; sixteen a step for the rest.
 #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
 fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
     let n = scores.len().min(weights.len());
@@ -281,16 +325,17 @@ fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) 
         let (s1, s23) = s123.split_at(SOFTMAX_STEP);
         let (s2, s3) = s23.split_at(SOFTMAX_STEP);
         let sixteen = |x: &[i32]| -> [i32; SOFTMAX_STEP] { x.try_into().unwrap_or([0; SOFTMAX_STEP]) };
-        let v = [
-            lanes.weights(&sixteen(s0)),
-            lanes.weights(&sixteen(s1)),
-            lanes.weights(&sixteen(s2)),
-            lanes.weights(&sixteen(s3)),
+        let x = [
+            lanes.exponents(&sixteen(s0)),
+            lanes.exponents(&sixteen(s1)),
+            lanes.exponents(&sixteen(s2)),
+            lanes.exponents(&sixteen(s3)),
         ];
-        let bytes = _mm512_permutexvar_epi32(
-            unlane,
-            _mm512_packus_epi16(_mm512_packus_epi32(v[0], v[1]), _mm512_packus_epi32(v[2], v[3])),
-        );
+        // The exponents (<= EXP2_TABLE_LAST) pack to words losslessly; the cubic then runs on
+        // 32 lanes a vector, and its words (<= 255) pack to bytes.
+        let w01 = lanes.cubic16(_mm512_packus_epi32(x[0], x[1]));
+        let w23 = lanes.cubic16(_mm512_packus_epi32(x[2], x[3]));
+        let bytes = _mm512_permutexvar_epi32(unlane, _mm512_packus_epi16(w01, w23));
         byte_sums = _mm512_add_epi64(byte_sums, _mm512_sad_epu8(bytes, zero));
         let out: [u8; SOFTMAX_WIDE] = must_cast(_mm512_xor_si512(bytes, flip));
         w.copy_from_slice(&out);
@@ -526,6 +571,32 @@ mod tests {
     use super::*;
     use crate::kernels::matmul::dot;
     use crate::testutil::Rng;
+
+    #[test]
+    fn the_word_cubic_equals_the_exp_table_for_every_exponent() {
+        if !supported() {
+            return; // the softmax row never takes this path here
+        }
+        let e = ExpQ32::new(crate::fixed::Requant {
+            mult: 1 << 30,
+            shift: 30,
+        })
+        .expect("shift >= 22");
+        let exponents: [u16; 2 * 1184] = core::array::from_fn(|x| x.min(EXP2_TABLE_LAST as usize) as u16);
+        for chunk in exponents.chunks_exact(32) {
+            let x: [u16; 32] = chunk.try_into().expect("32 words");
+            // SAFETY: `supported()` saw every feature these functions are compiled for.
+            #[allow(unsafe_code)]
+            let weights: [u16; 32] = unsafe { must_cast(ExpLanes::new(&e, 0).cubic16(must_cast(x))) };
+            for (&x, &w) in x.iter().zip(&weights) {
+                assert_eq!(
+                    w,
+                    u16::from(super::super::exp::EXP2_NEG_U8_TABLE[x as usize]),
+                    "x = {x}"
+                );
+            }
+        }
+    }
 
     // One test: switching the kernels off is process-wide, and a second test doing it would
     // race this one.
