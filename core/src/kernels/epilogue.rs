@@ -332,14 +332,12 @@ pub fn residual_add_prepared<Z, M, B, M2, Z2>(
                 for (i, z) in zeros[..len].iter_mut().enumerate() {
                     *z = new_zero.at(start + i) as i64;
                 }
-                for r in 0..rows {
-                    let at = r * n + start..r * n + start + len;
-                    let (Some(x_part), Some(acc_part)) = (x.get_mut(at.clone()), acc.get(at)) else {
-                        break;
-                    };
-                    for (i, (xq, &a)) in x_part.iter_mut().zip(acc_part).enumerate() {
-                        *xq = sat_i8_i64(k.apply(i, *xq) + d.apply(i, a) + zeros[i % CHANNEL_CHUNK]);
-                    }
+                #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+                let done = super::x86_vnni::with_avx512(|| add_decoded_rows(x, acc, &chunk, &d, &k, &zeros)).is_some();
+                #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+                let done = false;
+                if !done {
+                    add_decoded_rows(x, acc, &chunk, &d, &k, &zeros);
                 }
             }
             _ => {
@@ -355,6 +353,28 @@ pub fn residual_add_prepared<Z, M, B, M2, Z2>(
             }
         }
         start += len;
+    }
+}
+
+/// One decoded chunk of [`residual_add_prepared`] over every row, in 64-bit arithmetic.
+#[inline(always)]
+fn add_decoded_rows(
+    x: &mut [i8],
+    acc: &[i32],
+    chunk: &residual_lanes::Chunk,
+    d: &ChunkParams,
+    k: &CarryParams,
+    zeros: &[i64; CHANNEL_CHUNK],
+) {
+    let (n, start, len) = (chunk.n, chunk.start, chunk.len);
+    for r in 0..chunk.rows {
+        let at = r * n + start..r * n + start + len;
+        let (Some(x_part), Some(acc_part)) = (x.get_mut(at.clone()), acc.get(at)) else {
+            break;
+        };
+        for (i, (xq, &a)) in x_part.iter_mut().zip(acc_part).enumerate() {
+            *xq = sat_i8_i64(k.apply(i, *xq) + d.apply(i, a) + zeros[i % CHANNEL_CHUNK]);
+        }
     }
 }
 

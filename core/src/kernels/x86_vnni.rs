@@ -39,7 +39,7 @@ const HEAD: usize = crate::config::HEAD_DIM;
 // 0: not yet looked, 1: absent or switched off, 2: in use.
 static STATE: AtomicU8 = AtomicU8::new(0);
 
-/// Whether these kernels run: the CPU and OS support AVX-512 F, BW, VL and VNNI, and
+/// Whether these kernels run: the CPU and OS support AVX-512 F, DQ, BW, VL and VNNI, and
 /// [`enable`] has not switched them off.
 pub fn available() -> bool {
     match STATE.load(Ordering::Relaxed) {
@@ -58,7 +58,7 @@ pub fn enable(on: bool) -> bool {
     run
 }
 
-/// Whether the CPU has AVX-512 F, BW, VL and VNNI and the OS saves their registers.
+/// Whether the CPU has AVX-512 F, DQ, BW, VL and VNNI and the OS saves their registers.
 pub fn supported() -> bool {
     const OSXSAVE: u32 = 1 << 27;
     // xgetbv(0): SSE, AVX, opmask, ZMM_Hi256 and Hi16_ZMM state enabled.
@@ -71,9 +71,14 @@ pub fn supported() -> bool {
     #[allow(unsafe_code)]
     let xcr0 = unsafe { _xgetbv(0) };
     let leaf7 = __cpuid_count(7, 0);
-    let (f, bw, vl) = (leaf7.ebx >> 16 & 1, leaf7.ebx >> 30 & 1, leaf7.ebx >> 31 & 1);
+    let (f, dq, bw, vl) = (
+        leaf7.ebx >> 16 & 1,
+        leaf7.ebx >> 17 & 1,
+        leaf7.ebx >> 30 & 1,
+        leaf7.ebx >> 31 & 1,
+    );
     let vnni = leaf7.ecx >> 11 & 1;
-    xcr0 & AVX512_STATE == AVX512_STATE && f & bw & vl & vnni == 1
+    xcr0 & AVX512_STATE == AVX512_STATE && f & dq & bw & vl & vnni == 1
 }
 
 /// `out` (`m x n`) = `a` (`m x k`) times the transpose of `w` (`n x k`), as
@@ -175,6 +180,24 @@ fn store<const N: usize>(out: &mut [i32], at: usize, values: &[i32; N], count: u
             *o = v;
         }
     }
+}
+
+/// `f()` compiled for AVX-512 F, BW, VL and DQ where the kernels run (`None`, `f` not called,
+/// elsewhere): portable loops inlined here vectorise with 64-bit lane multiplies and
+/// arithmetic shifts, which AVX2 lacks. The results are those of `f` compiled for AVX2.
+#[inline(always)]
+pub fn with_avx512<R>(f: impl FnOnce() -> R) -> Option<R> {
+    if !available() {
+        return None;
+    }
+    // SAFETY: `available()` saw AVX-512 F/BW/VL/DQ/VNNI on this CPU, enabled by the OS.
+    #[allow(unsafe_code)]
+    Some(unsafe { run_avx512(f) })
+}
+
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq")]
+fn run_avx512<R>(f: impl FnOnce() -> R) -> R {
+    f()
 }
 
 /// `attention::softmax_row` compiled with AVX-512 (16 lanes a vector) where the kernels run;
