@@ -4,7 +4,7 @@
 #
 #   bash scripts/gpu_pretrain.sh MINUTES [BATCH_MULTIPLIER]     # e.g. 7 4
 #
-# Resumes train/checkpoints/$BINO_GPU_RUN/last.pt (default p5_blur_150k) exactly, trains bf16 on
+# Resumes train/checkpoints/$BINO_GPU_RUN/last.pt (default p6_early_lr) exactly, trains bf16 on
 # CUDA at BATCH_MULTIPLIER (default 4) times the run's batch on the same pair schedules, reading
 # the train split from the carried pack train/gpu_pack (python -m bino_train.gpu_pack), for at
 # most MINUTES minutes or until the run's --pairs target ($BINO_GPU_PAIRS, default 150000), and
@@ -34,7 +34,7 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv_python="${BINO_VENV:-$HOME/.cache/bino-edge/venv}/bin/python"
 if [[ -z "${BINO_PYTHON:-}" && -x "$venv_python" ]]; then BINO_PYTHON="$venv_python"; fi
 py="${BINO_PYTHON:-python3}"
-run="${BINO_GPU_RUN:-p5_blur_150k}"
+run="${BINO_GPU_RUN:-p6_early_lr}"
 ckpt="$root/train/checkpoints/$run"
 pack="${BINO_GPU_PACK:-$root/train/gpu_pack}"
 pairs="${BINO_GPU_PAIRS:-150000}"
