@@ -6,7 +6,8 @@
 #
 # Each stage checkpoints (pretraining every few minutes, the head every 5 minutes) and `--resume`
 # continues exactly, so the script can be stopped and restarted at will: a stage whose target is
-# already reached returns at once. Stages: pretraining (30,000 pairs) -> shared head and native
+# already reached returns at once. Stages: pretraining (p6_early_lr's recipe, a 150,000-pair
+# schedule stopped at 22,016 pairs, where its probe was lowest) -> shared head and native
 # pathway head (HEAD_STEPS steps each) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
 # the trained encoder and the random init, head vs StereoSGBM on the eval split) -> int8 blob ->
 # MANIFEST.json. Set BINO_THREADS to change the torch thread count (default 2).
@@ -23,11 +24,11 @@ elif [[ -n "${1:-}" ]]; then
 fi
 
 threads="${BINO_THREADS:-2}"
-pretrain_pairs=30000
+pretrain_pairs=22016
 head_steps="${HEAD_STEPS:-1000}"
-pre=runs/p1_clean_bn
-head=runs/head_p1
-native_head=runs/hnat_p1
+pre=runs/p6_early_lr
+head=runs/head_p6
+native_head=runs/hnat_p6
 weights="$BINO_ROOT/weights"
 data="${BINO_DATA:-$BINO_ROOT/../shared/data}"
 py() { (cd train && "$BINO_VENV/bin/python" -W ignore "$@"); }
@@ -37,8 +38,10 @@ scripts/setup.sh
 
 step "pretraining to $pretrain_pairs pairs ($pre)"
 if [[ ${#resume[@]} -eq 0 ]]; then
-  py -m bino_train.pretrain --out "$pre" --pairs "$pretrain_pairs" --threads "$threads" \
-    --teacher-clean --head-bn --momentum 0.99 --eval-minutes 10 --eval-student
+  py -m bino_train.pretrain --out "$pre" --pairs "$pretrain_pairs" --schedule-pairs 150000 \
+    --lr 5e-4 --lr-decay-pairs 30000 --min-lr 2.5e-5 --threads "$threads" --teacher-clean \
+    --head-bn --momentum 0.99 --teacher-temp-warmup 0.06 --blur-prob 0.25 --eval-minutes 10 \
+    --eval-student
 else
   py -m bino_train.pretrain --out "$pre" --resume --pairs "$pretrain_pairs" --threads "$threads" \
     --eval-minutes 10 --eval-student
@@ -47,9 +50,10 @@ fi
 step "shared head to $head_steps steps ($head)"
 if [[ ${#resume[@]} -eq 0 ]]; then
   py -m bino_train.head_train --encoder "$pre/last.pt" --out "$head" --steps "$head_steps" \
-    --threads "$threads"
+    --threads "$threads" --no-eval --val-every 0
 else
-  py -m bino_train.head_train --out "$head" --resume --steps "$head_steps" --threads "$threads"
+  py -m bino_train.head_train --out "$head" --resume --steps "$head_steps" --threads "$threads" \
+    --no-eval --val-every 0
 fi
 
 step "native pathway head to $head_steps steps ($native_head): the shared head's recipe on the fused grid"

@@ -47,8 +47,13 @@ def file_hashes(folder: Path) -> dict[str, str]:
     }
 
 
-def run_summary(run: Path) -> dict[str, Any]:
-    """Recipe and progress of a training run, from its last checkpoint and log."""
+def run_summary(run: Path, upto_pairs: int | None = None) -> dict[str, Any]:
+    """Recipe and progress of a training run, from its last checkpoint and log.
+
+    `upto_pairs` names a pretraining run's teacher snapshot (`teacher_<pairs>.pt`) as the shipped
+    weights, when the run went on past its best probe: the recipe still comes from `last.pt`, the
+    progress (steps, pairs, seconds, evaluations) stops at the snapshot.
+    """
     state = torch.load(run / "last.pt", map_location="cpu", weights_only=False)
     summary: dict[str, Any] = {
         "run": run.name,
@@ -58,11 +63,42 @@ def run_summary(run: Path) -> dict[str, Any]:
         "train_seconds": state.get("train_seconds"),
     }
     log = run / "log.jsonl"
+    records = []
     if log.is_file():
         records = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
+    if upto_pairs is not None:
+        records = snapshot_records(run, records, upto_pairs, summary)
+    if records:
         summary["sessions"] = sum(1 for r in records if r.get("kind") == "start")
         summary["evaluations"] = [r for r in records if r.get("kind") == "eval"]
     return summary
+
+
+def snapshot_records(
+    run: Path, records: list[dict[str, Any]], pairs: int, summary: dict[str, Any]
+) -> list[dict[str, Any]]:
+    """The log up to the teacher snapshot at `pairs`; moves `summary`'s progress there."""
+    snapshot = run / f"teacher_{pairs:07d}.pt"
+    if not snapshot.is_file():
+        raise SystemExit(f"error: {snapshot}: no teacher snapshot at {pairs} pairs")
+    evals = [r for r in records if r.get("kind") == "eval" and r.get("pairs") == pairs]
+    if not evals:
+        raise SystemExit(f"error: {run / 'log.jsonl'}: no evaluation at {pairs} pairs")
+    kept = [r for r in records if r.get("pairs", 0) <= pairs]
+    # `wall_s` counts from each invocation's start: a run's time is the sum of its sessions'.
+    seconds, session = 0.0, 0.0
+    for r in kept:
+        if r.get("kind") == "start":
+            seconds, session = seconds + session, 0.0
+        session = max(session, float(r.get("wall_s", 0.0)))
+    summary.update(
+        shipped_checkpoint=snapshot.name,
+        steps=evals[0].get("step"),
+        pairs_seen=pairs,
+        train_seconds=round(seconds + session, 1),
+        run_pairs_seen=summary["pairs_seen"],
+    )
+    return kept
 
 
 def hardware() -> dict[str, str]:
@@ -118,13 +154,14 @@ def build_manifest(
     experiments: list[dict[str, Any]],
     data_dir: Path | None,
     native_head_run: Path | None = None,
+    pretrain_pairs: int | None = None,
 ) -> dict[str, Any]:
     pairs = training_pairs(data_dir)
     return {
         "files": file_hashes(weights),
         "code_commit": git_commit(weights.parent),
         "hardware": hardware(),
-        "pretraining": run_summary(pretrain_run),
+        "pretraining": run_summary(pretrain_run, pretrain_pairs),
         "head_training": run_summary(head_run) if head_run is not None else None,
         "native_head_training": (
             run_summary(native_head_run) if native_head_run is not None else None
@@ -141,6 +178,11 @@ def main(argv: list[str] | None = None) -> None:
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--pretrain-run", type=Path, required=True)
+    parser.add_argument(
+        "--pretrain-pairs",
+        type=int,
+        help="ship the run's teacher snapshot at this many pairs (teacher_<pairs>.pt), not last.pt",
+    )
     parser.add_argument("--head-run", type=Path)
     parser.add_argument("--native-head-run", type=Path, help="the native pathway's head run")
     parser.add_argument("--metrics", type=Path, help="JSON of measured metrics")
@@ -163,6 +205,7 @@ def main(argv: list[str] | None = None) -> None:
         experiments,
         args.data,
         native_head_run=args.native_head_run,
+        pretrain_pairs=args.pretrain_pairs,
     )
     args.out.write_text(json.dumps(manifest, indent=2) + "\n")
     print(f"wrote {args.out} ({len(manifest['files'])} files hashed)")

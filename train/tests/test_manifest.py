@@ -7,8 +7,9 @@ import json
 from pathlib import Path
 
 import pytest
+import torch
 
-from bino_train.manifest import collect_metrics, file_hashes
+from bino_train.manifest import collect_metrics, file_hashes, run_summary
 
 
 def test_file_hashes_cover_artifacts_but_not_docs_or_the_manifest(tmp_path: Path) -> None:
@@ -38,3 +39,42 @@ def test_collect_metrics_rejects_broken_json(tmp_path: Path) -> None:
     (tmp_path / "broken.json").write_text("{not json")
     with pytest.raises(SystemExit, match="broken.json is not valid JSON"):
         collect_metrics(tmp_path)
+
+
+def _write_run(run: Path) -> None:
+    """A pretraining run of two sessions that went on past its snapshot at 32 pairs."""
+    run.mkdir()
+    torch.save({"train_config": {"lr": 5e-4}, "step": 4, "pairs_seen": 64}, run / "last.pt")
+    torch.save({"config": {}, "encoder": {}}, run / "teacher_0000032.pt")
+    records = [
+        {"kind": "start", "step": 0, "pairs": 0},
+        {"step": 1, "pairs": 16, "wall_s": 10.0},
+        {"step": 2, "pairs": 32, "wall_s": 20.0},
+        {"kind": "start", "step": 2, "pairs": 32},
+        {"kind": "eval", "step": 2, "pairs": 32, "probe_epe": 2.5},
+        {"step": 3, "pairs": 48, "wall_s": 5.0},
+        {"kind": "eval", "step": 3, "pairs": 48, "probe_epe": 2.7},
+        {"step": 4, "pairs": 64, "wall_s": 9.0},
+    ]
+    (run / "log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+
+
+def test_run_summary_stops_at_a_shipped_teacher_snapshot(tmp_path: Path) -> None:
+    run = tmp_path / "p"
+    _write_run(run)
+    whole = run_summary(run)
+    assert (whole["pairs_seen"], len(whole["evaluations"])) == (64, 2)
+    shipped = run_summary(run, 32)
+    assert shipped["shipped_checkpoint"] == "teacher_0000032.pt"
+    assert (shipped["steps"], shipped["pairs_seen"], shipped["run_pairs_seen"]) == (2, 32, 64)
+    assert [e["probe_epe"] for e in shipped["evaluations"]] == [2.5]
+    assert shipped["train_config"] == {"lr": 5e-4}
+    assert shipped["train_seconds"] == 20.0
+    assert shipped["sessions"] == 2
+
+
+def test_run_summary_names_a_missing_snapshot(tmp_path: Path) -> None:
+    run = tmp_path / "p"
+    _write_run(run)
+    with pytest.raises(SystemExit, match="teacher_0000048.pt"):
+        run_summary(run, 48)

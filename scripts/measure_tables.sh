@@ -1,0 +1,57 @@
+#!/usr/bin/env bash
+# Re-measures the README's accuracy tables with the weights in weights/: every `bino eval` and
+# `bino compare` run behind them (eval split, StereoSGBM in the same run), the JSON into
+# train/checkpoints/metrics/. Run it whenever the blob changes; about 25 minutes on 2 cores.
+#
+#   scripts/measure_tables.sh [NAME...]   # all runs, or only the named ones (eval_w160, ...)
+#
+# Each run prints its wall time; a failed run stops the script (set -e) and leaves the earlier
+# JSON in place.
+set -euo pipefail
+source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
+cd "$BINO_ROOT"
+
+data="${BINO_DATA:-$BINO_ROOT/../shared/data}"
+metrics=train/checkpoints/metrics
+nuisances=gain,gamma,noise,blur,occlude
+cargo build -q --release --locked -p bino-host --bin bino
+bino="$CARGO_TARGET_DIR/release/bino"
+
+# name, then the arguments after `bino eval --data DATA --split eval`
+runs=(
+  "eval_w160|--profile w160"
+  "eval_w320|--profile w320 --max-cols 16"
+  "eval_nuisance_w160|--profile w160 --readout sgm+lr+ref,head+lr+ref --nuisance $nuisances"
+  "eval_nuisance_w320|--profile w320 --max-cols 16 --precision int8 --readout sgm+lr+ref,head+lr+ref --nuisance $nuisances"
+  "occlusion_w160|--profile w160 --precision int8 --readout sgm+lr+ref,head,head+lr,head+lr+ref --occlude 10,20,30,40"
+  "native_w160|--profile w160 --precision int8,f32 --pathway native"
+  "native_occlusion_w160|--profile w160 --precision int8 --readout head,head+lr,head+lr+ref --occlude 10,20,30,40 --pathway native"
+  "native_w320|--profile w320 --max-cols 16 --precision int8 --pathway native"
+  "native_f32_w320|--profile w320 --max-cols 16 --precision f32 --pathway native"
+)
+
+selected=("$@")
+wanted() {
+  [[ ${#selected[@]} -eq 0 ]] && return 0
+  for w in "${selected[@]}"; do [[ "$w" == "$1" ]] && return 0; done
+  return 1
+}
+
+for run in "${runs[@]}"; do
+  name="${run%%|*}"
+  read -r -a args <<<"${run#*|}"
+  wanted "$name" || continue
+  printf '\n== %s: bino eval %s\n' "$name" "${args[*]}"
+  start=$SECONDS
+  "$bino" eval --data "$data" --split eval "${args[@]}" --json "$metrics/$name.json"
+  printf '== %s: %d s\n' "$name" $((SECONDS - start))
+done
+
+if wanted int8_compare_w160; then
+  printf '\n== int8_compare_w160: bino compare\n'
+  start=$SECONDS
+  "$bino" compare --data "$data" --split eval --profile w160 --onnx weights/bino_encoder.onnx \
+    --blob weights/bino_int8.bin --head weights/bino_head.onnx --pathway native \
+    --json "$metrics/int8_compare_w160.json"
+  printf '== int8_compare_w160: %d s\n' $((SECONDS - start))
+fi
