@@ -310,13 +310,24 @@ impl Refine {
     /// pairs: it halves the refinement's epe rise under one defocused view at no clean cost).
     pub const EQUALISE: bool = true;
 
-    /// The shipped refinement of `input`: [`RefineParams::DEFAULT`] with the sharpness
-    /// equalisation (every command, preset and the firmware refine so).
+    /// The shipped refinement of `input` at the presets' and the firmware's 160 px:
+    /// [`RefineParams::DEFAULT`] with the sharpness equalisation (the host's commands use
+    /// [`Refine::for_width`], equal to this up to 200 px).
     pub const fn of(input: RefineInput) -> Self {
         Self {
             input,
             params: RefineParams::DEFAULT,
             equalise: Self::EQUALISE,
+        }
+    }
+
+    /// The shipped refinement of `input` on views `width` pixels wide: [`Refine::of`] with
+    /// [`RefineParams::for_width`] (the host's commands; at 48x160, the presets' and the
+    /// firmware's width, the same as [`Refine::of`]).
+    pub const fn for_width(input: RefineInput, width: usize) -> Self {
+        Self {
+            params: RefineParams::for_width(width),
+            ..Self::of(input)
         }
     }
 

@@ -139,7 +139,7 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         })?;
         readouts.push(scored("head+lr", &filled, &truth)?);
         readouts.push(steps.run(
-            "head+lr+ref: integer pixel refinement (census 5x5, 9x9 box, +-2 px)",
+            "head+lr+ref: integer pixel refinement (census 5x5, 9x9 box, search by width)",
             || {
                 let disparity = refine_pixels(&filled, &GrayViews::from_views(&left, &right)?)?;
                 scored_pixels("head+lr+ref", disparity, &truth)

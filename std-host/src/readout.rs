@@ -11,7 +11,7 @@
 //! | suffix | pixels |
 //! |---|---|
 //! | (none) | the token grid upsampled bilinearly (EVAL.md) |
-//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, 9x9 box of costs, +-2 px, [`bino_core::refine::RefineParams::DEFAULT`]) on the pair's 8-bit gray views, Q8 px / 256 |
+//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, 9x9 box of costs, search +-round(width / 80) px within 2..=8, [`bino_core::refine::RefineParams::for_width`]) on the pair's 8-bit gray views, Q8 px / 256 |
 //!
 //! Every pixel gets a value (the maps are dense); the pixels of rejected cells are known from
 //! the method's mask, not from the disparity.
@@ -308,7 +308,7 @@ mod tests {
                     bino_core::lr::fill_rejected(row, m).unwrap();
                 }
             }
-            let params = RefineParams::DEFAULT;
+            let params = RefineParams::for_width(32);
             let mut scratch = vec![0u32; scratch_len(32, &params)];
             let mut out = vec![0u16; 32 * 12];
             refine_map_equalised(&v.left, &v.right, 32, &grid, &params, &mut scratch, &mut out).unwrap();

@@ -62,11 +62,11 @@ pub fn tokens_q8(map: &DisparityMap) -> Vec<u16> {
 }
 
 /// The refined pixel disparity (px) of a token grid on `views` by the shipped refinement
-/// ([`RefineParams::DEFAULT`], equalised as [`Refine::EQUALISE`] says: the pipeline's and the
-/// firmware's). The grid must be the views' (`H / 4` x `W / 4` cells); the result has the
+/// ([`RefineParams::for_width`] of the views' width, equalised as [`Refine::EQUALISE`] says: the
+/// pipeline's with [`Refine::for_width`], and the firmware's at 160 px). The grid must be the views' (`H / 4` x `W / 4` cells); the result has the
 /// views' size, as the bilinear upsampling of the unrefined readout.
 pub fn refine_pixels(tokens: &DisparityMap, views: &GrayViews) -> Result<DisparityMap> {
-    refine_pixels_with(tokens, views, &RefineParams::DEFAULT, Refine::EQUALISE)
+    refine_pixels_with(tokens, views, &RefineParams::for_width(views.width), Refine::EQUALISE)
 }
 
 /// [`refine_pixels`] with explicit parameters, with or without the sharpness equalisation.

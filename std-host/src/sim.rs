@@ -146,7 +146,10 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         head_candidates: crate::readout_eval::head_candidates(width),
     };
     // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
-    let refine = opts.readout.refine.then(|| Refine::of(refine_input(opts.readout)));
+    let refine = opts
+        .readout
+        .refine
+        .then(|| Refine::for_width(refine_input(opts.readout), width));
     let layout = Layout::new(opts.display, width, height)?;
     let arena_bytes = match &refine {
         Some(r) => pipeline::arena_bytes_refined(height, width, &pipeline_opts, r),

@@ -410,3 +410,25 @@ fn the_native_pathway_refines_its_head_as_the_whole_map() {
         assert_eq!(err, Error::MissingReadout { readout: "head+lr" });
     }
 }
+
+/// Beyond 200 px the host's commands search wider (`Refine::for_width`): the streamed stage with
+/// that radius equals the whole map, as `bino sim` (streamed) and `bino run` (whole map) need.
+#[test]
+fn a_width_dependent_search_streams_as_the_whole_map() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let opts = options(true, true);
+    let (width, height) = (320, 56);
+    let refine = Refine::for_width(RefineInput::HeadLr, width);
+    assert_eq!(refine.params.search, 4);
+    assert_eq!(
+        Refine::for_width(RefineInput::HeadLr, 160),
+        Refine::of(RefineInput::HeadLr)
+    );
+    let s = scene_for(width, height, true);
+    let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap();
+    let want = whole_map(&s, &out, &refine);
+    assert!(out.refined == want, "{}", first_difference(&out.refined, &want, width));
+    let narrow = whole_map(&s, &out, &Refine::of(RefineInput::HeadLr));
+    assert_ne!(want, narrow, "the wider search changes some pixels");
+}

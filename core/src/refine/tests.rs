@@ -604,3 +604,20 @@ fn matches_the_python_fixture_bit_for_bit() {
     });
     assert!(cases >= 4);
 }
+
+#[test]
+fn the_search_radius_follows_the_view_width() {
+    // 160 px (the presets' and the firmware's width) keeps the shipped default.
+    assert_eq!(RefineParams::for_width(160), RefineParams::DEFAULT);
+    let search = |w| RefineParams::for_width(w).search;
+    assert_eq!(
+        [search(0), search(200), search(240), search(320), search(640)],
+        [2, 3, 3, 4, 8]
+    );
+    assert_eq!(search(usize::MAX), MAX_SEARCH);
+    for w in (0..2000).step_by(8) {
+        let p = RefineParams::for_width(w);
+        assert!(p.check().is_ok(), "width {w}: {p:?}");
+        assert_eq!(RefineParams { search: 2, ..p }, RefineParams::DEFAULT);
+    }
+}
