@@ -4,10 +4,10 @@
 #
 #   bash scripts/gpu_pretrain.sh MINUTES [BATCH_MULTIPLIER]     # e.g. 7 4
 #
-# Resumes train/checkpoints/$BINO_GPU_RUN/last.pt (default p6_early_lr) exactly, trains bf16 on
+# Resumes train/checkpoints/$BINO_GPU_RUN/last.pt (default p7_short_blur) exactly, trains bf16 on
 # CUDA at BATCH_MULTIPLIER (default 4) times the run's batch on the same pair schedules, reading
 # the train split from the carried pack train/gpu_pack (python -m bino_train.gpu_pack), for at
-# most MINUTES minutes or until the run's --pairs target ($BINO_GPU_PAIRS, default 150000), and
+# most MINUTES minutes or until the run's --pairs target ($BINO_GPU_PAIRS, default 30000, p7's schedule), and
 # writes into $OUT: teacher.pt and student.pt (fp16 weights, refreshed every minute, so a killed
 # command still brings back the last minute's), log.jsonl (the run's whole log) and stdout.txt.
 # No evaluation there (the pack holds no eval split). It fails (exit 3) when torch sees no GPU.
@@ -34,10 +34,10 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv_python="${BINO_VENV:-$HOME/.cache/bino-edge/venv}/bin/python"
 if [[ -z "${BINO_PYTHON:-}" && -x "$venv_python" ]]; then BINO_PYTHON="$venv_python"; fi
 py="${BINO_PYTHON:-python3}"
-run="${BINO_GPU_RUN:-p6_early_lr}"
+run="${BINO_GPU_RUN:-p7_short_blur}"
 ckpt="$root/train/checkpoints/$run"
 pack="${BINO_GPU_PACK:-$root/train/gpu_pack}"
-pairs="${BINO_GPU_PAIRS:-150000}"
+pairs="${BINO_GPU_PAIRS:-30000}"
 precision="${BINO_GPU_PRECISION:-bf16}"
 smoke="${BINO_GPU_SMOKE:-0}"
 device="${BINO_GPU_DEVICE:-cuda}"
