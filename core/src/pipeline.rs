@@ -312,7 +312,7 @@ impl Refine {
 
     /// The shipped refinement of `input` at the presets' and the firmware's 160 px:
     /// [`RefineParams::DEFAULT`] with the sharpness equalisation (the host's commands use
-    /// [`Refine::for_width`], equal to this up to 200 px).
+    /// [`Refine::for_width`], equal to this below 200 px).
     pub const fn of(input: RefineInput) -> Self {
         Self {
             input,

@@ -117,7 +117,7 @@ impl RefineParams {
     };
 
     /// [`RefineParams::DEFAULT`] with the search radius following the view width: round(width /
-    /// 80) px, within `2..=`[`MAX_SEARCH`] (±2 px up to 200 px, ±4 at 320, ±8 from 600). The
+    /// 80) px, within `2..=`[`MAX_SEARCH`] (±2 px below 200 px, ±4 at 320, ±8 from 600). The
     /// token grid's errors in pixels grow with the width as the disparities do; chosen on the 22
     /// held-out train pairs against left-right-consistent StereoSGBM (float head+lr at 320 px:
     /// ±2 / 3 / 4 px refine to 0.772 / 0.754 / 0.750 px epe; at 160 px ±2 stays).

@@ -39,8 +39,8 @@ pub struct RunArgs {
     #[command(flatten)]
     pathway: PathwayChoice,
     /// Pixel refinement of the readout: on (its +ref: the views' sharpness equalised where one
-    /// is defocused, then a census 5x5 search around the upsampled token disparity, +-2 px up
-    /// to 200 px of width and +-4 at 320 (round(width / 80)), bino_core::refine) or off (the
+    /// is defocused, then a census 5x5 search around the upsampled token disparity, +-2 px below
+    /// 200 px of width and +-4 at 320 (round(width / 80)), bino_core::refine) or off (the
     /// token grid upsampled bilinearly, as before the refinement).
     #[arg(long, value_enum, default_value = "on")]
     refine: bino_host::run::Refine,
