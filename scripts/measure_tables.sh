@@ -14,8 +14,6 @@ cd "$BINO_ROOT"
 data="${BINO_DATA:-$BINO_ROOT/../shared/data}"
 metrics=train/checkpoints/metrics
 nuisances=gain,gamma,noise,blur,occlude
-cargo build -q --release --locked -p bino-host --bin bino
-bino="$CARGO_TARGET_DIR/release/bino"
 
 # name, then the arguments after `bino eval --data DATA --split eval`
 runs=(
@@ -31,11 +29,21 @@ runs=(
 )
 
 selected=("$@")
+known=" ${runs[*]%%|*} int8_compare_w160 "
+for w in "${selected[@]}"; do
+  if [[ "$known" != *" $w "* ]]; then
+    echo "error: measure_tables.sh: unknown run '$w' (known:$known)" >&2
+    exit 2
+  fi
+done
 wanted() {
   [[ ${#selected[@]} -eq 0 ]] && return 0
   for w in "${selected[@]}"; do [[ "$w" == "$1" ]] && return 0; done
   return 1
 }
+
+cargo build -q --release --locked -p bino-host --bin bino
+bino="$CARGO_TARGET_DIR/release/bino"
 
 for run in "${runs[@]}"; do
   name="${run%%|*}"
