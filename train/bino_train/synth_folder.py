@@ -1,0 +1,160 @@
+"""Synthetic scenes with exact disparity and textureless surfaces, as a data folder `bino eval`
+scores (issue 13: the w320 bad1tok gap lies on textureless interiors, which the held-out
+validation against left-right-consistent StereoSGBM cannot see: SGBM rejects them).
+
+Each scene: a textured slanted background plane and two to four nearer fronto-parallel objects
+(rectangles and ellipses), half of them textureless (a flat grey with gentle shading, as a white
+bottle or a wall), rendered into both views with exact occlusion (nearer objects drawn last in
+each view) and a little sensor noise. The ground truth is the left view's disparity at every
+pixel (occluded pixels included, as Middlebury's). Seeds are fixed, apart from every training
+run's, so the folder is the same on every machine.
+
+    python -m bino_train.synth_folder --width 320 --out /tmp/synth320
+    bino eval --data /tmp/synth320 --split val --profile native --precision int8 --max-cols 16 ...
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from .pairs import COLUMNS
+from .pfm import encode_pfm
+from .profile import to_u8
+from .synthetic import smooth_texture
+
+SPLIT = "val"
+SEED = 20261204
+"""Scene i uses the generator seeded [SEED, i]; no training run draws from it."""
+
+Gray = NDArray[np.float32]
+Mask = NDArray[np.bool_]
+
+
+@dataclass(frozen=True)
+class Layer:
+    """A surface at left-view disparity `disparity` (px, per pixel) covering `mask` in the left
+    view, its appearance `texture` in right-view coordinates (shifted by the scene margin)."""
+
+    disparity: Gray
+    mask: Mask
+    texture: Gray
+
+
+def textured(rng: np.random.Generator, h: int, w: int) -> Gray:
+    """Value noise at a random, mostly moderate contrast."""
+    tex = smooth_texture(rng, h, w)
+    contrast = math.exp(rng.uniform(math.log(0.4), 0.0))
+    return np.clip(0.5 + (tex - tex.mean()) * contrast * 1.6, 0.0, 1.0).astype(np.float32)
+
+
+def textureless(rng: np.random.Generator, h: int, w: int) -> Gray:
+    """A flat grey with a gentle linear shading and a faint grain (under one grey level)."""
+    level = rng.uniform(0.15, 0.9)
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    shade = rng.uniform(-0.08, 0.08) * xs / w + rng.uniform(-0.08, 0.08) * ys / h
+    grain = (smooth_texture(rng, h, w) - 0.5) * 0.004
+    return np.clip(level + shade + grain, 0.0, 1.0).astype(np.float32)
+
+
+def shape_mask(rng: np.random.Generator, h: int, w: int) -> Mask:
+    """A rectangle or an ellipse, between a tenth and a third of the view wide."""
+    rh, rw = int(rng.integers(h // 5, h // 2)), int(rng.integers(w // 10, w // 3))
+    y0, x0 = int(rng.integers(0, h - rh)), int(rng.integers(0, w - rw))
+    ys, xs = np.mgrid[0:h, 0:w]
+    if rng.random() < 0.5:
+        return (ys >= y0) & (ys < y0 + rh) & (xs >= x0) & (xs < x0 + rw)
+    cy, cx = y0 + rh / 2, x0 + rw / 2
+    return ((ys + 0.5 - cy) / (rh / 2)) ** 2 + ((xs + 0.5 - cx) / (rw / 2)) ** 2 <= 1.0
+
+
+def sample(texture: Gray, x: Gray) -> Gray:
+    """texture[y, x[y, col]], bilinear along x."""
+    ys = np.broadcast_to(np.arange(x.shape[0], dtype=np.float32)[:, None], x.shape)
+    out = cv2.remap(texture, x.astype(np.float32), np.ascontiguousarray(ys), cv2.INTER_LINEAR)
+    return np.asarray(out, dtype=np.float32)
+
+
+def render(layers: list[Layer], h: int, w: int, margin: int) -> tuple[Gray, Gray, Gray]:
+    """(left, right, left disparity), layers far to near. A left pixel x of a layer shows its
+    texture at x - d + margin; the layer covers x - d in the right view."""
+    xs = np.broadcast_to(np.arange(w, dtype=np.float32)[None, :], (h, w))
+    left, right = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
+    disparity = np.zeros((h, w), np.float32)
+    for layer in layers:
+        left_view = sample(layer.texture, xs + margin - layer.disparity)
+        left = np.where(layer.mask, left_view, left)
+        disparity = np.where(layer.mask, layer.disparity, disparity)
+        # Right pixel x' shows the layer where some left x = x' + d is inside the mask; the
+        # objects are fronto-parallel, so d is one value and the mask shifts by it.
+        d = float(layer.disparity[layer.mask].mean())
+        shifted = sample(layer.mask.astype(np.float32), xs + d) >= 0.5
+        if layer.mask.all():  # the background covers the right view too
+            shifted = np.ones_like(shifted)
+        right = np.where(shifted, sample(layer.texture, xs + margin), right)
+    return left, right, disparity
+
+
+def scene(index: int, h: int, w: int, max_disparity: float) -> tuple[Gray, Gray, Gray]:
+    """Scene `index`: (left, right, disparity), views in [0, 1] with sensor noise."""
+    rng = np.random.default_rng([SEED, index])
+    margin = int(math.ceil(max_disparity)) + 2
+    tw = w + margin + 2
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
+    slant_x, slant_y = rng.uniform(-0.03, 0.03), rng.uniform(0.0, 0.06)
+    spread = abs(slant_x) * w / 2 + slant_y * h / 2
+    base = rng.uniform(spread + 1.0, 0.45 * max_disparity)
+    background = base + slant_x * (xs - w / 2) + slant_y * (ys - h / 2)
+    layers = [Layer(background.astype(np.float32), np.ones((h, w), bool), textured(rng, h, tw))]
+    near = float(background.max()) + 3.0
+    count = int(rng.integers(2, 5))
+    for d in sorted(rng.uniform(near, max_disparity, size=count)):
+        texture = textureless(rng, h, tw) if rng.random() < 0.5 else textured(rng, h, tw)
+        mask = shape_mask(rng, h, w)
+        layers.append(Layer(np.full((h, w), d, np.float32), mask, texture))
+    left, right, disparity = render(layers, h, w, margin)
+    noise = rng.normal(0.0, 1.0 / 255.0, size=(2, h, w)).astype(np.float32)
+    return np.clip(left + noise[0], 0, 1), np.clip(right + noise[1], 0, 1), disparity
+
+
+def write_folder(out: Path, width: int, height: int, count: int) -> int:
+    """Write `count` scenes of `height x width` px with disparities up to 60 px per 320 px of
+    width (the w320 profile's 16 candidates of 4 px); returns the number of pairs."""
+    out.mkdir(parents=True, exist_ok=True)
+    max_disparity = 60.0 * width / 320
+    rows = ["\t".join(COLUMNS)]
+    for i in range(count):
+        left, right, disparity = scene(i, height, width, max_disparity)
+        pair_id = f"synth_{i:02d}"
+        names = [f"{pair_id}_{v}.png" for v in ("left", "right")]
+        for name, image in zip(names, (left, right), strict=True):
+            if not cv2.imwrite(str(out / name), to_u8(image)):
+                raise OSError(f"cannot write {out / name}")
+        (out / f"{pair_id}_gt.pfm").write_bytes(encode_pfm(disparity))
+        fields = [pair_id, SPLIT, "synthetic", *names, f"{pair_id}_gt.pfm"]
+        rows.append("\t".join([*fields, "pfm", "1", "", str(width), str(height)]))
+    (out / "PAIRS.tsv").write_text("\n".join(rows) + "\n")
+    return count
+
+
+def main(argv: list[str] | None = None) -> None:
+    p = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    p.add_argument("--out", type=Path, required=True, help="folder to write")
+    p.add_argument("--width", type=int, default=320, help="view width (px)")
+    p.add_argument("--height", type=int, default=240, help="view height (px)")
+    p.add_argument("--count", type=int, default=16, help="number of scenes")
+    args = p.parse_args(argv)
+    n = write_folder(args.out, args.width, args.height, args.count)
+    print(f"{n} synthetic scenes at {args.width}x{args.height} px in {args.out}")
+
+
+if __name__ == "__main__":
+    main()
