@@ -42,7 +42,7 @@ use crate::model::head::{self, HeadRow, HeadSink, HeadStream, HeadView, HeadWeig
 use crate::model::ids::{HeadKind, HEAD_CONVS};
 use crate::model::probe::NoProbe;
 use crate::refine::RefineParams;
-use crate::sgm::{state_len, Penalties, SgmStream};
+use crate::sgm::{cell_guide, state_len, Penalties, SgmStream};
 use crate::Error;
 
 mod native;
@@ -456,7 +456,7 @@ const fn band_pixel_rows(height: usize) -> usize {
 
 /// Arena bytes of the matching, SGM and left-right state for `cols` patch columns
 /// (saturating, like every sizing helper here).
-const fn matching_bytes(cols: usize, max_cols: usize) -> usize {
+const fn matching_bytes(cols: usize, max_cols: usize, guided: bool) -> usize {
     let volume_row = state_len(cols, max_cols);
     let words = cols.saturating_mul(4).saturating_add(ALIGN_SLACK); // one u32 row
     let halves = volume_row.saturating_mul(2).saturating_add(1); // one u16 cost row
@@ -468,6 +468,7 @@ const fn matching_bytes(cols: usize, max_cols: usize) -> usize {
         halves.saturating_mul(2).saturating_add(sums).saturating_mul(2), // two SGM streams
         disparity.saturating_mul(4),                                     // WTA and SGM rows, both views
         cols.saturating_mul(2),                                          // left-right masks
+        if guided { cols.saturating_mul(4) } else { 0 },                 // SGM guides: rows and previous rows
     ])
 }
 
@@ -504,41 +505,45 @@ const fn check_rows_bytes(cols: usize, rows: usize) -> usize {
     sum(&[cols.saturating_mul(rows).saturating_mul(2).saturating_add(1), cols])
 }
 
-/// The head's part of an export-pathway run: its disparity candidates and whether it is
-/// checked ([`Options::head_lr`]).
+/// What sizes an export-pathway run's readout streams: the head's disparity candidates,
+/// whether it is checked ([`Options::head_lr`]), and whether the SGM is guided
+/// ([`Penalties::edge`]: two guide rows and two previous ones).
 #[derive(Clone, Copy)]
-struct HeadShape {
+struct ReadoutShape {
     candidates: usize,
     lr: bool,
+    guided: bool,
 }
 
-impl HeadShape {
+impl ReadoutShape {
     const fn of(opts: &Options) -> Self {
-        HeadShape {
+        ReadoutShape {
             candidates: opts.head_candidates,
             lr: opts.head && opts.head_lr,
+            guided: opts.penalties.edge > 0,
         }
     }
 
     /// The default head ([`HEAD_MAX_DISP`](crate::config::HEAD_MAX_DISP) candidates).
     const fn trained(lr: bool) -> Self {
-        HeadShape {
+        ReadoutShape {
             candidates: crate::config::HEAD_MAX_DISP,
             lr,
+            guided: false,
         }
     }
 }
 
 /// Arena bytes of the readout streams (with the head, and its check when `head.lr`; the check
 /// needs a second head stream only when `streaming` several bands).
-const fn stream_bytes(cols: usize, max_cols: usize, head: HeadShape, streaming: bool) -> usize {
+const fn stream_bytes(cols: usize, max_cols: usize, head: ReadoutShape, streaming: bool) -> usize {
     let check = if head.lr {
         head_check_bytes(cols, head.candidates, streaming)
     } else {
         0
     };
     let stream = head::arena_bytes_with(HeadKind::Export, cols, head.candidates);
-    sum(&[matching_bytes(cols, max_cols), stream, check])
+    sum(&[matching_bytes(cols, max_cols, head.guided), stream, check])
 }
 
 /// Arena bytes the pipeline needs for a `height x width` pair with `max_cols` candidates
@@ -549,13 +554,13 @@ const fn stream_bytes(cols: usize, max_cols: usize, head: HeadShape, streaming: 
 /// [`Error::ArenaTooSmall`] (or earlier, as [`Error::TooWide`] / [`Error::Candidates`]); the
 /// result is never a small wrong size.
 pub const fn arena_bytes(height: usize, width: usize, max_cols: usize) -> usize {
-    arena_bytes_of(height, width, max_cols, HeadShape::trained(false), None)
+    arena_bytes_of(height, width, max_cols, ReadoutShape::trained(false), None)
 }
 
 /// [`arena_bytes`] with the head's left-right check ([`Options::head_lr`]): a second head
 /// stream.
 pub const fn arena_bytes_head_lr(height: usize, width: usize, max_cols: usize) -> usize {
-    arena_bytes_of(height, width, max_cols, HeadShape::trained(true), None)
+    arena_bytes_of(height, width, max_cols, ReadoutShape::trained(true), None)
 }
 
 /// The arena bytes a run with `opts` needs: on the export pathway [`arena_bytes`] or
@@ -576,7 +581,7 @@ pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, re
 /// The arena bytes of a run with `opts`, refined when `refine` is given, on either pathway.
 const fn arena_bytes_run(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
     match opts.pathway {
-        Pathway::Export => arena_bytes_of(height, width, opts.max_cols, HeadShape::of(opts), refine),
+        Pathway::Export => arena_bytes_of(height, width, opts.max_cols, ReadoutShape::of(opts), refine),
         Pathway::Native => native::arena_bytes(height, width, opts, refine),
     }
 }
@@ -608,7 +613,7 @@ const fn arena_bytes_of(
     height: usize,
     width: usize,
     max_cols: usize,
-    head: HeadShape,
+    head: ReadoutShape,
     refine: Option<&Refine>,
 ) -> usize {
     let band_rows = band_pixel_rows(height);
@@ -882,10 +887,11 @@ impl Context<'_, '_> {
     }
 
     /// The head's shape in the arena (sized even without a head: see [`arena_bytes_for`]).
-    fn head_shape(&self) -> HeadShape {
-        HeadShape {
+    fn head_shape(&self) -> ReadoutShape {
+        ReadoutShape {
             candidates: self.opts.head_candidates,
             lr: self.head_lr(),
+            guided: self.opts.penalties.edge > 0,
         }
     }
 
@@ -1115,6 +1121,8 @@ struct Streams<'a, 'w> {
     cols: usize,
     max_cols: usize,
     lr_max_diff_q8: u16,
+    /// The SGM's jump penalty follows the views' brightness ([`Penalties::edge`]).
+    guided: bool,
     inv_left: &'a mut [u32],
     inv_right: &'a mut [u32],
     cost: &'a mut [u16],
@@ -1127,6 +1135,9 @@ struct Streams<'a, 'w> {
     sgm_right_out: &'a mut [u16],
     wta_mask: &'a mut [u8],
     sgm_mask: &'a mut [u8],
+    /// Each cell's mean grey level in the left and right view (guided SGM only).
+    guide_left: &'a mut [u8],
+    guide_right: &'a mut [u8],
     head: Option<HeadStream<'a, 'w>>,
     /// With `head_lr`: the mirrored head and the check.
     check: Option<(Option<HeadStream<'a, 'w>>, HeadCheck<'a>)>,
@@ -1165,14 +1176,15 @@ impl<'a, 'w> Streams<'a, 'w> {
             None => None,
         };
         let volume_row = state_len(cols, max_cols);
-        let matching = matching_bytes(cols, max_cols);
+        let guided = ctx.opts.penalties.edge > 0;
+        let matching = matching_bytes(cols, max_cols, guided);
         let (matching_arena, head_arena) = arena.split_at_mut(matching.min(arena.len()));
         let mut carver = Carver::new(matching_arena, matching)?;
         let inv_left = carver.u32s(cols)?;
         let inv_right = carver.u32s(cols)?;
         let cost = carver.u16s(volume_row)?;
         let cost_right = carver.u16s(volume_row)?;
-        let sgm = SgmStream::new(
+        let mut sgm = SgmStream::new(
             cols,
             max_cols,
             ctx.opts.penalties,
@@ -1180,7 +1192,7 @@ impl<'a, 'w> Streams<'a, 'w> {
             carver.u16s(volume_row)?,
             carver.u32s(volume_row)?,
         )?;
-        let sgm_right = SgmStream::new(
+        let mut sgm_right = SgmStream::new(
             cols,
             max_cols,
             ctx.opts.penalties,
@@ -1194,6 +1206,15 @@ impl<'a, 'w> Streams<'a, 'w> {
         let sgm_right_out = carver.u16s(cols)?;
         let wta_mask = carver.u8s(cols)?;
         let sgm_mask = carver.u8s(cols)?;
+        // The guides take arena only when the SGM uses them (the default does not); bytes,
+        // so they come last and need no alignment.
+        let guide_cols = if guided { cols } else { 0 };
+        if guided {
+            sgm = sgm.with_guide(carver.u8s(cols)?)?;
+            sgm_right = sgm_right.with_guide(carver.u8s(cols)?)?;
+        }
+        let guide_left = carver.u8s(guide_cols)?;
+        let guide_right = carver.u8s(guide_cols)?;
         let mut used = carver.used();
         let (head, check) = match ctx.head {
             Some(w) => {
@@ -1226,6 +1247,7 @@ impl<'a, 'w> Streams<'a, 'w> {
             cols,
             max_cols,
             lr_max_diff_q8: ctx.opts.lr_max_diff_q8,
+            guided,
             inv_left,
             inv_right,
             cost,
@@ -1238,6 +1260,8 @@ impl<'a, 'w> Streams<'a, 'w> {
             sgm_right_out,
             wta_mask,
             sgm_mask,
+            guide_left,
+            guide_right,
             head,
             check,
             refine,
@@ -1292,6 +1316,24 @@ impl<'a, 'w> Streams<'a, 'w> {
         Ok(())
     }
 
+    /// Token row `row`'s guides: each cell's mean grey level in either view, from the band
+    /// buffer's pixel rows (the band was encoded from them, so it holds them).
+    fn guides(&mut self, row: usize, view: &BandView<'_>) -> Result<(), Error> {
+        let first = row.saturating_mul(PATCH_H);
+        let mut left: [&[u8]; PATCH_H] = [&[]; PATCH_H];
+        let mut right: [&[u8]; PATCH_H] = [&[]; PATCH_H];
+        for (i, (l, r)) in left.iter_mut().zip(right.iter_mut()).enumerate() {
+            let v = first.saturating_add(i);
+            (*l, *r) = view.row(v).ok_or(Error::BufferSize {
+                what: "SGM guide: band rows",
+                expected: v.saturating_add(1),
+                found: view.first.saturating_add(view.rows),
+            })?;
+        }
+        cell_guide(&left, CELL_W, self.guide_left)?;
+        cell_guide(&right, CELL_W, self.guide_right)
+    }
+
     fn push_row(
         &mut self,
         row: usize,
@@ -1308,8 +1350,15 @@ impl<'a, 'w> Streams<'a, 'w> {
         cost_row(left, right, self.inv_left, self.inv_right, mc, self.cost)?;
         right_view_costs(self.cost, mc, self.cost_right)?;
         sink.stage(Stage::Sgm);
-        self.sgm.push_row(self.cost, self.sgm_out)?;
-        self.sgm_right.push_row(self.cost_right, self.sgm_right_out)?;
+        if self.guided {
+            self.guides(row, &io.view)?;
+            self.sgm.push_row_guided(self.cost, self.guide_left, self.sgm_out)?;
+            self.sgm_right
+                .push_row_guided(self.cost_right, self.guide_right, self.sgm_right_out)?;
+        } else {
+            self.sgm.push_row(self.cost, self.sgm_out)?;
+            self.sgm_right.push_row(self.cost_right, self.sgm_right_out)?;
+        }
         sink.stage(Stage::LeftRight);
         wta_costs(self.cost_right, mc, self.wta_right)?;
         self.wta_kept += consistent_row(self.wta, self.wta_right, self.lr_max_diff_q8, self.wta_mask)?;

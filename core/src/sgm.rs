@@ -17,12 +17,33 @@ pub const COST_EXCLUDED: u16 = 2 * COST_ONE;
 
 /// SGM smoothness penalties in cost units: `p1` for a change of one candidate between
 /// neighbours, `p2` for any larger jump (`p2 >= p1`).
+///
+/// With `edge > 0` and a guide (each cell's mean grey level, [`SgmStream::push_row_guided`]),
+/// `p2` falls where neighbouring cells differ in brightness, as Hirschmueller's intensity-
+/// adaptive `P2`: `max(p1, p2 * edge / (edge + |g_p - g_q|))`, halved at a difference of
+/// `edge` grey levels. Depth edges mostly are brightness edges, so a surface's disparity spreads
+/// over its flat interior but stops at its outline.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Penalties {
     /// Penalty for a one-column disparity change.
     pub p1: u16,
     /// Penalty for a larger change.
     pub p2: u16,
+    /// Grey-level difference at which `p2` halves; 0: `p2` everywhere.
+    pub edge: u8,
+}
+
+impl Penalties {
+    /// The jump penalty between cells of mean grey levels `a` and `b`.
+    #[inline]
+    pub fn jump(self, a: u8, b: u8) -> u32 {
+        let (p1, p2) = (self.p1 as u32, self.p2 as u32);
+        if self.edge == 0 {
+            return p2;
+        }
+        let edge = self.edge as u32;
+        (p2 * edge / (edge + a.abs_diff(b) as u32)).max(p1)
+    }
 }
 
 /// The penalties every command, the firmware and the board apps run (`preset::OPTIONS`):
@@ -30,7 +51,11 @@ pub struct Penalties {
 /// StereoSGBM (`python -m bino_train.val_folder`, then `bino eval --split val`), where
 /// sgm+lr+ref's epe falls from 0.904 (p1 8, p2 32) to 0.661 px at 320 px and from 0.674 to
 /// 0.542 px at 160 px; p2 stays four times p1, and twice these scores worse at 320 px.
-pub const DEFAULT_PENALTIES: Penalties = Penalties { p1: 64, p2: 256 };
+pub const DEFAULT_PENALTIES: Penalties = Penalties {
+    p1: 64,
+    p2: 256,
+    edge: 0,
+};
 
 /// Streaming SGM state over rows of `cols` cells with `candidates` disparities each.
 pub struct SgmStream<'a> {
@@ -40,6 +65,8 @@ pub struct SgmStream<'a> {
     vertical: &'a mut [u16],
     diagonal: &'a mut [u16],
     sum: &'a mut [u32],
+    /// The previous row's guide ([`SgmStream::with_guide`]).
+    prev_guide: Option<&'a mut [u8]>,
     rows_seen: usize,
 }
 
@@ -91,13 +118,53 @@ impl<'a> SgmStream<'a> {
             vertical,
             diagonal,
             sum,
+            prev_guide: None,
             rows_seen: 0,
         })
     }
 
+    /// Keeps the previous row's guide in `prev_guide` (`cols` bytes), so that
+    /// [`SgmStream::push_row_guided`] can adapt the vertical and diagonal paths' `p2` too.
+    pub fn with_guide(mut self, prev_guide: &'a mut [u8]) -> Result<Self, Error> {
+        if prev_guide.len() != self.cols {
+            return Err(Error::BufferSize {
+                what: "SGM guide state",
+                expected: self.cols,
+                found: prev_guide.len(),
+            });
+        }
+        self.prev_guide = Some(prev_guide);
+        Ok(self)
+    }
+
     /// Aggregates one row of costs (`cols x candidates`, candidates fastest) and writes each
-    /// cell's disparity in Q8 patch columns to `out`.
+    /// cell's disparity in Q8 patch columns to `out`, with `p2` everywhere.
     pub fn push_row(&mut self, cost: &[u16], out: &mut [u16]) -> Result<(), Error> {
+        self.push(cost, None, out)
+    }
+
+    /// [`SgmStream::push_row`] with `guide`, each cell's mean grey level (`cols` bytes): the
+    /// jump penalty between two cells is [`Penalties::jump`] of theirs. Needs
+    /// [`SgmStream::with_guide`].
+    pub fn push_row_guided(&mut self, cost: &[u16], guide: &[u8], out: &mut [u16]) -> Result<(), Error> {
+        if guide.len() != self.cols {
+            return Err(Error::BufferSize {
+                what: "SGM guide row",
+                expected: self.cols,
+                found: guide.len(),
+            });
+        }
+        if self.prev_guide.is_none() {
+            return Err(Error::BufferSize {
+                what: "SGM guide state",
+                expected: self.cols,
+                found: 0,
+            });
+        }
+        self.push(cost, Some(guide), out)
+    }
+
+    fn push(&mut self, cost: &[u16], guide: Option<&[u8]>, out: &mut [u16]) -> Result<(), Error> {
         let (cols, d) = (self.cols, self.candidates);
         if cost.len() != cols * d {
             return Err(Error::BufferSize {
@@ -114,6 +181,12 @@ impl<'a> SgmStream<'a> {
             });
         }
         let pen = self.penalties;
+        // The jump penalty between cell `p` of this row and cell `q` of `other` (this row's
+        // guide or the previous one); `p2` without a guide.
+        let jump = |p: usize, q: usize, other: Option<&[u8]>| match (guide, other) {
+            (Some(g), Some(o)) => pen.jump(g.get(p).copied().unwrap_or(0), o.get(q).copied().unwrap_or(0)),
+            _ => pen.p2 as u32,
+        };
         let first = self.rows_seen == 0;
         self.sum.iter_mut().for_each(|s| *s = 0);
         let mut running = [0u16; MAX_CANDIDATES];
@@ -126,12 +199,14 @@ impl<'a> SgmStream<'a> {
                 if i == 0 {
                     next[..d].copy_from_slice(c);
                 } else {
-                    step(c, &running[..d], pen, &mut next[..d]);
+                    let from = if order { p + 1 } else { p - 1 };
+                    step(c, &running[..d], pen.p1, jump(p, from, guide), &mut next[..d]);
                 }
                 running[..d].copy_from_slice(&next[..d]);
                 add(&mut self.sum[p * d..(p + 1) * d], &next[..d]);
             }
         }
+        let prev_guide = self.prev_guide.as_deref();
         // Top to bottom: each cell from the same column of the previous row (in place).
         // Diagonal: from column p - 1 of the previous row, so columns go right to left.
         for p in (0..cols).rev() {
@@ -140,14 +215,21 @@ impl<'a> SgmStream<'a> {
             if first {
                 next[..d].copy_from_slice(c);
             } else {
-                step(c, &self.vertical[cell.clone()], pen, &mut next[..d]);
+                step(
+                    c,
+                    &self.vertical[cell.clone()],
+                    pen.p1,
+                    jump(p, p, prev_guide),
+                    &mut next[..d],
+                );
             }
             self.vertical[cell.clone()].copy_from_slice(&next[..d]);
             add(&mut self.sum[cell.clone()], &next[..d]);
             if first || p == 0 {
                 next[..d].copy_from_slice(c);
             } else {
-                step(c, &self.diagonal[(p - 1) * d..p * d], pen, &mut next[..d]);
+                let from = &self.diagonal[(p - 1) * d..p * d];
+                step(c, from, pen.p1, jump(p, p - 1, prev_guide), &mut next[..d]);
             }
             self.diagonal[cell.clone()].copy_from_slice(&next[..d]);
             add(&mut self.sum[cell], &next[..d]);
@@ -155,27 +237,62 @@ impl<'a> SgmStream<'a> {
         for (p, o) in out.iter_mut().enumerate() {
             *o = refine_min(&self.sum[p * d..(p + 1) * d]);
         }
+        if let (Some(g), Some(prev)) = (guide, self.prev_guide.as_deref_mut()) {
+            prev.copy_from_slice(g);
+        }
         self.rows_seen += 1;
         Ok(())
     }
 }
 
 /// One SGM path step: `L[k] = C[k] + min(P[k], P[k +- 1] + p1, min P + p2) - min P`.
-fn step(cost: &[u16], prev: &[u16], pen: Penalties, out: &mut [u16]) {
+fn step(cost: &[u16], prev: &[u16], p1: u16, p2: u32, out: &mut [u16]) {
     let min_prev = prev.iter().copied().min().unwrap_or(0) as u32;
-    let jump = min_prev + pen.p2 as u32;
+    let jump = min_prev + p2;
     for (k, (o, &c)) in out.iter_mut().zip(cost).enumerate() {
         let mut best = prev[k] as u32;
         if k > 0 {
-            best = best.min(prev[k - 1] as u32 + pen.p1 as u32);
+            best = best.min(prev[k - 1] as u32 + p1 as u32);
         }
         if let Some(&n) = prev.get(k + 1) {
-            best = best.min(n as u32 + pen.p1 as u32);
+            best = best.min(n as u32 + p1 as u32);
         }
         // best >= min_prev, so the subtraction cannot wrap; the sum stays below 2^16 as long
         // as costs and p2 do (cost <= 2 * COST_ONE, p2 checked by the caller's choice).
         *o = (c as u32 + best.min(jump) - min_prev).min(u16::MAX as u32) as u16;
     }
+}
+
+/// The guide of one token row: each cell's mean grey level over `rows` (the cell's pixel rows
+/// of one view), `out.len()` cells of `cell_w` pixels; the sum rounds to nearest. Rows shorter
+/// than the cells are an error.
+pub fn cell_guide(rows: &[&[u8]], cell_w: usize, out: &mut [u8]) -> Result<(), Error> {
+    let width = out.len().saturating_mul(cell_w);
+    let count = rows.len().saturating_mul(cell_w) as u32;
+    if count == 0 {
+        return Err(Error::EmptyImage);
+    }
+    for row in rows {
+        if row.len() < width {
+            return Err(Error::BufferSize {
+                what: "SGM guide pixel row",
+                expected: width,
+                found: row.len(),
+            });
+        }
+    }
+    for (c, o) in out.iter_mut().enumerate() {
+        let span = c * cell_w..(c + 1) * cell_w;
+        let total: u32 = rows
+            .iter()
+            .map(|r| {
+                r.get(span.clone())
+                    .map_or(0, |px| px.iter().map(|&v| v as u32).sum::<u32>())
+            })
+            .sum();
+        *o = ((total + count / 2) / count).min(255) as u8;
+    }
+    Ok(())
 }
 
 fn add(sum: &mut [u32], path: &[u16]) {
@@ -215,7 +332,11 @@ pub(crate) fn refine_min(costs: &[u32]) -> u16 {
 mod tests {
     use super::*;
 
-    const PEN: Penalties = Penalties { p1: 100, p2: 400 };
+    const PEN: Penalties = Penalties {
+        p1: 100,
+        p2: 400,
+        edge: 0,
+    };
 
     fn run(rows: &[[u16; 4 * 3]], out: &mut [[u16; 4]]) {
         let (mut v, mut g, mut s) = ([0u16; 12], [0u16; 12], [0u32; 12]);
@@ -256,10 +377,109 @@ mod tests {
     fn step_follows_the_recurrence() {
         let prev = [10, 50, 300];
         let mut out = [0u16; 3];
-        step(&[5, 5, 5], &prev, PEN, &mut out);
+        step(&[5, 5, 5], &prev, PEN.p1, PEN.p2 as u32, &mut out);
         // k=0: min(10, 50+100, 10+400) - 10 = 0; k=1: min(50, 10+100, 300+100, 410) - 10 = 40;
         // k=2: min(300, 50+100, 410) - 10 = 140.
         assert_eq!(out, [5, 45, 145]);
+    }
+
+    #[test]
+    fn the_jump_penalty_halves_at_the_edge_scale_and_never_falls_below_p1() {
+        let pen = Penalties {
+            p1: 100,
+            p2: 400,
+            edge: 8,
+        };
+        assert_eq!(pen.jump(50, 50), 400);
+        assert_eq!(pen.jump(50, 58), 200);
+        assert_eq!(pen.jump(58, 50), 200);
+        assert_eq!(pen.jump(0, 255), 100);
+        assert_eq!(PEN.jump(0, 255), 400, "edge 0: p2 everywhere");
+    }
+
+    #[test]
+    fn a_flat_guide_changes_nothing_and_a_bright_edge_lets_the_disparity_jump() {
+        // One row of four cells: cells 0-1 want candidate 0, cells 2-3 weakly prefer 2 (by less
+        // than the left-to-right path's jump penalty p2 = 400 costs, more than p1 = 100 does).
+        let want0 = [0u16, 800, 800];
+        let weak2 = [40u16, 800, 0];
+        let mut row = [0u16; 12];
+        for (p, c) in [want0, want0, weak2, weak2].iter().enumerate() {
+            row[p * 3..p * 3 + 3].copy_from_slice(c);
+        }
+        let pen = Penalties {
+            p1: 100,
+            p2: 400,
+            edge: 8,
+        };
+        let out = |guide: Option<[u8; 4]>| {
+            let (mut v, mut g, mut s, mut prev) = ([0u16; 12], [0u16; 12], [0u32; 12], [0u8; 4]);
+            let mut sgm = SgmStream::new(4, 3, pen, &mut v, &mut g, &mut s)
+                .unwrap()
+                .with_guide(&mut prev)
+                .unwrap();
+            let mut out = [0u16; 4];
+            match guide {
+                Some(gd) => sgm.push_row_guided(&row, &gd, &mut out).unwrap(),
+                None => sgm.push_row(&row, &mut out).unwrap(),
+            }
+            out.map(|d| d >> 8)
+        };
+        let plain = out(None);
+        assert_eq!(out(Some([90; 4])), plain, "a flat guide is p2 everywhere");
+        assert_eq!(plain, [0; 4], "without an edge the jump costs p2");
+        let edged = out(Some([30, 30, 200, 200]));
+        assert_eq!(edged, [0, 0, 2, 2], "an edge between cells 1 and 2 lets them jump");
+    }
+
+    #[test]
+    fn the_guided_push_needs_its_state_and_a_guide_row_per_cell() {
+        let (mut v, mut g, mut s) = ([0u16; 12], [0u16; 12], [0u32; 12]);
+        let mut out = [0u16; 4];
+        let mut sgm = SgmStream::new(4, 3, PEN, &mut v, &mut g, &mut s).unwrap();
+        assert!(matches!(
+            sgm.push_row_guided(&[0; 12], &[0; 4], &mut out),
+            Err(Error::BufferSize {
+                what: "SGM guide state",
+                ..
+            })
+        ));
+        let mut short = [0u8; 3];
+        assert!(matches!(
+            sgm.with_guide(&mut short),
+            Err(Error::BufferSize {
+                what: "SGM guide state",
+                ..
+            })
+        ));
+        let (mut v, mut g, mut s, mut prev) = ([0u16; 12], [0u16; 12], [0u32; 12], [0u8; 4]);
+        let mut sgm = SgmStream::new(4, 3, PEN, &mut v, &mut g, &mut s)
+            .unwrap()
+            .with_guide(&mut prev)
+            .unwrap();
+        assert!(matches!(
+            sgm.push_row_guided(&[0; 12], &[0; 3], &mut out),
+            Err(Error::BufferSize {
+                what: "SGM guide row",
+                ..
+            })
+        ));
+    }
+
+    #[test]
+    fn the_cell_guide_is_the_rounded_mean_of_each_cell() {
+        let rows: [&[u8]; 2] = [&[0, 1, 10, 10, 255, 255], &[1, 1, 10, 11, 255, 255]];
+        let mut out = [0u8; 3];
+        cell_guide(&rows, 2, &mut out).unwrap();
+        assert_eq!(out, [1, 10, 255]); // 3/4 rounds to 1, 41/4 to 10
+        assert!(matches!(
+            cell_guide(&rows, 2, &mut [0u8; 4]),
+            Err(Error::BufferSize {
+                what: "SGM guide pixel row",
+                ..
+            })
+        ));
+        assert!(matches!(cell_guide(&[], 2, &mut out), Err(Error::EmptyImage)));
     }
 
     #[test]

@@ -25,6 +25,10 @@ struct Input {
     costs: Vec<u16>,
     p1: u16,
     p2: u16,
+    edge: u8,
+    /// Each cell's grey level for the guided SGM (resized to the cells, and one short).
+    guide: Vec<u8>,
+    guide_delta: i8,
     /// SGM rows pushed.
     sgm_rows: u8,
     lr_max_diff_q8: u16,
@@ -75,12 +79,25 @@ fuzz_target!(|input: Input| {
     let penalties = Penalties {
         p1: input.p1,
         p2: input.p2,
+        edge: input.edge,
     };
-    if let Ok(mut sgm) = SgmStream::new(cells, candidates, penalties, &mut v, &mut d, &mut s) {
+    let mut prev_guide = vec![0u8; adjust(cells, input.guide_delta)];
+    let guide_fits = prev_guide.len() == cells;
+    if let Ok(sgm) = SgmStream::new(cells, candidates, penalties, &mut v, &mut d, &mut s) {
         let costs = resized(&input.costs, adjust(len, input.out_delta));
+        let guide = resized(&input.guide, adjust(cells, input.out_delta));
         let mut disparity = vec![0u16; cells];
-        for _ in 0..input.sgm_rows % 8 {
-            let _ = sgm.push_row(&costs, &mut disparity);
+        match sgm.with_guide(&mut prev_guide) {
+            Ok(mut sgm) => {
+                for i in 0..input.sgm_rows % 8 {
+                    let _ = if i % 2 == 0 {
+                        sgm.push_row_guided(&costs, &guide, &mut disparity)
+                    } else {
+                        sgm.push_row(&costs, &mut disparity)
+                    };
+                }
+            }
+            Err(_) => assert!(!guide_fits),
         }
     }
 

@@ -50,6 +50,8 @@ pub struct Run {
     pub p1: u16,
     /// SGM penalties.
     pub p2: u16,
+    /// SGM penalties: the guide's edge scale (0: none).
+    pub edge: u8,
     /// Left-right tolerance, Q8.
     pub lr_max_diff_q8: u16,
     /// The native pathway (one pass on (L, R), the native head) instead of the export one.
@@ -135,7 +137,11 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
             pipeline::Pathway::Export
         },
         max_cols: usize::from(run.max_cols),
-        penalties: Penalties { p1: run.p1, p2: run.p2 },
+        penalties: Penalties {
+            p1: run.p1,
+            p2: run.p2,
+            edge: run.edge,
+        },
         lr_max_diff_q8: run.lr_max_diff_q8,
         head: run.head,
         head_lr: run.head_lr,

@@ -18,7 +18,7 @@ use serde::Serialize;
 
 use crate::colour::{colourise, error_colour};
 use crate::eval::{fill_invalid, score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
-use crate::int8::{match_rows, sgm_rows, Int8Model};
+use crate::int8::{guide_map, match_rows, sgm_rows, Int8Model};
 use crate::keyed::Keyed;
 use crate::pipeline_maps::run_pipeline;
 use crate::profile::{Profile, View};
@@ -120,7 +120,20 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         scored("nolink", &tokens, &truth)
     })?);
     readouts.push(steps.run("SGM, 4 streaming paths (integer)", || {
-        let tokens = sgm_rows(&codes_left, &codes_right, rows, cols, opts.max_cols, opts.penalties)?;
+        let guide = if opts.penalties.edge > 0 {
+            Some(guide_map(&left)?)
+        } else {
+            None
+        };
+        let tokens = sgm_rows(
+            &codes_left,
+            &codes_right,
+            rows,
+            cols,
+            opts.max_cols,
+            opts.penalties,
+            guide.as_deref(),
+        )?;
         scored("sgm", &tokens, &truth)
     })?);
     if model.has_head() {

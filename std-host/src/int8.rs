@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use anyhow::{ensure, Context, Result};
 use bino_core::band::BandPlan;
 use bino_core::blob::Blob;
-use bino_core::config::{check_view_size, DIM, HEAD_MAX_DISP, PATCH_H};
+use bino_core::config::{check_view_size, CELL_W, DIM, HEAD_MAX_DISP, PATCH_H};
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
 use bino_core::model::head::{arena_bytes_with, HeadRow, HeadSink, HeadStream, HeadView, HeadWeights, OUT_FRAC_BITS};
 use bino_core::model::ids::{self, kind, HeadKind};
@@ -494,6 +494,22 @@ pub fn match_rows(left: &[i8], right: &[i8], rows: usize, cols: usize, max_cols:
     })
 }
 
+/// Each token cell's mean grey level over a view (`rows x cols`, row by row), as the core's
+/// pipeline computes the SGM guide from its band buffer: the view's 8-bit pixels
+/// ([`to_u8`]), averaged by [`bino_core::sgm::cell_guide`].
+pub fn guide_map(view: &View) -> Result<Vec<u8>> {
+    let (rows, cols) = (view.height / PATCH_H, view.width / CELL_W);
+    let pixels = to_u8(&view.pixels);
+    let mut out = vec![0u8; rows * cols];
+    for (r, cells) in out.chunks_exact_mut(cols.max(1)).enumerate() {
+        let rows: Vec<&[u8]> = (0..PATCH_H)
+            .map(|i| &pixels[(r * PATCH_H + i) * view.width..(r * PATCH_H + i + 1) * view.width])
+            .collect();
+        sgm::cell_guide(&rows, CELL_W, cells).map_err(anyhow::Error::msg)?;
+    }
+    Ok(out)
+}
+
 /// The no-linkage costs through `bino_core::sgm` (4 streaming paths, then the same parabola
 /// refinement): descriptor codes (`rows x cols x DIM`, both views) to disparity in patch columns.
 pub fn sgm_rows(
@@ -503,6 +519,7 @@ pub fn sgm_rows(
     cols: usize,
     max_cols: usize,
     penalties: sgm::Penalties,
+    guide: Option<&[u8]>,
 ) -> Result<DisparityMap> {
     ensure!(
         left.len() == rows * cols * DIM && right.len() == left.len(),
@@ -512,6 +529,14 @@ pub fn sgm_rows(
     let (mut vertical, mut diagonal, mut sum) = (vec![0u16; len], vec![0u16; len], vec![0u32; len]);
     let mut stream = sgm::SgmStream::new(cols, max_cols, penalties, &mut vertical, &mut diagonal, &mut sum)
         .map_err(anyhow::Error::msg)?;
+    let mut prev_guide = vec![0u8; cols];
+    if guide.is_some() {
+        ensure!(
+            guide.is_some_and(|g| g.len() == rows * cols),
+            "the SGM guide is not {rows}x{cols}"
+        );
+        stream = stream.with_guide(&mut prev_guide).map_err(anyhow::Error::msg)?;
+    }
     let (mut norms_l, mut norms_r) = (vec![0u32; cols], vec![0u32; cols]);
     let mut cost = vec![0u16; len];
     let mut row_out = vec![0u16; cols];
@@ -521,7 +546,14 @@ pub fn sgm_rows(
         matching::inverse_norms(l, &mut norms_l).map_err(anyhow::Error::msg)?;
         matching::inverse_norms(r, &mut norms_r).map_err(anyhow::Error::msg)?;
         matching::cost_row(l, r, &norms_l, &norms_r, max_cols, &mut cost).map_err(anyhow::Error::msg)?;
-        stream.push_row(&cost, &mut row_out).map_err(anyhow::Error::msg)?;
+        match guide {
+            Some(g) => {
+                let row = values.len() / cols.max(1);
+                stream.push_row_guided(&cost, &g[row * cols..(row + 1) * cols], &mut row_out)
+            }
+            None => stream.push_row(&cost, &mut row_out),
+        }
+        .map_err(anyhow::Error::msg)?;
         values.extend(row_out.iter().map(|&d| d as f32 / unit));
     }
     Ok(DisparityMap {

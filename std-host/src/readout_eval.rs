@@ -27,7 +27,7 @@ use crate::eval::{
     DisparityMap, EvalItem, GroundTruthMap, Metrics,
 };
 use crate::float_head::FloatHead;
-use crate::int8::{to_u8, Int8Model};
+use crate::int8::{guide_map, to_u8, Int8Model};
 use crate::keyed::Keyed;
 use crate::nuisance::{degrade_item, Nuisance};
 use crate::occlusion::{check_severities, occlude_item};
@@ -454,9 +454,21 @@ fn float_maps(
     let volume = similarity_volume(&left, &right, opts.max_cols)?;
     let volume_right = right_view(&volume);
     let wta = wta_subtoken(&volume);
-    let sgm_left = sgm(&volume, opts.penalties);
+    // The guides only where the SGM uses them ([`Penalties::edge`]).
+    let guides = if opts.penalties.edge > 0 {
+        Some((guide_map(&item.left)?, guide_map(&item.right)?))
+    } else {
+        None
+    };
+    let guide_left = guides.as_ref().map(|(l, _)| l.as_slice());
+    let guide_right = guides.as_ref().map(|(_, r)| r.as_slice());
+    let sgm_left = sgm(&volume, opts.penalties, guide_left);
     let wta_consistent = consistent(&wta, &wta_subtoken(&volume_right), opts.lr_max_diff);
-    let sgm_consistent = consistent(&sgm_left, &sgm(&volume_right, opts.penalties), opts.lr_max_diff);
+    let sgm_consistent = consistent(
+        &sgm_left,
+        &sgm(&volume_right, opts.penalties, guide_right),
+        opts.lr_max_diff,
+    );
     let (head, head_consistent) = match head {
         Some(h) => {
             let map = |values: Vec<f32>| DisparityMap {
@@ -576,7 +588,7 @@ impl EvalReport {
         let mut t = String::new();
         let _ = writeln!(
             t,
-            "bino {} eval: {} {} pairs of {} at {}, {} pathway, {} candidates (head {}), SGM p1 {} p2 {}, LR tolerance {} col",
+            "bino {} eval: {} {} pairs of {} at {}, {} pathway, {} candidates (head {}), SGM p1 {} p2 {}{}, LR tolerance {} col",
             env!("CARGO_PKG_VERSION"),
             self.pairs.len(),
             o.split,
@@ -589,6 +601,10 @@ impl EvalReport {
                 .map_or("by width".to_string(), |w| head_candidates(w).to_string()),
             o.penalties.p1,
             o.penalties.p2,
+            match o.penalties.edge {
+                0 => String::new(),
+                e => format!(" edge {e}"),
+            },
             o.lr_max_diff
         );
         let _ = writeln!(
@@ -779,6 +795,7 @@ impl EvalReport {
             head_candidates: o.profile.width().map(head_candidates),
             sgm_p1: o.penalties.p1,
             sgm_p2: o.penalties.p2,
+            sgm_edge: o.penalties.edge,
             lr_max_diff: o.lr_max_diff as f64,
             pairs: self.pairs.len(),
             seed: o.seed,
@@ -858,6 +875,7 @@ struct EvalJson<'a> {
     head_candidates: Option<usize>,
     sgm_p1: u16,
     sgm_p2: u16,
+    sgm_edge: u8,
     lr_max_diff: f64,
     pairs: usize,
     seed: u64,
@@ -1001,7 +1019,7 @@ mod tests {
             precisions: vec![Precision::Int8],
             readouts: vec![Readout::NOLINK],
             max_cols: 10,
-            penalties: Penalties { p1: 8, p2: 32 },
+            penalties: Penalties { p1: 8, p2: 32, edge: 0 },
             lr_max_diff: 1.0,
             sgbm: false,
             limit: None,

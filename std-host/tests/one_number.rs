@@ -40,7 +40,7 @@ fn read_pfm(path: &Path) -> DisparityMap {
 #[test]
 fn run_writes_what_eval_scores_on_a_multi_band_pair() {
     let readouts = ["nolink+lr", "sgm", "head", "head+lr", "sgm+ref", "head+lr+ref"];
-    let report = run_matches_eval(Profile::W160, &readouts);
+    let report = run_matches_eval(Profile::W160, &readouts, &[]);
     // The refinement changes the map (and, on this pair, lowers the head's error).
     let epe = |r: &str| {
         report["per_pair"][0]["readouts"][format!("int8_{r}")]["metrics"]["epe"]
@@ -59,13 +59,29 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
 /// At w320 the head searches 16 candidates in both commands (`readout_eval::head_candidates`).
 #[test]
 fn run_writes_what_eval_scores_at_w320() {
-    let report = run_matches_eval(Profile::W320, &["head", "head+lr+ref"]);
+    let report = run_matches_eval(Profile::W320, &["head", "head+lr+ref"], &[]);
     assert!(report["per_pair"][0]["readouts"]["int8_head"]["metrics"]["epe"].is_number());
+}
+
+/// The guided SGM (`--sgm-edge`): its guide rows come from each band's pixel buffer in the
+/// pipeline, so the three bands of this pair check the guide across band seams; and it changes
+/// the map (the option is not ignored).
+#[test]
+fn run_writes_what_eval_scores_with_the_guided_sgm() {
+    let guided = run_matches_eval(Profile::W160, &["sgm", "sgm+lr+ref"], &["--sgm-edge", "8"]);
+    assert_eq!(guided["sgm_edge"], 8);
+    let plain = run_matches_eval(Profile::W160, &["sgm"], &["--sgm-edge", "0"]);
+    let epe = |r: &serde_json::Value| {
+        r["per_pair"][0]["readouts"]["int8_sgm"]["metrics"]["epe"]
+            .as_f64()
+            .unwrap()
+    };
+    assert_ne!(epe(&guided), epe(&plain));
 }
 
 /// Runs `bino eval` on mb2005_Art at `profile` for `readouts`, then `bino run` for each, and
 /// checks run's `disparity.pfm` scores eval's per-pair epe; returns eval's report.
-fn run_matches_eval(profile: Profile, readouts: &[&str]) -> serde_json::Value {
+fn run_matches_eval(profile: Profile, readouts: &[&str], extra: &[&str]) -> serde_json::Value {
     let profile_name = profile.to_string();
     let data = repo().join("../shared/data");
     let record = read_index(&data)
@@ -77,7 +93,7 @@ fn run_matches_eval(profile: Profile, readouts: &[&str]) -> serde_json::Value {
     assert!(item.left.height / 4 > 12, "more than one band");
 
     // A data folder holding only this pair (links to the shared files), for `bino eval`.
-    let dir = scratch_dir(&format!("one-number-{profile_name}"));
+    let dir = scratch_dir(&format!("one-number-{profile_name}{}", extra.join("")));
     let link = |name: &str, target: &Path| -> PathBuf {
         let path = dir.join(name);
         let _ = std::fs::remove_file(&path);
@@ -101,7 +117,8 @@ fn run_matches_eval(profile: Profile, readouts: &[&str]) -> serde_json::Value {
     )
     .unwrap();
     let json = dir.join("eval.json");
-    let eval = bino(&[
+    let joined = readouts.join(",");
+    let mut eval_args = vec![
         "eval",
         "--data",
         s(&dir),
@@ -110,11 +127,13 @@ fn run_matches_eval(profile: Profile, readouts: &[&str]) -> serde_json::Value {
         "--precision",
         "int8",
         "--readout",
-        &readouts.join(","),
+        &joined,
         "--no-sgbm",
         "--json",
         s(&json),
-    ]);
+    ];
+    eval_args.extend(extra);
+    let eval = bino(&eval_args);
     assert!(eval.status.success(), "{}", String::from_utf8_lossy(&eval.stderr));
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let max_cols = report["max_cols"].as_u64().unwrap().to_string();
@@ -144,6 +163,7 @@ fn run_matches_eval(profile: Profile, readouts: &[&str]) -> serde_json::Value {
         if refine == "off" {
             args.extend(["--refine", "off"]);
         }
+        args.extend(extra);
         let run = bino(&args);
         assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
         let stdout = String::from_utf8_lossy(&run.stdout);

@@ -11,10 +11,11 @@ use bino_core::pipeline::{
     arena_bytes, arena_bytes_for, arena_bytes_head_lr, HeadChecked, MatchedRow, Options, Pathway, Pipeline, RowSource,
     Sink, SlicePair, Stage,
 };
+use bino_core::sgm::Penalties;
 use bino_core::Error;
 use bino_host::blob_writer::BlobWriter;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
-use bino_host::int8::{match_rows, sgm_rows, Int8Model};
+use bino_host::int8::{guide_map, match_rows, sgm_rows, Int8Model};
 use bino_host::profile::View;
 use bino_host::synthetic;
 
@@ -131,7 +132,8 @@ fn pipeline_equals_whole_map_steps_with(width: usize, height: usize, opts: Optio
 
     let wta = match_rows(&left, &right, rows, cols, MAX_COLS).unwrap();
     assert_eq!(q8(&out.wta), wta.values, "WTA");
-    let sgm = sgm_rows(&left, &right, rows, cols, MAX_COLS, DEFAULT_PENALTIES).unwrap();
+    let guide = (opts.penalties.edge > 0).then(|| guide_map(&view(l, width, height)).unwrap());
+    let sgm = sgm_rows(&left, &right, rows, cols, MAX_COLS, opts.penalties, guide.as_deref()).unwrap();
     assert_eq!(q8(&out.sgm), sgm.values, "SGM");
     let head = model
         .head_with_candidates(&left, &right, (rows, cols), opts.head_candidates)
@@ -154,6 +156,28 @@ fn one_band_streams_to_the_same_outputs_as_whole_maps() {
 fn taller_images_go_band_by_band_to_the_same_outputs() {
     let out = pipeline_equals_whole_map_steps(96, 112);
     assert_eq!(out.bands.len(), 3);
+}
+
+/// The guided SGM (`Penalties::edge`): the pipeline's guide rows, taken from each band's pixel
+/// buffer, give the whole-map SGM on the views' cell means, across band seams; the guide costs
+/// four bytes per cell column of arena and changes the map.
+#[test]
+fn the_guided_sgm_streams_to_the_whole_map_across_bands() {
+    let guided = Options {
+        penalties: Penalties {
+            edge: 8,
+            ..DEFAULT_PENALTIES
+        },
+        ..options()
+    };
+    let out = pipeline_equals_whole_map_steps_with(96, 112, guided);
+    assert_eq!(out.bands.len(), 3);
+    assert_eq!(
+        arena_bytes_for(112, 96, &guided),
+        arena_bytes_for(112, 96, &options()) + 4 * 96 / 4
+    );
+    let plain = pipeline_equals_whole_map_steps(96, 112);
+    assert_ne!(out.sgm, plain.sgm);
 }
 
 /// A wide view's head searches further (w320: 16 candidates) and streams exactly as the whole

@@ -4,12 +4,15 @@ validation against left-right-consistent StereoSGBM cannot see: SGBM rejects the
 
 Each scene: a textured slanted background plane and two to four nearer fronto-parallel objects
 (rectangles and ellipses), half of them textureless (a flat grey with gentle shading, as a white
-bottle or a wall), rendered into both views with exact occlusion (nearer objects drawn last in
-each view) and a little sensor noise. The ground truth is the left view's disparity at every
+bottle or a wall). Textures are value noise, or with `--textures real` crops of train-split
+left views (real texture statistics: repetitive patterns, weak texture, fine detail). Layers
+are rendered into both views with exact occlusion (nearer objects drawn last in each view) and
+a little sensor noise. The ground truth is the left view's disparity at every
 pixel (occluded pixels included, as Middlebury's). Seeds are fixed, apart from every training
 run's, so the folder is the same on every machine.
 
     python -m bino_train.synth_folder --width 320 --out /tmp/synth320
+    python -m bino_train.synth_folder --width 320 --textures real --count 32 --out /tmp/real320
     bino eval --data /tmp/synth320 --split val --profile native --precision int8 --max-cols 16 ...
 """
 
@@ -24,7 +27,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .pairs import COLUMNS
+from .pairs import COLUMNS, load_gray, training_pairs
 from .pfm import encode_pfm
 from .profile import to_u8
 from .synthetic import smooth_texture
@@ -52,6 +55,22 @@ def textured(rng: np.random.Generator, h: int, w: int) -> Gray:
     tex = smooth_texture(rng, h, w)
     contrast = math.exp(rng.uniform(math.log(0.4), 0.0))
     return np.clip(0.5 + (tex - tex.mean()) * contrast * 1.6, 0.0, 1.0).astype(np.float32)
+
+
+class RealTextures:
+    """Crops of train-split left views (never the eval split), resized to `scale` x the scene."""
+
+    def __init__(self, data_dir: Path | None = None) -> None:
+        self.paths = [p.left for p in training_pairs(data_dir)]
+
+    def __call__(self, rng: np.random.Generator, h: int, w: int) -> Gray:
+        image = load_gray(self.paths[int(rng.integers(len(self.paths)))])
+        scale = max(h / image.shape[0], w / image.shape[1]) * rng.uniform(1.0, 1.6)
+        size = (math.ceil(image.shape[1] * scale), math.ceil(image.shape[0] * scale))
+        image = np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), np.float32)
+        y0 = int(rng.integers(0, image.shape[0] - h + 1))
+        x0 = int(rng.integers(0, image.shape[1] - w + 1))
+        return np.ascontiguousarray(image[y0 : y0 + h, x0 : x0 + w], dtype=np.float32)
 
 
 def textureless(rng: np.random.Generator, h: int, w: int) -> Gray:
@@ -101,9 +120,13 @@ def render(layers: list[Layer], h: int, w: int, margin: int) -> tuple[Gray, Gray
     return left, right, disparity
 
 
-def scene(index: int, h: int, w: int, max_disparity: float) -> tuple[Gray, Gray, Gray]:
-    """Scene `index`: (left, right, disparity), views in [0, 1] with sensor noise."""
+def scene(
+    index: int, h: int, w: int, max_disparity: float, real: RealTextures | None = None
+) -> tuple[Gray, Gray, Gray]:
+    """Scene `index`: (left, right, disparity), views in [0, 1] with sensor noise; textured
+    surfaces from `real` when given, else value noise."""
     rng = np.random.default_rng([SEED, index])
+    textured_surface = real or textured
     margin = int(math.ceil(max_disparity)) + 2
     tw = w + margin + 2
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
@@ -111,11 +134,13 @@ def scene(index: int, h: int, w: int, max_disparity: float) -> tuple[Gray, Gray,
     spread = abs(slant_x) * w / 2 + slant_y * h / 2
     base = rng.uniform(spread + 1.0, 0.45 * max_disparity)
     background = base + slant_x * (xs - w / 2) + slant_y * (ys - h / 2)
-    layers = [Layer(background.astype(np.float32), np.ones((h, w), bool), textured(rng, h, tw))]
+    surface = textured_surface(rng, h, tw)
+    layers = [Layer(background.astype(np.float32), np.ones((h, w), bool), surface)]
     near = float(background.max()) + 3.0
     count = int(rng.integers(2, 5))
     for d in sorted(rng.uniform(near, max_disparity, size=count)):
-        texture = textureless(rng, h, tw) if rng.random() < 0.5 else textured(rng, h, tw)
+        flat = rng.random() < 0.5
+        texture = textureless(rng, h, tw) if flat else textured_surface(rng, h, tw)
         mask = shape_mask(rng, h, w)
         layers.append(Layer(np.full((h, w), d, np.float32), mask, texture))
     left, right, disparity = render(layers, h, w, margin)
@@ -123,21 +148,24 @@ def scene(index: int, h: int, w: int, max_disparity: float) -> tuple[Gray, Gray,
     return np.clip(left + noise[0], 0, 1), np.clip(right + noise[1], 0, 1), disparity
 
 
-def write_folder(out: Path, width: int, height: int, count: int) -> int:
+def write_folder(
+    out: Path, width: int, height: int, count: int, real: RealTextures | None = None
+) -> int:
     """Write `count` scenes of `height x width` px with disparities up to 60 px per 320 px of
     width (the w320 profile's 16 candidates of 4 px); returns the number of pairs."""
     out.mkdir(parents=True, exist_ok=True)
     max_disparity = 60.0 * width / 320
     rows = ["\t".join(COLUMNS)]
     for i in range(count):
-        left, right, disparity = scene(i, height, width, max_disparity)
+        left, right, disparity = scene(i, height, width, max_disparity, real)
         pair_id = f"synth_{i:02d}"
         names = [f"{pair_id}_{v}.png" for v in ("left", "right")]
         for name, image in zip(names, (left, right), strict=True):
             if not cv2.imwrite(str(out / name), to_u8(image)):
                 raise OSError(f"cannot write {out / name}")
         (out / f"{pair_id}_gt.pfm").write_bytes(encode_pfm(disparity))
-        fields = [pair_id, SPLIT, "synthetic", *names, f"{pair_id}_gt.pfm"]
+        dataset = "synthetic_real" if real else "synthetic"
+        fields = [pair_id, SPLIT, dataset, *names, f"{pair_id}_gt.pfm"]
         rows.append("\t".join([*fields, "pfm", "1", "", str(width), str(height)]))
     (out / "PAIRS.tsv").write_text("\n".join(rows) + "\n")
     return count
@@ -151,8 +179,13 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--width", type=int, default=320, help="view width (px)")
     p.add_argument("--height", type=int, default=240, help="view height (px)")
     p.add_argument("--count", type=int, default=16, help="number of scenes")
+    p.add_argument(
+        "--textures", choices=("noise", "real"), default="noise", help="textured surfaces"
+    )
+    p.add_argument("--data", type=Path, help="folder with PAIRS.tsv for real textures")
     args = p.parse_args(argv)
-    n = write_folder(args.out, args.width, args.height, args.count)
+    real = RealTextures(args.data) if args.textures == "real" else None
+    n = write_folder(args.out, args.width, args.height, args.count, real)
     print(f"{n} synthetic scenes at {args.width}x{args.height} px in {args.out}")
 
 

@@ -68,3 +68,23 @@ def test_folder_is_reproducible_with_exact_dense_ground_truth(tmp_path: Path) ->
         assert left is not None and left.shape == (96, 160)
     _, _, disparity = scene(0, 96, 160, 30.0)
     assert len(np.unique(disparity)) > 3  # a slanted background and nearer objects
+
+
+def test_real_textures_come_from_train_split_views(tmp_path: Path) -> None:
+    from bino_train.synth_folder import RealTextures
+    from tests.conftest import HEADER
+
+    rng = np.random.default_rng(4)
+    image = rng.integers(0, 256, (60, 90), dtype=np.uint8)
+    cv2.imwrite(str(tmp_path / "l.png"), image)
+    cv2.imwrite(str(tmp_path / "e.png"), np.zeros_like(image))
+    rows = ["\t".join(HEADER)]
+    rows.append("\t".join(["t0", "train", "x", "l.png", "l.png", "", "", "", "", "90", "60"]))
+    rows.append("\t".join(["e0", "eval", "x", "e.png", "e.png", "", "", "", "", "90", "60"]))
+    (tmp_path / "PAIRS.tsv").write_text("\n".join(rows) + "\n")
+    real = RealTextures(tmp_path)
+    assert [p.name for p in real.paths] == ["l.png"]  # never the eval split's
+    crop = real(np.random.default_rng(0), 40, 120)
+    assert crop.shape == (40, 120) and crop.std() > 0.1  # the random image, not the black one
+    left, right, disparity = scene(1, 40, 120, 20.0, real)
+    assert left.shape == right.shape == disparity.shape == (40, 120)

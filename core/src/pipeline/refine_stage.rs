@@ -105,7 +105,7 @@ pub(super) struct BandView<'b> {
 
 impl<'b> BandView<'b> {
     /// Image row `v` of both views, when the buffer holds it.
-    fn row(&self, v: usize) -> Option<(&'b [u8], &'b [u8])> {
+    pub(super) fn row(&self, v: usize) -> Option<(&'b [u8], &'b [u8])> {
         let i = v.checked_sub(self.first).filter(|&i| i < self.rows)?;
         let range = i * self.width..(i + 1) * self.width;
         Some((self.left.get(range.clone())?, self.right.get(range)?))

@@ -30,7 +30,7 @@ pub struct PairCandidates {
 /// full stop: clap drops it from a one-line doc comment, and the help must read as before.
 pub const NOLINK_CANDIDATES_HELP: &str = "Disparity candidates of the no-linkage readout, in patch columns";
 
-/// `--sgm-p1`, `--sgm-p2`: the SGM smoothness penalties.
+/// `--sgm-p1`, `--sgm-p2`, `--sgm-edge`: the SGM smoothness penalties.
 #[derive(Args, Debug, Clone, Copy)]
 pub struct SgmPenalties {
     /// SGM penalty for a one-column change (cost units: 4096 = cosine 1).
@@ -39,6 +39,10 @@ pub struct SgmPenalties {
     /// SGM penalty for a larger jump.
     #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p2)]
     pub sgm_p2: u16,
+    /// Grey-level difference between neighbouring cells at which the SGM jump penalty halves
+    /// (0: the same penalty everywhere).
+    #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.edge)]
+    pub sgm_edge: u8,
 }
 
 impl SgmPenalties {
@@ -47,6 +51,7 @@ impl SgmPenalties {
         Penalties {
             p1: self.sgm_p1,
             p2: self.sgm_p2,
+            edge: self.sgm_edge,
         }
     }
 }

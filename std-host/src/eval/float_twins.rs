@@ -30,11 +30,15 @@ pub fn right_view(volume: &SimilarityVolume) -> SimilarityVolume {
 
 /// SGM over the costs `1 - cos` (2 outside the view) with `penalties` in the core's cost units
 /// (4096 = cosine 1): left to right, right to left, top to bottom and the top-left diagonal,
-/// summed, then the first minimum and its parabola step (clamped to half a column).
-pub fn sgm(volume: &SimilarityVolume, penalties: Penalties) -> DisparityMap {
+/// summed, then the first minimum and its parabola step (clamped to half a column). With
+/// `guide` (each cell's mean grey level, `rows x cols`, [`crate::int8::guide_map`]) and `penalties.edge > 0`
+/// the jump penalty between two cells is the core's [`Penalties::jump`] of theirs.
+pub fn sgm(volume: &SimilarityVolume, penalties: Penalties, guide: Option<&[u8]>) -> DisparityMap {
     let (rows, cols, d) = (volume.rows, volume.cols, volume.candidates);
     let unit = COST_ONE as f32;
-    let (p1, p2) = (penalties.p1 as f32 / unit, penalties.p2 as f32 / unit);
+    let p1 = penalties.p1 as f32 / unit;
+    let at = |r: usize, p: usize| guide.and_then(|g| g.get(r * cols + p)).copied().unwrap_or(0);
+    let p2 = |r: usize, p: usize, from_r: usize, q: usize| penalties.jump(at(r, p), at(from_r, q)) as f32 / unit;
     let excluded = COST_EXCLUDED as f32 / unit;
     let cost = |r: usize, p: usize| -> Vec<f32> {
         volume
@@ -56,7 +60,8 @@ pub fn sgm(volume: &SimilarityVolume, penalties: Penalties) -> DisparityMap {
                 running = if i == 0 {
                     costs[p].clone()
                 } else {
-                    step(&costs[p], &running, p1, p2)
+                    let from = if order { p + 1 } else { p - 1 };
+                    step(&costs[p], &running, p1, p2(r, p, r, from))
                 };
                 add(&mut sum[p * d..(p + 1) * d], &running);
             }
@@ -67,14 +72,14 @@ pub fn sgm(volume: &SimilarityVolume, penalties: Penalties) -> DisparityMap {
             let down = if r == 0 {
                 costs[p].clone()
             } else {
-                step(&costs[p], &vertical[cell.clone()], p1, p2)
+                step(&costs[p], &vertical[cell.clone()], p1, p2(r, p, r - 1, p))
             };
             vertical[cell.clone()].copy_from_slice(&down);
             add(&mut sum[cell.clone()], &down);
             let diag = if r == 0 || p == 0 {
                 costs[p].clone()
             } else {
-                step(&costs[p], &diagonal[(p - 1) * d..p * d], p1, p2)
+                step(&costs[p], &diagonal[(p - 1) * d..p * d], p1, p2(r, p, r - 1, p - 1))
             };
             diagonal[cell.clone()].copy_from_slice(&diag);
             add(&mut sum[cell], &diag);
@@ -175,7 +180,15 @@ mod tests {
         let strong = [1.0, 0.8, 0.8];
         let mut values: Vec<f32> = (0..12).flat_map(|_| strong).collect();
         values[(4 + 2) * 3..(4 + 3) * 3].copy_from_slice(&[0.985, 0.8, 1.0]);
-        let out = sgm(&volume(4, 3, values), Penalties { p1: 100, p2: 400 });
+        let out = sgm(
+            &volume(4, 3, values),
+            Penalties {
+                p1: 100,
+                p2: 400,
+                edge: 0,
+            },
+            None,
+        );
         assert!(out.values.iter().all(|&d| d.round() == 0.0), "{:?}", out.values);
     }
 
@@ -187,10 +200,15 @@ mod tests {
         let values: Vec<f32> = (0..2 * cols)
             .flat_map(|i| (0..d).map(move |k| if k == (i % cols) % d { 1.0 } else { 0.5 }))
             .collect();
-        let float = sgm(&volume(cols, d, values.clone()), Penalties { p1: 8, p2: 32 });
+        let float = sgm(
+            &volume(cols, d, values.clone()),
+            Penalties { p1: 8, p2: 32, edge: 0 },
+            None,
+        );
         let (mut v, mut g, mut s) = (vec![0u16; cols * d], vec![0u16; cols * d], vec![0u32; cols * d]);
         let mut stream =
-            bino_core::sgm::SgmStream::new(cols, d, Penalties { p1: 8, p2: 32 }, &mut v, &mut g, &mut s).unwrap();
+            bino_core::sgm::SgmStream::new(cols, d, Penalties { p1: 8, p2: 32, edge: 0 }, &mut v, &mut g, &mut s)
+                .unwrap();
         let mut out = vec![0u16; cols];
         for (r, row) in values.chunks_exact(cols * d).enumerate() {
             let costs: Vec<u16> = row.iter().map(|&s| ((1.0 - s) * 4096.0) as u16).collect();
@@ -203,6 +221,42 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn guided_sgm_agrees_with_the_guided_integer_stream() {
+        // One row: cells 0-2 want candidate 0, cells 3-5 weakly prefer 2; a bright edge between
+        // cells 2 and 3 lets both arithmetics jump there (and only the guide does).
+        let (cols, d) = (6, 3);
+        let want0 = [1.0f32, 0.8, 0.8];
+        let weak2 = [0.99f32, 0.8, 1.0];
+        let values: Vec<f32> = (0..cols).flat_map(|p| if p < 3 { want0 } else { weak2 }).collect();
+        let guide = [30u8, 30, 30, 200, 200, 200];
+        let pen = Penalties {
+            p1: 100,
+            p2: 1600,
+            edge: 8,
+        };
+        let float = sgm(&volume(cols, d, values.clone()), pen, Some(&guide));
+        let plain = sgm(&volume(cols, d, values.clone()), pen, None);
+        let (mut v, mut g, mut s, mut prev) = (
+            vec![0u16; cols * d],
+            vec![0u16; cols * d],
+            vec![0u32; cols * d],
+            vec![0u8; cols],
+        );
+        let mut stream = bino_core::sgm::SgmStream::new(cols, d, pen, &mut v, &mut g, &mut s)
+            .unwrap()
+            .with_guide(&mut prev)
+            .unwrap();
+        let costs: Vec<u16> = values.iter().map(|&s| ((1.0 - s) * 4096.0).round() as u16).collect();
+        let mut out = vec![0u16; cols];
+        stream.push_row_guided(&costs, &guide, &mut out).unwrap();
+        let int: Vec<f32> = out.iter().map(|&q8| (q8 as f32 / 256.0).round()).collect();
+        let float: Vec<f32> = float.values.iter().map(|v| v.round()).collect();
+        assert_eq!(int, float);
+        assert_eq!(float, [0.0, 0.0, 0.0, 2.0, 2.0, 2.0]);
+        assert!(plain.values.iter().all(|v| v.round() == 0.0), "{:?}", plain.values);
     }
 
     #[test]
