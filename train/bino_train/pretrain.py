@@ -17,7 +17,8 @@ The run folder holds `last.pt` (everything needed to resume exactly; also loadab
 `python -m bino_train.export --checkpoint`, whose `config` and `encoder` keys are the teacher
 encoder), `log.jsonl` (one record per logged step, plus `"kind": "eval"` records with the
 no-linkage probe and the controlled benchmark of the teacher), and a `teacher_<pairs>.pt`
-snapshot at each evaluation. Ctrl-C or SIGTERM stops after the current step and checkpoints.
+snapshot at each evaluation (and `student_<pairs>.pt` with `--eval-student`). Ctrl-C or
+SIGTERM stops after the current step and checkpoints.
 
 Schedules are functions of the pair count: the schedule step is `pairs // batch` (the
 configured batch), which is the step itself in a run at that batch. `--batch-multiplier M`
@@ -420,13 +421,17 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
     def evaluate() -> None:
         t0 = time.perf_counter()
         metrics = evaluator(trainer.teacher)
+        roles = [("teacher", trainer.teacher)]
         if opts.eval_student:
             metrics |= {f"student_{k}": v for k, v in evaluator(trainer.student).items()}
             trainer.student.train()
-        torch.save(
-            {"config": trainer.cfg.encoder.to_dict(), "encoder": trainer.teacher.state_dict()},
-            opts.out / f"teacher_{trainer.pairs_seen:07d}.pt",
-        )
+            # Either encoder may probe lower; both are kept (p6's best student was lost).
+            roles.append(("student", trainer.student))
+        for role, encoder in roles:
+            torch.save(
+                {"config": trainer.cfg.encoder.to_dict(), "encoder": encoder.state_dict()},
+                opts.out / f"{role}_{trainer.pairs_seen:07d}.pt",
+            )
         record = {"kind": "eval", "step": trainer.step, "pairs": trainer.pairs_seen, **metrics}
         record["eval_s"] = round(time.perf_counter() - t0, 2)
         log(record)

@@ -149,6 +149,20 @@ def test_evaluation_logs_probe_and_benchmark_and_snapshots_teacher(
         assert key in evals[0]
     snapshot = out / "teacher_0000002.pt"
     assert load_encoder(snapshot).cfg.dim == 32
+    assert not (out / "student_0000002.pt").exists()  # only with --eval-student
+
+
+def test_evaluation_with_the_student_snapshots_it_too(data_dir: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    data = ["--data", str(data_dir), "--bench-pairs", "2", "--eval-student"]
+    main(["--out", str(out), "--pairs", "2", *COMMON, *data])
+    teacher, student = (load_encoder(out / f"{r}_0000002.pt") for r in ("teacher", "student"))
+    assert "student_probe_epe" in (out / "log.jsonl").read_text()
+    differ = [
+        not torch.equal(a, b)
+        for a, b in zip(teacher.state_dict().values(), student.state_dict().values(), strict=True)
+    ]
+    assert any(differ), "the student's own weights, not the teacher's"
 
 
 def test_anneal_compresses_the_rest_of_the_schedule() -> None:
