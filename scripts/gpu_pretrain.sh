@@ -4,7 +4,8 @@
 #
 #   bash scripts/gpu_pretrain.sh MINUTES [BATCH_MULTIPLIER]     # e.g. 7 4
 #
-# Resumes train/checkpoints/$BINO_GPU_RUN/last.pt (default p7_short_blur) exactly, trains bf16 on
+# Resumes train/checkpoints/$BINO_GPU_RUN/last.pt (default p7_short_blur; p7 finished its
+# 30,000 pairs in session 37 and its resume point left the tree, so name a run that has one) exactly, trains bf16 on
 # CUDA at BATCH_MULTIPLIER (default 4) times the run's batch on the same pair schedules, reading
 # the train split from the carried pack train/gpu_pack (python -m bino_train.gpu_pack), for at
 # most MINUTES minutes or until the run's --pairs target ($BINO_GPU_PAIRS, default 30000, p7's schedule), and
