@@ -47,14 +47,21 @@ def file_hashes(folder: Path) -> dict[str, str]:
     }
 
 
-def run_summary(run: Path, upto_pairs: int | None = None) -> dict[str, Any]:
+def run_summary(run: Path, upto_pairs: int | None = None, role: str = "teacher") -> dict[str, Any]:
     """Recipe and progress of a training run, from its last checkpoint and log.
 
-    `upto_pairs` names a pretraining run's teacher snapshot (`teacher_<pairs>.pt`) as the shipped
-    weights, when the run went on past its best probe: the recipe still comes from `last.pt`, the
-    progress (steps, pairs, seconds, evaluations) stops at the snapshot.
+    `upto_pairs` names a pretraining run's snapshot (`<role>_<pairs>.pt`, role teacher or
+    student) as the shipped weights, when the run went on past its best probe or its student
+    probed lower: the recipe comes from `last.pt` (or, for a finished run whose `last.pt` left
+    the tree, from the snapshot's own `train_config`), the progress (steps, pairs, seconds,
+    evaluations) stops at the snapshot.
     """
-    state = torch.load(run / "last.pt", map_location="cpu", weights_only=False)
+    last = run / "last.pt"
+    if not last.is_file() and upto_pairs is not None:
+        last = run / f"{role}_{upto_pairs:07d}.pt"
+    state = torch.load(last, map_location="cpu", weights_only=False)
+    if "train_config" not in state:
+        raise SystemExit(f"error: {last}: no train_config (a run's last.pt or a full snapshot)")
     summary: dict[str, Any] = {
         "run": run.name,
         "train_config": state.get("train_config"),
@@ -67,7 +74,7 @@ def run_summary(run: Path, upto_pairs: int | None = None) -> dict[str, Any]:
     if log.is_file():
         records = [json.loads(line) for line in log.read_text().splitlines() if line.strip()]
     if upto_pairs is not None:
-        records = snapshot_records(run, records, upto_pairs, summary)
+        records = snapshot_records(run, records, upto_pairs, summary, role)
     if records:
         summary["sessions"] = sum(1 for r in records if r.get("kind") == "start")
         summary["evaluations"] = [r for r in records if r.get("kind") == "eval"]
@@ -75,12 +82,16 @@ def run_summary(run: Path, upto_pairs: int | None = None) -> dict[str, Any]:
 
 
 def snapshot_records(
-    run: Path, records: list[dict[str, Any]], pairs: int, summary: dict[str, Any]
+    run: Path,
+    records: list[dict[str, Any]],
+    pairs: int,
+    summary: dict[str, Any],
+    role: str = "teacher",
 ) -> list[dict[str, Any]]:
-    """The log up to the teacher snapshot at `pairs`; moves `summary`'s progress there."""
-    snapshot = run / f"teacher_{pairs:07d}.pt"
+    """The log up to the `role` snapshot at `pairs`; moves `summary`'s progress there."""
+    snapshot = run / f"{role}_{pairs:07d}.pt"
     if not snapshot.is_file():
-        raise SystemExit(f"error: {snapshot}: no teacher snapshot at {pairs} pairs")
+        raise SystemExit(f"error: {snapshot}: no {role} snapshot at {pairs} pairs")
     evals = [r for r in records if r.get("kind") == "eval" and r.get("pairs") == pairs]
     if not evals:
         raise SystemExit(f"error: {run / 'log.jsonl'}: no evaluation at {pairs} pairs")
@@ -155,13 +166,14 @@ def build_manifest(
     data_dir: Path | None,
     native_head_run: Path | None = None,
     pretrain_pairs: int | None = None,
+    pretrain_role: str = "teacher",
 ) -> dict[str, Any]:
     pairs = training_pairs(data_dir)
     return {
         "files": file_hashes(weights),
         "code_commit": git_commit(weights.parent),
         "hardware": hardware(),
-        "pretraining": run_summary(pretrain_run, pretrain_pairs),
+        "pretraining": run_summary(pretrain_run, pretrain_pairs, pretrain_role),
         "head_training": run_summary(head_run) if head_run is not None else None,
         "native_head_training": (
             run_summary(native_head_run) if native_head_run is not None else None
@@ -181,7 +193,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--pretrain-pairs",
         type=int,
-        help="ship the run's teacher snapshot at this many pairs (teacher_<pairs>.pt), not last.pt",
+        help="ship the run's snapshot at this many pairs (<role>_<pairs>.pt), not last.pt",
+    )
+    parser.add_argument(
+        "--pretrain-role",
+        choices=("teacher", "student"),
+        default="teacher",
+        help="which encoder's snapshot --pretrain-pairs names (default teacher)",
     )
     parser.add_argument("--head-run", type=Path)
     parser.add_argument("--native-head-run", type=Path, help="the native pathway's head run")
@@ -206,6 +224,7 @@ def main(argv: list[str] | None = None) -> None:
         args.data,
         native_head_run=args.native_head_run,
         pretrain_pairs=args.pretrain_pairs,
+        pretrain_role=args.pretrain_role,
     )
     args.out.write_text(json.dumps(manifest, indent=2) + "\n")
     print(f"wrote {args.out} ({len(manifest['files'])} files hashed)")

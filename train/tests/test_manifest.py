@@ -73,6 +73,20 @@ def test_run_summary_stops_at_a_shipped_teacher_snapshot(tmp_path: Path) -> None
     assert shipped["sessions"] == 2
 
 
+def test_run_summary_ships_a_finished_runs_student_without_last_pt(tmp_path: Path) -> None:
+    run = tmp_path / "p"
+    _write_run(run)
+    (run / "last.pt").unlink()
+    state = {"train_config": {"lr": 1e-3}, "step": 2, "pairs_seen": 32, "train_seconds": 19.0}
+    torch.save({"config": {}, "encoder": {}, **state}, run / "student_0000032.pt")
+    shipped = run_summary(run, 32, "student")
+    assert shipped["shipped_checkpoint"] == "student_0000032.pt"
+    assert shipped["train_config"] == {"lr": 1e-3}  # from the snapshot: last.pt is gone
+    assert [e["probe_epe"] for e in shipped["evaluations"]] == [2.5]
+    with pytest.raises(SystemExit, match="no train_config"):
+        run_summary(run, 32, "teacher")  # a bare teacher snapshot holds no recipe
+
+
 def test_run_summary_names_a_missing_snapshot(tmp_path: Path) -> None:
     run = tmp_path / "p"
     _write_run(run)
