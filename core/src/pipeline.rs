@@ -520,7 +520,7 @@ impl ReadoutShape {
         ReadoutShape {
             candidates: opts.head_candidates,
             lr: opts.head && opts.head_lr,
-            guided: opts.penalties.edge > 0,
+            guided: opts.penalties.guided(),
         }
     }
 
@@ -891,7 +891,7 @@ impl Context<'_, '_> {
         ReadoutShape {
             candidates: self.opts.head_candidates,
             lr: self.head_lr(),
-            guided: self.opts.penalties.edge > 0,
+            guided: self.opts.penalties.guided(),
         }
     }
 
@@ -1176,7 +1176,7 @@ impl<'a, 'w> Streams<'a, 'w> {
             None => None,
         };
         let volume_row = state_len(cols, max_cols);
-        let guided = ctx.opts.penalties.edge > 0;
+        let guided = ctx.opts.penalties.guided();
         let matching = matching_bytes(cols, max_cols, guided);
         let (matching_arena, head_arena) = arena.split_at_mut(matching.min(arena.len()));
         let mut carver = Carver::new(matching_arena, matching)?;

@@ -34,6 +34,11 @@ pub struct Penalties {
 }
 
 impl Penalties {
+    /// Whether the jump penalty follows a guide (`edge > 0`): the SGM then needs one.
+    pub const fn guided(self) -> bool {
+        self.edge > 0
+    }
+
     /// The jump penalty between cells of mean grey levels `a` and `b`.
     #[inline]
     pub fn jump(self, a: u8, b: u8) -> u32 {

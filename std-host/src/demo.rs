@@ -120,7 +120,7 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         scored("nolink", &tokens, &truth)
     })?);
     readouts.push(steps.run("SGM, 4 streaming paths (integer)", || {
-        let guide = if opts.penalties.edge > 0 {
+        let guide = if opts.penalties.guided() {
             Some(guide_map(&left)?)
         } else {
             None

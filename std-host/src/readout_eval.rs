@@ -455,7 +455,7 @@ fn float_maps(
     let volume_right = right_view(&volume);
     let wta = wta_subtoken(&volume);
     // The guides only where the SGM uses them ([`Penalties::edge`]).
-    let guides = if opts.penalties.edge > 0 {
+    let guides = if opts.penalties.guided() {
         Some((guide_map(&item.left)?, guide_map(&item.right)?))
     } else {
         None

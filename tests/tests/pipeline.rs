@@ -132,7 +132,10 @@ fn pipeline_equals_whole_map_steps_with(width: usize, height: usize, opts: Optio
 
     let wta = match_rows(&left, &right, rows, cols, MAX_COLS).unwrap();
     assert_eq!(q8(&out.wta), wta.values, "WTA");
-    let guide = (opts.penalties.edge > 0).then(|| guide_map(&view(l, width, height)).unwrap());
+    let guide = opts
+        .penalties
+        .guided()
+        .then(|| guide_map(&view(l, width, height)).unwrap());
     let sgm = sgm_rows(&left, &right, rows, cols, MAX_COLS, opts.penalties, guide.as_deref()).unwrap();
     assert_eq!(q8(&out.sgm), sgm.values, "SGM");
     let head = model
