@@ -12,6 +12,9 @@
 # writes into $OUT: teacher.pt and student.pt (fp16 weights, refreshed every minute, so a killed
 # command still brings back the last minute's), log.jsonl (the run's whole log) and stdout.txt.
 # No evaluation there (the pack holds no eval split). It fails (exit 3) when torch sees no GPU.
+# A new run instead of a resume: BINO_GPU_NEW="pretrain recipe flags" (from scratch, no
+# last.pt needed), e.g. BINO_GPU_NEW="--schedule-pairs 150000 --teacher-clean --head-bn".
+# On CUDA the crops are cut by $BINO_GPU_WORKERS (default 8) processes (--data-workers).
 #
 # CPU smoke tests of this script (no GPU needed):
 #   OUT=/tmp/o BINO_GPU_SMOKE=1 bash scripts/gpu_pretrain.sh 0.2 2  # tiny fresh model, seconds
@@ -41,11 +44,15 @@ pack="${BINO_GPU_PACK:-$root/train/gpu_pack}"
 pairs="${BINO_GPU_PAIRS:-30000}"
 precision="${BINO_GPU_PRECISION:-bf16}"
 smoke="${BINO_GPU_SMOKE:-0}"
+new_run="${BINO_GPU_NEW:-}"
+workers="${BINO_GPU_WORKERS:-8}"
 device="${BINO_GPU_DEVICE:-cuda}"
 [[ "$smoke" == 1 ]] && device=cpu
 export PYTHONUNBUFFERED=1
 
-echo "== gpu_pretrain: $minutes min, batch x$multiplier, device $device, run $run, python $py"
+source_run="run $run"
+[[ -n "$new_run" ]] && source_run="new run: $new_run"
+echo "== gpu_pretrain: $minutes min, batch x$multiplier, device $device, $source_run, python $py"
 [[ -f "$pack/PAIRS.tsv" ]] || {
   echo "error: no pack at $pack (python -m bino_train.gpu_pack --out gpu_pack, then carry it)" >&2
   exit 2
@@ -66,9 +73,13 @@ common=(--data "$pack" --device "$device" --precision "$precision" --no-eval
   --batch-multiplier "$multiplier" --minutes "$minutes" --checkpoint-minutes 1
   --weights-out "$out" --log-every 10 --threads "${BINO_THREADS:-0}")
 if [[ "$device" == cuda ]]; then common+=(--chunk-tokens 131072); fi
+if [[ "$device" == cuda || -n "${BINO_GPU_WORKERS:-}" ]]; then common+=(--data-workers "$workers"); fi
 if [[ "$smoke" == 1 ]]; then
   train=(-m bino_train.pretrain --out "$work/run" --config small --batch 4
     --schedule-pairs 4000 --pairs "$pairs" "${common[@]}")
+elif [[ -n "$new_run" ]]; then
+  read -r -a recipe <<<"$new_run"
+  train=(-m bino_train.pretrain --out "$work/run" --pairs "$pairs" "${recipe[@]}" "${common[@]}")
 else
   [[ -f "$ckpt/last.pt" && -f "$ckpt/log.jsonl" ]] || {
     echo "error: no $ckpt/last.pt and log.jsonl to resume" >&2

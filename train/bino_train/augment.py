@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from collections.abc import Iterator
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -280,6 +281,68 @@ class CropSampler:
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.rng.bit_generator.state = state["rng"]
         self.batches = int(state["batches"])
+
+    def reseed(self, seed: int) -> None:
+        """A new crop stream (an inexact continuation: --init-from)."""
+        self.rng = np.random.default_rng(seed)
+
+
+class _WorkerStream(torch.utils.data.IterableDataset[tuple[Tensor, Tensor, Tensor, Tensor]]):
+    """One endless batch stream per loader worker, each with its own seeded sampler."""
+
+    def __init__(
+        self, pairs: list[Pair], cfg: AugmentConfig, seed: int, start: int, batch: int
+    ) -> None:
+        self.pairs, self.cfg, self.seed, self.start, self.batch = pairs, cfg, seed, start, batch
+
+    def __iter__(self) -> Iterator[tuple[Tensor, Tensor, Tensor, Tensor]]:
+        info = torch.utils.data.get_worker_info()
+        worker = 0 if info is None else info.id
+        cv2.setNumThreads(1)  # one core per worker; the workers are the parallelism
+        sampler = CropSampler(self.pairs, self.cfg, seed=0)
+        sampler.rng = np.random.default_rng([self.seed, self.start, worker])
+        while True:
+            yield sampler.next_batch_with_clean(self.batch)
+
+
+class ParallelCropSampler:
+    """CropSampler's batches from `workers` processes (a GPU leg, where one core cannot cut
+    crops as fast as the GPU trains on them). Deterministic for a given worker count, but a
+    different stream from CropSampler's; its state is only the batch count, and a restored
+    sampler re-seeds from it (not an exact resume, like --init-from)."""
+
+    def __init__(
+        self, pairs: list[Pair], cfg: AugmentConfig, seed: int, batch: int, workers: int
+    ) -> None:
+        if workers < 1:
+            raise ValueError(f"data workers {workers} < 1")
+        self.pairs, self.cfg, self.seed = pairs, cfg, seed
+        self.batch, self.workers = batch, workers
+        self.batches = 0
+        self._iter: Iterator[tuple[Tensor, Tensor, Tensor, Tensor]] | None = None
+
+    def next_batch_with_clean(self, batch: int) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+        if batch != self.batch:
+            raise ValueError(f"this sampler cuts batches of {self.batch}, asked for {batch}")
+        if self._iter is None:
+            stream = _WorkerStream(self.pairs, self.cfg, self.seed, self.batches, self.batch)
+            loader = torch.utils.data.DataLoader(
+                stream, batch_size=None, num_workers=self.workers, prefetch_factor=4
+            )
+            self._iter = iter(loader)
+        self.batches += 1
+        return next(self._iter)
+
+    def state_dict(self) -> dict[str, Any]:
+        return {"batches": self.batches, "workers": self.workers}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        self.batches = int(state["batches"])
+        self._iter = None
+
+    def reseed(self, seed: int) -> None:
+        self.seed = seed
+        self._iter = None
 
 
 def to_three_channels(view: Tensor) -> Tensor:

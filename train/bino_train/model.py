@@ -39,7 +39,8 @@ def rope_tables(
     Within each half the rotate-half convention pairs dimension i with i + quarter.
     """
     quarter = head_dim // 4
-    inv_freq = 1.0 / (base ** (torch.arange(quarter, dtype=torch.float32) / quarter))
+    steps = torch.arange(quarter, dtype=torch.float32, device=row_pos.device)
+    inv_freq = 1.0 / (base ** (steps / quarter))
     ang_r = row_pos.to(torch.float32).unsqueeze(-1) * inv_freq
     ang_c = col_pos.to(torch.float32).unsqueeze(-1) * inv_freq
     angles = torch.cat((ang_r, ang_r, ang_c, ang_c), dim=-1)

@@ -50,7 +50,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from .augment import AugmentConfig, CropSampler, to_three_channels
+from .augment import AugmentConfig, CropSampler, ParallelCropSampler, to_three_channels
 from .benchmark import BenchPair, make_benchmark, run_all
 from .config import EncoderConfig
 from .dino import (
@@ -199,6 +199,7 @@ class Trainer:
         batch_multiplier: int = 1,
         lr_scale: float | None = None,
         chunk_tokens: int | None = None,
+        data_workers: int = 0,
     ) -> None:
         if batch_multiplier < 1:
             raise ValueError(f"batch multiplier {batch_multiplier} < 1")
@@ -222,7 +223,12 @@ class Trainer:
         self.opt = torch.optim.AdamW(
             param_groups([self.student, self.student_head], cfg.weight_decay), lr=cfg.lr
         )
-        self.sampler = CropSampler(training_pairs(data_dir), cfg.augment, seed=cfg.seed)
+        pairs = training_pairs(data_dir)
+        self.sampler: CropSampler | ParallelCropSampler = (
+            ParallelCropSampler(pairs, cfg.augment, cfg.seed, self.batch_size, data_workers)
+            if data_workers > 0
+            else CropSampler(pairs, cfg.augment, seed=cfg.seed)
+        )
         cell = (cfg.encoder.patch_h, cfg.encoder.view_cell_w)
         self.masker = OneViewMasker(cfg.mask, cell, seed=cfg.seed + 1)
         self.bf16 = use_bf16(cfg.precision, device)
@@ -274,7 +280,7 @@ class Trainer:
                 t_tokens.reshape(-1, d),
                 self.student_head,
                 self.teacher_head,
-                masked.token_mask.reshape(-1),
+                masked.token_mask.reshape(-1).to(dev),
                 temp,
             )
         self.opt.zero_grad(set_to_none=True)
@@ -606,6 +612,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="pairs per step = M x the run's batch; schedules stay in pairs (a GPU leg)",
     )
     p.add_argument("--lr-scale", type=float, help="LR factor (default sqrt(batch multiplier))")
+    p.add_argument(
+        "--data-workers",
+        type=int,
+        default=0,
+        help="cut crops in N processes (a GPU leg; not an exact resume; 0: in-process)",
+    )
     p.add_argument("--chunk-tokens", type=int, help="loss chunk size (run-time; GPU: large)")
     p.add_argument(
         "--weights-out", type=Path, help="write fp16 teacher/student + log here at checkpoints"
@@ -682,6 +694,7 @@ def main(argv: list[str] | None = None) -> None:
         "batch_multiplier": args.batch_multiplier,
         "lr_scale": args.lr_scale,
         "chunk_tokens": args.chunk_tokens,
+        "data_workers": args.data_workers,
     }
     if args.resume:
         state = torch.load(ckpt, map_location="cpu", weights_only=False)  # RNG states stay on CPU

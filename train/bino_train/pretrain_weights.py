@@ -116,7 +116,7 @@ def init_from(trainer: Trainer, states: dict[str, dict[str, Any]]) -> None:
     trainer.pairs_seen = int(t["pairs_seen"])
     trainer.train_seconds = float(t["train_seconds"])
     seed = trainer.cfg.seed
-    trainer.sampler.rng = np.random.default_rng(stream_seed(seed, trainer.pairs_seen, 0))
+    trainer.sampler.reseed(stream_seed(seed, trainer.pairs_seen, 0))
     trainer.masker.gen.manual_seed(stream_seed(seed, trainer.pairs_seen, 1))
 
 

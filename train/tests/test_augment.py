@@ -14,6 +14,7 @@ from bino_train.augment import (
     AugmentConfig,
     CropSampler,
     ImageStore,
+    ParallelCropSampler,
     flip_swap,
     nuisances,
     width_range,
@@ -122,6 +123,27 @@ def test_sampler_batches_shape_range_and_exact_state_restore(data_dir: Path) -> 
     again = other.next_batch(2)
     assert torch.equal(expected[0], again[0]) and torch.equal(expected[1], again[1])
     assert other.batches == 2
+
+
+def test_parallel_sampler_is_deterministic_per_worker_count_and_reseeds(data_dir: Path) -> None:
+    pairs, cfg = training_pairs(data_dir), AugmentConfig()
+
+    def first_batches(sampler: ParallelCropSampler, n: int) -> list[torch.Tensor]:
+        return [sampler.next_batch_with_clean(4)[2] for _ in range(n)]
+
+    one = first_batches(ParallelCropSampler(pairs, cfg, seed=0, batch=4, workers=2), 3)
+    two = first_batches(ParallelCropSampler(pairs, cfg, seed=0, batch=4, workers=2), 3)
+    assert all(a.shape == (4, 1, 48, 160) for a in one)
+    assert all(torch.equal(a, b) for a, b in zip(one, two, strict=True))
+    # The two workers cut different crops, and a new seed gives a new stream.
+    assert not torch.equal(one[0], one[1])
+    reseeded = ParallelCropSampler(pairs, cfg, seed=0, batch=4, workers=2)
+    reseeded.reseed(7)
+    assert not torch.equal(first_batches(reseeded, 1)[0], one[0])
+    with pytest.raises(ValueError, match="batches of 4"):
+        ParallelCropSampler(pairs, cfg, seed=0, batch=4, workers=1).next_batch_with_clean(5)
+    with pytest.raises(ValueError, match="workers 0"):
+        ParallelCropSampler(pairs, cfg, seed=0, batch=4, workers=0)
 
 
 def test_training_loader_never_reads_eval_images(

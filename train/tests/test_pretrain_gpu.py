@@ -127,3 +127,12 @@ def test_contradictory_options_are_usage_errors(tmp_path: Path, extra: list[str]
 def test_device_cuda_without_a_gpu_fails_clearly(data_dir: Path, tmp_path: Path) -> None:
     with pytest.raises(SystemExit, match="no CUDA GPU"):
         main(["--out", str(tmp_path / "x"), "--pairs", "2", *COMMON, "--device", "cuda"])
+
+
+def test_data_workers_feed_the_same_schedule(data_dir: Path) -> None:
+    cfg = TrainConfig.from_dict(TrainConfig(batch=2, schedule_pairs=16, precision="fp32").to_dict())
+    trainer = Trainer(cfg, data_dir, torch.device("cpu"), batch_multiplier=2, data_workers=2)
+    records = [trainer.train_step() for _ in range(2)]
+    assert [r["pairs"] for r in records] == [4, 8]
+    assert all(math.isfinite(r["loss"]) for r in records)
+    assert trainer.sampler.state_dict() == {"batches": 2, "workers": 2}
