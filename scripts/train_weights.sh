@@ -6,8 +6,8 @@
 #
 # Each stage checkpoints (pretraining every few minutes, the head every 5 minutes) and `--resume`
 # continues exactly, so the script can be stopped and restarted at will: a stage whose target is
-# already reached returns at once. Stages: pretraining (p6_early_lr's recipe, a 150,000-pair
-# schedule stopped at 22,016 pairs, where its probe was lowest) -> shared head and native
+# already reached returns at once. Stages: pretraining (p7_short_blur's recipe, every schedule
+# over 30,000 pairs; the shipped encoder is its student at the end) -> shared head and native
 # pathway head (HEAD_STEPS steps each) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
 # the trained encoder and the random init, head vs StereoSGBM on the eval split) -> int8 blob ->
 # MANIFEST.json. Set BINO_THREADS to change the torch thread count (default 2).
@@ -24,11 +24,13 @@ elif [[ -n "${1:-}" ]]; then
 fi
 
 threads="${BINO_THREADS:-2}"
-pretrain_pairs=22016
+pretrain_pairs=30000
 head_steps="${HEAD_STEPS:-1000}"
-pre=runs/p6_early_lr
-head=runs/head_p6
-native_head=runs/hnat_p6
+pre=runs/p7_short_blur
+head=runs/head_p7
+native_head=runs/hnat_p7
+# The student snapshot the run writes at its final evaluation (--eval-student).
+encoder="$pre/student_$(printf %07d "$pretrain_pairs").pt"
 weights="$BINO_ROOT/weights"
 data="${BINO_DATA:-$BINO_ROOT/../shared/data}"
 py() { (cd train && "$BINO_VENV/bin/python" -W ignore "$@"); }
@@ -38,10 +40,9 @@ scripts/setup.sh
 
 step "pretraining to $pretrain_pairs pairs ($pre)"
 if [[ ${#resume[@]} -eq 0 ]]; then
-  py -m bino_train.pretrain --out "$pre" --pairs "$pretrain_pairs" --schedule-pairs 150000 \
-    --lr 5e-4 --lr-decay-pairs 30000 --min-lr 2.5e-5 --threads "$threads" --teacher-clean \
-    --head-bn --momentum 0.99 --teacher-temp-warmup 0.06 --blur-prob 0.25 --eval-minutes 10 \
-    --eval-student
+  py -m bino_train.pretrain --out "$pre" --pairs "$pretrain_pairs" --schedule-pairs 30000 \
+    --lr 5e-4 --threads "$threads" --teacher-clean --head-bn --momentum 0.99 --blur-prob 0.25 \
+    --eval-minutes 10 --eval-student
 else
   py -m bino_train.pretrain --out "$pre" --resume --pairs "$pretrain_pairs" --threads "$threads" \
     --eval-minutes 10 --eval-student
@@ -49,7 +50,7 @@ fi
 
 step "shared head to $head_steps steps ($head)"
 if [[ ${#resume[@]} -eq 0 ]]; then
-  py -m bino_train.head_train --encoder "$pre/last.pt" --out "$head" --steps "$head_steps" \
+  py -m bino_train.head_train --encoder "$encoder" --out "$head" --steps "$head_steps" \
     --threads "$threads" --no-eval --val-every 0
 else
   py -m bino_train.head_train --out "$head" --resume --steps "$head_steps" --threads "$threads" \
@@ -58,7 +59,7 @@ fi
 
 step "native pathway head to $head_steps steps ($native_head): the shared head's recipe on the fused grid"
 if [[ ${#resume[@]} -eq 0 ]]; then
-  py -m bino_train.head_train --encoder "$pre/last.pt" --pathway native --out "$native_head" \
+  py -m bino_train.head_train --encoder "$encoder" --pathway native --out "$native_head" \
     --steps "$head_steps" --threads "$threads" --no-eval --val-every 0
 else
   py -m bino_train.head_train --out "$native_head" --resume --steps "$head_steps" --threads "$threads" \
@@ -70,17 +71,17 @@ py -m bino_train.head --checkpoint "$head/last.pt" --out "$weights/bino_head.onn
   --state-dict "$weights/bino_head.pt"
 py -m bino_train.head --checkpoint "$native_head/last.pt" --out "$weights/bino_native_head.onnx" --logits \
   --state-dict "$weights/bino_native_head.pt"
-py -m bino_train.export --checkpoint "$pre/last.pt" --out "$weights/bino_encoder.onnx" \
+py -m bino_train.export --checkpoint "$encoder" --out "$weights/bino_encoder.onnx" \
   --state-dict "$weights/bino_encoder.pt"
 
 step "measurements (train/runs/metrics.json)"
 metrics=train/runs/metrics
 mkdir -p "$metrics"
-py -m bino_train.benchmark --checkpoint "$pre/last.pt" --threads "$threads" >"$metrics/benchmark_trained.json"
+py -m bino_train.benchmark --checkpoint "$encoder" --threads "$threads" >"$metrics/benchmark_trained.json"
 py -m bino_train.benchmark --random-init-seed 0 --threads "$threads" >"$metrics/benchmark_random.json"
-py -m bino_train.probe --checkpoint "$pre/last.pt" --threads "$threads" >"$metrics/probe_trained.json"
+py -m bino_train.probe --checkpoint "$encoder" --threads "$threads" >"$metrics/probe_trained.json"
 py -m bino_train.probe --random-init-seed 0 --threads "$threads" >"$metrics/probe_random.json"
-py -m bino_train.head_eval --encoder "$pre/last.pt" --head "$head/last.pt" --threads "$threads" \
+py -m bino_train.head_eval --encoder "$encoder" --head "$head/last.pt" --threads "$threads" \
   >"$metrics/head_eval_w160.json"
 
 step "int8 blob"
@@ -92,5 +93,6 @@ cargo run -q --release --locked -p bino-host --bin bino -- compare --data "$data
   --head "$weights/bino_head.onnx" --json "$metrics/int8_compare_w160.json"
 
 step "manifest"
-py -m bino_train.manifest --pretrain-run "$pre" --head-run "$head" --native-head-run "$native_head" --metrics-dir runs/metrics \
+py -m bino_train.manifest --pretrain-run "$pre" --pretrain-pairs "$pretrain_pairs" \
+  --pretrain-role student --head-run "$head" --native-head-run "$native_head" --metrics-dir runs/metrics \
   --experiments experiments.json --out "$weights/MANIFEST.json"

@@ -5,6 +5,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -136,3 +139,27 @@ def test_data_workers_feed_the_same_schedule(data_dir: Path) -> None:
     assert [r["pairs"] for r in records] == [4, 8]
     assert all(math.isfinite(r["loss"]) for r in records)
     assert trainer.sampler.state_dict() == {"batches": 2, "workers": 2}
+
+
+def test_gpu_script_starts_a_new_run_from_a_recipe(data_dir: Path, tmp_path: Path) -> None:
+    script = Path(__file__).resolve().parents[2] / "scripts" / "gpu_pretrain.sh"
+    out = tmp_path / "out"
+    env = os.environ | {
+        "OUT": str(out),
+        "BINO_PYTHON": sys.executable,
+        "BINO_GPU_DEVICE": "cpu",
+        "BINO_GPU_PRECISION": "fp32",
+        "BINO_GPU_PACK": str(data_dir),
+        "BINO_GPU_WORKERS": "1",
+        "BINO_GPU_PAIRS": "8",
+        "BINO_GPU_NEW": "--config small --batch 4 --schedule-pairs 400 --blur-prob 0.25",
+    }
+    done = subprocess.run(
+        ["bash", str(script), "1", "1"], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "new run: --config small" in done.stdout
+    snapshot = torch.load(out / "student.pt", map_location="cpu", weights_only=False)
+    assert snapshot["pairs_seen"] == 8 and snapshot["train_config"]["schedule_pairs"] == 400
+    assert snapshot["train_config"]["augment"]["blur_prob"] == 0.25
+    assert any(r.get("kind") == "weights" for r in _records(out / "log.jsonl"))
