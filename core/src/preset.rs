@@ -1,6 +1,6 @@
 //! The readouts the firmware (`firmware-sim`) and the board apps (`boards/`) run, in one place so
 //! every target computes the same numbers: the `bino` CLI's defaults (16 candidates, SGM
-//! penalties 64 / 256 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch column, the head with its own left-right
+//! penalties 96 / 192 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch column, the head with its own left-right
 //! check), the pixel refinement of the head+lr grid, and (feature `depth`) the example board's
 //! calibration and sector count of the obstacle summary.
 //!
@@ -17,7 +17,7 @@
 
 use crate::pipeline::{self, Options, Pathway, Refine};
 
-/// Readout options: 16 candidates, SGM penalties 64 / 256 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch
+/// Readout options: 16 candidates, SGM penalties 96 / 192 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch
 /// column (Q8 256), the head (its trained 12 candidates: a 160-px view's disparities stay
 /// below 44 px) with its own left-right check.
 pub const OPTIONS: Options = Options {
