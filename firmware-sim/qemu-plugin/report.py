@@ -45,7 +45,12 @@ def parse_log(path):
         for line in f:
             at = line.find("bino ")
             if at >= 0:
-                lines.append({k: number(v) for k, v in KV.findall(line[at + 5 :])})
+                raw = dict(KV.findall(line[at + 5 :]))
+                fields = {k: number(v) for k, v in raw.items()}
+                if "digest" in raw:
+                    # Hex digests stay text: one of decimal digits only (14204876) is no number.
+                    fields.update(digest=raw["digest"], expected=raw.get("expected"))
+                lines.append(fields)
     return lines
 
 
