@@ -326,8 +326,14 @@ class ParallelCropSampler:
             raise ValueError(f"this sampler cuts batches of {self.batch}, asked for {batch}")
         if self._iter is None:
             stream = _WorkerStream(self.pairs, self.cfg, self.seed, self.batches, self.batch)
+            # Spawned, not forked: a fork of a process whose torch / OpenCV thread pools already
+            # ran can deadlock in the child (seen in the full test suite).
             loader = torch.utils.data.DataLoader(
-                stream, batch_size=None, num_workers=self.workers, prefetch_factor=4
+                stream,
+                batch_size=None,
+                num_workers=self.workers,
+                prefetch_factor=4,
+                multiprocessing_context="spawn",
             )
             self._iter = iter(loader)
         self.batches += 1
