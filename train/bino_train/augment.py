@@ -282,8 +282,8 @@ class CropSampler:
         self.rng.bit_generator.state = state["rng"]
         self.batches = int(state["batches"])
 
-    def reseed(self, seed: int) -> None:
-        """A new crop stream (an inexact continuation: --init-from)."""
+    def reseed(self, seed: int | list[int]) -> None:
+        """A new crop stream (an inexact continuation: --init-from; a loader worker's own)."""
         self.rng = np.random.default_rng(seed)
 
 
@@ -300,7 +300,7 @@ class _WorkerStream(torch.utils.data.IterableDataset[tuple[Tensor, Tensor, Tenso
         worker = 0 if info is None else info.id
         cv2.setNumThreads(1)  # one core per worker; the workers are the parallelism
         sampler = CropSampler(self.pairs, self.cfg, seed=0)
-        sampler.rng = np.random.default_rng([self.seed, self.start, worker])
+        sampler.reseed([self.seed, self.start, worker])
         while True:
             yield sampler.next_batch_with_clean(self.batch)
 
