@@ -81,21 +81,23 @@ pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [
 
 /// The `+lr` readouts' dense output: each cell the left-right check rejected (`consistent`
 /// 0) takes the disparity of the nearest kept cell to its left; rejected cells before the
-/// first kept one take that one's; a row with no kept cell is all 0. In place.
-pub fn fill_rejected(row_q8: &mut [u16], consistent: &[u8]) -> Result<(), Error> {
-    if consistent.len() != row_q8.len() {
+/// first kept one take that one's; a row with no kept cell is all 0. In place. Generic so the
+/// host's float readouts fill with this same definition (a copy of kept values, exact in any
+/// precision).
+pub fn fill_rejected<T: Copy + PartialOrd + Default>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
+    if consistent.len() != row.len() {
         return Err(Error::BufferSize {
             what: "left-right mask row",
-            expected: row_q8.len(),
+            expected: row.len(),
             found: consistent.len(),
         });
     }
     let Some(first) = consistent.iter().position(|&k| k != 0) else {
-        row_q8.fill(0);
+        row.fill(T::default());
         return Ok(());
     };
-    let mut carried = row_q8.get(first).copied().unwrap_or(0);
-    for (value, &kept) in row_q8.iter_mut().zip(consistent) {
+    let mut carried = row.get(first).copied().unwrap_or_default();
+    for (value, &kept) in row.iter_mut().zip(consistent) {
         if kept != 0 {
             carried = *value;
         } else {

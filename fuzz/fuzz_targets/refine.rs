@@ -1,13 +1,14 @@
 //! The pixel refinement with arbitrary sizes, parameters, views, token grids and buffer
 //! lengths: `refine_map` over whole maps and `refine_row` with arbitrary windows and rows; and,
 //! on well-formed inputs, `RowRefiner` against the reference `refine_row`, rows in any order;
-//! and the sharpness-equalised whole-map refinement on the same inputs.
+//! and the sharpness-equalised whole-map refinement on the same inputs; and the `+lr+ref`
+//! rule for rejected cells (`keep_rejected_map`) on the same grid.
 #![no_main]
 
 use arbitrary::Arbitrary;
 use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{
-    refine_map, refine_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
+    keep_rejected_map, refine_map, refine_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
 };
 use libfuzzer_sys::fuzz_target;
 
@@ -65,6 +66,12 @@ fuzz_target!(|input: Input| {
     assert_eq!(whole.is_ok(), equalised.is_ok(), "{whole:?} {equalised:?}");
     if whole.is_ok() {
         faster_equals_reference(&input, &left, &right, &tokens, w, h, &params);
+    }
+    // The `+lr+ref` rule on the same grid, a mask from the pixels, the grid's length change.
+    let kept: Vec<u8> = resized(&input.pixels, tokens.len()).iter().map(|p| p & 1).collect();
+    let keep = keep_rejected_map(w, &tokens, &kept, &mut out);
+    if whole.is_ok() {
+        assert!(keep.is_ok(), "a map refine_map accepts: {keep:?}");
     }
 
     let rows: Vec<&[u8]> = input

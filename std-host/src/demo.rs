@@ -17,7 +17,7 @@ use bino_core::sgm::Penalties;
 use serde::Serialize;
 
 use crate::colour::{colourise, error_colour};
-use crate::eval::{fill_invalid, score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
+use crate::eval::{score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
 use crate::int8::{guide_map, match_rows, sgm_rows, Int8Model};
 use crate::keyed::Keyed;
 use crate::pipeline_maps::run_pipeline;
@@ -146,15 +146,16 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
             values: maps.disparity.clone(),
         };
         readouts.push(scored("head", &tokens, &truth)?);
-        let filled = steps.run("head+lr: the head on the mirrored pair, left-right fill", || {
+        let (filled, kept) = steps.run("head+lr: the head on the mirrored pair, left-right fill", || {
             let kept = model.head_check(&codes_left, &codes_right, &maps, DEMO_LR_MAX_DIFF_Q8)?;
-            Ok(fill_invalid(&tokens, &kept))
+            Ok((crate::readout::fill_rejected(&tokens, &kept), kept))
         })?;
         readouts.push(scored("head+lr", &filled, &truth)?);
         readouts.push(steps.run(
-            "head+lr+ref: integer pixel refinement (census 5x5, 9x9 box, search by width)",
+            "head+lr+ref: integer pixel refinement (census 5x5, 9x9 box, search by width; rejected cells kept)",
             || {
-                let disparity = refine_pixels(&filled, &GrayViews::from_views(&left, &right)?)?;
+                let views = GrayViews::from_views(&left, &right)?;
+                let disparity = refine_pixels(&filled, &views, Some(&kept))?;
                 scored_pixels("head+lr+ref", disparity, &truth)
             },
         )?);

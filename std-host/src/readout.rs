@@ -11,7 +11,7 @@
 //! | suffix | pixels |
 //! |---|---|
 //! | (none) | the token grid upsampled bilinearly (EVAL.md) |
-//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, 9x9 box of costs, search +-round(width / 80) px within 2..=8, [`bino_core::refine::RefineParams::for_width`]) on the pair's 8-bit gray views, Q8 px / 256 |
+//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, 9x9 box of costs, search +-round(width / 80) px within 2..=8, [`bino_core::refine::RefineParams::for_width`]) on the pair's 8-bit gray views, Q8 px / 256; with `+lr` the pixels of the cells the check rejected keep the bilinear step (`bino_core::refine::keep_rejected_map`) |
 //!
 //! Every pixel gets a value (the maps are dense); the pixels of rejected cells are known from
 //! the method's mask, not from the disparity.
@@ -25,7 +25,7 @@ use std::str::FromStr;
 
 use anyhow::{bail, ensure, Context, Result};
 
-use crate::eval::{fill_invalid, upsample_disparity, DisparityMap};
+use crate::eval::{upsample_disparity, DisparityMap};
 use crate::refine::{refine_pixels, GrayViews};
 
 /// How disparity is read from the descriptors.
@@ -137,6 +137,20 @@ impl FromStr for Readout {
     }
 }
 
+/// `map` with the cells `kept` rejects filled by the core's `+lr` fill
+/// ([`bino_core::lr::fill_rejected`]), row by row: the one definition the firmware runs.
+pub fn fill_rejected(map: &DisparityMap, kept: &[bool]) -> DisparityMap {
+    let mut values = map.values.clone();
+    let mask: Vec<u8> = kept.iter().map(|&k| u8::from(k)).collect();
+    if map.width > 0 {
+        for (row, m) in values.chunks_exact_mut(map.width).zip(mask.chunks_exact(map.width)) {
+            // Both slices are one row of `map.width` cells, the only error the fill reports.
+            let _ = bino_core::lr::fill_rejected(row, m);
+        }
+    }
+    DisparityMap { values, ..*map }
+}
+
 /// Every method's token-grid disparity (patch columns) of one pair, with its left-right mask.
 #[derive(Debug, Clone)]
 pub struct MethodMaps {
@@ -184,7 +198,7 @@ impl MethodMaps {
             mask.len() == map.values.len(),
             "{readout}: mask and disparity sizes differ"
         );
-        Ok(fill_invalid(map, mask))
+        Ok(fill_rejected(map, mask))
     }
 
     /// The readout's pixel disparity: [`MethodMaps::tokens`] upsampled bilinearly (EVAL.md),
@@ -193,7 +207,13 @@ impl MethodMaps {
     pub fn pixels(&self, readout: Readout) -> Result<DisparityMap> {
         let tokens = self.tokens(readout)?;
         if readout.refine {
-            refine_pixels(&tokens, &self.views).with_context(|| format!("{readout}: refinement"))
+            // `tokens` checked that a `+lr` readout has its mask.
+            let kept = if readout.lr {
+                self.method(readout.method)?.1
+            } else {
+                None
+            };
+            refine_pixels(&tokens, &self.views, kept).with_context(|| format!("{readout}: refinement"))
         } else {
             Ok(upsample_disparity(&tokens))
         }
@@ -271,11 +291,12 @@ mod tests {
 
     /// A `+ref` readout's pixels are the core's whole-map refinement (equalised:
     /// `refine_map_equalised`) of the readout's token grid (after the fill) in Q8 on the views,
+    /// with `+lr` the rejected cells' pixels kept at the bilinear step (`keep_rejected_map`),
     /// Q8 px / 256; without `+ref` the bilinear upsampling.
     #[test]
     fn the_refined_pixels_are_the_cores_equalised_whole_map() {
         use bino_core::refine::sharpness::refine_map_equalised;
-        use bino_core::refine::{scratch_len, RefineParams};
+        use bino_core::refine::{keep_rejected_map, scratch_len, RefineParams};
         let q8: Vec<u16> = (0..24).map(|i| 250 + (i * 37 % 11) as u16 * 9).collect();
         let mask: Vec<bool> = (0..24).map(|i| i % 5 != 2).collect();
         let map = DisparityMap {
@@ -312,6 +333,10 @@ mod tests {
             let mut scratch = vec![0u32; scratch_len(32, &params)];
             let mut out = vec![0u16; 32 * 12];
             refine_map_equalised(&v.left, &v.right, 32, &grid, &params, &mut scratch, &mut out).unwrap();
+            if readout.lr {
+                let m: Vec<u8> = mask.iter().map(|&k| u8::from(k)).collect();
+                keep_rejected_map(32, &grid, &m, &mut out).unwrap();
+            }
             let core: Vec<f32> = out.iter().map(|&d| d as f32 / 256.0).collect();
             assert_eq!(pixels.values, core, "{readout}");
         }

@@ -13,7 +13,7 @@ use bino_core::config::{CELL_W, PATCH_H};
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::pipeline::Refine;
 use bino_core::refine::sharpness::refine_map_equalised;
-use bino_core::refine::{refine_map, scratch_len, RefineParams};
+use bino_core::refine::{keep_rejected_map, refine_map, scratch_len, RefineParams};
 
 use crate::eval::DisparityMap;
 use crate::int8::to_u8;
@@ -64,9 +64,17 @@ pub fn tokens_q8(map: &DisparityMap) -> Vec<u16> {
 /// The refined pixel disparity (px) of a token grid on `views` by the shipped refinement
 /// ([`RefineParams::for_width`] of the views' width, equalised as [`Refine::EQUALISE`] says: the
 /// pipeline's with [`Refine::for_width`], and the firmware's at 160 px). The grid must be the views' (`H / 4` x `W / 4` cells); the result has the
-/// views' size, as the bilinear upsampling of the unrefined readout.
-pub fn refine_pixels(tokens: &DisparityMap, views: &GrayViews) -> Result<DisparityMap> {
-    refine_pixels_with(tokens, views, &RefineParams::for_width(views.width), Refine::EQUALISE)
+/// views' size, as the bilinear upsampling of the unrefined readout. With `kept` (a `+lr`
+/// readout's left-right mask of the grid, its rejected cells already filled) the pixels of
+/// rejected cells keep the bilinear step ([`bino_core::refine::keep_rejected_map`]).
+pub fn refine_pixels(tokens: &DisparityMap, views: &GrayViews, kept: Option<&[bool]>) -> Result<DisparityMap> {
+    refine_pixels_with(
+        tokens,
+        views,
+        &RefineParams::for_width(views.width),
+        Refine::EQUALISE,
+        kept,
+    )
 }
 
 /// [`refine_pixels`] with explicit parameters, with or without the sharpness equalisation.
@@ -75,6 +83,7 @@ pub fn refine_pixels_with(
     views: &GrayViews,
     params: &RefineParams,
     equalise: bool,
+    kept: Option<&[bool]>,
 ) -> Result<DisparityMap> {
     let (width, height) = (views.width, views.height);
     ensure!(
@@ -86,16 +95,12 @@ pub fn refine_pixels_with(
     let mut scratch = vec![0u32; scratch_len(width, params)];
     let mut out = vec![0u16; width * height];
     let whole_map = if equalise { refine_map_equalised } else { refine_map };
-    whole_map(
-        &views.left,
-        &views.right,
-        width,
-        &tokens_q8(tokens),
-        params,
-        &mut scratch,
-        &mut out,
-    )
-    .map_err(anyhow::Error::msg)?;
+    let grid = tokens_q8(tokens);
+    whole_map(&views.left, &views.right, width, &grid, params, &mut scratch, &mut out).map_err(anyhow::Error::msg)?;
+    if let Some(kept) = kept {
+        let kept: Vec<u8> = kept.iter().map(|&k| u8::from(k)).collect();
+        keep_rejected_map(width, &grid, &kept, &mut out).map_err(anyhow::Error::msg)?;
+    }
     let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
     Ok(DisparityMap {
         width,
@@ -179,10 +184,10 @@ mod tests {
         let q8: Vec<u16> = (0..18).map(|i| (150 + i * 23 % 90) as u16).collect();
         let grid = map(6, q8.iter().map(|&d| d as f32 / 256.0).collect());
 
-        let shipped = refine_pixels(&grid, &views).unwrap();
+        let shipped = refine_pixels(&grid, &views, None).unwrap();
         assert_eq!((shipped.width, shipped.height), (w, h));
         assert_eq!(shipped.values, core_pixels(&views, &q8, Refine::EQUALISE));
-        let plain = refine_pixels_with(&grid, &views, &RefineParams::DEFAULT, false).unwrap();
+        let plain = refine_pixels_with(&grid, &views, &RefineParams::DEFAULT, false, None).unwrap();
         assert_eq!(plain.values, core_pixels(&views, &q8, false));
         assert_ne!(plain.values, shipped.values, "the equalisation changes pixels here");
         assert!(
@@ -191,6 +196,6 @@ mod tests {
         );
 
         let wrong = map(5, vec![1.0; 15]);
-        assert!(refine_pixels(&wrong, &views).is_err(), "grid of another size");
+        assert!(refine_pixels(&wrong, &views, None).is_err(), "grid of another size");
     }
 }

@@ -304,8 +304,12 @@ fn run_refine_off_is_the_upsampled_grid_and_the_default_its_refinement() {
         pfm(&off) == pfm_bytes(&upsample_disparity(&tokens)),
         "--refine off: the old output"
     );
-    let refined = refine_pixels(&tokens, &GrayViews::from_views(&l, &r).unwrap()).unwrap();
-    assert!(pfm(&on) == pfm_bytes(&refined), "default: the refinement");
+    let kept = &maps.sgm_consistent;
+    let refined = refine_pixels(&tokens, &GrayViews::from_views(&l, &r).unwrap(), Some(kept)).unwrap();
+    assert!(
+        pfm(&on) == pfm_bytes(&refined),
+        "default: the refinement, rejected cells kept"
+    );
     assert!(pfm(&on) != pfm(&off));
     let mask = |dir: &Path| std::fs::read(dir.join("lr_mask.png")).unwrap();
     assert!(mask(&on) == mask(&off), "the method's mask either way");

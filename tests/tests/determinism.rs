@@ -19,7 +19,7 @@ use bino_core::lr::fill_rejected;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{HeadChecked, MatchedRow, Pathway, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::sharpness::refine_map_equalised;
-use bino_core::refine::{refine_map, scratch_len};
+use bino_core::refine::{keep_rejected_map, refine_map, scratch_len};
 use workload::{Hooks, Stage, OUTPUTS};
 
 struct Quiet;
@@ -84,7 +84,7 @@ impl Sink for HeadMaps {
     }
 }
 
-/// CRC-32 of the preset's whole-map refinement on the filled head+lr grid of `pathway`'s run without the refinement
+/// CRC-32 of the preset's whole-map refinement on the filled head+lr grid of `pathway`'s run (its rejected cells kept at the bilinear step) without the refinement
 /// stage, rows top to bottom, values little-endian: what the workload's `refined` digest must be.
 fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8], right: &[u8]) -> u32 {
     let (height, width) = (48, 160);
@@ -113,6 +113,7 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
         refine_map
     };
     whole(left, right, width, &grid, &refine.params, &mut scratch, &mut refined).unwrap();
+    keep_rejected_map(width, &grid, &maps.mask, &mut refined).unwrap();
     let mut crc = Crc32::new();
     for v in refined {
         crc.update(&v.to_le_bytes());

@@ -3,7 +3,8 @@
 //! left-right check, with and without the sharpness equalisation, the pixel rows it streams
 //! equal the whole-map refinement (`refine::sharpness::refine_map_equalised` or
 //! `refine::refine_map`) of that readout's token map (filled by its left-right check for the
-//! `+lr` ones), computed from the same run's token rows; the other outputs do not change, and
+//! `+lr` ones, whose rejected cells then keep the bilinear step: `refine::keep_rejected_map`),
+//! computed from the same run's token rows; the other outputs do not change, and
 //! the arena grows as documented.
 
 use bino_core::lr::fill_rejected;
@@ -13,7 +14,7 @@ use bino_core::pipeline::{
     Pipeline, Refine, RefineInput, Sink, SlicePair, Stage,
 };
 use bino_core::refine::sharpness::{decide_map_row, refine_map_equalised};
-use bino_core::refine::{refine_map, scratch_len, RefineParams};
+use bino_core::refine::{keep_rejected_map, refine_map, scratch_len, RefineParams};
 use bino_core::Error;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
 use bino_host::int8::Int8Model;
@@ -82,6 +83,16 @@ impl Collect {
 
     fn put<T: Copy>(map: &mut [T], cols: usize, row: usize, values: &[T]) {
         map[row * cols..(row + 1) * cols].copy_from_slice(values);
+    }
+
+    /// The left-right mask of a `+lr` input, `None` for the others.
+    fn mask(&self, input: RefineInput) -> Option<&[u8]> {
+        match input {
+            RefineInput::NolinkLr => Some(&self.wta_mask),
+            RefineInput::SgmLr => Some(&self.sgm_mask),
+            RefineInput::HeadLr => Some(&self.head_mask),
+            _ => None,
+        }
     }
 
     /// The token grid `input` reads, filled where it is a `+lr` one.
@@ -214,16 +225,20 @@ fn whole_map(s: &Scene, out: &Collect, refine: &Refine) -> Vec<u16> {
     } else {
         refine_map
     };
+    let grid = out.grid(refine.input);
     whole(
         &s.left,
         &s.right,
         s.width,
-        &out.grid(refine.input),
+        &grid,
         &refine.params,
         &mut scratch,
         &mut expected,
     )
     .unwrap();
+    if let Some(mask) = out.mask(refine.input) {
+        keep_rejected_map(s.width, &grid, mask, &mut expected).unwrap();
+    }
     expected
 }
 
@@ -338,25 +353,26 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
         arena_bytes_for(48, 160, &sgm)
     );
     // The equalisation's smoothed rows: one window, 13 rows of 160 px (the 9x9 box), beyond the
-    // plain 12,005 (6,885 with the 5x5 box: the census scratch holds 2 x 9 rows of 160 codes).
-    assert_eq!(refine_bytes(48, 160, &refine), 12_005 + 13 * 160);
+    // plain 12,085 (6,965 with the 5x5 box: the census scratch holds 2 x 9 rows of 160 codes;
+    // 80 B of it the two token rows' left-right masks).
+    assert_eq!(refine_bytes(48, 160, &refine), 12_085 + 13 * 160);
     let plain = Refine {
         equalise: false,
         ..refine
     };
-    assert_eq!(refine_bytes(48, 160, &plain), 12_005);
+    assert_eq!(refine_bytes(48, 160, &plain), 12_085);
     // Several bands: the state (and for a head input the view ring) adds to the streams; the
     // row scratch lives in the encoder's.
     for (height, opts) in [(96, head_lr), (96, sgm), (480, head_lr)] {
         let r = Refine::for_options(&opts);
         let growth = arena_bytes_refined(height, 160, &opts, &r) - arena_bytes_for(height, 160, &opts);
-        let state = refine_bytes(height, 160, &r) - refine_bytes(48, 160, &r) + 161;
+        let state = refine_bytes(height, 160, &r) - refine_bytes(48, 160, &r) + 241; // token rows 161 B, masks 80 B
         assert_eq!(growth, state, "{height} {}", r.input.name());
     }
     // The head's ring: 4 lag + 2 + reach - 4 CUT_MARGIN rows of both views (reach 8 equalised,
     // 6 plain).
-    assert_eq!(refine_bytes(96, 160, &refine), 12_005 + 13 * 160 + 26 * 160 * 2);
-    assert_eq!(refine_bytes(96, 160, &plain), 12_005 + 24 * 160 * 2);
+    assert_eq!(refine_bytes(96, 160, &refine), 12_085 + 13 * 160 + 26 * 160 * 2);
+    assert_eq!(refine_bytes(96, 160, &plain), 12_085 + 24 * 160 * 2);
     // Too small by a byte is an error, not a wrong row.
     let s = scene(32, 80);
     let needed = arena_bytes_refined(80, 32, &head_lr, &refine);

@@ -266,6 +266,21 @@ def refine_int(
     return np.minimum(out, 65535).astype(np.uint16)
 
 
+def keep_rejected(
+    refined_q8: NDArray[Any], tokens_q8: NDArray[Any], kept: NDArray[Any]
+) -> NDArray[np.uint16]:
+    """The `+lr+ref` rule for the cells a left-right check rejected (`kept` False, (T, P)): their
+    pixels take the bilinear step d0 of the filled grid `tokens_q8` instead of the refined value
+    (`bino_core::refine::keep_rejected_map`). (H, W) Q8 pixels."""
+    h, w = refined_q8.shape
+    d0 = upsample_int(np.asarray(tokens_q8, dtype=np.int64), h, w)
+    rows = np.minimum(np.arange(h) // CELL, kept.shape[0] - 1)
+    cols = np.minimum(np.arange(w) // CELL, kept.shape[1] - 1)
+    rejected = ~np.asarray(kept, dtype=bool)[rows][:, cols]
+    out = np.where(rejected, np.minimum(d0, 65535), refined_q8)
+    return np.asarray(out, dtype=np.uint16)
+
+
 def fixture_cases() -> list[
     tuple[NDArray[np.uint8], NDArray[np.uint8], NDArray[Any], RefineParams]
 ]:

@@ -41,7 +41,7 @@ from .model import BinoEncoder
 from .pairs import load_gray
 from .probe import mean_metrics, score, upsample_disparity
 from .profile import resize_image, to_u8
-from .refine import RefineParams, refine_int
+from .refine import RefineParams, keep_rejected, refine_int
 from .sharpness import box, refine_equalised
 
 NOISE_SIGMA = 8.0
@@ -121,7 +121,9 @@ def validate(
         q8 = to_q8(filled)
         for out, (p, eq) in zip(refined, variants, strict=True):
             refine = refine_equalised if eq else refine_int
-            pixels = refine(left, right, q8, p).astype(np.float32) / np.float32(256.0)
+            pixels = keep_rejected(refine(left, right, q8, p), q8, kept).astype(
+                np.float32
+            ) / np.float32(256.0)
             out.append(score(pixels, gt, valid))
     base = mean_metrics(unrefined)
     rows = []

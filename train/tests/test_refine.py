@@ -12,6 +12,7 @@ from bino_train.refine import (
     RefineParams,
     census,
     grid_size,
+    keep_rejected,
     refine_float,
     refine_int,
     upsample_float,
@@ -155,3 +156,22 @@ def test_the_committed_fixture_is_current(tmp_path: Path) -> None:
     size = write_fixture(fresh)
     assert size < 20_000
     assert fresh.read_bytes() == FIXTURE.read_bytes()
+
+
+def test_rejected_cells_keep_the_bilinear_step() -> None:
+    """`keep_rejected` (the `+lr+ref` rule, `bino_core::refine::keep_rejected_map`): pixels of
+    rejected cells take d0 of the filled grid, the others keep the refined value."""
+    left, right = shifted_pair(5, 16, 24, 3)
+    rng = np.random.default_rng(9)
+    tokens = rng.integers(0, 4 * 256, size=(4, 6))
+    kept = rng.random((4, 6)) > 0.3
+    kept[0, 0] = False
+    refined = refine_int(left, right, tokens)
+    out = keep_rejected(refined, tokens, kept)
+    d0 = upsample_int(tokens, 16, 24)
+    for y in range(16):
+        for x in range(24):
+            want = d0[y, x] if not kept[y // 4, x // 4] else refined[y, x]
+            assert out[y, x] == want, (y, x)
+    assert (out != refined).any(), "some rejected pixel differs from its refined value"
+    assert np.array_equal(keep_rejected(refined, tokens, np.ones((4, 6), bool)), refined)

@@ -7,7 +7,9 @@
 //! and the view rows `y - reach ..= y + reach` ([`RefineParams::reach`], 4 for the defaults).
 //! Token row `t` arriving makes pixel rows `4t - 2 ..= 4t + 1` computable (the last token row
 //! also the two below it), so two token rows are all the stage keeps, filled by the readout's
-//! left-right check when the readout is a `+lr` one ([`fill_rejected`], as the host fills).
+//! left-right check when the readout is a `+lr` one ([`fill_rejected`], as the host fills),
+//! with that check's masks: the pixels of rejected cells keep the bilinear step
+//! ([`keep_rejected_row`]).
 //!
 //! # Where the view rows come from
 //! From the pipeline's own band buffer whenever they are still there: the matching readouts
@@ -20,7 +22,7 @@
 //! reach, none for the matching readouts or one band).
 //!
 //! # Memory
-//! State kept across bands ([`state_bytes`]): two token rows and the ring. Scratch used only
+//! State kept across bands ([`state_bytes`]): two token rows, their masks and the ring. Scratch used only
 //! inside a row ([`scratch_bytes`]): the census codes of [`crate::refine::scratch_len`] and the
 //! output row; with several bands it lives in the encoder's scratch (free between passes), with
 //! one band beside the readout streams (which share the encoder's scratch after both passes).
@@ -31,7 +33,9 @@ use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS, CELL_W, PATCH_H};
 use crate::lr::fill_rejected;
 use crate::model::ids::HEAD_CONVS;
 use crate::refine::sharpness::{equalised_reach, smoothed_len, EqualisedRefiner, MAX_EQUALISED_ROWS};
-use crate::refine::{scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows};
+use crate::refine::{
+    keep_rejected_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
+};
 use crate::Error;
 
 /// Token rows the head's output trails its input by (one per convolution).
@@ -57,12 +61,13 @@ pub(super) const fn ring_rows(reach: usize, lag: usize) -> usize {
         .saturating_sub(PATCH_H * CUT_MARGIN)
 }
 
-/// Arena bytes of the state kept across bands: two token rows (`u16`) and `ring` rows of both
-/// views (`u8`).
+/// Arena bytes of the state kept across bands: two token rows (`u16`), their left-right masks
+/// (`u8`) and `ring` rows of both views (`u8`).
 pub(super) const fn state_bytes(width: usize, ring: usize) -> usize {
     let cols = width / CELL_W;
     sum(&[
         cols.saturating_mul(2 * 2).saturating_add(1),
+        cols.saturating_mul(2),
         ring.saturating_mul(width).saturating_mul(2),
     ])
 }
@@ -188,6 +193,8 @@ pub(super) struct RefineStage<'a> {
     grid_rows: usize,
     /// Token row `t` in slot `t % 2`.
     tokens: &'a mut [u16],
+    /// Its left-right mask in slot `t % 2` (all 1 without a check).
+    masks: &'a mut [u8],
     /// Token rows received.
     received: usize,
     /// Next pixel row to emit.
@@ -218,6 +225,7 @@ impl<'a> RefineStage<'a> {
         let cols = width / CELL_W;
         let mut carver = Carver::new(arena, state_bytes(width, ring_rows))?;
         let tokens = carver.u16s(2 * cols)?;
+        let masks = carver.u8s(2 * cols)?;
         let ring_left = carver.u8s(ring_rows * width)?;
         let ring_right = carver.u8s(ring_rows * width)?;
         Ok(Self {
@@ -228,6 +236,7 @@ impl<'a> RefineStage<'a> {
             cols,
             grid_rows: height / PATCH_H,
             tokens,
+            masks,
             received: 0,
             next_y: 0,
             ring_left,
@@ -276,8 +285,16 @@ impl<'a> RefineStage<'a> {
             });
         }
         slot.copy_from_slice(disparity_q8);
-        if let Some(mask) = mask {
-            fill_rejected(slot, mask)?;
+        let kept = self
+            .masks
+            .get_mut((row % 2) * cols..(row % 2 + 1) * cols)
+            .unwrap_or_default();
+        match mask {
+            Some(mask) => {
+                fill_rejected(slot, mask)?;
+                kept.copy_from_slice(mask);
+            }
+            None => kept.fill(1),
         }
         self.received += 1;
         self.emit(io, sink)
@@ -365,6 +382,13 @@ impl<'a> RefineStage<'a> {
         Some((self.ring_left.get(at.clone())?, self.ring_right.get(at)?))
     }
 
+    /// The left-right mask of token row `t` (kept as [`RefineStage::token_row`] is).
+    fn mask_row(&self, t: usize) -> Result<&[u8], Error> {
+        self.token_row(t)?;
+        let cols = self.cols;
+        Ok(self.masks.get((t % 2) * cols..(t % 2 + 1) * cols).unwrap_or_default())
+    }
+
     fn token_row(&self, t: usize) -> Result<&[u16], Error> {
         // Only the last two rows received are kept.
         if t >= self.received || t + 2 < self.received {
@@ -424,6 +448,7 @@ impl<'a> RefineStage<'a> {
                 Refiner::Plain(r) => r.refine_row(y, &rows, &tokens, scratch.out)?,
                 Refiner::Equalised(r) => r.refine_row(y, &rows, &tokens, scratch.out)?,
             }
+            keep_rejected_row(y, &tokens, self.mask_row(y / PATCH_H)?, scratch.out)?;
             sink.refined(y, scratch.out);
             self.next_y += 1;
         }
@@ -435,8 +460,8 @@ impl<'a> RefineStage<'a> {
 mod tests {
     use super::*;
     use crate::band::BandPlan;
-    use crate::refine::refine_map;
     use crate::refine::sharpness::{decide_map_row, refine_map_equalised};
+    use crate::refine::{keep_rejected_map, refine_map};
     use crate::testutil::Rng;
 
     const W: usize = 16;
@@ -534,6 +559,8 @@ mod tests {
             &mut expected[..n],
         )
         .unwrap();
+        // A `+lr` readout: the rejected cells' pixels keep the bilinear step.
+        keep_rejected_map(W, &filled[..t_rows * cols], &mask[..t_rows * cols], &mut expected[..n]).unwrap();
 
         let plan = BandPlan::new(t_rows).unwrap();
         let ring = if plan.len() > 1 {

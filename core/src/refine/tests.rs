@@ -621,3 +621,61 @@ fn the_search_radius_follows_the_view_width() {
         assert_eq!(RefineParams { search: 2, ..p }, RefineParams::DEFAULT);
     }
 }
+
+/// `+lr+ref`: the pixels of rejected cells (the mask of their own grid row `y / 4`) take `d0`,
+/// the others keep the refined value, at sizes that are and are not multiples of the cell.
+#[test]
+fn rejected_cells_keep_d0_and_kept_cells_their_refined_value() {
+    let mut rng = Rng::new(31);
+    for (w, h) in [(16usize, 8usize), (13, 10), (48, 24), (1, 1)] {
+        let (rows, cells) = (h.div_ceil(4), w.div_ceil(4));
+        let mut tokens = [0u16; MAX_CELLS];
+        let mut kept = [0u8; MAX_CELLS];
+        for (t, k) in tokens.iter_mut().zip(kept.iter_mut()).take(rows * cells) {
+            (*t, *k) = (rng.range(0, 12 * 256) as u16, (rng.range(0, 3) > 0) as u8);
+        }
+        kept[0] = 0;
+        let refined: [u16; MAX_PIXELS] = core::array::from_fn(|i| 60_000 - i as u16);
+        let mut out = refined;
+        keep_rejected_map(w, &tokens[..rows * cells], &kept[..rows * cells], &mut out[..w * h]).unwrap();
+        for y in 0..h {
+            for x in 0..w {
+                let i = y * w + x;
+                let expected = if kept[(y / 4) * cells + x / 4] == 0 {
+                    ref_d0(&tokens[..rows * cells], w, h, y, x) as u16
+                } else {
+                    refined[i]
+                };
+                assert_eq!(out[i], expected, "{w}x{h} at ({y}, {x})");
+            }
+        }
+        assert_eq!(out[w * h..], refined[w * h..], "past the map: untouched");
+    }
+}
+
+#[test]
+fn keeping_rejected_cells_checks_its_sizes() {
+    let mut out = [0u16; 32];
+    assert_eq!(keep_rejected_map(0, &[], &[], &mut out), Err(Error::EmptyImage));
+    assert!(matches!(
+        keep_rejected_map(5, &[0; 4], &[0; 4], &mut out[..32]),
+        Err(Error::BufferSize { .. })
+    ));
+    assert!(matches!(
+        keep_rejected_map(8, &[0; 4], &[0; 3], &mut out[..32]),
+        Err(Error::BufferSize { .. })
+    ));
+    assert!(matches!(
+        keep_rejected_map(8, &[0; 3], &[0; 4], &mut out[..32]),
+        Err(Error::BufferSize { .. })
+    ));
+    let tokens = TokenRows {
+        first: &[0; 2],
+        second: &[0; 2],
+    };
+    assert!(matches!(
+        keep_rejected_row(0, &tokens, &[0; 3], &mut out[..8]),
+        Err(Error::BufferSize { .. })
+    ));
+    assert_eq!(keep_rejected_row(0, &tokens, &[1; 2], &mut out[..8]), Ok(()));
+}

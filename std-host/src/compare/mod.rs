@@ -557,7 +557,7 @@ pub fn top2_gap_median(volume: &SimilarityVolume) -> f64 {
 
 // EVAL.md metrics of a token grid's refined pixels (the `+ref` readouts' rule).
 fn refined_metrics(tokens: &DisparityMap, views: &GrayViews, item: &EvalItem) -> Result<Metrics> {
-    score(&refine_pixels(tokens, views)?, &item.gt)
+    score(&refine_pixels(tokens, views, None)?, &item.gt)
 }
 
 /// Seed of `CompareOptions::nuisance`: `bino eval --nuisance`'s default, so both see the same images.
