@@ -12,7 +12,7 @@
 //! // The 48x160 band pair of the budget: 486,918 bytes.
 //! assert_eq!(arena_bytes(48, 160), 486_918);
 //! // The native pathway (one encoder pass on (L, R), twice with the head's check) needs less.
-//! assert_eq!(bino_core::preset::native_arena_bytes(48, 160), 427_142);
+//! assert_eq!(bino_core::preset::native_arena_bytes(48, 160), 427_222);
 //! ```
 
 use crate::pipeline::{self, Options, Pathway, Refine};
