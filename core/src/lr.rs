@@ -84,7 +84,7 @@ pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [
 /// first kept one take that one's; a row with no kept cell is all 0. In place. Generic so the
 /// host's float readouts fill with this same definition (a copy of kept values, exact in any
 /// precision).
-pub fn fill_rejected<T: Copy + PartialOrd + Default>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
+pub fn fill_rejected<T: Copy + Default>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
     if consistent.len() != row.len() {
         return Err(Error::BufferSize {
             what: "left-right mask row",

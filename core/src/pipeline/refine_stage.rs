@@ -292,6 +292,13 @@ impl<'a> RefineStage<'a> {
         match mask {
             Some(mask) => {
                 fill_rejected(slot, mask)?;
+                if kept.len() != mask.len() {
+                    return Err(Error::BufferSize {
+                        what: "left-right mask row",
+                        expected: kept.len(),
+                        found: mask.len(),
+                    });
+                }
                 kept.copy_from_slice(mask);
             }
             None => kept.fill(1),
