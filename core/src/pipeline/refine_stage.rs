@@ -291,15 +291,9 @@ impl<'a> RefineStage<'a> {
             .unwrap_or_default();
         match mask {
             Some(mask) => {
+                // The fill checks the mask against the token row, as long as `kept`.
                 fill_rejected(slot, mask)?;
-                if kept.len() != mask.len() {
-                    return Err(Error::BufferSize {
-                        what: "left-right mask row",
-                        expected: kept.len(),
-                        found: mask.len(),
-                    });
-                }
-                kept.copy_from_slice(mask);
+                kept.iter_mut().zip(mask).for_each(|(k, &m)| *k = m);
             }
             None => kept.fill(1),
         }
