@@ -345,7 +345,10 @@ fn shifted_pair_folder(name: &str) -> PathBuf {
 fn eval_reports_every_readout_and_sgbm_clean_and_under_each_nuisance_reproducibly() {
     let dir = shifted_pair_folder("nuisance");
     // StereoSGBM where the project's Python environment is there (as the other eval tests).
-    let sgbm = bino_host::sgbm::SgbmRunner::locate().is_ok();
+    let sgbm = common::available(
+        "the Python environment for StereoSGBM",
+        bino_host::sgbm::SgbmRunner::locate().is_ok(),
+    );
     let readouts = ["nolink", "sgm+lr+ref", "head+lr+ref"];
     let nuisances = ["gain", "gamma", "noise", "blur", "occlude"];
     let eval = |json: &Path| {

@@ -9,7 +9,7 @@ use std::sync::OnceLock;
 use serde_json::Value;
 
 mod common;
-use common::{bino, repo, s, scratch_dir};
+use common::{available, bino, repo, s, scratch_dir};
 
 fn fixture_onnx() -> PathBuf {
     repo().join("tests/fixtures/encoder_random_seed0.onnx")
@@ -36,7 +36,10 @@ fn assert_ok(out: &Output) {
 fn blob() -> Option<&'static Path> {
     static BLOB: OnceLock<Option<PathBuf>> = OnceLock::new();
     BLOB.get_or_init(|| {
-        if !data_dir().join("PAIRS.tsv").is_file() {
+        if !available(
+            &format!("data at {}", data_dir().display()),
+            data_dir().join("PAIRS.tsv").is_file(),
+        ) {
             return None;
         }
         let out = scratch().join("fixture_int8.bin");
@@ -71,7 +74,6 @@ fn number(v: &Value, what: &str) -> f64 {
 #[test]
 fn compare_on_two_eval_pairs_writes_sane_json() {
     let Some(blob) = blob() else {
-        eprintln!("skipped: no data at {}", data_dir().display());
         return;
     };
     let json = scratch().join("compare.json");
@@ -134,7 +136,6 @@ fn compare_on_two_eval_pairs_writes_sane_json() {
 #[test]
 fn bench_runs_once_and_writes_sane_json() {
     let Some(blob) = blob() else {
-        eprintln!("skipped: no data at {}", data_dir().display());
         return;
     };
     let json = scratch().join("bench.json");

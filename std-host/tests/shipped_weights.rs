@@ -8,6 +8,8 @@ use bino_host::eval::DEFAULT_MAX_COLS;
 use bino_host::files::sha256_hex;
 use bino_host::synthetic::default_scene;
 
+mod common;
+
 fn weights() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../weights")
 }
@@ -198,7 +200,10 @@ fn integer_row_matching_agrees_with_the_float_readout() {
 fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
     use bino_host::readout_eval::{evaluate, EvalOptions, Precision, Readout};
     let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("../weights");
-    let sgbm = bino_host::sgbm::SgbmRunner::locate().is_ok();
+    let sgbm = common::available(
+        "the Python environment for StereoSGBM",
+        bino_host::sgbm::SgbmRunner::locate().is_ok(),
+    );
     let opts = EvalOptions {
         data: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
         split: "eval".into(),

@@ -29,3 +29,24 @@ pub fn view_from_nchw(array: &Array) -> Result<View> {
         pixels: array.data[..h * w].to_vec(),
     })
 }
+
+/// Whether a test must fail instead of skipping when an input outside the repository is missing
+/// (`../shared/data`, the project's Python environment): under `CI=true` or `BINO_REQUIRE_DATA=1`
+/// (which `scripts/test.sh` sets).
+pub fn inputs_required() -> bool {
+    let set = |name: &str, values: &[&str]| std::env::var(name).is_ok_and(|v| values.contains(&v.as_str()));
+    set("CI", &["true", "1"]) || set("BINO_REQUIRE_DATA", &["1", "true"])
+}
+
+/// `present`, after a `skipped:` note on stderr when it is false; panics instead when
+/// [`inputs_required`], so a missing input never passes in CI.
+pub fn available(what: &str, present: bool) -> bool {
+    if !present {
+        assert!(
+            !inputs_required(),
+            "{what} is missing (CI=true or BINO_REQUIRE_DATA=1: not skipped)"
+        );
+        eprintln!("skipped: {what} is missing (set BINO_REQUIRE_DATA=1 to fail instead)");
+    }
+    present
+}

@@ -12,7 +12,7 @@ use bino_host::profile::Profile;
 use bino_host::quantize::{quantize, QuantizeOptions};
 use bino_host::reference::ReferenceEncoder;
 use bino_host::synthetic;
-use bino_tests::fixtures;
+use bino_tests::{available, fixtures};
 
 fn data_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")
@@ -48,8 +48,10 @@ fn mean_cosine(a: &[f32], b: &[f32], dim: usize) -> f64 {
 
 #[test]
 fn int8_descriptors_follow_float() {
-    if !data_dir().join("PAIRS.tsv").is_file() {
-        eprintln!("skipped: no calibration data at {}", data_dir().display());
+    if !available(
+        &format!("calibration data at {}", data_dir().display()),
+        data_dir().join("PAIRS.tsv").is_file(),
+    ) {
         return;
     }
     let onnx = fixtures().join("encoder_random_seed0.onnx");
@@ -148,8 +150,10 @@ fn int8_native_pathway_follows_float() {
     use bino_core::model::head::{arena_bytes_for, HeadRow, HeadSink, HeadStream, HeadWeights};
     use bino_core::model::ids::HeadKind;
 
-    if !data_dir().join("PAIRS.tsv").is_file() {
-        eprintln!("skipped: no calibration data at {}", data_dir().display());
+    if !available(
+        &format!("calibration data at {}", data_dir().display()),
+        data_dir().join("PAIRS.tsv").is_file(),
+    ) {
         return;
     }
     let onnx = fixtures().join("encoder_random_seed0.onnx");
@@ -278,8 +282,10 @@ fn head_calibration_adds_each_pair_again_per_nuisance_with_only_its_right_view_c
     use bino_core::model::ids::HeadKind;
     use bino_host::nuisance::Nuisance;
     use bino_host::quantize::head::calibration_maps;
-    if !data_dir().join("PAIRS.tsv").is_file() {
-        eprintln!("skipped: no calibration data at {}", data_dir().display());
+    if !available(
+        &format!("calibration data at {}", data_dir().display()),
+        data_dir().join("PAIRS.tsv").is_file(),
+    ) {
         return;
     }
     let onnx = fixtures().join("encoder_random_seed0.onnx");
@@ -303,8 +309,10 @@ fn head_calibration_adds_each_pair_again_per_nuisance_with_only_its_right_view_c
 fn compare_under_a_nuisance_degrades_the_right_views_and_says_so() {
     use bino_host::compare::{compare, CompareOptions};
     use bino_host::nuisance::Nuisance;
-    if !data_dir().join("PAIRS.tsv").is_file() {
-        eprintln!("skipped: no data at {}", data_dir().display());
+    if !available(
+        &format!("data at {}", data_dir().display()),
+        data_dir().join("PAIRS.tsv").is_file(),
+    ) {
         return;
     }
     let (blob, _) = quantize(&fixture_options(None), |_, _| {}).unwrap();
