@@ -1,10 +1,41 @@
 #!/usr/bin/env bash
 # The project's whole test suite: what CI runs, and what the README calls "the tests".
+#
+#   scripts/test.sh           everything (installs what is missing first)
+#   scripts/test.sh --quick   the contributor tier: the docs' figures, Rust format, lints and
+#                             `cargo test --workspace`; no installs, fuzzing, Cortex-M builds,
+#                             QEMU or Python steps (tests that need ../shared/data or the Python
+#                             environment skip where they are missing, unless CI=true)
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BINO_ROOT"
 
+quick=0
+case "${1:-}" in
+  --quick) quick=1 ;;
+  "") ;;
+  *) echo "usage: scripts/test.sh [--quick]" >&2; exit 2 ;;
+esac
+
 step() { printf '\n== %s\n' "$*"; }
+
+step "docs: every rendered table equals a fresh render of the measurement files"
+python3 scripts/render_docs.py --check
+python3 scripts/render_docs.py --self-test >/dev/null
+
+if [ "$quick" = 1 ]; then
+  step "rust: format and lints"
+  cargo fmt --all --check
+  cargo clippy --workspace --all-targets --locked -- -D warnings
+  step "rust: tests"
+  cargo test --workspace --locked
+  step "quick tier passed"
+  exit 0
+fi
+
+# The full suite has every input: a test whose ../shared/data or Python environment is
+# missing fails instead of skipping.
+export BINO_REQUIRE_DATA=1
 
 step setup
 scripts/setup.sh

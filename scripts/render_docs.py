@@ -1,0 +1,928 @@
+#!/usr/bin/env python3
+"""Renders every table of measured numbers in README.md and docs/*.md from the committed
+measurement files, so each figure has one source.
+
+    python3 scripts/render_docs.py            # rewrite the marked regions in place
+    python3 scripts/render_docs.py --check    # exit 1 if a doc differs from a fresh render
+    python3 scripts/render_docs.py --list     # the regions, their files and their sources
+    python3 scripts/render_docs.py --self-test
+
+A region is the text between `<!-- render:NAME -->` and `<!-- /render:NAME -->` on lines of
+their own; NAME picks a renderer below. Sources: `train/checkpoints/metrics/*.json` (bino eval,
+compare, bench, the Python probe and benchmark), `firmware-sim/measured/*.json` (the QEMU runs
+and `bino budget`), `weights/MANIFEST.json` and the shipped files' sizes. Prose should quote a
+rendered table rather than restate its figures. Python 3.11 standard library only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import sys
+import tempfile
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parent.parent
+METRICS = "train/checkpoints/metrics"
+MEASURED = "firmware-sim/measured"
+MANIFEST = "weights/MANIFEST.json"
+
+Json = dict[str, Any]
+MARK = re.compile(
+    r"^<!-- render:([a-z0-9-]+) -->$\n(.*?)^<!-- /render:\1 -->$", re.MULTILINE | re.DOTALL
+)
+OPEN = re.compile(r"^<!-- render:([a-z0-9-]+) -->$", re.MULTILINE)
+
+
+class Sources:
+    """Reads measurement files below a root, remembering which ones a renderer used."""
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self.used: list[str] = []
+        self._cache: dict[str, Json] = {}
+
+    def json(self, rel: str) -> Json:
+        if rel not in self.used:
+            self.used.append(rel)
+        if rel not in self._cache:
+            path = self.root / rel
+            try:
+                self._cache[rel] = json.loads(path.read_text(encoding="utf-8"))
+            except (OSError, ValueError) as e:
+                raise SystemExit(f"{rel}: cannot read measurement file ({e})") from e
+        return self._cache[rel]
+
+    def size(self, rel: str) -> int:
+        if rel not in self.used:
+            self.used.append(rel)
+        return (self.root / rel).stat().st_size
+
+    def metrics(self, name: str) -> Json:
+        return self.json(f"{METRICS}/{name}.json")
+
+    def budget(self) -> Json:
+        return self.json(f"{MEASURED}/budget.json")
+
+    def run(self, core: str) -> Json:
+        return self.json(f"{MEASURED}/{core}.json")
+
+    def core(self, core: str) -> Json:
+        for c in self.budget()["cores"]:
+            if c["core"] == core:
+                return dict(c)
+        raise SystemExit(f"{MEASURED}/budget.json: no core {core}")
+
+
+# ---------------------------------------------------------------- formatting
+
+
+def table(
+    header: Sequence[str], rows: Iterable[Sequence[str]], right: Sequence[bool] | None = None
+) -> str:
+    align = right if right is not None else [False] + [True] * (len(header) - 1)
+    lines = [
+        "| " + " | ".join(header) + " |",
+        "|" + "|".join("---:" if r else "---" for r in align) + "|",
+    ]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def f3(x: float) -> str:
+    return f"{x:.3f}"
+
+
+def f2(x: float) -> str:
+    return f"{x:.2f}"
+
+
+def signed(x: float, digits: int = 3) -> str:
+    return f"{x:+.{digits}f}"
+
+
+def n(x: float) -> str:
+    return f"{round(x):,}"
+
+
+def mega(x: float) -> str:
+    return f"{x / 1e6:,.1f}M"
+
+
+def ms(seconds: float) -> str:
+    return f"{seconds * 1000:.1f} ms"
+
+
+def pct(x: float, digits: int = 1) -> str:
+    return f"{x:.{digits}f} %"
+
+
+def ep_b1(m: Json) -> str:
+    return f"{f3(m['epe'])} / {f2(m['bad1tok'])}"
+
+
+def footer(src: Sources) -> str:
+    return (
+        "Rendered by `scripts/render_docs.py` from " + ", ".join(f"`{s}`" for s in src.used) + "."
+    )
+
+
+def metrics_of(entry: Json) -> Json:
+    """An eval `mean` entry: readouts hold `metrics`, StereoSGBM holds the metrics itself."""
+    return dict(entry["metrics"]) if "metrics" in entry else entry
+
+
+READOUTS = ["nolink", "nolink+lr", "sgm", "sgm+lr", "head", "head+lr"]
+DEFAULT = {"w160": "head+lr+ref", "w320": "sgm+lr+ref"}
+
+
+# ---------------------------------------------------------------- accuracy
+
+
+def accuracy_headline(src: Sources) -> str:
+    rows = []
+    for profile in ("w160", "w320"):
+        ev = src.metrics(f"eval_{profile}")
+        readout = DEFAULT[profile]
+        ours = metrics_of(ev["mean"][f"int8_{readout}"])
+        sgbm = metrics_of(ev["mean"]["sgbm"])
+        wins = [k for k in ("epe", "bad1tok", "bad2") if ours[k] < sgbm[k]]
+        rows.append(
+            [
+                f"{profile} ({ev['pairs']} eval pairs)",
+                f"int8 `{readout}`",
+                f3(ours["epe"]),
+                f2(ours["bad1tok"]),
+                f2(ours["bad2"]),
+                f3(sgbm["epe"]),
+                f2(sgbm["bad1tok"]),
+                f2(sgbm["bad2"]),
+                ", ".join(wins) if wins else "none",
+            ]
+        )
+    header = ["profile", "BINO (`bino run`'s default)", "epe px", "bad1tok %", "bad2 %"]
+    header += ["StereoSGBM epe", "bad1tok", "bad2", "BINO better on"]
+    return table(header, rows, [False, False] + [True] * 6 + [False]) + "\n\n" + footer(src)
+
+
+def eval_unrefined(src: Sources) -> str:
+    evs = {p: src.metrics(f"eval_{p}") for p in ("w160", "w320")}
+    rows = []
+    for precision in ("f32", "int8"):
+        for r in READOUTS:
+            row = [f"{precision} `{r}`"]
+            for p in ("w160", "w320"):
+                e = evs[p]["mean"][f"{precision}_{r}"]
+                m = metrics_of(e)
+                row += [
+                    f3(m["epe"]),
+                    f2(m["bad1tok"]),
+                    f2(m["bad2"]),
+                    f"{e['lr_keep']:.1f}",
+                    f3(e["gt_lr_epe"]),
+                ]
+            rows.append(row)
+    row = ["StereoSGBM"]
+    for p in ("w160", "w320"):
+        m = metrics_of(evs[p]["mean"]["sgbm"])
+        row += [f3(m["epe"]), f2(m["bad1tok"]), f2(m["bad2"]), f"density {m['density']:.1f}", "-"]
+    rows.append(row)
+    header = ["readout"]
+    for p in ("w160", "w320"):
+        header += [f"{p} epe", "bad1tok", "bad2", "LRkeep", "GT+LR epe"]
+    return table(header, rows) + "\n\n" + footer(src)
+
+
+def eval_refined(src: Sources) -> str:
+    evs = {p: src.metrics(f"eval_{p}") for p in ("w160", "w320")}
+    rows = []
+    for precision in ("int8", "f32"):
+        for r in READOUTS:
+            row = [f"{precision} `{r}+ref`"]
+            for p in ("w160", "w320"):
+                raw = metrics_of(evs[p]["mean"][f"{precision}_{r}"])
+                m = metrics_of(evs[p]["mean"][f"{precision}_{r}+ref"])
+                change = 100.0 * (m["epe"] / raw["epe"] - 1.0)
+                row += [f3(m["epe"]), f"{change:+.0f} %", f2(m["bad1tok"]), f2(m["bad2"])]
+            rows.append(row)
+    row = ["StereoSGBM"]
+    for p in ("w160", "w320"):
+        m = metrics_of(evs[p]["mean"]["sgbm"])
+        row += [f3(m["epe"]), "", f2(m["bad1tok"]), f2(m["bad2"])]
+    rows.append(row)
+    header = ["readout"]
+    for p in ("w160", "w320"):
+        header += [f"{p} epe", "vs unrefined", "bad1tok", "bad2"]
+    return table(header, rows) + "\n\n" + footer(src)
+
+
+def probe_and_head(src: Sources) -> str:
+    probe, rnd = src.metrics("probe_trained"), src.metrics("probe_random")
+    head = src.metrics("head_eval_w160")
+    cmp = src.metrics("int8_compare_w160")["mean"]
+    rows = [
+        ("no-linkage probe, trained encoder (float)", probe),
+        ("no-linkage probe, the same architecture at random init (float)", rnd),
+        ("shared head (float)", head["head"]),
+        ("shared head with its own left-right check and fill, `head+lr` (float)", head["head+lr"]),
+        ("no-linkage probe, int8 engine", cmp["int8"]),
+        ("shared head, int8 engine", cmp["head"]["int8"]),
+        (f"StereoSGBM (density {head['sgbm']['density']:.1f} %)", head["sgbm"]),
+    ]
+    body = [[name, f3(m["epe"]), f2(m["bad1tok"]), f2(m["bad2"])] for name, m in rows]
+    return (
+        table(["readout (w160, eval split)", "epe px", "bad1tok %", "bad2 %"], body)
+        + "\n\n"
+        + footer(src)
+    )
+
+
+def int8_vs_float(src: Sources) -> str:
+    c = src.metrics("int8_compare_w160")
+    m = c["mean"]
+    shown = {
+        "descriptor_cosine": ("descriptor cosine", lambda v: f"{v:.5f}"),
+        "wta_agreement_pct": ("token WTA agreement", lambda v: pct(v, 2)),
+        "epe_change_pct": ("no-linkage epe change, int8 over float", lambda v: f"{v:+.2f} %"),
+    }
+    rows = []
+    for t in c["targets"]:
+        label, fmt = shown.get(t["name"], (t["name"], lambda v: f"{v:g}"))
+        rows.append([label, t["target"], fmt(t["value"]), "met" if t["pass"] else "**missed**"])
+    rows += [
+        [
+            "shared head: epe change, int8 over float",
+            "-",
+            f"{m['head']['epe_change_pct']:+.2f} %",
+            "",
+        ],
+        ["shared head: logit cosine", "-", f"{m['head']['logit_cosine']:.4f}", ""],
+        ["native pathway: pair token cosine", "-", f"{m['native']['pair_token_cosine']:.5f}", ""],
+        ["native head: logit cosine", "-", f"{m['native']['head']['logit_cosine']:.4f}", ""],
+        [
+            "native head: epe change, int8 over float",
+            "-",
+            f"{m['native']['head']['epe_change_pct']:+.2f} %",
+            "",
+        ],
+        [
+            "WTA flips: int8 winner's float-cosine loss / median best-to-second gap",
+            "-",
+            f"{m['wta_flip_loss']:.5f} / {m['wta_top2_gap']:.5f}",
+            "",
+        ],
+    ]
+    return (
+        table(
+            ["measure (w160, eval split)", "target", "measured", "state"],
+            rows,
+            [False, False, True, False],
+        )
+        + "\n\n"
+        + footer(src)
+    )
+
+
+def pck_benchmark(src: Sources) -> str:
+    t, r = src.metrics("benchmark_trained"), src.metrics("benchmark_random")
+    rows = []
+    for level in ("easy", "hard"):
+        for name, d in (("trained", t), ("random init", r)):
+            rows.append(
+                [f"{level.upper()}, {name}"] + [f"{d[f'{level}_pck{k}']:.1f}" for k in (0, 1, 2)]
+            )
+    return table(["split, encoder", "PCK@0 %", "PCK@1 %", "PCK@2 %"], rows) + "\n\n" + footer(src)
+
+
+# ---------------------------------------------------------------- robustness
+
+
+def nuisance(profile: str) -> Callable[[Sources], str]:
+    def render(src: Sources) -> str:
+        ev = src.metrics(f"eval_nuisance_{profile}")
+        names = list(ev["nuisances"])
+        rows = []
+        for key in ev["mean"]:
+            if key == "sgbm_large":
+                continue
+            label = "StereoSGBM" if key == "sgbm" else key.replace("_", " ", 1)
+            row = [label, ep_b1(metrics_of(ev["mean"][key]))]
+            for name in names:
+                nu = ev["nuisances"][name]
+                rise = nu["epe_rise"][key]
+                star = " \\*" if nu.get("rise_below_sgbm", {}).get(key) else ""
+                row.append(f"{ep_b1(metrics_of(nu['mean'][key]))} ({signed(rise)}{star})")
+            rows.append(row)
+        header = ["readout", "clean"] + names
+        note = (
+            f"{profile}, {ev['pairs']} eval pairs, epe px / bad1tok %, "
+            "then the epe rise over clean; "
+            "`*`: the rise is below StereoSGBM's."
+        )
+        return note + "\n\n" + table(header, rows, [False] * (len(header))) + "\n\n" + footer(src)
+
+    return render
+
+
+def occlusion_export(src: Sources) -> str:
+    ev = src.metrics("occlusion_w160")
+    summary = ev["occlusion"]["summary"]
+    rows = []
+    for key, s in summary.items():
+        large = ev["mean"]["sgbm_large"] if key == "StereoSGBM" else ev["mean"][key]["large"]
+        last = s["severities"][-1]
+        label = key if key == "StereoSGBM" else key.replace("_", " ", 1)
+        rows.append(
+            [
+                label,
+                ep_b1(large),
+                ep_b1(s["clean"]),
+                ep_b1(last),
+                f"{f3(s['auc_epe'])} / {f2(s['auc_bad1tok'])}",
+                f"{signed(s['delta_epe'])} / {signed(s['delta_bad1tok'], 2)}",
+            ]
+        )
+    top = ev["occlusion"]["severities"][-1]
+    header = ["readout (w160)", "large-disparity subset", "clean", f"Occ{top}", "OccAUC", f"Δ{top}"]
+    return table(header, rows, [False] * 6) + "\n\n" + footer(src)
+
+
+# ---------------------------------------------------------------- native pathway
+
+
+def native_vs_export(src: Sources) -> str:
+    ex160, na160 = src.metrics("eval_w160"), src.metrics("native_w160")
+    ex320, na320 = src.metrics("eval_w320"), src.metrics("native_w320")
+    exo, nao = src.metrics("occlusion_w160"), src.metrics("native_occlusion_w160")
+    rows = []
+    for r in ("head", "head+lr", "head+lr+ref"):
+        k = f"int8_{r}"
+        eo, no = exo["occlusion"]["summary"][k], nao["occlusion"]["summary"][k]
+        rows.append(
+            [
+                f"int8 `{r}`",
+                ep_b1(metrics_of(ex160["mean"][k])),
+                ep_b1(metrics_of(na160["mean"][k])),
+                ep_b1(exo["mean"][k]["large"]),
+                ep_b1(nao["mean"][k]["large"]),
+                f"{signed(eo['delta_epe'])} / {signed(eo['delta_bad1tok'], 2)}",
+                f"{signed(no['delta_epe'])} / {signed(no['delta_bad1tok'], 2)}",
+                ep_b1(metrics_of(ex320["mean"][k])),
+                ep_b1(metrics_of(na320["mean"][k])),
+            ]
+        )
+    so = exo["occlusion"]["summary"]["StereoSGBM"]
+    rows.append(
+        [
+            "StereoSGBM",
+            ep_b1(metrics_of(ex160["mean"]["sgbm"])),
+            "",
+            ep_b1(exo["mean"]["sgbm_large"]),
+            "",
+            f"{signed(so['delta_epe'])} / {signed(so['delta_bad1tok'], 2)}",
+            "",
+            ep_b1(metrics_of(ex320["mean"]["sgbm"])),
+            "",
+        ]
+    )
+    top = exo["occlusion"]["severities"][-1]
+    header = [
+        "readout",
+        "export w160",
+        "native w160",
+        "export large subset",
+        "native large subset",
+        f"export Δ{top}",
+        f"native Δ{top}",
+        "export w320",
+        "native w320",
+    ]
+    note = "epe px / bad1tok %, eval split, the same blob for both pathways."
+    return note + "\n\n" + table(header, rows, [False] * 9) + "\n\n" + footer(src)
+
+
+def native_float(src: Sources) -> str:
+    ex160, na160 = src.metrics("eval_w160"), src.metrics("native_w160")
+    ex320, na320 = src.metrics("eval_w320"), src.metrics("native_f32_w320")
+    rows = []
+    for r in ("head", "head+lr", "head+lr+ref"):
+        k = f"f32_{r}"
+        rows.append(
+            [
+                f"f32 `{r}`",
+                ep_b1(metrics_of(ex160["mean"][k])),
+                ep_b1(metrics_of(na160["mean"][k])),
+                ep_b1(metrics_of(ex320["mean"][k])),
+                ep_b1(metrics_of(na320["mean"][k])),
+            ]
+        )
+    header = ["readout", "export w160", "native w160", "export w320", "native w320"]
+    return table(header, rows, [False] * 5) + "\n\n" + footer(src)
+
+
+# ---------------------------------------------------------------- host speed
+
+
+def bench_rows(b: Json) -> list[tuple[str, Json]]:
+    rows = [(f"int8 engine ({b['x86_kernels']} kernels)", b["int8"])]
+    if "onnxruntime_int8_dynamic" in b:
+        rows += [
+            ("onnxruntime int8 (dynamic quantisation)", b["onnxruntime_int8_dynamic"]),
+            ("onnxruntime f32", b["onnxruntime_f32"]),
+        ]
+    rows.append(("tract f32", b["tract_f32"]))
+    return rows
+
+
+def speed_headline(src: Sources) -> str:
+    b = src.metrics("bench_w160")
+    a = src.metrics("bench_w160_avx2")
+    rows = []
+    for run in (b, a):
+        ort = run.get("onnxruntime_int8_over_int8")
+        rows.append(
+            [
+                f"{run['cpu']}, `{run['x86_kernels']}` kernels",
+                ms(run["int8"]["median_s"]),
+                ms(run["onnxruntime_int8_dynamic"]["median_s"]) if ort is not None else "-",
+                ms(run["tract_f32"]["median_s"]),
+                f"{ort:.2f}x" if ort is not None else "-",
+                f"{run['tract_over_int8']:.2f}x",
+            ]
+        )
+    header = [
+        "host (one thread, one 48x160 band)",
+        "int8 engine",
+        "onnxruntime int8",
+        "tract f32",
+        "onnxruntime int8 / engine",
+        "tract / engine",
+    ]
+    return table(header, rows) + "\n\n" + footer(src)
+
+
+def bench_table(src: Sources) -> str:
+    b = src.metrics("bench_w160")
+    a = src.metrics("bench_w160_avx2")
+    out = []
+    for run in (b, a):
+        rows = [
+            [name, ms(t["median_s"]), ms(t["min_s"]), f"{t['gmac_per_s']:.1f}"]
+            for name, t in bench_rows(run)
+        ]
+        shipped = src.json(MANIFEST)["files"]["bino_int8.bin"]
+        blob = (
+            "the shipped blob"
+            if run["blob_sha256"] == shipped
+            else (f"blob sha256 `{run['blob_sha256'][:12]}…`, not the shipped `{shipped[:12]}…`")
+        )
+        title = (
+            f"{run['cpu']}, `{run['x86_kernels']}` kernels, {len(run['int8']['runs_s'])} rounds, "
+            f"{run['threads']} thread, {blob}:"
+        )
+        out.append(title + "\n\n" + table(["engine", "median", "min", "GMAC/s"], rows))
+    return "\n\n".join(out) + "\n\n" + footer(src)
+
+
+# ---------------------------------------------------------------- firmware
+
+
+CORES = ("m55", "m7")
+
+
+def core_label(c: Json) -> str:
+    return f"Cortex-{c['cpu'].split('-')[1].upper()} ({c['board']})"
+
+
+def board_headline(src: Sources) -> str:
+    rows = []
+    for core in CORES:
+        c = src.core(core)
+        cm = c["cycle_model"]
+        rows.append(
+            [
+                f"{core_label(c)} at {c['clock_mhz']:.0f} MHz",
+                mega(c["band_pair_instructions"]),
+                f"{c['band_pair_estimated_ms'] / 1000:.2f} s",
+                f"{cm['band_pair_modelled_ms'] / 1000:.2f} s",
+                f"{n(c['arena_static_bytes'])} B",
+                f"{n(c['weights_flash_bytes'])} B",
+                "yes" if c["outputs_bit_identical"] else "**no**",
+            ]
+        )
+    header = [
+        "core (QEMU)",
+        "instructions per 48x160 band pair",
+        "time at IPC 1",
+        "cycle model",
+        "arena",
+        "weights flash",
+        "bit-identical to the host",
+    ]
+    return table(header, rows) + "\n\n" + footer(src)
+
+
+def fw_memory(src: Sources) -> str:
+    cs = {k: src.core(k) for k in CORES}
+    runs = {k: src.run(k) for k in CORES}
+    spec: list[tuple[str, Callable[[str], str]]] = [
+        (
+            "weights flash (`.weights`: the blob, both heads)",
+            lambda k: f"{n(cs[k]['weights_flash_bytes'])} B",
+        ),
+        (
+            "code flash (`.vector_table .text .rodata .data`)",
+            lambda k: f"{n(cs[k]['code_flash_bytes'])} B",
+        ),
+        (
+            "arena, static / high-water, export pathway",
+            lambda k: f"{n(cs[k]['arena_static_bytes'])} / {n(cs[k]['arena_high_water_bytes'])} B",
+        ),
+        ("arena high-water, native pathway", lambda k: f"{n(runs[k]['native']['arena_used'])} B"),
+        ("of the arena: the refinement's state", lambda k: f"{n(cs[k]['refine_arena_bytes'])} B"),
+        (
+            "stack peak / reserved",
+            lambda k: f"{n(cs[k]['stack_peak_bytes'])} / {n(cs[k]['stack_reserved_bytes'])} B",
+        ),
+        (
+            "RAM reserved (`.data .bss .uninit` + stack)",
+            lambda k: f"{n(cs[k]['ram_reserved_bytes'])} B",
+        ),
+        (
+            "QEMU wall time of the run (both pathways)",
+            lambda k: f"{cs[k]['qemu_wall_seconds']:.0f} s",
+        ),
+    ]
+    rows = [[name] + [get(k) for k in CORES] for name, get in spec]
+    return table(["memory"] + [core_label(cs[k]) for k in CORES], rows) + "\n\n" + footer(src)
+
+
+STAGE_NOTES = {
+    "load": "load (blob CRC and parse, once per pathway at boot)",
+    "rows": "rows (camera rows from the interrupt into the band buffer)",
+    "encode_left": "encode_left: encoder on (L, L)",
+    "encode_right": "encode_right: encoder on (R, R)",
+    "match": "match (inverse norms, cost row, WTA)",
+    "sgm": "sgm (two streams)",
+    "left_right": "left_right",
+    "head": "head (the left head, then the mirrored head for its check)",
+    "refine": "refine (pixel refinement of the head+lr grid, depth sectors)",
+    "native_rows": "native_rows",
+    "native_encode_pair": "native_encode_pair: one pass on (L, R)",
+    "native_head": "native_head",
+    "native_encode_mirror": "native_encode_mirror: the check's pass on the mirrored pair",
+    "native_head_mirror": "native_head_mirror",
+    "native_refine": "native_refine",
+}
+
+
+def fw_stages(src: Sources) -> str:
+    cs = {k: src.core(k) for k in CORES}
+    stages = {k: {s["name"]: s for s in cs[k]["stages"]} for k in CORES}
+    names = [s["name"] for s in cs["m55"]["stages"]]
+    rows = []
+    for name in names:
+        row = [STAGE_NOTES.get(name, name), n(stages["m55"][name]["arena_in_use_bytes"])]
+        for k in CORES:
+            s = stages[k][name]
+            row += [n(s["instructions"]), f"{s['estimated_ms']:,.1f}"]
+        rows.append(row)
+
+    def total(label: str, key: str, arena: str) -> list[str]:
+        row = [f"**{label}**", arena]
+        for k in CORES:
+            c = cs[k]
+            ins = c[key]
+            row += [f"**{n(ins)}**", f"**{ins / (c['clock_mhz'] * 1e3):,.1f}**"]
+        return row
+
+    rows.append(
+        total(
+            "band pair, export pathway (all but load and native_*)",
+            "band_pair_instructions",
+            n(cs["m55"]["arena_high_water_bytes"]),
+        )
+    )
+    rows.append(
+        total(
+            "band pair, native pathway, one pass (rows, encode_pair, head, refine)",
+            "native_one_pass_instructions",
+            n(src.run("m55")["native"]["arena_used"]),
+        )
+    )
+    rows.append(
+        total(
+            "band pair, native pathway with the head's check (all native_*)",
+            "native_band_pair_instructions",
+            n(src.run("m55")["native"]["arena_used"]),
+        )
+    )
+    header = ["stage", "arena in use B"]
+    for k in CORES:
+        header += [
+            f"{k.upper()} instructions",
+            f"{k.upper()} ms at {cs[k]['clock_mhz']:.0f} MHz, IPC 1",
+        ]
+    return table(header, rows) + "\n\n" + footer(src)
+
+
+# Instruction ceilings per export band pair that the kernels were tuned against; the budget file
+# judges the time targets.
+INSTRUCTION_CEILINGS = {"m55": 1.3e9, "m7": 8.0e9}
+
+
+def fw_targets(src: Sources) -> str:
+    b = src.budget()
+    rows = [[t["target"], t["measured"], "met" if t["met"] else "**missed**"] for t in b["targets"]]
+    for core, ceiling in INSTRUCTION_CEILINGS.items():
+        c = src.core(core)
+        ins = c["band_pair_instructions"]
+        margin = ceiling - ins
+        rows.append(
+            [
+                f"{core_label(c).split(' (')[0]} <= {ceiling / 1e9:g}G instructions "
+                "per export band pair",
+                f"{mega(ins)} ({'under' if margin >= 0 else 'over'} by {mega(abs(margin))})",
+                "met" if margin >= 0 else "**missed**",
+            ]
+        )
+    return (
+        table(["target", "measured", "state"], rows, [False, False, False]) + "\n\n" + footer(src)
+    )
+
+
+def fw_camera(src: Sources) -> str:
+    cams = {k: src.run(k)["camera"] for k in CORES}
+    cs = {k: src.core(k) for k in CORES}
+    spec: list[tuple[str, Callable[[Json], str]]] = [
+        ("band pair, export pathway, instructions", lambda c: n(c["band_pair_instructions"])),
+        (
+            "rows stage per row (interrupt included), instructions",
+            lambda c: f"{c['rows_stage_instructions_per_row']:,.0f}",
+        ),
+        ("frames (48 rows, 160 px) per second", lambda c: f"{c['frames_per_s']:.3f}"),
+        (
+            "rows/s, framed sensor (blanked while the pipeline works)",
+            lambda c: f"{c['framed_rows_per_s']:.2f}",
+        ),
+        (
+            f"rows/s, sensor that never pauses ({cams['m55']['line_buffers']} line buffers)",
+            lambda c: f"{c['continuous_rows_per_s']:.2f}",
+        ),
+        (
+            "in-frame burst the rows stage drains, rows/s",
+            lambda c: n(round(c["burst_rows_per_s"], -3)),
+        ),
+        ("rows delivered / lost in the run", lambda c: f"{c['delivered']} / {c['lost']}"),
+    ]
+    rows = [[name] + [get(cams[k]) for k in CORES] for name, get in spec]
+    header = ["IPC-1 figures"] + [
+        f"{core_label(cs[k]).split(' (')[0]} at {cs[k]['clock_mhz']:.0f} MHz" for k in CORES
+    ]
+    return table(header, rows) + "\n\n" + footer(src)
+
+
+def fw_cycle_model(src: Sources) -> str:
+    cs = {k: src.core(k) for k in CORES}
+    rows = []
+    for stage in ("encode_left", "head"):
+        row = [stage]
+        for k in CORES:
+            s = next(s for s in cs[k]["stages"] if s["name"] == stage)
+            row += [
+                f"{s['estimated_ms']:,.0f} ms",
+                f"{mega(s['modelled_cycles'])} cycles, {s['modelled_ms']:,.0f} ms",
+            ]
+        rows.append(row)
+    row = ["**band pair** (export pathway, all but load)"]
+    for k in CORES:
+        c, cm = cs[k], cs[k]["cycle_model"]
+        per = cm["band_pair_modelled_cycles"] / c["band_pair_instructions"]
+        row += [
+            f"**{c['band_pair_estimated_ms']:,.0f} ms**",
+            f"**{mega(cm['band_pair_modelled_cycles'])} cycles, "
+            f"{cm['band_pair_modelled_ms']:,.0f} ms "
+            f"({per:.2f} per instruction)**",
+        ]
+    rows.append(row)
+    header = ["stage"]
+    for k in CORES:
+        header += [f"{k.upper()} IPC 1", f"{k.upper()} modelled"]
+    return table(header, rows) + "\n\n" + footer(src)
+
+
+# ---------------------------------------------------------------- weights
+
+
+def weights_files(src: Sources) -> str:
+    man = src.json(MANIFEST)
+    rows = [
+        [f"`{name}`", n(src.size(f"weights/{name}")), f"`{sha[:16]}…`"]
+        for name, sha in man["files"].items()
+    ]
+    return (
+        table(["file", "bytes", "sha256 (manifest)"], rows, [False, True, False])
+        + "\n\n"
+        + footer(src)
+    )
+
+
+def training_summary(src: Sources) -> str:
+    man = src.json(MANIFEST)
+    pre, head, nat = man["pretraining"], man["head_training"], man["native_head_training"]
+    hw = man["hardware"]
+    rows = [
+        [
+            "encoder pretraining (self-supervised)",
+            f"{n(pre['pairs_seen'])} pairs, {n(pre['steps'])} steps",
+            f"{pre['train_seconds'] / 3600:.1f} h",
+            f"`{pre['shipped_checkpoint']}`",
+        ],
+        [
+            "shared head",
+            f"{n(head['steps'])} steps",
+            f"{head['train_seconds'] / 3600:.1f} h",
+            "last",
+        ],
+        ["native head", f"{n(nat['steps'])} steps", f"{nat['train_seconds'] / 3600:.1f} h", "last"],
+    ]
+    text = table(["model", "training", "time", "shipped"], rows, [False, False, True, False])
+    text += (
+        f"\n\nTraining pairs: {len(man['training_pairs'])} (the train split of `../shared/data`); "
+        f"trained on {hw['cpu']}, {hw['torch_threads']} threads, "
+        f"torch {hw['torch']}, CUDA {hw['cuda']}."
+    )
+    return text + "\n\n" + footer(src)
+
+
+def blob_size(src: Sources) -> str:
+    b = src.size("weights/bino_int8.bin")
+    return (
+        table(
+            ["shipped int8 blob", "bytes", "MiB"],
+            [
+                [
+                    "`weights/bino_int8.bin` (encoder, shared and native head)",
+                    n(b),
+                    f"{b / 2**20:.2f}",
+                ]
+            ],
+        )
+        + "\n\n"
+        + footer(src)
+    )
+
+
+RENDERERS: dict[str, Callable[[Sources], str]] = {
+    "accuracy-headline": accuracy_headline,
+    "board-headline": board_headline,
+    "speed-headline": speed_headline,
+    "eval-unrefined": eval_unrefined,
+    "eval-refined": eval_refined,
+    "probe-and-head": probe_and_head,
+    "int8-vs-float": int8_vs_float,
+    "pck-benchmark": pck_benchmark,
+    "nuisance-w160": nuisance("w160"),
+    "nuisance-w320": nuisance("w320"),
+    "occlusion-w160": occlusion_export,
+    "native-vs-export": native_vs_export,
+    "native-float": native_float,
+    "bench": bench_table,
+    "fw-memory": fw_memory,
+    "fw-stages": fw_stages,
+    "fw-targets": fw_targets,
+    "fw-camera": fw_camera,
+    "fw-cycle-model": fw_cycle_model,
+    "weights-files": weights_files,
+    "training-summary": training_summary,
+    "blob-size": blob_size,
+}
+
+
+# ---------------------------------------------------------------- documents
+
+
+@dataclass
+class Outcome:
+    text: str
+    stale: list[str]
+    sources: dict[str, list[str]]
+
+
+def render_text(text: str, root: Path, rel: str) -> Outcome:
+    """The document with every region rendered; which regions changed; each region's sources."""
+    opened = OPEN.findall(text)
+    closed = {m.group(1) for m in MARK.finditer(text)}
+    for name in opened:
+        if name not in closed:
+            raise SystemExit(f"{rel}: region {name} has no closing <!-- /render:{name} --> line")
+    stale: list[str] = []
+    sources: dict[str, list[str]] = {}
+
+    def replace(m: re.Match[str]) -> str:
+        name = m.group(1)
+        if name not in RENDERERS:
+            raise SystemExit(f"{rel}: region {name} has no renderer in scripts/render_docs.py")
+        src = Sources(root)
+        body = RENDERERS[name](src).rstrip("\n") + "\n"
+        sources[name] = src.used
+        if m.group(2) != body:
+            stale.append(name)
+        return f"<!-- render:{name} -->\n{body}<!-- /render:{name} -->"
+
+    return Outcome(MARK.sub(replace, text), stale, sources)
+
+
+def documents(root: Path) -> list[Path]:
+    docs = sorted((root / "docs").glob("*.md")) if (root / "docs").is_dir() else []
+    return [p for p in [root / "README.md", *docs] if p.is_file()]
+
+
+def main(argv: Sequence[str] | None = None, root: Path = ROOT) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument(
+        "--check", action="store_true", help="exit 1 if a committed doc differs from a fresh render"
+    )
+    mode.add_argument(
+        "--list", action="store_true", help="print each region, its file and its sources"
+    )
+    mode.add_argument("--self-test", action="store_true", help="run this script's own tests")
+    args = ap.parse_args(argv)
+    if args.self_test:
+        return self_test()
+    for path in documents(root):
+        rel = str(path.relative_to(root))
+        text = path.read_text(encoding="utf-8")
+        out = render_text(text, root, rel)
+        if args.list:
+            for name, used in out.sources.items():
+                print(f"{rel}\t{name}\t{', '.join(used)}")
+        elif args.check:
+            if out.stale:
+                print(
+                    f"{rel}: region {out.stale[0]} differs from a fresh render of its "
+                    "measurement files "
+                    f"(run python3 scripts/render_docs.py and commit)",
+                    file=sys.stderr,
+                )
+                return 1
+        elif out.text != text:
+            path.write_text(out.text, encoding="utf-8")
+            print(f"{rel}: rendered {', '.join(out.stale)}")
+    return 0
+
+
+def self_test() -> int:
+    """Renders a document against a tiny measurement tree: fill, check, detect an edit."""
+    with tempfile.TemporaryDirectory() as tmp:
+        root = Path(tmp)
+        (root / METRICS).mkdir(parents=True)
+        (root / "docs").mkdir()
+        b = {
+            "cpu": "Test CPU",
+            "x86_kernels": "avx2",
+            "threads": 1,
+            "blob_sha256": "ab" * 32,
+            "int8": {"median_s": 0.01, "min_s": 0.009, "gmac_per_s": 1.0, "runs_s": [0.01]},
+            "tract_f32": {"median_s": 0.03, "min_s": 0.02, "gmac_per_s": 0.5, "runs_s": [0.03]},
+            "tract_over_int8": 3.0,
+        }
+        (root / "weights").mkdir()
+        (root / MANIFEST).write_text(
+            json.dumps({"files": {"bino_int8.bin": "ab" * 32}}), encoding="utf-8"
+        )
+        for name in ("bench_w160", "bench_w160_avx2"):
+            (root / METRICS / f"{name}.json").write_text(json.dumps(b), encoding="utf-8")
+        doc = root / "docs" / "t.md"
+        doc.write_text(
+            "Intro.\n\n<!-- render:bench -->\nold\n<!-- /render:bench -->\n\nEnd.\n",
+            encoding="utf-8",
+        )
+        assert main(["--check"], root) == 1, "a stale region fails --check"
+        assert main([], root) == 0
+        text = doc.read_text(encoding="utf-8")
+        assert "| int8 engine (avx2 kernels) | 10.0 ms | 9.0 ms | 1.0 |" in text, text
+        assert text.startswith("Intro.\n\n<!-- render:bench -->\n") and text.endswith(
+            "<!-- /render:bench -->\n\nEnd.\n"
+        )
+        assert main(["--check"], root) == 0, "a fresh render passes --check"
+        doc.write_text(text.replace("10.0 ms", "11.0 ms"), encoding="utf-8")
+        assert main(["--check"], root) == 1, "a hand edit inside a region fails --check"
+        doc.write_text("<!-- render:nope -->\n<!-- /render:nope -->\n", encoding="utf-8")
+        try:
+            main(["--check"], root)
+        except SystemExit as e:
+            assert "no renderer" in str(e), e
+        else:
+            raise AssertionError("an unknown region is an error")
+    print("render_docs self-test: ok")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
