@@ -2,7 +2,7 @@
 
     python -m bino_train.head_cache --encoder runs/PRE/last.pt --out runs/cache_NAME.pt \
         --count 6000 [--label-weighting lr] [--synthetic-fraction 0.5] [--pathway native] \
-        [--max-disp 16]
+        [--max-disp 16] [--labeled-fraction 0.35 --synthetic-kind layered --blur-prob 0.2]
 
 Sample i is `HeadSampler(data, seed).sample(i)` (synthetic scenes and SGBM pseudo-labels of
 the head-training pairs: the train split less the validation pairs), encoded by the frozen
@@ -28,8 +28,10 @@ from typing import Any
 import torch
 
 from .head_data import (
+    HEAD_AUGMENT,
     LABEL_WEIGHTINGS,
     PATHWAYS,
+    SYNTHETIC_KINDS,
     DataConfig,
     DescBatch,
     HeadSampler,
@@ -145,6 +147,22 @@ def main(argv: list[str] | None = None) -> None:
         help="disparity candidates in patch columns (labels and synthetic scenes up to "
         "4 x (max_disp - 1) px; train the head with the same --max-disp)",
     )
+    p.add_argument(
+        "--labeled-fraction",
+        type=float,
+        default=0.0,
+        help="share of crops from the labeled train pairs' ground truth (labeled.py)",
+    )
+    p.add_argument(
+        "--synthetic-kind",
+        choices=SYNTHETIC_KINDS,
+        default="plane",
+        help="synthetic scenes: plane (head_data) or layered (synth_train)",
+    )
+    p.add_argument(
+        "--blur-prob", type=float, default=0.0, help="share of crops with one view defocused"
+    )
+    p.add_argument("--widths", type=int, nargs=2, metavar=("MIN", "MAX"), help="resize widths")
     args = p.parse_args(argv)
     if not 2 <= args.max_disp <= 64:
         sys.exit(f"error: --max-disp {args.max_disp} is outside 2..64")
@@ -161,7 +179,12 @@ def main(argv: list[str] | None = None) -> None:
         synthetic_fraction=args.synthetic_fraction,
         label_weighting=args.label_weighting,
         max_disp=args.max_disp,
+        labeled_fraction=args.labeled_fraction,
+        synthetic_kind=args.synthetic_kind,
+        augment=replace(HEAD_AUGMENT, blur_prob=args.blur_prob),
     )
+    if args.widths is not None:
+        data = replace(data, min_width=args.widths[0], max_width=args.widths[1])
     digest = encoder_digest(encoder)
     cache = build_cache(
         encoder, digest, data, args.seed, args.count, args.data, pathway=args.pathway

@@ -39,6 +39,7 @@ from numpy.typing import NDArray
 from torch import Tensor
 
 from .augment import AugmentConfig, ImageStore, dataset_weights, nuisances, width_range
+from .labeled import LABELED_HOLDOUT, LabeledSource
 from .model import BinoEncoder
 from .pairs import Pair, training_pairs
 from .probe import CELL
@@ -73,6 +74,14 @@ class DataConfig:
     exp(-(lr_diff / LR_SCALE_PX)^2) times its valid fraction (synthetic cells weigh 1)."""
     augment: AugmentConfig = field(default_factory=lambda: HEAD_AUGMENT)
     sgbm_cache_mb: int = 256
+    labeled_fraction: float = 0.0
+    """Share of crops from the labeled train pairs with their dense ground truth (labeled.py;
+    the held-out ones excluded); taken out of the pseudo-label share: synthetic_fraction +
+    labeled_fraction <= 1, SGBM pseudo-labels get the rest."""
+    synthetic_kind: str = "plane"
+    """"plane": `synthetic_sample` (a slanted plane and a rectangle); "layered":
+    synth_train.layered_sample (slanted layers, thin structures, textureless and repetitive
+    surfaces, exact occlusion, disparities over the whole candidate range)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -379,15 +388,20 @@ VALIDATION_SHARE = 8
 def validation_pairs(data_dir: Path | None = None) -> list[Pair]:
     """Train-split pairs held out of head training to choose recipes (never the eval split):
     per dataset of at least 4 pairs, the last ceil(n / VALIDATION_SHARE) by pair id (a
-    contiguous block, so a held-out video frame has few training neighbours)."""
+    contiguous block, so a held-out video frame has few training neighbours), and the labeled
+    pairs of `labeled.LABELED_HOLDOUT` (issue 40; from 2026-12-05 on, so the heads trained
+    before then saw MiddEval3-Q's Playroom and Recycle as pseudo-labelled crops)."""
+    train = training_pairs(data_dir)
     by_dataset: dict[str, list[Pair]] = {}
-    for pair in training_pairs(data_dir):
+    for pair in train:
         by_dataset.setdefault(pair.dataset, []).append(pair)
     held = []
     for dataset in sorted(by_dataset):
         pairs = sorted(by_dataset[dataset], key=lambda p: p.pair_id)
         if len(pairs) >= 4:
             held.extend(pairs[-math.ceil(len(pairs) / VALIDATION_SHARE) :])
+    chosen = {p.pair_id for p in held}
+    held.extend(p for p in train if p.pair_id in LABELED_HOLDOUT and p.pair_id not in chosen)
     return held
 
 
@@ -397,21 +411,53 @@ def head_training_pairs(data_dir: Path | None = None) -> list[Pair]:
     return [p for p in training_pairs(data_dir) if p.pair_id not in held]
 
 
+SYNTHETIC_KINDS = ("plane", "layered")
+
+
 class HeadSampler:
-    """Sample `i` of a run is a pure function of (seed, i): synthetic or pseudo-labelled."""
+    """Sample `i` of a run is a pure function of (seed, i): synthetic, from a labeled train
+    pair's ground truth, or pseudo-labelled (one uniform draw picks, by the config's shares)."""
 
     def __init__(self, cfg: DataConfig, seed: int, data_dir: Path | None) -> None:
         self.cfg = cfg
         self.seed = seed
         if cfg.label_weighting not in LABEL_WEIGHTINGS:
             raise ValueError(f"label_weighting {cfg.label_weighting!r} not in {LABEL_WEIGHTINGS}")
-        real = cfg.synthetic_fraction < 1.0
-        self.real = PseudoLabelSource(head_training_pairs(data_dir), cfg) if real else None
+        if cfg.synthetic_kind not in SYNTHETIC_KINDS:
+            raise ValueError(f"synthetic_kind {cfg.synthetic_kind!r} not in {SYNTHETIC_KINDS}")
+        shares = (cfg.synthetic_fraction, cfg.labeled_fraction)
+        if min(shares) < 0.0 or sum(shares) > 1.0 + 1e-9:
+            raise ValueError(
+                f"synthetic_fraction {shares[0]} + labeled_fraction {shares[1]} must lie in [0, 1]"
+            )
+        pairs = head_training_pairs(data_dir) if sum(shares) < 1.0 or shares[1] > 0 else []
+        self.labeled = None
+        if cfg.labeled_fraction > 0.0:
+            self.labeled = LabeledSource([p for p in pairs if p.gt is not None], cfg)
+        pseudo = cfg.synthetic_fraction + cfg.labeled_fraction < 1.0
+        self.real = PseudoLabelSource(pairs, cfg) if pseudo else None
+
+    def synthetic(self, rng: np.random.Generator) -> Sample:
+        if self.cfg.synthetic_kind == "layered":
+            from .synth_train import layered_sample
+
+            return layered_sample(rng, self.cfg)
+        return synthetic_sample(rng, self.cfg)
 
     def sample(self, index: int) -> Sample:
         rng = np.random.default_rng([self.seed, index])
-        if self.real is None or rng.random() < self.cfg.synthetic_fraction:
-            return synthetic_sample(rng, self.cfg)
+        if self.real is None and self.labeled is None:
+            return self.synthetic(rng)
+        draw = rng.random()
+        if draw < self.cfg.synthetic_fraction:
+            return self.synthetic(rng)
+        if (
+            self.labeled is not None
+            and draw < self.cfg.synthetic_fraction + self.cfg.labeled_fraction
+        ):
+            return self.labeled.sample(rng)
+        if self.real is None:  # rounding at the top of the labeled share
+            return self.synthetic(rng)
         return self.real.sample(rng)
 
     def samples(self, indices: Sequence[int]) -> list[Sample]:

@@ -46,7 +46,7 @@ import torch
 from torch import nn
 
 from .config import EncoderConfig
-from .head import NATIVE_HEADS, HeadConfig, head_loss, make_head
+from .head import NATIVE_HEADS, HeadConfig, StereoHead, head_loss, make_head
 from .head_cache import DescriptorCache, cache_pathway, load_cache, load_cache_meta
 from .head_data import (
     PATHWAYS,
@@ -98,6 +98,9 @@ class HeadTrainConfig:
     """Weight of the edge-aware smoothness term."""
     val_every: int = 0
     """Steps between validations (head_val.py, never the eval split); 0: none."""
+    init_head: str = ""
+    """Head checkpoint whose weights start the run (no weight depends on the candidate count,
+    so a 12-candidate head starts a 16-candidate run); empty: a fresh head."""
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "head": self.head.to_dict()}
@@ -118,6 +121,17 @@ def check_cache_pathway(path: str, cached: str, wanted: str) -> None:
             f"the {wanted} pathway (build a cache with head_cache --pathway {wanted}, or pass "
             f"--pathway {cached})"
         )
+
+
+def initial_head(path: Path, cfg: HeadConfig) -> StereoHead:
+    """The head of checkpoint `path` with `cfg`'s candidate count; refused unless it is `cfg`'s
+    kind of head in every other setting."""
+    from .head import load_head
+
+    head = load_head(path, cfg.max_disp)
+    if head.cfg != cfg:
+        raise ValueError(f"--init-head {path} is a head of another kind ({head.cfg} vs {cfg})")
+    return head
 
 
 def cosine_lr(step: int, cfg: HeadTrainConfig) -> float:
@@ -186,6 +200,8 @@ class HeadTrainer:
         self.source = source
         torch.manual_seed(cfg.seed)
         self.head = make_head(cfg.head).to(device)
+        if cfg.init_head:
+            self.head.load_state_dict(initial_head(Path(cfg.init_head), cfg.head).state_dict())
         self.pathway = cfg.head.pathway
         self.opt = torch.optim.AdamW(param_groups([self.head], cfg.weight_decay), lr=cfg.lr)
         self.cache: DescriptorCache | None = None
@@ -225,7 +241,7 @@ class HeadTrainer:
         rng = np.random.default_rng([self.cfg.seed, 1, self.step])
         if self.cache is not None:
             data = self.cache.data
-            if self.step == 0:
+            if self.step == 0 and not self.cfg.init_head:
                 n = min(self.cfg.refresh, self.cache.count)
                 self.head.init_from(data.left[:n], data.right[:n])
             idx = torch.from_numpy(rng.choice(self.cache.count, size=self.cfg.batch))
@@ -233,7 +249,7 @@ class HeadTrainer:
         t0 = time.perf_counter()
         self.refill(self.step)
         self.encode_seconds += time.perf_counter() - t0
-        if self.step == 0 and self.pool.data is not None:
+        if self.step == 0 and self.pool.data is not None and not self.cfg.init_head:
             # Fresh run: start the projection from the descriptor statistics (head.py).
             n = self.cfg.refresh
             self.head.init_from(self.pool.data.left[:n], self.pool.data.right[:n])
@@ -427,6 +443,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help="native head's pair features: [a, b] (concat, default) or [a, b, |a-b|, a*b] (full)",
     )
     p.add_argument("--uniform-weights", action="store_true", help="ignore label confidence")
+    p.add_argument("--init-head", type=Path, help="head checkpoint that starts the run's weights")
     p.add_argument("--photometric", type=float, help="weight of the photometric term")
     p.add_argument("--smoothness", type=float, help="weight of the edge-aware smoothness term")
     p.add_argument("--val-every", type=int, help="steps between validations (0: none)")
@@ -495,6 +512,7 @@ def build_config(args: argparse.Namespace, desc_dim: int, device: torch.device) 
         schedule_steps=schedule,
         cache=str(args.cache.resolve()) if args.cache is not None else "",
         uniform_weights=args.uniform_weights,
+        init_head=str(args.init_head.resolve()) if args.init_head is not None else "",
         **_given(
             batch=args.batch,
             pool=args.pool,

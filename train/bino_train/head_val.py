@@ -7,7 +7,11 @@ Two sets, both fixed for a run:
   check (`head_data.consistent_sgbm`): agreement with confident SGBM, a proxy, not accuracy;
 - synthetic crops with exact disparity (`head_data.synthetic_sample`, seeds apart from any
   training seed), scored in px on the labelled cells whose match lies inside the right crop
-  (`head.supervised_cells`: the others have no candidate).
+  (`head.supervised_cells`: the others have no candidate);
+- the held-out labeled train pairs (`labeled.LABELED_HOLDOUT`, issue 40) at w160 and w320
+  against their real ground truth, resized by the EVAL.md profile rule: `val_gt_w160`,
+  `val_gt_w320`, the float head and head+lr (unrefined) with the candidates `bino eval` gives
+  the width (`head.head_candidates`: 12 at w160, 16 at w320).
 
 Encoder outputs are computed once (`ValidationSet.build`); scoring a head costs only the head.
 A set is built for one pathway (`--pathway`): export heads read D(L), D(R); native heads the
@@ -28,7 +32,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from .head import StereoHead, supervised_cells
+from .head import StereoHead, head_candidates, supervised_cells, with_candidates
 from .head_data import (
     PATHWAYS,
     DataConfig,
@@ -40,12 +44,15 @@ from .head_data import (
     validation_pairs,
 )
 from .head_eval import HeadInputs, fill_rejected, head_lr, pair_inputs
+from .labeled import heldout_labeled_pairs, load_checked_gt
 from .model import BinoEncoder
 from .pairs import load_gray
 from .probe import CELL, mean_metrics, score, upsample_disparity
-from .profile import resize_image, to_u8
+from .profile import resize_gt, resize_image, to_u8
 
 VAL_WIDTH = 160
+LABELED_WIDTHS = (160, 320)
+"""Widths the held-out labeled pairs are scored at (the EVAL.md profiles)."""
 SYNTHETIC_SEED = 1_000_003
 """Seeds of the synthetic validation crops: [SYNTHETIC_SEED, i], no training run uses it."""
 
@@ -66,6 +73,8 @@ class ValidationSet:
     pairs: list[HeldOutPair]
     synthetic: DescBatch
     pathway: str = "export"
+    labeled: tuple[tuple[int, list[HeldOutPair]], ...] = ()
+    """(width, held-out labeled pairs at that width with their real ground truth)."""
 
     @staticmethod
     @torch.no_grad()
@@ -92,7 +101,8 @@ class ValidationSet:
             for i in range(synthetic_count)
         ]
         synthetic = encode(encoder, samples, device or torch.device("cpu"), pathway)
-        return ValidationSet(pairs, synthetic, pathway)
+        labeled = tuple((w, labeled_items(encoder, data_dir, w, pathway)) for w in LABELED_WIDTHS)
+        return ValidationSet(pairs, synthetic, pathway, labeled)
 
     @torch.no_grad()
     def score(self, head: StereoHead) -> dict[str, Any]:
@@ -116,8 +126,13 @@ class ValidationSet:
         # Cells whose true match lies outside the right crop have no candidate: not scored.
         known = supervised_cells(label, head.cfg.max_disp)
         err = (pred[known] - label[known]).abs() * CELL
+        labeled: dict[str, Any] = {}
+        for width, items in self.labeled:
+            if items:
+                labeled[f"val_gt_w{width}"] = score_items(head, items, head_candidates(width))
         head.train(was_training)
         return {
+            **labeled,
             "val_sgbm": mean_metrics(raw) if raw else None,
             "val_sgbm_lr": mean_metrics(checked) if checked else None,
             "val_synthetic": {
@@ -127,6 +142,38 @@ class ValidationSet:
             },
             "val_pairs": len(self.pairs),
         }
+
+
+def labeled_items(
+    encoder: BinoEncoder, data_dir: Path | None, width: int, pathway: str
+) -> list[HeldOutPair]:
+    """The held-out labeled pairs at `width` (EVAL.md profile) with their real ground truth."""
+    items = []
+    for pair in heldout_labeled_pairs(data_dir):
+        grays = [load_gray(pair.left), load_gray(pair.right)]
+        disparity, valid = resize_gt(*load_checked_gt(pair, grays[0].shape), width)
+        left, right = (resize_image(g, width) for g in grays)
+        inputs, mirrored = pair_inputs(encoder, pathway, left, right)
+        items.append(HeldOutPair(pair.pair_id, inputs, mirrored, disparity, valid))
+    return items
+
+
+@torch.no_grad()
+def score_items(head: StereoHead, items: list[HeldOutPair], candidates: int) -> dict[str, Any]:
+    """Mean EVAL.md metrics of the head and of head+lr (rejected cells filled from the left) on
+    `items`, with `candidates` disparities, and head+lr's per pair."""
+    head = with_candidates(head, candidates)
+    raw, checked = [], []
+    for item in items:
+        left, kept = head_lr(head, item.inputs, item.mirrored)
+        raw.append(score(upsample_disparity(left), item.disparity, item.valid))
+        filled = upsample_disparity(fill_rejected(left, kept))
+        checked.append(score(filled, item.disparity, item.valid))
+    return {
+        "head": mean_metrics(raw),
+        "head_lr": mean_metrics(checked),
+        "pairs": {item.pair_id: m for item, m in zip(items, checked, strict=True)},
+    }
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -151,7 +151,10 @@ def load_gt(pair: Pair) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
         raise ValueError(f"pair {pair.pair_id} has no ground truth")
     scale = np.float32(pair.gt_scale)
     if pair.gt_format == "pfm":
-        stored = read_pfm(pair.gt)
+        try:
+            stored = read_pfm(pair.gt)
+        except ValueError as e:  # a colour PFM, a truncated one: one line naming the pair
+            raise ValueError(f"pair {pair.pair_id}: {e}") from None
         valid = np.isfinite(stored)
         if pair.gt_invalid is not None:
             valid &= stored != np.float32(pair.gt_invalid)
