@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Re-measures the README's accuracy tables with the weights in weights/: every `bino eval` and
-# `bino compare` run behind them (eval split, StereoSGBM in the same run), the JSON into
-# train/checkpoints/metrics/. Run it whenever the blob changes; about 25 minutes on 2 cores.
+# Re-measures the docs' accuracy tables (docs/results.md, docs/robustness.md) with the weights
+# in weights/: every `bino eval` and `bino compare` run behind them (eval split, StereoSGBM in
+# the same run), the JSON into train/checkpoints/metrics/. Run it whenever the blob changes;
+# about 25 minutes on 2 cores; then `python3 scripts/render_docs.py` re-renders the tables.
 #
 #   scripts/measure_tables.sh [NAME...]   # all runs, or only the named ones (eval_w160, ...)
 #

@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# The project's whole test suite: what CI runs, and what the README calls "the tests".
+# The project's whole test suite: what CI runs, and what the README calls "the tests"
+# (docs/testing.md).
 #
 #   scripts/test.sh           everything (installs what is missing first)
 #   scripts/test.sh --quick   the contributor tier: the docs' figures, Rust format, lints and
@@ -60,13 +61,13 @@ for target in $THUMB_TARGETS; do
 done
 
 step "real boards: STM32H743 and Alif E7 firmware, release builds and memory-region use (nothing flashed)"
-# boards/ (README, "Real boards"): fmt, clippy, the host tests of bino-board, both builds,
+# boards/ (docs/boards.md): fmt, clippy, the host tests of bino-board, both builds,
 # each region's use next to its size; a region that overflows fails.
 scripts/boards.sh
 
 step "firmware under QEMU: both cores, outputs bit-identical to the host, instruction counts"
 # Cortex-M55 (mps3-an547) and Cortex-M7 (mps2-an500), one 48x160 band pair each (~4 min);
-# results in out/firmware/ (see README, "Firmware"), then the budget report of these runs.
+# results in out/firmware/ (docs/firmware.md), then the budget report of these runs.
 scripts/firmware.sh
 cargo run -q --locked -p bino-host --bin bino -- budget --firmware out/firmware \
   --json out/firmware/budget.json --md out/firmware/budget.md --png out/firmware/budget.png
