@@ -1,18 +1,22 @@
 """Memory-region use of a linked board firmware, next to each region's size.
 
     python3 scripts/board_regions.py --objdump LLVM_OBJDUMP --memory boards/X/memory.x ELF
+        [--json OUT]
 
 Reads the regions (NAME : ORIGIN = ..., LENGTH = ...) from the board's memory.x and the
 allocated sections from `llvm-objdump -h`; a section counts in the region of its run address,
 and a section copied at boot (.data) once more in the region of its load address. The RAM
 region's free space above its sections is the stack. Exits 1 if a region overflows or a
 section lies outside every region (the linker fails first on an overflow; this is the same
-check from the ELF).
+check from the ELF). `--json OUT` also writes the table as JSON (`bino-board-regions/1`), with
+the commit it was built from; `scripts/boards.sh --out DIR` writes one per board, and
+`scripts/render_docs.py` renders docs/boards.md's table from the committed ones.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import re
 import subprocess
 import sys
@@ -33,6 +37,7 @@ class Region:
     used: int = 0
     top: int = 0
     sections: list[str] = field(default_factory=list)
+    sizes: dict[str, int] = field(default_factory=dict)
 
     def holds(self, address: int) -> bool:
         return self.origin <= address < self.origin + self.length
@@ -41,6 +46,7 @@ class Region:
         self.used += size
         self.top = max(self.top, address + size)
         self.sections.append(section)
+        self.sizes[section] = size
 
 
 def size_of(text: str) -> int:
@@ -65,6 +71,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--objdump", required=True, help="llvm-objdump of the Rust toolchain")
     parser.add_argument("--memory", required=True, help="the board's memory.x")
+    parser.add_argument("--json", help="also write the regions' use to this file (JSON)")
     parser.add_argument("elf")
     args = parser.parse_args()
 
@@ -103,7 +110,40 @@ def main() -> int:
         if r.used > r.length:
             print(f"  region {r.name} overflows by {r.used - r.length:,} bytes")
             status = 1
+    if args.json:
+        write_json(args.json, args.elf, args.memory, regions)
     return status
+
+
+def git(*argv: str) -> str:
+    run = subprocess.run(["git", *argv], capture_output=True, text=True, check=False)
+    return run.stdout.strip()
+
+
+def write_json(path: str, elf: str, memory: str, regions: list[Region]) -> None:
+    """The regions' use, the commit and whether the engine or the boards differed from it."""
+    report = {
+        "schema": "bino-board-regions/1",
+        "board": memory.rstrip("/").split("/")[-2],
+        "elf": elf.split("/")[-1],
+        "commit": git("rev-parse", "--short", "HEAD"),
+        "core_or_boards_modified": bool(git("status", "--porcelain", "--", "core", "boards")),
+        "regions": [
+            {
+                "name": r.name,
+                "origin": r.origin,
+                "size": r.length,
+                "used": r.used,
+                "stack_above": r.origin + r.length - r.top if r.name == "RAM" else None,
+                "sections": r.sizes,
+            }
+            for r in regions
+        ],
+    }
+    with open(path, "w", encoding="utf-8") as f:
+        json.dump(report, f, indent=1)
+        f.write("\n")
+    print(f"  wrote {path}")
 
 
 if __name__ == "__main__":

@@ -4,19 +4,24 @@
 # (scripts/firmware.sh) stay the ones that run. A region that overflows fails the link; this
 # script checks the sums again from the ELF's section table.
 #
-#   scripts/boards.sh [--no-lint]
+#   scripts/boards.sh [--no-lint] [--out DIR]
 #
 #   --no-lint   skip rustfmt, clippy and the host tests of boards/common
+#   --out DIR   also write each board's region use as DIR/board-<board>.json (the committed
+#               ones: --out firmware-sim/measured; docs/boards.md renders its table from them)
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BINO_ROOT"
 
 lint=1
-case "${1:-}" in
-  --no-lint) lint=0 ;;
-  "") ;;
-  *) echo "unknown argument $1" >&2; exit 2 ;;
-esac
+out=""
+while [ $# -gt 0 ]; do
+  case "$1" in
+    --no-lint) lint=0; shift ;;
+    --out) out="$2"; mkdir -p "$out"; shift 2 ;;
+    *) echo "unknown argument $1" >&2; exit 2 ;;
+  esac
+done
 
 # Its own workspace and target directory, like the QEMU firmware's.
 export CARGO_TARGET_DIR="$BINO_CACHE/boards-target"
@@ -43,6 +48,8 @@ for board in stm32h7:thumbv7em-none-eabihf:test-band alif-e7:thumbv8m.main-none-
     fi
   fi
   (cd "boards/$dir" && cargo build --locked --release -q)
+  json=()
+  [ -n "$out" ] && json=(--json "$out/board-$dir.json")
   python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \
-    "$CARGO_TARGET_DIR/$target/release/bino-$dir"
+    "${json[@]}" "$CARGO_TARGET_DIR/$target/release/bino-$dir"
 done

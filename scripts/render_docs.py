@@ -777,7 +777,37 @@ def blob_size(src: Sources) -> str:
     )
 
 
+BOARDS = {"stm32h7": "STM32H743", "alif-e7": "Alif E7"}
+
+
+def board_regions(src: Sources) -> str:
+    rows = []
+    notes = []
+    for board, label in BOARDS.items():
+        b = src.json(f"{MEASURED}/board-{board}.json")
+        modified = " (engine or boards modified)" if b["core_or_boards_modified"] else ""
+        notes.append(f"{label} at `{b['commit']}`{modified}")
+        for i, r in enumerate(b["regions"]):
+            sections = ", ".join(f"`{name}` {n(size)}" for name, size in r["sections"].items())
+            if r["stack_above"] is not None:
+                sections += f"; the stack gets the other {n(r['stack_above'])}"
+            rows.append(
+                [
+                    label if i == 0 else "",
+                    f"`{r['name']}`",
+                    n(r["used"]),
+                    n(r["size"]),
+                    pct(100 * r["used"] / r["size"]),
+                    sections,
+                ]
+            )
+    header = ["board", "region", "used B", "size B", "use", "sections (B)"]
+    text = table(header, rows, [False, False, True, True, True, False])
+    return text + "\n\nBuilt from: " + "; ".join(notes) + ".\n\n" + footer(src)
+
+
 RENDERERS: dict[str, Callable[[Sources], str]] = {
+    "board-regions": board_regions,
     "accuracy-headline": accuracy_headline,
     "board-headline": board_headline,
     "speed-headline": speed_headline,
