@@ -32,6 +32,9 @@ MEASURED = "firmware-sim/measured"
 MANIFEST = "weights/MANIFEST.json"
 
 Json = dict[str, Any]
+# The README is the front door: what the project is, a quickstart and the headline figures;
+# everything else lives in docs/.
+README_MAX_LINES = 250
 MARK = re.compile(
     r"^<!-- render:([a-z0-9-]+) -->$\n(.*?)^<!-- /render:\1 -->$", re.MULTILINE | re.DOTALL
 )
@@ -885,6 +888,12 @@ def main(argv: Sequence[str] | None = None, root: Path = ROOT) -> int:
     args = ap.parse_args(argv)
     if args.self_test:
         return self_test()
+    readme = root / "README.md"
+    if args.check and readme.is_file():
+        lines = len(readme.read_text(encoding="utf-8").splitlines())
+        if lines > README_MAX_LINES:
+            print(f"README.md: {lines} lines, more than {README_MAX_LINES}", file=sys.stderr)
+            return 1
     for path in documents(root):
         rel = str(path.relative_to(root))
         text = path.read_text(encoding="utf-8")
