@@ -576,17 +576,20 @@ STAGE_NOTES = {
     "refine": "refine (pixel refinement of the head+lr grid, depth sectors)",
     "native_rows": "native_rows",
     "native_encode_pair": "native_encode_pair: one pass on (L, R)",
-    "native_head": "native_head",
+    "native_head": "native_head: the native head on the pair tokens",
     "native_encode_mirror": "native_encode_mirror: the check's pass on the mirrored pair",
-    "native_head_mirror": "native_head_mirror",
-    "native_refine": "native_refine",
+    "native_head_mirror": "native_head_mirror: the native head on the mirrored pair",
+    "native_refine": "native_refine: the head+lr grid",
 }
 
 
 def fw_stages(src: Sources) -> str:
     cs = {k: src.core(k) for k in CORES}
     stages = {k: {s["name"]: s for s in cs[k]["stages"]} for k in CORES}
-    names = [s["name"] for s in cs["m55"]["stages"]]
+    names = sorted(
+        (s["name"] for s in cs["m55"]["stages"]),
+        key=lambda s: list(STAGE_NOTES).index(s) if s in STAGE_NOTES else len(STAGE_NOTES),
+    )
     rows = []
     for name in names:
         row = [STAGE_NOTES.get(name, name), n(stages["m55"][name]["arena_in_use_bytes"])]
