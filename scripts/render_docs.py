@@ -17,11 +17,13 @@ rendered table rather than restate its figures. Python 3.11 standard library onl
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import re
 import sys
 import tempfile
 from collections.abc import Callable, Iterable, Sequence
+from contextlib import redirect_stderr, redirect_stdout
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -921,7 +923,8 @@ def main(argv: Sequence[str] | None = None, root: Path = ROOT) -> int:
 
 def self_test() -> int:
     """Renders a document against a tiny measurement tree: fill, check, detect an edit."""
-    with tempfile.TemporaryDirectory() as tmp:
+    quiet = io.StringIO()
+    with tempfile.TemporaryDirectory() as tmp, redirect_stdout(quiet), redirect_stderr(quiet):
         root = Path(tmp)
         (root / METRICS).mkdir(parents=True)
         (root / "docs").mkdir()
