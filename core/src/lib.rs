@@ -1,18 +1,74 @@
 //! `bino-core`: the `no_std`, allocation-free engine of BINO edge.
 //!
 //! BINO is a 1.34M-parameter binocular ViT encoder that fuses a rectified stereo pair by
-//! pixel interleaving. This crate holds what every target shares: the model configuration
-//! ([`config`]) and the band plan that lets a fixed-size encoder cover images of any height
-//! ([`band`]); after the readouts, [`refine`] turns a token-grid disparity into pixels. It never
-//! allocates and never panics on input: bad input is an [`Error`].
+//! pixel interleaving. This crate runs its int8 weights on any target, Cortex-M included: rows of
+//! a rectified pair in, disparity rows out, in one caller-owned arena whose size is a `const fn`.
+//! It never allocates and never panics on input: bad input is an [`Error`].
+//!
+//! The whole pipeline on the firmware's 48x160 test band, with the boards' readouts:
 //!
 //! ```
-//! use bino_core::band::BandPlan;
-//! // A 96-row image (24 token rows) goes as three overlapping 12-row bands.
-//! let plan = BandPlan::new(24)?;
-//! assert_eq!(plan.len(), 3);
+//! use bino_core::blob::Blob;
+//! use bino_core::crc32::Crc32;
+//! use bino_core::pipeline::{MatchedRow, Pipeline, SlicePair, Sink};
+//! use bino_core::preset;
+//!
+//! const HEIGHT: usize = 48; // one band (taller images stream through the same arena)
+//! const WIDTH: usize = 160;
+//! const ARENA_BYTES: usize = preset::arena_bytes(HEIGHT, WIDTH); // a const fn: 486,918 B
+//!
+//! // The weight blob, read in place (in flash on a board), checked once.
+//! static BLOB: &[u8] = include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/bino_int8.bin"));
+//! // A rectified 8-bit grey pair; on a board a camera delivers the rows (a `RowSource`).
+//! static LEFT: &[u8] = include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/../firmware-sim/assets/band_48x160_left.gray"));
+//! static RIGHT: &[u8] = include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/../firmware-sim/assets/band_48x160_right.gray"));
+//!
+//! /// Digests the refined disparity rows (Q8 pixels) as the firmware does.
+//! struct Refined(Crc32);
+//!
+//! impl Sink for Refined {
+//!     fn matched(&mut self, _row: &MatchedRow<'_>) {} // token-grid readouts: not used here
+//!     fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
+//!         for d in disparity_q8 {
+//!             self.0.update(&d.to_le_bytes()); // d / 256 = disparity in pixels
+//!         }
+//!     }
+//! }
+//!
+//! let pipeline = Pipeline::new(Blob::parse(BLOB)?)?; // once, at boot
+//! let mut arena = [0u8; ARENA_BYTES]; // a `static` in firmware
+//! let mut rows = SlicePair::new(LEFT, RIGHT, WIDTH, HEIGHT)?;
+//! let mut sink = Refined(Crc32::new());
+//! let report = pipeline.run_refined(&mut rows, &preset::OPTIONS, &preset::REFINE, &mut arena, &mut sink)?;
+//! assert!(report.arena_used <= ARENA_BYTES);
+//! // Bit for bit what the firmware computes on both Cortex-M cores.
+//! assert_eq!(sink.0.finish(), 0x2300_3cce);
 //! # Ok::<(), bino_core::Error>(())
 //! ```
+//!
+//! The main types: [`blob::Blob`] (the weights, parsed in place), [`pipeline::Pipeline`] with
+//! its [`pipeline::RowSource`] (rows in; [`pipeline::SlicePair`] for a pair in memory) and
+//! [`pipeline::Sink`] (readouts out), and [`preset`], the readouts the firmware and the boards
+//! run with the `const fn` sizing their arena ([`preset::arena_bytes`]; for other
+//! [`pipeline::Options`], [`pipeline::arena_bytes_refined`]). Every error is an [`Error`].
+//! `examples/board` (a `no_std` program for Cortex-M) and `examples/host` (a PNG pair in, a
+//! disparity PNG out) in the repository build on this.
+//!
+//! Inside, in the order data moves: the model configuration ([`config`]) and the band plan that
+//! lets a fixed-size encoder cover images of any height ([`band`]), the int8 [`kernels`] and
+//! [`model`], the readouts ([`matching`], [`sgm`], [`lr`]), and [`refine`], which turns a
+//! token-grid disparity into pixels.
+//!
+//! # Features
+//!
+//! None is on by default.
+//! - `depth`: `depth` (Q8 disparity to depth in mm, nearest depth per column sector) and the
+//!   example board's `preset::CALIBRATION` and `preset::SECTORS`; pulls in `micromath`.
+//! - `defmt`: `defmt::Format` on [`Error`], [`pipeline::Stage`], [`pipeline::Report`] and the
+//!   other public report types, for firmware that logs with defmt.
+//!
+//! The instruction set is never a feature: the Arm kernels are chosen by the target (and
+//! `-C target-cpu`), the x86 ones by the CPU.
 #![no_std]
 #![deny(missing_docs)]
 // Audited exceptions: the x86 intrinsic kernels of host builds (kernels/matmul_avx2.rs, and
