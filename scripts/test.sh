@@ -60,6 +60,26 @@ for target in $THUMB_TARGETS; do
   cargo clippy -p bino-core --locked --release --target "$target" --features depth,defmt -- -D warnings
 done
 
+step "examples: examples/board (host test of the firmware's digests, Cortex-M builds) and examples/host"
+# Outside crates of their own (docs/integration.md, "Examples"); their own target folder, as the
+# board example's Cortex-M builds carry its .cargo/config.toml's flags. bino-core's crate-docs
+# example ran as a doctest in `cargo test --workspace` above.
+(
+  export CARGO_TARGET_DIR="$BINO_CACHE/target-examples"
+  cd examples/board
+  cargo fmt --check
+  cargo clippy --locked --all-targets -- -D warnings
+  cargo test --locked
+  for target in $THUMB_TARGETS; do
+    cargo clippy --locked --release --target "$target" -- -D warnings
+    cargo build --locked --release --target "$target"
+  done
+  cd ../host
+  cargo fmt --check
+  cargo clippy --locked --all-targets -- -D warnings
+  cargo test --locked
+)
+
 step "real boards: STM32H743 and Alif E7 firmware, release builds and memory-region use (nothing flashed)"
 # boards/ (docs/boards.md): fmt, clippy, the host tests of bino-board, both builds,
 # each region's use next to its size; a region that overflows fails.
