@@ -13,7 +13,7 @@
 //! use bino_core::pipeline::{MatchedRow, Pipeline, SlicePair, Sink};
 //! use bino_core::preset;
 //!
-//! const HEIGHT: usize = 48; // one band (taller images stream through the same arena)
+//! const HEIGHT: usize = 48; // one band (a taller image needs more, the same for any height)
 //! const WIDTH: usize = 160;
 //! const ARENA_BYTES: usize = preset::arena_bytes(HEIGHT, WIDTH); // a const fn: 486,918 B
 //!
