@@ -22,8 +22,9 @@ static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_r
 /// Everything the pipeline needs besides the blob: one static arena, sized at compile time.
 static mut ARENA: Aligned<[u8; ARENA_BYTES]> = Aligned([0; ARENA_BYTES]);
 
-/// Runs the band and checks it; `print` reports each digest (name, found, expected).
-fn run(print: impl Fn(&str, u32, u32)) -> bool {
+/// Runs the band and checks it; `print` reports each digest (name, found, expected), `fail` an
+/// error.
+fn run(print: impl Fn(&str, u32, u32), fail: impl Fn(bino_core::Error)) -> bool {
     // SAFETY: called once; nothing else refers to ARENA.
     let arena = unsafe { &mut (*core::ptr::addr_of_mut!(ARENA)).0 };
     // black_box: the blob is read from flash at run time, never folded into the code.
@@ -35,7 +36,10 @@ fn run(print: impl Fn(&str, u32, u32)) -> bool {
             }
             digests == EXPECTED
         }
-        Err(_) => false,
+        Err(e) => {
+            fail(e);
+            false
+        }
     }
 }
 
@@ -46,7 +50,10 @@ mod board {
 
     #[entry]
     fn main() -> ! {
-        let ok = super::run(|name, found, expected| hprintln!("{name:<18} {found:08x} expected {expected:08x}"));
+        let ok = super::run(
+            |name, found, expected| hprintln!("{name:<18} {found:08x} expected {expected:08x}"),
+            |e| hprintln!("error: {e}"),
+        );
         hprintln!(
             "bino example: {}",
             if ok { "digests match the firmware's" } else { "MISMATCH" }
@@ -68,7 +75,10 @@ mod board {
 
 #[cfg(not(target_os = "none"))]
 fn main() -> std::process::ExitCode {
-    let ok = run(|name, found, expected| println!("{name:<18} {found:08x} expected {expected:08x}"));
+    let ok = run(
+        |name, found, expected| println!("{name:<18} {found:08x} expected {expected:08x}"),
+        |e| eprintln!("error: {e}"),
+    );
     println!(
         "bino example: {}",
         if ok { "digests match the firmware's" } else { "MISMATCH" }
