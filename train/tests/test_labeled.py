@@ -204,3 +204,34 @@ def test_init_head_takes_a_twelve_candidate_heads_weights_and_refuses_another_ki
         assert torch.equal(head.state_dict()[name], tensor), name
     with pytest.raises(ValueError, match="another kind"):
         initial_head(path, replace(small, hidden=16, max_disp=16))
+
+
+def test_head_curves_read_the_labeled_validation_records(tmp_path: Path) -> None:
+    import json
+
+    from bino_train.head_curves import main as curves_main
+    from bino_train.head_curves import smoothed, step_series, val_series
+
+    records = [{"kind": "start", "step": 0}]
+    records += [{"step": s, "loss": 10.0 / s} for s in range(10, 410, 10)]
+    records += [
+        {
+            "kind": "val",
+            "step": 200 * k,
+            "val_gt_w160": {"head_lr": {"epe": 1.0 / k, "bad1tok": 5.0}},
+            "val_gt_w320": {"head_lr": {"epe": 2.0 / k, "bad1tok": 9.0}},
+            "val_synthetic": {"epe": 0.5},
+            "val_sgbm_lr": None,
+        }
+        for k in (1, 2)
+    ]
+    assert len(step_series(records, "loss")) == 40
+    assert smoothed(step_series(records, "loss"))[0][0] == 200.0
+    assert val_series(records, "val_gt_w320", "head_lr", "epe") == [(200.0, 2.0), (400.0, 1.0)]
+    assert val_series(records, "val_sgbm_lr", "epe") == []
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "log.jsonl").write_text("".join(json.dumps(r) + "\n" for r in records))
+    curves_main(["--run", str(run), "--out", str(tmp_path / "c.png")])
+    image = cv2.imread(str(tmp_path / "c.png"))
+    assert image is not None and image.shape[0] > 100
