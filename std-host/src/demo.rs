@@ -16,15 +16,15 @@ use bino_core::pipeline::{Options as PipelineOptions, Pathway};
 use bino_core::sgm::Penalties;
 use serde::Serialize;
 
-use crate::colour::{colourise, error_colour};
+use crate::data::profile::{Profile, View};
+use crate::data::synthetic::{default_scene, SyntheticPair};
 use crate::eval::{score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
+use crate::int8::pipeline_maps::run_pipeline;
 use crate::int8::{guide_map, match_rows, sgm_rows, Int8Model};
-use crate::keyed::Keyed;
-use crate::pipeline_maps::run_pipeline;
-use crate::profile::{Profile, View};
+use crate::io::colour::{colourise, error_colour};
+use crate::io::keyed::Keyed;
+use crate::readout::refine::{refine_pixels, GrayViews};
 use crate::readout::Readout;
-use crate::refine::{refine_pixels, GrayViews};
-use crate::synthetic::{default_scene, SyntheticPair};
 
 /// The int8 blob shipped with the repository (found from any working directory).
 pub const DEFAULT_BLOB: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/bino_int8.bin");
@@ -168,7 +168,7 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
             lr_max_diff_q8: DEMO_LR_MAX_DIFF_Q8,
             head: true,
             head_lr: true,
-            head_candidates: crate::readout_eval::head_candidates(left.width),
+            head_candidates: crate::readout::head_candidates(left.width),
         };
         let maps = steps.run(
             "native pathway: one encoder pass on (L, R), native head and its check (int8 pipeline)",
@@ -243,13 +243,13 @@ fn write_outputs(
     right: &View,
     readouts: &[ReadoutResult],
 ) -> Result<Vec<PathBuf>> {
-    crate::files::create_dir(&opts.out)?;
+    crate::io::files::create_dir(&opts.out)?;
     let (w, h) = (scene.left.width, scene.left.height);
     let max_disparity = scene.disparity.iter().cloned().fold(1.0f32, f32::max);
     let mut files = Vec::new();
     let mut save = |name: &str, image: image::DynamicImage| -> Result<()> {
         let path = opts.out.join(name);
-        crate::files::save_png(&image, &path)?;
+        crate::io::files::save_png(&image, &path)?;
         files.push(path);
         Ok(())
     };
@@ -273,7 +273,7 @@ fn write_outputs(
         )?;
     }
     let report = opts.out.join("report.json");
-    crate::files::write_bytes(&report, (report_json(opts, readouts) + "\n").as_bytes())?;
+    crate::io::files::write_bytes(&report, (report_json(opts, readouts) + "\n").as_bytes())?;
     files.push(report);
     Ok(files)
 }

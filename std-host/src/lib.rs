@@ -1,44 +1,26 @@
 //! `bino-host`: the host side of BINO edge — image I/O, the EVAL.md resolution profiles,
 //! the `PAIRS.tsv` index, the tract-onnx float reference and the array formats the `bino`
 //! CLI writes.
+//!
+//! Modules by concern: [`io`] (files and formats), [`data`] (pairs, profiles, the synthetic
+//! scene, degradations), [`float`] (the float reference), [`int8`] (the int8 engine on the
+//! host), [`readout`] (the readouts every command shares), and one module per `bino` verb
+//! that has more than arguments, named as its file in the CLI's `cli/`: [`bench`], [`budget`],
+//! [`compare`], [`demo`], [`eval`], [`quantize`], [`run`], [`sim`] (`bino pairs` lists
+//! [`data::pairs`], `bino reference` runs [`float::reference`]).
 #![deny(missing_docs)]
 
+pub mod data;
+pub mod float;
+pub mod int8;
+pub mod io;
+pub mod readout;
+
 pub mod bench;
-pub mod blob_writer;
 pub mod budget;
-pub mod colour;
 pub mod compare;
 pub mod demo;
 pub mod eval;
-pub mod files;
-pub mod float_head;
-pub mod float_weights;
-pub mod head_forward;
-pub mod image_io;
-pub mod int8;
-mod keyed;
-pub mod npy;
-pub mod npz;
-pub mod nuisance;
-pub mod occlusion;
-pub mod onnx;
-pub mod onnx_params;
-pub mod ort_bench;
-pub mod pairs;
-pub mod pathway;
-pub mod pfm;
-pub mod pipeline_maps;
-pub mod profile;
 pub mod quantize;
-pub mod readout;
-pub mod readout_eval;
-pub mod reference;
-pub mod reference_head;
-pub mod refine;
-mod rng;
 pub mod run;
-pub mod sgbm;
 pub mod sim;
-pub mod synthetic;
-pub mod taps;
-pub mod train_python;

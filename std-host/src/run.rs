@@ -14,15 +14,15 @@ use anyhow::{Context, Result};
 use bino_core::pipeline::{Options as PipelineOptions, Report as PipelineReport, Stage};
 use bino_core::sgm::Penalties;
 
-use crate::colour::colourise;
+use crate::data::profile::load_profiled_pair;
+use crate::data::profile::Profile;
 use crate::eval::{upsample_mask, DisparityMap};
+use crate::int8::pipeline_maps::run_pipeline;
 use crate::int8::Int8Model;
-use crate::pathway::Pathway;
-use crate::pipeline_maps::run_pipeline;
-use crate::profile::load_profiled_pair;
-use crate::profile::Profile;
+use crate::io::colour::colourise;
+use crate::readout::lr_tolerance_q8;
+use crate::readout::pathway::Pathway;
 use crate::readout::Readout;
-use crate::readout_eval::lr_tolerance_q8;
 
 /// `bino run --refine`: whether the readout's pixels are refined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -125,7 +125,7 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         head,
         // The head's own left-right check (lr_mask.png, and the fill of head+lr).
         head_lr: head,
-        head_candidates: crate::readout_eval::head_candidates(left.width),
+        head_candidates: crate::readout::head_candidates(left.width),
     };
     let mut on_band = |i: usize, n: usize| {
         if n > 1 {
@@ -171,13 +171,13 @@ fn finish(timings: &mut [(&'static str, Duration)], started: Instant) {
 }
 
 fn write_outputs(out: &Path, disparity: &DisparityMap, valid: &[bool]) -> Result<Vec<PathBuf>> {
-    crate::files::create_dir(out)?;
+    crate::io::files::create_dir(out)?;
     let (w, h) = (disparity.width, disparity.height);
     let max = disparity.values.iter().cloned().fold(1.0f32, f32::max);
     let colour = image::RgbImage::from_raw(w as u32, h as u32, colourise(&disparity.values, max))
         .context("disparity picture size")?;
     let png = out.join("disparity.png");
-    crate::files::save_png(&colour.into(), &png)?;
+    crate::io::files::save_png(&colour.into(), &png)?;
     let mask = image::GrayImage::from_raw(
         w as u32,
         h as u32,
@@ -185,9 +185,9 @@ fn write_outputs(out: &Path, disparity: &DisparityMap, valid: &[bool]) -> Result
     )
     .context("mask size")?;
     let mask_path = out.join("lr_mask.png");
-    crate::files::save_png(&mask.into(), &mask_path)?;
+    crate::io::files::save_png(&mask.into(), &mask_path)?;
     let pfm = out.join("disparity.pfm");
-    crate::files::write_bytes(&pfm, &pfm_bytes(disparity))?;
+    crate::io::files::write_bytes(&pfm, &pfm_bytes(disparity))?;
     Ok(vec![png, pfm, mask_path])
 }
 

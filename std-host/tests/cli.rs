@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Output;
 
-use bino_host::npz;
+use bino_host::io::npz;
 
 mod common;
 use common::{bino, repo, s, scratch_dir};
@@ -256,16 +256,16 @@ fn run_refuses_views_of_different_sizes() {
 #[test]
 fn run_refine_off_is_the_upsampled_grid_and_the_default_its_refinement() {
     use bino_core::pipeline::Options;
+    use bino_host::data::profile::{load_profiled_pair, Profile};
     use bino_host::eval::upsample_disparity;
+    use bino_host::int8::pipeline_maps::run_pipeline;
     use bino_host::int8::Int8Model;
-    use bino_host::pipeline_maps::run_pipeline;
-    use bino_host::profile::{load_profiled_pair, Profile};
+    use bino_host::readout::refine::{refine_pixels, GrayViews};
     use bino_host::readout::{Method, Readout};
-    use bino_host::refine::{refine_pixels, GrayViews};
     use bino_host::run::pfm_bytes;
 
     let dir = scratch("refine");
-    let scene = bino_host::synthetic::default_scene(160, 48);
+    let scene = bino_host::data::synthetic::default_scene(160, 48);
     let (left, right) = (dir.join("l.png"), dir.join("r.png"));
     for (view, path) in [(&scene.left, &left), (&scene.right, &right)] {
         image::GrayImage::from_raw(view.width as u32, view.height as u32, view.pixels.clone())
@@ -347,7 +347,7 @@ fn eval_reports_every_readout_and_sgbm_clean_and_under_each_nuisance_reproducibl
     // StereoSGBM where the project's Python environment is there (as the other eval tests).
     let sgbm = common::available(
         "the Python environment for StereoSGBM",
-        bino_host::sgbm::SgbmRunner::locate().is_ok(),
+        bino_host::eval::sgbm::SgbmRunner::locate().is_ok(),
     );
     let readouts = ["nolink", "sgm+lr+ref", "head+lr+ref"];
     let nuisances = ["gain", "gamma", "noise", "blur", "occlude"];

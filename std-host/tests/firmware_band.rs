@@ -1,11 +1,11 @@
 //! The firmware's embedded test bands (`firmware-sim/assets/band_<H>x<W>_{left,right}.gray`, raw
-//! row-major gray bytes) are the built-in procedural scene (`bino_host::synthetic::default_scene`,
+//! row-major gray bytes) are the built-in procedural scene (`bino_host::data::synthetic::default_scene`,
 //! the scene `bino demo --width W --height H` shows), not arbitrary blobs.
 //! Regenerate them with `cargo test -p bino-host --test firmware_band -- --ignored`.
 
 use std::path::{Path, PathBuf};
 
-use bino_host::synthetic::default_scene;
+use bino_host::data::synthetic::default_scene;
 
 /// The band sizes the firmware embeds (height, width): 48x160 (the budget and CI run), 48x32
 /// (`scripts/firmware.sh --band small`, a quick check).

@@ -176,7 +176,7 @@ fn the_native_pathway_on_a_blob_without_its_head_is_named() {
     write_png(&right, 200, 60);
     let shipped = std::fs::read(bino_host::demo::DEFAULT_BLOB).unwrap();
     let shipped = Blob::parse(&shipped).unwrap();
-    let mut writer = bino_host::blob_writer::BlobWriter::new();
+    let mut writer = bino_host::int8::blob_writer::BlobWriter::new();
     let native_norm = ids::id(ids::kind::LAYERNORM, ids::HeadKind::Native.layernorm());
     for t in shipped.tensors().filter(|t| t.id != native_norm) {
         let (dtype, bytes) = shipped.raw(t.id).unwrap();

@@ -6,9 +6,9 @@
 
 use std::path::{Path, PathBuf};
 
+use bino_host::data::pairs::read_index;
+use bino_host::data::profile::Profile;
 use bino_host::eval::{load_eval_item, score, DisparityMap};
-use bino_host::pairs::read_index;
-use bino_host::profile::Profile;
 
 mod common;
 use common::{bino, repo, s, scratch_dir};
@@ -56,7 +56,7 @@ fn run_writes_what_eval_scores_on_a_multi_band_pair() {
     );
 }
 
-/// At w320 the head searches 16 candidates in both commands (`readout_eval::head_candidates`).
+/// At w320 the head searches 16 candidates in both commands (`readout::head_candidates`).
 #[test]
 fn run_writes_what_eval_scores_at_w320() {
     let report = run_matches_eval(Profile::W320, &["head", "head+lr+ref"], &[]);

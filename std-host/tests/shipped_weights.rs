@@ -3,10 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
+use bino_host::data::synthetic::default_scene;
 use bino_host::demo::{run_demo, DemoOptions, DEFAULT_BLOB};
 use bino_host::eval::DEFAULT_MAX_COLS;
-use bino_host::files::sha256_hex;
-use bino_host::synthetic::default_scene;
+use bino_host::io::files::sha256_hex;
 
 mod common;
 
@@ -137,7 +137,7 @@ fn quantize_reads_the_plain_shipped_export() {
         head_calib_pairs: 2,
         head_calib_nuisances: Vec::new(),
         data: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
-        profile: bino_host::profile::Profile::W160,
+        profile: bino_host::data::profile::Profile::W160,
         calib_pairs: 2,
         max_width: 640,
     };
@@ -155,10 +155,10 @@ fn quantize_reads_the_plain_shipped_export() {
 fn integer_row_matching_agrees_with_the_float_readout() {
     // The same int8 descriptor codes through core's streaming integer matcher and through the
     // host's float similarity volume (the scale cancels in a cosine).
+    use bino_host::data::profile::Profile;
     use bino_host::eval::no_linkage_disparity;
+    use bino_host::float::reference::FeatureMap;
     use bino_host::int8::{match_rows, Int8Model};
-    use bino_host::profile::Profile;
-    use bino_host::reference::FeatureMap;
 
     let model = Int8Model::load(Path::new(DEFAULT_BLOB)).unwrap();
     let scene = default_scene(160, 48);
@@ -198,20 +198,21 @@ fn integer_row_matching_agrees_with_the_float_readout() {
 
 #[test]
 fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
-    use bino_host::readout_eval::{evaluate, EvalOptions, Precision, Readout};
+    use bino_host::eval::{evaluate, EvalOptions, Precision};
+    use bino_host::readout::Readout;
     let weights = Path::new(env!("CARGO_MANIFEST_DIR")).join("../weights");
     let sgbm = common::available(
         "the Python environment for StereoSGBM",
-        bino_host::sgbm::SgbmRunner::locate().is_ok(),
+        bino_host::eval::sgbm::SgbmRunner::locate().is_ok(),
     );
     let opts = EvalOptions {
         data: Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
         split: "eval".into(),
-        profile: bino_host::profile::Profile::W160,
+        profile: bino_host::data::profile::Profile::W160,
         blob: PathBuf::from(DEFAULT_BLOB),
         onnx: weights.join("bino_encoder.onnx"),
         head_onnx: weights.join("bino_head.onnx"),
-        pathway: bino_host::pathway::Pathway::Export,
+        pathway: bino_host::readout::pathway::Pathway::Export,
         native_head_onnx: weights.join("bino_native_head.onnx"),
         precisions: vec![Precision::Int8, Precision::F32],
         readouts: vec![

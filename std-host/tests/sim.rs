@@ -119,7 +119,7 @@ fn a_bad_display_size_or_a_lone_view_is_refused() {
 fn sim_draws_the_refined_pixels_run_writes() {
     let dir = scratch("refined");
     let (w, h) = DEFAULT_SCENE;
-    let scene = bino_host::synthetic::default_scene(w, h);
+    let scene = bino_host::data::synthetic::default_scene(w, h);
     for (name, view) in [("l.png", &scene.left), ("r.png", &scene.right)] {
         image::GrayImage::from_raw(w as u32, h as u32, view.pixels.clone())
             .unwrap()
@@ -139,10 +139,10 @@ fn sim_draws_the_refined_pixels_run_writes() {
         "one drawn row per pixel row: {stdout}"
     );
 
-    let written = bino_host::pfm::load(&run_dir.join("disparity.pfm"), "run's disparity").unwrap();
+    let written = bino_host::io::pfm::load(&run_dir.join("disparity.pfm"), "run's disparity").unwrap();
     assert_eq!((written.width, written.height), (w, h));
     let max_px = (bino_core::config::HEAD_MAX_DISP - 1) as f32 * bino_host::eval::PIXELS_PER_PATCH_COLUMN as f32;
-    let expected = bino_host::colour::colourise(&written.values, max_px);
+    let expected = bino_host::io::colour::colourise(&written.values, max_px);
     let layout = Layout::new(DisplaySize::QVGA, w, h).unwrap();
     let p = layout.disparity;
     assert_eq!((p.width, p.height), (w, h), "the scene is drawn at scale 1");

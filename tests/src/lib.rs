@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::{Context, Result};
-use bino_host::npy::{self, Array};
-use bino_host::profile::View;
+use bino_host::data::profile::View;
+use bino_host::io::npy::{self, Array};
 
 /// The folder of committed test fixtures.
 pub fn fixtures() -> PathBuf {

@@ -7,11 +7,11 @@ use bino_core::model::encoder::{arena_bytes, GrayBand};
 use bino_core::model::probe::NoProbe;
 use bino_core::Error;
 use bino_host::compare::head::{compare_heads, FloatHeadRunner, HeadAgreement};
+use bino_host::data::profile::Profile;
+use bino_host::data::synthetic;
+use bino_host::float::reference::ReferenceEncoder;
 use bino_host::int8::{dequantise_residual, Int8Model, StageRecorder};
-use bino_host::profile::Profile;
 use bino_host::quantize::{quantize, QuantizeOptions};
-use bino_host::reference::ReferenceEncoder;
-use bino_host::synthetic;
 use bino_tests::{available, fixtures};
 
 fn data_dir() -> PathBuf {
@@ -280,7 +280,7 @@ fn int8_native_pathway_follows_float() {
 #[test]
 fn head_calibration_adds_each_pair_again_per_nuisance_with_only_its_right_view_changed() {
     use bino_core::model::ids::HeadKind;
-    use bino_host::nuisance::Nuisance;
+    use bino_host::data::nuisance::Nuisance;
     use bino_host::quantize::head::calibration_maps;
     if !available(
         &format!("calibration data at {}", data_dir().display()),
@@ -308,7 +308,7 @@ fn head_calibration_adds_each_pair_again_per_nuisance_with_only_its_right_view_c
 #[test]
 fn compare_under_a_nuisance_degrades_the_right_views_and_says_so() {
     use bino_host::compare::{compare, CompareOptions};
-    use bino_host::nuisance::Nuisance;
+    use bino_host::data::nuisance::Nuisance;
     if !available(
         &format!("data at {}", data_dir().display()),
         data_dir().join("PAIRS.tsv").is_file(),

@@ -2,7 +2,7 @@
 //! `python -m bino_train.export --intermediates --fixture tests/fixtures/parity` holds an input
 //! pair and the PyTorch outputs; tract must reproduce them within 1e-4.
 
-use bino_host::reference::ReferenceEncoder;
+use bino_host::float::reference::ReferenceEncoder;
 use bino_tests::{fixtures, read_npy, view_from_nchw};
 
 const TOLERANCE: f32 = 1e-4;

@@ -13,11 +13,11 @@ use bino_core::pipeline::{
 };
 use bino_core::sgm::Penalties;
 use bino_core::Error;
-use bino_host::blob_writer::BlobWriter;
+use bino_host::data::profile::View;
+use bino_host::data::synthetic;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
+use bino_host::int8::blob_writer::BlobWriter;
 use bino_host::int8::{guide_map, match_rows, sgm_rows, Int8Model};
-use bino_host::profile::View;
-use bino_host::synthetic;
 
 const MAX_COLS: usize = 16;
 

@@ -16,9 +16,9 @@ use bino_core::pipeline::{
 use bino_core::refine::sharpness::{decide_map_row, refine_map_equalised};
 use bino_core::refine::{keep_rejected_map, refine_map, scratch_len, RefineParams};
 use bino_core::Error;
+use bino_host::data::synthetic;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
 use bino_host::int8::Int8Model;
-use bino_host::synthetic;
 
 const MAX_COLS: usize = 16;
 

@@ -70,6 +70,6 @@ pub struct PathwayChoice {
     /// Pathway: export (each view encoded alone, two encoder passes per band; every readout)
     /// or native (one pass on the pair (L, R); the native head's readouts, head+lr with a
     /// second pass on the mirrored pair).
-    #[arg(long, value_enum, default_value_t = bino_host::pathway::Pathway::Export)]
-    pub pathway: bino_host::pathway::Pathway,
+    #[arg(long, value_enum, default_value_t = bino_host::readout::pathway::Pathway::Export)]
+    pub pathway: bino_host::readout::pathway::Pathway,
 }

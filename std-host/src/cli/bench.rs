@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use bino_host::bench::{bench, BenchOptions};
-use bino_host::profile::Profile;
+use bino_host::data::profile::Profile;
 use clap::Args;
 
 use super::progress::Progress;

@@ -4,8 +4,8 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use bino_host::compare::{compare, CompareOptions};
-use bino_host::pathway::Pathway;
-use bino_host::profile::Profile;
+use bino_host::data::profile::Profile;
+use bino_host::readout::pathway::Pathway;
 
 /// The shipped float native head, relative to the repository root like the other defaults.
 const DEFAULT_NATIVE_HEAD_ONNX: &str = "weights/bino_native_head.onnx";
@@ -63,7 +63,7 @@ pub struct CompareArgs {
     limit: Option<usize>,
     /// Degrade every right view first, as `bino eval --nuisance` does (seed 0).
     #[arg(long, value_enum)]
-    nuisance: Option<bino_host::nuisance::Nuisance>,
+    nuisance: Option<bino_host::data::nuisance::Nuisance>,
 }
 
 /// Runs the verb.

@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use bino_host::profile::Profile;
-use bino_host::readout_eval::EvalOptions;
+use bino_host::data::profile::Profile;
+use bino_host::eval::EvalOptions;
 use clap::Args;
 
 use super::args::{Candidates, LeftRightCheck, PathwayChoice, SgmPenalties};
@@ -42,7 +42,7 @@ pub struct EvalArgs {
     /// Precisions (repeat or comma-separate): int8 (the core pipeline), f32 (tract and the
     /// float twins of the readouts).
     #[arg(long, value_delimiter = ',', default_value = "int8,f32")]
-    precision: Vec<bino_host::readout_eval::Precision>,
+    precision: Vec<bino_host::eval::Precision>,
     /// Readouts to score (repeat or comma-separate): nolink, sgm, head, each optionally
     /// with +lr (cells the method's own left-right check rejects filled from the left),
     /// then optionally +ref (pixels by the integer refinement instead of bilinear
@@ -73,7 +73,7 @@ pub struct EvalArgs {
     /// and height, until at least 20 % of the area is covered). The whole set runs once
     /// more per nuisance: five nuisances take six times as long.
     #[arg(long, value_delimiter = ',')]
-    nuisance: Vec<bino_host::nuisance::Nuisance>,
+    nuisance: Vec<bino_host::data::nuisance::Nuisance>,
     /// Seed of the nuisances' noise and occlusions (mixed with each pair's id).
     #[arg(long, default_value_t = 0)]
     seed: u64,
@@ -114,7 +114,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     };
     let progress = Progress::new(args.json.is_some());
     progress.status("scoring pairs");
-    let report = bino_host::readout_eval::evaluate(&opts, |done, total, pair| {
+    let report = bino_host::eval::evaluate(&opts, |done, total, pair| {
         let mut epe: Vec<String> = opts
             .rows()
             .iter()

@@ -63,7 +63,7 @@ impl Cli {
 /// Writes a report's JSON to `--json PATH` (atomically) when given, and says so.
 fn write_json(path: Option<&std::path::Path>, json: impl FnOnce() -> String) -> Result<()> {
     if let Some(path) = path {
-        bino_host::files::write_atomic(path, |file| Ok(std::io::Write::write_all(file, json().as_bytes())?))?;
+        bino_host::io::files::write_atomic(path, |file| Ok(std::io::Write::write_all(file, json().as_bytes())?))?;
         println!("wrote {}", path.display());
     }
     Ok(())

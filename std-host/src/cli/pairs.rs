@@ -4,7 +4,7 @@ use std::io::Write;
 use std::path::PathBuf;
 
 use anyhow::Result;
-use bino_host::pairs::{read_index, Split};
+use bino_host::data::pairs::{read_index, Split};
 use clap::Args;
 
 /// List the pairs of a data folder's PAIRS.tsv.

@@ -5,8 +5,8 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::Result;
+use bino_host::data::profile::Profile;
 use bino_host::int8::Int8Model;
-use bino_host::profile::Profile;
 use bino_host::quantize::{quantize, QuantizeOptions};
 use clap::Args;
 
@@ -38,7 +38,7 @@ pub struct QuantizeArgs {
     /// nuisances too (comma list of gain, gamma, noise, blur, occlude; `bino eval
     /// --nuisance`'s images, seed 0).
     #[arg(long, value_delimiter = ',', value_enum)]
-    head_calib_nuisance: Vec<bino_host::nuisance::Nuisance>,
+    head_calib_nuisance: Vec<bino_host::data::nuisance::Nuisance>,
     /// Folder with PAIRS.tsv; only `split = train` pairs are read.
     #[arg(long, default_value = "../shared/data")]
     calib: PathBuf,
@@ -95,7 +95,7 @@ pub fn run(args: QuantizeArgs) -> Result<()> {
     }
     // The blob must load in the engine before it is written.
     Int8Model::from_bytes(blob.clone(), &out.display().to_string())?;
-    bino_host::files::write_atomic(&out, |file| Ok(file.write_all(&blob)?))?;
+    bino_host::io::files::write_atomic(&out, |file| Ok(file.write_all(&blob)?))?;
     println!(
         "{}: {} bytes from {} ({} calibration bands, {:.1} s)",
         out.display(),

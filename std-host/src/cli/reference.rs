@@ -4,12 +4,13 @@ use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::{bail, ensure, Context, Result};
-use bino_host::image_io::{load_gray, GrayImage};
-use bino_host::npy::Array;
-use bino_host::profile::{Profile, View};
-use bino_host::reference::{FeatureMap, ReferenceEncoder};
-use bino_host::reference_head::ReferenceHead;
-use bino_host::{npz, synthetic};
+use bino_host::data::profile::{Profile, View};
+use bino_host::data::synthetic;
+use bino_host::float::reference::{FeatureMap, ReferenceEncoder};
+use bino_host::float::reference_head::ReferenceHead;
+use bino_host::io::image_io::{load_gray, GrayImage};
+use bino_host::io::npy::Array;
+use bino_host::io::npz;
 use clap::Args;
 
 use super::progress::Progress;
@@ -115,7 +116,7 @@ fn reference(
     }
     let named: Vec<(&str, &Array)> = arrays.iter().map(|(n, a)| (*n, a)).collect();
     progress.status("writing the archive");
-    bino_host::files::write_atomic(out, |file| npz::write(file, &named))?;
+    bino_host::io::files::write_atomic(out, |file| npz::write(file, &named))?;
     progress.finish();
     println!(
         "{source}: {}x{} at profile {profile}; tokens {}x{}x{}, descriptors {}x{}x{}; \

@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use bino_host::pathway::Pathway;
-use bino_host::profile::Profile;
+use bino_host::data::profile::Profile;
+use bino_host::readout::pathway::Pathway;
 use bino_host::run::RunOptions;
 use clap::Args;
 
@@ -60,7 +60,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     let pathway = args.pathway.pathway;
     let default = match args.readout {
         Some(readout) => readout,
-        None => pathway.default_readout(bino_host::profile::view_width(&args.left, args.profile)?),
+        None => pathway.default_readout(bino_host::data::profile::view_width(&args.left, args.profile)?),
     };
     let readout = args
         .refine

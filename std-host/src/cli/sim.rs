@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use bino_host::profile::Profile;
+use bino_host::data::profile::Profile;
 use bino_host::sim::SimOptions;
 use clap::Args;
 
@@ -59,7 +59,7 @@ pub struct SimArgs {
 /// Runs the verb.
 pub fn run(args: SimArgs) -> Result<()> {
     let width = match &args.left {
-        Some(left) => bino_host::profile::view_width(left, args.profile)?,
+        Some(left) => bino_host::data::profile::view_width(left, args.profile)?,
         None => bino_host::sim::DEFAULT_SCENE.0,
     };
     let opts = SimOptions {

@@ -11,9 +11,9 @@ use bino_core::config::HEAD_MAX_DISP;
 use tract_onnx::prelude::*;
 
 use super::stages::cosine;
+use crate::float::reference::FeatureMap;
+use crate::float::taps::TappedModel;
 use crate::int8::HeadMaps;
-use crate::reference::FeatureMap;
-use crate::taps::TappedModel;
 
 /// The float head's logits `(HEAD_MAX_DISP, rows, cols)` and disparity `(rows, cols)`.
 pub struct FloatHeadOutput {
@@ -76,7 +76,7 @@ pub struct HeadAgreement {
 /// Compares the int8 head's maps with the float head's on the same grid.
 pub fn compare_heads(int8: &HeadMaps, float: &FloatHeadOutput) -> Result<HeadAgreement> {
     let (rows, cols) = (int8.rows, int8.cols);
-    // Both searched the same candidates (the view width's, readout_eval::head_candidates).
+    // Both searched the same candidates (the view width's, readout::head_candidates).
     let nd = int8.logits.len() / (rows * cols).max(1);
     ensure!(
         nd > 0

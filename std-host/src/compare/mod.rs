@@ -11,7 +11,7 @@
 //! Per pair, from those descriptor maps: how often the integer winner-take-all disparity
 //! (argmax of the cosine similarity volume) agrees, and the `EVAL.md` metrics of the
 //! no-linkage readout for each model, upsampled (`nolink`) and refined (`nolink+ref`, the
-//! readouts' one refinement, [`crate::refine`]); the same for the head when it runs. Pairs are
+//! readouts' one refinement, [`crate::readout::refine`]); the same for the head when it runs. Pairs are
 //! averaged without weights, like the metrics.
 
 pub mod head;
@@ -27,19 +27,19 @@ use bino_core::config::{DIM, PATCH_H};
 use bino_core::model::ids::HeadKind;
 use bino_core::model::probe::Stage;
 
+use crate::data::nuisance::{degrade_item, Nuisance};
+use crate::data::pairs::{read_index, Split};
+use crate::data::profile::{Profile, View};
 use crate::eval::{
     load_eval_item, mean_metrics, score, similarity_volume, upsample_disparity, wta_subtoken, DisparityMap, EvalItem,
     Metrics, SimilarityVolume,
 };
-use crate::files::sha256_hex;
-use crate::float_head::FloatHead;
+use crate::float::head::FloatHead;
+use crate::float::reference::{FeatureMap, ReferenceEncoder};
 use crate::int8::{dequantise_residual, to_u8, HeadMaps, Int8Model, StageRecorder};
-use crate::nuisance::{degrade_item, Nuisance};
-use crate::pairs::{read_index, Split};
-use crate::profile::{Profile, View};
-use crate::readout_eval::head_candidates;
-use crate::reference::{FeatureMap, ReferenceEncoder};
-use crate::refine::{refine_pixels, GrayViews};
+use crate::io::files::sha256_hex;
+use crate::readout::head_candidates;
+use crate::readout::refine::{refine_pixels, GrayViews};
 use stages::{mean_token_cosine, EmbedSource, FloatStages, STAGE_COUNT};
 
 /// What to compare, and on which pairs.

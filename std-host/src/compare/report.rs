@@ -7,7 +7,7 @@ use serde::Serialize;
 
 use super::{CompareReport, Comparison, HeadComparison, NativeComparison, PairComparison};
 use crate::eval::Metrics;
-use crate::keyed::Keyed;
+use crate::io::keyed::Keyed;
 
 /// Target: mean per-cell descriptor cosine at least this.
 pub const DESCRIPTOR_COSINE_TARGET: f64 = 0.99;
@@ -378,8 +378,8 @@ mod tests {
     use std::time::Duration;
 
     use super::*;
-    use crate::pairs::Split;
-    use crate::profile::Profile;
+    use crate::data::pairs::Split;
+    use crate::data::profile::Profile;
 
     fn comparison(desc: f64, wta: f64, epe_float: f64, epe_int8: f64) -> Comparison {
         let m = |epe| Metrics {

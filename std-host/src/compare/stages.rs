@@ -8,7 +8,7 @@ use bino_core::config::{DEPTH, IN_CHANS};
 use bino_core::model::probe::Stage;
 use tract_onnx::prelude::{tract_ndarray, Tensor};
 
-use crate::taps::{BlockTap, TappedModel};
+use crate::float::taps::{BlockTap, TappedModel};
 
 /// Stages compared per band: the embedding, then attention and MLP halves of every block.
 /// A stage's index in this order is its residual format ([`Stage::residual_format`]).

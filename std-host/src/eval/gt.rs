@@ -9,8 +9,8 @@ use anyhow::{bail, ensure, Result};
 use image::DynamicImage;
 
 use super::nearest::resize_nearest_exact;
-use crate::pairs::{GroundTruth, GtFormat};
-use crate::profile::Profile;
+use crate::data::pairs::{GroundTruth, GtFormat};
+use crate::data::profile::Profile;
 
 /// Left-image disparity in pixels with its validity mask, row-major.
 #[derive(Debug, Clone, PartialEq)]
@@ -60,7 +60,7 @@ pub fn load_ground_truth(gt: &GroundTruth) -> Result<GroundTruthMap> {
     let path = &gt.path;
     let (width, height, disparity, valid) = match gt.format {
         GtFormat::Pfm => {
-            let stored = crate::pfm::load(path, "ground truth")?;
+            let stored = crate::io::pfm::load(path, "ground truth")?;
             let valid: Vec<bool> = stored
                 .values
                 .iter()
@@ -76,7 +76,7 @@ pub fn load_ground_truth(gt: &GroundTruth) -> Result<GroundTruthMap> {
             (stored.width, stored.height, disparity, valid)
         }
         format => {
-            let decoded = crate::image_io::decode(path, "ground truth")?;
+            let decoded = crate::io::image_io::decode(path, "ground truth")?;
             let (width, height) = (decoded.width() as usize, decoded.height() as usize);
             // Like the Python loader, refuse colour or another bit depth instead of converting.
             let raw: Vec<u16> = match (format, decoded) {
@@ -206,7 +206,7 @@ mod tests {
         let rows: [&[f32]; 2] = [&[1.0, 2.0, f32::INFINITY], &[0.0, f32::NAN, 12.0]];
         for little_endian in [true, false] {
             let path = dir.join(format!("disp-{little_endian}.pfm"));
-            std::fs::write(&path, crate::pfm::encode(&rows, little_endian)).unwrap();
+            std::fs::write(&path, crate::io::pfm::encode(&rows, little_endian)).unwrap();
             let gt = GroundTruth {
                 path,
                 format: GtFormat::Pfm,

@@ -5,7 +5,7 @@
 use anyhow::{ensure, Result};
 
 use super::DisparityMap;
-use crate::reference::FeatureMap;
+use crate::float::reference::FeatureMap;
 
 /// Disparity candidates (patch columns) the Python probe uses by default.
 pub const DEFAULT_MAX_COLS: usize = 10;

@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use super::*;
-use crate::pairs::read_index;
-use crate::profile::Profile;
-use crate::reference::FeatureMap;
+use crate::data::pairs::read_index;
+use crate::data::profile::Profile;
+use crate::float::reference::FeatureMap;
 
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/data")

@@ -5,9 +5,9 @@ use std::path::Path;
 use anyhow::{ensure, Context, Result};
 
 use super::gt::{load_ground_truth, resize_ground_truth, GroundTruthMap};
-use crate::image_io::load_gray;
-use crate::pairs::{read_index, PairRecord, Split};
-use crate::profile::{Profile, View};
+use crate::data::pairs::{read_index, PairRecord, Split};
+use crate::data::profile::{Profile, View};
+use crate::io::image_io::load_gray;
 
 /// One eval pair ready for scoring: both views and the ground truth at the same profile.
 #[derive(Debug, Clone, PartialEq)]

@@ -9,10 +9,10 @@ use bino_core::band::BandPlan;
 use bino_core::config::{BAND_ROWS, DEPTH, DIM, PATCH_H};
 use tract_onnx::prelude::*;
 
-use crate::image_io::load_gray;
-use crate::pairs::{read_index, Split};
-use crate::profile::{Profile, View};
-use crate::taps::TappedModel;
+use crate::data::pairs::{read_index, Split};
+use crate::data::profile::{Profile, View};
+use crate::float::taps::TappedModel;
+use crate::io::image_io::load_gray;
 
 /// Values kept per tensor per band: enough for percentiles, bounded memory.
 const SAMPLES_PER_BAND: usize = 8192;

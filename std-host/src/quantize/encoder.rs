@@ -13,8 +13,8 @@ use bino_core::model::weights::EMBED_INPUTS;
 
 use super::formats::{ChannelFormat, EncoderFormats};
 use super::scales::{quantize_rows, requant_of};
-use crate::blob_writer::BlobWriter;
-use crate::float_weights::{FloatEncoder, FloatLinear};
+use crate::float::weights::{FloatEncoder, FloatLinear};
+use crate::int8::blob_writer::BlobWriter;
 
 /// Fraction bits the attention output carries before its output factor.
 const AVG_FRAC_BITS: u32 = bino_core::kernels::attention::AVG_FRAC_BITS;

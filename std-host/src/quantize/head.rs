@@ -13,12 +13,12 @@ use tract_onnx::prelude::*;
 
 use super::calibrate::{z_scores, Samples};
 use super::scales::{asymmetric_format, percentile_sorted, quantize_rows, requant_of, symmetric_mse_scale};
-use crate::blob_writer::BlobWriter;
-use crate::float_head::{FloatConv3d, FloatHead};
-use crate::float_weights::FloatLinear;
-use crate::nuisance::{degrade_view, Nuisance};
-use crate::reference::FeatureMap;
-use crate::taps::TappedModel;
+use crate::data::nuisance::{degrade_view, Nuisance};
+use crate::float::head::{FloatConv3d, FloatHead};
+use crate::float::reference::FeatureMap;
+use crate::float::taps::TappedModel;
+use crate::float::weights::FloatLinear;
+use crate::int8::blob_writer::BlobWriter;
 
 /// Values kept per tensor per calibration map.
 const SAMPLES_PER_MAP: usize = 16_384;
@@ -375,17 +375,17 @@ pub fn calibration_maps(
     encoder_onnx: &Path,
     head: HeadKind,
     data: &Path,
-    profile: crate::profile::Profile,
+    profile: crate::data::profile::Profile,
     max_pairs: usize,
     nuisances: &[Nuisance],
 ) -> Result<Vec<(FeatureMap, FeatureMap)>> {
-    use crate::image_io::load_gray;
-    use crate::pairs::{read_index, Split};
+    use crate::data::pairs::{read_index, Split};
+    use crate::io::image_io::load_gray;
     let index = read_index(data)?;
     let train: Vec<_> = index.iter().filter(|p| p.split == Split::Train).collect();
     ensure!(!train.is_empty(), "{} lists no train-split pairs", data.display());
     let step = train.len().div_ceil(max_pairs.max(1)).max(1);
-    let mut encoder = crate::reference::ReferenceEncoder::load(encoder_onnx)?;
+    let mut encoder = crate::float::reference::ReferenceEncoder::load(encoder_onnx)?;
     let mut maps = Vec::new();
     for pair in train.iter().step_by(step) {
         let left = profile.apply(&load_gray(&pair.left)?)?;

@@ -12,7 +12,7 @@ pub mod formats;
 pub mod head;
 pub mod scales;
 
-use crate::nuisance::Nuisance;
+use crate::data::nuisance::Nuisance;
 use std::path::PathBuf;
 
 use anyhow::{ensure, Context, Result};
@@ -20,10 +20,10 @@ use bino_core::config::CELL_W;
 
 use bino_core::model::ids::HeadKind;
 
-use crate::blob_writer::BlobWriter;
-use crate::float_head::FloatHead;
-use crate::float_weights::FloatEncoder;
-use crate::profile::Profile;
+use crate::data::profile::Profile;
+use crate::float::head::FloatHead;
+use crate::float::weights::FloatEncoder;
+use crate::int8::blob_writer::BlobWriter;
 
 /// What `bino quantize` reads.
 #[derive(Debug, Clone)]

@@ -114,7 +114,7 @@ impl Framebuffer {
 
     /// Writes the picture as PNG through a temporary file (no partial file on failure).
     pub fn save_png(&self, path: &Path) -> Result<()> {
-        crate::files::save_png(&self.to_rgb888().into(), path)
+        crate::io::files::save_png(&self.to_rgb888().into(), path)
     }
 
     fn index(&self, x: i32, y: i32) -> Option<usize> {

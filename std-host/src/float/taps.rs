@@ -6,7 +6,7 @@ use std::path::Path;
 use anyhow::{ensure, Result};
 use tract_onnx::prelude::*;
 
-use crate::onnx::OnnxModel;
+use crate::float::onnx::OnnxModel;
 
 /// An ONNX model computing a chosen list of named values, with one optimised plan per input
 /// shape.

@@ -9,7 +9,7 @@ use std::process::Command;
 
 use anyhow::{bail, ensure, Context, Result};
 
-use crate::train_python::{pgm, tempdir, TrainPython};
+use crate::io::train_python::{pgm, tempdir, TrainPython};
 
 use crate::eval::DisparityMap;
 
@@ -86,7 +86,7 @@ impl SgbmRunner {
             .map(|(i, pair)| {
                 let path = dir.join(format!("{i}.npy"));
                 let bytes = std::fs::read(&path).with_context(|| format!("SGBM wrote no {}", path.display()))?;
-                let array = crate::npy::decode(&bytes)?;
+                let array = crate::io::npy::decode(&bytes)?;
                 ensure!(
                     array.shape == [pair.height, pair.width],
                     "SGBM disparity has shape {:?}, expected [{}, {}]",

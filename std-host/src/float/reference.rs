@@ -11,8 +11,8 @@ use bino_core::band::BandPlan;
 use bino_core::config::{check_view_size, IN_CHANS, PATCH_H};
 use tract_onnx::prelude::*;
 
-use crate::onnx::OnnxModel;
-use crate::profile::View;
+use crate::data::profile::View;
+use crate::float::onnx::OnnxModel;
 
 /// A token grid or descriptor map: `rows x cols x dim`, row-major (`dim` is 128 for the
 /// paper's encoder; smaller test configurations have fewer channels).

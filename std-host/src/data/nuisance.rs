@@ -15,17 +15,17 @@
 //! and the nuisance; gaussians by Box-Muller.
 //!
 //! ```
-//! use bino_host::nuisance::{degrade, Nuisance};
+//! use bino_host::data::nuisance::{degrade, Nuisance};
 //! let right = vec![100u8; 32 * 16];
 //! let a = degrade(Nuisance::Noise, &right, 32, 16, 0, "pair");
 //! assert_eq!(a, degrade(Nuisance::Noise, &right, 32, 16, 0, "pair"));
 //! assert_eq!(degrade(Nuisance::Gain, &[100], 1, 1, 0, "pair"), [90]);
 //! ```
 
+use crate::data::profile::View;
+use crate::data::rng::SplitMix64;
 use crate::eval::EvalItem;
 use crate::int8::to_u8;
-use crate::profile::View;
-use crate::rng::SplitMix64;
 
 /// Exposure gain of `gain`.
 pub const GAIN: f32 = 0.7;
@@ -167,7 +167,7 @@ fn occlude(src: &[u8], width: usize, height: usize, rng: &mut SplitMix64) -> Vec
 
 /// FNV-1a of the pair id, mixed with the seed and the nuisance.
 fn stream_seed(seed: u64, pair_id: &str, nuisance: Nuisance) -> u64 {
-    crate::rng::fnv1a(pair_id.as_bytes())
+    crate::data::rng::fnv1a(pair_id.as_bytes())
         ^ seed.wrapping_mul(0x9e37_79b9_7f4a_7c15)
         ^ (nuisance as u64 + 1).wrapping_mul(0xbf58_476d_1ce4_e5b9)
 }

@@ -49,7 +49,7 @@ pub fn rgb_to_gray(r: u8, g: u8, b: u8) -> u8 {
 /// non-empty file whose header declares at most [`MAX_IMAGE_SIDE`] pixels a side, decoded
 /// under the `image` crate's allocation limit. Every error names the file.
 pub fn decode(path: &Path, what: &str) -> Result<image::DynamicImage> {
-    let bytes = crate::files::read(path, what)?;
+    let bytes = crate::io::files::read(path, what)?;
     declared_size(&bytes, path, what)?;
     let mut limits = image::Limits::default();
     limits.max_image_width = Some(MAX_IMAGE_SIDE);
@@ -68,7 +68,7 @@ pub fn decode(path: &Path, what: &str) -> Result<image::DynamicImage> {
 /// Width and height the image file `path` declares, read from its header; errors as
 /// [`decode`]'s.
 pub fn dimensions(path: &Path, what: &str) -> Result<(usize, usize)> {
-    let bytes = crate::files::read(path, what)?;
+    let bytes = crate::io::files::read(path, what)?;
     let (width, height) = declared_size(&bytes, path, what)?;
     Ok((width as usize, height as usize))
 }

@@ -12,8 +12,8 @@ use anyhow::{ensure, Context, Result};
 use bino_core::config::{HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
 use bino_core::model::ids::HeadKind;
 
-use crate::float_weights::{FloatLinear, ONNX_DEFAULT_LN_EPS};
-use crate::onnx_params::OnnxParams;
+use crate::float::onnx_params::OnnxParams;
+use crate::float::weights::{FloatLinear, ONNX_DEFAULT_LN_EPS};
 
 /// Kernel extent of every head convolution along disparity, row and column.
 pub const HEAD_KERNEL: usize = 3;
@@ -342,8 +342,8 @@ mod tests {
     #[test]
     #[ignore = "needs BINO_HEAD_ONNX pointing at a head export"]
     fn head_export_projection_matches_tract() {
-        use crate::taps::fixture_run::random_pixels;
-        use crate::taps::TappedModel;
+        use crate::float::taps::fixture_run::random_pixels;
+        use crate::float::taps::TappedModel;
         use tract_onnx::prelude::*;
 
         let path = std::path::PathBuf::from(std::env::var("BINO_HEAD_ONNX").expect("set BINO_HEAD_ONNX"));

@@ -15,9 +15,9 @@ use bino_core::pipeline::Refine;
 use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{keep_rejected_map, refine_map, scratch_len, RefineParams};
 
+use crate::data::profile::View;
 use crate::eval::DisparityMap;
 use crate::int8::to_u8;
-use crate::profile::View;
 
 /// The two views of a pair as the pipeline reads them: 8-bit gray, row-major, one size.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -24,7 +24,7 @@ impl OnnxModel {
     /// named in the file (selected before optimisation, so tract keeps them); fails unless it
     /// takes `inputs` inputs.
     pub fn load_outputs(path: &Path, outputs: &[String], inputs: usize) -> Result<Self> {
-        crate::files::input(path, "ONNX model")?;
+        crate::io::files::input(path, "ONNX model")?;
         ensure!(
             !outputs.is_empty(),
             "no outputs requested from ONNX model {}",

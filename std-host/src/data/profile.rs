@@ -7,7 +7,7 @@ use std::str::FromStr;
 use anyhow::{bail, ensure, Result};
 use bino_core::config::{CELL_W, PATCH_H};
 
-use crate::image_io::GrayImage;
+use crate::io::image_io::GrayImage;
 
 /// How a view is brought to the size the encoder runs at.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -206,7 +206,7 @@ pub fn resize_nearest<T: Copy>(src: &[T], sw: usize, sh: usize, dw: usize, dh: u
 /// width-dependent defaults (`Pathway::default_readout`) follow. Errors name the file.
 pub fn view_width(path: &std::path::Path, profile: Profile) -> Result<usize> {
     use anyhow::Context;
-    let (width, height) = crate::image_io::dimensions(path, "image")?;
+    let (width, height) = crate::io::image_io::dimensions(path, "image")?;
     let size = profile
         .size(width, height)
         .with_context(|| format!("{}", path.display()))?;
@@ -217,7 +217,10 @@ pub fn view_width(path: &std::path::Path, profile: Profile) -> Result<usize> {
 /// the profile cannot take, are errors naming the files.
 pub fn load_profiled_pair(left: &std::path::Path, right: &std::path::Path, profile: Profile) -> Result<(View, View)> {
     use anyhow::Context;
-    let (l, r) = (crate::image_io::load_gray(left)?, crate::image_io::load_gray(right)?);
+    let (l, r) = (
+        crate::io::image_io::load_gray(left)?,
+        crate::io::image_io::load_gray(right)?,
+    );
     ensure!(
         (l.width, l.height) == (r.width, r.height),
         "the views differ in size: {} is {}x{}, {} is {}x{}",
@@ -263,9 +266,9 @@ mod tests {
 
     #[test]
     fn view_width_reads_the_header_and_applies_the_profile() {
-        let dir = crate::train_python::tempdir("view-width").unwrap();
+        let dir = crate::io::train_python::tempdir("view-width").unwrap();
         let path = dir.join("view.pgm");
-        std::fs::write(&path, crate::train_python::pgm(&[0; 432 * 381], 432, 381)).unwrap();
+        std::fs::write(&path, crate::io::train_python::pgm(&[0; 432 * 381], 432, 381)).unwrap();
         assert_eq!(view_width(&path, Profile::W160).unwrap(), 160);
         assert_eq!(view_width(&path, Profile::W320).unwrap(), 320);
         // 381 rows do not fit `native` (not a multiple of 4): an error naming the file.

@@ -10,7 +10,7 @@ use std::path::Path;
 use anyhow::{ensure, Context, Result};
 use bino_core::config::{BAND_TOKEN_ROWS, DEPTH, DIM, HEADS, IN_CHANS, MLP_HIDDEN, PATCH_H, PATCH_W};
 
-use crate::onnx_params::OnnxParams;
+use crate::float::onnx_params::OnnxParams;
 
 /// An `nn.Linear`: `y = weight · x + bias`.
 #[derive(Debug, Clone, PartialEq)]
@@ -207,8 +207,8 @@ fn check_config(params: &OnnxParams) -> Result<f32> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::taps::fixture_run::{block0_run, encoder_fixture, HEIGHT, TOKENS, WIDTH};
-    use crate::taps::BlockTap;
+    use crate::float::taps::fixture_run::{block0_run, encoder_fixture, HEIGHT, TOKENS, WIDTH};
+    use crate::float::taps::BlockTap;
 
     fn fixture() -> &'static FloatEncoder {
         static ENCODER: std::sync::OnceLock<FloatEncoder> = std::sync::OnceLock::new();

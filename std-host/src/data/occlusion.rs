@@ -10,7 +10,7 @@
 //! severity), `OccAUC` (mean over the non-zero severities) and `Δ40` (largest minus clean).
 //!
 //! ```
-//! use bino_host::occlusion::occlude_right;
+//! use bino_host::data::occlusion::occlude_right;
 //! let right = vec![7u8; 64 * 32];
 //! let out = occlude_right(&right, 64, 32, 25, 0, "pair").unwrap();
 //! // 25 % of the 16 x 8 token cells, 4x4 pixels each, are mid-grey.
@@ -19,11 +19,11 @@
 
 use anyhow::{ensure, Result};
 
+use crate::data::nuisance::OCCLUDE_FILL;
+use crate::data::profile::View;
+use crate::data::rng::{fnv1a, SplitMix64};
 use crate::eval::EvalItem;
 use crate::int8::to_u8;
-use crate::nuisance::OCCLUDE_FILL;
-use crate::profile::View;
-use crate::rng::{fnv1a, SplitMix64};
 
 /// Pixels per token cell side (`PATCH_H` rows, `CELL_W` columns).
 const CELL: usize = bino_core::config::PATCH_H;

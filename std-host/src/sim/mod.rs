@@ -28,13 +28,13 @@ use embedded_graphics::prelude::*;
 use embedded_graphics::primitives::Rectangle;
 use embedded_graphics::text::{Baseline, Text};
 
-use crate::colour::colourise;
-use crate::image_io::GrayImage;
+use crate::data::profile::{load_profiled_pair, Profile, View};
+use crate::data::synthetic::default_scene;
 use crate::int8::{to_u8, Int8Model};
-use crate::pathway::Pathway;
-use crate::profile::{load_profiled_pair, Profile, View};
+use crate::io::colour::colourise;
+use crate::io::image_io::GrayImage;
+use crate::readout::pathway::Pathway;
 use crate::readout::{Method, Readout};
-use crate::synthetic::default_scene;
 use display::{DisplaySize, Framebuffer};
 use sensor::SensorSource;
 
@@ -138,12 +138,12 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         pathway: opts.pathway.core(),
         max_cols: opts.max_cols,
         penalties: opts.penalties,
-        lr_max_diff_q8: crate::readout_eval::lr_tolerance_q8(opts.lr_max_diff),
+        lr_max_diff_q8: crate::readout::lr_tolerance_q8(opts.lr_max_diff),
         head: opts.readout.uses_head(),
         // The head's own left-right check: the display darkens (or, for head+lr, fills) the
         // cells it rejects, as for the other methods.
         head_lr: opts.readout.uses_head(),
-        head_candidates: crate::readout_eval::head_candidates(width),
+        head_candidates: crate::readout::head_candidates(width),
     };
     // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
     let refine = opts

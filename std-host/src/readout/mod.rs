@@ -1,7 +1,7 @@
 //! The readouts, each defined once for every command (`bino run`, `eval`, `sim`, the firmware
 //! through `bino_core::pipeline`): a method's token-grid disparity, optionally with its own
 //! left-right check, then to pixels: bilinear upsampling (EVAL.md), or with `+ref` the integer
-//! pixel refinement (`bino_core::refine`, through [`crate::refine`]).
+//! pixel refinement (`bino_core::refine`, through [`crate::readout::refine`]).
 //!
 //! | readout | token grid |
 //! |---|---|
@@ -11,7 +11,7 @@
 //! | suffix | pixels |
 //! |---|---|
 //! | (none) | the token grid upsampled bilinearly (EVAL.md) |
-//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, 9x9 box of costs, search +-round(width / 80) px within 2..=8, [`bino_core::refine::RefineParams::for_width`]) on the pair's 8-bit gray views, Q8 px / 256; with `+lr` the pixels of the cells the check rejected keep the bilinear step (`bino_core::refine::keep_rejected_map`) |
+//! | `+ref` (after `+lr` when both: `head+lr+ref`) | the token grid in Q8 ([`crate::readout::refine::tokens_q8`]), refined by `bino_core::refine::sharpness::refine_map_equalised` (sharpness equalisation, then census 5x5, 9x9 box of costs, search +-round(width / 80) px within 2..=8, [`bino_core::refine::RefineParams::for_width`]) on the pair's 8-bit gray views, Q8 px / 256; with `+lr` the pixels of the cells the check rejected keep the bilinear step (`bino_core::refine::keep_rejected_map`) |
 //!
 //! Every pixel gets a value (the maps are dense); the pixels of rejected cells are known from
 //! the method's mask, not from the disparity.
@@ -20,13 +20,17 @@
 //! and `sgm` the right view comes from the reindexed cost row (`bino_core::lr`), for `head` from
 //! the head on the mirrored pair (`bino_core::model::head::HeadView::Right`).
 
+pub mod pathway;
+pub mod refine;
+
 use std::fmt;
 use std::str::FromStr;
 
 use anyhow::{bail, ensure, Context, Result};
+use bino_core::config::{CELL_W, HEAD_CANDIDATES_LIMIT, HEAD_MAX_DISP};
 
 use crate::eval::{upsample_disparity, DisparityMap};
-use crate::refine::{refine_pixels, GrayViews};
+use crate::readout::refine::{refine_pixels, GrayViews};
 
 /// How disparity is read from the descriptors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -202,7 +206,7 @@ impl MethodMaps {
     }
 
     /// The readout's pixel disparity: [`MethodMaps::tokens`] upsampled bilinearly (EVAL.md),
-    /// or refined on [`MethodMaps::views`] for `+ref` ([`crate::refine::refine_pixels`]).
+    /// or refined on [`MethodMaps::views`] for `+ref` ([`crate::readout::refine::refine_pixels`]).
     /// What `bino run` writes and `bino eval` scores.
     pub fn pixels(&self, readout: Readout) -> Result<DisparityMap> {
         let tokens = self.tokens(readout)?;
@@ -218,6 +222,22 @@ impl MethodMaps {
             Ok(upsample_disparity(&tokens))
         }
     }
+}
+
+/// A left-right tolerance in patch columns as the core's Q8.
+pub fn lr_tolerance_q8(columns: f32) -> u16 {
+    (columns.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16
+}
+
+/// Disparity candidates of the heads for views `width` px wide, in patch columns: the
+/// StereoSGBM reference's search range at that width (EVAL.md: `numDisparities` 32 px per
+/// 160 px of width, 64 px = 16 columns at w320), never fewer than the
+/// [`HEAD_MAX_DISP`] = 12 they were trained with (44 px: a w160 view's disparities stay below
+/// 28 px on the eval split, while 8 % of the w320 ground truth lies above 40 px). Every command
+/// and precision uses it, so a readout has one definition per width.
+pub fn head_candidates(width: usize) -> usize {
+    let sgbm_px = 16 * (2 * width).div_ceil(160);
+    (sgbm_px / CELL_W).clamp(HEAD_MAX_DISP, HEAD_CANDIDATES_LIMIT)
 }
 
 #[cfg(test)]
@@ -345,5 +365,13 @@ mod tests {
             refined.values.iter().filter(|&&d| (d - 5.0).abs() < 0.25).count() > 32 * 12 / 2,
             "the refinement finds the views' 5 px shift"
         );
+    }
+
+    /// The rule `train/bino_train/head.py::head_candidates` repeats (its test pins the same
+    /// values): SGBM's range at the width, never below the trained 12, at most the limit.
+    #[test]
+    fn head_candidates_follow_the_sgbm_range_of_the_width() {
+        let counts: Vec<usize> = [32, 160, 320, 400, 4000].into_iter().map(head_candidates).collect();
+        assert_eq!(counts, [12, 12, 16, 20, 64]);
     }
 }

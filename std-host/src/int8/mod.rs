@@ -2,6 +2,9 @@
 //! (overlapping bands, like the float reference), and dequantised stage outputs for
 //! comparisons.
 
+pub mod blob_writer;
+pub mod pipeline_maps;
+
 use std::path::{Path, PathBuf};
 
 use anyhow::{ensure, Context, Result};
@@ -14,9 +17,9 @@ use bino_core::model::ids::{self, kind, HeadKind};
 use bino_core::model::probe::{NoProbe, Probe, Stage};
 use bino_core::{matching, sgm};
 
+use crate::data::profile::View;
 use crate::eval::DisparityMap;
-use crate::profile::View;
-use crate::reference::FeatureMap;
+use crate::float::reference::FeatureMap;
 
 /// A weight blob read from a file, with its encoder validated.
 pub struct Int8Model {
@@ -27,7 +30,7 @@ pub struct Int8Model {
 impl Int8Model {
     /// Reads and validates `path` (made by `bino quantize`).
     pub fn load(path: &Path) -> Result<Self> {
-        let bytes = crate::files::read(path, "weight blob")?;
+        let bytes = crate::io::files::read(path, "weight blob")?;
         let model = Self {
             path: path.to_path_buf(),
             bytes,

@@ -9,13 +9,15 @@
 //!
 //! With `onnxruntime` (the default), the project's Python environment also times onnxruntime's
 //! float session and its dynamic int8 quantisation on the same pixels, one thread each
-//! ([`crate::ort_bench`]). The engines take turns: every round runs each engine once, so the
+//! ([`crate::bench::ort`]). The engines take turns: every round runs each engine once, so the
 //! drift of a shared machine reaches them all alike.
 //!
 //! Threads: this build of tract-onnx lacks the `multithread-mm` feature (no rayon), so its
 //! only executor is `Executor::SingleThread`; the int8 engine never spawns threads. Both
 //! therefore run on the calling thread, and only `--threads 1` exists. The report also counts
 //! the process's threads after the runs (Linux), as evidence.
+
+pub mod ort;
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -27,13 +29,13 @@ use bino_core::model::probe::NoProbe;
 use serde::Serialize;
 use tract_onnx::prelude::{tract_ndarray, Tensor};
 
-use crate::files::sha256_hex;
+use crate::bench::ort::{OrtServer, OrtSession};
+use crate::data::profile::Profile;
+use crate::data::synthetic;
+use crate::float::onnx::OnnxModel;
 use crate::int8::Int8Model;
-use crate::onnx::OnnxModel;
-use crate::ort_bench::{OrtServer, OrtSession};
-use crate::profile::Profile;
-use crate::synthetic;
-use crate::train_python::TrainPython;
+use crate::io::files::sha256_hex;
+use crate::io::train_python::TrainPython;
 
 /// What to time.
 #[derive(Debug, Clone)]

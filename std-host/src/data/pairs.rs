@@ -136,7 +136,7 @@ pub fn read_index(path: &Path) -> Result<Vec<PairRecord>> {
     } else {
         path.to_path_buf()
     };
-    let text = crate::files::read_text(&file, "pair index")?;
+    let text = crate::io::files::read_text(&file, "pair index")?;
     let root = file.parent().unwrap_or(Path::new("."));
     parse_index(&text, root).with_context(|| format!("pair index {}", file.display()))
 }

@@ -9,7 +9,7 @@ use npyz::npz::{array_name_from_file_name, file_name_from_array_name};
 use zip::write::SimpleFileOptions;
 use zip::{CompressionMethod, ZipArchive, ZipWriter};
 
-use crate::npy::{self, Array};
+use crate::io::npy::{self, Array};
 
 /// Writes `arrays` as members `NAME.npy` of a stored (uncompressed) ZIP archive.
 pub fn write<W: Write>(mut out: W, arrays: &[(&str, &Array)]) -> Result<()> {

@@ -10,11 +10,11 @@ use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Report, Sink, SlicePair, Stage};
 
+use crate::data::profile::View;
 use crate::eval::DisparityMap;
 use crate::int8::Int8Model;
-use crate::profile::View;
+use crate::readout::refine::GrayViews;
 use crate::readout::MethodMaps;
-use crate::refine::GrayViews;
 
 /// Every method of one run as token-grid maps (patch columns), with their left-right masks.
 #[derive(Debug, Clone)]

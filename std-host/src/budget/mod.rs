@@ -285,7 +285,7 @@ impl CoreRun {
         // The ELF the run used, if it is still there and unchanged (a later build overwrites it).
         let same_elf = run.elf.and_then(|path| {
             let bytes = std::fs::read(&path).ok()?;
-            (Some(crate::files::sha256_hex(&bytes)) == run.elf_sha256).then_some((path, bytes))
+            (Some(crate::io::files::sha256_hex(&bytes)) == run.elf_sha256).then_some((path, bytes))
         });
         let (sections, section_source) = match same_elf {
             Some((path, bytes)) => {
@@ -444,7 +444,7 @@ pub fn load_runs(dir: &Path) -> Result<Vec<CoreRun>> {
         if !path.exists() {
             continue;
         }
-        let text = crate::files::read_text(&path, "firmware result")?;
+        let text = crate::io::files::read_text(&path, "firmware result")?;
         runs.push(CoreRun::parse(&text).with_context(|| format!("{}", path.display()))?);
     }
     if runs.is_empty() {
@@ -760,13 +760,13 @@ pub fn run_budget(opts: &BudgetOptions) -> Result<String> {
         write_file(path, md.as_bytes())?;
     }
     if let Some(path) = &opts.png {
-        crate::files::save_png(&chart::draw(&runs)?.into(), path)?;
+        crate::io::files::save_png(&chart::draw(&runs)?.into(), path)?;
     }
     Ok(md)
 }
 
 fn write_file(path: &Path, bytes: &[u8]) -> Result<()> {
-    crate::files::write_bytes(path, bytes)
+    crate::io::files::write_bytes(path, bytes)
 }
 
 /// The bar chart: memory per stage (arena in use, stack peak) and instructions per stage per
@@ -948,7 +948,7 @@ mod tests {
             v["elf_sha256"] = json!(sha);
             CoreRun::parse(&v.to_string()).unwrap()
         };
-        let same = with(&crate::files::sha256_hex(&elf));
+        let same = with(&crate::io::files::sha256_hex(&elf));
         assert_eq!(same.section_source, SectionSource::Elf(path.clone()));
         assert_eq!(
             (same.sections.code, same.sections.weights, same.sections.uninit),

@@ -7,8 +7,8 @@ use std::path::Path;
 use anyhow::{ensure, Context, Result};
 use tract_onnx::prelude::*;
 
-use crate::onnx::OnnxModel;
-use crate::reference::FeatureMap;
+use crate::float::onnx::OnnxModel;
+use crate::float::reference::FeatureMap;
 
 /// Disparity on the token grid, in patch columns (multiply by 4 for view pixels).
 #[derive(Debug, Clone, PartialEq)]

@@ -19,7 +19,7 @@ use std::path::Path;
 
 use anyhow::{bail, ensure, Context, Result};
 
-use crate::image_io::MAX_IMAGE_SIDE;
+use crate::io::image_io::MAX_IMAGE_SIDE;
 
 /// A one-channel float image, row-major, top row first.
 #[derive(Debug, Clone, PartialEq)]
@@ -34,7 +34,7 @@ pub struct FloatImage {
 
 /// Reads the PFM file `path` (the command's `what`, e.g. "ground truth"); every error names it.
 pub fn load(path: &Path, what: &str) -> Result<FloatImage> {
-    let bytes = crate::files::read(path, what)?;
+    let bytes = crate::io::files::read(path, what)?;
     decode(&bytes).with_context(|| format!("cannot decode {what} {} (PFM)", path.display()))
 }
 

@@ -11,7 +11,7 @@ use std::process::{Child, ChildStdin, ChildStdout, Command, Stdio};
 
 use anyhow::{bail, Context, Result};
 
-use crate::train_python::{pgm, tempdir, TrainPython};
+use crate::io::train_python::{pgm, tempdir, TrainPython};
 
 /// One of the server's sessions.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]

@@ -5,7 +5,7 @@
 //! front of it). Left pixel `x` sees the nearest plane covering it; the same point appears in
 //! the right view at `x - d` (the convention of `DATA.md`: `left(x, y) = right(x - d, y)`).
 
-use crate::image_io::GrayImage;
+use crate::io::image_io::GrayImage;
 
 /// A rectangle of constant disparity, in left-view pixels.
 #[derive(Debug, Clone, Copy, PartialEq)]

@@ -4,16 +4,16 @@
 //! The ONNX exports bake their candidate count (12) into the graph, but no weight depends on
 //! it: the correlation and the 3D convolutions slide along the disparity axis. Views wider than
 //! the heads' training crops (w320) reach further disparities, and the int8 engine searches more
-//! candidates there ([`crate::readout_eval::head_candidates`]); this forward pass is their float
+//! candidates there ([`crate::readout::head_candidates`]); this forward pass is their float
 //! twin. At the exported count it matches tract on the ONNX graph (tested below).
 
 use anyhow::{ensure, Result};
 use bino_core::model::ids::HeadKind;
 
 use crate::compare::head::FloatHeadOutput;
-use crate::float_head::{FloatConv3d, FloatHead};
-use crate::float_weights::FloatLinear;
-use crate::reference::FeatureMap;
+use crate::float::head::{FloatConv3d, FloatHead};
+use crate::float::reference::FeatureMap;
+use crate::float::weights::FloatLinear;
 
 /// Subtracted from the logits of candidates outside the right view (`MASKED_LOGIT` of
 /// `train/bino_train/head.py`).
@@ -222,7 +222,7 @@ mod tests {
 
     use super::*;
     use crate::compare::head::FloatHeadRunner;
-    use crate::rng::SplitMix64;
+    use crate::data::rng::SplitMix64;
 
     fn fixture(name: &str) -> PathBuf {
         PathBuf::from(env!("CARGO_MANIFEST_DIR"))

@@ -1,0 +1,13 @@
+//! Files in and out: safe reads and atomic writes ([`files`]), views as 8-bit gray
+//! ([`image_io`]), PFM ([`pfm`]), `.npy` / `.npz` arrays ([`npy`], [`npz`]), false-colour
+//! pictures ([`colour`]), JSON objects in their keys' order (`keyed`) and the project's Python
+//! environment, which some commands run ([`train_python`]).
+
+pub mod colour;
+pub mod files;
+pub mod image_io;
+pub(crate) mod keyed;
+pub mod npy;
+pub mod npz;
+pub mod pfm;
+pub mod train_python;
