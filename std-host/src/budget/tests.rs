@@ -1,0 +1,316 @@
+//! `bino budget`'s tests: firmware runs as JSON, a minimal ELF, and what the reports make of them.
+
+use serde_json::{json, Value};
+
+use super::*;
+
+/// A minimal 32-bit little-endian ELF with the given sections (names and sizes only).
+fn tiny_elf(sections: &[(&str, u32)]) -> Vec<u8> {
+    let mut names = vec![0u8];
+    let mut name_at = Vec::new();
+    for (n, _) in sections.iter().chain([(".shstrtab", 0)].iter()) {
+        name_at.push(names.len() as u32);
+        names.extend_from_slice(n.as_bytes());
+        names.push(0);
+    }
+    let shoff = 52 + names.len();
+    let shnum = sections.len() + 2;
+    let mut elf = vec![0u8; 52];
+    elf[..7].copy_from_slice(b"\x7fELF\x01\x01\x01"); // 32-bit, little-endian, version 1
+    elf[0x20..0x24].copy_from_slice(&(shoff as u32).to_le_bytes());
+    elf[0x2E..0x30].copy_from_slice(&40u16.to_le_bytes());
+    elf[0x30..0x32].copy_from_slice(&(shnum as u16).to_le_bytes());
+    elf[0x32..0x34].copy_from_slice(&((shnum - 1) as u16).to_le_bytes());
+    elf.extend_from_slice(&names);
+    elf.extend_from_slice(&[0u8; 40]); // the null section
+    for (i, (_, size)) in sections
+        .iter()
+        .chain([(".shstrtab", names.len() as u32)].iter())
+        .enumerate()
+    {
+        let mut h = [0u8; 40];
+        h[..4].copy_from_slice(&name_at[i].to_le_bytes());
+        h[16..20].copy_from_slice(&(if i == sections.len() { 52u32 } else { 0 }).to_le_bytes());
+        h[20..24].copy_from_slice(&size.to_le_bytes());
+        elf.extend_from_slice(&h);
+    }
+    elf
+}
+
+#[test]
+fn elf_section_headers_are_read() {
+    let elf = tiny_elf(&[(".text", 43756), (".weights", 1537200), (".uninit", 486928)]);
+    let got = elf_sections(&elf).unwrap();
+    assert_eq!(
+        got,
+        vec![
+            (".text".to_string(), 43756),
+            (".weights".to_string(), 1537200),
+            (".uninit".to_string(), 486928),
+            (".shstrtab".to_string(), 34),
+        ]
+    );
+    assert!(elf_sections(b"not an elf").is_err());
+    assert!(
+        elf_sections(&elf[..60]).is_err(),
+        "truncated headers are an error, not a panic"
+    );
+}
+
+#[test]
+fn sections_are_grouped_into_flash_and_ram() {
+    let s = Sections::from_named(
+        [
+            (".vector_table", 100),
+            (".text", 1000),
+            (".rodata", 50),
+            (".data", 4),
+            (".bss", 16),
+        ]
+        .map(|(n, v)| (n.to_string(), v)),
+    );
+    assert_eq!((s.code, s.code_flash(), s.bss, s.weights), (1150, 1154, 16, 0));
+}
+
+fn run_json(core: &str, encode: u64) -> String {
+    json!({
+        "schema": "bino-firmware-run/1", "core": core, "cpu": "cpu", "board": "board",
+        "band": {"height": 48, "width": 160}, "passed": true, "qemu_wall_seconds": 10.0,
+        "elf": "/nonexistent/bino-firmware",
+        "elf_sections": {".text": {"size": 40000, "addr": 0}, ".rodata": {"size": 2000, "addr": 0},
+                         ".data": {"size": 4, "addr": 0}, ".bss": {"size": 16, "addr": 0},
+                         ".uninit": {"size": 486928, "addr": 0}, ".weights": {"size": 1537200, "addr": 0}},
+        "arena_bytes": 486918, "arena_used": 486912, "stack_bytes": 32768,
+        "arena_breakdown": {"pixels": 15360, "refine": 6881},
+        "stages": [
+            {"name": "load", "instructions": 8_000_000u64, "arena_in_use": 0, "stack_peak": 1784},
+            {"name": "encode_left", "instructions": encode, "arena_in_use": 486912, "stack_peak": 7360},
+            {"name": "head", "instructions": 100u64, "arena_in_use": 369256, "stack_peak": 6852},
+            {"name": "refine", "instructions": 60_000_000u64, "arena_in_use": 300000, "stack_peak": 2000},
+        ],
+        "startup_instructions": 5, "outside_instructions": 7,
+    })
+    .to_string()
+}
+
+#[test]
+fn runs_parse_and_add_up() {
+    let r = CoreRun::parse(&run_json("m55", 700_000_000)).unwrap();
+    assert_eq!(r.section_source, SectionSource::Recorded);
+    assert_eq!(
+        r.band_pair_instructions(),
+        760_000_100,
+        "load is a boot cost, not per band pair"
+    );
+    assert_eq!(r.refine_arena, Some(6881));
+    assert_eq!(r.stage_instructions("refine"), Some(60_000_000));
+    assert_eq!((r.stack_peak(), r.arena_high_water()), (7360, 486912));
+    assert_eq!(r.ram_reserved(), 4 + 16 + 486928 + 32768);
+    assert_eq!(r.ram_used(), 4 + 16 + 486912 + 7360);
+    assert!(CoreRun::parse("{}").is_err());
+    assert!(CoreRun::parse(&run_json("m55", 1).replace("bino-firmware-run/1", "other")).is_err());
+}
+
+/// `run_json` with class counts on every stage: all its instructions `other`, plus the
+/// given adjustments.
+fn run_json_with_classes(core: &str, encode: u64, adjustments: Value) -> String {
+    let mut v: Value = serde_json::from_str(&run_json(core, encode)).unwrap();
+    for stage in v["stages"].as_array_mut().unwrap() {
+        let n = stage["instructions"].as_u64().unwrap();
+        stage["classes"] = json!({"mve": 0, "fp": 0, "mul": 0, "div": 0, "load_store": 0,
+                                  "branch": 0, "loop": 0, "other": n});
+        stage["cycle_adjustments"] = adjustments.clone();
+    }
+    v.to_string()
+}
+
+#[test]
+fn class_counts_are_optional_checked_and_priced() {
+    let old = CoreRun::parse(&run_json("m7", 1000)).unwrap();
+    assert!(!old.has_class_counts());
+    assert_eq!(old.band_pair_modelled_cycles(), None);
+    assert!(markdown(&[old]).contains("M7: no class counts in this run"));
+
+    let adj = json!({"mve_overlap": 0, "dual_issue_pair": 100, "extra_words": 10});
+    let r = CoreRun::parse(&run_json_with_classes("m7", 1000, adj.clone())).unwrap();
+    assert!(r.has_class_counts());
+    // encode_left: 1000 `other` at 1, 100 pairs at -0.5, 10 extra words at 0.5.
+    assert_eq!(r.stages[1].modelled_cycles("m7"), Some(1000.0 - 50.0 + 5.0));
+    // Band pair: encode_left, head (100), refine (60M), each with the same adjustments.
+    assert_eq!(
+        r.band_pair_modelled_cycles(),
+        Some((1000 + 100 + 60_000_000) as f64 + 3.0 * (-50.0 + 5.0))
+    );
+    let md = markdown(std::slice::from_ref(&r));
+    assert!(md.contains("a model, not a measurement"), "{md}");
+    assert!(md.contains("| encode_left | 0.0 | 955 | 0.0 | 0.95 |"), "{md}");
+    assert!(md.contains("| dual_issue_pair | 300 | -0.5 |"), "{md}");
+    let j = to_json(std::slice::from_ref(&r));
+    let cm = j.cores[0].cycle_model.as_ref().unwrap();
+    assert_eq!(cm.class_counts["other"], 1000 + 100 + 60_000_000);
+    assert_eq!(j.cores[0].stages[1].modelled_cycles, Some(955.0));
+
+    let mut bad: Value = serde_json::from_str(&run_json_with_classes("m55", 1000, adj)).unwrap();
+    bad["stages"][1]["classes"]["other"] = json!(999);
+    let err = format!("{:#}", CoreRun::parse(&bad.to_string()).unwrap_err());
+    assert!(err.contains("encode_left") && err.contains("add up to 999"), "{err}");
+    bad["stages"][1]["classes"]["other"] = json!(1000);
+    bad["stages"][1]["cycle_adjustments"]["warp"] = json!(1);
+    let err = format!("{:#}", CoreRun::parse(&bad.to_string()).unwrap_err());
+    assert!(err.contains("\"warp\" has no cost"), "{err}");
+}
+
+#[test]
+fn the_elf_is_read_only_when_it_is_the_one_measured() {
+    let dir = std::env::temp_dir().join(format!("bino-budget-elf-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("bino-firmware");
+    let elf = tiny_elf(&[(".text", 1000), (".weights", 77), (".uninit", 5)]);
+    std::fs::write(&path, &elf).unwrap();
+    let with = |sha: &str| {
+        let mut v: Value = serde_json::from_str(&run_json("m55", 1)).unwrap();
+        v["elf"] = json!(path.to_str().unwrap());
+        v["elf_sha256"] = json!(sha);
+        CoreRun::parse(&v.to_string()).unwrap()
+    };
+    let same = with(&crate::io::files::sha256_hex(&elf));
+    assert_eq!(same.section_source, SectionSource::Elf(path.clone()));
+    assert_eq!(
+        (same.sections.code, same.sections.weights, same.sections.uninit),
+        (1000, 77, 5)
+    );
+    let rebuilt = with("0000");
+    assert_eq!(rebuilt.section_source, SectionSource::Recorded);
+    assert_eq!(rebuilt.sections.weights, 1537200, "the sizes recorded at the run");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn verdicts_judge_the_targets() {
+    let m55 = CoreRun::parse(&run_json("m55", 680_000_000)).unwrap();
+    let m7 = CoreRun::parse(&run_json("m7", 4_740_000_000)).unwrap();
+    let v = verdicts(&[m55.clone(), m7]);
+    let met: Vec<bool> = v.iter().map(|v| v.met).collect();
+    // weights 1,537,200 B <= 1.5 MiB; arena 486,918 <= 512 KiB; M55 740M <= 800M and its
+    // refinement 60M of a 680M pass (8.8 %); M7 10 s > 8 s and 60M of 4740M.
+    assert_eq!(met, [true, true, true, true, false, true], "{v:#?}");
+    assert!(v[3].measured.starts_with("60.0M (8.82 %"), "{}", v[3].measured);
+    assert!(v[4].measured.starts_with("10.00 s"), "{}", v[4].measured);
+    let slow = CoreRun::parse(&run_json("m55", 500_000_000)).unwrap();
+    let v = verdicts(&[slow]);
+    assert!(v[2].met && !v[3].met, "{v:#?}: 60M is 12 % of a 500M pass");
+    assert!((clock("m55").ms(400_000_000) - 1000.0).abs() < 1e-9);
+    assert!((clock("m7").ms(480_000_000) - 1000.0).abs() < 1e-9);
+}
+
+/// A firmware that runs both pathways: the native stages (`native_*`) stay out of the export
+/// band pair, stages never entered are dropped, and the native band pair without its
+/// check's second pass is judged against the export one.
+#[test]
+fn the_native_pathway_is_judged_beside_the_export_one() {
+    let mut v: Value = serde_json::from_str(&run_json("m55", 700_000_000)).unwrap();
+    let stages = v["stages"].as_array_mut().unwrap();
+    for (name, n) in [
+        ("encode_pair", 0u64),
+        ("native_encode_pair", 300_000_000),
+        ("native_head", 50),
+        ("native_refine", 60_000_000),
+        ("native_encode_mirror", 300_000_000),
+        ("native_head_mirror", 50),
+    ] {
+        stages.push(json!({"name": name, "instructions": n, "arena_in_use": 1, "stack_peak": 1}));
+    }
+    let r = CoreRun::parse(&v.to_string()).unwrap();
+    assert!(r.stage_instructions("encode_pair").is_none(), "never entered: dropped");
+    assert_eq!(r.band_pair_instructions(), 760_000_100, "the export pathway alone");
+    assert_eq!(r.native_band_pair_instructions(), Some(660_000_100));
+    assert_eq!(r.native_one_pass_instructions(), Some(360_000_050));
+    let verdict = verdicts(std::slice::from_ref(&r))
+        .into_iter()
+        .find(|v| v.target.contains("native band pair"))
+        .unwrap();
+    // 360M of 760M: 47.4 % <= 55 %.
+    assert!(verdict.met, "{verdict:?}");
+    assert!(
+        verdict.measured.starts_with("360M (47.4 % of 760M"),
+        "{}",
+        verdict.measured
+    );
+    let md = markdown(std::slice::from_ref(&r));
+    assert!(
+        md.contains("| **band pair, native pathway** (native_*) | | | **660,000,100** |"),
+        "{md}"
+    );
+    assert!(CoreRun::parse(&run_json("m55", 1))
+        .unwrap()
+        .native_band_pair_instructions()
+        .is_none());
+}
+
+#[test]
+fn markdown_and_json_carry_the_numbers() {
+    let runs = [CoreRun::parse(&run_json("m55", 700_000_000)).unwrap()];
+    let md = markdown(&runs);
+    assert!(md.contains("| weights flash (`.weights`) | 1,537,200 B |"), "{md}");
+    assert!(
+        md.contains("| of which the refinement (`pipeline::refine_bytes`) | 6,881 B |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("| refine | 300,000 B | 2,000 B | 60,000,000 | 150.0 |"),
+        "{md}"
+    );
+    assert!(
+        md.contains("| encode_left | 486,912 B | 7,360 B | 700,000,000 | 1750.0 |"),
+        "{md}"
+    );
+    assert!(md.contains("not cycles"), "{md}");
+    let j = to_json(&runs);
+    assert_eq!(j.cores[0].band_pair_instructions, 760_000_100);
+    assert_eq!(j.cores[0].refine_arena_bytes, Some(6881));
+    assert_eq!(j.cores[0].assumed_instructions_per_cycle, 1.0);
+    let text = serde_json::to_string_pretty(&j).unwrap();
+    let v: Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(v["cores"][0]["band_pair_instructions"], 760_000_100u64);
+    assert_eq!(v["cores"][0]["stages"][3]["name"], "refine");
+    assert_eq!(v["targets"][0]["met"], true);
+    assert_eq!(v["schema"], "bino-budget/1");
+    // Keys sorted at every level, as the file always had them (`Value` maps are sorted).
+    assert_eq!(text, serde_json::to_string_pretty(&v).unwrap());
+    assert_eq!(grouped(1234567), "1,234,567");
+    assert_eq!(grouped(12), "12");
+}
+
+#[test]
+fn the_chart_draws_bars_and_text() {
+    let runs = [
+        CoreRun::parse(&run_json("m55", 700_000_000)).unwrap(),
+        CoreRun::parse(&run_json("m7", 4_740_000_000)).unwrap(),
+    ];
+    let chart = chart::draw(&runs).unwrap();
+    assert_eq!(chart.dimensions(), chart::SIZE);
+    let count = |f: &dyn Fn(&image::Rgb<u8>) -> bool| chart.pixels().filter(|p| f(p)).count();
+    // The two series' colours: blue bars (arena, M55) and orange ones (stack, M7).
+    let blue = count(&|p| p.0 == [33, 150, 228]);
+    let orange = count(&|p| p.0 == [245, 124, 32]);
+    assert!(
+        blue > 5_000 && orange > 5_000,
+        "{blue} blue, {orange} orange bar pixels"
+    );
+    // Text (titles, stage names, value labels) is dark and anti-aliased: many grey levels.
+    let dark = count(&|p| p.0.iter().all(|&c| c < 100));
+    let greys: std::collections::BTreeSet<u8> = chart
+        .pixels()
+        .filter(|p| p.0[0] == p.0[1] && p.0[1] == p.0[2])
+        .map(|p| p.0[0])
+        .collect();
+    assert!(
+        dark > 5_000,
+        "{dark} dark pixels: no text drawn? (the axes alone are about 2,300)"
+    );
+    assert!(greys.len() > 50, "{} grey levels: text not anti-aliased", greys.len());
+    // The caption strip above the first panel holds its title.
+    let title = (0..25).flat_map(|y| (0..chart::SIZE.0).map(move |x| (x, y)));
+    let title_ink = title.filter(|&(x, y)| chart.get_pixel(x, y).0[0] < 128).count();
+    assert!(title_ink > 600, "{title_ink} title pixels");
+}

@@ -1,0 +1,122 @@
+//! The targets judged on the runs: each a [`Verdict`] with the figure it was judged on.
+
+use serde::Serialize;
+
+use super::{clock, Clock, CoreRun, NATIVE_SHARE_OF_EXPORT, REFINE_SHARE_OF_ENCODER, TARGETS};
+
+/// Bytes in a KiB.
+const KIB: f64 = 1024.0;
+
+/// Whether a target is met, with the figure it was judged on.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct Verdict {
+    // Declared in the JSON's key order (alphabetical; see `report`).
+    /// What was measured.
+    pub measured: String,
+    /// Met or not.
+    pub met: bool,
+    /// What the target is.
+    pub target: String,
+}
+
+/// The targets judged on the runs.
+pub fn verdicts(runs: &[CoreRun]) -> Vec<Verdict> {
+    let mut out = Vec::new();
+    if let Some(r) = runs.first() {
+        out.push(Verdict {
+            target: format!("weights <= {:.1} MiB", TARGETS.weights_bytes as f64 / KIB / KIB),
+            measured: kib(r.sections.weights),
+            met: r.sections.weights <= TARGETS.weights_bytes,
+        });
+        out.push(Verdict {
+            target: format!("arena <= {}", kib(TARGETS.arena_bytes)),
+            measured: format!("{} (static {})", kib(r.arena_used), kib(r.arena_bytes)),
+            met: r.arena_bytes <= TARGETS.arena_bytes,
+        });
+    }
+    for r in runs {
+        let n = r.band_pair_instructions();
+        let c = clock(&r.core);
+        match r.core.as_str() {
+            "m55" => out.push(Verdict {
+                target: format!(
+                    "Cortex-M55 <= {}M instructions per band pair ({:.1} s at {} MHz, IPC {})",
+                    TARGETS.m55_instructions / 1_000_000,
+                    Clock::ms(&c, TARGETS.m55_instructions) / 1e3,
+                    c.mhz,
+                    c.ipc
+                ),
+                measured: format!(
+                    "{:.0}M ({:.1}x the target; {:.2} s)",
+                    n as f64 / 1e6,
+                    n as f64 / TARGETS.m55_instructions as f64,
+                    c.ms(n) / 1e3
+                ),
+                met: n <= TARGETS.m55_instructions,
+            }),
+            "m7" => out.push(Verdict {
+                target: format!(
+                    "Cortex-M7 <= {} s per band pair at {} MHz, IPC {}",
+                    TARGETS.m7_seconds, c.mhz, c.ipc
+                ),
+                measured: format!(
+                    "{:.2} s ({:.0}M instructions; {:.1}x the target)",
+                    c.ms(n) / 1e3,
+                    n as f64 / 1e6,
+                    c.ms(n) / 1e3 / TARGETS.m7_seconds
+                ),
+                met: c.ms(n) / 1e3 <= TARGETS.m7_seconds,
+            }),
+            _ => {}
+        }
+        if let (Some(one_pass), Some(checked)) = (r.native_one_pass_instructions(), r.native_band_pair_instructions()) {
+            let share = one_pass as f64 / n.max(1) as f64;
+            out.push(Verdict {
+                target: format!(
+                    "{} native band pair (one encoder pass on (L, R) + native head) <= {:.0} % of the export pathway's",
+                    core_name(&r.core),
+                    100.0 * NATIVE_SHARE_OF_EXPORT
+                ),
+                measured: format!(
+                    "{:.0}M ({:.1} % of {:.0}M; with the head's check, a second pass: {:.0}M, {:.1} %)",
+                    one_pass as f64 / 1e6,
+                    100.0 * share,
+                    n as f64 / 1e6,
+                    checked as f64 / 1e6,
+                    100.0 * checked as f64 / n.max(1) as f64
+                ),
+                met: share <= NATIVE_SHARE_OF_EXPORT,
+            });
+        }
+        if let (Some(refine), Some(encoder)) = (r.stage_instructions("refine"), r.stage_instructions("encode_left")) {
+            let share = refine as f64 / encoder.max(1) as f64;
+            out.push(Verdict {
+                target: format!(
+                    "{} refinement <= {:.0} % of one encoder pass in instructions",
+                    core_name(&r.core),
+                    100.0 * REFINE_SHARE_OF_ENCODER
+                ),
+                measured: format!(
+                    "{:.1}M ({:.2} % of encode_left's {:.0}M)",
+                    refine as f64 / 1e6,
+                    100.0 * share,
+                    encoder as f64 / 1e6
+                ),
+                met: share <= REFINE_SHARE_OF_ENCODER,
+            });
+        }
+    }
+    out
+}
+
+fn core_name(core: &str) -> &str {
+    match core {
+        "m55" => "Cortex-M55",
+        "m7" => "Cortex-M7",
+        other => other,
+    }
+}
+
+fn kib(bytes: u64) -> String {
+    format!("{:.1} KiB", bytes as f64 / KIB)
+}
