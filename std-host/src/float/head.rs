@@ -337,7 +337,7 @@ mod tests {
     }
 
     /// Checks a real export against tract: `BINO_HEAD_ONNX=/tmp/head.onnx cargo test -p
-    /// bino-host --lib float_head -- --ignored` (a head export is ~450 KB, too big for
+    /// bino-host --lib float::head -- --ignored` (a head export is ~450 KB, too big for
     /// `tests/fixtures`; `export_head_onnx(StereoHead(), ...)` in python writes one).
     #[test]
     #[ignore = "needs BINO_HEAD_ONNX pointing at a head export"]
