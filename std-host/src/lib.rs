@@ -5,7 +5,7 @@
 //! Modules by concern: [`io`] (files and formats), [`data`] (pairs, profiles, the synthetic
 //! scene, degradations), [`float`] (the float reference), [`int8`] (the int8 engine on the
 //! host), [`readout`] (the readouts every command shares), and one module per `bino` verb
-//! that has more than arguments, named as its file in the CLI's `cli/`: [`bench`], [`budget`],
+//! that has more than arguments, named as its file in the CLI's `cli/`: [`bench`](mod@bench), [`budget`],
 //! [`compare`], [`demo`], [`eval`], [`quantize`], [`run`], [`sim`] (`bino pairs` lists
 //! [`data::pairs`], `bino reference` runs [`float::reference`]).
 #![deny(missing_docs)]
