@@ -39,47 +39,52 @@ pub fn requant_rows<B: I32s + ?Sized, M: I32s + ?Sized, Z: I32s + ?Sized>(
     zero: &Z,
     out: &mut [i8],
 ) {
-    let n = rq.channels();
-    if n == 0 {
-        return;
-    }
-    let rows = acc.len().min(out.len()) / n;
-    let mut start = 0;
-    while start < n {
-        let len = (n - start).min(CHANNEL_CHUNK);
-        match ChunkParams::decode(rq, start, len) {
-            Some(params) => {
-                let mut zeros = [0i64; CHANNEL_CHUNK];
-                for (c, z) in zeros[..len].iter_mut().enumerate() {
-                    *z = zero.at(start + c) as i64;
-                }
-                let narrow = NarrowChunk::new(&params, &zeros[..len]);
-                for r in 0..rows {
-                    let at = r * n + start..r * n + start + len;
-                    let (Some(acc_part), Some(out_part)) = (acc.get(at.clone()), out.get_mut(at)) else {
-                        break;
-                    };
-                    if narrow.as_ref().is_some_and(|nc| nc.row(acc_part, out_part)) {
-                        continue;
-                    }
-                    for (i, (&a, o)) in acc_part.iter().zip(out_part.iter_mut()).enumerate() {
-                        *o = sat_i8_i64(params.apply(i, a) + zeros[i]);
-                    }
-                }
+    crate::kernels::dispatch::vectorised(
+        #[inline(always)]
+        || {
+            let n = rq.channels();
+            if n == 0 {
+                return;
             }
-            None => {
-                for r in 0..rows {
-                    for c in start..start + len {
-                        let i = r * n + c;
-                        if let (Some(&a), Some(o)) = (acc.get(i), out.get_mut(i)) {
-                            *o = sat_i8_i64(rq.apply(c, a) + zero.at(c) as i64);
+            let rows = acc.len().min(out.len()) / n;
+            let mut start = 0;
+            while start < n {
+                let len = (n - start).min(CHANNEL_CHUNK);
+                match ChunkParams::decode(rq, start, len) {
+                    Some(params) => {
+                        let mut zeros = [0i64; CHANNEL_CHUNK];
+                        for (c, z) in zeros[..len].iter_mut().enumerate() {
+                            *z = zero.at(start + c) as i64;
+                        }
+                        let narrow = NarrowChunk::new(&params, &zeros[..len]);
+                        for r in 0..rows {
+                            let at = r * n + start..r * n + start + len;
+                            let (Some(acc_part), Some(out_part)) = (acc.get(at.clone()), out.get_mut(at)) else {
+                                break;
+                            };
+                            if narrow.as_ref().is_some_and(|nc| nc.row(acc_part, out_part)) {
+                                continue;
+                            }
+                            for (i, (&a, o)) in acc_part.iter().zip(out_part.iter_mut()).enumerate() {
+                                *o = sat_i8_i64(params.apply(i, a) + zeros[i]);
+                            }
+                        }
+                    }
+                    None => {
+                        for r in 0..rows {
+                            for c in start..start + len {
+                                let i = r * n + c;
+                                if let (Some(&a), Some(o)) = (acc.get(i), out.get_mut(i)) {
+                                    *o = sat_i8_i64(rq.apply(c, a) + zero.at(c) as i64);
+                                }
+                            }
                         }
                     }
                 }
+                start += len;
             }
-        }
-        start += len;
-    }
+        },
+    )
 }
 
 /// Channels whose requantisation parameters are decoded at once (1 KiB of stack).
@@ -132,8 +137,8 @@ impl ChunkParams {
 /// `sat8(rq(acc) + zero) = sat8((hi32((acc + bias) * mult) + addend) >> s)` with
 /// `s = shift - 32` and `addend = 2^(s-1) + zero * 2^s`. Host builds run it eight channels
 /// at a time (AVX2); elsewhere it is never built.
-#[cfg_attr(not(all(target_arch = "x86_64", target_feature = "avx2")), allow(dead_code))]
-pub(super) struct NarrowChunk {
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+pub(crate) struct NarrowChunk {
     pub bias: [i32; CHANNEL_CHUNK],
     pub mult: [i32; CHANNEL_CHUNK],
     pub addend: [i32; CHANNEL_CHUNK],
@@ -144,11 +149,11 @@ pub(super) struct NarrowChunk {
 impl NarrowChunk {
     /// `None` where a shift, bias or zero point is outside the identity's range (and on
     /// targets without the vector row).
-    #[cfg_attr(not(all(target_arch = "x86_64", target_feature = "avx2")), allow(unused_variables))]
+    #[cfg_attr(not(target_arch = "x86_64"), allow(unused_variables))]
     fn new(p: &ChunkParams, zeros: &[i64]) -> Option<Self> {
-        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+        #[cfg(not(target_arch = "x86_64"))]
         return None;
-        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        #[cfg(target_arch = "x86_64")]
         {
             let mut c = NarrowChunk {
                 bias: p.bias,
@@ -178,9 +183,9 @@ impl NarrowChunk {
     /// lies outside `-2^30..2^30` or the lengths differ (`out` is then to be recomputed).
     #[inline]
     fn row(&self, acc: &[i32], out: &mut [i8]) -> bool {
-        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-        return super::matmul_avx2::requant_row_narrow(self, acc, out);
-        #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+        #[cfg(target_arch = "x86_64")]
+        return super::arch::x86::avx2::requant_row_narrow(self, acc, out);
+        #[cfg(not(target_arch = "x86_64"))]
         {
             let _ = (acc, out);
             false
@@ -290,70 +295,77 @@ pub fn residual_add_prepared<Z, M, B, M2, Z2>(
     M2: I32s + ?Sized,
     Z2: I32s + ?Sized,
 {
-    let n = delta.channels();
-    if n == 0 {
-        return;
-    }
-    let rows = x.len().min(acc.len()) / n;
-    // The lanes' bound on the accumulators, checked once for every chunk.
-    // (Not on x86 hosts: there the 64-bit chunk vectorises better than the lanes' groups of 4.)
-    let small =
-        cfg!(any(bino_mve, bino_dsp, test)) && residual_lanes::accumulators_fit(acc.get(..rows * n).unwrap_or(&[]));
-    let mut start = 0;
-    while start < n {
-        let len = (n - start).min(CHANNEL_CHUNK);
-        let chunk = residual_lanes::Chunk {
-            n,
-            start,
-            len,
-            rows,
-            small,
-        };
-        let prepared_params = prepared
-            .filter(|p| p.n == n && p.per_channel == residual_lanes::per_channel(rows, n))
-            .and_then(|p| p.params.get(start / CHANNEL_CHUNK * CHUNK_WORDS..))
-            .and_then(|p| p.get(..len.div_ceil(4) * 4 * residual_lanes::VECTORS));
-        let done = match prepared_params {
-            Some(params) if small => {
-                residual_lanes::run_chunk(x, acc, &chunk, params, residual_lanes::per_channel(rows, n))
+    crate::kernels::dispatch::vectorised(
+        #[inline(always)]
+        || {
+            let n = delta.channels();
+            if n == 0 {
+                return;
             }
-            _ => small && residual_lanes::add_chunk(x, acc, &chunk, carry, delta, new_zero),
-        };
-        if done {
-            start += len;
-            continue;
-        }
-        match (
-            ChunkParams::decode(delta, start, len),
-            CarryParams::decode(carry, start, len),
-        ) {
-            (Some(d), Some(k)) => {
-                let mut zeros = [0i64; CHANNEL_CHUNK];
-                for (i, z) in zeros[..len].iter_mut().enumerate() {
-                    *z = new_zero.at(start + i) as i64;
+            let rows = x.len().min(acc.len()) / n;
+            // The lanes' bound on the accumulators, checked once for every chunk.
+            // (Not on x86 hosts: there the 64-bit chunk vectorises better than the lanes' groups of 4.)
+            let small = cfg!(any(bino_mve, bino_dsp, test))
+                && residual_lanes::accumulators_fit(acc.get(..rows * n).unwrap_or(&[]));
+            let mut start = 0;
+            while start < n {
+                let len = (n - start).min(CHANNEL_CHUNK);
+                let chunk = residual_lanes::Chunk {
+                    n,
+                    start,
+                    len,
+                    rows,
+                    small,
+                };
+                let prepared_params = prepared
+                    .filter(|p| p.n == n && p.per_channel == residual_lanes::per_channel(rows, n))
+                    .and_then(|p| p.params.get(start / CHANNEL_CHUNK * CHUNK_WORDS..))
+                    .and_then(|p| p.get(..len.div_ceil(4) * 4 * residual_lanes::VECTORS));
+                let done = match prepared_params {
+                    Some(params) if small => {
+                        residual_lanes::run_chunk(x, acc, &chunk, params, residual_lanes::per_channel(rows, n))
+                    }
+                    _ => small && residual_lanes::add_chunk(x, acc, &chunk, carry, delta, new_zero),
+                };
+                if done {
+                    start += len;
+                    continue;
                 }
-                #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-                let done = super::x86_vnni::with_avx512(|| add_decoded_rows(x, acc, &chunk, &d, &k, &zeros)).is_some();
-                #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
-                let done = false;
-                if !done {
-                    add_decoded_rows(x, acc, &chunk, &d, &k, &zeros);
-                }
-            }
-            _ => {
-                for r in 0..rows {
-                    for c in start..start + len {
-                        let i = r * n + c;
-                        if let (Some(xq), Some(&a)) = (x.get_mut(i), acc.get(i)) {
-                            let value = carry.apply(c, *xq) + delta.apply(c, a) + new_zero.at(c) as i64;
-                            *xq = sat_i8_i64(value);
+                match (
+                    ChunkParams::decode(delta, start, len),
+                    CarryParams::decode(carry, start, len),
+                ) {
+                    (Some(d), Some(k)) => {
+                        let mut zeros = [0i64; CHANNEL_CHUNK];
+                        for (i, z) in zeros[..len].iter_mut().enumerate() {
+                            *z = new_zero.at(start + i) as i64;
+                        }
+                        #[cfg(target_arch = "x86_64")]
+                        let done =
+                            super::arch::x86::vnni::with_avx512(|| add_decoded_rows(x, acc, &chunk, &d, &k, &zeros))
+                                .is_some();
+                        #[cfg(not(target_arch = "x86_64"))]
+                        let done = false;
+                        if !done {
+                            add_decoded_rows(x, acc, &chunk, &d, &k, &zeros);
+                        }
+                    }
+                    _ => {
+                        for r in 0..rows {
+                            for c in start..start + len {
+                                let i = r * n + c;
+                                if let (Some(xq), Some(&a)) = (x.get_mut(i), acc.get(i)) {
+                                    let value = carry.apply(c, *xq) + delta.apply(c, a) + new_zero.at(c) as i64;
+                                    *xq = sat_i8_i64(value);
+                                }
+                            }
                         }
                     }
                 }
+                start += len;
             }
-        }
-        start += len;
-    }
+        },
+    )
 }
 
 /// One decoded chunk of [`residual_add_prepared`] over every row, in 64-bit arithmetic.
@@ -811,7 +823,7 @@ mod tests {
                 mult: &mult,
                 shift: &shift,
             };
-            #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+            #[cfg(target_arch = "x86_64")]
             if trial < 7 {
                 let params = ChunkParams::decode(&rq, 0, CHANNEL_CHUNK).unwrap();
                 let zeros: [i64; CHANNEL_CHUNK] = core::array::from_fn(|c| zero[c] as i64);

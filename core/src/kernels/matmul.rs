@@ -11,17 +11,20 @@
 /// gets fewer rows). `k` must be at most 2^17 so sums of int8 products cannot overflow.
 ///
 /// On Cortex-M7 and Cortex-M55 this runs the core's assembly tile (`kernels::arch`), on AVX2
-/// hosts the AVX-512 VNNI tile where the CPU has it (`kernels::x86_vnni`) or the AVX2 tile
-/// (`kernels::matmul_avx2`), where it takes the shape, and
+/// hosts the AVX-512 VNNI tile where the CPU has it (`kernels::arch::x86::vnni`) or the AVX2 tile
+/// (`kernels::arch::x86::avx2`), where it takes the shape, and
 /// [`matmul_i8_reference`] otherwise: the results are the same.
 #[inline]
 pub fn matmul_i8(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    if super::x86_vnni::matmul_i32(a, w, k, out) || super::matmul_avx2::matmul_i32(a, w, k, out) {
+    #[cfg(target_arch = "x86_64")]
+    if super::arch::x86::vnni::matmul_i32(a, w, k, out) || super::arch::x86::avx2::matmul_i32(a, w, k, out) {
         return;
     }
     if !super::arch::matmul_i32(a, w, k, out) {
-        matmul_i8_reference(a, w, k, out)
+        super::dispatch::vectorised(
+            #[inline(always)]
+            || matmul_i8_reference(a, w, k, out),
+        )
     }
 }
 
@@ -115,31 +118,32 @@ impl Code for u8 {
 /// (each `w` element loaded once). Products of a `u8` and an `i8` fit 16 bits too.
 #[inline(always)]
 pub fn dot4<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[cfg(target_arch = "x86_64")]
     {
-        use super::matmul_avx2::{dot4 as dot4_simd, LANES};
+        use super::arch::x86::avx2::{dot4 as dot4_simd, LANES};
         let head = w.len() - w.len() % LANES;
-        let s = dot4_simd(a0, a1, a2, a3, w.get(..head).unwrap_or(&[]));
-        fn tail<T>(x: &[T], head: usize) -> &[T] {
-            x.get(head..).unwrap_or(&[])
+        if let Some(s) = dot4_simd(a0, a1, a2, a3, w.get(..head).unwrap_or(&[])) {
+            fn tail<T>(x: &[T], head: usize) -> &[T] {
+                x.get(head..).unwrap_or(&[])
+            }
+            let t = dot4_portable(
+                tail(a0, head),
+                tail(a1, head),
+                tail(a2, head),
+                tail(a3, head),
+                tail(w, head),
+            );
+            return [
+                s[0].wrapping_add(t[0]),
+                s[1].wrapping_add(t[1]),
+                s[2].wrapping_add(t[2]),
+                s[3].wrapping_add(t[3]),
+            ];
         }
-        let t = dot4_portable(
-            tail(a0, head),
-            tail(a1, head),
-            tail(a2, head),
-            tail(a3, head),
-            tail(w, head),
-        );
-        [
-            s[0].wrapping_add(t[0]),
-            s[1].wrapping_add(t[1]),
-            s[2].wrapping_add(t[2]),
-            s[3].wrapping_add(t[3]),
-        ]
     }
     #[cfg(bino_dsp)]
     return dot4_pairs(a0, a1, a2, a3, w);
-    #[cfg(not(any(bino_dsp, all(target_arch = "x86_64", target_feature = "avx2"))))]
+    #[cfg(not(bino_dsp))]
     dot4_portable(a0, a1, a2, a3, w)
 }
 

@@ -5,17 +5,14 @@
 
 pub mod arch;
 pub mod attention;
+pub mod dispatch;
 pub mod epilogue;
 pub mod exp;
 pub mod gemm;
 pub mod layernorm;
 pub mod lut;
 pub mod matmul;
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-mod matmul_avx2;
 pub mod params;
 pub mod rope;
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-pub mod x86_vnni;
 
 pub use params::I32s;

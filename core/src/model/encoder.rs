@@ -20,7 +20,7 @@ use crate::blob::{Blob, Le};
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::arch::PreparedRequant;
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[cfg(target_arch = "x86_64")]
 use crate::kernels::attention::attend_block_keys_transposed;
 use crate::kernels::attention::{attend_block, key_layout, store_key, value_sums, KeyLayout, QUERY_BLOCK};
 use crate::kernels::epilogue::{residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
@@ -734,7 +734,7 @@ impl AttentionPass<'_, '_> {
                             None => *q = [0; HEAD_DIM],
                         }
                     }
-                    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+                    #[cfg(target_arch = "x86_64")]
                     if self.keys == KeyLayout::Transposed {
                         attend_block_keys_transposed(
                             &q_block,
@@ -749,7 +749,7 @@ impl AttentionPass<'_, '_> {
                     } else {
                         attend_block(&q_block, k_head, v_head, sums, p, scores, softmax, &mut out_block);
                     }
-                    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+                    #[cfg(not(target_arch = "x86_64"))]
                     attend_block(&q_block, k_head, v_head, sums, p, scores, softmax, &mut out_block);
                     for (o, token) in out_block.iter().zip(o_tokens.chunks_exact_mut(DIM)) {
                         token[part.clone()].copy_from_slice(o);
@@ -953,7 +953,7 @@ fn scatter_heads(layout: KeyLayout, token: &[i8], store: &mut [i8], tokens: usiz
         .take(HEADS)
     {
         // Only x86 hosts transpose (a constant elsewhere, so the Cortex-M builds keep the copy).
-        let layout = if cfg!(all(target_arch = "x86_64", target_feature = "avx2")) {
+        let layout = if cfg!(target_arch = "x86_64") {
             layout
         } else {
             KeyLayout::Rows

@@ -25,6 +25,8 @@ pub(crate) mod dsp;
 mod fused;
 #[cfg(any(bino_mve, test))]
 pub(crate) mod mve;
+#[cfg(target_arch = "x86_64")]
+pub mod x86;
 
 pub use fused::{matmul_requant, matmul_requant_prepared, PreparedRequant};
 

@@ -1,0 +1,80 @@
+//! The one place that picks an instruction set for the portable kernels' loops at run time.
+//!
+//! Cortex-M builds choose at compile time (target features, `build.rs`'s `bino_dsp` /
+//! `bino_mve`), so there this is the plain call. On x86-64 the CPU is asked once (`cpuid`):
+//! a crate that depends on `bino-core` gets the AVX2 and AVX-512 VNNI kernels with no
+//! `-C target-cpu` flag, and [`active`] says which run.
+
+/// The instruction set whose kernels run in this process.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Isa {
+    /// x86-64 with AVX-512 F/DQ/BW/VL and VNNI (with the AVX2 kernels where VNNI has none).
+    Avx512Vnni,
+    /// x86-64 with AVX2.
+    Avx2,
+    /// Cortex-M7 (Armv7E-M DSP extension: `smlad`).
+    Dsp,
+    /// Cortex-M55 (Helium, MVE).
+    Mve,
+    /// The portable kernels only (the reference).
+    Portable,
+}
+
+impl Isa {
+    /// Its name in reports: `avx512-vnni`, `avx2`, `dsp`, `mve` or `portable`.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Isa::Avx512Vnni => "avx512-vnni",
+            Isa::Avx2 => "avx2",
+            Isa::Dsp => "dsp",
+            Isa::Mve => "mve",
+            Isa::Portable => "portable",
+        }
+    }
+}
+
+/// The kernels that run now (x86: detected at the first kernel call, or by this call).
+pub fn active() -> Isa {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use super::arch::x86;
+        if x86::vnni::available() {
+            return Isa::Avx512Vnni;
+        }
+        if x86::avx2() {
+            return Isa::Avx2;
+        }
+    }
+    if cfg!(bino_dsp) {
+        Isa::Dsp
+    } else if cfg!(bino_mve) {
+        Isa::Mve
+    } else {
+        Isa::Portable
+    }
+}
+
+/// Caps the x86 kernels for this process, to measure or test the slower ones on a fast CPU:
+/// `Avx512Vnni` (no cap), `Avx2` (no VNNI) or `Portable` (no x86 kernels at all). Returns
+/// [`active`] afterwards (never more than the CPU has). A no-op elsewhere.
+pub fn limit(to: Isa) -> Isa {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use super::arch::x86;
+        let avx2 = x86::allow_avx2(!matches!(to, Isa::Portable));
+        x86::vnni::enable(avx2 && matches!(to, Isa::Avx512Vnni));
+    }
+    let _ = to;
+    active()
+}
+
+/// `f()` with its inlined loops compiled for the widest vector unit the CPU has (x86-64: AVX2
+/// where present), else `f()` as built. Integer code only, so the result is the same either
+/// way: only the time changes.
+#[inline(always)]
+pub(crate) fn vectorised<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    return super::arch::x86::widened(f);
+    #[cfg(not(target_arch = "x86_64"))]
+    f()
+}
