@@ -160,7 +160,13 @@ fn outputs_are_bit_identical_across_runs_threads_and_targets() {
             for cap in [Isa::Avx2, Isa::Portable] {
                 let ran = limit(cap);
                 let capped = digests(&blob, pathway, &left, &right);
-                assert_eq!(capped, first, "{pathway:?}: {} kernels against {}", ran.name(), fastest.name());
+                assert_eq!(
+                    capped,
+                    first,
+                    "{pathway:?}: {} kernels against {}",
+                    ran.name(),
+                    fastest.name()
+                );
             }
             limit(fastest);
         }
