@@ -14,7 +14,7 @@ use super::{Epilogue, MAX_K};
 use crate::config::DIM;
 use crate::config::HEAD_DIM;
 #[cfg(any(bino_dsp, test))]
-use crate::kernels::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
+use crate::kernels::types::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// One 4-element group of a tile column as assembly text: a weight word from `{w}` widened by
 /// two `sxtb16` into `(w0, w2)` and `(w1, w3)`, then per row one `ldrd` of its widened pair from
@@ -1062,7 +1062,7 @@ pub(crate) fn rope_requant(
 /// (`a = v[i]`, `b = v[8 + i]`) the two 64-bit sums `a c - b s` and `b c + a s` by `smlal` from
 /// `2^21`, bits 22 to 53 by `lsr` and `orr`, `ssat #8`, into `out[i]` and `out[8 + i]`.
 #[cfg(bino_dsp)]
-pub(crate) fn rope_rotate_half(v: &[i32; 16], angles: &crate::kernels::rope::Angles, out: &mut [i8; 16]) {
+pub(crate) fn rope_rotate_half(v: &[i32; 16], angles: &crate::kernels::types::rope::Angles, out: &mut [i8; 16]) {
     // SAFETY: the loop runs 8 times; pass `i` reads words `i` and `8 + i` of `v` (`[i32; 16]`),
     // halfwords `i` of `angles.cos` and of `angles.sin` (`Angles` is `repr(C)`: `sin` 16 bytes
     // after `cos`, eight `i16` each) and writes bytes `i` and `8 + i` of `out` (`[i8; 16]`).

@@ -15,7 +15,7 @@ use super::shape;
 #[cfg(bino_mve)]
 use crate::config::HEAD_DIM;
 #[cfg(bino_mve)]
-use crate::kernels::exp::{ExpQ32, EXP2_NEG_I8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
+use crate::kernels::types::exp::{ExpQ32, EXP2_NEG_I8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// The fused GEMM's driver (one chunk of at most [`CHUNK`] channels): per pair of rows their
 /// accumulators ([`pair_i32`], into a stack scratch), then both rows' requantisation in one
@@ -640,8 +640,8 @@ pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], score
         for j in 3 * triples..n {
             let key = keys.get(j * HEAD_DIM..(j + 1) * HEAD_DIM).unwrap_or(&[]);
             if let (Some(a), Some(b)) = (row_a.get_mut(j), row_b.get_mut(j)) {
-                *a = crate::kernels::matmul::dot(qa, key);
-                *b = crate::kernels::matmul::dot(qb, key);
+                *a = crate::kernels::reference::matmul::dot(qa, key);
+                *b = crate::kernels::reference::matmul::dot(qb, key);
             }
         }
     }
@@ -1328,7 +1328,7 @@ pub(crate) fn residual_add_row(x: &mut [i8], acc: &[i32], params: &[i32]) -> boo
 /// Portable twins of the tiles (host tests of the drivers).
 #[cfg(not(bino_mve))]
 fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i32; 3]; 2] {
-    let dot = crate::kernels::matmul::dot;
+    let dot = crate::kernels::reference::matmul::dot;
     [
         core::array::from_fn(|c| init[c].wrapping_add(dot(a0, w[c]))),
         core::array::from_fn(|c| init[c].wrapping_add(dot(a1, w[c]))),
@@ -1337,7 +1337,7 @@ fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i32; 3]; 2] {
 
 #[cfg(not(bino_mve))]
 fn tile2(a0: &[i8], a1: &[i8], w: [&[i8]; 2], init: [i32; 2]) -> [[i32; 2]; 2] {
-    let dot = crate::kernels::matmul::dot;
+    let dot = crate::kernels::reference::matmul::dot;
     [
         core::array::from_fn(|c| init[c].wrapping_add(dot(a0, w[c]))),
         core::array::from_fn(|c| init[c].wrapping_add(dot(a1, w[c]))),
@@ -1346,6 +1346,6 @@ fn tile2(a0: &[i8], a1: &[i8], w: [&[i8]; 2], init: [i32; 2]) -> [[i32; 2]; 2] {
 
 #[cfg(not(bino_mve))]
 fn tile1(a0: &[i8], a1: &[i8], w: &[i8], init: i32) -> [i32; 2] {
-    let dot = crate::kernels::matmul::dot;
+    let dot = crate::kernels::reference::matmul::dot;
     [init.wrapping_add(dot(a0, w)), init.wrapping_add(dot(a1, w))]
 }
