@@ -12,6 +12,7 @@ pub mod layernorm;
 pub mod lut;
 pub mod matmul;
 pub mod reference;
+pub mod residual;
 pub mod rope;
 
 pub mod types;
