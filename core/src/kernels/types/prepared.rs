@@ -121,8 +121,9 @@ impl ColRecords for [[i32; 4]] {
     }
 }
 
-/// A requantisation's columns prepared once (every channel checked for the fused range, [`Col::new`]), for the calls of a pass that share it: each call then copies four words a column instead of reading
-/// and checking its parameters (the engine's values and MLP-up GEMMs run once per token block).
+/// A requantisation's columns prepared once (every channel checked for the fused range: shifts
+/// 33 to 62, bias and addend below 2^30), for the calls of a pass that share it: each call then
+/// copies four words a column instead of reading and checking its parameters (the engine's values and MLP-up GEMMs run once per token block).
 /// The words live in storage the caller lends (four per channel).
 pub struct PreparedRequant<'a> {
     pub(crate) words: &'a [[i32; 4]],

@@ -1,4 +1,4 @@
-//! AVX2 kernels of x86-64 hosts, chosen at run time where the CPU has AVX2 ([`super::avx2`]),
+//! AVX2 kernels of x86-64 hosts, chosen at run time where the CPU has AVX2 ([`super::avx2()`]),
 //! whatever `-C target-cpu` the build names: the four-row dot product, the matrix multiply and the two products of attention. LLVM does not
 //! turn the portable loops into `vpmaddwd` (it widens to 32 bits and uses `vpmulld`, 8 MACs per
 //! slow instruction); here each `vpmaddwd` does 16 MACs, and each operand is widened once per

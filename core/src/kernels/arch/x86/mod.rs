@@ -1,8 +1,8 @@
 //! x86-64 kernels of host builds, chosen at run time from what the CPU reports (`cpuid`), so
 //! a crate that depends on `bino-core` gets them without `-C target-cpu` flags:
-//! - [`vnni`]: AVX-512 VNNI tiles (`vpdpbusd`) where the CPU and OS support AVX-512 F, DQ,
+//! - [`mod@vnni`]: AVX-512 VNNI tiles (`vpdpbusd`) where the CPU and OS support AVX-512 F, DQ,
 //!   BW, VL and VNNI;
-//! - [`avx2`]: AVX2 tiles (`vpmaddwd`) where the CPU has AVX2;
+//! - [`mod@avx2`]: AVX2 tiles (`vpmaddwd`) where the CPU has AVX2;
 //! - [`with_avx2`] / [`vnni::with_avx512`]: portable loops compiled again for those features
 //!   (LLVM vectorises them wider than the SSE2 baseline of `x86_64-unknown-linux-gnu`).
 //!
@@ -46,7 +46,7 @@ pub fn allow_avx2(on: bool) -> bool {
     run
 }
 
-/// `f()` compiled for AVX2 (with BMI1 / BMI2) where [`avx2`] holds (`None`, `f` not called,
+/// `f()` compiled for AVX2 (with BMI1 / BMI2) where [`avx2()`] holds (`None`, `f` not called,
 /// elsewhere). Portable loops inlined into `f` vectorise with 256-bit lanes; the results are
 /// those of `f` compiled for the baseline.
 #[inline(always)]
@@ -59,7 +59,7 @@ pub fn with_avx2<R>(f: impl FnOnce() -> R) -> Option<R> {
     Some(unsafe { run_avx2(f) })
 }
 
-/// `f()` compiled for AVX2 where [`avx2`] holds, else `f()` as the build compiled it: the same
+/// `f()` compiled for AVX2 where [`avx2()`] holds, else `f()` as the build compiled it: the same
 /// result either way.
 #[inline(always)]
 pub fn widened<R>(f: impl FnOnce() -> R) -> R {
