@@ -5,6 +5,9 @@
 //! a crate that depends on `bino-core` gets the AVX2 and AVX-512 VNNI kernels with no
 //! `-C target-cpu` flag, and [`active`] says which run.
 
+use super::attention::{self, AttentionQ, KeyLayout, QUERY_BLOCK};
+use crate::config::HEAD_DIM;
+
 /// The instruction set whose kernels run in this process.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Isa {
@@ -91,4 +94,46 @@ pub fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize)
             *slot = v;
         }
     }
+}
+
+/// Whether this core's GEMMs take requantisation columns prepared once per pass
+/// ([`PreparedRequant`](super::types::prepared::PreparedRequant)): the Cortex-M assembly kernels
+/// fuse the requantisation into their tiles; elsewhere the columns would go unused.
+pub const PREPARED_GEMM: bool = cfg!(any(bino_dsp, bino_mve));
+
+/// One query block's attention over keys stored in `layout` (see
+/// [`attention::attend_block`](super::attention::attend_block)): the x86 VNNI scores on
+/// transposed keys where the keys were stored so, the block kernels of this core otherwise.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+pub fn attend_block(
+    layout: KeyLayout,
+    queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
+    keys: &[i8],
+    values_t: &[i8],
+    sums: &[i32; HEAD_DIM],
+    p: &AttentionQ,
+    scores: &mut [i32],
+    weights: &mut [u8],
+    out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if layout == KeyLayout::Transposed {
+        return attention::attend_block_keys_transposed(queries, keys, values_t, sums, p, scores, weights, out);
+    }
+    let _ = layout;
+    attention::attend_block(queries, keys, values_t, sums, p, scores, weights, out)
+}
+
+/// Token `t`'s key (`HEAD_DIM` codes) into a head's store of `layout`
+/// ([`attention::store_key`](super::attention::store_key)). Only x86 hosts transpose: elsewhere
+/// the layout is the constant [`KeyLayout::Rows`], so the Cortex-M builds keep the plain copy.
+#[inline]
+pub fn store_key(layout: KeyLayout, key: &[i8], store: &mut [i8], t: usize) {
+    let layout = if cfg!(target_arch = "x86_64") {
+        layout
+    } else {
+        KeyLayout::Rows
+    };
+    attention::store_key(layout, key, store, t)
 }

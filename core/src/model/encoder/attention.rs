@@ -2,10 +2,8 @@
 //! stored per head (values transposed), then each token block's queries attending over them.
 
 use crate::config::{DIM, HEADS, HEAD_DIM};
-#[cfg(target_arch = "x86_64")]
-use crate::kernels::attention::attend_block_keys_transposed;
-use crate::kernels::attention::{attend_block, store_key, value_sums, KeyLayout, QUERY_BLOCK};
-use crate::kernels::dispatch::scatter_channels;
+use crate::kernels::attention::{value_sums, KeyLayout, QUERY_BLOCK};
+use crate::kernels::dispatch::{attend_block, scatter_channels, store_key};
 use crate::kernels::epilogue::ChannelRequant;
 use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::PreparedLayerNorm;
@@ -200,23 +198,17 @@ impl AttentionPass<'_, '_> {
                             None => *q = [0; HEAD_DIM],
                         }
                     }
-                    #[cfg(target_arch = "x86_64")]
-                    if self.keys == KeyLayout::Transposed {
-                        attend_block_keys_transposed(
-                            &q_block,
-                            k_head,
-                            v_head,
-                            sums,
-                            p,
-                            scores,
-                            softmax,
-                            &mut out_block,
-                        );
-                    } else {
-                        attend_block(&q_block, k_head, v_head, sums, p, scores, softmax, &mut out_block);
-                    }
-                    #[cfg(not(target_arch = "x86_64"))]
-                    attend_block(&q_block, k_head, v_head, sums, p, scores, softmax, &mut out_block);
+                    attend_block(
+                        self.keys,
+                        &q_block,
+                        k_head,
+                        v_head,
+                        sums,
+                        p,
+                        scores,
+                        softmax,
+                        &mut out_block,
+                    );
                     for (o, token) in out_block.iter().zip(o_tokens.chunks_exact_mut(DIM)) {
                         token[part.clone()].copy_from_slice(o);
                     }
@@ -242,12 +234,6 @@ pub(super) fn scatter_heads(layout: KeyLayout, token: &[i8], store: &mut [i8], t
         .zip(token.chunks_exact(HEAD_DIM))
         .take(HEADS)
     {
-        // Only x86 hosts transpose (a constant elsewhere, so the Cortex-M builds keep the copy).
-        let layout = if cfg!(target_arch = "x86_64") {
-            layout
-        } else {
-            KeyLayout::Rows
-        };
         store_key(layout, part, head, t);
     }
 }

@@ -149,7 +149,7 @@ where
     M: crate::kernels::I32s + ?Sized,
     Z: crate::kernels::I32s + ?Sized,
 {
-    if cfg!(any(bino_dsp, bino_mve)) {
+    if crate::kernels::dispatch::PREPARED_GEMM {
         PreparedRequant::new(rq, zero, scratch)
     } else {
         None
