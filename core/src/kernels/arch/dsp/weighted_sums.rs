@@ -106,7 +106,7 @@ macro_rules! widened_weights_loop {
     };
 }
 
-/// One softmax row into the tile's widened layout (see [`widen`]), bit for bit
+/// One softmax row into the tile's widened layout (see [`widen`](super::tile::widen)), bit for bit
 /// [`attention::softmax_row`](crate::kernels::attention::softmax_row) with `row.max` the row's
 /// maximum: the weight of element `4g + e` goes, unsigned, to word `first + g stride + (e & 1)`,
 /// its low halfword for `e < 2` and its high one else.
@@ -223,8 +223,8 @@ struct WeightRow {
 /// 3 copied beside them, and the four-row block kernel against the value channels.
 ///
 /// `None` (nothing written) unless `n` is a multiple of 8 and at least 128, the lengths match, `values_t` and
-/// `scratch` are word-aligned and the parameters allow [`softmax_row`]'s shortcuts (with the
-/// right shift of the index from the row's own maximum).
+/// `scratch` are word-aligned and the parameters allow [`softmax_row`](super::softmax_row)'s
+/// shortcuts (with the right shift of the index from the row's own maximum).
 #[cfg(any(bino_dsp, test))]
 pub(crate) fn softmax_weighted_sums<'s>(
     e: &ExpQ32,
@@ -269,7 +269,7 @@ pub(crate) fn softmax_weighted_sums<'s>(
 }
 
 /// The multiplier (pre-shift folded in), rounding term and right shift of [`widened_weights`],
-/// where [`softmax_row`]'s shortcuts hold (see there); `None` elsewhere.
+/// where [`softmax_row`](super::softmax_row)'s shortcuts hold (see there); `None` elsewhere.
 #[cfg(any(bino_dsp, test))]
 fn weight_params(e: &ExpQ32) -> Option<(u32, u32, u32)> {
     let (pre, round, post) = e.shifts();
