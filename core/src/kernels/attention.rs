@@ -10,6 +10,7 @@ use super::arch;
 use super::epilogue::scaled_requant_lanes;
 use super::exp::{exp_neg_u8_u32, ExpQ32};
 use super::matmul::{dot, dot4};
+pub use super::reference::softmax::softmax_row;
 use crate::config::HEAD_DIM;
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 
@@ -415,19 +416,6 @@ fn avx2_weighted_sums(
         let _ = (weights, values_t, n, sums, scratch, acc);
         false
     }
-}
-
-/// One row's softmax weights `e.weight(max - s)`, stored as `w - 128` (int8), and their sum:
-/// the specification of every faster path ([`softmax_row_fastest`]).
-#[inline(always)]
-pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
-    let mut sum = 0u32;
-    for (w, &s) in weights.iter_mut().zip(scores) {
-        let x = e.weight(max.wrapping_sub(s) as u32);
-        *w = x ^ 0x80;
-        sum = sum.wrapping_add(x as u32);
-    }
-    sum
 }
 
 /// The largest of `scores` (`i32::MIN` for none): the Cortex-M7's assembly loop where it takes

@@ -78,3 +78,17 @@ pub(crate) fn vectorised<R>(f: impl FnOnce() -> R) -> R {
     #[cfg(not(target_arch = "x86_64"))]
     f()
 }
+
+/// Stores token `t`'s values channel-major (`store[c * tokens + t] = token[c]`, `DIM x tokens`):
+/// each head's slice is then the `HEAD_DIM x tokens` transposed layout attention reads. The
+/// Cortex-M55's Helium scatter where it takes the shape, else the plain loop.
+pub fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
+    if super::arch::scatter_channels(token, store, tokens, t) {
+        return;
+    }
+    for (channel, &v) in store.chunks_exact_mut(tokens).zip(token) {
+        if let Some(slot) = channel.get_mut(t) {
+            *slot = v;
+        }
+    }
+}

@@ -7,12 +7,16 @@ pub mod arch;
 pub mod attention;
 pub mod dispatch;
 pub mod epilogue;
-pub mod exp;
 pub mod gemm;
 pub mod layernorm;
 pub mod lut;
 pub mod matmul;
-pub mod params;
+pub mod reference;
+pub mod residual;
 pub mod rope;
 
-pub use params::I32s;
+pub mod types;
+
+// The shared types at their long-standing paths.
+pub use types::params::I32s;
+pub use types::{exp, params};

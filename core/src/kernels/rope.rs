@@ -6,28 +6,11 @@
 //! scale, rotated with Q14 cosines and sines, then rounded to int8.
 
 use super::epilogue::ChannelRequant;
+use super::types::rope::PRE_ROPE_LIMIT;
+pub use super::types::rope::{Angles, PRE_ROPE_FRAC_BITS, QUARTER, TRIG_FRAC_BITS};
 use super::I32s;
 use crate::config::{DIM, HEAD_DIM};
 use crate::fixed::{round_shift, sat_i8_i64};
-
-/// Frequencies per half of a head: pairs `(i, i + QUARTER)`.
-pub const QUARTER: usize = HEAD_DIM / 4;
-/// Fraction bits of the cosine / sine tables.
-pub const TRIG_FRAC_BITS: u32 = 14;
-/// Extra fraction bits the accumulators keep through the rotation.
-pub const PRE_ROPE_FRAC_BITS: u32 = 8;
-/// Bound on pre-rotation values: keeps products far inside 64 bits whatever the parameters.
-const PRE_ROPE_LIMIT: i64 = 1 << 24;
-
-/// Cosines and sines (Q14) of one position's angles, one per frequency.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[repr(C)]
-pub struct Angles {
-    /// `round(cos(angle_i) * 2^14)`.
-    pub cos: [i16; QUARTER],
-    /// `round(sin(angle_i) * 2^14)`.
-    pub sin: [i16; QUARTER],
-}
 
 /// Requantises `acc` (all heads of one token, `heads * HEAD_DIM` channels; `rq` must give Q8 of
 /// the output scale) and rotates each head by the row and column angles into `out`.

@@ -19,10 +19,10 @@ use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::{Blob, Le};
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
-use crate::kernels::arch::PreparedRequant;
 #[cfg(target_arch = "x86_64")]
 use crate::kernels::attention::attend_block_keys_transposed;
 use crate::kernels::attention::{attend_block, key_layout, store_key, value_sums, KeyLayout, QUERY_BLOCK};
+use crate::kernels::dispatch::scatter_channels;
 use crate::kernels::epilogue::{residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
 use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::layernorm_rows;
@@ -31,6 +31,7 @@ use crate::kernels::lut::apply_lut;
 use crate::kernels::matmul::matmul_i8;
 use crate::kernels::params::{Offset, Uniform};
 use crate::kernels::rope::{rope_token, RopeLanes};
+use crate::kernels::types::prepared::PreparedRequant;
 use crate::Error;
 
 /// Tokens processed together by the matrix multiplies (a multiple of the kernel's 4 rows).
@@ -933,19 +934,6 @@ fn decode_channels(values: &crate::blob::Le<'_, i32>, start: usize) -> [i32; DIM
 }
 
 /// Writes one token's `DIM` codes into a `[head][token][HEAD_DIM]` store.
-/// Stores token `t`'s values channel-major (`DIM x tokens`): each head's slice is then the
-/// `HEAD_DIM x tokens` transposed layout [`attend_block`] reads.
-fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
-    if crate::kernels::arch::scatter_channels(token, store, tokens, t) {
-        return;
-    }
-    for (channel, &v) in store.chunks_exact_mut(tokens).zip(token) {
-        if let Some(slot) = channel.get_mut(t) {
-            *slot = v;
-        }
-    }
-}
-
 fn scatter_heads(layout: KeyLayout, token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
     for (head, part) in store
         .chunks_exact_mut(tokens * HEAD_DIM)

@@ -67,7 +67,7 @@ pub(crate) fn rope_requant(
 /// (`a = v[i]`, `b = v[8 + i]`) the two 64-bit sums `a c - b s` and `b c + a s` by `smlal` from
 /// `2^21`, bits 22 to 53 by `lsr` and `orr`, `ssat #8`, into `out[i]` and `out[8 + i]`.
 #[cfg(bino_dsp)]
-pub(crate) fn rope_rotate_half(v: &[i32; 16], angles: &crate::kernels::rope::Angles, out: &mut [i8; 16]) {
+pub(crate) fn rope_rotate_half(v: &[i32; 16], angles: &crate::kernels::types::rope::Angles, out: &mut [i8; 16]) {
     // SAFETY: the loop runs 8 times; pass `i` reads words `i` and `8 + i` of `v` (`[i32; 16]`),
     // halfwords `i` of `angles.cos` and of `angles.sin` (`Angles` is `repr(C)`: `sin` 16 bytes
     // after `cos`, eight `i16` each) and writes bytes `i` and `8 + i` of `out` (`[i8; 16]`).

@@ -2,7 +2,7 @@
 //! 4,096-entry exp table where the row's parameters allow the loop's shortcuts) and the
 //! largest score of a row.
 
-use crate::kernels::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
+use crate::kernels::types::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// A softmax row on Cortex-M7, bit for bit
 /// [`attention::softmax_row`](crate::kernels::attention::softmax_row): per score one `ldr`, the

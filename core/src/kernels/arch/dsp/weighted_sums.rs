@@ -10,7 +10,7 @@ use super::softmax::row_max;
 use super::tile::tile;
 use super::ROWS;
 use crate::config::HEAD_DIM;
-use crate::kernels::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
+use crate::kernels::types::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// The first half of a pair of softmax weights: two scores by `ldrd`, their gaps to the row's
 /// maximum by `qsub` (saturating: the maximum is the row's own, so a gap is never negative and

@@ -295,7 +295,7 @@ macro_rules! rows_i32_kernel {
 #[cfg(bino_mve)]
 fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
     let n = out0.len();
-    if k == 0 || k > super::super::MAX_K || a0.len() != k || a1.len() != k {
+    if k == 0 || k > crate::kernels::arch::MAX_K || a0.len() != k || a1.len() != k {
         return false;
     }
     if n == 0 || !n.is_multiple_of(3) || w.len() != n * k || out1.as_ref().is_some_and(|o| o.len() != n) {

@@ -84,8 +84,8 @@ pub(crate) fn attention_scores(queries: &[[i8; HEAD_DIM]; 4], keys: &[i8], score
         for j in 3 * triples..n {
             let key = keys.get(j * HEAD_DIM..(j + 1) * HEAD_DIM).unwrap_or(&[]);
             if let (Some(a), Some(b)) = (row_a.get_mut(j), row_b.get_mut(j)) {
-                *a = crate::kernels::matmul::dot(qa, key);
-                *b = crate::kernels::matmul::dot(qb, key);
+                *a = crate::kernels::reference::matmul::dot(qa, key);
+                *b = crate::kernels::reference::matmul::dot(qb, key);
             }
         }
     }

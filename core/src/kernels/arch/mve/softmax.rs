@@ -1,7 +1,7 @@
 //! Attention's softmax row on Cortex-M55 (the exp table gathered in vector lanes) and the
 //! largest score of a row.
 
-use crate::kernels::exp::{ExpQ32, EXP2_NEG_I8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
+use crate::kernels::types::exp::{ExpQ32, EXP2_NEG_I8_TABLE, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// The softmax rows' first step as assembly text: four scores from `r0` and their gaps below
 /// the row maximum in `q2`.

@@ -87,7 +87,7 @@ pub(super) fn tile1(a0: &[i8], a1: &[i8], w: &[i8], init: i32) -> [i32; 2] {
 /// Portable twins of the tiles (host tests of the drivers).
 #[cfg(not(bino_mve))]
 pub(super) fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i32; 3]; 2] {
-    let dot = crate::kernels::matmul::dot;
+    let dot = crate::kernels::reference::matmul::dot;
     [
         core::array::from_fn(|c| init[c].wrapping_add(dot(a0, w[c]))),
         core::array::from_fn(|c| init[c].wrapping_add(dot(a1, w[c]))),
@@ -96,7 +96,7 @@ pub(super) fn tile3(a0: &[i8], a1: &[i8], w: [&[i8]; 3], init: [i32; 3]) -> [[i3
 
 #[cfg(not(bino_mve))]
 pub(super) fn tile2(a0: &[i8], a1: &[i8], w: [&[i8]; 2], init: [i32; 2]) -> [[i32; 2]; 2] {
-    let dot = crate::kernels::matmul::dot;
+    let dot = crate::kernels::reference::matmul::dot;
     [
         core::array::from_fn(|c| init[c].wrapping_add(dot(a0, w[c]))),
         core::array::from_fn(|c| init[c].wrapping_add(dot(a1, w[c]))),
@@ -105,6 +105,6 @@ pub(super) fn tile2(a0: &[i8], a1: &[i8], w: [&[i8]; 2], init: [i32; 2]) -> [[i3
 
 #[cfg(not(bino_mve))]
 pub(super) fn tile1(a0: &[i8], a1: &[i8], w: &[i8], init: i32) -> [i32; 2] {
-    let dot = crate::kernels::matmul::dot;
+    let dot = crate::kernels::reference::matmul::dot;
     [init.wrapping_add(dot(a0, w)), init.wrapping_add(dot(a1, w))]
 }

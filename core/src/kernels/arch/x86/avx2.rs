@@ -18,8 +18,9 @@ use core::arch::x86_64::{
     _mm256_srli_epi64, _mm_add_epi32, _mm_unpackhi_epi32, _mm_unpackhi_epi64, _mm_unpacklo_epi32, _mm_unpacklo_epi64,
 };
 
-use crate::kernels::epilogue::NarrowChunk;
-use crate::kernels::matmul::{dot, Code};
+use crate::kernels::reference::matmul::dot;
+use crate::kernels::types::code::Code;
+use crate::kernels::types::requant::NarrowChunk;
 
 /// Elements per step: 16 int8 values widened to one 256-bit vector of int16.
 pub const LANES: usize = 16;

@@ -28,7 +28,7 @@ use core::sync::atomic::{AtomicU8, Ordering};
 use bytemuck::must_cast;
 
 use super::avx2::{sum4, transpose4};
-use crate::kernels::exp::{ExpQ32, C0, C1, C2, C3, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
+use crate::kernels::types::exp::{ExpQ32, C0, C1, C2, C3, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// Bytes per step: one 256-bit vector.
 pub const STEP: usize = 32;
@@ -377,7 +377,7 @@ fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) 
         let bytes: [u8; SOFTMAX_STEP] = must_cast(_mm512_cvtepi32_epi8(_mm512_xor_si512(weight, flip)));
         w.copy_from_slice(&bytes);
     }
-    let tail = crate::kernels::attention::softmax_row(e, max, scores_tail, weights_tail);
+    let tail = crate::kernels::reference::softmax::softmax_row(e, max, scores_tail, weights_tail);
     let wide_sum = _mm512_reduce_add_epi64(byte_sums) as u32;
     wide_sum
         .wrapping_add(_mm512_reduce_add_epi32(sums) as u32)
@@ -593,7 +593,7 @@ fn four_rows(rows: &[i8], n: usize) -> Option<[core::slice::ChunksExact<'_, i8>;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::matmul::dot;
+    use crate::kernels::reference::matmul::dot;
     use crate::testutil::Rng;
 
     #[test]
@@ -615,7 +615,7 @@ mod tests {
             for (&x, &w) in x.iter().zip(&weights) {
                 assert_eq!(
                     w,
-                    u16::from(crate::kernels::exp::EXP2_NEG_U8_TABLE[x as usize]),
+                    u16::from(crate::kernels::types::exp::EXP2_NEG_U8_TABLE[x as usize]),
                     "x = {x}"
                 );
             }
