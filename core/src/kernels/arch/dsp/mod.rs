@@ -11,6 +11,8 @@
 //! and the four-row block kernels), attention's `scores`, `softmax` and `weighted_sums`,
 //! `layernorm`, `rope`, `residual`, and `conv` (the head's convolution epilogue). The tile's
 //! assembly text (`group!`, `groups8!`) is defined here, before the files that use it.
+//! `conv`, `layernorm`, `residual` and `rope` exist on Cortex-M7 only; the others are also
+//! compiled for host tests, with portable twins of the assembly.
 
 /// One 4-element group of a tile column as assembly text: a weight word from `{w}` widened by
 /// two `sxtb16` into `(w0, w2)` and `(w1, w3)`, then per row one `ldrd` of its widened pair from

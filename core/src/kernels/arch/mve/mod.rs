@@ -14,6 +14,8 @@
 //! requantisation of two rows), `tile` (the 2 x 1 and 2 x 2 tiles of the last columns, and
 //! the portable twins), attention's `scores` (and the values stored channel-major) and
 //! `softmax`, `layernorm`, `rope`, `residual`, and `conv` (the head's convolution epilogue).
+//! Only `gemm`, `requant` and `tile` are also compiled for host tests (the drivers, with
+//! portable twins of the kernels); the rest exist on Cortex-M55 only.
 
 #[cfg(bino_mve)]
 mod conv;
