@@ -102,7 +102,7 @@ pub fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize)
 pub const PREPARED_GEMM: bool = cfg!(any(bino_dsp, bino_mve));
 
 /// One query block's attention over keys stored in `layout` (see
-/// [`attention::attend_block`](super::attention::attend_block)): the x86 VNNI scores on
+/// [`attention::attend_block`]): the x86 VNNI scores on
 /// transposed keys where the keys were stored so, the block kernels of this core otherwise.
 #[allow(clippy::too_many_arguments)]
 #[inline]
@@ -126,7 +126,7 @@ pub fn attend_block(
 }
 
 /// Token `t`'s key (`HEAD_DIM` codes) into a head's store of `layout`
-/// ([`attention::store_key`](super::attention::store_key)). Only x86 hosts transpose: elsewhere
+/// ([`attention::store_key`]). Only x86 hosts transpose: elsewhere
 /// the layout is the constant [`KeyLayout::Rows`], so the Cortex-M builds keep the plain copy.
 #[inline]
 pub fn store_key(layout: KeyLayout, key: &[i8], store: &mut [i8], t: usize) {
