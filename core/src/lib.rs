@@ -71,8 +71,8 @@
 //! `-C target-cpu`), the x86 ones by the CPU.
 #![no_std]
 #![deny(missing_docs)]
-// Audited exceptions: the x86 intrinsic kernels of host builds (kernels/matmul_avx2.rs, and
-// kernels/x86_vnni.rs with its cpuid/xgetbv check) and the Cortex-M assembly kernels
+// Audited exceptions: the x86 intrinsic kernels of host builds (kernels/arch/x86/, chosen at run
+// time from cpuid) and the Cortex-M assembly kernels
 // (kernels/arch/), each behind a safe, length-checked wrapper.
 #![deny(unsafe_code)]
 

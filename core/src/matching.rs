@@ -26,6 +26,10 @@ fn dim() -> usize {
 
 /// Most disparity candidates one cell may have.
 pub const MAX_CANDIDATES: usize = 64;
+/// Cosine similarity unit of the costs: `cost = COST_ONE * (1 - cos)`, in `0..=2 * COST_ONE`.
+pub const COST_ONE: u16 = 4096;
+/// The cost of a candidate outside the right view.
+pub const COST_EXCLUDED: u16 = 2 * COST_ONE;
 /// Fraction bits of the matched disparity (patch columns, Q8).
 pub const DISPARITY_FRAC_BITS: u32 = 8;
 /// `2^INV_NORM_BITS / |r|` is the fixed-point inverse norm of a right descriptor.
@@ -88,7 +92,6 @@ pub fn cost_row(
     max_cols: usize,
     out: &mut [u16],
 ) -> Result<(), Error> {
-    use crate::sgm::{COST_EXCLUDED, COST_ONE};
     let cells = check_pair(left, right, right_inv_norms, max_cols)?;
     check_len("left inverse norms", left_inv_norms.len(), cells)?;
     check_len("cost row", out.len(), cells.saturating_mul(max_cols))?;
@@ -248,7 +251,6 @@ mod tests {
         inverse_norms(&right, &mut nr).unwrap();
         let mut cost = [0u16; 3 * 2];
         cost_row(&left, &right, &nl, &nr, 2, &mut cost).unwrap();
-        use crate::sgm::{COST_EXCLUDED, COST_ONE};
         assert!(cost[0] <= 2, "identical cells cost ~0: {cost:?}");
         assert_eq!(cost[1], COST_EXCLUDED, "cell 0 has no candidate 1");
         assert!(cost[2] >= 2 * COST_ONE - 2, "opposite cells cost ~2: {cost:?}");
@@ -311,7 +313,7 @@ mod tests {
         assert_eq!(cost_row(&left, &right, &norms, &norms, 3, &mut cost), Ok(()));
         // Cell 0 is identical to right cell 0: any cosine above 1 saturates to cost 0.
         assert_eq!(cost[0], 0);
-        assert!(cost.iter().all(|&c| c <= crate::sgm::COST_EXCLUDED));
+        assert!(cost.iter().all(|&c| c <= COST_EXCLUDED));
         // Parabola through the largest similarities these inputs can make.
         let big = (1i64 << 21) * u32::MAX as i64;
         assert!(refine(&[-big, big, -big], 3) <= 256 + 128);

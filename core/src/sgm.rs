@@ -8,12 +8,10 @@
 //! sum (`cols x candidates` each); never the cost volume of the image.
 
 use crate::matching::{check_candidates, DISPARITY_FRAC_BITS, MAX_CANDIDATES};
+/// The matching cost's scale, defined by the matching stage (re-exported here, where the
+/// aggregation's penalties are in the same unit).
+pub use crate::matching::{COST_EXCLUDED, COST_ONE};
 use crate::Error;
-
-/// Cosine similarity unit of the costs: `cost = COST_ONE * (1 - cos)`, in `0..=2 * COST_ONE`.
-pub const COST_ONE: u16 = 4096;
-/// The cost of a candidate outside the right view.
-pub const COST_EXCLUDED: u16 = 2 * COST_ONE;
 
 /// SGM smoothness penalties in cost units: `p1` for a change of one candidate between
 /// neighbours, `p2` for any larger jump (`p2 >= p1`).

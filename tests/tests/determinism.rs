@@ -151,14 +151,24 @@ fn outputs_are_bit_identical_across_runs_threads_and_targets() {
         for (i, d) in threads.iter().enumerate() {
             assert_eq!(d, &first, "{pathway:?}: thread {i} of three running at once");
         }
-        // x86 hosts: the AVX2 kernels give what the AVX-512 VNNI ones do (where the CPU has
-        // them; else both runs take AVX2).
-        #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+        // x86 hosts: the AVX2 kernels and the portable ones (chosen at run time) give what the
+        // AVX-512 VNNI ones do (where the CPU has them; else those runs take what it has).
+        #[cfg(target_arch = "x86_64")]
         {
-            let vnni = bino_core::kernels::x86_vnni::enable(false);
-            let avx2 = digests(&blob, pathway, &left, &right);
-            bino_core::kernels::x86_vnni::enable(vnni);
-            assert_eq!(avx2, first, "{pathway:?}: AVX2 kernels against VNNI ({vnni})");
+            use bino_core::kernels::dispatch::{active, limit, Isa};
+            let fastest = active();
+            for cap in [Isa::Avx2, Isa::Portable] {
+                let ran = limit(cap);
+                let capped = digests(&blob, pathway, &left, &right);
+                assert_eq!(
+                    capped,
+                    first,
+                    "{pathway:?}: {} kernels against {}",
+                    ran.name(),
+                    fastest.name()
+                );
+            }
+            limit(fastest);
         }
         for &slot in workload::outputs(pathway) {
             host.push((pathway.pathway().to_string(), OUTPUTS[slot].to_string(), first[slot]));

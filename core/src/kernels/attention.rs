@@ -10,6 +10,7 @@ use super::arch;
 use super::epilogue::scaled_requant_lanes;
 use super::exp::{exp_neg_u8_u32, ExpQ32};
 use super::matmul::{dot, dot4};
+pub use super::reference::softmax::softmax_row;
 use crate::config::HEAD_DIM;
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 
@@ -106,11 +107,16 @@ pub fn attend_block(
     weights: &mut [u8],
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
-    attend_block_with(scores_block, queries, keys, values_t, sums, p, scores, weights, out);
+    crate::kernels::dispatch::vectorised(
+        #[inline(always)]
+        || {
+            attend_block_with(scores_block, queries, keys, values_t, sums, p, scores, weights, out);
+        },
+    )
 }
 
 /// [`attend_block`] on keys stored in [`KeyLayout::Transposed`] (x86 hosts with AVX-512 VNNI).
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+#[cfg(target_arch = "x86_64")]
 #[allow(clippy::too_many_arguments)]
 pub fn attend_block_keys_transposed(
     queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
@@ -122,17 +128,22 @@ pub fn attend_block_keys_transposed(
     weights: &mut [u8],
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
-    attend_block_with(
-        scores_block_transposed,
-        queries,
-        keys,
-        values_t,
-        sums,
-        p,
-        scores,
-        weights,
-        out,
-    );
+    crate::kernels::dispatch::vectorised(
+        #[inline(always)]
+        || {
+            attend_block_with(
+                scores_block_transposed,
+                queries,
+                keys,
+                values_t,
+                sums,
+                p,
+                scores,
+                weights,
+                out,
+            );
+        },
+    )
 }
 
 /// How a head's keys are stored: as rows for [`attend_block`] (every core), transposed for the
@@ -149,8 +160,8 @@ pub enum KeyLayout {
 /// The key layout of a band of `tokens` on this machine: [`KeyLayout::Transposed`] where the
 /// x86 VNNI scores run and the tokens fill blocks of eight, else [`KeyLayout::Rows`].
 pub fn key_layout(tokens: usize) -> KeyLayout {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    if super::x86_vnni::keys_transposed(tokens) {
+    #[cfg(target_arch = "x86_64")]
+    if super::arch::x86::vnni::keys_transposed(tokens) {
         return KeyLayout::Transposed;
     }
     let _ = tokens;
@@ -307,18 +318,18 @@ pub fn scores_block(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usi
 
 /// [`scores_block`] on keys in [`KeyLayout::Transposed`] (`n` a multiple of eight): the x86
 /// VNNI kernel, else the same sums read through the layout.
-#[cfg(any(test, all(target_arch = "x86_64", target_feature = "avx2")))]
+#[cfg(any(test, target_arch = "x86_64"))]
 #[inline(always)]
 fn scores_block_transposed(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys_t: &[i8], n: usize, scores: &mut [i32]) {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    if super::x86_vnni::scores4_transposed(queries, keys_t, n, scores) {
+    #[cfg(target_arch = "x86_64")]
+    if super::arch::x86::vnni::scores4_transposed(queries, keys_t, n, scores) {
         return;
     }
     scores_block_transposed_reference(queries, keys_t, n, scores);
 }
 
 /// [`scores_block_transposed`] in portable Rust (where the kernel declines).
-#[cfg(any(test, all(target_arch = "x86_64", target_feature = "avx2")))]
+#[cfg(any(test, target_arch = "x86_64"))]
 fn scores_block_transposed_reference(
     queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
     keys_t: &[i8],
@@ -374,13 +385,14 @@ pub fn scores_block_reference(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i
     }
 }
 
-// The x86 kernels of host builds (`kernels::x86_vnni` where the CPU has AVX-512 VNNI, else
-// `kernels::matmul_avx2`); `false` elsewhere, or where they decline the shape.
+// The x86 kernels of host builds (`arch::x86::vnni` where the CPU has AVX-512 VNNI, else
+// `arch::x86::avx2`, each chosen at run time); `false` elsewhere, or where they decline the shape.
 #[inline(always)]
 fn avx2_scores(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usize, scores: &mut [i32]) -> bool {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    return super::x86_vnni::scores4(queries, keys, n, scores) || super::matmul_avx2::scores4(queries, keys, n, scores);
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    #[cfg(target_arch = "x86_64")]
+    return super::arch::x86::vnni::scores4(queries, keys, n, scores)
+        || super::arch::x86::avx2::scores4(queries, keys, n, scores);
+    #[cfg(not(target_arch = "x86_64"))]
     {
         let _ = (queries, keys, n, scores);
         false
@@ -396,27 +408,14 @@ fn avx2_weighted_sums(
     scratch: &mut [i32],
     acc: &mut [[i32; HEAD_DIM]; QUERY_BLOCK],
 ) -> bool {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    return super::x86_vnni::weighted_sums4(weights, values_t, n, sums, acc)
-        || super::matmul_avx2::weighted_sums4(weights, values_t, n, scratch, acc);
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    #[cfg(target_arch = "x86_64")]
+    return super::arch::x86::vnni::weighted_sums4(weights, values_t, n, sums, acc)
+        || super::arch::x86::avx2::weighted_sums4(weights, values_t, n, scratch, acc);
+    #[cfg(not(target_arch = "x86_64"))]
     {
         let _ = (weights, values_t, n, sums, scratch, acc);
         false
     }
-}
-
-/// One row's softmax weights `e.weight(max - s)`, stored as `w - 128` (int8), and their sum:
-/// the specification of every faster path ([`softmax_row_fastest`]).
-#[inline(always)]
-pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> u32 {
-    let mut sum = 0u32;
-    for (w, &s) in weights.iter_mut().zip(scores) {
-        let x = e.weight(max.wrapping_sub(s) as u32);
-        *w = x ^ 0x80;
-        sum = sum.wrapping_add(x as u32);
-    }
-    sum
 }
 
 /// The largest of `scores` (`i32::MIN` for none): the Cortex-M7's assembly loop where it takes
@@ -456,12 +455,12 @@ pub fn softmax_row_by_table(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut 
     sum
 }
 
-// [`softmax_row`] compiled for AVX-512 where the CPU has it (`kernels::x86_vnni`).
+// [`softmax_row`] compiled for AVX-512 where the CPU has it (`arch::x86::vnni`).
 #[inline(always)]
 fn x86_softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> Option<u32> {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    return super::x86_vnni::softmax_row(e, max, scores, weights);
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
+    #[cfg(target_arch = "x86_64")]
+    return super::arch::x86::vnni::softmax_row(e, max, scores, weights);
+    #[cfg(not(target_arch = "x86_64"))]
     {
         let _ = (e, max, scores, weights);
         None

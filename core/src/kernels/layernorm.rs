@@ -43,7 +43,10 @@ pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
     }
     let mut storage = [0i32; 2 * BUFFERED_DIM];
     if let Some(narrow) = NarrowParams::decode(p, dim, &mut storage) {
-        narrow.rows(x, out);
+        super::dispatch::vectorised(
+            #[inline(always)]
+            || narrow.rows(x, out),
+        );
         return;
     }
     for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
@@ -117,7 +120,10 @@ impl<'s> PreparedLayerNorm<'s> {
 
 /// [`layernorm_rows`] with the parameters prepared once.
 pub fn layernorm_rows_prepared(x: &[i8], p: &mut PreparedLayerNorm<'_>, out: &mut [i8]) {
-    p.narrow.rows_with(x, out, p.values, p.normalised);
+    super::dispatch::vectorised(
+        #[inline(always)]
+        || p.narrow.rows_with(x, out, p.values, p.normalised),
+    );
 }
 
 /// Bound on `|zero|` and `|rel|` of [`NarrowParams`].
@@ -152,12 +158,14 @@ impl<'s> NarrowParams<'s> {
     }
 
     /// Every `dim`-channel row of `x` into `out`.
+    #[inline(always)]
     fn rows(&self, x: &[i8], out: &mut [i8]) {
         let (mut values, mut normalised) = ([0i32; LANE_DIM], [0i32; LANE_DIM]);
         self.rows_with(x, out, &mut values, &mut normalised);
     }
 
     /// [`NarrowParams::rows`] with the lanes' buffers lent (`LANE_DIM` words each).
+    #[inline(always)]
     fn rows_with(&self, x: &[i8], out: &mut [i8], values: &mut [i32], normalised: &mut [i32]) {
         if self.dim == 0 {
             return;
@@ -169,6 +177,8 @@ impl<'s> NarrowParams<'s> {
     }
 
     /// [`layernorm_row`] of one row (`dim` codes).
+    // Inlined on x86 so that `dispatch::vectorised` compiles it for the CPU's vector unit.
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     fn row(&self, row: &[i8], out: &mut [i8], scratch: &mut LaneScratch) {
         let dim = self.dim.min(row.len()).min(out.len());
         if dim == 0 {
@@ -239,6 +249,7 @@ impl NarrowParams<'_> {
     /// `(z mult + 2^(sh-1)) >> sh` for `sh >= 33` is `(vmulh(z, mult) + 2^(sh-33)) >> (sh - 32)`,
     /// as in the fused GEMM epilogue.
     #[cfg_attr(not(any(bino_mve, bino_dsp, test, target_arch = "x86_64")), allow(dead_code))]
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
     fn row_in_lanes(&self, row: &[i8], out: &mut [i8], scratch: &mut LaneScratch) -> bool {
         let dim = row.len();
         if dim != LANE_DIM || out.len() != dim || self.out.shift < 33 {

@@ -5,23 +5,31 @@
 //! `vpmaddwd` on the host, MVE `vmladav` on Cortex-M55). Four activation rows are done
 //! together so each weight row is loaded once per four outputs.
 
+#[cfg(not(bino_dsp))]
+use super::reference::matmul::dot4_portable;
+pub use super::reference::matmul::{dot, dot4_pairs};
+pub use super::types::code::Code;
+
 /// `out` (`m x n`, row-major) = `a` (`m x k`) times the transpose of `w` (`n x k`).
 ///
 /// `m = a.len() / k`, `n = w.len() / k`; `out` should hold `m * n` values (a shorter `out`
 /// gets fewer rows). `k` must be at most 2^17 so sums of int8 products cannot overflow.
 ///
 /// On Cortex-M7 and Cortex-M55 this runs the core's assembly tile (`kernels::arch`), on AVX2
-/// hosts the AVX-512 VNNI tile where the CPU has it (`kernels::x86_vnni`) or the AVX2 tile
-/// (`kernels::matmul_avx2`), where it takes the shape, and
+/// hosts the AVX-512 VNNI tile where the CPU has it (`kernels::arch::x86::vnni`) or the AVX2 tile
+/// (`kernels::arch::x86::avx2`), where it takes the shape, and
 /// [`matmul_i8_reference`] otherwise: the results are the same.
 #[inline]
 pub fn matmul_i8(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    if super::x86_vnni::matmul_i32(a, w, k, out) || super::matmul_avx2::matmul_i32(a, w, k, out) {
+    #[cfg(target_arch = "x86_64")]
+    if super::arch::x86::vnni::matmul_i32(a, w, k, out) || super::arch::x86::avx2::matmul_i32(a, w, k, out) {
         return;
     }
     if !super::arch::matmul_i32(a, w, k, out) {
-        matmul_i8_reference(a, w, k, out)
+        super::dispatch::vectorised(
+            #[inline(always)]
+            || matmul_i8_reference(a, w, k, out),
+        )
     }
 }
 
@@ -75,112 +83,37 @@ fn matmul_body(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     }
 }
 
-/// Dot product of two int8 vectors in 32 bits.
-#[inline(always)]
-pub fn dot(a: &[i8], b: &[i8]) -> i32 {
-    a.iter()
-        .zip(b)
-        .fold(0i32, |s, (&x, &y)| s.wrapping_add(x as i32 * y as i32))
-}
-
-/// An 8-bit operand of the dot products: int8 codes, or the unsigned softmax weights.
-pub trait Code: bytemuck::Pod {
-    /// Whether the byte is signed (decides sign- or zero-extension).
-    const SIGNED: bool;
-    /// Zero of the type.
-    const ZERO: Self;
-    /// The value in 32 bits.
-    fn wide(self) -> i32;
-}
-
-impl Code for i8 {
-    const SIGNED: bool = true;
-    const ZERO: Self = 0;
-    #[inline(always)]
-    fn wide(self) -> i32 {
-        self as i32
-    }
-}
-
-impl Code for u8 {
-    const SIGNED: bool = false;
-    const ZERO: Self = 0;
-    #[inline(always)]
-    fn wide(self) -> i32 {
-        self as i32
-    }
-}
-
 /// Four dot products of rows `a0..a3` (equal lengths) against one shared int8 vector `w`
 /// (each `w` element loaded once). Products of a `u8` and an `i8` fit 16 bits too.
 #[inline(always)]
 pub fn dot4<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
+    #[cfg(target_arch = "x86_64")]
     {
-        use super::matmul_avx2::{dot4 as dot4_simd, LANES};
+        use super::arch::x86::avx2::{dot4 as dot4_simd, LANES};
         let head = w.len() - w.len() % LANES;
-        let s = dot4_simd(a0, a1, a2, a3, w.get(..head).unwrap_or(&[]));
-        fn tail<T>(x: &[T], head: usize) -> &[T] {
-            x.get(head..).unwrap_or(&[])
+        if let Some(s) = dot4_simd(a0, a1, a2, a3, w.get(..head).unwrap_or(&[])) {
+            fn tail<T>(x: &[T], head: usize) -> &[T] {
+                x.get(head..).unwrap_or(&[])
+            }
+            let t = dot4_portable(
+                tail(a0, head),
+                tail(a1, head),
+                tail(a2, head),
+                tail(a3, head),
+                tail(w, head),
+            );
+            return [
+                s[0].wrapping_add(t[0]),
+                s[1].wrapping_add(t[1]),
+                s[2].wrapping_add(t[2]),
+                s[3].wrapping_add(t[3]),
+            ];
         }
-        let t = dot4_portable(
-            tail(a0, head),
-            tail(a1, head),
-            tail(a2, head),
-            tail(a3, head),
-            tail(w, head),
-        );
-        [
-            s[0].wrapping_add(t[0]),
-            s[1].wrapping_add(t[1]),
-            s[2].wrapping_add(t[2]),
-            s[3].wrapping_add(t[3]),
-        ]
     }
     #[cfg(bino_dsp)]
     return dot4_pairs(a0, a1, a2, a3, w);
-    #[cfg(not(any(bino_dsp, all(target_arch = "x86_64", target_feature = "avx2"))))]
+    #[cfg(not(bino_dsp))]
     dot4_portable(a0, a1, a2, a3, w)
-}
-
-/// [`dot4`] as two passes of two rows, for cores without a vector unit (Cortex-M7,
-/// `bino_dsp`): four accumulators, five row pointers and the loop state do not fit the
-/// registers of Armv7E-M, and LLVM spills in the four-row loop (66 instructions per 16
-/// products in the matrix multiply, 59 as two two-row passes that read `w` twice). Same sums
-/// as `dot4_portable`, over the common length of the rows.
-#[inline(always)]
-pub fn dot4_pairs<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
-    let len = w.len().min(a0.len()).min(a1.len()).min(a2.len()).min(a3.len());
-    let [a0, a1, a2, a3] = [a0, a1, a2, a3].map(|x| x.get(..len).unwrap_or(&[]));
-    let w = w.get(..len).unwrap_or(&[]);
-    let [s0, s1] = dot2(a0, a1, w);
-    let [s2, s3] = dot2(a2, a3, w);
-    [s0, s1, s2, s3]
-}
-
-#[inline(always)]
-fn dot2<A: Code>(a0: &[A], a1: &[A], w: &[i8]) -> [i32; 2] {
-    let mut s = [0i32; 2];
-    for ((&x0, &x1), &wv) in a0.iter().zip(a1).zip(w) {
-        let wv = wv as i32;
-        s[0] = s[0].wrapping_add(x0.wide() * wv);
-        s[1] = s[1].wrapping_add(x1.wide() * wv);
-    }
-    s
-}
-
-#[inline(always)]
-#[cfg_attr(bino_dsp, allow(dead_code))] // only the tests use it there
-fn dot4_portable<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
-    let mut s = [0i32; 4];
-    for ((((&x0, &x1), &x2), &x3), &wv) in a0.iter().zip(a1).zip(a2).zip(a3).zip(w) {
-        let wv = wv as i32;
-        s[0] = s[0].wrapping_add(x0.wide() * wv);
-        s[1] = s[1].wrapping_add(x1.wide() * wv);
-        s[2] = s[2].wrapping_add(x2.wide() * wv);
-        s[3] = s[3].wrapping_add(x3.wide() * wv);
-    }
-    s
 }
 
 #[cfg(test)]

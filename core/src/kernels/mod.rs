@@ -5,17 +5,18 @@
 
 pub mod arch;
 pub mod attention;
+pub mod dispatch;
 pub mod epilogue;
-pub mod exp;
 pub mod gemm;
 pub mod layernorm;
 pub mod lut;
 pub mod matmul;
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-mod matmul_avx2;
-pub mod params;
+pub mod reference;
+pub mod residual;
 pub mod rope;
-#[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-pub mod x86_vnni;
 
-pub use params::I32s;
+pub mod types;
+
+// The shared types at their long-standing paths.
+pub use types::params::I32s;
+pub use types::{exp, params};

@@ -6,28 +6,11 @@
 //! scale, rotated with Q14 cosines and sines, then rounded to int8.
 
 use super::epilogue::ChannelRequant;
+use super::types::rope::PRE_ROPE_LIMIT;
+pub use super::types::rope::{Angles, PRE_ROPE_FRAC_BITS, QUARTER, TRIG_FRAC_BITS};
 use super::I32s;
 use crate::config::{DIM, HEAD_DIM};
 use crate::fixed::{round_shift, sat_i8_i64};
-
-/// Frequencies per half of a head: pairs `(i, i + QUARTER)`.
-pub const QUARTER: usize = HEAD_DIM / 4;
-/// Fraction bits of the cosine / sine tables.
-pub const TRIG_FRAC_BITS: u32 = 14;
-/// Extra fraction bits the accumulators keep through the rotation.
-pub const PRE_ROPE_FRAC_BITS: u32 = 8;
-/// Bound on pre-rotation values: keeps products far inside 64 bits whatever the parameters.
-const PRE_ROPE_LIMIT: i64 = 1 << 24;
-
-/// Cosines and sines (Q14) of one position's angles, one per frequency.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-#[repr(C)]
-pub struct Angles {
-    /// `round(cos(angle_i) * 2^14)`.
-    pub cos: [i16; QUARTER],
-    /// `round(sin(angle_i) * 2^14)`.
-    pub sin: [i16; QUARTER],
-}
 
 /// Requantises `acc` (all heads of one token, `heads * HEAD_DIM` channels; `rq` must give Q8 of
 /// the output scale) and rotates each head by the row and column angles into `out`.
@@ -133,44 +116,49 @@ impl RopeLanes {
     /// [`rope_token`] of one token's `DIM` accumulators; `false` (nothing written) for
     /// accumulators from `2^29` in magnitude or slices of another length.
     pub fn token(&mut self, acc: &[i32], row: &Angles, col: &Angles, out: &mut [i8]) -> bool {
-        let (Some(acc), Some(out)) = (acc.first_chunk::<DIM>(), out.first_chunk_mut::<DIM>()) else {
-            return false;
-        };
-        #[cfg(bino_dsp)]
-        if self.token_on_m7(acc, row, col, out) {
-            return true;
-        }
-        if acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 29 {
-            return false;
-        }
-        let limit = PRE_ROPE_LIMIT as i32;
-        let RopeLanes {
-            bias,
-            mult,
-            round,
-            pre,
-            post,
-            values: v,
-        } = self;
-        // Helium lanes on Cortex-M55 (`kernels::arch`), this loop elsewhere.
-        #[cfg(bino_mve)]
-        let done = crate::kernels::arch::mve::rope_requant(acc, bias, mult, round, pre, post, limit, v);
-        #[cfg(not(bino_mve))]
-        let done = false;
-        if !done {
-            for c in 0..DIM {
-                let x = (acc[c] + bias[c]) << (pre[c] & 1);
-                let high = ((x as i64 * mult[c] as i64) >> 32) as i32;
-                v[c] = ((high + round[c]) >> (post[c] & 31)).clamp(-limit, limit);
-            }
-        }
-        for (v_head, out_head) in v.chunks_exact(HEAD_DIM).zip(out.chunks_exact_mut(HEAD_DIM)) {
-            let (v_row, v_col) = v_head.split_at(HEAD_DIM / 2);
-            let (out_row, out_col) = out_head.split_at_mut(HEAD_DIM / 2);
-            rotate_half_lanes(v_row, row, out_row);
-            rotate_half_lanes(v_col, col, out_col);
-        }
-        true
+        crate::kernels::dispatch::vectorised(
+            #[inline(always)]
+            || {
+                let (Some(acc), Some(out)) = (acc.first_chunk::<DIM>(), out.first_chunk_mut::<DIM>()) else {
+                    return false;
+                };
+                #[cfg(bino_dsp)]
+                if self.token_on_m7(acc, row, col, out) {
+                    return true;
+                }
+                if acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 29 {
+                    return false;
+                }
+                let limit = PRE_ROPE_LIMIT as i32;
+                let RopeLanes {
+                    bias,
+                    mult,
+                    round,
+                    pre,
+                    post,
+                    values: v,
+                } = self;
+                // Helium lanes on Cortex-M55 (`kernels::arch`), this loop elsewhere.
+                #[cfg(bino_mve)]
+                let done = crate::kernels::arch::mve::rope_requant(acc, bias, mult, round, pre, post, limit, v);
+                #[cfg(not(bino_mve))]
+                let done = false;
+                if !done {
+                    for c in 0..DIM {
+                        let x = (acc[c] + bias[c]) << (pre[c] & 1);
+                        let high = ((x as i64 * mult[c] as i64) >> 32) as i32;
+                        v[c] = ((high + round[c]) >> (post[c] & 31)).clamp(-limit, limit);
+                    }
+                }
+                for (v_head, out_head) in v.chunks_exact(HEAD_DIM).zip(out.chunks_exact_mut(HEAD_DIM)) {
+                    let (v_row, v_col) = v_head.split_at(HEAD_DIM / 2);
+                    let (out_row, out_col) = out_head.split_at_mut(HEAD_DIM / 2);
+                    rotate_half_lanes(v_row, row, out_row);
+                    rotate_half_lanes(v_col, col, out_col);
+                }
+                true
+            },
+        )
     }
 }
 

@@ -300,28 +300,17 @@ pub fn cpu_model() -> Option<String> {
         .map(|(_, v)| v.trim().to_string())
 }
 
-/// The x86 kernels the int8 engine runs now: `avx512-vnni`, `avx2` or `portable` (a build
-/// without AVX2, or not x86).
+/// The kernels the int8 engine runs now: `avx512-vnni`, `avx2` or `portable` on x86 (chosen
+/// at run time from the CPU), `dsp` / `mve` on Cortex-M.
 pub fn x86_kernels() -> &'static str {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    {
-        if bino_core::kernels::x86_vnni::available() {
-            "avx512-vnni"
-        } else {
-            "avx2"
-        }
-    }
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
-    "portable"
+    bino_core::kernels::dispatch::active().name()
 }
 
 /// Keeps the int8 engine on its AVX2 kernels (`off`), or lets it use AVX-512 VNNI where the
 /// CPU has it, for this process.
 pub fn allow_vnni(on: bool) {
-    #[cfg(all(target_arch = "x86_64", target_feature = "avx2"))]
-    bino_core::kernels::x86_vnni::enable(on);
-    #[cfg(not(all(target_arch = "x86_64", target_feature = "avx2")))]
-    let _ = on;
+    use bino_core::kernels::dispatch::{limit, Isa};
+    limit(if on { Isa::Avx512Vnni } else { Isa::Avx2 });
 }
 
 fn cpu_has_avx2() -> bool {

@@ -25,11 +25,13 @@ pub(crate) mod dsp;
 mod fused;
 #[cfg(any(bino_mve, test))]
 pub(crate) mod mve;
+#[cfg(target_arch = "x86_64")]
+pub mod x86;
 
 pub use fused::{matmul_requant, matmul_requant_prepared, PreparedRequant};
 
-use super::exp::ExpQ32;
 use crate::config::HEAD_DIM;
+use crate::kernels::types::exp::ExpQ32;
 
 /// Longest dot product the kernels take (their stack scratch and the accumulator bound:
 /// `1024 * 128 * 128 < 2^24`; a band of 960 tokens is one attention dot product).
@@ -306,9 +308,9 @@ pub(crate) fn run<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut
 mod tests {
     use super::fused::{matmul_prepared_with, matmul_requant_with, Col};
     use super::*;
-    use crate::kernels::epilogue::ChannelRequant;
     use crate::kernels::gemm::matmul_requant_reference;
     use crate::kernels::matmul::matmul_i8_reference;
+    use crate::kernels::types::requant::ChannelRequant;
     use crate::testutil::Rng;
 
     type Driver = fn(&[i8], &[i8], usize, usize, &mut fused::Fused<'_>) -> bool;
@@ -466,7 +468,7 @@ mod tests {
     #[test]
     fn dsp_softmax_shortcuts_match_the_specification() {
         use crate::fixed::Requant;
-        use crate::kernels::attention::softmax_row as specification;
+        use crate::kernels::reference::softmax::softmax_row as specification;
         let mut rng = Rng::new(35);
         let mut taken = 0;
         for trial in 0..3000 {
@@ -507,7 +509,7 @@ mod tests {
     #[test]
     fn dsp_softmax_into_the_widened_rows_matches_the_specification() {
         use crate::fixed::Requant;
-        use crate::kernels::attention::softmax_row as specification;
+        use crate::kernels::reference::softmax::softmax_row as specification;
         let mut rng = Rng::new(36);
         let mut taken = 0;
         for trial in 0..600 {
@@ -578,7 +580,7 @@ mod tests {
     #[test]
     fn dsp_softmax_row_into_the_widened_layout_matches_the_specification() {
         use crate::fixed::Requant;
-        use crate::kernels::attention::softmax_row as specification;
+        use crate::kernels::reference::softmax::softmax_row as specification;
         let mut rng = Rng::new(37);
         let e = ExpQ32::new(Requant {
             mult: 1_431_142_052,

@@ -1,8 +1,8 @@
 //! AVX-512 VNNI kernels of x86-64 host builds, chosen at run time where the CPU has them
 //! (`vpdpbusd`: 32 products of an unsigned and a signed byte, summed into 8 int32 lanes, in one
-//! instruction, against 16 per `vpmaddwd` + `vpaddd` pair on AVX2). The build targets AVX2
-//! (`x86-64-v3`), so these are compiled for the wider features and called only after
-//! [`available`] has seen them in `cpuid` and the OS saving their registers (`xgetbv`).
+//! instruction, against 16 per `vpmaddwd` + `vpaddd` pair on AVX2). Whatever `-C target-cpu` the build
+//! names, these are compiled for the wider features and called only after [`available`] has
+//! seen them in `cpuid` and the OS saving their registers (`xgetbv`).
 //!
 //! `vpdpbusd` multiplies unsigned by signed bytes: the signed codes `x` of one operand enter as
 //! `x ^ 0x80 = x + 128`, and `128 * sum(other operand)` comes off again, exactly: every sum is
@@ -27,8 +27,8 @@ use core::sync::atomic::{AtomicU8, Ordering};
 
 use bytemuck::must_cast;
 
-use super::exp::{ExpQ32, C0, C1, C2, C3, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
-use super::matmul_avx2::{sum4, transpose4};
+use super::avx2::{sum4, transpose4};
+use crate::kernels::types::exp::{ExpQ32, C0, C1, C2, C3, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// Bytes per step: one 256-bit vector.
 pub const STEP: usize = 32;
@@ -53,7 +53,8 @@ pub fn available() -> bool {
 /// whether they now run. Off is how the AVX2 kernels are measured and tested on a CPU with
 /// VNNI; the results are the same either way.
 pub fn enable(on: bool) -> bool {
-    let run = on && supported();
+    // They use AVX2 helpers too: off wherever the AVX2 kernels are.
+    let run = on && super::avx2() && supported();
     STATE.store(if run { 2 } else { 1 }, Ordering::Relaxed);
     run
 }
@@ -66,8 +67,8 @@ pub fn supported() -> bool {
     if __cpuid(0).eax < 7 || __cpuid(1).ecx & OSXSAVE == 0 {
         return false;
     }
-    // SAFETY: OSXSAVE is set, so the OS has enabled XSAVE and `xgetbv` cannot fault; the
-    // build targets x86-64-v3, whose `xsave` feature the intrinsic needs.
+    // SAFETY: OSXSAVE is set, so the CPU has XSAVE (the intrinsic's target feature) and the
+    // OS has enabled it: `xgetbv` cannot fault.
     #[allow(unsafe_code)]
     let xcr0 = unsafe { _xgetbv(0) };
     let leaf7 = __cpuid_count(7, 0);
@@ -376,7 +377,7 @@ fn softmax_row_avx512(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) 
         let bytes: [u8; SOFTMAX_STEP] = must_cast(_mm512_cvtepi32_epi8(_mm512_xor_si512(weight, flip)));
         w.copy_from_slice(&bytes);
     }
-    let tail = super::attention::softmax_row(e, max, scores_tail, weights_tail);
+    let tail = crate::kernels::reference::softmax::softmax_row(e, max, scores_tail, weights_tail);
     let wide_sum = _mm512_reduce_add_epi64(byte_sums) as u32;
     wide_sum
         .wrapping_add(_mm512_reduce_add_epi32(sums) as u32)
@@ -592,7 +593,7 @@ fn four_rows(rows: &[i8], n: usize) -> Option<[core::slice::ChunksExact<'_, i8>;
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::matmul::dot;
+    use crate::kernels::reference::matmul::dot;
     use crate::testutil::Rng;
 
     #[test]
@@ -614,7 +615,7 @@ mod tests {
             for (&x, &w) in x.iter().zip(&weights) {
                 assert_eq!(
                     w,
-                    u16::from(super::super::exp::EXP2_NEG_U8_TABLE[x as usize]),
+                    u16::from(crate::kernels::types::exp::EXP2_NEG_U8_TABLE[x as usize]),
                     "x = {x}"
                 );
             }

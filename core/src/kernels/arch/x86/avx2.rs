@@ -1,5 +1,5 @@
-//! AVX2 kernels of host builds with AVX2 enabled (`.cargo/config.toml` sets `x86-64-v3`): the
-//! four-row dot product, the matrix multiply and the two products of attention. LLVM does not
+//! AVX2 kernels of x86-64 hosts, chosen at run time where the CPU has AVX2 ([`super::avx2()`]),
+//! whatever `-C target-cpu` the build names: the four-row dot product, the matrix multiply and the two products of attention. LLVM does not
 //! turn the portable loops into `vpmaddwd` (it widens to 32 bits and uses `vpmulld`, 8 MACs per
 //! slow instruction); here each `vpmaddwd` does 16 MACs, and each operand is widened once per
 //! tile rather than once per product.
@@ -18,8 +18,9 @@ use core::arch::x86_64::{
     _mm256_srli_epi64, _mm_add_epi32, _mm_unpackhi_epi32, _mm_unpackhi_epi64, _mm_unpacklo_epi32, _mm_unpacklo_epi64,
 };
 
-use super::epilogue::NarrowChunk;
-use super::matmul::{dot, Code};
+use crate::kernels::reference::matmul::dot;
+use crate::kernels::types::code::Code;
+use crate::kernels::types::requant::NarrowChunk;
 
 /// Elements per step: 16 int8 values widened to one 256-bit vector of int16.
 pub const LANES: usize = 16;
@@ -29,30 +30,31 @@ pub const MAX_GEMM_K: usize = 512;
 const HEAD: usize = crate::config::HEAD_DIM;
 
 /// Four dot products against `w` over the first `k - k % LANES` elements (the caller adds the
-/// tail). Inputs shorter than `w` are treated as ending there.
+/// tail), where the CPU has AVX2; `None` elsewhere. Inputs shorter than `w` are treated as
+/// ending there.
 #[inline]
-pub fn dot4<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
-    // SAFETY: this module is compiled only when the build enables AVX2
-    // (`cfg(target_feature = "avx2")` in kernels/mod.rs), so every CPU the binary is allowed to
-    // run on has it. The function itself only reads through safe slices.
-    #[allow(unsafe_code)]
-    unsafe {
-        dot4_avx2(a0, a1, a2, a3, w)
+pub fn dot4<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> Option<[i32; 4]> {
+    if !super::avx2() {
+        return None;
     }
+    // SAFETY: `avx2()` saw AVX2 on this CPU (cpuid, and the OS saving the YMM registers). The
+    // function itself only reads through safe slices.
+    #[allow(unsafe_code)]
+    Some(unsafe { dot4_avx2(a0, a1, a2, a3, w) })
 }
 
 /// `out` (`m x n`) = `a` (`m x k`) times the transpose of `w` (`n x k`), as
 /// `matmul::matmul_i8_reference` computes it, when `k` is a multiple of [`LANES`] up to
 /// [`MAX_GEMM_K`] and `out` holds exactly `m * n` values; otherwise `false`.
 pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
-    if k == 0 || !k.is_multiple_of(LANES) || k > MAX_GEMM_K {
+    if k == 0 || !k.is_multiple_of(LANES) || k > MAX_GEMM_K || !super::avx2() {
         return false;
     }
     let (m, n) = (a.len() / k, w.len() / k);
     if m.checked_mul(n) != Some(out.len()) {
         return false;
     }
-    // SAFETY: as in `dot4`, AVX2 is enabled for the whole build.
+    // SAFETY: as in `dot4`, `avx2()` saw AVX2 on this CPU.
     #[allow(unsafe_code)]
     unsafe {
         matmul_avx2(&a[..m * k], &w[..n * k], k, out)
@@ -66,10 +68,10 @@ pub fn scores4(queries: &[[i8; HEAD]; 4], keys: &[i8], n: usize, scores: &mut [i
     let (Some(key_bytes), Some(score_len)) = (n.checked_mul(HEAD), n.checked_mul(4)) else {
         return false;
     };
-    if !HEAD.is_multiple_of(LANES) || keys.len() < key_bytes || scores.len() < score_len {
+    if !HEAD.is_multiple_of(LANES) || keys.len() < key_bytes || scores.len() < score_len || !super::avx2() {
         return false;
     }
-    // SAFETY: as in `dot4`.
+    // SAFETY: as in `dot4`, `avx2()` saw AVX2 on this CPU.
     #[allow(unsafe_code)]
     unsafe {
         scores4_avx2(queries, &keys[..key_bytes], n, &mut scores[..score_len])
@@ -92,11 +94,11 @@ pub fn weighted_sums4(
         return false;
     };
     let fits = weights.len() >= weight_len && values_t.len() >= value_len && scratch.len() >= weight_len / 2;
-    if n == 0 || !n.is_multiple_of(LANES) || !fits {
+    if n == 0 || !n.is_multiple_of(LANES) || !fits || !super::avx2() {
         return false;
     }
     let wide: &mut [i16] = bytemuck::cast_slice_mut(&mut scratch[..weight_len / 2]);
-    // SAFETY: as in `dot4`.
+    // SAFETY: as in `dot4`, `avx2()` saw AVX2 on this CPU.
     #[allow(unsafe_code)]
     unsafe {
         weighted_sums4_avx2(&weights[..weight_len], &values_t[..value_len], n, wide, acc)
@@ -320,12 +322,12 @@ fn widen<T: Code>(chunk: &[T]) -> __m256i {
 /// One row of a requantisation chunk in 32-bit lanes ([`NarrowChunk`]'s identity), eight
 /// channels per step: `false` where an accumulator lies outside `-2^30..2^30` or the lengths
 /// differ (then `out` may be partly written: the caller runs the 64-bit formula on the row).
-pub(super) fn requant_row_narrow(c: &NarrowChunk, acc: &[i32], out: &mut [i8]) -> bool {
+pub(crate) fn requant_row_narrow(c: &NarrowChunk, acc: &[i32], out: &mut [i8]) -> bool {
     let len = c.len;
-    if acc.len() != len || out.len() != len {
+    if acc.len() != len || out.len() != len || !super::avx2() {
         return false;
     }
-    // SAFETY: as in `dot4`, AVX2 is enabled for the whole build. The kernel itself only reads
+    // SAFETY: as in `dot4`, `avx2()` saw AVX2 on this CPU. The kernel itself only reads
     // and writes through safe slices.
     #[allow(unsafe_code)]
     let in_range = unsafe { requant_narrow_avx2(c, acc, out) };

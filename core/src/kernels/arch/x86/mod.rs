@@ -1,0 +1,80 @@
+//! x86-64 kernels of host builds, chosen at run time from what the CPU reports (`cpuid`), so
+//! a crate that depends on `bino-core` gets them without `-C target-cpu` flags:
+//! - [`mod@vnni`]: AVX-512 VNNI tiles (`vpdpbusd`) where the CPU and OS support AVX-512 F, DQ,
+//!   BW, VL and VNNI;
+//! - [`mod@avx2`]: AVX2 tiles (`vpmaddwd`) where the CPU has AVX2;
+//! - [`with_avx2`] / [`vnni::with_avx512`]: portable loops compiled again for those features
+//!   (LLVM vectorises them wider than the SSE2 baseline of `x86_64-unknown-linux-gnu`).
+//!
+//! Every kernel is bit-identical to the portable one it replaces (each module's tests), so
+//! which one runs changes the time, never the output. [`allow_avx2`] and [`vnni::enable`]
+//! switch them off for the process: that is how the slower paths are measured and tested on
+//! a fast CPU.
+
+pub mod avx2;
+pub mod vnni;
+
+use core::sync::atomic::{AtomicU8, Ordering};
+
+// The features `with_avx2` compiles for: AVX2 and the BMI shifts of x86-64-v3.
+cpufeatures::new!(cpuid_avx2, "avx2", "bmi1", "bmi2");
+
+// 0: not yet looked, 1: absent or switched off, 2: in use.
+static AVX2: AtomicU8 = AtomicU8::new(0);
+
+/// Whether the AVX2 kernels run: the CPU has AVX2, BMI1 and BMI2, the OS saves the YMM
+/// registers, and [`allow_avx2`] has not switched them off. One relaxed atomic load after the
+/// first call.
+#[inline]
+pub fn avx2() -> bool {
+    match AVX2.load(Ordering::Relaxed) {
+        1 => false,
+        2 => true,
+        _ => allow_avx2(true),
+    }
+}
+
+/// Lets the AVX2 kernels run (only where the CPU has them) or keeps every x86 kernel off
+/// (`false`: the portable kernels, and no VNNI either, which needs AVX2), for this process;
+/// returns whether AVX2 now runs.
+pub fn allow_avx2(on: bool) -> bool {
+    let run = on && cpuid_avx2::get();
+    AVX2.store(if run { 2 } else { 1 }, Ordering::Relaxed);
+    if !run {
+        vnni::enable(false);
+    }
+    run
+}
+
+/// `f()` compiled for AVX2 (with BMI1 / BMI2) where [`avx2()`] holds (`None`, `f` not called,
+/// elsewhere). Portable loops inlined into `f` vectorise with 256-bit lanes; the results are
+/// those of `f` compiled for the baseline.
+#[inline(always)]
+pub fn with_avx2<R>(f: impl FnOnce() -> R) -> Option<R> {
+    if !avx2() {
+        return None;
+    }
+    // SAFETY: `avx2()` saw AVX2, BMI1 and BMI2 on this CPU, enabled by the OS.
+    #[allow(unsafe_code)]
+    Some(unsafe { run_avx2(f) })
+}
+
+/// `f()` compiled for AVX2 where [`avx2()`] holds, else `f()` as the build compiled it: the same
+/// result either way.
+#[inline(always)]
+pub fn widened<R>(f: impl FnOnce() -> R) -> R {
+    if avx2() {
+        // SAFETY: `avx2()` saw AVX2, BMI1 and BMI2 on this CPU, enabled by the OS.
+        #[allow(unsafe_code)]
+        unsafe {
+            run_avx2(f)
+        }
+    } else {
+        f()
+    }
+}
+
+#[target_feature(enable = "avx2,bmi1,bmi2")]
+fn run_avx2<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}

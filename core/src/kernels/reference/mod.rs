@@ -1,0 +1,5 @@
+//! The reference kernels: plain Rust, the specification that every instruction set's kernel is
+//! tested against bit for bit. They import the shared types only.
+
+pub mod matmul;
+pub mod softmax;

@@ -1,0 +1,117 @@
+//! The kernels' layers, checked on the source: shared types at the bottom, the reference
+//! kernels on them, one module per instruction set on those two, one dispatch point above, and
+//! the model and pipeline never naming an instruction set. A file that imports against the
+//! direction fails here with its path and line.
+
+use std::fs;
+use std::path::{Path, PathBuf};
+
+const SRC: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/src");
+
+/// Kernel modules above the instruction sets (the families and the dispatch).
+const ABOVE_ARCH: [&str; 9] = [
+    "dispatch",
+    "attention",
+    "epilogue",
+    "gemm",
+    "layernorm",
+    "lut",
+    "matmul",
+    "rope",
+    "arch",
+];
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+        let path = entry.expect("directory entry").path();
+        if path.is_dir() {
+            rust_files(&path, out);
+        } else if path.extension().is_some_and(|x| x == "rs") {
+            out.push(path);
+        }
+    }
+}
+
+/// The non-test lines of every file under `dir` (a file's unit tests, from `#[cfg(test)]`
+/// followed by `mod tests`, and `tests.rs` files may use any layer).
+fn code_lines(dir: &str) -> Vec<(String, usize, String)> {
+    let mut files = Vec::new();
+    rust_files(&Path::new(SRC).join(dir), &mut files);
+    let mut lines = Vec::new();
+    for file in files {
+        if file.file_name().is_some_and(|n| n == "tests.rs") {
+            continue;
+        }
+        let text = fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        let all: Vec<&str> = text.lines().collect();
+        for (i, line) in all.iter().enumerate() {
+            if line.trim() == "#[cfg(test)]" && all.get(i + 1).is_some_and(|l| l.trim_start().starts_with("mod tests"))
+            {
+                break;
+            }
+            let code = line.split("//").next().unwrap_or("");
+            lines.push((file.display().to_string(), i + 1, code.to_string()));
+        }
+    }
+    lines
+}
+
+fn violations(dir: &str, forbidden: &[String]) -> Vec<String> {
+    code_lines(dir)
+        .into_iter()
+        .filter_map(|(file, n, code)| {
+            let hit = forbidden.iter().find(|f| code.contains(f.as_str()))?;
+            Some(format!("{file}:{n}: `{hit}` in {}", code.trim()))
+        })
+        .collect()
+}
+
+fn kernel_paths(modules: &[&str]) -> Vec<String> {
+    modules.iter().map(|m| format!("kernels::{m}")).collect()
+}
+
+#[test]
+fn the_shared_types_import_no_kernel() {
+    let mut forbidden = kernel_paths(&ABOVE_ARCH);
+    forbidden.push("kernels::reference".into());
+    forbidden.push("super::super".into());
+    let found = violations("kernels/types", &forbidden);
+    assert!(found.is_empty(), "types reach up:\n{}", found.join("\n"));
+}
+
+#[test]
+fn the_reference_kernels_import_the_types_only() {
+    let mut forbidden = kernel_paths(&ABOVE_ARCH);
+    forbidden.push("super::super".into());
+    let found = violations("kernels/reference", &forbidden);
+    assert!(found.is_empty(), "reference kernels reach up:\n{}", found.join("\n"));
+}
+
+#[test]
+fn each_instruction_set_imports_the_types_and_the_reference_only() {
+    let mut forbidden = kernel_paths(&ABOVE_ARCH[..ABOVE_ARCH.len() - 1]);
+    // `super::` inside arch/ names arch's own modules; two levels up is the families.
+    forbidden.push("super::super".into());
+    let found = violations("kernels/arch", &forbidden);
+    assert!(
+        found.is_empty(),
+        "instruction-set kernels reach up:\n{}",
+        found.join("\n")
+    );
+}
+
+#[test]
+fn the_model_and_the_pipeline_never_name_an_instruction_set() {
+    let forbidden = vec!["kernels::arch".to_string(), "arch::".to_string()];
+    let mut found = violations("model", &forbidden);
+    found.extend(violations("pipeline", &forbidden));
+    assert!(found.is_empty(), "callers of an instruction set:\n{}", found.join("\n"));
+}
+
+#[test]
+fn the_scan_finds_what_is_there() {
+    // The families above the instruction sets do call them: the scan must see those lines, or
+    // the checks above would pass on anything.
+    let found = violations("kernels", &["use super::arch".to_string()]);
+    assert!(!found.is_empty(), "the scan found no `use super::arch` under kernels/");
+}
