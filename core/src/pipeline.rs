@@ -149,13 +149,7 @@ impl<'a> SlicePair<'a> {
             return Err(Error::PairMismatch);
         }
         let expected = width.saturating_mul(height);
-        if left.len() != expected {
-            return Err(Error::BufferSize {
-                what: "view pixels",
-                expected,
-                found: left.len(),
-            });
-        }
+        Error::check_len("view pixels", expected, left.len())?;
         Ok(Self {
             left,
             right,
@@ -185,13 +179,7 @@ impl RowSource for SlicePair<'_> {
             });
         };
         for (out, src) in [(left, l), (right, r)] {
-            if out.len() != src.len() {
-                return Err(Error::BufferSize {
-                    what: "row buffer",
-                    expected: src.len(),
-                    found: out.len(),
-                });
-            }
+            Error::check_len("row buffer", src.len(), out.len())?;
             out.copy_from_slice(src);
         }
         self.next += 1;
@@ -921,13 +909,7 @@ impl Context<'_, '_> {
         let view = GrayBand::new(left_px, self.width, self.band_px)?;
         let (left_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
         let codes: &[i8] = bytemuck::cast_slice(scratch.get(..len).unwrap_or_default());
-        if codes.len() != desc_left.len() {
-            return Err(Error::BufferSize {
-                what: "descriptor band",
-                expected: desc_left.len(),
-                found: codes.len(),
-            });
-        }
+        Error::check_len("descriptor band", desc_left.len(), codes.len())?;
         desc_left.copy_from_slice(codes);
         sink.stage(Stage::EncodeRight);
         let view = GrayBand::new(right_px, self.width, self.band_px)?;

@@ -376,13 +376,7 @@ impl<'a, 'w> HeadStream<'a, 'w> {
         self.check_pathway(HeadKind::Export)?;
         let expected = self.cols * DIM;
         for (what, row) in [("left descriptor row", desc_left), ("right descriptor row", desc_right)] {
-            if row.len() != expected {
-                return Err(Error::BufferSize {
-                    what,
-                    expected,
-                    found: row.len(),
-                });
-            }
+            Error::check_len(what, expected, row.len())?;
         }
         if self.input_done {
             return Err(Error::StreamFinished);
@@ -413,13 +407,7 @@ impl<'a, 'w> HeadStream<'a, 'w> {
     pub fn push_pair_row(&mut self, tokens: &[i8], sink: &mut impl HeadSink) -> Result<(), Error> {
         self.check_pathway(HeadKind::Native)?;
         let expected = self.cols * 2 * DIM;
-        if tokens.len() != expected {
-            return Err(Error::BufferSize {
-                what: "pair token row",
-                expected,
-                found: tokens.len(),
-            });
-        }
+        Error::check_len("pair token row", expected, tokens.len())?;
         if self.input_done {
             return Err(Error::StreamFinished);
         }

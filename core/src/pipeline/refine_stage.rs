@@ -277,13 +277,7 @@ impl<'a> RefineStage<'a> {
             .tokens
             .get_mut((row % 2) * cols..(row % 2 + 1) * cols)
             .unwrap_or_default();
-        if disparity_q8.len() != slot.len() {
-            return Err(Error::BufferSize {
-                what: "refined token row",
-                expected: slot.len(),
-                found: disparity_q8.len(),
-            });
-        }
+        Error::check_len("refined token row", slot.len(), disparity_q8.len())?;
         slot.copy_from_slice(disparity_q8);
         let kept = self
             .masks
@@ -326,15 +320,7 @@ impl<'a> RefineStage<'a> {
     /// After the last token row: every pixel row must have been emitted.
     pub fn done(&self) -> Result<(), Error> {
         self.check()?;
-        if self.next_y == self.height {
-            Ok(())
-        } else {
-            Err(Error::BufferSize {
-                what: "refined rows",
-                expected: self.height,
-                found: self.next_y,
-            })
-        }
+        Error::check_len("refined rows", self.height, self.next_y)
     }
 
     /// Before the band buffer drops its rows above `new_first`: copies the rows the stage still

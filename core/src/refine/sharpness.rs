@@ -78,9 +78,9 @@ pub fn box_row(rows: &[&[u8]], radius: usize, out: &mut [u8]) -> Result<(), Erro
         return Err(Error::EmptyImage);
     }
     let taps = 2 * radius + 1;
-    super::check_len("box rows", rows.len(), taps)?;
+    Error::check_len("box rows", taps, rows.len())?;
     for row in rows {
-        super::check_len("box row", row.len(), width)?;
+        Error::check_len("box row", width, row.len())?;
     }
     // Column sums first (`u16`: at most 5 x 255), then the horizontal window over them.
     let mut columns = [0u16; MAX_ROW];
@@ -212,9 +212,9 @@ impl SharpnessWindow {
             });
         }
         for rows in [left, right] {
-            super::check_len("decision window", rows.len(), DECISION_ROWS)?;
+            Error::check_len("decision window", DECISION_ROWS, rows.len())?;
             for row in rows {
-                super::check_len("decision window row", row.len(), self.width)?;
+                Error::check_len("decision window row", self.width, row.len())?;
             }
         }
         let mut totals = [[0u64; MAX_RADIUS + 1]; 2];
@@ -319,7 +319,7 @@ impl<'s> EqualisedRefiner<'s> {
         height: usize,
         params: &RefineParams,
     ) -> Result<Self, Error> {
-        super::check_len("smoothed rows", smoothed.len(), smoothed_len(width, params))?;
+        Error::check_len("smoothed rows", smoothed_len(width, params), smoothed.len())?;
         Ok(Self {
             refiner: RowRefiner::new(census, width, params)?,
             window: SharpnessWindow::new(width, height)?,
@@ -347,7 +347,7 @@ impl<'s> EqualisedRefiner<'s> {
         let params = self.params;
         let (reach, wide) = (params.reach(), equalised_reach(&params));
         for side in [rows.left, rows.right] {
-            super::check_len("equalised window", side.len(), 2 * wide + 1)?;
+            Error::check_len("equalised window", 2 * wide + 1, side.len())?;
         }
         let decision = self.window.decide(
             y,
