@@ -27,7 +27,8 @@
 //! output row; with several bands it lives in the encoder's scratch (free between passes), with
 //! one band beside the readout streams (which share the encoder's scratch after both passes).
 
-use super::{sum, Sink};
+use super::sizing::sum;
+use super::Sink;
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS, CELL_W, PATCH_H};
 use crate::lr::fill_rejected;
