@@ -88,7 +88,13 @@ fn check_costs(costs: &[u16], candidates: usize) -> Result<usize, Error> {
     if costs.is_empty() {
         return Err(Error::EmptyImage);
     }
-    Error::check_len("cost row", costs.len() / candidates * candidates, costs.len())?;
+    if !costs.len().is_multiple_of(candidates) {
+        return Err(Error::BufferSize {
+            what: "cost row",
+            expected: costs.len() / candidates * candidates,
+            found: costs.len(),
+        });
+    }
     Ok(costs.len() / candidates)
 }
 

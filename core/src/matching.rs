@@ -173,7 +173,13 @@ fn check_row(row: &[i8]) -> Result<usize, Error> {
     if row.is_empty() {
         return Err(Error::EmptyImage);
     }
-    Error::check_len("descriptor row", row.len() / DIM * DIM, row.len())?;
+    if !row.len().is_multiple_of(DIM) {
+        return Err(Error::BufferSize {
+            what: "descriptor row",
+            expected: row.len() / DIM * DIM,
+            found: row.len(),
+        });
+    }
     Ok(row.len() / DIM)
 }
 

@@ -419,7 +419,13 @@ pub fn keep_rejected_map(width: usize, tokens: &[u16], kept: &[u8], out: &mut [u
     if width == 0 || out.is_empty() {
         return Err(Error::EmptyImage);
     }
-    Error::check_len("refined disparity", out.len() / width * width, out.len())?;
+    if !out.len().is_multiple_of(width) {
+        return Err(Error::BufferSize {
+            what: "refined disparity",
+            expected: out.len() / width * width,
+            found: out.len(),
+        });
+    }
     let height = out.len() / width;
     let (grid_rows, cells) = (height.div_ceil(PATCH_H), width.div_ceil(CELL_W));
     Error::check_len("token grid", grid_rows * cells, tokens.len())?;
@@ -453,7 +459,13 @@ pub(crate) fn map_shape(
     if width == 0 || left.is_empty() {
         return Err(Error::EmptyImage);
     }
-    Error::check_len("left view", left.len() / width * width, left.len())?;
+    if !left.len().is_multiple_of(width) {
+        return Err(Error::BufferSize {
+            what: "left view",
+            expected: left.len() / width * width,
+            found: left.len(),
+        });
+    }
     if right.len() != left.len() {
         return Err(Error::PairMismatch);
     }
