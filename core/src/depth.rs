@@ -247,18 +247,9 @@ impl<const N: usize> SectorSummary<N> {
     /// Adds one disparity row (`cols` Q8 values); with `keep`, only the cells where it is
     /// non-zero (a left-right mask). [`Error::BufferSize`] on a row or mask of another length.
     pub fn push_row(&mut self, disparity_q8: &[u16], keep: Option<&[u8]>) -> Result<(), Error> {
-        let size = |what, found| Error::BufferSize {
-            what,
-            expected: self.cols,
-            found,
-        };
-        if disparity_q8.len() != self.cols {
-            return Err(size("sector disparity row", disparity_q8.len()));
-        }
+        Error::check_len("sector disparity row", self.cols, disparity_q8.len())?;
         if let Some(k) = keep {
-            if k.len() != self.cols {
-                return Err(size("sector keep mask", k.len()));
-            }
+            Error::check_len("sector keep mask", self.cols, k.len())?;
         }
         let row = u16::try_from(self.rows).unwrap_or(u16::MAX);
         for sector in &mut self.sectors {

@@ -118,6 +118,29 @@ pub enum Error {
     Blob(crate::blob::BlobError),
 }
 
+impl Error {
+    /// `Ok` when a buffer's length `found` is the `expected` one, else [`Error::BufferSize`]
+    /// naming the buffer (`what`) and both lengths: the one check every length-taking function
+    /// makes.
+    ///
+    /// ```
+    /// use bino_core::Error;
+    /// assert_eq!(Error::check_len("row", 4, 4), Ok(()));
+    /// assert_eq!(
+    ///     Error::check_len("row", 4, 3),
+    ///     Err(Error::BufferSize { what: "row", expected: 4, found: 3 })
+    /// );
+    /// ```
+    #[inline]
+    pub const fn check_len(what: &'static str, expected: usize, found: usize) -> Result<(), Error> {
+        if found == expected {
+            Ok(())
+        } else {
+            Err(Error::BufferSize { what, expected, found })
+        }
+    }
+}
+
 impl fmt::Display for Error {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match *self {

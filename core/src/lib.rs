@@ -93,7 +93,10 @@ pub mod pipeline;
 pub mod preset;
 pub mod refine;
 pub mod sgm;
-#[cfg(test)]
-mod testutil;
+// Test code, not an API: the one test PRNG, for this crate's tests and (feature `testutil`)
+// the integration and firmware kernel tests.
+#[cfg(any(test, feature = "testutil"))]
+#[doc(hidden)]
+pub mod testutil;
 
 pub use error::Error;

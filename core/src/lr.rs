@@ -14,13 +14,7 @@ use crate::Error;
 /// `right[q][k] = left[q + k][k]`, [`COST_EXCLUDED`] where `q + k` is outside the row.
 pub fn right_view_costs(left: &[u16], candidates: usize, out: &mut [u16]) -> Result<(), Error> {
     let cols = check_costs(left, candidates)?;
-    if out.len() != left.len() {
-        return Err(Error::BufferSize {
-            what: "right-view cost row",
-            expected: left.len(),
-            found: out.len(),
-        });
-    }
+    Error::check_len("right-view cost row", left.len(), out.len())?;
     for (q, costs) in out.chunks_exact_mut(candidates).enumerate() {
         for (k, c) in costs.iter_mut().enumerate() {
             *c = if q + k < cols {
@@ -37,13 +31,7 @@ pub fn right_view_costs(left: &[u16], candidates: usize, out: &mut [u16]) -> Res
 /// patch columns (the same refinement as the SGM readout).
 pub fn wta_costs(costs: &[u16], candidates: usize, out: &mut [u16]) -> Result<(), Error> {
     let cols = check_costs(costs, candidates)?;
-    if out.len() != cols {
-        return Err(Error::BufferSize {
-            what: "disparity row",
-            expected: cols,
-            found: out.len(),
-        });
-    }
+    Error::check_len("disparity row", cols, out.len())?;
     let mut wide = [0u32; MAX_CANDIDATES];
     for (c, o) in costs.chunks_exact(candidates).zip(out.iter_mut()) {
         wide.iter_mut().zip(c).for_each(|(w, &v)| *w = v as u32);
@@ -58,13 +46,7 @@ pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [
     if right.len() != left.len() {
         return Err(Error::PairMismatch);
     }
-    if out.len() != left.len() {
-        return Err(Error::BufferSize {
-            what: "left-right mask row",
-            expected: left.len(),
-            found: out.len(),
-        });
-    }
+    Error::check_len("left-right mask row", left.len(), out.len())?;
     let half = 1usize << (DISPARITY_FRAC_BITS - 1);
     let mut kept = 0;
     for (p, (&d, o)) in left.iter().zip(out.iter_mut()).enumerate() {
@@ -85,13 +67,7 @@ pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [
 /// host's float readouts fill with this same definition (a copy of kept values, exact in any
 /// precision).
 pub fn fill_rejected<T: Copy + Default>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
-    if consistent.len() != row.len() {
-        return Err(Error::BufferSize {
-            what: "left-right mask row",
-            expected: row.len(),
-            found: consistent.len(),
-        });
-    }
+    Error::check_len("left-right mask row", row.len(), consistent.len())?;
     let Some(first) = consistent.iter().position(|&k| k != 0) else {
         row.fill(T::default());
         return Ok(());

@@ -39,7 +39,7 @@ const INV_NORM_BITS: u32 = 30;
 /// descriptor, whose similarities are then 0, as with `F.normalize`).
 pub fn inverse_norms(row: &[i8], out: &mut [u32]) -> Result<(), Error> {
     let cells = check_row(row)?;
-    check_len("inverse norms", out.len(), cells)?;
+    Error::check_len("inverse norms", cells, out.len())?;
     for (d, o) in row.chunks_exact(dim()).zip(out.iter_mut()) {
         let sum_sq: u64 = d.iter().map(|&x| (x as i32 * x as i32) as u64).sum();
         // |d|^2 <= DIM * 2^14; the square root keeps 16 fraction bits via a 2^32 prescale.
@@ -64,7 +64,7 @@ pub fn match_row(
     out: &mut [u16],
 ) -> Result<(), Error> {
     let cells = check_pair(left, right, right_inv_norms, max_cols)?;
-    check_len("disparity row", out.len(), cells)?;
+    Error::check_len("disparity row", cells, out.len())?;
     let mut sims = [0i64; MAX_CANDIDATES];
     let dim = dim();
     for (p, (l, o)) in left.chunks_exact(dim).zip(out.iter_mut()).enumerate() {
@@ -93,8 +93,8 @@ pub fn cost_row(
     out: &mut [u16],
 ) -> Result<(), Error> {
     let cells = check_pair(left, right, right_inv_norms, max_cols)?;
-    check_len("left inverse norms", left_inv_norms.len(), cells)?;
-    check_len("cost row", out.len(), cells.saturating_mul(max_cols))?;
+    Error::check_len("left inverse norms", cells, left_inv_norms.len())?;
+    Error::check_len("cost row", cells.saturating_mul(max_cols), out.len())?;
     let dim = dim();
     for (p, (l, costs)) in left.chunks_exact(dim).zip(out.chunks_exact_mut(max_cols)).enumerate() {
         let inv_l = left_inv_norms.get(p).copied().unwrap_or(0) as i64;
@@ -154,7 +154,7 @@ fn check_pair(left: &[i8], right: &[i8], right_inv_norms: &[u32], max_cols: usiz
     if right.len() != left.len() {
         return Err(Error::PairMismatch);
     }
-    check_len("right inverse norms", right_inv_norms.len(), cells)?;
+    Error::check_len("right inverse norms", cells, right_inv_norms.len())?;
     check_candidates(max_cols)?;
     Ok(cells)
 }
@@ -184,14 +184,6 @@ fn check_row(row: &[i8]) -> Result<usize, Error> {
         });
     }
     Ok(row.len() / DIM)
-}
-
-fn check_len(what: &'static str, found: usize, expected: usize) -> Result<(), Error> {
-    if found == expected {
-        Ok(())
-    } else {
-        Err(Error::BufferSize { what, expected, found })
-    }
 }
 
 #[cfg(test)]

@@ -248,7 +248,7 @@ pub fn refine_row(
     check_row_inputs(y, width, rows, tokens, params)?;
     let height = rows.height;
     let cells = width.div_ceil(CELL_W);
-    check_len("refinement scratch", scratch.len(), scratch_len(width, params))?;
+    Error::check_len("refinement scratch", scratch_len(width, params), scratch.len())?;
 
     let (r, b) = (params.census_radius, params.box_radius);
     let box_rows = 2 * b + 1;
@@ -331,17 +331,17 @@ pub(crate) fn check_row_inputs(
         });
     }
     let window = params.window_rows();
-    check_len("left row window", rows.left.len(), window)?;
-    check_len("right row window", rows.right.len(), window)?;
+    Error::check_len("left row window", window, rows.left.len())?;
+    Error::check_len("right row window", window, rows.right.len())?;
     for row in rows.left {
-        check_len("left view row", row.len(), width)?;
+        Error::check_len("left view row", width, row.len())?;
     }
     for row in rows.right {
-        check_len("right view row", row.len(), width)?;
+        Error::check_len("right view row", width, row.len())?;
     }
     let cells = width.div_ceil(CELL_W);
-    check_len("first token row", tokens.first.len(), cells)?;
-    check_len("second token row", tokens.second.len(), cells)
+    Error::check_len("first token row", cells, tokens.first.len())?;
+    Error::check_len("second token row", cells, tokens.second.len())
 }
 
 /// [`refine_row`] over whole maps: `left` and `right` are `H x W` views (`W = width`,
@@ -399,9 +399,9 @@ pub fn refine_map(
 /// Errors: [`Error::BufferSize`] for a token or mask row of the wrong length.
 pub fn keep_rejected_row(y: usize, tokens: &TokenRows<'_>, kept: &[u8], out: &mut [u16]) -> Result<(), Error> {
     let cells = out.len().div_ceil(CELL_W);
-    check_len("first token row", tokens.first.len(), cells)?;
-    check_len("second token row", tokens.second.len(), cells)?;
-    check_len("left-right mask row", kept.len(), cells)?;
+    Error::check_len("first token row", cells, tokens.first.len())?;
+    Error::check_len("second token row", cells, tokens.second.len())?;
+    Error::check_len("left-right mask row", cells, kept.len())?;
     for (x, o) in out.iter_mut().enumerate() {
         if kept.get(x / CELL_W).is_some_and(|&k| k == 0) {
             *o = bilinear(x, y, tokens, cells).min(u16::MAX as u32) as u16;
@@ -428,8 +428,8 @@ pub fn keep_rejected_map(width: usize, tokens: &[u16], kept: &[u8], out: &mut [u
     }
     let height = out.len() / width;
     let (grid_rows, cells) = (height.div_ceil(PATCH_H), width.div_ceil(CELL_W));
-    check_len("token grid", tokens.len(), grid_rows * cells)?;
-    check_len("left-right mask", kept.len(), grid_rows * cells)?;
+    Error::check_len("token grid", grid_rows * cells, tokens.len())?;
+    Error::check_len("left-right mask", grid_rows * cells, kept.len())?;
     let grid_row = |t: usize| tokens.get(t * cells..(t + 1) * cells).unwrap_or_default();
     for (y, row) in out.chunks_exact_mut(width).enumerate() {
         let (first, second) = token_rows(y, grid_rows);
@@ -477,8 +477,8 @@ pub(crate) fn map_shape(
         });
     }
     let (grid_rows, cells) = (height.div_ceil(PATCH_H), width.div_ceil(CELL_W));
-    check_len("token grid", tokens, grid_rows * cells)?;
-    check_len("refined disparity", out, left.len())?;
+    Error::check_len("token grid", grid_rows * cells, tokens)?;
+    Error::check_len("refined disparity", left.len(), out)?;
     Ok((height, grid_rows, cells))
 }
 
@@ -586,14 +586,6 @@ fn subpixel_step(costs: &[u32], valid: &[bool], slot: usize) -> i64 {
     }
     // Rust's `/` truncates toward zero; |lo - hi| * 128 < 2^39.
     (((lo - hi) * 128) / denom).clamp(-128, 128)
-}
-
-fn check_len(what: &'static str, found: usize, expected: usize) -> Result<(), Error> {
-    if found == expected {
-        Ok(())
-    } else {
-        Err(Error::BufferSize { what, expected, found })
-    }
 }
 
 pub mod ring;

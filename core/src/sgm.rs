@@ -101,21 +101,9 @@ impl<'a> SgmStream<'a> {
             ("SGM vertical state", vertical.len()),
             ("SGM diagonal state", diagonal.len()),
         ] {
-            if found != len {
-                return Err(Error::BufferSize {
-                    what,
-                    expected: len,
-                    found,
-                });
-            }
+            Error::check_len(what, len, found)?;
         }
-        if sum.len() != len {
-            return Err(Error::BufferSize {
-                what: "SGM row sum",
-                expected: len,
-                found: sum.len(),
-            });
-        }
+        Error::check_len("SGM row sum", len, sum.len())?;
         Ok(Self {
             cols,
             candidates,
@@ -131,13 +119,7 @@ impl<'a> SgmStream<'a> {
     /// Keeps the previous row's guide in `prev_guide` (`cols` bytes), so that
     /// [`SgmStream::push_row_guided`] can adapt the vertical and diagonal paths' `p2` too.
     pub fn with_guide(mut self, prev_guide: &'a mut [u8]) -> Result<Self, Error> {
-        if prev_guide.len() != self.cols {
-            return Err(Error::BufferSize {
-                what: "SGM guide state",
-                expected: self.cols,
-                found: prev_guide.len(),
-            });
-        }
+        Error::check_len("SGM guide state", self.cols, prev_guide.len())?;
         self.prev_guide = Some(prev_guide);
         Ok(self)
     }
@@ -152,13 +134,7 @@ impl<'a> SgmStream<'a> {
     /// jump penalty between two cells is [`Penalties::jump`] of theirs. Needs
     /// [`SgmStream::with_guide`].
     pub fn push_row_guided(&mut self, cost: &[u16], guide: &[u8], out: &mut [u16]) -> Result<(), Error> {
-        if guide.len() != self.cols {
-            return Err(Error::BufferSize {
-                what: "SGM guide row",
-                expected: self.cols,
-                found: guide.len(),
-            });
-        }
+        Error::check_len("SGM guide row", self.cols, guide.len())?;
         if self.prev_guide.is_none() {
             return Err(Error::BufferSize {
                 what: "SGM guide state",
@@ -171,20 +147,8 @@ impl<'a> SgmStream<'a> {
 
     fn push(&mut self, cost: &[u16], guide: Option<&[u8]>, out: &mut [u16]) -> Result<(), Error> {
         let (cols, d) = (self.cols, self.candidates);
-        if cost.len() != cols * d {
-            return Err(Error::BufferSize {
-                what: "SGM cost row",
-                expected: cols * d,
-                found: cost.len(),
-            });
-        }
-        if out.len() != cols {
-            return Err(Error::BufferSize {
-                what: "disparity row",
-                expected: cols,
-                found: out.len(),
-            });
-        }
+        Error::check_len("SGM cost row", cols * d, cost.len())?;
+        Error::check_len("disparity row", cols, out.len())?;
         let pen = self.penalties;
         // The jump penalty between cell `p` of this row and cell `q` of `other` (this row's
         // guide or the previous one); `p2` without a guide.

@@ -2,6 +2,7 @@
 //! profile's scale, the nearest depth and bearing per column sector, and no panic on any input.
 
 use bino_core::depth::{Calibration, DepthModel, DisparityUnit, SectorSummary};
+use bino_core::testutil::Rng;
 use bino_core::Error;
 
 /// A 640-px sensor with a 60 mm baseline, the firmware's example calibration.
@@ -25,18 +26,6 @@ fn reference_mm(cal: &Calibration, profile_width: usize, unit_px: usize, q8: u16
 fn reference_bearing(cal: &Calibration, profile_width: usize, x_profile_px: f64) -> f64 {
     let scale = cal.sensor_width_px as f64 / profile_width as f64;
     ((x_profile_px * scale - cal.principal_x_px as f64) / cal.focal_px as f64).atan()
-}
-
-/// xorshift64: deterministic pseudo-random test inputs.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
 }
 
 #[test]
@@ -81,17 +70,17 @@ fn sectors_hold_the_nearest_kept_depth_and_the_bearing_of_their_centre() {
     let model = DepthModel::new(&CAL, 160, DisparityUnit::PatchColumns).unwrap();
     let cols = 40;
     let mut summary = SectorSummary::<6>::new(&model, cols).unwrap();
-    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let mut rng = Rng::new(0x9E37_79B9_7F4A_7C15);
     let mut want: [Option<(f64, usize)>; 6] = [None; 6];
     for row in 0..12 {
         let d: Vec<u16> = (0..cols)
-            .map(|_| match rng.next() % 10 {
+            .map(|_| match rng.next_u64() % 10 {
                 0 => 0,
                 1 => u16::MAX,
-                _ => (rng.next() % 4096) as u16,
+                _ => (rng.next_u64() % 4096) as u16,
             })
             .collect();
-        let keep: Vec<u8> = (0..cols).map(|_| u8::from(!rng.next().is_multiple_of(4))).collect();
+        let keep: Vec<u8> = (0..cols).map(|_| u8::from(!rng.next_u64().is_multiple_of(4))).collect();
         summary.push_row(&d, Some(&keep)).unwrap();
         for (c, (&q8, &k)) in d.iter().zip(&keep).enumerate() {
             // Sector i holds columns [i * cols / 6, (i + 1) * cols / 6).
@@ -133,13 +122,22 @@ fn sectors_hold_the_nearest_kept_depth_and_the_bearing_of_their_centre() {
     }
     // Sectors left of the principal point look left, right of it right.
     assert!(summary.sectors()[0].bearing_rad < 0.0 && summary.sectors()[5].bearing_rad > 0.0);
-    let nearest = want
+    // The nearest sector is the first whose depth, in whole mm, is least (several sectors can
+    // round to the same mm, so the f64 reference's nearest may be another of them).
+    let least = summary.sectors().iter().filter_map(|s| s.nearest_mm).min();
+    let first = summary
+        .sectors()
         .iter()
-        .enumerate()
-        .filter_map(|(i, w)| w.map(|(mm, _)| (i, mm)))
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .map(|(i, _)| i);
-    assert_eq!(summary.nearest().map(|(i, _)| i), nearest);
+        .position(|s| s.nearest_mm.is_some() && s.nearest_mm == least);
+    assert_eq!(summary.nearest(), first.zip(least));
+    let reference = want.iter().filter_map(|w| w.map(|(mm, _)| mm)).min_by(f64::total_cmp);
+    match (least, reference) {
+        (Some(got), Some(mm)) => assert!(
+            (got as f64 - mm).abs() <= 0.5 + mm * 1e-6 + 1e-5,
+            "nearest: found {got} mm, expected {mm:.3}"
+        ),
+        (got, mm) => assert_eq!(got.is_some(), mm.is_some(), "nearest: found {got:?}, expected {mm:?}"),
+    }
 }
 
 #[test]
@@ -251,13 +249,13 @@ fn bad_calibrations_and_rows_are_errors_naming_the_value() {
 
 #[test]
 fn extreme_calibrations_never_panic() {
-    let mut rng = Rng(7);
+    let mut rng = Rng::new(7);
     for _ in 0..2000 {
-        let f = f32::from_bits(rng.next() as u32);
-        let b = f32::from_bits(rng.next() as u32);
-        let cx = f32::from_bits(rng.next() as u32);
-        let width = (rng.next() % 5000) as u32;
-        let profile = (rng.next() % 5000) as usize;
+        let f = f32::from_bits(rng.next_u64() as u32);
+        let b = f32::from_bits(rng.next_u64() as u32);
+        let cx = f32::from_bits(rng.next_u64() as u32);
+        let width = (rng.next_u64() % 5000) as u32;
+        let profile = (rng.next_u64() % 5000) as usize;
         let cal = Calibration {
             focal_px: f,
             principal_x_px: cx,
@@ -271,7 +269,7 @@ fn extreme_calibrations_never_panic() {
                 }
                 let cols = profile.min(64);
                 if let Ok(mut s) = SectorSummary::<8>::new(&model, cols) {
-                    let row: Vec<u16> = (0..cols).map(|_| rng.next() as u16).collect();
+                    let row: Vec<u16> = (0..cols).map(|_| rng.next_u64() as u16).collect();
                     s.push_row(&row, None).unwrap();
                     assert!(s.sectors().iter().all(|x| x.bearing_rad.is_finite()));
                 }

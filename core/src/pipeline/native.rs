@@ -12,10 +12,12 @@
 //!
 //! [`Encoder::pair_tokens_in_place`]: crate::model::encoder::Encoder::pair_tokens_in_place
 
-use super::{
-    band_pixel_rows, check_rows_bytes, max, refine_parts, refine_stage, sum, BandRows, CheckedRows, Context, Feed,
-    HeadCheck, HeadRows, Options, Refine, RefineInput, Report, RowSource, Sink, Stage,
-};
+use super::api::{Options, Refine, RefineInput, Report, RowSource, Sink, Stage};
+use super::driver::Context;
+use super::feeding::BandRows;
+use super::head_check::{CheckedRows, Feed, HeadCheck, HeadRows};
+use super::refine_stage;
+use super::sizing::{band_pixel_rows, check_rows_bytes, max, refine_parts, sum};
 use crate::band::{Band, BandPlan};
 use crate::config::{BAND_TOKEN_ROWS, CELL_W, DIM, PATCH_H};
 use crate::model::encoder::{self, GrayBand};

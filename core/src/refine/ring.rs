@@ -16,8 +16,8 @@
 //! was used for something else, or for another image, start again with [`RowRefiner::new`].
 
 use super::{
-    bilinear, census_row, check_len, check_row_inputs, subpixel_step, winner, RefineParams, TokenRows, ViewRows,
-    FRAC_BITS, MAX_BOX_RADIUS, MAX_CANDIDATES, MAX_WINDOW_ROWS,
+    bilinear, census_row, check_row_inputs, subpixel_step, winner, RefineParams, TokenRows, ViewRows, FRAC_BITS,
+    MAX_BOX_RADIUS, MAX_CANDIDATES, MAX_WINDOW_ROWS,
 };
 use crate::config::CELL_W;
 use crate::Error;
@@ -46,7 +46,7 @@ impl<'s> RowRefiner<'s> {
         if width == 0 {
             return Err(Error::EmptyImage);
         }
-        check_len("refinement scratch", scratch.len(), super::scratch_len(width, params))?;
+        Error::check_len("refinement scratch", super::scratch_len(width, params), scratch.len())?;
         Ok(Self {
             params: *params,
             width,
@@ -71,7 +71,7 @@ impl<'s> RowRefiner<'s> {
         out: &mut [u16],
     ) -> Result<(), Error> {
         let (width, height, params) = (self.width, rows.height, self.params);
-        check_len("refined row", out.len(), width)?;
+        Error::check_len("refined row", width, out.len())?;
         check_row_inputs(y, width, rows, tokens, &params)?;
         let cells = width.div_ceil(CELL_W);
 

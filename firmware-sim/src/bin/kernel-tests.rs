@@ -20,6 +20,7 @@ use core::sync::atomic::{AtomicU32, Ordering};
 use bino_core::kernels::epilogue::{requant_rows, ChannelRequant};
 use bino_core::kernels::gemm::{matmul_requant_i8, matmul_requant_i8_prepared, matmul_requant_reference};
 use bino_core::kernels::matmul::{matmul_i8, matmul_i8_reference};
+use bino_core::testutil::Rng;
 use cortex_m as _;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
@@ -48,28 +49,21 @@ const MAX_OUT: usize = MAX_M * 480;
 #[repr(C, align(4))]
 struct Aligned<T>(T);
 
-/// xorshift64: deterministic inputs, so a failure reproduces.
-struct Rng(u64);
-
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 << 13;
-        self.0 ^= self.0 >> 7;
-        self.0 ^= self.0 << 17;
-        self.0
-    }
-    /// Uniform in `lo..=hi`.
-    fn range(&mut self, lo: i64, hi: i64) -> i64 {
-        lo + (self.next() % (hi - lo + 1) as u64) as i64
-    }
+/// The inputs' patterns on the project's one test PRNG ([`Rng`]: deterministic, so a failure
+/// reproduces).
+trait Fill {
     /// Random codes, or one of the extreme patterns.
+    fn fill(&mut self, x: &mut [i8], pattern: u32);
+}
+
+impl Fill for Rng {
     fn fill(&mut self, x: &mut [i8], pattern: u32) {
         for (i, v) in x.iter_mut().enumerate() {
             *v = match pattern {
                 0 => -128,
                 1 => 127,
                 2 => [-128, 127][i % 2],
-                _ => self.next() as i8,
+                _ => self.next_u64() as i8,
             };
         }
     }
@@ -545,8 +539,8 @@ fn rope_cases(t: &mut Tally, rng: &mut Rng) {
             _ => rng.range(-(1 << 20), 1 << 20) as i32,
         });
         let angles = |rng: &mut Rng| Angles {
-            cos: core::array::from_fn(|_| rng.next() as i16),
-            sin: core::array::from_fn(|_| rng.next() as i16),
+            cos: core::array::from_fn(|_| rng.next_u64() as i16),
+            sin: core::array::from_fn(|_| rng.next_u64() as i16),
         };
         let (row, col) = (angles(rng), angles(rng));
         let (mut found, mut want) = ([0i8; DIM], [0i8; DIM]);
@@ -633,7 +627,7 @@ fn residual_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
         for a in acc.iter_mut() {
             *a = match case % 4 {
                 0 => rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32,
-                1 => rng.next() as i32,
+                1 => rng.next_u64() as i32,
                 _ => rng.range(-(1 << 22), 1 << 22) as i32,
             };
         }
@@ -1256,7 +1250,7 @@ fn main() -> ! {
         failed: 0,
         asm_cases: 0,
     };
-    let mut rng = Rng(0x9E37_79B9_7F4A_7C15);
+    let mut rng = Rng::new(0x9E37_79B9_7F4A_7C15);
     let Some(buffers) = cortex_m::singleton!(: Buffers = Buffers {
         a: Aligned([0; MAX_M * MAX_K]),
         w: Aligned([0; MAX_N * MAX_K]),

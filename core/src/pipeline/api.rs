@@ -1,0 +1,386 @@
+//! The pipeline's public types: its stages, where rows come from ([`RowSource`]), what a run
+//! uses ([`Options`], [`Refine`]), where its output goes ([`Sink`]) and what it reports
+//! ([`Report`]).
+
+use super::refine_stage::{self, HEAD_LAG};
+use crate::band::Band;
+use crate::model::head::HeadRow;
+use crate::model::ids::HeadKind;
+use crate::refine::RefineParams;
+use crate::sgm::Penalties;
+use crate::Error;
+#[cfg(doc)]
+use {super::arena_bytes_head_lr, super::Pipeline, crate::model::head::HeadStream};
+
+/// Where the pipeline is; a [`Sink`] hears of every change (firmware marks stages with it).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Stage {
+    /// Reading image rows into the band buffer.
+    Rows,
+    /// The encoder on (L, L): left descriptors of a band.
+    EncodeLeft,
+    /// The encoder on (R, R): right descriptors of a band.
+    EncodeRight,
+    /// Inverse norms, the cosine cost row and the no-linkage WTA of one token row.
+    Match,
+    /// SGM aggregation of one token row, left and right views.
+    Sgm,
+    /// Right-view WTA and the left-right check of both readouts.
+    LeftRight,
+    /// The shared head on one descriptor row.
+    Head,
+    /// The pixel refinement of the rows one token row made computable (and the copy of view
+    /// rows it still needs before a band load).
+    Refine,
+    /// Native pathway: the encoder on (L, R), the band's pair tokens.
+    EncodePair,
+    /// Native pathway with the head's left-right check: the encoder on the mirrored pair.
+    EncodeMirror,
+    /// Native pathway with the head's left-right check: the native head on the mirrored pair's
+    /// tokens (the export pathway's mirrored head runs in [`Stage::Head`]).
+    HeadMirror,
+}
+
+impl Stage {
+    /// Every stage, in pipeline order.
+    pub const ALL: [Stage; 11] = [
+        Stage::Rows,
+        Stage::EncodeLeft,
+        Stage::EncodeRight,
+        Stage::Match,
+        Stage::Sgm,
+        Stage::LeftRight,
+        Stage::Head,
+        Stage::Refine,
+        Stage::EncodePair,
+        Stage::EncodeMirror,
+        Stage::HeadMirror,
+    ];
+
+    /// A short lower-case name (reports, firmware logs).
+    pub const fn name(self) -> &'static str {
+        match self {
+            Stage::Rows => "rows",
+            Stage::EncodeLeft => "encode_left",
+            Stage::EncodeRight => "encode_right",
+            Stage::Match => "match",
+            Stage::Sgm => "sgm",
+            Stage::LeftRight => "left_right",
+            Stage::Head => "head",
+            Stage::Refine => "refine",
+            Stage::EncodePair => "encode_pair",
+            Stage::EncodeMirror => "encode_mirror",
+            Stage::HeadMirror => "head_mirror",
+        }
+    }
+
+    /// Whether the stage runs the encoder.
+    pub const fn encodes(self) -> bool {
+        matches!(
+            self,
+            Stage::EncodeLeft | Stage::EncodeRight | Stage::EncodePair | Stage::EncodeMirror
+        )
+    }
+}
+
+/// Delivers a rectified pair row by row, top to bottom.
+pub trait RowSource {
+    /// Width of both views in pixels.
+    fn width(&self) -> usize;
+    /// Height of both views in pixels.
+    fn height(&self) -> usize;
+    /// Writes the next row of each view (gray, `width` bytes) into `left` and `right`.
+    fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error>;
+}
+
+/// A pair already in memory (row-major gray pixels) as a [`RowSource`].
+#[derive(Debug, Clone, Copy)]
+pub struct SlicePair<'a> {
+    left: &'a [u8],
+    right: &'a [u8],
+    width: usize,
+    height: usize,
+    next: usize,
+}
+
+impl<'a> SlicePair<'a> {
+    /// A pair of `width x height` views; both must hold exactly that many pixels.
+    pub fn new(left: &'a [u8], right: &'a [u8], width: usize, height: usize) -> Result<Self, Error> {
+        if left.len() != right.len() {
+            return Err(Error::PairMismatch);
+        }
+        let expected = width.saturating_mul(height);
+        Error::check_len("view pixels", expected, left.len())?;
+        Ok(Self {
+            left,
+            right,
+            width,
+            height,
+            next: 0,
+        })
+    }
+}
+
+impl RowSource for SlicePair<'_> {
+    fn width(&self) -> usize {
+        self.width
+    }
+
+    fn height(&self) -> usize {
+        self.height
+    }
+
+    fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
+        let range = self.next * self.width..(self.next + 1) * self.width;
+        let (Some(l), Some(r)) = (self.left.get(range.clone()), self.right.get(range)) else {
+            return Err(Error::BufferSize {
+                what: "view rows",
+                expected: self.height,
+                found: self.next,
+            });
+        };
+        for (out, src) in [(left, l), (right, r)] {
+            Error::check_len("row buffer", src.len(), out.len())?;
+            out.copy_from_slice(src);
+        }
+        self.next += 1;
+        Ok(())
+    }
+}
+
+/// How a band reaches the readouts: the export pathway (two encoder passes, on (L, L) and
+/// (R, R), descriptor maps for every readout) or the native one (one pass on (L, R), its fused
+/// grid read by the native head only).
+pub type Pathway = HeadKind;
+
+/// What the readouts use.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Options {
+    /// [`Pathway::Export`]: every readout (no-linkage WTA, SGM, their checks, the shared head
+    /// when `head`). [`Pathway::Native`]: the native head alone (`head` is implied; `max_cols`
+    /// and `penalties` are unused), with its check when `head_lr`, which costs a second encoder
+    /// pass per band on the mirrored pair.
+    pub pathway: Pathway,
+    /// Disparity candidates of the WTA and SGM readouts, in patch columns (1 to 64).
+    pub max_cols: usize,
+    /// SGM penalties (cost units: 4096 = cosine 1).
+    pub penalties: Penalties,
+    /// Left-right check tolerance, Q8 patch columns.
+    pub lr_max_diff_q8: u16,
+    /// Run the shared head too.
+    pub head: bool,
+    /// With `head`: run it on the mirrored pair as well, for the head's own left-right check
+    /// ([`Sink::head_checked`]); a second head stream, so the arena is
+    /// [`arena_bytes_head_lr`]. Ignored without `head`.
+    pub head_lr: bool,
+    /// Disparity candidates of the head (either pathway), in patch columns (1 to
+    /// [`HEAD_CANDIDATES_LIMIT`](crate::config::HEAD_CANDIDATES_LIMIT)):
+    /// [`HEAD_MAX_DISP`](crate::config::HEAD_MAX_DISP), the count it was trained with, or more
+    /// for wide views whose disparities reach further ([`HeadStream::with_candidates`]).
+    pub head_candidates: usize,
+}
+
+/// The readout whose token grid the refinement reads, named as the host names readouts. A
+/// `+lr` input is the readout's disparity with the cells its left-right check rejects filled
+/// ([`crate::lr::fill_rejected`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RefineInput {
+    /// No-linkage WTA.
+    Nolink,
+    /// No-linkage WTA, filled by its left-right check.
+    NolinkLr,
+    /// SGM.
+    Sgm,
+    /// SGM, filled by its left-right check.
+    SgmLr,
+    /// The shared head (needs [`Options::head`]).
+    Head,
+    /// The shared head, filled by its own left-right check (needs [`Options::head`] and
+    /// [`Options::head_lr`]).
+    HeadLr,
+}
+
+impl RefineInput {
+    /// The rule: [`RefineInput::HeadLr`] when the run checks the head ([`Options::head`] and
+    /// [`Options::head_lr`]), else [`RefineInput::SgmLr`] — the best readout each run has
+    /// (README: head+lr at w160, sgm+lr the default of `bino run`).
+    /// The native pathway has only its head: head+lr with the check, else head.
+    pub const fn for_options(opts: &Options) -> Self {
+        match opts.pathway {
+            Pathway::Native if opts.head_lr => RefineInput::HeadLr,
+            Pathway::Native => RefineInput::Head,
+            Pathway::Export if opts.head && opts.head_lr => RefineInput::HeadLr,
+            Pathway::Export => RefineInput::SgmLr,
+        }
+    }
+
+    /// The host's name of the readout (`sgm+lr`, ...).
+    pub const fn name(self) -> &'static str {
+        match self {
+            RefineInput::Nolink => "nolink",
+            RefineInput::NolinkLr => "nolink+lr",
+            RefineInput::Sgm => "sgm",
+            RefineInput::SgmLr => "sgm+lr",
+            RefineInput::Head => "head",
+            RefineInput::HeadLr => "head+lr",
+        }
+    }
+
+    /// Whether it is one of the head's.
+    pub const fn uses_head(self) -> bool {
+        matches!(self, RefineInput::Head | RefineInput::HeadLr)
+    }
+
+    /// Token rows its rows trail the band's kept rows by.
+    pub(super) const fn lag(self) -> usize {
+        if self.uses_head() {
+            HEAD_LAG
+        } else {
+            0
+        }
+    }
+}
+
+/// The pixel refinement as a pipeline stage: which readout it refines, with which parameters.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Refine {
+    /// The readout whose token grid is refined.
+    pub input: RefineInput,
+    /// The refinement's parameters.
+    pub params: RefineParams,
+    /// Sharpness equalisation of the views before each row's census
+    /// ([`crate::refine::sharpness`]): the refinement's gain survives one defocused view; the
+    /// stage then reads [`crate::refine::sharpness::equalised_reach`] rows around each row.
+    pub equalise: bool,
+}
+
+impl Refine {
+    /// Whether the shipped refinement equalises the views' sharpness (chosen on the validation
+    /// pairs: it halves the refinement's epe rise under one defocused view at no clean cost).
+    pub const EQUALISE: bool = true;
+
+    /// The shipped refinement of `input` at the presets' and the firmware's 160 px:
+    /// [`RefineParams::DEFAULT`] with the sharpness equalisation (the host's commands use
+    /// [`Refine::for_width`], equal to this below 200 px).
+    pub const fn of(input: RefineInput) -> Self {
+        Self {
+            input,
+            params: RefineParams::DEFAULT,
+            equalise: Self::EQUALISE,
+        }
+    }
+
+    /// The shipped refinement of `input` on views `width` pixels wide: [`Refine::of`] with
+    /// [`RefineParams::for_width`] (the host's commands; at 48x160, the presets' and the
+    /// firmware's width, the same as [`Refine::of`]).
+    pub const fn for_width(input: RefineInput, width: usize) -> Self {
+        Self {
+            params: RefineParams::for_width(width),
+            ..Self::of(input)
+        }
+    }
+
+    /// The shipped refinement ([`Refine::of`]) of the readout [`RefineInput::for_options`]
+    /// picks.
+    pub const fn for_options(opts: &Options) -> Self {
+        Self::of(RefineInput::for_options(opts))
+    }
+
+    /// View rows above and below a pixel row the stage reads.
+    pub const fn reach(&self) -> usize {
+        refine_stage::stage_reach(&self.params, self.equalise)
+    }
+}
+
+/// One token row of the matching readouts.
+#[derive(Debug, Clone, Copy)]
+pub struct MatchedRow<'r> {
+    /// Token row of the image.
+    pub row: usize,
+    /// No-linkage disparity per patch column, Q8 patch columns.
+    pub wta_q8: &'r [u16],
+    /// SGM disparity per patch column, Q8 patch columns.
+    pub sgm_q8: &'r [u16],
+    /// 1 where the WTA disparity passes the left-right check, else 0.
+    pub wta_consistent: &'r [u8],
+    /// 1 where the SGM disparity passes the left-right check, else 0.
+    pub sgm_consistent: &'r [u8],
+}
+
+/// The head's left-right check of one token row: the right view's head disparity (the head on
+/// the mirrored pair) and which left cells it confirms.
+#[derive(Debug, Clone, Copy)]
+pub struct HeadChecked<'r> {
+    /// Token row.
+    pub row: usize,
+    /// The right view's head disparity per patch column, Q8 patch columns.
+    pub right_q8: &'r [u16],
+    /// 1 where the left head disparity (the [`Sink::head`] row of the same index) passes the
+    /// left-right check, else 0.
+    pub consistent: &'r [u8],
+}
+
+/// Receives what the pipeline produces, in order.
+pub trait Sink {
+    /// The pipeline enters `stage`.
+    fn stage(&mut self, stage: Stage) {
+        let _ = stage;
+    }
+    /// Both descriptor maps of a band (`band.rows x cols x DIM` codes each), after encoding.
+    fn band(&mut self, band: Band, left: &[i8], right: &[i8]) {
+        let _ = (band, left, right);
+    }
+    /// Native pathway: the pair token codes of a band (`band.rows x cols x [even, odd] x DIM`,
+    /// as `Encoder::pair_tokens`), after the pass on (L, R).
+    fn pair_band(&mut self, band: Band, tokens: &[i8]) {
+        let _ = (band, tokens);
+    }
+    /// One token row of the WTA and SGM readouts, top to bottom.
+    fn matched(&mut self, row: &MatchedRow<'_>);
+    /// One token row of the head, top to bottom (a few rows behind the matching).
+    fn head(&mut self, row: HeadRow<'_>) {
+        let _ = row;
+    }
+    /// With [`Options::head_lr`]: the head's left-right check of a row, after its
+    /// [`Sink::head`] row.
+    fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        let _ = row;
+    }
+    /// With [`Pipeline::run_refined`]: pixel row `row` of the refined disparity (`width`
+    /// values, Q8 px), top to bottom, every row once.
+    fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
+        let _ = (row, disparity_q8);
+    }
+}
+
+/// What a run used and kept.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Report {
+    /// Token rows of the image.
+    pub rows: usize,
+    /// Patch columns.
+    pub cols: usize,
+    /// Bands encoded.
+    pub bands: usize,
+    /// Arena bytes used in all (the high-water mark).
+    pub arena_used: usize,
+    /// Of which: the pixel band of both views.
+    pub pixels: usize,
+    /// Of which: one descriptor band (the left one; the right one lives in the encoder's
+    /// scratch).
+    pub descriptors: usize,
+    /// Of which: the encoder's scratch, high-water of one pass.
+    pub encoder: usize,
+    /// Of which: the readout streams (matching, SGM, left-right, head).
+    pub streams: usize,
+    /// Of which: the refinement's state and row scratch (0 without it).
+    pub refine: usize,
+    /// Cells whose WTA disparity passed the left-right check.
+    pub wta_kept: usize,
+    /// Cells whose SGM disparity passed the left-right check.
+    pub sgm_kept: usize,
+    /// Cells whose head disparity passed the head's left-right check ([`Options::head_lr`]).
+    pub head_kept: usize,
+}

@@ -1,0 +1,86 @@
+//! Band feeding: the band buffer filled from a [`RowSource`] as bands advance, and the token
+//! rows a band keeps cut from its descriptor maps.
+
+use super::api::{RowSource, Sink, Stage};
+use super::refine_stage::BandView;
+use crate::band::Band;
+use crate::config::{DIM, PATCH_H};
+use crate::Error;
+
+/// The band buffer, filled from a [`RowSource`] as bands advance.
+pub(super) struct BandRows<'s, S> {
+    pub(super) source: &'s mut S,
+    pub(super) width: usize,
+    /// Image row held in buffer row 0.
+    pub(super) first: usize,
+    /// Image rows read so far.
+    pub(super) loaded: usize,
+}
+
+impl<S: RowSource> BandRows<'_, S> {
+    /// The rows the buffers `left` and `right` hold now.
+    pub(super) fn view<'b>(&self, left: &'b [u8], right: &'b [u8]) -> BandView<'b> {
+        BandView {
+            first: self.first,
+            rows: self.loaded - self.first,
+            width: self.width,
+            left,
+            right,
+        }
+    }
+
+    /// Makes the buffers hold `band`'s pixel rows: keeps the overlap with the previous band,
+    /// reads the rest.
+    pub(super) fn load(
+        &mut self,
+        band: Band,
+        left: &mut [u8],
+        right: &mut [u8],
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
+        sink.stage(Stage::Rows);
+        let (start, end) = (band.start * PATCH_H, (band.start + band.rows) * PATCH_H);
+        let w = self.width;
+        if start > self.first {
+            let drop = (start - self.first).min(self.loaded - self.first);
+            let keep = self.loaded - self.first - drop;
+            for view in [&mut *left, &mut *right] {
+                view.copy_within(drop * w..(drop + keep) * w, 0);
+            }
+            self.first = start;
+        }
+        while self.loaded < end {
+            let at = (self.loaded - self.first) * w;
+            let (Some(l), Some(r)) = (left.get_mut(at..at + w), right.get_mut(at..at + w)) else {
+                return Err(Error::BufferSize {
+                    what: "band buffer",
+                    expected: end - self.first,
+                    found: left.len() / w.max(1),
+                });
+            };
+            self.source.next_row(l, r)?;
+            self.loaded += 1;
+        }
+        Ok(())
+    }
+}
+
+/// Token row `row` of both descriptor maps of `band` (`cols x DIM` codes each).
+pub(super) fn kept_row<'d>(
+    band: Band,
+    row: usize,
+    cols: usize,
+    left: &'d [i8],
+    right: &'d [i8],
+) -> Result<(&'d [i8], &'d [i8]), Error> {
+    let row_len = cols * DIM;
+    let at = (row - band.start) * row_len;
+    match (left.get(at..at + row_len), right.get(at..at + row_len)) {
+        (Some(l), Some(r)) => Ok((l, r)),
+        _ => Err(Error::BufferSize {
+            what: "descriptor band",
+            expected: (band.keep_to - band.start) * row_len,
+            found: left.len().min(right.len()),
+        }),
+    }
+}
