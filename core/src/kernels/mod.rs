@@ -5,6 +5,7 @@
 
 pub mod arch;
 pub mod attention;
+pub mod conv;
 pub mod dispatch;
 pub mod epilogue;
 pub mod gemm;

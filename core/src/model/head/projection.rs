@@ -5,11 +5,11 @@ use super::super::weights::LinearQ;
 use super::sizing::{max, CELL_BLOCK};
 use crate::config::{DIM, HEAD_GROUPS, HEAD_PROJ_DIM, NATIVE_HEAD_PROJ_DIM};
 use crate::fixed::{sat_i8_i64, Requant};
-use crate::kernels::arch::PreparedRequant;
 use crate::kernels::gemm::matmul_requant_i8_prepared;
 use crate::kernels::layernorm::{layernorm_rows, LayerNormQ};
 use crate::kernels::matmul::dot;
 use crate::kernels::params::Uniform;
+use crate::kernels::types::prepared::PreparedRequant;
 
 /// Reverses the order of the `len`-value cells of `row` (a tail shorter than a cell stays).
 pub(super) fn reverse_cells<T>(row: &mut [T], len: usize) {
@@ -82,7 +82,7 @@ fn project_cells<const N: usize>(
     let prepared: [Option<PreparedRequant<'_>>; N] = core::array::from_fn(|i| {
         let slot = slots.next()?;
         let proj = projections.get(i)?;
-        if cfg!(any(bino_dsp, bino_mve)) {
+        if crate::kernels::dispatch::PREPARED_GEMM {
             PreparedRequant::new(&proj.requant(), &Uniform(0), slot)
         } else {
             None
