@@ -106,6 +106,14 @@ pub enum Error {
         /// Rows lost so far.
         lost: usize,
     },
+    /// A row source was asked for a row past its last one: the frame ended before the image's
+    /// height (a camera that stopped, a pair in memory shorter than its stated height).
+    EndOfRows {
+        /// The row asked for (0-based).
+        row: usize,
+        /// The rows the source holds.
+        height: usize,
+    },
     /// A head stream was given the other pathway's input (descriptor rows to the native
     /// head, or pair-token rows to the export head).
     PathwayMismatch {
@@ -186,6 +194,9 @@ impl fmt::Display for Error {
             }
             Error::MissingReadout { readout } => {
                 write!(f, "the {readout} readout is not produced by this run")
+            }
+            Error::EndOfRows { row, height } => {
+                write!(f, "row {row} asked of a row source that ended after {height} rows")
             }
             Error::RowsLost { row, lost } => {
                 write!(f, "row source lost {lost} rows by row {row} (its row queue overflowed)")

@@ -10,7 +10,7 @@
 //! ```
 //! use bino_core::blob::Blob;
 //! use bino_core::crc32::Crc32;
-//! use bino_core::pipeline::{MatchedRow, Pipeline, SlicePair, Sink};
+//! use bino_core::pipeline::{Pipeline, SlicePair, Sink};
 //! use bino_core::preset;
 //!
 //! const HEIGHT: usize = 48; // one band (a taller image needs more, the same for any height)
@@ -26,8 +26,8 @@
 //! /// Digests the refined disparity rows (Q8 pixels) as the firmware does.
 //! struct Refined(Crc32);
 //!
+//! // Every method has a default: a sink implements the outputs it wants.
 //! impl Sink for Refined {
-//!     fn matched(&mut self, _row: &MatchedRow<'_>) {} // token-grid readouts: not used here
 //!     fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
 //!         for d in disparity_q8 {
 //!             self.0.update(&d.to_le_bytes()); // d / 256 = disparity in pixels
@@ -41,6 +41,9 @@
 //! let mut sink = Refined(Crc32::new());
 //! let report = pipeline.run_refined(&mut rows, &preset::OPTIONS, &preset::REFINE, &mut arena, &mut sink)?;
 //! assert!(report.arena_used <= ARENA_BYTES);
+//! // The encoder's scratch is reused by the readouts after the passes (`Report::arena_used`).
+//! let after_passes = report.descriptors + report.streams + report.refine;
+//! assert_eq!(report.arena_used, report.pixels + report.descriptors + report.encoder.max(after_passes));
 //! // Bit for bit what the firmware computes on both Cortex-M cores.
 //! assert_eq!(sink.0.finish(), 0x2300_3cce);
 //! # Ok::<(), bino_core::Error>(())

@@ -48,6 +48,8 @@ mod refine_stage;
 mod sizing;
 mod streams;
 
+/// A head row as [`Sink::head`] receives it.
+pub use crate::model::head::HeadRow;
 pub use api::{
     HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink, SlicePair, Stage,
 };

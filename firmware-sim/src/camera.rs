@@ -304,10 +304,9 @@ impl RowSource for Camera {
             }
             Some(_) => Err(lost(self)),
             None if self.stats().lost > 0 => Err(lost(self)),
-            None => Err(Error::BufferSize {
-                what: "camera rows",
-                expected: self.next + 1,
-                found: self.next,
+            None => Err(Error::EndOfRows {
+                row: self.next,
+                height: self.next,
             }),
         }
     }

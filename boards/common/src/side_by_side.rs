@@ -46,10 +46,9 @@ impl RowSource for SideBySide<'_> {
     fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
         let line = 2 * self.width;
         let Some(row) = self.frame.get(self.next * line..(self.next + 1) * line) else {
-            return Err(Error::BufferSize {
-                what: "side-by-side lines",
-                expected: self.height,
-                found: self.next,
+            return Err(Error::EndOfRows {
+                row: self.next,
+                height: self.height,
             });
         };
         let (l, r) = row.split_at(self.width);
@@ -84,7 +83,7 @@ mod tests {
         assert_eq!((l, r), ([4, 5, 6], [14, 15, 16]));
         assert!(matches!(
             src.next_row(&mut l, &mut r),
-            Err(Error::BufferSize { found: 2, .. })
+            Err(Error::EndOfRows { row: 2, height: 2 })
         ));
     }
 

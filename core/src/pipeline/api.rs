@@ -134,10 +134,9 @@ impl RowSource for SlicePair<'_> {
     fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
         let range = self.next * self.width..(self.next + 1) * self.width;
         let (Some(l), Some(r)) = (self.left.get(range.clone()), self.right.get(range)) else {
-            return Err(Error::BufferSize {
-                what: "view rows",
-                expected: self.height,
-                found: self.next,
+            return Err(Error::EndOfRows {
+                row: self.next,
+                height: self.height,
             });
         };
         for (out, src) in [(left, l), (right, r)] {
@@ -337,7 +336,9 @@ pub trait Sink {
         let _ = (band, tokens);
     }
     /// One token row of the WTA and SGM readouts, top to bottom.
-    fn matched(&mut self, row: &MatchedRow<'_>);
+    fn matched(&mut self, row: &MatchedRow<'_>) {
+        let _ = row;
+    }
     /// One token row of the head, top to bottom (a few rows behind the matching).
     fn head(&mut self, row: HeadRow<'_>) {
         let _ = row;
@@ -364,18 +365,26 @@ pub struct Report {
     pub cols: usize,
     /// Bands encoded.
     pub bands: usize,
-    /// Arena bytes used in all (the high-water mark).
+    /// Arena bytes used in all (the high-water mark). The regions below do not simply add up:
+    /// `pixels` and `descriptors` are held for the whole run, while `encoder`'s scratch is
+    /// reused once the passes are over. On the export pathway over one band it then holds the
+    /// right descriptors, the streams and the refinement, so
+    /// `arena_used = pixels + descriptors + max(encoder, descriptors + streams + refine)`; over
+    /// several bands the streams and the refinement's state sit beside the scratch and only the
+    /// refinement's row scratch reuses it. The native pathway keeps no descriptor band
+    /// (`descriptors` = 0) and its streams follow the pair tokens in the encoder's scratch.
     pub arena_used: usize,
-    /// Of which: the pixel band of both views.
+    /// Region: the pixel band of both views (held throughout).
     pub pixels: usize,
-    /// Of which: one descriptor band (the left one; the right one lives in the encoder's
-    /// scratch).
+    /// Region: one descriptor band (the left one, held from the first pass to the end; the
+    /// right one lives in the encoder's scratch).
     pub descriptors: usize,
-    /// Of which: the encoder's scratch, high-water of one pass.
+    /// Region: the encoder's scratch, high-water of one pass (reused after the passes, see
+    /// [`Report::arena_used`]).
     pub encoder: usize,
-    /// Of which: the readout streams (matching, SGM, left-right, head).
+    /// Region: the readout streams (matching, SGM, left-right, head).
     pub streams: usize,
-    /// Of which: the refinement's state and row scratch (0 without it).
+    /// Region: the refinement's state and row scratch (0 without it).
     pub refine: usize,
     /// Cells whose WTA disparity passed the left-right check.
     pub wta_kept: usize,
@@ -383,4 +392,24 @@ pub struct Report {
     pub sgm_kept: usize,
     /// Cells whose head disparity passed the head's left-right check ([`Options::head_lr`]).
     pub head_kept: usize,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_pair_in_memory_ends_with_end_of_rows() {
+        let (left, right) = ([1u8; 8], [2u8; 8]);
+        let mut pair = SlicePair::new(&left, &right, 4, 2).unwrap();
+        let (mut l, mut r) = ([0u8; 4], [0u8; 4]);
+        for _ in 0..2 {
+            pair.next_row(&mut l, &mut r).unwrap();
+        }
+        assert_eq!((l, r), ([1; 4], [2; 4]));
+        assert_eq!(
+            pair.next_row(&mut l, &mut r),
+            Err(Error::EndOfRows { row: 2, height: 2 })
+        );
+    }
 }

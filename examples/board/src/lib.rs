@@ -89,10 +89,9 @@ impl RowSource for Camera<'_> {
                 Ok(())
             }
             // A frame shorter than HEIGHT rows (the pipeline never asks for more).
-            _ => Err(Error::BufferSize {
-                what: "camera rows",
-                expected: HEIGHT,
-                found: self.next,
+            _ => Err(Error::EndOfRows {
+                row: self.next,
+                height: HEIGHT,
             }),
         }
     }

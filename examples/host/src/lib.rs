@@ -3,7 +3,7 @@
 //! readouts ([`bino_core::preset`]), the refined disparity collected row by row.
 
 use bino_core::blob::Blob;
-use bino_core::pipeline::{MatchedRow, Pipeline, Sink, SlicePair};
+use bino_core::pipeline::{Pipeline, Sink, SlicePair};
 use bino_core::preset;
 use image::imageops::{self, FilterType};
 use image::{DynamicImage, GrayImage, ImageBuffer};
@@ -45,7 +45,6 @@ struct Rows(Vec<u16>);
 
 impl Sink for Rows {
     // The token-grid readouts (Q8 patch columns): not used here.
-    fn matched(&mut self, _row: &MatchedRow<'_>) {}
     fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
         self.0.extend_from_slice(disparity_q8);
     }
