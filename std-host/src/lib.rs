@@ -24,3 +24,5 @@ pub mod eval;
 pub mod quantize;
 pub mod run;
 pub mod sim;
+#[cfg(test)]
+mod test_inputs;

@@ -118,7 +118,7 @@ mod tests {
     #[test]
     fn the_server_times_both_sessions_when_python_is_there() {
         let Ok(env) = TrainPython::locate("onnxruntime", "--no-onnxruntime") else {
-            eprintln!("skipped: no Python environment (scripts/setup.sh)");
+            crate::test_inputs::skip("the Python environment (scripts/setup.sh)");
             return;
         };
         let onnx = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/bino_encoder.onnx"));

@@ -17,7 +17,7 @@ fn data_dir() -> PathBuf {
 fn ground_truth_at_w160_matches_python_resize_gt() {
     let dir = data_dir();
     if !dir.join("PAIRS.tsv").is_file() {
-        println!("skipped: no PAIRS.tsv in {}", dir.display());
+        crate::test_inputs::skip(&format!("{}/PAIRS.tsv", dir.display()));
         return;
     }
     // (pair, rows, sum of valid disparity, valid pixels) of resize_gt(*load_gt(pair), 160), summed

@@ -115,7 +115,7 @@ mod tests {
     #[test]
     fn sgbm_finds_a_known_shift_when_python_is_there() {
         let Ok(runner) = SgbmRunner::locate() else {
-            eprintln!("skipped: no Python environment (scripts/setup.sh)");
+            crate::test_inputs::skip("the Python environment (scripts/setup.sh)");
             return;
         };
         // A blurred random texture; left(x) = right(x - 6): right(x) = texture(x + 6).
