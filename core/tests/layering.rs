@@ -115,3 +115,112 @@ fn the_scan_finds_what_is_there() {
     let found = violations("kernels", &["use super::arch".to_string()]);
     assert!(!found.is_empty(), "the scan found no `use super::arch` under kernels/");
 }
+
+/// A module's name at the granularity of the check: a top-level module, or a submodule of
+/// `kernels` or `model` (`kernels::arch` is one module with its instruction sets).
+fn module_of(file: &Path) -> String {
+    let rel = file.strip_prefix(SRC).unwrap_or(file).with_extension("");
+    let mut parts: Vec<String> = rel.iter().map(|p| p.to_string_lossy().into_owned()).collect();
+    if parts.last().is_some_and(|p| p == "mod" || p == "lib") {
+        parts.pop();
+    }
+    match parts.as_slice() {
+        [] => "crate".into(),
+        [top, sub, ..] if top == "kernels" || top == "model" => format!("{top}::{sub}"),
+        [top, ..] => top.clone(),
+    }
+}
+
+/// The modules each module names (`crate::a::b`, and `super::b` from a file of `kernels/` or
+/// `model/`), outside unit tests.
+fn import_graph() -> std::collections::BTreeMap<String, std::collections::BTreeSet<String>> {
+    let mut files = Vec::new();
+    rust_files(Path::new(SRC), &mut files);
+    let mut graph = std::collections::BTreeMap::<String, std::collections::BTreeSet<String>>::new();
+    for file in files {
+        if file.file_name().is_some_and(|n| n == "tests.rs") {
+            continue;
+        }
+        let from = module_of(&file);
+        let rel: Vec<String> = file
+            .strip_prefix(SRC)
+            .unwrap_or(&file)
+            .iter()
+            .map(|p| p.to_string_lossy().into_owned())
+            .collect();
+        let text = fs::read_to_string(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
+        let lines: Vec<&str> = text.lines().collect();
+        for (i, line) in lines.iter().enumerate() {
+            if line.trim() == "#[cfg(test)]"
+                && lines
+                    .get(i + 1)
+                    .is_some_and(|l| l.trim_start().starts_with("mod tests"))
+            {
+                break;
+            }
+            let code = line.split("//").next().unwrap_or("");
+            let mut targets = Vec::new();
+            for (at, _) in code.match_indices("crate::") {
+                let path: Vec<&str> = code[at + 7..]
+                    .split(|c: char| !(c.is_alphanumeric() || c == '_' || c == ':'))
+                    .next()
+                    .unwrap_or("")
+                    .split("::")
+                    .collect();
+                match path.as_slice() {
+                    [top, sub, ..]
+                        if (*top == "kernels" || *top == "model") && sub.starts_with(|c: char| c.is_lowercase()) =>
+                    {
+                        targets.push(format!("{top}::{sub}"))
+                    }
+                    [top, ..] if !top.is_empty() => targets.push((*top).to_string()),
+                    _ => {}
+                }
+            }
+            if rel.len() == 2 && (rel[0] == "kernels" || rel[0] == "model") {
+                for (at, _) in code.match_indices("super::") {
+                    let sub: String = code[at + 7..]
+                        .chars()
+                        .take_while(|c| c.is_alphanumeric() || *c == '_')
+                        .collect();
+                    if sub.starts_with(|c: char| c.is_lowercase()) && sub != "super" {
+                        targets.push(format!("{}::{sub}", rel[0]));
+                    }
+                }
+            }
+            for to in targets {
+                if to != from && !from.starts_with(&format!("{to}::")) {
+                    graph.entry(from.clone()).or_default().insert(to);
+                }
+            }
+        }
+    }
+    graph
+}
+
+#[test]
+fn no_two_modules_import_each_other_even_through_others() {
+    let graph = import_graph();
+    // Depth-first search for a path back to the start from each module.
+    let mut cycles = Vec::new();
+    for start in graph.keys() {
+        let mut stack = vec![(start.clone(), vec![start.clone()])];
+        let mut seen = std::collections::BTreeSet::new();
+        while let Some((at, path)) = stack.pop() {
+            for next in graph.get(&at).into_iter().flatten() {
+                if next == start {
+                    cycles.push(format!("{} -> {start}", path.join(" -> ")));
+                } else if seen.insert(next.clone()) {
+                    let mut longer = path.clone();
+                    longer.push(next.clone());
+                    stack.push((next.clone(), longer));
+                }
+            }
+        }
+    }
+    assert!(cycles.is_empty(), "import circles:\n{}", cycles.join("\n"));
+    // The graph is real: the encoder names the kernels it runs.
+    assert!(graph
+        .get("model::encoder")
+        .is_some_and(|to| to.contains("kernels::attention")));
+}

@@ -107,7 +107,7 @@ pub fn attend_block(
     weights: &mut [u8],
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
-    crate::kernels::dispatch::vectorised(
+    crate::kernels::arch::vectorised(
         #[inline(always)]
         || {
             attend_block_with(scores_block, queries, keys, values_t, sums, p, scores, weights, out);
@@ -128,7 +128,7 @@ pub fn attend_block_keys_transposed(
     weights: &mut [u8],
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
-    crate::kernels::dispatch::vectorised(
+    crate::kernels::arch::vectorised(
         #[inline(always)]
         || {
             attend_block_with(

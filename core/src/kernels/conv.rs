@@ -120,7 +120,7 @@ impl ConvEpilogue {
     /// magnitude or lengths that do not match: nothing written (on Cortex-M7, codes written
     /// beside an accumulator past the bound, which the caller then recomputes, every one).
     pub fn apply(&self, acc: &[i32], center: Option<&[i8]>, out: &mut [i8]) -> bool {
-        crate::kernels::dispatch::vectorised(
+        crate::kernels::arch::vectorised(
             #[inline(always)]
             || {
                 if out.len() != acc.len() || acc.iter().fold(0u32, |m, &a| m.max(a.unsigned_abs())) >= 1 << 30 {

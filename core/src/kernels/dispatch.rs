@@ -71,17 +71,6 @@ pub fn limit(to: Isa) -> Isa {
     active()
 }
 
-/// `f()` with its inlined loops compiled for the widest vector unit the CPU has (x86-64: AVX2
-/// where present), else `f()` as built. Integer code only, so the result is the same either
-/// way: only the time changes.
-#[inline(always)]
-pub(crate) fn vectorised<R>(f: impl FnOnce() -> R) -> R {
-    #[cfg(target_arch = "x86_64")]
-    return super::arch::x86::widened(f);
-    #[cfg(not(target_arch = "x86_64"))]
-    f()
-}
-
 /// Stores token `t`'s values channel-major (`store[c * tokens + t] = token[c]`, `DIM x tokens`):
 /// each head's slice is then the `HEAD_DIM x tokens` transposed layout attention reads. The
 /// Cortex-M55's Helium scatter where it takes the shape, else the plain loop.

@@ -14,7 +14,7 @@ pub fn requant_rows<B: I32s + ?Sized, M: I32s + ?Sized, Z: I32s + ?Sized>(
     zero: &Z,
     out: &mut [i8],
 ) {
-    crate::kernels::dispatch::vectorised(
+    crate::kernels::arch::vectorised(
         #[inline(always)]
         || {
             let n = rq.channels();

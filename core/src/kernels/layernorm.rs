@@ -43,7 +43,7 @@ pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
     }
     let mut storage = [0i32; 2 * BUFFERED_DIM];
     if let Some(narrow) = NarrowParams::decode(p, dim, &mut storage) {
-        super::dispatch::vectorised(
+        super::arch::vectorised(
             #[inline(always)]
             || narrow.rows(x, out),
         );
@@ -120,7 +120,7 @@ impl<'s> PreparedLayerNorm<'s> {
 
 /// [`layernorm_rows`] with the parameters prepared once.
 pub fn layernorm_rows_prepared(x: &[i8], p: &mut PreparedLayerNorm<'_>, out: &mut [i8]) {
-    super::dispatch::vectorised(
+    super::arch::vectorised(
         #[inline(always)]
         || p.narrow.rows_with(x, out, p.values, p.normalised),
     );

@@ -26,7 +26,7 @@ pub fn matmul_i8(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
         return;
     }
     if !super::arch::matmul_i32(a, w, k, out) {
-        super::dispatch::vectorised(
+        super::arch::vectorised(
             #[inline(always)]
             || matmul_i8_reference(a, w, k, out),
         )

@@ -83,7 +83,7 @@ pub fn residual_add_prepared<Z, M, B, M2, Z2>(
     M2: I32s + ?Sized,
     Z2: I32s + ?Sized,
 {
-    crate::kernels::dispatch::vectorised(
+    crate::kernels::arch::vectorised(
         #[inline(always)]
         || {
             let n = delta.channels();

@@ -116,7 +116,7 @@ impl RopeLanes {
     /// [`rope_token`] of one token's `DIM` accumulators; `false` (nothing written) for
     /// accumulators from `2^29` in magnitude or slices of another length.
     pub fn token(&mut self, acc: &[i32], row: &Angles, col: &Angles, out: &mut [i8]) -> bool {
-        crate::kernels::dispatch::vectorised(
+        crate::kernels::arch::vectorised(
             #[inline(always)]
             || {
                 let (Some(acc), Some(out)) = (acc.first_chunk::<DIM>(), out.first_chunk_mut::<DIM>()) else {

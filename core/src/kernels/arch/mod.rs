@@ -33,6 +33,17 @@ pub use fused::{matmul_requant, matmul_requant_prepared, PreparedRequant};
 use crate::config::HEAD_DIM;
 use crate::kernels::types::exp::ExpQ32;
 
+/// `f()` with its inlined loops compiled for the widest vector unit the CPU has (x86-64: AVX2
+/// where present), else `f()` as built. Integer code only, so the result is the same either
+/// way: only the time changes.
+#[inline(always)]
+pub(crate) fn vectorised<R>(f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    return x86::widened(f);
+    #[cfg(not(target_arch = "x86_64"))]
+    f()
+}
+
 /// Longest dot product the kernels take (their stack scratch and the accumulator bound:
 /// `1024 * 128 * 128 < 2^24`; a band of 960 tokens is one attention dot product).
 pub const MAX_K: usize = 1024;
