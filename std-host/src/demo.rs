@@ -26,7 +26,8 @@ use crate::io::keyed::Keyed;
 use crate::readout::refine::{refine_pixels, GrayViews};
 use crate::readout::Readout;
 
-/// The int8 blob shipped with the repository (found from any working directory).
+/// The int8 blob shipped with the repository (found from any working directory): the file
+/// [`crate::io::checkout::path`] gives for [`crate::io::checkout::BLOB`], as a `&str`.
 pub const DEFAULT_BLOB: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/bino_int8.bin");
 
 /// Errors above this many pixels are drawn at full strength in the error maps.

@@ -7,7 +7,7 @@ use std::process::Output;
 use bino_host::io::npz;
 
 mod common;
-use common::{bino, repo, s, scratch_dir};
+use common::{bino, bino_in, repo, s, scratch_dir};
 
 fn random_onnx() -> PathBuf {
     repo().join("tests/fixtures/encoder_random_seed0.onnx")
@@ -518,4 +518,91 @@ fn unknown_or_repeated_nuisances_are_refused() {
     ]);
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!out.status.success() && stderr.contains("given twice"), "{stderr}");
+}
+
+/// `bino --help`: one short line per verb, nothing that points inside the project, the developer
+/// verbs labelled and listed after the user's.
+#[test]
+fn help_lists_each_verb_on_one_short_public_line_developer_verbs_last() {
+    let run = bino(&["--help"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let help = String::from_utf8_lossy(&run.stdout);
+    for line in help.lines() {
+        assert!(line.len() <= 100, "{} chars: {line}", line.len());
+        for word in ["EVAL.md", "paper", "issue", "session", "::"] {
+            assert!(!line.contains(word), "cites {word:?}: {line}");
+        }
+    }
+    let verbs: Vec<(&str, &str)> = help
+        .lines()
+        .skip_while(|l| !l.starts_with("Commands:"))
+        .skip(1)
+        .take_while(|l| l.starts_with("  "))
+        .filter_map(|l| l.trim().split_once(' '))
+        .map(|(verb, about)| (verb, about.trim()))
+        .filter(|(verb, _)| *verb != "help")
+        .collect();
+    let names: Vec<&str> = verbs.iter().map(|(v, _)| *v).collect();
+    assert_eq!(
+        names,
+        [
+            "demo",
+            "run",
+            "sim",
+            "eval",
+            "bench",
+            "budget",
+            "reference",
+            "pairs",
+            "compare",
+            "quantize"
+        ]
+    );
+    for (verb, about) in &verbs {
+        let developer = ["reference", "pairs", "compare", "quantize"].contains(verb);
+        assert_eq!(about.starts_with("(developer)"), developer, "{verb}: {about}");
+    }
+}
+
+/// A flag that could take one value only is gone: clap refuses it as a usage error (exit 2).
+#[test]
+fn bench_has_no_threads_flag() {
+    for value in ["1", "4"] {
+        let run = bino(&["bench", "--threads", value]);
+        assert_eq!(run.status.code(), Some(2), "bench --threads {value}");
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(stderr.contains("unexpected argument '--threads'"), "{stderr}");
+    }
+}
+
+/// The default blob is the checkout's, found from any working directory (here a scratch folder,
+/// where a relative `weights/bino_int8.bin` does not exist); a relative path given on the
+/// command line is relative to the current directory.
+#[test]
+fn default_weights_resolve_from_another_working_directory() {
+    let data = shifted_pair_folder("elsewhere");
+    let cwd = scratch("elsewhere-cwd");
+    assert!(!cwd.join("weights/bino_int8.bin").exists());
+    let eval = |extra: &[&str]| {
+        let mut args = vec![
+            "eval",
+            "--data",
+            s(&data),
+            "--precision",
+            "int8",
+            "--readout",
+            "nolink",
+            "--no-sgbm",
+        ];
+        args.extend_from_slice(extra);
+        bino_in(&cwd, &args)
+    };
+    let run = eval(&[]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    // An explicit relative path is taken from the current directory, not the checkout.
+    assert_fails_with(&eval(&["--blob", "weights/bino_int8.bin"]), &["weights/bino_int8.bin"]);
+    std::fs::create_dir_all(cwd.join("weights")).unwrap();
+    std::fs::copy(repo().join("weights/bino_int8.bin"), cwd.join("weights/bino_int8.bin")).unwrap();
+    let run = eval(&["--blob", "weights/bino_int8.bin"]);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
 }

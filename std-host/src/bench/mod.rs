@@ -14,8 +14,8 @@
 //!
 //! Threads: this build of tract-onnx lacks the `multithread-mm` feature (no rayon), so its
 //! only executor is `Executor::SingleThread`; the int8 engine never spawns threads. Both
-//! therefore run on the calling thread, and only `--threads 1` exists. The report also counts
-//! the process's threads after the runs (Linux), as evidence.
+//! therefore run on the calling thread, and `bino bench` has no thread count to choose. The
+//! report also counts the process's threads after the runs (Linux), as evidence.
 
 pub mod ort;
 
@@ -46,8 +46,6 @@ pub struct BenchOptions {
     pub blob: PathBuf,
     /// Profile giving the band width (w160: 160 px).
     pub profile: Profile,
-    /// Threads; only 1 is supported (see the module docs).
-    pub threads: usize,
     /// Timed runs per engine, after one warm-up run.
     pub runs: usize,
     /// Also time onnxruntime (f32 and dynamic int8) through the project's Python environment.
@@ -361,12 +359,6 @@ fn timed(run: impl FnOnce() -> Result<()>) -> Result<f64> {
 
 /// Times both engines; `note` is told what is being timed as it starts.
 pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchReport> {
-    ensure!(
-        opts.threads == 1,
-        "--threads {} is not available: tract-onnx is built without its multithread-mm feature \
-         and the int8 engine is single-threaded, so both run on one thread (--threads 1)",
-        opts.threads
-    );
     ensure!(opts.runs >= 1, "--runs must be at least 1");
     allow_vnni(!opts.no_vnni);
     let width = opts
@@ -494,21 +486,6 @@ mod tests {
             runs: vec![5.0, 1.0, 4.0],
         };
         assert_eq!(odd.median(), 4.0);
-    }
-
-    #[test]
-    fn more_than_one_thread_is_refused_before_loading_anything() {
-        let opts = BenchOptions {
-            onnx: PathBuf::from("missing.onnx"),
-            blob: PathBuf::from("missing.bin"),
-            profile: Profile::W160,
-            threads: 2,
-            runs: 1,
-            onnxruntime: true,
-            no_vnni: false,
-        };
-        let err = bench(&opts, |_| {}).unwrap_err();
-        assert!(format!("{err:#}").contains("multithread-mm"), "{err:#}");
     }
 
     #[test]

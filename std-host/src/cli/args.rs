@@ -2,11 +2,34 @@
 //! is declared, documented and defaulted once. Each group turns into the library's own type.
 
 use bino_core::sgm::Penalties;
+use bino_host::data::profile::Profile;
 use bino_host::eval::DEFAULT_MAX_COLS;
 use clap::Args;
 
+/// `--profile` of the verbs that measure (`bino eval`, `compare`, `reference`): w160 by default,
+/// the width of the board's 48x160 band, at which the firmware's results are measured too.
+#[derive(Args, Debug, Clone, Copy)]
+pub struct MeasureProfile {
+    /// Resolution profile: w160, w320 or native; the default is the board's band width.
+    #[arg(long, default_value = "w160")]
+    pub profile: Profile,
+}
+
+/// `--profile` of the verbs that make one pair's output (`bino run`, `bino sim`): w320 by
+/// default, the output size the product writes (their default readout is chosen per width).
+#[derive(Args, Debug, Clone, Copy)]
+pub struct PairProfile {
+    /// Resolution profile: w320, w160 or native; the default is the product's output size.
+    ///
+    /// w320 and w160 resize the views to that width; native keeps their size, whose sides must
+    /// then be multiples of 4.
+    #[arg(long, default_value = "w320")]
+    pub profile: Profile,
+}
+
 /// `--max-cols`: how many disparities the cost-volume readouts (nolink, sgm) try, by default
-/// [`DEFAULT_MAX_COLS`] (the probe's, for the EVAL.md profiles; `bino eval`, `compare`, `demo`).
+/// [`DEFAULT_MAX_COLS`] (the probe's, for the w160 and w320 profiles; `bino eval`, `compare`,
+/// `demo`).
 #[derive(Args, Debug, Clone, Copy)]
 pub struct Candidates {
     /// Disparity candidates of nolink and sgm, in patch columns.
@@ -39,8 +62,10 @@ pub struct SgmPenalties {
     /// SGM penalty for a larger jump.
     #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.p2)]
     pub sgm_p2: u16,
-    /// Grey-level difference between neighbouring cells at which the SGM jump penalty halves
-    /// (0: the same penalty everywhere).
+    /// Grey-level edge at which the SGM jump penalty halves (0: the same penalty everywhere).
+    ///
+    /// The grey-level difference between neighbouring cells from which the penalty for a
+    /// larger jump is halved.
     #[arg(long, default_value_t = bino_host::demo::DEFAULT_PENALTIES.edge)]
     pub sgm_edge: u8,
 }
@@ -67,9 +92,11 @@ pub struct LeftRightCheck {
 /// `--pathway`: how each band reaches the readouts.
 #[derive(Args, Debug, Clone, Copy)]
 pub struct PathwayChoice {
-    /// Pathway: export (each view encoded alone, two encoder passes per band; every readout)
-    /// or native (one pass on the pair (L, R); the native head's readouts, head+lr with a
-    /// second pass on the mirrored pair).
+    /// Pathway: export (each view encoded alone) or native (one encoder pass on the pair).
+    ///
+    /// export: each view encoded alone, two encoder passes per band; every readout. native:
+    /// one pass on the pair (L, R); the native head's readouts, head+lr with a second pass on
+    /// the mirrored pair.
     #[arg(long, value_enum, default_value_t = bino_host::readout::pathway::Pathway::Export)]
     pub pathway: bino_host::readout::pathway::Pathway,
 }

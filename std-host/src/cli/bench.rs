@@ -5,40 +5,41 @@ use std::path::PathBuf;
 use anyhow::Result;
 use bino_host::bench::{bench, BenchOptions};
 use bino_host::data::profile::Profile;
+use bino_host::io::checkout;
 use clap::Args;
 
 use super::progress::Progress;
 
-/// Time tract-onnx (f32), the int8 engine and onnxruntime on the same band, single-threaded.
+/// Time the int8 engine against tract-onnx and onnxruntime on one band.
 ///
 /// One 48-row band of the built-in scene at the profile's width, encoded on (I, I) by each
 /// (the descriptor pathway); one warm-up run each, then --runs rounds in which every engine
-/// runs once (onnxruntime: f32 and dynamic int8, through `python -m bino_train.ort_bench`
-/// in the project's Python environment). Prints medians,
-/// minima, GMAC/s and the ratio. Build with --release: a debug build's timings mean little.
+/// runs once (onnxruntime: f32 and dynamic int8, in the project's Python environment). Every
+/// engine runs on one thread: this tract-onnx is built single-threaded, and so is the int8
+/// engine. Prints medians, minima, GMAC/s and the ratio. Build with --release: a debug build's
+/// timings mean little.
 #[derive(Args)]
 pub struct BenchArgs {
-    /// Float encoder (`python -m bino_train.export`).
-    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    /// Float encoder (`python -m bino_train.export`); the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::ENCODER_ONNX))]
     onnx: PathBuf,
-    /// Int8 weight blob (`bino quantize`).
-    #[arg(long, default_value = "weights/bino_int8.bin")]
+    /// Int8 weight blob (`bino quantize`); the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
-    /// Profile giving the band width: w160 or w320.
+    /// Profile giving the band width: w160 or w320; the default is the board's band width.
     #[arg(long, default_value = "w160")]
     profile: Profile,
-    /// Threads: only 1 (tract is built single-threaded; so is the int8 engine).
-    #[arg(long, default_value_t = 1)]
-    threads: usize,
     /// Timed runs per engine.
     #[arg(long, default_value_t = 10)]
     runs: usize,
-    /// Skip onnxruntime (timed by default through the project's Python environment, f32 and
-    /// dynamic int8, one thread each).
+    /// Skip onnxruntime (timed by default in the project's Python environment).
+    ///
+    /// onnxruntime is timed f32 and dynamic int8, one thread each.
     #[arg(long)]
     no_onnxruntime: bool,
-    /// Keep the int8 engine on its AVX2 kernels where the CPU also has AVX-512 VNNI (the
-    /// results are the same; this measures the AVX2 path).
+    /// Keep the int8 engine on its AVX2 kernels where the CPU also has AVX-512 VNNI.
+    ///
+    /// The results are the same; this measures the AVX2 path.
     #[arg(long)]
     no_vnni: bool,
     /// Also write the timings as JSON.
@@ -52,7 +53,6 @@ pub fn run(args: BenchArgs) -> Result<()> {
         onnx: args.onnx,
         blob: args.blob,
         profile: args.profile,
-        threads: args.threads,
         runs: args.runs,
         onnxruntime: !args.no_onnxruntime,
         no_vnni: args.no_vnni,

@@ -4,16 +4,19 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use bino_host::budget::{run_budget, BudgetOptions};
+use bino_host::io::checkout;
 use clap::Args;
 
-/// The firmware's memory and compute budget (STM32Cube.AI / TFLite Micro style): weights and
-/// code flash, arena per stage, stack peak, RAM, executed instructions per stage per core and
-/// milliseconds at a stated clock (M55 400 MHz, M7 480 MHz, 1 instruction per cycle assumed),
-/// against the targets. Reads the runs of `scripts/firmware.sh` and the firmware ELF.
+/// Report the firmware's memory and compute budget against its targets.
+///
+/// STM32Cube.AI / TFLite Micro style: weights and code flash, arena per stage, stack peak,
+/// RAM, executed instructions per stage per core and milliseconds at a stated clock (M55
+/// 400 MHz, M7 480 MHz, 1 instruction per cycle assumed), against the targets. Reads the runs
+/// of `scripts/firmware.sh` and the firmware ELF.
 #[derive(Args)]
 pub struct BudgetArgs {
-    /// Folder with the firmware runs (m55.json, m7.json).
-    #[arg(long, default_value = "firmware-sim/measured")]
+    /// Folder with the firmware runs (m55.json, m7.json); the default is the checkout's.
+    #[arg(long, default_value_os_t = checkout::path(checkout::FIRMWARE_RUNS))]
     firmware: PathBuf,
     /// Also write the report as JSON.
     #[arg(long)]

@@ -4,52 +4,51 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use bino_host::compare::{compare, CompareOptions};
-use bino_host::data::profile::Profile;
+use bino_host::io::checkout;
 use bino_host::readout::pathway::Pathway;
-
-/// The shipped float native head, relative to the repository root like the other defaults.
-const DEFAULT_NATIVE_HEAD_ONNX: &str = "weights/bino_native_head.onnx";
 use clap::Args;
 
-use super::args::{Candidates, PathwayChoice, NOLINK_CANDIDATES_HELP};
+use super::args::{Candidates, MeasureProfile, PathwayChoice, NOLINK_CANDIDATES_HELP};
 use super::progress::Progress;
 
-/// Compare the float encoder (tract-onnx) with the int8 engine on eval pairs.
+/// (developer) Compare the float encoder with the int8 engine on eval pairs.
 ///
-/// Per view and band: the cosine of the residual stream after the embedding and after each
+/// The float encoder runs through tract-onnx. Per view and band: the cosine of the residual stream after the embedding and after each
 /// block's attention and MLP halves (the float model runs on the engine's own 8-bit pixels
 /// / 255, so only the engines differ). Per view: the descriptor maps' cosine (float on the
-/// exact view). Per pair: integer WTA disparity agreement and the EVAL.md metrics of the
-/// no-linkage readout of both, upsampled and refined (nolink+ref; with --head also head and
-/// head+ref; with --native-head the native pathway's pair tokens and native head). Prints the means with the targets (descriptor cosine >= 0.99,
-/// WTA agreement >= 98 %, int8 epe at most 3 % above float); progress on stderr.
+/// exact view). Per pair: integer WTA disparity agreement and the metrics (epe, bad1tok, bad2)
+/// of the no-linkage readout of both, upsampled and refined (nolink+ref; with --head also head
+/// and head+ref; with --native-head the native pathway's pair tokens and native head). Prints
+/// the means with the targets (descriptor cosine >= 0.99, WTA agreement >= 98 %, int8 epe at
+/// most 3 % above float); progress on stderr.
 #[derive(Args)]
 #[command(mut_arg("max_cols", |a| a.help(NOLINK_CANDIDATES_HELP)))]
 pub struct CompareArgs {
-    /// Folder with PAIRS.tsv.
-    #[arg(long, default_value = "../shared/data")]
+    /// Folder with PAIRS.tsv; the default is the data folder beside the checkout.
+    #[arg(long, default_value_os_t = checkout::path(checkout::DATA))]
     data: PathBuf,
     /// Split to compare on: only eval (the metrics need ground truth).
     #[arg(long, default_value = "eval")]
     split: String,
-    /// Resolution profile of EVAL.md: w160, w320 or native.
-    #[arg(long, default_value = "w160")]
-    profile: Profile,
-    /// Float encoder (`python -m bino_train.export`; `--intermediates` not required).
-    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    #[command(flatten)]
+    profile: MeasureProfile,
+    /// Float encoder (`python -m bino_train.export`); the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::ENCODER_ONNX))]
     onnx: PathBuf,
-    /// Int8 weight blob quantised from it (`bino quantize`).
-    #[arg(long, default_value = "weights/bino_int8.bin")]
+    /// Int8 weight blob quantised from it (`bino quantize`); the default is the checkout's.
+    #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
     /// Float shared head: also compare the int8 head's logits and disparity with it.
     #[arg(long)]
     head: Option<PathBuf>,
-    /// Float native-pathway head: also compare the native pathway (the pair tokens of one pass
-    /// on (L, R), and the blob's int8 native head on them against this head on the float ones).
+    /// Float native-pathway head: also compare the native pathway.
+    ///
+    /// The pair tokens of one pass on (L, R), and the blob's int8 native head on them against
+    /// this head on the float ones.
     #[arg(long)]
     native_head: Option<PathBuf>,
     /// --pathway native: compare the native pathway too, with --native-head or, by default,
-    /// the shipped weights/bino_native_head.onnx (the encoder's stages and descriptors are
+    /// the checkout's weights/bino_native_head.onnx (the encoder's stages and descriptors are
     /// compared on either pathway).
     #[command(flatten)]
     pathway: PathwayChoice,
@@ -73,12 +72,12 @@ pub fn run(args: CompareArgs) -> Result<()> {
         blob: args.blob,
         head: args.head,
         native_head: match (args.pathway.pathway, args.native_head) {
-            (Pathway::Native, None) => Some(PathBuf::from(DEFAULT_NATIVE_HEAD_ONNX)),
+            (Pathway::Native, None) => Some(checkout::path(checkout::NATIVE_HEAD_ONNX)),
             (_, given) => given,
         },
         data: args.data,
         split: args.split,
-        profile: args.profile,
+        profile: args.profile.profile,
         max_cols: args.candidates.max_cols,
         limit: args.limit,
         nuisance: args.nuisance,

@@ -4,20 +4,23 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use bino_host::demo::DemoOptions;
+use bino_host::io::checkout;
 use clap::Args;
 
 use super::args::{Candidates, SgmPenalties, NOLINK_CANDIDATES_HELP};
 use super::progress::Progress;
 
-/// The int8 pipeline on the built-in stereo scene (no data needed): encoder on both views,
-/// no-linkage matching, SGM and the shared head (also head+lr and head+lr+ref, its pixel
-/// refinement), scored against the scene's known disparity;
-/// writes the pair, the disparity maps, the error maps and report.json to --out.
+/// Score the int8 pipeline on the built-in scene against its known disparity.
+///
+/// No data needed: the encoder on both views, no-linkage matching, SGM and the shared head
+/// (also head+lr and head+lr+ref, its pixel refinement), then the native pathway, each scored
+/// against the scene's known disparity; writes the pair, the disparity maps, the error maps and
+/// report.json to --out.
 #[derive(Args)]
 #[command(mut_arg("max_cols", |a| a.help(NOLINK_CANDIDATES_HELP)))]
 pub struct DemoArgs {
-    /// Int8 weight blob (default: the one shipped in weights/).
-    #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+    /// Int8 weight blob; the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
     /// Output folder.
     #[arg(long, default_value = "out/demo")]

@@ -3,51 +3,56 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use bino_host::data::profile::Profile;
 use bino_host::eval::EvalOptions;
+use bino_host::io::checkout;
 use clap::Args;
 
-use super::args::{Candidates, LeftRightCheck, PathwayChoice, SgmPenalties};
+use super::args::{Candidates, LeftRightCheck, MeasureProfile, PathwayChoice, SgmPenalties};
 use super::progress::Progress;
 
-/// Score the readouts (nolink, sgm, head, each also +lr, each of those also +ref) on the
-/// eval split, int8 (the core pipeline) and f32, EVAL.md metrics per pair and mean,
-/// StereoSGBM in the same run; with --nuisance also with the right view degraded.
+/// Score the readouts, int8 and f32, on a data folder's eval pairs beside StereoSGBM.
+///
+/// The readouts nolink, sgm, head, each also +lr, each of those also +ref; int8 (the core
+/// pipeline) and f32; epe, bad1tok and bad2 per pair and mean, StereoSGBM in the same run; with
+/// --nuisance also with the right view degraded, with --occlude with it partly covered.
 #[derive(Args)]
 pub struct EvalArgs {
-    /// Folder with PAIRS.tsv.
-    #[arg(long, default_value = "../shared/data")]
+    /// Folder with PAIRS.tsv; the default is the data folder beside the checkout.
+    #[arg(long, default_value_os_t = checkout::path(checkout::DATA))]
     data: PathBuf,
-    /// Split: eval (the metrics need ground truth), or val (held-out train pairs scored
-    /// against confident StereoSGBM, written by `python -m bino_train.val_folder`).
+    /// Split: eval (the metrics need ground truth), or val (held-out train pairs).
+    ///
+    /// val: held-out train pairs scored against confident StereoSGBM, written by
+    /// `python -m bino_train.val_folder`.
     #[arg(long, default_value = "eval")]
     split: String,
-    /// Resolution profile of EVAL.md: w160, w320 or native.
-    #[arg(long, default_value = "w160")]
-    profile: Profile,
-    /// Int8 weight blob.
-    #[arg(long, default_value = "weights/bino_int8.bin")]
+    #[command(flatten)]
+    profile: MeasureProfile,
+    /// Int8 weight blob; the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
-    /// Float encoder (ONNX), for --precision f32.
-    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    /// Float encoder (ONNX), for --precision f32; the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::ENCODER_ONNX))]
     onnx: PathBuf,
     /// Float shared head (ONNX), for --precision f32 with the head readout.
-    #[arg(long, default_value = "weights/bino_head.onnx")]
+    #[arg(long, default_value_os_t = checkout::path(checkout::HEAD_ONNX))]
     head_onnx: PathBuf,
     /// Float native-pathway head (ONNX), for --precision f32 on --pathway native.
-    #[arg(long, default_value = "weights/bino_native_head.onnx")]
+    #[arg(long, default_value_os_t = checkout::path(checkout::NATIVE_HEAD_ONNX))]
     native_head_onnx: PathBuf,
     #[command(flatten)]
     pathway: PathwayChoice,
-    /// Precisions (repeat or comma-separate): int8 (the core pipeline), f32 (tract and the
-    /// float twins of the readouts).
+    /// Precisions (repeat or comma-separate): int8 (the core pipeline), f32 (tract).
+    ///
+    /// f32: the float encoder and heads through tract-onnx, and the float twins of the readouts.
     #[arg(long, value_delimiter = ',', default_value = "int8,f32")]
     precision: Vec<bino_host::eval::Precision>,
-    /// Readouts to score (repeat or comma-separate): nolink, sgm, head, each optionally
-    /// with +lr (cells the method's own left-right check rejects filled from the left),
-    /// then optionally +ref (pixels by the integer refinement instead of bilinear
-    /// upsampling). Default: every readout of the pathway, each unrefined then refined (all
-    /// twelve on export; head, head+ref, head+lr, head+lr+ref on native).
+    /// Readouts to score (repeat or comma-separate); the default is every readout of the pathway.
+    ///
+    /// nolink, sgm, head, each optionally with +lr (cells the method's own left-right check
+    /// rejects filled from the left), then optionally +ref (pixels by the integer refinement
+    /// instead of bilinear upsampling). Default: every readout of the pathway, each unrefined
+    /// then refined (all twelve on export; head, head+ref, head+lr, head+lr+ref on native).
     #[arg(long, value_delimiter = ',')]
     readout: Vec<bino_host::readout::Readout>,
     #[command(flatten)]
@@ -65,8 +70,9 @@ pub struct EvalArgs {
     /// Only the first N pairs of the split.
     #[arg(long)]
     limit: Option<usize>,
-    /// Also score every readout and StereoSGBM with the RIGHT view degraded (repeat or
-    /// comma-separate; the clean run is always reported too). Applied to the profile's
+    /// Also score everything with the right view degraded: gain, gamma, noise, blur, occlude.
+    ///
+    /// Repeat or comma-separate; the clean run is always reported too. Applied to the profile's
     /// 8-bit right view after resizing, the same images for every method: gain (v * 0.7 +
     /// 20, clamped), gamma (255 (v/255)^0.6), noise (gaussian, sigma 8 grey levels), blur
     /// (5x5 box, radius 2 px), occlude (mid-grey rectangles, each at most 1/5 of the width
@@ -77,9 +83,10 @@ pub struct EvalArgs {
     /// Seed of the nuisances' noise and occlusions (mixed with each pair's id).
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Also the one-view occlusion benchmark (the paper's): the RIGHT view covered by
-    /// token-aligned mid-grey blocks over these % of its area (comma-separated, rising,
-    /// nested: each severity's blocks contain the milder ones'), every readout and
+    /// Also the one-view occlusion benchmark: the right view covered over these % of its area.
+    ///
+    /// Token-aligned mid-grey blocks over these % of the right view's area (comma-separated,
+    /// rising, nested: each severity's blocks contain the milder ones'), every readout and
     /// StereoSGBM scored at each; reports clean, each severity, OccAUC and the rise at the
     /// largest. The whole set runs once more per severity.
     #[arg(long, value_delimiter = ',')]
@@ -91,7 +98,7 @@ pub fn run(args: EvalArgs) -> Result<()> {
     let opts = EvalOptions {
         data: args.data,
         split: args.split,
-        profile: args.profile,
+        profile: args.profile.profile,
         blob: args.blob,
         onnx: args.onnx,
         head_onnx: args.head_onnx,

@@ -21,41 +21,47 @@ mod sim;
 
 /// BINO edge: a binocular ViT stereo encoder for edge boards, host tools.
 #[derive(Parser)]
-#[command(version, about)]
+#[command(
+    version,
+    about,
+    after_help = "(developer): verbs for measuring the engine and making the weights (docs/cli.md)."
+)]
 pub struct Cli {
     #[command(subcommand)]
     command: Command,
 }
 
-// Each verb's help is its `<Verb>Args` doc comment; the order here is `bino --help`'s.
+// Each verb's help is its `<Verb>Args` doc comment: the first paragraph, one short sentence, is
+// its line in `bino --help` (the developer verbs' starts with "(developer)"); the rest is
+// `bino <verb> --help`'s. The order here is `bino --help`'s: user verbs, then developer verbs.
 #[derive(Subcommand)]
 enum Command {
-    Reference(reference::ReferenceArgs),
     Demo(demo::DemoArgs),
-    Sim(sim::SimArgs),
-    Quantize(quantize::QuantizeArgs),
-    Pairs(pairs::PairsArgs),
-    Compare(compare::CompareArgs),
-    Eval(eval::EvalArgs),
     Run(run::RunArgs),
+    Sim(sim::SimArgs),
+    Eval(eval::EvalArgs),
     Bench(bench::BenchArgs),
     Budget(budget::BudgetArgs),
+    Reference(reference::ReferenceArgs),
+    Pairs(pairs::PairsArgs),
+    Compare(compare::CompareArgs),
+    Quantize(quantize::QuantizeArgs),
 }
 
 impl Cli {
     /// Runs the verb asked for.
     pub fn run(self) -> Result<()> {
         match self.command {
-            Command::Reference(args) => reference::run(args),
             Command::Demo(args) => demo::run(args),
-            Command::Sim(args) => sim::run(args),
-            Command::Quantize(args) => quantize::run(args),
-            Command::Pairs(args) => pairs::run(args),
-            Command::Compare(args) => compare::run(args),
-            Command::Eval(args) => eval::run(args),
             Command::Run(args) => run::run(args),
+            Command::Sim(args) => sim::run(args),
+            Command::Eval(args) => eval::run(args),
             Command::Bench(args) => bench::run(args),
             Command::Budget(args) => budget::run(args),
+            Command::Reference(args) => reference::run(args),
+            Command::Pairs(args) => pairs::run(args),
+            Command::Compare(args) => compare::run(args),
+            Command::Quantize(args) => quantize::run(args),
         }
     }
 }
@@ -96,6 +102,129 @@ mod tests {
             default.join(","),
             arg.get_help().map(|h| h.to_string()).unwrap_or_default(),
         )
+    }
+
+    /// The verbs `bino --help` labels "(developer)": for measuring the engine and making weights.
+    const DEVELOPER_VERBS: [&str; 4] = ["reference", "pairs", "compare", "quantize"];
+
+    /// Words that point inside the project rather than at what a user can see.
+    const INTERNAL: [&str; 6] = ["EVAL.md", "paper", "issue", "session", "bino_core::", "README"];
+
+    fn assert_public(what: &str, text: &str) {
+        for word in INTERNAL {
+            assert!(!text.contains(word), "{what} cites {word:?}: {text}");
+        }
+    }
+
+    #[test]
+    fn each_verb_has_a_one_sentence_summary_and_developer_verbs_are_labelled_and_last() {
+        let cli = Cli::command();
+        let verbs: Vec<_> = cli.get_subcommands().collect();
+        for (i, verb) in verbs.iter().enumerate() {
+            let name = verb.get_name();
+            let about = verb.get_about().map(|a| a.to_string()).unwrap_or_default();
+            assert!(
+                !about.is_empty() && about.len() <= 90,
+                "{name}: {} chars: {about}",
+                about.len()
+            );
+            assert!(
+                !about.contains('\n') && !about.trim_end_matches('.').contains(". "),
+                "{name}: {about}"
+            );
+            assert_public(name, &about);
+            let long = verb.get_long_about().map(|a| a.to_string()).unwrap_or_default();
+            assert_public(name, &long);
+            let developer = DEVELOPER_VERBS.contains(&name);
+            assert_eq!(about.starts_with("(developer) "), developer, "{name}: {about}");
+            assert_eq!(
+                developer,
+                i >= verbs.len() - DEVELOPER_VERBS.len(),
+                "{name}: developer verbs last"
+            );
+        }
+    }
+
+    #[test]
+    fn every_flags_first_help_line_is_short_and_public() {
+        let mut long = Vec::new();
+        for verb in Cli::command().get_subcommands() {
+            for arg in verb.get_arguments() {
+                let what = format!("bino {} --{}", verb.get_name(), arg.get_id());
+                let help = arg.get_help().map(|h| h.to_string()).unwrap_or_default();
+                if help.len() > 100 || help.contains('\n') {
+                    long.push(format!("{what}: {} chars: {help}", help.len()));
+                }
+                assert_public(&what, &help);
+                assert_public(&what, &arg.get_long_help().map(|h| h.to_string()).unwrap_or_default());
+            }
+        }
+        assert!(long.is_empty(), "first help lines over 100 chars:\n{}", long.join("\n"));
+    }
+
+    #[test]
+    fn profile_defaults_w320_for_one_pairs_output_and_w160_for_measuring() {
+        for verb in ["run", "sim"] {
+            let (default, help) = flag(verb, "profile");
+            assert_eq!(default, "w320", "{verb}");
+            assert!(
+                help.contains("the default is the product's output size"),
+                "{verb}: {help}"
+            );
+        }
+        for verb in ["eval", "compare", "reference", "bench", "quantize"] {
+            let (default, help) = flag(verb, "profile");
+            assert_eq!(default, "w160", "{verb}");
+            assert!(help.contains("the default is"), "{verb}: {help}");
+        }
+    }
+
+    #[test]
+    fn every_default_input_file_is_the_checkouts_found_by_one_rule() {
+        use bino_host::io::checkout;
+        let expected = [
+            ("blob", checkout::BLOB),
+            ("onnx", checkout::ENCODER_ONNX),
+            ("head_onnx", checkout::HEAD_ONNX),
+            ("native_head_onnx", checkout::NATIVE_HEAD_ONNX),
+            ("data", checkout::DATA),
+            ("calib", checkout::DATA),
+            ("firmware", checkout::FIRMWARE_RUNS),
+        ];
+        let mut seen = 0;
+        for verb in Cli::command().get_subcommands() {
+            for arg in verb.get_arguments() {
+                let id = arg.get_id().as_str();
+                let default: Vec<_> = arg.get_default_values().iter().map(std::path::PathBuf::from).collect();
+                if (verb.get_name(), id) == ("quantize", "out") {
+                    continue; // below
+                }
+                let Some(&(_, file)) = expected.iter().find(|(flag, _)| *flag == id) else {
+                    // No other flag defaults to a checkout file, relative or not.
+                    for d in &default {
+                        let d = d.to_string_lossy();
+                        assert!(
+                            !d.contains("weights/") && !d.contains("shared/"),
+                            "{}: {d}",
+                            verb.get_name()
+                        );
+                    }
+                    continue;
+                };
+                assert_eq!(default, [checkout::path(file)], "bino {} --{id}", verb.get_name());
+                assert!(default[0].is_absolute());
+                seen += 1;
+            }
+        }
+        // demo, run, sim, eval, compare, bench: --blob; eval, compare, bench, reference, quantize:
+        // --onnx; eval: --head-onnx, --native-head-onnx; eval, compare, pairs: --data; quantize:
+        // --calib; budget: --firmware.
+        assert_eq!(seen, 6 + 5 + 2 + 3 + 1 + 1);
+        // quantize writes where the others read.
+        assert_eq!(
+            flag("quantize", "out").0,
+            checkout::path(checkout::BLOB).display().to_string()
+        );
     }
 
     #[test]

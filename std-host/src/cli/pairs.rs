@@ -5,13 +5,14 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use bino_host::data::pairs::{read_index, Split};
+use bino_host::io::checkout;
 use clap::Args;
 
-/// List the pairs of a data folder's PAIRS.tsv.
+/// (developer) List the pairs of a data folder's PAIRS.tsv.
 #[derive(Args)]
 pub struct PairsArgs {
-    /// Folder holding PAIRS.tsv.
-    #[arg(long, default_value = "../shared/data")]
+    /// Folder holding PAIRS.tsv; the default is the data folder beside the checkout.
+    #[arg(long, default_value_os_t = checkout::path(checkout::DATA))]
     data: PathBuf,
     /// Only this split (train or eval).
     #[arg(long)]

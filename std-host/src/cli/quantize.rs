@@ -7,12 +7,13 @@ use std::time::Instant;
 use anyhow::Result;
 use bino_host::data::profile::Profile;
 use bino_host::int8::Int8Model;
+use bino_host::io::checkout;
 use bino_host::quantize::{quantize, QuantizeOptions};
 use clap::Args;
 
 use super::progress::Progress;
 
-/// Quantise the float ONNX models into the int8 weight blob the engine runs.
+/// (developer) Quantise the float ONNX models into the int8 weight blob.
 ///
 /// Weights: symmetric int8 per output channel. Activation formats come from the float
 /// encoder's intermediate tensors (tract) on bands of train-split pairs only: per-channel
@@ -20,39 +21,42 @@ use super::progress::Progress;
 /// (docs/int8-model.md).
 #[derive(Args)]
 pub struct QuantizeArgs {
-    /// Float encoder (`python -m bino_train.export`, with or without `--intermediates`):
-    /// calibration reads its per-stage tensors by value name.
-    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    /// Float encoder (`python -m bino_train.export`); the default is the checkout's shipped one.
+    ///
+    /// With or without `--intermediates`: calibration reads its per-stage tensors by value name.
+    #[arg(long, default_value_os_t = checkout::path(checkout::ENCODER_ONNX))]
     onnx: PathBuf,
     /// Float shared head (`python -m bino_train.head`); quantised into the same blob.
     #[arg(long)]
     head: Option<PathBuf>,
-    /// Float native-pathway head (`python -m bino_train.head` of a `--pathway native` head with
-    /// pair features [a, b]); quantised into the same blob, beside the shared head.
+    /// Float native-pathway head; quantised into the same blob, beside the shared head.
+    ///
+    /// `python -m bino_train.head` of a `--pathway native` head with pair features [a, b].
     #[arg(long)]
     native_head: Option<PathBuf>,
     /// Train pairs whose input maps calibrate each head.
     #[arg(long, default_value_t = 16)]
     head_calib_pairs: usize,
-    /// Calibrate the heads on those pairs again with the right view under each of these
-    /// nuisances too (comma list of gain, gamma, noise, blur, occlude; `bino eval
-    /// --nuisance`'s images, seed 0).
+    /// Calibrate the heads again with the right view under each of these nuisances too.
+    ///
+    /// A comma list of gain, gamma, noise, blur, occlude: `bino eval --nuisance`'s images,
+    /// seed 0, on the same pairs.
     #[arg(long, value_delimiter = ',', value_enum)]
     head_calib_nuisance: Vec<bino_host::data::nuisance::Nuisance>,
-    /// Folder with PAIRS.tsv; only `split = train` pairs are read.
-    #[arg(long, default_value = "../shared/data")]
+    /// Folder with PAIRS.tsv (only train pairs are read); the default is the one beside the checkout.
+    #[arg(long, default_value_os_t = checkout::path(checkout::DATA))]
     calib: PathBuf,
     /// Train pairs to calibrate on (both views, one band each; spread over the split).
     #[arg(long, default_value_t = 64)]
     calib_pairs: usize,
-    /// Resolution profile of the calibration bands.
+    /// Resolution profile of the calibration bands; the default is the shipped blob's.
     #[arg(long, default_value = "w160")]
     profile: Profile,
     /// Widest band the blob supports, in pixels.
     #[arg(long, default_value_t = 640)]
     max_width: usize,
-    /// Output blob.
-    #[arg(long, default_value = "weights/bino_int8.bin")]
+    /// Output blob; the default replaces the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     out: PathBuf,
 }
 

@@ -8,14 +8,16 @@ use bino_host::data::profile::{Profile, View};
 use bino_host::data::synthetic;
 use bino_host::float::reference::{FeatureMap, ReferenceEncoder};
 use bino_host::float::reference_head::ReferenceHead;
+use bino_host::io::checkout;
 use bino_host::io::image_io::{load_gray, GrayImage};
 use bino_host::io::npy::Array;
 use bino_host::io::npz;
 use clap::Args;
 
+use super::args::MeasureProfile;
 use super::progress::Progress;
 
-/// Run the float ONNX reference on a pair; write tokens and descriptor maps as .npz.
+/// (developer) Write the float model's tokens and descriptors for a pair as .npz.
 ///
 /// Arrays in the archive (float32, C order; open with numpy.load):
 /// `left`, `right` (H, W) the views after the profile, gray in [0, 1];
@@ -31,14 +33,14 @@ pub struct ReferenceArgs {
     /// Right image, the same size as the left.
     #[arg(long, requires = "left")]
     right: Option<PathBuf>,
-    /// Resolution profile of EVAL.md: w160, w320 or native.
-    #[arg(long, default_value = "w160")]
-    profile: Profile,
-    /// Encoder exported by `python -m bino_train.export`.
-    #[arg(long, default_value = "weights/bino_encoder.onnx")]
+    #[command(flatten)]
+    profile: MeasureProfile,
+    /// Encoder exported by `python -m bino_train.export`; the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::ENCODER_ONNX))]
     onnx: PathBuf,
-    /// Shared head exported by `python -m bino_train.head`; adds `disparity` (H/4, W/4),
-    /// in patch columns, to the archive.
+    /// Shared head exported by `python -m bino_train.head`; adds `disparity` to the archive.
+    ///
+    /// `disparity` is (H/4, W/4), in patch columns.
     #[arg(long)]
     head: Option<PathBuf>,
     /// Output archive (.npz).
@@ -56,7 +58,7 @@ pub fn run(args: ReferenceArgs) -> Result<()> {
         head,
         out,
     } = args;
-    reference(left.zip(right), profile, &onnx, head.as_deref(), &out)
+    reference(left.zip(right), profile.profile, &onnx, head.as_deref(), &out)
 }
 
 fn reference(

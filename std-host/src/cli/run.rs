@@ -3,18 +3,20 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use bino_host::data::profile::Profile;
+use bino_host::io::checkout;
 use bino_host::readout::pathway::Pathway;
 use bino_host::run::RunOptions;
 use clap::Args;
 
-use super::args::{LeftRightCheck, PairCandidates, PathwayChoice, SgmPenalties};
+use super::args::{LeftRightCheck, PairCandidates, PairProfile, PathwayChoice, SgmPenalties};
 use super::progress::Progress;
 
-/// The int8 pipeline on a rectified pair of any size: writes disparity.png (colour),
-/// disparity.pfm (float32 pixel disparities, dense, the readout exactly as `bino eval` scores
-/// it: refined, the readout's +ref, unless --refine off) and lr_mask.png (pixels the
-/// readout's method keeps in its left-right check) to --out.
+/// Compute the disparity of a rectified pair of any size with the int8 pipeline.
+///
+/// Writes disparity.png (colour), disparity.pfm (float32 pixel disparities, dense, the readout
+/// exactly as `bino eval` scores it: refined, the readout's +ref, unless --refine off) and
+/// lr_mask.png (pixels the readout's method keeps in its left-right check) to --out, all at the
+/// profile's size.
 #[derive(Args)]
 pub struct RunArgs {
     /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
@@ -23,25 +25,26 @@ pub struct RunArgs {
     /// Right view, same size.
     #[arg(long)]
     right: PathBuf,
-    /// Resolution profile: w160, w320 or native (sides must be multiples of 4).
-    #[arg(long, default_value = "w320")]
-    profile: Profile,
-    /// Int8 weight blob.
-    #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+    #[command(flatten)]
+    profile: PairProfile,
+    /// Int8 weight blob; the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
-    /// Readout: nolink, sgm or head, each optionally with +lr (cells the method's own
-    /// left-right check rejects filled from the nearest kept cell to their left), then
-    /// optionally +ref (the same as --refine on). Default: on the export pathway head+lr for
-    /// views up to 160 px wide and sgm+lr above (chosen on held-out train pairs; README), on
-    /// the native pathway head+lr.
+    /// Readout: nolink, sgm or head, each optionally +lr, then optionally +ref; default by width.
+    ///
+    /// +lr: cells the method's own left-right check rejects filled from the nearest kept cell to
+    /// their left; +ref: the same as --refine on. Default: on the export pathway head+lr for
+    /// views up to 160 px wide and sgm+lr above (chosen on held-out train pairs), on the native
+    /// pathway head+lr.
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
     pathway: PathwayChoice,
-    /// Pixel refinement of the readout: on (its +ref: the views' sharpness equalised where one
-    /// is defocused, then a census 5x5 search around the upsampled token disparity, +-2 px below
-    /// 200 px of width and +-4 at 320 (round(width / 80)), bino_core::refine) or off (the
-    /// token grid upsampled bilinearly, as before the refinement).
+    /// Pixel refinement of the readout: on (its +ref) or off (the token grid upsampled).
+    ///
+    /// on: the views' sharpness equalised where one is defocused, then a census 5x5 search
+    /// around the upsampled token disparity, +-2 px below 200 px of width and +-4 at 320
+    /// (round(width / 80)); off: the token grid upsampled bilinearly.
     #[arg(long, value_enum, default_value = "on")]
     refine: bino_host::run::Refine,
     #[command(flatten)]
@@ -60,7 +63,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     let pathway = args.pathway.pathway;
     let default = match args.readout {
         Some(readout) => readout,
-        None => pathway.default_readout(bino_host::data::profile::view_width(&args.left, args.profile)?),
+        None => pathway.default_readout(bino_host::data::profile::view_width(&args.left, args.profile.profile)?),
     };
     let readout = args
         .refine
@@ -69,7 +72,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     let opts = RunOptions {
         left: args.left,
         right: args.right,
-        profile: args.profile,
+        profile: args.profile.profile,
         blob: args.blob,
         readout,
         pathway,

@@ -3,18 +3,19 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use bino_host::data::profile::Profile;
+use bino_host::io::checkout;
 use bino_host::sim::SimOptions;
 use clap::Args;
 
-use super::args::{LeftRightCheck, PairCandidates, PathwayChoice, SgmPenalties};
+use super::args::{LeftRightCheck, PairCandidates, PairProfile, PathwayChoice, SgmPenalties};
 use super::progress::Progress;
 
-/// The board, simulated: the pair is fed row by row into the band buffer as a camera
-/// delivers it, the int8 pipeline runs in one arena, and each disparity row is drawn
-/// (embedded-graphics) on an RGB565 display with a status line (host fps, arena use, image
-/// size); the display is saved as display.png in --out. Without --left/--right the
-/// built-in 320x96 scene is used.
+/// Simulate the board on the host: camera rows in, display out.
+///
+/// The pair is fed row by row into the band buffer as a camera delivers it, the int8 pipeline
+/// runs in one arena, and each disparity row is drawn (embedded-graphics) on an RGB565 display
+/// with a status line (host fps, arena use, image size); the display is saved as display.png in
+/// --out. Without --left/--right the built-in 320x96 scene is used.
 #[derive(Args)]
 pub struct SimArgs {
     /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
@@ -23,18 +24,18 @@ pub struct SimArgs {
     /// Right view, same size.
     #[arg(long, requires = "left")]
     right: Option<PathBuf>,
-    /// Resolution profile of --left/--right: w160, w320 or native.
-    #[arg(long, default_value = "w320")]
-    profile: Profile,
-    /// Int8 weight blob.
-    #[arg(long, default_value = bino_host::demo::DEFAULT_BLOB)]
+    #[command(flatten)]
+    profile: PairProfile,
+    /// Int8 weight blob; the default is the checkout's shipped one.
+    #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
-    /// Readout drawn: nolink, sgm or head (cells their left-right check rejects are dark),
-    /// or nolink+lr, sgm+lr, head+lr (those cells filled from the left, as `bino eval`
-    /// scores), each token row as the pipeline streams it; or a +ref readout, its refined
-    /// pixel rows as the pipeline's refinement stage streams them. The default is `bino run`'s
-    /// for the view's width, refined (export: head+lr+ref up to 160 px, sgm+lr+ref above;
-    /// native: head+lr+ref).
+    /// Readout drawn: nolink, sgm or head, each optionally +lr, then optionally +ref; default by width.
+    ///
+    /// nolink, sgm, head: cells their left-right check rejects are dark; +lr: those cells filled
+    /// from the left, as `bino eval` scores; each token row as the pipeline streams it. A +ref
+    /// readout draws its refined pixel rows as the pipeline's refinement stage streams them. The
+    /// default is `bino run`'s for the view's width, refined (export: head+lr+ref up to 160 px,
+    /// sgm+lr+ref above; native: head+lr+ref).
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
@@ -59,12 +60,12 @@ pub struct SimArgs {
 /// Runs the verb.
 pub fn run(args: SimArgs) -> Result<()> {
     let width = match &args.left {
-        Some(left) => bino_host::data::profile::view_width(left, args.profile)?,
+        Some(left) => bino_host::data::profile::view_width(left, args.profile.profile)?,
         None => bino_host::sim::DEFAULT_SCENE.0,
     };
     let opts = SimOptions {
         pair: args.left.zip(args.right),
-        profile: args.profile,
+        profile: args.profile.profile,
         blob: args.blob,
         readout: match args.readout {
             Some(readout) => readout,

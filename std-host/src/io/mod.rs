@@ -1,8 +1,10 @@
-//! Files in and out: safe reads and atomic writes ([`files`]), views as 8-bit gray
+//! Files in and out: the checkout's default files ([`checkout`]), safe reads and atomic
+//! writes ([`files`]), views as 8-bit gray
 //! ([`image_io`]), PFM ([`pfm`]), `.npy` / `.npz` arrays ([`npy`], [`npz`]), false-colour
 //! pictures ([`colour`]), JSON objects in their keys' order (`keyed`) and the project's Python
 //! environment, which some commands run ([`train_python`]).
 
+pub mod checkout;
 pub mod colour;
 pub mod files;
 pub mod image_io;

@@ -18,9 +18,14 @@ pub fn scratch_dir(label: &str) -> PathBuf {
 
 /// Runs the `bino` binary from the repository root.
 pub fn bino(args: &[&str]) -> Output {
+    bino_in(&repo(), args)
+}
+
+/// Runs the `bino` binary from `dir`, as an installed `bino` runs from wherever its user is.
+pub fn bino_in(dir: &Path, args: &[&str]) -> Output {
     Command::new(env!("CARGO_BIN_EXE_bino"))
         .args(args)
-        .current_dir(repo())
+        .current_dir(dir)
         .output()
         .unwrap()
 }
