@@ -90,7 +90,8 @@ pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
         return false;
     }
     let (m, n) = (a.len() / k, w.len() / k);
-    if m.checked_mul(n) != Some(out.len()) {
+    // No rows on either side: nothing to compute (and the tiles' chunking needs some).
+    if m == 0 || n == 0 || m.checked_mul(n) != Some(out.len()) {
         return false;
     }
     // SAFETY: `available()` saw AVX-512 F/BW/VL/VNNI on this CPU, enabled by the OS.

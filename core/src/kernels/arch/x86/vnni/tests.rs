@@ -129,3 +129,13 @@ fn the_kernels_match_plain_dots_where_the_cpu_has_vnni_and_decline_when_off() {
         }
     }
 }
+
+#[test]
+fn empty_operands_are_declined_not_a_panic() {
+    // Found by the `kernels` fuzz target: a weight slice shorter than one row gave n = 0.
+    let a = [1i8; 64];
+    assert!(!matmul_i32(&a, &[2i8; 31], 32, &mut []));
+    assert!(!matmul_i32(&[], &a, 32, &mut []));
+    assert!(!super::super::avx2::matmul_i32(&a, &[2i8; 15], 16, &mut []));
+    assert!(!super::super::avx2::matmul_i32(&[], &a, 16, &mut []));
+}
