@@ -402,7 +402,8 @@ fn hostile_pfm_ground_truth_is_refused_before_allocating() {
         let dir = data_folder(name, format!("{HEADER}{row}").as_bytes(), (200, 60));
         std::fs::write(dir.join("gt.pfm"), pfm).unwrap();
         let before = listing(&dir);
-        let mut all = vec!["ground truth", "gt.pfm"];
+        // The pair is named as well as the file (`pair p: ...`).
+        let mut all = vec!["pair p", "ground truth", "gt.pfm"];
         all.extend_from_slice(needles);
         assert_refused(&eval_into(&dir, &dir.join("eval.json")), &all);
         assert_eq!(listing(&dir), before, "{name}: no output");

@@ -37,7 +37,7 @@ pub fn load_eval_item(record: &PairRecord, profile: Profile) -> Result<EvalItem>
         Ok((view, (image.width, image.height)))
     };
     let ((left, stored_size), (right, _)) = (view(&record.left)?, view(&record.right)?);
-    let stored = load_ground_truth(gt)?;
+    let stored = load_ground_truth(gt).with_context(|| format!("pair {id}"))?;
     // At the stored resolution: a map of another size may still resize to the profile's.
     ensure!(
         (stored.width, stored.height) == stored_size,
