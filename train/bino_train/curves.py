@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -121,9 +121,15 @@ def plot(records: Sequence[dict[str, Any]]) -> np.ndarray:
     return canvas
 
 
-def main(argv: list[str] | None = None) -> None:
+def plot_run_cli(
+    plot_records: Callable[[Sequence[dict[str, Any]]], np.ndarray],
+    description: str | None,
+    argv: list[str] | None = None,
+) -> None:
+    """The command line of a run's curves: `--run` (the folder holding log.jsonl), `--out`
+    (the PNG, written as a partial file and renamed into place)."""
     parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+        description=description, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--run", type=Path, required=True, help="run folder holding log.jsonl")
     parser.add_argument("--out", type=Path, required=True, help="PNG to write")
@@ -131,13 +137,17 @@ def main(argv: list[str] | None = None) -> None:
     log = args.run / "log.jsonl"
     if not log.is_file():
         raise SystemExit(f"error: {log} does not exist")
-    image = plot(read_log(log))
+    image = plot_records(read_log(log))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     partial = args.out.with_name(args.out.name + ".partial.png")
     if not cv2.imwrite(str(partial), image):
         raise SystemExit(f"error: cannot write {args.out}")
     partial.replace(args.out)
     print(f"wrote {args.out}")
+
+
+def main(argv: list[str] | None = None) -> None:
+    plot_run_cli(plot, __doc__, argv)
 
 
 if __name__ == "__main__":

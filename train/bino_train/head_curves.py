@@ -11,15 +11,12 @@ synthetic validation crops' epe with the held-out pairs' agreement with confiden
 
 from __future__ import annotations
 
-import argparse
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
-from .curves import PANEL_H, PANEL_W, draw_panel, read_log
+from .curves import PANEL_H, PANEL_W, draw_panel, plot_run_cli
 
 
 def step_series(records: Sequence[dict[str, Any]], key: str) -> list[tuple[float, float]]:
@@ -88,22 +85,7 @@ def plot(records: Sequence[dict[str, Any]]) -> np.ndarray:
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    parser.add_argument("--run", type=Path, required=True, help="run folder holding log.jsonl")
-    parser.add_argument("--out", type=Path, required=True, help="PNG to write")
-    args = parser.parse_args(argv)
-    log = args.run / "log.jsonl"
-    if not log.is_file():
-        raise SystemExit(f"error: {log} does not exist")
-    image = plot(read_log(log))
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    partial = args.out.with_name(args.out.name + ".partial.png")
-    if not cv2.imwrite(str(partial), image):
-        raise SystemExit(f"error: cannot write {args.out}")
-    partial.replace(args.out)
-    print(f"wrote {args.out}")
+    plot_run_cli(plot, __doc__, argv)
 
 
 if __name__ == "__main__":
