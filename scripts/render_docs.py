@@ -578,9 +578,7 @@ STAGE_NOTES = {
     "refine": "refine (pixel refinement of the head+lr grid, depth sectors)",
     "native_rows": "native_rows",
     "native_encode_pair": "native_encode_pair: one pass on (L, R)",
-    "native_head": "native_head: the native head on the pair tokens",
-    "native_encode_mirror": "native_encode_mirror: the check's pass on the mirrored pair",
-    "native_head_mirror": "native_head_mirror: the native head on the mirrored pair",
+    "native_head": "native_head: the native head on the pair tokens, its check from its logits",
     "native_refine": "native_refine: the head+lr grid",
 }
 
@@ -613,13 +611,6 @@ def fw_stages(src: Sources) -> str:
             "band pair, export pathway (all but load and native_*)",
             "band_pair_instructions",
             n(cs["m55"]["arena_high_water_bytes"]),
-        )
-    )
-    rows.append(
-        total(
-            "band pair, native pathway, one pass (rows, encode_pair, head, refine)",
-            "native_one_pass_instructions",
-            n(src.run("m55")["native"]["arena_used"]),
         )
     )
     rows.append(

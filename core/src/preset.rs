@@ -11,8 +11,9 @@
 //! assert!(OPTIONS.head && OPTIONS.head_lr);
 //! // The 48x160 band pair of the budget: 486,918 bytes.
 //! assert_eq!(arena_bytes(48, 160), 486_918);
-//! // The native pathway (one encoder pass on (L, R), twice with the head's check) needs less.
-//! assert_eq!(bino_core::preset::native_arena_bytes(48, 160), 427_222);
+//! // The native pathway (one encoder pass on (L, R), the head's check read from the same pass)
+//! // needs less.
+//! assert_eq!(bino_core::preset::native_arena_bytes(48, 160), 425_862);
 //! ```
 
 use crate::pipeline::{self, Options, Pathway, Refine};
@@ -40,7 +41,7 @@ pub const fn arena_bytes(height: usize, width: usize) -> usize {
 }
 
 /// [`OPTIONS`] on the native pathway: one encoder pass on (L, R) and the native head, with its
-/// left-right check (a second pass, on the mirrored pair).
+/// left-right check read from the same pass (the right view from the head's own logits).
 pub const NATIVE_OPTIONS: Options = Options {
     pathway: Pathway::Native,
     ..OPTIONS

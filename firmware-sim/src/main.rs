@@ -89,8 +89,6 @@ markers! {
     bino_mark_head = 7;
     bino_mark_refine = 8;
     bino_mark_encode_pair = 9;
-    bino_mark_encode_mirror = 10;
-    bino_mark_head_mirror = 11;
     bino_mark_native_rows = 101;
     bino_mark_native_encode_left = 102;
     bino_mark_native_encode_right = 103;
@@ -100,8 +98,6 @@ markers! {
     bino_mark_native_head = 107;
     bino_mark_native_refine = 108;
     bino_mark_native_encode_pair = 109;
-    bino_mark_native_encode_mirror = 110;
-    bino_mark_native_head_mirror = 111;
     bino_mark_end = 0xFFFF;
 }
 
@@ -118,8 +114,6 @@ fn mark(stage: Stage) {
         Stage::Pipeline(P::Head) => bino_mark_head(),
         Stage::Pipeline(P::Refine) => bino_mark_refine(),
         Stage::Pipeline(P::EncodePair) => bino_mark_encode_pair(),
-        Stage::Pipeline(P::EncodeMirror) => bino_mark_encode_mirror(),
-        Stage::Pipeline(P::HeadMirror) => bino_mark_head_mirror(),
         Stage::Native(P::Rows) => bino_mark_native_rows(),
         Stage::Native(P::EncodeLeft) => bino_mark_native_encode_left(),
         Stage::Native(P::EncodeRight) => bino_mark_native_encode_right(),
@@ -129,8 +123,6 @@ fn mark(stage: Stage) {
         Stage::Native(P::Head) => bino_mark_native_head(),
         Stage::Native(P::Refine) => bino_mark_native_refine(),
         Stage::Native(P::EncodePair) => bino_mark_native_encode_pair(),
-        Stage::Native(P::EncodeMirror) => bino_mark_native_encode_mirror(),
-        Stage::Native(P::HeadMirror) => bino_mark_native_head_mirror(),
     }
 }
 

@@ -6,8 +6,8 @@
 //! - Export: both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the left-right
 //!   check, the shared head and its own left-right check (the head on the mirrored pair, rerun
 //!   on the head's arena), row by row, and the pixel refinement of the head+lr grid.
-//! - Native: one encoder pass on (L, R) and the native head on its pair tokens, a second pass
-//!   on the mirrored pair for the head's left-right check, and the refinement of its head+lr
+//! - Native: one encoder pass on (L, R) and the native head on its pair tokens, its left-right
+//!   check read from the head's own logits (no second pass), and the refinement of its head+lr
 //!   grid.
 //!
 //! The rows come from any `RowSource`: `build.rs` hands over the embedded band as a
@@ -98,8 +98,6 @@ impl Stage {
                 P::Head => "native_head",
                 P::Refine => "native_refine",
                 P::EncodePair => "native_encode_pair",
-                P::EncodeMirror => "native_encode_mirror",
-                P::HeadMirror => "native_head_mirror",
             },
         }
     }
@@ -300,16 +298,11 @@ pub fn arena_per_stage(r: &Report, native: &Report) -> [usize; Stage::COUNT] {
         *o = match Stage::at(i) {
             Stage::Load => 0,
             Stage::Native(pipeline::Stage::Rows) => native.pixels,
-            Stage::Native(pipeline::Stage::EncodePair | pipeline::Stage::EncodeMirror) => {
-                native.pixels + native.streams + native.encoder
-            }
+            Stage::Native(pipeline::Stage::EncodePair) => native.pixels + native.streams + native.encoder,
             Stage::Native(_) => native.arena_used,
             Stage::Pipeline(pipeline::Stage::Rows) => r.pixels,
             Stage::Pipeline(
-                pipeline::Stage::EncodeLeft
-                | pipeline::Stage::EncodeRight
-                | pipeline::Stage::EncodePair
-                | pipeline::Stage::EncodeMirror,
+                pipeline::Stage::EncodeLeft | pipeline::Stage::EncodeRight | pipeline::Stage::EncodePair,
             ) => r.pixels + r.descriptors + r.encoder,
             Stage::Pipeline(pipeline::Stage::Refine) => r.pixels + 2 * r.descriptors + r.streams + r.refine,
             Stage::Pipeline(_) => r.pixels + 2 * r.descriptors + r.streams,

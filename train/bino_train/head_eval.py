@@ -12,11 +12,11 @@ The head predicts every pixel: density 100. A native head (head.NativeHead) read
 of one encoder pass on each pair instead (`pair_inputs`); it has no probe.
 
 `head+lr` is the Rust CLI's readout of that name (`bino_host::readout`): the head's own
-left-right check (the head on the mirrored pair gives the right view's disparity: the export
-head on the mirrored descriptor maps, the native head on the phase maps of the encoder on
-(mirror(R), mirror(L)), not on mirrored phase maps; a left cell is kept when the right cell it
-lands on reads the same disparity within one column), and each rejected cell takes the
-disparity of the nearest kept cell to its left, before upsampling.
+left-right check (the export head on the mirrored descriptor maps gives the right view's
+disparity; the native head reads it from its own logits' diagonal, `diagonal_right`, with no
+second encoder pass; a left cell is kept when the right cell it lands on reads the same
+disparity within one column), and each rejected cell takes the disparity of the nearest kept
+cell to its left, before upsampling.
 """
 
 from __future__ import annotations
@@ -80,6 +80,31 @@ def fill_rejected(disparity: np.ndarray, kept: np.ndarray) -> np.ndarray:
     return out
 
 
+def soft_argmin(logits: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Disparity (candidates) of (D, T, P) logits over the valid candidates; 0 where none is."""
+    masked = np.where(valid, logits, -np.inf)
+    top = masked.max(axis=0, keepdims=True)
+    top = np.where(np.isfinite(top), top, 0.0)
+    weights = np.where(valid, np.exp(masked - top), 0.0)
+    total = weights.sum(axis=0)
+    k = np.arange(logits.shape[0], dtype=np.float64)[:, None, None]
+    moment = (weights * k).sum(axis=0)
+    return np.where(total > 0, moment / np.maximum(total, 1e-300), 0.0).astype(np.float32)
+
+
+def diagonal_right(logits: np.ndarray) -> np.ndarray:
+    """The right view's disparity from the left view's logits (D, T, P), one pass: right cell
+    q soft-argmins over k the logit of left cell q + k at k, for every k with q + k inside the
+    row (`bino_core::model::head::right_view_row`, the native pathway's check)."""
+    d, _, p = logits.shape
+    diag = np.full(logits.shape, -np.inf, dtype=np.float64)
+    valid = np.zeros(logits.shape, dtype=bool)
+    for k in range(min(d, p)):
+        diag[k, :, : p - k] = logits[k, :, k:]
+        valid[k, :, : p - k] = True
+    return soft_argmin(diag, valid)
+
+
 HeadInputs = tuple[torch.Tensor, torch.Tensor]
 """The two maps a head reads, each (rows, cols, C): D(L), D(R) or the native phase maps."""
 
@@ -106,11 +131,15 @@ def pair_inputs(
 def head_lr(
     head: StereoHead, inputs: HeadInputs, mirrored: HeadInputs
 ) -> tuple[np.ndarray, np.ndarray]:
-    """(left disparity, kept mask) of the head and its left-right check: the head on `mirrored`
-    (the mirrored pair's inputs, `pair_inputs`) gives the right view's disparity, flipped back."""
+    """(left disparity, kept mask) of the head and its left-right check: for a native head the
+    right view read from its own logits (`diagonal_right`), for the export head the head on
+    `mirrored` (the mirrored pair's inputs, `pair_inputs`), flipped back."""
     device = next(head.parameters()).device
     first, second = (t[None].to(device) for t in inputs)
-    left = head(first, second).disparity[0].float().cpu().numpy()
+    out = head(first, second)
+    left = out.disparity[0].float().cpu().numpy()
+    if head.cfg.pathway == "native":
+        return left, consistent(left, diagonal_right(out.logits[0].double().cpu().numpy()))
     first, second = (t[None].to(device) for t in mirrored)
     right = head(first, second).disparity[0].float().cpu().numpy()[:, ::-1]
     return left, consistent(left, right)

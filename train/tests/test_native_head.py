@@ -33,7 +33,7 @@ from bino_train.head import (
 )
 from bino_train.head_cache import build_cache, cache_pathway, save_cache
 from bino_train.head_data import DataConfig, HeadSampler, encode
-from bino_train.head_eval import evaluate_head, head_lr, pair_inputs
+from bino_train.head_eval import consistent, diagonal_right, evaluate_head, head_lr, pair_inputs
 from bino_train.head_train import (
     SMOKE_ENCODER,
     SMOKE_HEAD,
@@ -250,7 +250,7 @@ def test_phase_maps_of_tall_images_are_stitched_from_bands() -> None:
     assert torch.allclose(even[:8], top_even[0, :8], atol=1e-5)  # first band's kept rows
 
 
-def test_native_left_right_check_encodes_the_mirrored_pair() -> None:
+def test_native_pair_inputs_and_its_one_pass_check() -> None:
     enc = _encoder()
     head = NativeHead(TINY_NATIVE).eval()
     left, right = _gray(5, 32, 64), _gray(6, 32, 64)
@@ -260,8 +260,30 @@ def test_native_left_right_check_encodes_the_mirrored_pair() -> None:
     assert not torch.allclose(mirrored[0], inputs[1].flip(1))  # not the mirrored phase maps
     with torch.no_grad():
         disparity, kept = head_lr(head, inputs, mirrored)
-        direct = head(inputs[0][None], inputs[1][None]).disparity[0].numpy()
+        out = head(inputs[0][None], inputs[1][None])
+    direct = out.disparity[0].numpy()
     assert np.allclose(disparity, direct) and kept.shape == disparity.shape
+    # The native check reads the right view from the same logits: no second pass.
+    right = diagonal_right(out.logits[0].double().numpy())
+    assert np.array_equal(kept, consistent(disparity, right))
+
+
+def test_the_diagonal_reads_a_consistent_scene_from_the_right() -> None:
+    """Every left cell sure of disparity 2, a nearer object (4) on cells 6..8. Right cell q
+    is read from left cells q + k at k: where the background and the object both land the
+    equal peaks average, where nothing lands (occluded, or the right edge) the logits are flat."""
+    d, cols = 6, 12
+    disparity = np.array([4 if 6 <= p < 9 else 2 for p in range(cols)])
+    logits = np.full((d, 1, cols), -50.0)
+    logits[disparity, 0, np.arange(cols)] = 50.0
+    right = diagonal_right(logits)[0]
+    # 0-1 background; 2-3 background and object; 4 object; 5-6 nothing (k 0..5 flat);
+    # 7-9 background; 10 only k 0..1 inside the row; 11 only k 0.
+    expected = [2, 2, 3, 3, 4, 2.5, 2.5, 2, 2, 2, 0.5, 0]
+    assert np.allclose(right, expected, atol=1e-6), right
+    kept = consistent(disparity[None].astype(np.float32), right[None])[0]
+    # Cells 0-1 land outside the right view; the rest agree within one column.
+    assert kept.tolist() == [False, False] + [True] * 10
 
 
 def _trainer(cfg: HeadTrainConfig, encoder: BinoEncoder) -> HeadTrainer:

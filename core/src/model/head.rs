@@ -19,15 +19,18 @@
 //! `sizing.rs`: the arena a stream takes and its candidate count; `weights.rs`: [`HeadWeights`],
 //! checked once; `stream.rs`: [`HeadStream`], rows in and out; `projection.rs`: LayerNorm,
 //! projections and the correlation; `convolution.rs`: the 3x3x3 convolutions and their
-//! epilogue ([`ConvEpilogue`]).
+//! epilogue ([`ConvEpilogue`]); `right_view.rs`: the right view's disparity from the left
+//! head's logits ([`right_view_row`], the one-pass left-right check).
 
 mod convolution;
 mod projection;
+mod right_view;
 mod sizing;
 mod stream;
 mod weights;
 
 pub use crate::kernels::conv::ConvEpilogue;
+pub use right_view::right_view_row;
 pub use sizing::{arena_bytes, arena_bytes_for, arena_bytes_with, check_candidates};
 pub use stream::HeadStream;
 pub use weights::HeadWeights;

@@ -28,23 +28,19 @@ pub enum Stage {
     Sgm,
     /// Right-view WTA and the left-right check of both readouts.
     LeftRight,
-    /// The shared head on one descriptor row.
+    /// The head on one descriptor row (export pathway) or pair token row (native pathway),
+    /// with its left-right check.
     Head,
     /// The pixel refinement of the rows one token row made computable (and the copy of view
     /// rows it still needs before a band load).
     Refine,
     /// Native pathway: the encoder on (L, R), the band's pair tokens.
     EncodePair,
-    /// Native pathway with the head's left-right check: the encoder on the mirrored pair.
-    EncodeMirror,
-    /// Native pathway with the head's left-right check: the native head on the mirrored pair's
-    /// tokens (the export pathway's mirrored head runs in [`Stage::Head`]).
-    HeadMirror,
 }
 
 impl Stage {
     /// Every stage, in pipeline order.
-    pub const ALL: [Stage; 11] = [
+    pub const ALL: [Stage; 9] = [
         Stage::Rows,
         Stage::EncodeLeft,
         Stage::EncodeRight,
@@ -54,8 +50,6 @@ impl Stage {
         Stage::Head,
         Stage::Refine,
         Stage::EncodePair,
-        Stage::EncodeMirror,
-        Stage::HeadMirror,
     ];
 
     /// A short lower-case name (reports, firmware logs).
@@ -70,17 +64,12 @@ impl Stage {
             Stage::Head => "head",
             Stage::Refine => "refine",
             Stage::EncodePair => "encode_pair",
-            Stage::EncodeMirror => "encode_mirror",
-            Stage::HeadMirror => "head_mirror",
         }
     }
 
     /// Whether the stage runs the encoder.
     pub const fn encodes(self) -> bool {
-        matches!(
-            self,
-            Stage::EncodeLeft | Stage::EncodeRight | Stage::EncodePair | Stage::EncodeMirror
-        )
+        matches!(self, Stage::EncodeLeft | Stage::EncodeRight | Stage::EncodePair)
     }
 }
 
@@ -158,8 +147,8 @@ pub type Pathway = HeadKind;
 pub struct Options {
     /// [`Pathway::Export`]: every readout (no-linkage WTA, SGM, their checks, the shared head
     /// when `head`). [`Pathway::Native`]: the native head alone (`head` is implied; `max_cols`
-    /// and `penalties` are unused), with its check when `head_lr`, which costs a second encoder
-    /// pass per band on the mirrored pair.
+    /// and `penalties` are unused), with its check when `head_lr`, read from the same pass (the
+    /// right view's disparity from the head's own logits, [`crate::model::head::right_view_row`]).
     pub pathway: Pathway,
     /// Disparity candidates of the WTA and SGM readouts, in patch columns (1 to 64).
     pub max_cols: usize,
@@ -169,9 +158,10 @@ pub struct Options {
     pub lr_max_diff_q8: u16,
     /// Run the shared head too.
     pub head: bool,
-    /// With `head`: run it on the mirrored pair as well, for the head's own left-right check
-    /// ([`Sink::head_checked`]); a second head stream, so the arena is
-    /// [`arena_bytes_head_lr`]. Ignored without `head`.
+    /// With `head`: the head's own left-right check ([`Sink::head_checked`]). On the export
+    /// pathway the head runs on the mirrored pair as well, a second head stream, so the arena
+    /// is [`arena_bytes_head_lr`]; on the native pathway the right view is read from the
+    /// left head's logits (two rows of arena). Ignored without `head`.
     pub head_lr: bool,
     /// Disparity candidates of the head (either pathway), in patch columns (1 to
     /// [`HEAD_CANDIDATES_LIMIT`](crate::config::HEAD_CANDIDATES_LIMIT)):
@@ -307,8 +297,9 @@ pub struct MatchedRow<'r> {
     pub sgm_consistent: &'r [u8],
 }
 
-/// The head's left-right check of one token row: the right view's head disparity (the head on
-/// the mirrored pair) and which left cells it confirms.
+/// The head's left-right check of one token row: the right view's head disparity (export
+/// pathway: the head on the mirrored pair; native pathway: read from the left head's logits)
+/// and which left cells it confirms.
 #[derive(Debug, Clone, Copy)]
 pub struct HeadChecked<'r> {
     /// Token row.

@@ -1,6 +1,7 @@
 //! The head's rows on their way out: forwarded to the sink, kept for the head's left-right
-//! check, checked against the mirrored head's rows, and fed to the refinement when it reads a
-//! head readout.
+//! check, checked against the mirrored head's rows (export pathway) or against the right view
+//! read from their own logits (native pathway, one pass), and fed to the refinement when it
+//! reads a head readout.
 
 use super::api::{HeadChecked, RefineInput, Sink, Stage};
 use super::refine_stage::{RefineIo, RefineStage};
@@ -9,7 +10,7 @@ use super::sizing::check_rows_bytes;
 use super::sizing::HEAD_CHECK_ROWS;
 use crate::arena::Carver;
 use crate::lr::consistent_row;
-use crate::model::head::{HeadRow, HeadSink, HeadStream};
+use crate::model::head::{right_view_row, HeadRow, HeadSink, HeadStream, HeadWeights};
 use crate::Error;
 
 /// The refinement fed from inside a head stream's callback.
@@ -139,6 +140,69 @@ impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
         });
         if let Some(feed) = self.refine.as_mut() {
             feed.push(row.row, left, Some(check.mask), self.sink);
+        }
+    }
+}
+
+/// The one-pass left-right check (native pathway): the right view's row read from the left
+/// head's logits, and the mask row of what it kept.
+pub(super) struct OnePassCheck<'a> {
+    pub(super) lr_max_diff_q8: u16,
+    pub(super) right: &'a mut [u16],
+    pub(super) mask: &'a mut [u8],
+    pub(super) kept: usize,
+}
+
+impl<'a> OnePassCheck<'a> {
+    /// A check over rows of `cols` cells, cut from the front of `arena` ([`check_rows_bytes`]
+    /// of one row); returns it and the bytes it took.
+    pub(super) fn carve(arena: &'a mut [u8], cols: usize, lr_max_diff_q8: u16) -> Result<(Self, usize), Error> {
+        let mut carver = Carver::new(arena, check_rows_bytes(cols, 1))?;
+        let check = OnePassCheck {
+            lr_max_diff_q8,
+            right: carver.u16s(cols)?,
+            mask: carver.u8s(cols)?,
+            kept: 0,
+        };
+        Ok((check, carver.used()))
+    }
+
+    /// Checks the left head's `row` against the right view read from its logits: the mask
+    /// row, and the number of cells kept.
+    fn check(&mut self, weights: &HeadWeights<'_>, row: &HeadRow<'_>) -> Result<usize, Error> {
+        right_view_row(weights, row, self.right)?;
+        consistent_row(row.disparity_q8, self.right, self.lr_max_diff_q8, self.mask)
+    }
+}
+
+/// Forwards the native head's rows to the sink with their one-pass check, and feeds the
+/// refinement the filled row when it reads head+lr.
+pub(super) struct OnePassRows<'k, 'a, 'b, 'w, K> {
+    pub(super) sink: &'k mut K,
+    pub(super) weights: &'k HeadWeights<'w>,
+    pub(super) check: &'k mut OnePassCheck<'a>,
+    pub(super) refine: Option<Feed<'k, 'a, 'b>>,
+}
+
+impl<K: Sink> HeadSink for OnePassRows<'_, '_, '_, '_, K> {
+    fn row(&mut self, row: HeadRow<'_>) {
+        let checked = self.check.check(self.weights, &row);
+        let (index, disparity) = (row.row, row.disparity_q8);
+        self.sink.head(row);
+        // Equal lengths by construction (the row and the check are `cols` wide); a mismatch
+        // emits no check, and the refinement misses the row, which it reports.
+        let Ok(kept) = checked else {
+            return;
+        };
+        let check = &mut *self.check;
+        check.kept += kept;
+        self.sink.head_checked(&HeadChecked {
+            row: index,
+            right_q8: check.right,
+            consistent: check.mask,
+        });
+        if let Some(feed) = self.refine.as_mut() {
+            feed.push(index, disparity, Some(check.mask), self.sink);
         }
     }
 }

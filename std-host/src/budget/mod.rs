@@ -55,8 +55,9 @@ pub const TARGETS: Targets = Targets {
 /// pass (stage `encode_left`) in executed instructions, on every core.
 pub const REFINE_SHARE_OF_ENCODER: f64 = 0.10;
 
-/// Issue 15: one native band pair (one encoder pass on (L, R) and the native head) costs at
-/// most this share of the export pathway's band pair in executed instructions, on every core.
+/// One native band pair with the head's left-right check (one encoder pass on (L, R), the
+/// native head, the right view read from its logits) costs at most this share of the export
+/// pathway's band pair in executed instructions, on every core.
 pub const NATIVE_SHARE_OF_EXPORT: f64 = 0.55;
 
 /// A core's clock and the instructions-per-cycle assumption that turns counts into time.

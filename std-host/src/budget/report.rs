@@ -57,10 +57,6 @@ pub struct CoreBudget {
     /// `native_*` stages; absent for a firmware that ran only the export pathway).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub native_band_pair_instructions: Option<u64>,
-    /// The same without the check's mirrored pass and head: one encoder pass on (L, R) and
-    /// the native head (issue 15's figure).
-    #[serde(skip_serializing_if = "Option::is_none")]
-    pub native_one_pass_instructions: Option<u64>,
     /// Whether every output was bit-identical to the host's.
     pub outputs_bit_identical: bool,
     /// QEMU wall time, seconds (`null` when the run did not record it).
@@ -159,7 +155,6 @@ impl CoreBudget {
             band_pair_estimated_ms: c.ms(r.band_pair_instructions()),
             band_pair_instructions: r.band_pair_instructions(),
             native_band_pair_instructions: r.native_band_pair_instructions(),
-            native_one_pass_instructions: r.native_one_pass_instructions(),
             board: r.board.clone(),
             clock_mhz: c.mhz,
             code_flash_bytes: r.sections.code_flash(),

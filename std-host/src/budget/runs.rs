@@ -257,7 +257,7 @@ impl CoreRun {
     }
 
     /// Executed instructions of one band pair on the native pathway (its `native_` stages,
-    /// the head's left-right check included: the mirrored pass and head), `None` for a firmware
+    /// the head's left-right check included, read from the same pass), `None` for a firmware
     /// that ran only the export pathway.
     pub fn native_band_pair_instructions(&self) -> Option<u64> {
         let native: Vec<&StageRun> = self
@@ -266,20 +266,6 @@ impl CoreRun {
             .filter(|s| s.name.starts_with(NATIVE_PREFIX))
             .collect();
         (!native.is_empty()).then(|| native.iter().map(|s| s.instructions).sum())
-    }
-
-    /// [`CoreRun::native_band_pair_instructions`] without the check: one encoder pass on
-    /// (L, R) and the native head (the stages `native_encode_mirror` and `native_head_mirror`
-    /// left out; the refinement of the checked grid stays in).
-    pub fn native_one_pass_instructions(&self) -> Option<u64> {
-        let check = ["native_encode_mirror", "native_head_mirror"];
-        let all = self.native_band_pair_instructions()?;
-        Some(
-            all - check
-                .iter()
-                .filter_map(|name| self.stage_instructions(name))
-                .sum::<u64>(),
-        )
     }
 
     /// Whether every stage has its instruction classes (runs before the cycle model have none).

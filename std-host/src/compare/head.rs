@@ -23,6 +23,34 @@ pub struct FloatHeadOutput {
     pub disparity: Vec<f32>,
 }
 
+impl FloatHeadOutput {
+    /// The right view's disparity per cell (patch columns) of `(rows, cols)` maps, read from
+    /// the logits' diagonal: right cell `q` soft-argmins over `k` the logit of left cell
+    /// `q + k` at `k`, candidates with `q + k` outside the row excluded (the float twin of
+    /// `bino_core::model::head::right_view_row`, the native pathway's one-pass check).
+    pub fn right_view(&self, rows: usize, cols: usize) -> Vec<f32> {
+        let cells = rows * cols;
+        let candidates = self.logits.len().checked_div(cells).unwrap_or(0);
+        let mut out = vec![0.0f32; cells];
+        for (cell, o) in out.iter_mut().enumerate() {
+            let (row, q) = (cell / cols, cell % cols);
+            let diagonal: Vec<(usize, f32)> = (0..candidates)
+                .filter(|&k| q + k < cols)
+                .map(|k| (k, self.logits[k * cells + row * cols + q + k]))
+                .collect();
+            let max = diagonal.iter().map(|&(_, l)| l).fold(f32::NEG_INFINITY, f32::max);
+            let (mut total, mut moment) = (0.0f32, 0.0f32);
+            for &(k, l) in &diagonal {
+                let w = (l - max).exp();
+                total += w;
+                moment += k as f32 * w;
+            }
+            *o = if total > 0.0 { moment / total } else { 0.0 };
+        }
+        out
+    }
+}
+
 /// The ONNX head with its logits exposed (the export's `logits` node is tapped, so any head
 /// export works, with or without `--logits`).
 pub struct FloatHeadRunner {
@@ -131,6 +159,7 @@ mod tests {
             disparity: disparity.clone(),
             confidence: vec![1.0; rows * cols],
             logits: engine,
+            right_view: vec![0.0; rows * cols],
         };
         (
             int8,

@@ -26,7 +26,6 @@ use super::{
 use crate::data::nuisance::degrade_item;
 use crate::data::occlusion::{check_severities, occlude_item};
 use crate::data::pairs::{read_index, Split};
-use crate::data::profile::View;
 use crate::float::head::FloatHead;
 use crate::float::reference::ReferenceEncoder;
 use crate::int8::pipeline_maps::run_pipeline;
@@ -290,24 +289,27 @@ fn float_maps(
     })
 }
 
-/// The native pathway in float: the native head on the phase maps of one pass on (L, R); for
-/// its check, on those of the pass on the mirrored pair, mirrored back.
+/// The native pathway in float: the native head on the phase maps of one pass on (L, R); its
+/// check reads the right view from the same logits' diagonal
+/// ([`crate::compare::head::FloatHeadOutput::right_view`]).
 fn float_native_maps(
     opts: &EvalOptions,
     encoder: &mut ReferenceEncoder,
     head: &mut FloatHead,
     item: &EvalItem,
 ) -> Result<MethodMaps> {
-    let mut run = |left: &View, right: &View| -> Result<DisparityMap> {
-        let (even, odd) = encoder.tokens(left, right)?.phase_maps();
-        Ok(DisparityMap {
-            width: even.cols,
-            height: even.rows,
-            values: head.forward(&even, &odd, head_candidates(left.width))?.disparity,
-        })
+    let (even, odd) = encoder
+        .tokens(&item.left, &item.right)
+        .context("native pass on (L, R)")?
+        .phase_maps();
+    let out = head.forward(&even, &odd, head_candidates(item.left.width))?;
+    let map = |values: Vec<f32>| DisparityMap {
+        width: even.cols,
+        height: even.rows,
+        values,
     };
-    let head_left = run(&item.left, &item.right).context("native pass on (L, R)")?;
-    let head_right = mirror(&run(&item.right.mirrored(), &item.left.mirrored()).context("mirrored pass")?);
+    let head_right = map(out.right_view(even.rows, even.cols));
+    let head_left = map(out.disparity);
     let mask = consistent(&head_left, &head_right, opts.lr_max_diff);
     Ok(MethodMaps {
         nolink: None,

@@ -12,7 +12,9 @@ use bino_core::band::BandPlan;
 use bino_core::blob::Blob;
 use bino_core::config::{check_view_size, CELL_W, DIM, HEAD_MAX_DISP, PATCH_H};
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
-use bino_core::model::head::{arena_bytes_with, HeadRow, HeadSink, HeadStream, HeadView, HeadWeights, OUT_FRAC_BITS};
+use bino_core::model::head::{
+    arena_bytes_with, right_view_row, HeadRow, HeadSink, HeadStream, HeadView, HeadWeights, OUT_FRAC_BITS,
+};
 use bino_core::model::ids::{self, kind, HeadKind};
 use bino_core::model::probe::{NoProbe, Probe, Stage};
 use bino_core::{matching, sgm};
@@ -225,6 +227,9 @@ pub struct HeadMaps {
     /// Real logits (`rows x cols x candidates`); candidates outside the right view are
     /// `-inf`.
     pub logits: Vec<f32>,
+    /// The right view's disparity per cell (patch columns) read from the logits' diagonal
+    /// (`bino_core::model::head::right_view_row`): the native pathway's one-pass check.
+    pub right_view: Vec<f32>,
 }
 
 impl Int8Model {
@@ -263,14 +268,22 @@ impl Int8Model {
     }
 }
 
-struct CollectRows<'m> {
+struct CollectRows<'m, 'w> {
     out: &'m mut HeadMaps,
     logit_scale: f32,
+    weights: HeadWeights<'w>,
+    right: Vec<u16>,
 }
 
-impl HeadSink for CollectRows<'_> {
+impl HeadSink for CollectRows<'_, '_> {
     fn row(&mut self, row: HeadRow<'_>) {
         let q8 = (1u32 << OUT_FRAC_BITS) as f32;
+        self.right.resize(row.disparity_q8.len(), 0);
+        // The row and the buffer are both `cols` wide: the only error is unreachable; a row
+        // that failed would leave `right_view` short, which the whole-map check reports.
+        if right_view_row(&self.weights, &row, &mut self.right).is_ok() {
+            self.out.right_view.extend(self.right.iter().map(|&d| d as f32 / q8));
+        }
         self.out
             .disparity
             .extend(row.disparity_q8.iter().map(|&d| d as f32 / q8));
@@ -392,7 +405,7 @@ fn run_head<F>(
     feed: F,
 ) -> Result<HeadMaps>
 where
-    F: FnOnce(&mut HeadStream<'_, '_>, &mut CollectRows<'_>) -> Result<(), bino_core::Error>,
+    F: FnOnce(&mut HeadStream<'_, '_>, &mut CollectRows<'_, '_>) -> Result<(), bino_core::Error>,
 {
     let mut arena = vec![0u8; arena_bytes_with(weights.kind(), cols, candidates)];
     let mut stream = HeadStream::with_candidates(weights, cols, candidates, HeadView::Left, &mut arena)
@@ -403,17 +416,22 @@ where
         disparity: Vec::new(),
         confidence: Vec::new(),
         logits: Vec::new(),
+        right_view: Vec::new(),
     };
     let mut sink = CollectRows {
         out: &mut maps,
         logit_scale,
+        weights,
+        right: Vec::new(),
     };
     feed(&mut stream, &mut sink).map_err(anyhow::Error::msg)?;
     stream.finish(&mut sink).map_err(anyhow::Error::msg)?;
     ensure!(
-        maps.disparity.len() == rows * cols,
-        "head emitted {} cells",
-        maps.disparity.len()
+        maps.disparity.len() == rows * cols && maps.right_view.len() == rows * cols,
+        "head emitted {} cells ({} right-view cells) of {}",
+        maps.disparity.len(),
+        maps.right_view.len(),
+        rows * cols
     );
     Ok(maps)
 }

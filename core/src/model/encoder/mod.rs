@@ -101,8 +101,8 @@ impl<'a> GrayBand<'a> {
     }
 
     /// The same pixels read with each row reversed: the view of a horizontally mirrored
-    /// camera, without a copy. The native pathway's left-right check encodes the mirrored pair
-    /// (`right.mirrored()`, `left.mirrored()`).
+    /// camera, without a copy; `(right.mirrored(), left.mirrored())` is the mirrored pair,
+    /// whose left view is the original right view.
     pub fn mirrored(self) -> Self {
         Self {
             mirrored: !self.mirrored,

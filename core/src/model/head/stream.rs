@@ -271,7 +271,7 @@ impl<'a, 'w> HeadStream<'a, 'w> {
 }
 
 /// Soft-argmin over the valid candidates of one cell: (disparity, confidence), both Q8.
-fn soft_argmin(logits: &[i32], to_log2_q8: Requant) -> (u16, u16) {
+pub(super) fn soft_argmin(logits: &[i32], to_log2_q8: Requant) -> (u16, u16) {
     let max = logits.iter().copied().max().unwrap_or(i32::MIN);
     if max == i32::MIN {
         return (0, 0);
