@@ -390,7 +390,12 @@ impl LayerNormCase {
         c
     }
 
-    fn params(&self, eps: i64, mult: i32, shift: u32) -> bino_core::kernels::dispatch::layernorm::LayerNormQ<'_, [i32], [i32]> {
+    fn params(
+        &self,
+        eps: i64,
+        mult: i32,
+        shift: u32,
+    ) -> bino_core::kernels::dispatch::layernorm::LayerNormQ<'_, [i32], [i32]> {
         bino_core::kernels::dispatch::layernorm::LayerNormQ {
             zero: &self.zero[..],
             rel: &self.rel[..],
@@ -482,7 +487,9 @@ impl ResidualCase {
     }
 
     fn run(&self, n: usize, x: &mut [i8], acc: &[i32], reference: bool) {
-        use bino_core::kernels::dispatch::epilogue::{residual_add, residual_add_reference, ChannelRequant, ChannelRescale};
+        use bino_core::kernels::dispatch::epilogue::{
+            residual_add, residual_add_reference, ChannelRequant, ChannelRescale,
+        };
         let carry = ChannelRescale {
             zero: &self.czero[..n],
             mult: &self.cmult[..n],
