@@ -2,7 +2,7 @@
 //! the target triple and, for MVE, from the target CPU the build names:
 //! - `bino_dsp`: Armv7E-M targets (Cortex-M7, `thumbv7em-*`), which have the 16x16 DSP
 //!   multiply-accumulates but no vector unit: the `smlad` GEMM tile (`kernels::arch::dsp`) and
-//!   the two-row dot products (`kernels::matmul::dot4_pairs`).
+//!   the two-row dot products (`kernels::reference::matmul::dot4_pairs`).
 //! - `bino_mve`: `thumbv8m.main-*` built with `-C target-cpu=cortex-m55` (or
 //!   `-C target-feature=+mve`), whose assembler takes Helium: the `vmladava` GEMM tiles
 //!   (`kernels::arch::mve`). A plain `thumbv8m.main` build (no MVE) gets the portable kernels.

@@ -17,11 +17,7 @@ use crate::Error;
 /// either way, which every bound below relies on.
 #[inline(always)]
 fn dim() -> usize {
-    if cfg!(bino_dsp) {
-        DIM
-    } else {
-        core::hint::black_box(DIM)
-    }
+    crate::kernels::dispatch::loop_len(DIM)
 }
 
 /// Most disparity candidates one cell may have.

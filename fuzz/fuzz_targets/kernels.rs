@@ -5,11 +5,11 @@
 use arbitrary::Arbitrary;
 use bino_core::config::HEAD_DIM;
 use bino_core::fixed::{isqrt_u64, round_shift, Requant};
-use bino_core::kernels::attention::{attend, attend_block, value_sums, AttentionQ, QUERY_BLOCK};
-use bino_core::kernels::epilogue::{requant_rows, ChannelRequant};
+use bino_core::kernels::dispatch::attention::{attend, attend_block, value_sums, AttentionQ, QUERY_BLOCK};
+use bino_core::kernels::dispatch::epilogue::{requant_rows, ChannelRequant};
+use bino_core::kernels::dispatch::layernorm::{layernorm_rows, LayerNormQ};
+use bino_core::kernels::dispatch::matmul::{dot, matmul_i8};
 use bino_core::kernels::exp::{exp_neg_u8, exp_neg_u8_u32, ExpQ32};
-use bino_core::kernels::layernorm::{layernorm_rows, LayerNormQ};
-use bino_core::kernels::matmul::{dot, matmul_i8};
 use bino_core::kernels::params::Uniform;
 use libfuzzer_sys::fuzz_target;
 

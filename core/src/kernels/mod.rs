@@ -2,19 +2,16 @@
 //! lengths that do not fit just compute fewer outputs (the engine checks shapes up front),
 //! and every accumulation is bounded by the model's fixed sizes or done with wrapping /
 //! saturating arithmetic.
+//!
+//! Layers, bottom up (`docs/kernels.md`): [`types`], [`reference`], [`arch`] (one module per
+//! instruction set), the portable families ([`layernorm`], [`lut`]) and [`dispatch`], the one
+//! place that picks an instruction set and the only kernel module the model calls.
 
 pub mod arch;
-pub mod attention;
-pub mod conv;
 pub mod dispatch;
-pub mod epilogue;
-pub mod gemm;
 pub mod layernorm;
 pub mod lut;
-pub mod matmul;
 pub mod reference;
-pub mod residual;
-pub mod rope;
 
 pub mod types;
 

@@ -29,7 +29,7 @@ mod sizing;
 mod stream;
 mod weights;
 
-pub use crate::kernels::conv::ConvEpilogue;
+pub use crate::kernels::dispatch::ConvEpilogue;
 pub use right_view::right_view_row;
 pub use sizing::{arena_bytes, arena_bytes_for, arena_bytes_with, check_candidates};
 pub use stream::HeadStream;

@@ -5,10 +5,10 @@ use crate::blob::{Blob, Le, TensorId};
 use crate::config::{BAND_TOKEN_ROWS, DEPTH, DIM, HEADS, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP};
 use crate::config::{HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM, MLP_HIDDEN, PATCH_H, PATCH_W};
 use crate::fixed::{Requant, MAX_SHIFT};
-use crate::kernels::attention::AttentionQ;
-use crate::kernels::epilogue::{ChannelRequant, ChannelRescale};
-use crate::kernels::layernorm::LayerNormQ;
-use crate::kernels::rope::{Angles, QUARTER};
+use crate::kernels::dispatch::AttentionQ;
+use crate::kernels::dispatch::LayerNormQ;
+use crate::kernels::dispatch::{Angles, QUARTER};
+use crate::kernels::dispatch::{ChannelRequant, ChannelRescale};
 use crate::Error;
 
 /// Inputs of the patch embedding: one 4x4 patch of the fused image, channels folded.

@@ -17,9 +17,9 @@
 use bino_core::kernels::arch::{self, MAX_K};
 use core::sync::atomic::{AtomicU32, Ordering};
 
-use bino_core::kernels::epilogue::{requant_rows, ChannelRequant};
-use bino_core::kernels::gemm::{matmul_requant_i8, matmul_requant_i8_prepared, matmul_requant_reference};
-use bino_core::kernels::matmul::{matmul_i8, matmul_i8_reference};
+use bino_core::kernels::dispatch::epilogue::{requant_rows, ChannelRequant};
+use bino_core::kernels::dispatch::gemm::{matmul_requant_i8, matmul_requant_i8_prepared, matmul_requant_reference};
+use bino_core::kernels::dispatch::matmul::{matmul_i8, matmul_i8_portable, matmul_i8_reference};
 use bino_core::testutil::Rng;
 use cortex_m as _;
 use cortex_m_rt::entry;
@@ -310,7 +310,7 @@ fn rounding_cases(t: &mut Tally) {
 fn attention_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     use bino_core::config::HEAD_DIM;
     use bino_core::fixed::Requant;
-    use bino_core::kernels::attention::{attend, attend_block, value_sums, AttentionQ, QUERY_BLOCK};
+    use bino_core::kernels::dispatch::attention::{attend, attend_block, value_sums, AttentionQ, QUERY_BLOCK};
     for (case, n) in [5usize, 36, 200, 960, 960].into_iter().enumerate() {
         let (keys, rest) = b.w.0.split_at_mut(n * HEAD_DIM);
         let (values, rest) = rest.split_at_mut(n * HEAD_DIM);
@@ -350,7 +350,7 @@ fn attention_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
 /// `scores_block_reference`: 1 to 960 keys, random and extreme codes.
 fn scores_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     use bino_core::config::HEAD_DIM;
-    use bino_core::kernels::attention::{scores_block, scores_block_reference, QUERY_BLOCK};
+    use bino_core::kernels::dispatch::attention::{scores_block, scores_block_reference, QUERY_BLOCK};
     let lens = [1usize, 2, 3, 5, 16, 37, 200, 960];
     for (case, &n) in lens.iter().cycle().take(4 * lens.len()).enumerate() {
         let pattern = [3u32, 0, 1, 2][case / lens.len()];
@@ -390,8 +390,13 @@ impl LayerNormCase {
         c
     }
 
-    fn params(&self, eps: i64, mult: i32, shift: u32) -> bino_core::kernels::layernorm::LayerNormQ<'_, [i32], [i32]> {
-        bino_core::kernels::layernorm::LayerNormQ {
+    fn params(
+        &self,
+        eps: i64,
+        mult: i32,
+        shift: u32,
+    ) -> bino_core::kernels::dispatch::layernorm::LayerNormQ<'_, [i32], [i32]> {
+        bino_core::kernels::dispatch::layernorm::LayerNormQ {
             zero: &self.zero[..],
             rel: &self.rel[..],
             eps,
@@ -406,7 +411,7 @@ impl LayerNormCase {
 /// constant and alternating rows, formats across every shift class of the row and past the
 /// narrow path's limits, output shifts on both sides of 33.
 fn layernorm_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
-    use bino_core::kernels::layernorm::{layernorm_rows, layernorm_rows_reference};
+    use bino_core::kernels::dispatch::layernorm::{layernorm_rows, layernorm_rows_reference};
     const ROWS: usize = 4;
     for case in 0..72 {
         let dim = [128usize, 128, 128, 64, 96, 256][case % 6];
@@ -482,7 +487,9 @@ impl ResidualCase {
     }
 
     fn run(&self, n: usize, x: &mut [i8], acc: &[i32], reference: bool) {
-        use bino_core::kernels::epilogue::{residual_add, residual_add_reference, ChannelRequant, ChannelRescale};
+        use bino_core::kernels::dispatch::epilogue::{
+            residual_add, residual_add_reference, ChannelRequant, ChannelRescale,
+        };
         let carry = ChannelRescale {
             zero: &self.czero[..n],
             mult: &self.cmult[..n],
@@ -511,7 +518,7 @@ impl ResidualCase {
 /// to the lanes' 2^29 bound, clamped pre-rotation values, any cosine and sine.
 fn rope_cases(t: &mut Tally, rng: &mut Rng) {
     use bino_core::config::DIM;
-    use bino_core::kernels::rope::{rope_token, Angles, RopeLanes};
+    use bino_core::kernels::dispatch::rope::{rope_token, Angles, RopeLanes};
     let mut taken = 0;
     for case in 0..40 {
         let bias: [i32; DIM] = core::array::from_fn(|_| rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32);
@@ -652,7 +659,7 @@ fn row_max(scores: &[i32]) -> i32 {
 /// The engine's row maximum (`attention::row_max`: the Cortex-M7's assembly loop on lengths
 /// that are a multiple of 4) against the fold, on the softmax cases' rows.
 fn row_max_case(t: &mut Tally, scores: &[i32]) {
-    let found = bino_core::kernels::attention::row_max(scores);
+    let found = bino_core::kernels::dispatch::attention::row_max(scores);
     t.check("row_max", [1, scores.len(), 0], &[found], &[row_max(scores)]);
     if (cfg!(board = "an500") && scores.len().is_multiple_of(4))
         || (cfg!(board = "an547") && scores.len().is_multiple_of(16))
@@ -731,7 +738,7 @@ fn scatter_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
 /// row's own (negative gaps), and the shifts and multipliers an attention can hold.
 fn softmax_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     use bino_core::fixed::Requant;
-    use bino_core::kernels::attention::{softmax_row, softmax_row_fastest};
+    use bino_core::kernels::dispatch::attention::{softmax_row, softmax_row_fastest};
     use bino_core::kernels::exp::ExpQ32;
     let lens = [1usize, 2, 3, 4, 5, 6, 7, 8, 9, 15, 16, 17, 33, 100, 255, 960];
     for (case, &n) in lens.iter().cycle().take(3 * lens.len()).enumerate() {
@@ -788,7 +795,7 @@ fn softmax_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
 fn softmax_block_cases(t: &mut Tally, rng: &mut Rng, b: &mut Buffers) {
     use bino_core::config::HEAD_DIM;
     use bino_core::fixed::Requant;
-    use bino_core::kernels::attention::softmax_row;
+    use bino_core::kernels::dispatch::attention::softmax_row;
     use bino_core::kernels::exp::ExpQ32;
     for (case, n) in [8usize, 128, 136, 200, 960, 960].into_iter().enumerate() {
         for shift in [33u32, 34, 35, 36, 38] {
@@ -908,8 +915,8 @@ markers! {
 const BENCH_CALLS: usize = 120;
 
 /// The GEMMs of the encoder as the engine calls them (8 token rows at a time, 960 tokens):
-/// each kernel between markers, the assembly one and the portable reference (the two passes
-/// `matmul_i8_reference` + `requant_rows`). `scripts/firmware.sh --kernels` divides the
+/// each kernel between markers, the assembly one and the portable path (the two passes
+/// `matmul_i8_portable` + `requant_rows`). `scripts/firmware.sh --kernels` divides the
 /// plugin's counts by the MACs logged here.
 fn bench(rng: &mut Rng, b: &mut Buffers) {
     type Mark = extern "C" fn();
@@ -950,7 +957,7 @@ fn bench(rng: &mut Rng, b: &mut Buffers) {
         }
         reference();
         for _ in 0..BENCH_CALLS {
-            matmul_i8_reference(a, w, k, &mut acc[..M * n]);
+            matmul_i8_portable(a, w, k, &mut acc[..M * n]);
             requant_rows(&acc[..M * n], &rq, &zero[..n], &mut want[..M * n]);
         }
         bino_mark_end();
@@ -963,7 +970,7 @@ fn bench(rng: &mut Rng, b: &mut Buffers) {
             }
             bino_mark_mlp_down_i32_reference();
             for _ in 0..BENCH_CALLS {
-                matmul_i8_reference(a, w, k, &mut acc[..M * n]);
+                matmul_i8_portable(a, w, k, &mut acc[..M * n]);
             }
             bino_mark_end();
         }
@@ -989,7 +996,7 @@ fn bench(rng: &mut Rng, b: &mut Buffers) {
 /// like the products of 32 int8 pairs.
 fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
     use bino_core::fixed::Requant;
-    use bino_core::kernels::attention::{softmax_row, softmax_row_fastest};
+    use bino_core::kernels::dispatch::attention::{softmax_row, softmax_row_fastest};
     use bino_core::kernels::exp::ExpQ32;
     const N: usize = 960;
     const ROWS: usize = 16;
@@ -1020,7 +1027,7 @@ fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
         sum_fast = sum_fast.wrapping_add(match into_tile {
             Some(sum) => sum,
             None => {
-                let m = bino_core::kernels::attention::row_max(scores);
+                let m = bino_core::kernels::dispatch::attention::row_max(scores);
                 softmax_row_fastest(&e, m, scores, fast)
             }
         });
@@ -1056,7 +1063,7 @@ fn bench_softmax(rng: &mut Rng, b: &mut Buffers) {
 /// between markers. Printed as a GEMM (`m` queries, `k` the head size, `n` keys).
 fn bench_scores(rng: &mut Rng, b: &mut Buffers) {
     use bino_core::config::HEAD_DIM;
-    use bino_core::kernels::attention::{scores_block, scores_block_reference, QUERY_BLOCK};
+    use bino_core::kernels::dispatch::attention::{scores_block, scores_block_reference, QUERY_BLOCK};
     const N: usize = 960;
     const CALLS: usize = 240;
     rng.fill(&mut b.w.0[..N * HEAD_DIM], 3);
@@ -1093,7 +1100,7 @@ fn bench_scores(rng: &mut Rng, b: &mut Buffers) {
 /// already widened) and the portable reference between markers.
 fn bench_pv(rng: &mut Rng, b: &mut Buffers) {
     use bino_core::config::HEAD_DIM;
-    use bino_core::kernels::attention::QUERY_BLOCK;
+    use bino_core::kernels::dispatch::attention::QUERY_BLOCK;
     const N: usize = 960;
     const CALLS: usize = 240;
     rng.fill(&mut b.a.0[..QUERY_BLOCK * N], 3);
@@ -1147,7 +1154,7 @@ fn bench_pv(rng: &mut Rng, b: &mut Buffers) {
 /// LayerNorm of a band), with quantiser-like formats: `layernorm_rows` and the reference
 /// between markers. Counted per element.
 fn bench_layernorm(rng: &mut Rng, b: &mut Buffers) {
-    use bino_core::kernels::layernorm::{layernorm_rows, layernorm_rows_reference};
+    use bino_core::kernels::dispatch::layernorm::{layernorm_rows, layernorm_rows_reference};
     const DIM: usize = 128;
     const ROWS: usize = 8;
     const CALLS: usize = 120;

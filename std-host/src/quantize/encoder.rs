@@ -5,8 +5,8 @@ use anyhow::{ensure, Context, Result};
 use bino_core::config::{BAND_TOKEN_ROWS, DEPTH, DIM, HEADS, HEAD_DIM, MLP_HIDDEN};
 use bino_core::config::{HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM};
 use bino_core::fixed::Requant;
-use bino_core::kernels::layernorm::Z_FRAC_BITS;
-use bino_core::kernels::rope::{QUARTER, TRIG_FRAC_BITS};
+use bino_core::kernels::types::layernorm::Z_FRAC_BITS;
+use bino_core::kernels::types::rope::{QUARTER, TRIG_FRAC_BITS};
 use bino_core::model::encoder::DESC_FRAC_BITS;
 use bino_core::model::ids::{self, kind, Linear, CONFIG_LEN};
 use bino_core::model::weights::EMBED_INPUTS;
@@ -17,9 +17,9 @@ use crate::float::weights::{FloatEncoder, FloatLinear};
 use crate::int8::blob_writer::BlobWriter;
 
 /// Fraction bits the attention output carries before its output factor.
-const AVG_FRAC_BITS: u32 = bino_core::kernels::attention::AVG_FRAC_BITS;
+const AVG_FRAC_BITS: u32 = bino_core::kernels::types::attention::AVG_FRAC_BITS;
 /// Q8 of queries and keys before the rotation.
-const PRE_ROPE: f64 = (1u32 << bino_core::kernels::rope::PRE_ROPE_FRAC_BITS) as f64;
+const PRE_ROPE: f64 = (1u32 << bino_core::kernels::types::rope::PRE_ROPE_FRAC_BITS) as f64;
 /// Residual `REL` values are at most this (the common unit is the largest scale / 2^15).
 const REL_MAX: f64 = 32768.0;
 

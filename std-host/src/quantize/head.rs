@@ -7,7 +7,7 @@ use std::path::Path;
 
 use anyhow::{ensure, Context, Result};
 use bino_core::config::{DIM, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP, HEAD_MIDDLE_LAYERS};
-use bino_core::kernels::layernorm::Z_FRAC_BITS;
+use bino_core::kernels::types::layernorm::Z_FRAC_BITS;
 use bino_core::model::ids::{self, kind, HeadKind, Linear, HEAD_CONVS};
 use tract_onnx::prelude::*;
 

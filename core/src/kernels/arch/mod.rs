@@ -148,7 +148,7 @@ pub fn matmul_i32_rows_in(a: &[i8], w: &[i8], k: usize, out: &mut [i32], scratch
 
 /// Attention scores of four queries against `keys.len() / HEAD_DIM` keys (`scores[q * n + j]`,
 /// `scores` exactly `4 * n` long), bit for bit
-/// [`attention::scores_block_reference`](crate::kernels::attention::scores_block_reference), on
+/// [`attention::scores_block_reference`](crate::kernels::reference::attention::scores_block_reference), on
 /// this core's assembly kernel (Cortex-M55: two queries in vector registers; Cortex-M7: the
 /// DSP tile's widened queries against every key in one loop); `false` (nothing written) where
 /// there is none.
@@ -237,7 +237,7 @@ pub fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize)
 }
 
 /// One softmax row and their sum, bit for bit
-/// [`attention::softmax_row`](crate::kernels::attention::softmax_row), on this core's assembly
+/// [`attention::softmax_row`](crate::kernels::reference::softmax::softmax_row), on this core's assembly
 /// kernel (Cortex-M55; Cortex-M7 where the row's parameters allow its shortcuts); `None`
 /// (nothing written) where there is none.
 #[inline]
@@ -254,7 +254,7 @@ pub fn softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> 
 }
 
 /// Attention's softmax and weighted sums for four queries (`scores`: four rows of `n`), bit for
-/// bit [`attention::attend_block`](crate::kernels::attention::attend_block)'s general path: the
+/// bit [`attention::attend_block`](crate::kernels::dispatch::attention::attend_block)'s general path: the
 /// rows' weight totals, and `acc[q][d]` the sum over keys of weight times value channel `d`
 /// (`values_t`: `HEAD_DIM` rows of `n`; `acc` lives in `scratch`), on this core's assembly path
 /// (Cortex-M7: the softmax written straight into the DSP tile's widened layout, `scores` and
@@ -319,8 +319,8 @@ pub(crate) fn run<E: Epilogue>(a: &[i8], w: &[i8], k: usize, m: usize, epi: &mut
 mod tests {
     use super::fused::{matmul_prepared_with, matmul_requant_with, Col};
     use super::*;
-    use crate::kernels::gemm::matmul_requant_reference;
-    use crate::kernels::matmul::matmul_i8_reference;
+    use crate::kernels::reference::gemm::matmul_requant_reference;
+    use crate::kernels::reference::matmul::matmul_i8_reference;
     use crate::kernels::types::requant::ChannelRequant;
     use crate::testutil::Rng;
 
@@ -470,7 +470,7 @@ mod tests {
             let keys = &keys[..n * HEAD_DIM];
             let (mut got, mut want) = ([0i32; 4 * 33], [0i32; 4 * 33]);
             assert!(dsp::attention_scores(&queries, keys, &mut got[..4 * n]));
-            crate::kernels::attention::scores_block_reference(&queries, keys, &mut want[..4 * n]);
+            crate::kernels::reference::attention::scores_block_reference(&queries, keys, &mut want[..4 * n]);
             assert_eq!(got[..4 * n], want[..4 * n], "n {n}");
         }
         assert!(!dsp::attention_scores(&[[0; HEAD_DIM]; 4], &[0; HEAD_DIM], &mut [0; 3]));

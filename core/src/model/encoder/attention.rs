@@ -2,14 +2,14 @@
 //! stored per head (values transposed), then each token block's queries attending over them.
 
 use crate::config::{DIM, HEADS, HEAD_DIM};
-use crate::kernels::attention::{value_sums, KeyLayout, QUERY_BLOCK};
+use crate::kernels::dispatch::matmul_i8;
+use crate::kernels::dispatch::matmul_requant_i8_prepared;
+use crate::kernels::dispatch::ChannelRequant;
+use crate::kernels::dispatch::PreparedLayerNorm;
 use crate::kernels::dispatch::{attend_block, scatter_channels, store_key};
-use crate::kernels::epilogue::ChannelRequant;
-use crate::kernels::gemm::matmul_requant_i8_prepared;
-use crate::kernels::layernorm::PreparedLayerNorm;
-use crate::kernels::matmul::matmul_i8;
+use crate::kernels::dispatch::{rope_token, RopeLanes};
+use crate::kernels::dispatch::{value_sums, KeyLayout, QUERY_BLOCK};
 use crate::kernels::params::Uniform;
-use crate::kernels::rope::{rope_token, RopeLanes};
 use crate::model::weights::{AngleCache, BlockWeights, ResidualFormat, RopeTables};
 use crate::Error;
 

@@ -19,9 +19,9 @@ use crate::arena::{Carver, ALIGN_SLACK};
 use crate::blob::Blob;
 use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
-use crate::kernels::attention::{key_layout, QUERY_BLOCK};
-use crate::kernels::epilogue::ChannelRequant;
-use crate::kernels::gemm::matmul_requant_i8_prepared;
+use crate::kernels::dispatch::matmul_requant_i8_prepared;
+use crate::kernels::dispatch::ChannelRequant;
+use crate::kernels::dispatch::{key_layout, QUERY_BLOCK};
 use crate::kernels::params::Offset;
 use crate::Error;
 

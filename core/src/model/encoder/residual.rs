@@ -3,12 +3,12 @@
 
 use crate::blob::Le;
 use crate::config::{DIM, MLP_HIDDEN};
-use crate::kernels::epilogue::{residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
-use crate::kernels::gemm::matmul_requant_i8_prepared;
-use crate::kernels::layernorm::layernorm_rows;
-use crate::kernels::layernorm::{layernorm_rows_prepared, LayerNormQ, PreparedLayerNorm};
-use crate::kernels::lut::apply_lut;
-use crate::kernels::matmul::matmul_i8;
+use crate::kernels::dispatch::apply_lut;
+use crate::kernels::dispatch::layernorm_rows;
+use crate::kernels::dispatch::matmul_i8;
+use crate::kernels::dispatch::matmul_requant_i8_prepared;
+use crate::kernels::dispatch::{layernorm_rows_prepared, LayerNormQ, PreparedLayerNorm};
+use crate::kernels::dispatch::{residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
 use crate::kernels::params::Uniform;
 use crate::kernels::types::prepared::PreparedRequant;
 use crate::model::weights::{BlockWeights, LinearQ, ResidualFormat};
@@ -55,7 +55,7 @@ impl<'w> ResidualParams<'w> {
     }
 
     pub(super) fn new(
-        carry: &crate::kernels::epilogue::ChannelRescale<'w, Le<'w, i32>, Le<'w, i32>>,
+        carry: &crate::kernels::dispatch::ChannelRescale<'w, Le<'w, i32>, Le<'w, i32>>,
         proj: &LinearQ<'w>,
         new_zero: &Le<'w, i32>,
     ) -> Self {

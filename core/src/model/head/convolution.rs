@@ -1,14 +1,14 @@
 //! The head's 3x3x3 convolutions over (row, disparity, column): one output row of a layer from
 //! the three input rows its ring holds, each patch column's kernel inputs gathered, multiplied,
-//! and requantised by the epilogue ([`ConvEpilogue`](crate::kernels::conv::ConvEpilogue) where the formats allow).
+//! and requantised by the epilogue ([`ConvEpilogue`](crate::kernels::dispatch::ConvEpilogue) where the formats allow).
 
 use super::super::ids::HEAD_CONVS;
 use super::sizing::{conv_inputs, conv_outputs, ring_base, ring_row, TAPS};
 use super::{HeadSink, HeadStream};
 use crate::config::{HEAD_GROUPS, HEAD_HIDDEN};
 use crate::fixed::{sat_i8_i64, Requant};
-use crate::kernels::conv::ConvEpilogue;
-use crate::kernels::matmul::matmul_i8;
+use crate::kernels::dispatch::matmul_i8;
+use crate::kernels::dispatch::ConvEpilogue;
 use crate::Error;
 
 impl HeadStream<'_, '_> {

@@ -5,9 +5,9 @@ use super::super::weights::LinearQ;
 use super::sizing::{max, CELL_BLOCK};
 use crate::config::{DIM, HEAD_GROUPS, HEAD_PROJ_DIM, NATIVE_HEAD_PROJ_DIM};
 use crate::fixed::{sat_i8_i64, Requant};
-use crate::kernels::gemm::matmul_requant_i8_prepared;
-use crate::kernels::layernorm::{layernorm_rows, LayerNormQ};
-use crate::kernels::matmul::dot;
+use crate::kernels::dispatch::dot;
+use crate::kernels::dispatch::matmul_requant_i8_prepared;
+use crate::kernels::dispatch::{layernorm_rows, LayerNormQ};
 use crate::kernels::params::Uniform;
 use crate::kernels::types::prepared::PreparedRequant;
 

@@ -5,7 +5,7 @@ use super::sizing::TAPS;
 use super::ConvEpilogue;
 use crate::config::{HEAD_GROUPS, HEAD_HIDDEN};
 use crate::fixed::{sat_i8_i64, Requant};
-use crate::kernels::epilogue::ChannelRequant;
+use crate::kernels::dispatch::ChannelRequant;
 use crate::testutil::Rng;
 
 #[test]

@@ -8,7 +8,7 @@ use super::sizing::{conv_inputs, conv_outputs, TAPS};
 use crate::blob::Blob;
 use crate::config::HEAD_MIDDLE_LAYERS;
 use crate::fixed::{Requant, MAX_SHIFT};
-use crate::kernels::layernorm::LayerNormQ;
+use crate::kernels::dispatch::LayerNormQ;
 use crate::kernels::params::Uniform;
 use crate::Error;
 

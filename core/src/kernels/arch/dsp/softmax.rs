@@ -5,7 +5,7 @@
 use crate::kernels::types::exp::{ExpQ32, EXP2_NEG_U8_TABLE_4K, EXP2_TABLE_LAST, EXP_Q32_MAX_GAP};
 
 /// A softmax row on Cortex-M7, bit for bit
-/// [`attention::softmax_row`](crate::kernels::attention::softmax_row): per score one `ldr`, the
+/// [`attention::softmax_row`](crate::kernels::reference::softmax::softmax_row): per score one `ldr`, the
 /// gap, one `umull` by the multiplier with the gap's pre-shift folded in, the rounding add and
 /// shift, `usat #12` into [`EXP2_NEG_U8_TABLE_4K`], the weight summed and stored as `w - 128`.
 /// `None` (nothing written) unless `weights` is

@@ -107,7 +107,7 @@ macro_rules! widened_weights_loop {
 }
 
 /// One softmax row into the tile's widened layout (see [`widen`](super::tile::widen)), bit for bit
-/// [`attention::softmax_row`](crate::kernels::attention::softmax_row) with `row.max` the row's
+/// [`attention::softmax_row`](crate::kernels::reference::softmax::softmax_row) with `row.max` the row's
 /// maximum: the weight of element `4g + e` goes, unsigned, to word `first + g stride + (e & 1)`,
 /// its low halfword for `e < 2` and its high one else.
 /// Returns the sum of the weights. The caller has checked the row's parameters

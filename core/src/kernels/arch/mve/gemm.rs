@@ -291,8 +291,8 @@ macro_rules! rows_i32_kernel {
 /// a tail-predicated step for the codes past them; for `k < 32` zeroed accumulators and the
 /// tail-predicated steps alone) and two `stm`s. `out1` is `None` for an unpaired last row (`a1`
 /// is then `a0`'s copy, and its results are written over `out0`'s with the same values).
-/// `false` (nothing written) for other lengths.
-#[cfg(bino_mve)]
+/// `false` (nothing written) for other lengths. Host tests of the driver run its portable twin
+/// (the same sums) after the same checks.
 fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
     let n = out0.len();
     if k == 0 || k > crate::kernels::arch::MAX_K || a0.len() != k || a1.len() != k {
@@ -301,6 +301,24 @@ fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1
     if n == 0 || !n.is_multiple_of(3) || w.len() != n * k || out1.as_ref().is_some_and(|o| o.len() != n) {
         return false;
     }
+    // Host tests of the driver: the portable twin of the kernel (the same sums).
+    #[cfg(not(bino_mve))]
+    {
+        for (t, triple) in w.chunks_exact(3 * k).enumerate() {
+            let (w0, rest) = triple.split_at(k);
+            let (w1, w2) = rest.split_at(k);
+            let [acc0, acc1] = tile3(a0, a1, [w0, w1, w2], [0; 3]);
+            for (o, v) in out0.iter_mut().skip(3 * t).zip(acc0) {
+                *o = v;
+            }
+            if let Some(out1) = out1.as_mut() {
+                for (o, v) in out1.iter_mut().skip(3 * t).zip(acc1) {
+                    *o = v;
+                }
+            }
+        }
+    }
+    #[cfg(bino_mve)]
     let second = out1.as_mut().map_or(out0.as_mut_ptr(), |o| o.as_mut_ptr());
     // SAFETY: per triple `t` (`n / 3` of them) the kernel reads exactly `k` bytes of `a0`, `a1`
     // and of weight rows `3t..3t + 3` of `w` (`w`'s `n * k` bytes over the call: whole 16-code
@@ -312,6 +330,7 @@ fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1
     // `i32` slices. `r6` and `r7` (which Rust reserves) are saved and restored; the loop state
     // lives in 32 bytes below them. It writes only its declared outputs: r0-r5, r8-r12, `lr`
     // (a `letp` restores FPSCR.LTPSIZE) and q0-q3.
+    #[cfg(bino_mve)]
     unsafe {
         if k < 32 {
             rows_i32_kernel!(
@@ -339,29 +358,6 @@ fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1
                 second,
                 n
             );
-        }
-    }
-    true
-}
-
-/// The portable twin of [`rows_i32`] (host tests of the driver).
-#[cfg(not(bino_mve))]
-fn rows_i32(a0: &[i8], a1: &[i8], w: &[i8], k: usize, out0: &mut [i32], mut out1: Option<&mut [i32]>) -> bool {
-    let n = out0.len();
-    if k == 0 || !n.is_multiple_of(3) || w.len() != n * k || out1.as_ref().is_some_and(|o| o.len() != n) {
-        return false;
-    }
-    for (t, triple) in w.chunks_exact(3 * k).enumerate() {
-        let (w0, rest) = triple.split_at(k);
-        let (w1, w2) = rest.split_at(k);
-        let [acc0, acc1] = tile3(a0, a1, [w0, w1, w2], [0; 3]);
-        for (o, v) in out0.iter_mut().skip(3 * t).zip(acc0) {
-            *o = v;
-        }
-        if let Some(out1) = out1.as_mut() {
-            for (o, v) in out1.iter_mut().skip(3 * t).zip(acc1) {
-                *o = v;
-            }
         }
     }
     true

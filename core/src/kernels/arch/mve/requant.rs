@@ -14,8 +14,8 @@ static COL_GATHER: [[u32; 4]; 4] = [[0, 16, 32, 48], [4, 20, 36, 52], [8, 24, 40
 /// `acc1` then repeats `acc0`), in one tail-predicated Helium loop, four columns a step:
 /// the columns' `bias`, `mult`, `addend` and `s` gathered from their records, then per row
 /// `vadd`, `vmulh.s32`, `vadd`, `vshl.s32` by `-s`, two saturating narrowings and a 4-byte
-/// store (23 instructions per 8 outputs). `false` (nothing written) for other lengths.
-#[cfg(bino_mve)]
+/// store (23 instructions per 8 outputs). `false` (nothing written) for other lengths. Host
+/// tests of the drivers run its portable twin (the same outputs) after the same checks.
 pub(super) fn requant_pair<C: ColRecords + ?Sized>(
     acc0: &[i32],
     acc1: &[i32],
@@ -27,6 +27,18 @@ pub(super) fn requant_pair<C: ColRecords + ?Sized>(
     if n == 0 || acc0.len() != n || acc1.len() != n || out0.len() != n || out1.as_ref().is_some_and(|o| o.len() != n) {
         return false;
     }
+    #[cfg(not(bino_mve))]
+    {
+        let rows = [(acc0, Some(out0)), (acc1, out1)];
+        for (acc, out) in rows {
+            for (j, (o, &v)) in out.into_iter().flatten().zip(acc).enumerate() {
+                if let Some(c) = cols.col(j) {
+                    *o = c.apply(v.wrapping_add(c.bias()));
+                }
+            }
+        }
+    }
+    #[cfg(bino_mve)]
     let second = out1.map_or(out0.as_mut_ptr(), |o| o.as_mut_ptr());
     // SAFETY: the tail-predicated loop (`n >= 1` 32-bit lanes, four a step) reads exactly
     // `n` words of `acc0` and of `acc1`, the four gathered words of each of the `n` 16-byte
@@ -37,6 +49,7 @@ pub(super) fn requant_pair<C: ColRecords + ?Sized>(
     // `vldrw` gets word-aligned `i32` data, `vstrb.32` needs no alignment (and low registers,
     // r3 and r5). It writes only its declared outputs: the pointers, `lr` (`letp` restores
     // FPSCR.LTPSIZE) and q0-q7.
+    #[cfg(bino_mve)]
     unsafe {
         core::arch::asm!(
             "vldrw.u32 q4, [{gather}]",
@@ -80,30 +93,6 @@ pub(super) fn requant_pair<C: ColRecords + ?Sized>(
             out("d14") _, out("d15") _,
             options(nostack),
         );
-    }
-    true
-}
-
-/// The portable twin of [`requant_pair`] (host tests of the drivers).
-#[cfg(not(bino_mve))]
-pub(super) fn requant_pair<C: ColRecords + ?Sized>(
-    acc0: &[i32],
-    acc1: &[i32],
-    cols: &C,
-    out0: &mut [i8],
-    out1: Option<&mut [i8]>,
-) -> bool {
-    let n = cols.count();
-    if n == 0 || acc0.len() != n || acc1.len() != n || out0.len() != n || out1.as_ref().is_some_and(|o| o.len() != n) {
-        return false;
-    }
-    let rows = [(acc0, Some(out0)), (acc1, out1)];
-    for (acc, out) in rows {
-        for (j, (o, &v)) in out.into_iter().flatten().zip(acc).enumerate() {
-            if let Some(c) = cols.col(j) {
-                *o = c.apply(v.wrapping_add(c.bias()));
-            }
-        }
     }
     true
 }

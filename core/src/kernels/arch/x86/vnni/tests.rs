@@ -89,8 +89,8 @@ fn the_kernels_match_plain_dots_where_the_cpu_has_vnni_and_decline_when_off() {
             // The transposed layout gives the same scores.
             let mut keys_t = [0i8; 960 * HEAD];
             for (t, key) in keys[..n * HEAD].chunks_exact(HEAD).enumerate() {
-                crate::kernels::attention::store_key(
-                    crate::kernels::attention::KeyLayout::Transposed,
+                crate::kernels::dispatch::attention::store_key(
+                    crate::kernels::dispatch::attention::KeyLayout::Transposed,
                     key,
                     &mut keys_t[..n * HEAD],
                     t,
@@ -115,7 +115,7 @@ fn the_kernels_match_plain_dots_where_the_cpu_has_vnni_and_decline_when_off() {
                 assert_eq!(s, dot(q, &keys[j * HEAD..(j + 1) * HEAD]), "n={n} key {j}");
             }
         }
-        let sums = crate::kernels::attention::value_sums(&values_t[..n * HEAD], n);
+        let sums = crate::kernels::dispatch::attention::value_sums(&values_t[..n * HEAD], n);
         let mut acc = [[0i32; HEAD]; 4];
         let taken = weighted_sums4(&weights[..4 * n], &values_t[..HEAD * n], n, &sums, &mut acc);
         assert_eq!(taken, n % STEP == 0, "n={n}");

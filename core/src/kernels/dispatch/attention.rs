@@ -6,32 +6,23 @@
 //! and the output divides by their sum through one reciprocal per row, so diffuse attention
 //! over hundreds of keys keeps its mass instead of rounding every probability to zero.
 
-use super::arch;
 use super::epilogue::scaled_requant_lanes;
-use super::exp::{exp_neg_u8_u32, ExpQ32};
 use super::matmul::{dot, dot4};
-pub use super::reference::softmax::softmax_row;
 use crate::config::HEAD_DIM;
-use crate::fixed::{round_shift, sat_i8_i64, Requant};
+use crate::fixed::{round_shift, sat_i8_i64};
+use crate::kernels::arch;
+use crate::kernels::exp::{exp_neg_u8_u32, ExpQ32};
+pub use crate::kernels::reference::attention::scores_block_reference;
+use crate::kernels::reference::attention::scores_block_with;
+pub use crate::kernels::reference::softmax::softmax_row;
+pub use crate::kernels::types::attention::{AttentionQ, KeyLayout, AVG_FRAC_BITS, QUERY_BLOCK};
 
-/// Fraction bits of the normalised weighted average before the output factor.
-pub const AVG_FRAC_BITS: u32 = 16;
 /// Most keys whose 8-bit weights a 32-bit sum holds exactly (`255 * MAX_KEYS < 2^32`; a band
 /// has 960). [`attend`] ignores keys beyond it; [`attend_block`], the engine's kernel, sums with
 /// wrapping adds instead (the same code as plain adds in release builds: a bound there cost
 /// 13M instructions per encoder pass on Cortex-M55), so lengths beyond it give a wrong average
 /// but never a panic.
 pub const MAX_KEYS: usize = 1 << 24;
-
-/// Quantisation parameters of one head's attention.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct AttentionQ {
-    /// Score gap (int32 units of `q . k`) to Q8 base-2 units: folds the q and k scales,
-    /// `1/sqrt(head_dim)` and `log2(e)`.
-    pub to_log2_q8: Requant,
-    /// Q16 weighted average of value codes to output codes (`value scale / output scale / 2^16`).
-    pub out: Requant,
-}
 
 /// Attention of query `q` (`HEAD_DIM` codes) over `keys` and `values` (`n x HEAD_DIM` each).
 /// `scores` and `weights` are scratch with room for `n` entries; the result goes to `out`.
@@ -69,9 +60,6 @@ pub fn attend(
     }
     normalise_exact(&acc, total, p, out);
 }
-
-/// Queries attended together by [`attend_block`]: each key and value is read once per block.
-pub const QUERY_BLOCK: usize = 4;
 
 /// Per-channel sums of transposed values (`HEAD_DIM x n`, one row per channel): the
 /// correction [`attend_block`] needs for its signed softmax weights. Once per head and pass.
@@ -146,22 +134,11 @@ pub fn attend_block_keys_transposed(
     )
 }
 
-/// How a head's keys are stored: as rows for [`attend_block`] (every core), transposed for the
-/// x86 VNNI `attend_block_keys_transposed`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum KeyLayout {
-    /// Token by token, `HEAD_DIM` codes each (every core).
-    Rows,
-    /// Blocks of eight tokens transposed into groups of four codes, flipped to unsigned
-    /// ([`store_key`]; x86 hosts with AVX-512 VNNI, where [`key_layout`] picks it).
-    Transposed,
-}
-
 /// The key layout of a band of `tokens` on this machine: [`KeyLayout::Transposed`] where the
 /// x86 VNNI scores run and the tokens fill blocks of eight, else [`KeyLayout::Rows`].
 pub fn key_layout(tokens: usize) -> KeyLayout {
     #[cfg(target_arch = "x86_64")]
-    if super::arch::x86::vnni::keys_transposed(tokens) {
+    if crate::kernels::arch::x86::vnni::keys_transposed(tokens) {
         return KeyLayout::Transposed;
     }
     let _ = tokens;
@@ -312,7 +289,10 @@ pub fn scores_block(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usi
     };
     let taken = arch::attention_scores(queries, keys_n, scores) || avx2_scores(queries, keys_n, n, scores);
     if !taken {
-        scores_block_reference(queries, keys_n, scores);
+        // The head size as an opaque run-time value (`loop_len`): a loop of unknown length
+        // becomes a tail-predicated 16-lane `vmladav.s8` loop on MVE; Cortex-M7 keeps the
+        // constant, whose unrolled two-row products address by constant offsets.
+        scores_block_with(queries, keys_n, scores, super::loop_len(HEAD_DIM), dot4::<i8>);
     }
 }
 
@@ -322,7 +302,7 @@ pub fn scores_block(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usi
 #[inline(always)]
 fn scores_block_transposed(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys_t: &[i8], n: usize, scores: &mut [i32]) {
     #[cfg(target_arch = "x86_64")]
-    if super::arch::x86::vnni::scores4_transposed(queries, keys_t, n, scores) {
+    if crate::kernels::arch::x86::vnni::scores4_transposed(queries, keys_t, n, scores) {
         return;
     }
     scores_block_transposed_reference(queries, keys_t, n, scores);
@@ -351,47 +331,13 @@ fn scores_block_transposed_reference(
     }
 }
 
-/// [`scores_block`] in portable Rust: the specification of its kernels.
-#[inline(always)]
-pub fn scores_block_reference(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], scores: &mut [i32]) {
-    let n = (keys.len() / HEAD_DIM).min(scores.len() / QUERY_BLOCK);
-    if n == 0 {
-        return;
-    }
-    // The head size as an opaque run-time value: with a constant 32, LLVM unrolls each dot
-    // product and vectorises it over 32-bit lanes; a loop of unknown length becomes a
-    // tail-predicated 16-lane `vmladav.s8` loop on MVE, as in the matrix multiply.
-    // On Cortex-M7 (`bino_dsp`, no vector unit) the constant size is the better one: the
-    // unrolled two-row products address keys and queries by constant offsets.
-    let hd = if cfg!(bino_dsp) {
-        HEAD_DIM
-    } else {
-        core::hint::black_box(HEAD_DIM)
-    };
-    let mut score_rows = scores.chunks_exact_mut(n);
-    let (Some(s0), Some(s1), Some(s2), Some(s3)) = (
-        score_rows.next(),
-        score_rows.next(),
-        score_rows.next(),
-        score_rows.next(),
-    ) else {
-        return;
-    };
-    let [q0, q1, q2, q3] = queries.each_ref().map(|q| q.get(..hd).unwrap_or(&[]));
-    let score_slots = s0.iter_mut().zip(s1.iter_mut()).zip(s2.iter_mut()).zip(s3.iter_mut());
-    for ((((x0, x1), x2), x3), k) in score_slots.zip(keys.chunks_exact(hd)) {
-        let s = dot4(q0, q1, q2, q3, k);
-        (*x0, *x1, *x2, *x3) = (s[0], s[1], s[2], s[3]);
-    }
-}
-
 // The x86 kernels of host builds (`arch::x86::vnni` where the CPU has AVX-512 VNNI, else
 // `arch::x86::avx2`, each chosen at run time); `false` elsewhere, or where they decline the shape.
 #[inline(always)]
 fn avx2_scores(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys: &[i8], n: usize, scores: &mut [i32]) -> bool {
     #[cfg(target_arch = "x86_64")]
-    return super::arch::x86::vnni::scores4(queries, keys, n, scores)
-        || super::arch::x86::avx2::scores4(queries, keys, n, scores);
+    return crate::kernels::arch::x86::vnni::scores4(queries, keys, n, scores)
+        || crate::kernels::arch::x86::avx2::scores4(queries, keys, n, scores);
     #[cfg(not(target_arch = "x86_64"))]
     {
         let _ = (queries, keys, n, scores);
@@ -409,8 +355,8 @@ fn avx2_weighted_sums(
     acc: &mut [[i32; HEAD_DIM]; QUERY_BLOCK],
 ) -> bool {
     #[cfg(target_arch = "x86_64")]
-    return super::arch::x86::vnni::weighted_sums4(weights, values_t, n, sums, acc)
-        || super::arch::x86::avx2::weighted_sums4(weights, values_t, n, scratch, acc);
+    return crate::kernels::arch::x86::vnni::weighted_sums4(weights, values_t, n, sums, acc)
+        || crate::kernels::arch::x86::avx2::weighted_sums4(weights, values_t, n, scratch, acc);
     #[cfg(not(target_arch = "x86_64"))]
     {
         let _ = (weights, values_t, n, sums, scratch, acc);
@@ -459,7 +405,7 @@ pub fn softmax_row_by_table(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut 
 #[inline(always)]
 fn x86_softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> Option<u32> {
     #[cfg(target_arch = "x86_64")]
-    return super::arch::x86::vnni::softmax_row(e, max, scores, weights);
+    return crate::kernels::arch::x86::vnni::softmax_row(e, max, scores, weights);
     #[cfg(not(target_arch = "x86_64"))]
     {
         let _ = (e, max, scores, weights);

@@ -1,12 +1,37 @@
-//! The one place that picks an instruction set for the portable kernels' loops at run time.
+//! The one place that picks an instruction set: every layer's kernel entry point, which checks
+//! the shapes, runs the active instruction set's kernel (`kernels::arch`) where it takes the
+//! call and the portable path (`kernels::reference` and the portable families) otherwise.
+//! `model/` and `pipeline/` call the kernels through this module only.
 //!
 //! Cortex-M builds choose at compile time (target features, `build.rs`'s `bino_dsp` /
-//! `bino_mve`), so there this is the plain call. On x86-64 the CPU is asked once (`cpuid`):
-//! a crate that depends on `bino-core` gets the AVX2 and AVX-512 VNNI kernels with no
-//! `-C target-cpu` flag, and [`active`] says which run.
+//! `bino_mve`). On x86-64 the CPU is asked once (`cpuid`): a crate that depends on
+//! `bino-core` gets the AVX2 and AVX-512 VNNI kernels with no `-C target-cpu` flag, and
+//! [`active`] says which run. Every `cfg(bino_dsp)`, `cfg(bino_mve)` and x86 branch outside
+//! `kernels::arch` lives in this module's files (one per layer).
 
-use super::attention::{self, AttentionQ, KeyLayout, QUERY_BLOCK};
+pub mod attention;
+pub mod conv;
+pub mod epilogue;
+pub mod gemm;
+pub mod layernorm;
+pub mod matmul;
+pub mod residual;
+pub mod rope;
+
 use crate::config::HEAD_DIM;
+pub use attention::{AttentionQ, KeyLayout, QUERY_BLOCK};
+
+// The entry points and parameter types the model and the pipeline use.
+pub use crate::kernels::lut::apply_lut;
+pub use attention::{attend, key_layout, value_sums, AVG_FRAC_BITS, MAX_KEYS};
+pub use conv::ConvEpilogue;
+pub use epilogue::{
+    requant_rows, residual_add, residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual,
+};
+pub use gemm::{matmul_requant_i8, matmul_requant_i8_prepared};
+pub use layernorm::{layernorm_rows, layernorm_rows_prepared, LayerNormQ, PreparedLayerNorm, Z_FRAC_BITS};
+pub use matmul::{dot, matmul_i8};
+pub use rope::{rope_token, Angles, RopeLanes, QUARTER};
 
 /// The instruction set whose kernels run in this process.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -40,7 +65,7 @@ impl Isa {
 pub fn active() -> Isa {
     #[cfg(target_arch = "x86_64")]
     {
-        use super::arch::x86;
+        use crate::kernels::arch::x86;
         if x86::vnni::available() {
             return Isa::Avx512Vnni;
         }
@@ -63,7 +88,7 @@ pub fn active() -> Isa {
 pub fn limit(to: Isa) -> Isa {
     #[cfg(target_arch = "x86_64")]
     {
-        use super::arch::x86;
+        use crate::kernels::arch::x86;
         let avx2 = x86::allow_avx2(!matches!(to, Isa::Portable));
         x86::vnni::enable(avx2 && matches!(to, Isa::Avx512Vnni));
     }
@@ -75,13 +100,26 @@ pub fn limit(to: Isa) -> Isa {
 /// each head's slice is then the `HEAD_DIM x tokens` transposed layout attention reads. The
 /// Cortex-M55's Helium scatter where it takes the shape, else the plain loop.
 pub fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize) {
-    if super::arch::scatter_channels(token, store, tokens, t) {
+    if crate::kernels::arch::scatter_channels(token, store, tokens, t) {
         return;
     }
     for (channel, &v) in store.chunks_exact_mut(tokens).zip(token) {
         if let Some(slot) = channel.get_mut(t) {
             *slot = v;
         }
+    }
+}
+
+/// `n` as the loops see it: on Cortex-M7 (`bino_dsp`, no vector unit) the constant, so that
+/// unrolled two-row products address by constant offsets; elsewhere an opaque run-time value
+/// (the same `n`), so that LLVM emits one tail-predicated 16-lane `vmladav.s8` loop per dot
+/// product on Cortex-M55 rather than unrolling the constant into 32-bit lanes.
+#[inline(always)]
+pub fn loop_len(n: usize) -> usize {
+    if cfg!(bino_dsp) {
+        n
+    } else {
+        core::hint::black_box(n)
     }
 }
 

@@ -1,9 +1,10 @@
 //! The residual add: a layer's output added to the residual stream while the stream moves to
 //! the next stage's per-channel format, `x <- sat(carry(x) + delta(acc) + new_zero)`.
 
-use super::types::requant::{ChannelRequant, ChannelRescale, ChunkParams, CHANNEL_CHUNK};
-use super::I32s;
 use crate::fixed::sat_i8_i64;
+pub use crate::kernels::reference::residual::residual_add_reference;
+use crate::kernels::types::requant::{ChannelRequant, ChannelRescale, ChunkParams, CHANNEL_CHUNK};
+use crate::kernels::I32s;
 
 /// `x <- sat(carry(x) + delta(acc) + new_zero)`: adds a layer's output to the residual stream
 /// while moving the stream to the next stage's per-channel format.
@@ -129,9 +130,10 @@ pub fn residual_add_prepared<Z, M, B, M2, Z2>(
                             *z = new_zero.at(start + i) as i64;
                         }
                         #[cfg(target_arch = "x86_64")]
-                        let done =
-                            super::arch::x86::vnni::with_avx512(|| add_decoded_rows(x, acc, &chunk, &d, &k, &zeros))
-                                .is_some();
+                        let done = crate::kernels::arch::x86::vnni::with_avx512(|| {
+                            add_decoded_rows(x, acc, &chunk, &d, &k, &zeros)
+                        })
+                        .is_some();
                         #[cfg(not(target_arch = "x86_64"))]
                         let done = false;
                         if !done {
@@ -175,32 +177,6 @@ fn add_decoded_rows(
         for (i, (xq, &a)) in x_part.iter_mut().zip(acc_part).enumerate() {
             *xq = sat_i8_i64(k.apply(i, *xq) + d.apply(i, a) + zeros[i % CHANNEL_CHUNK]);
         }
-    }
-}
-
-/// [`residual_add`] by the saturating per-channel formula only: the specification of its
-/// faster paths (the decoded chunks, their 32-bit lanes, the Helium loop).
-pub fn residual_add_reference<Z, M, B, M2, Z2>(
-    x: &mut [i8],
-    carry: &ChannelRescale<'_, Z, M>,
-    acc: &[i32],
-    delta: &ChannelRequant<'_, B, M2>,
-    new_zero: &Z2,
-) where
-    Z: I32s + ?Sized,
-    M: I32s + ?Sized,
-    B: I32s + ?Sized,
-    M2: I32s + ?Sized,
-    Z2: I32s + ?Sized,
-{
-    let n = delta.channels();
-    if n == 0 {
-        return;
-    }
-    let whole_rows = x.len().min(acc.len()) / n * n;
-    for (i, (xq, &a)) in x.iter_mut().zip(acc).enumerate().take(whole_rows) {
-        let c = i % n;
-        *xq = sat_i8_i64(carry.apply(c, *xq) + delta.apply(c, a) + new_zero.at(c) as i64);
     }
 }
 

@@ -1,10 +1,10 @@
 //! The head's convolution epilogue: requantisation, ReLU, the carried input and the next
 //! layer's zero point of every output of a hidden 3D convolution, in 32-bit lanes.
 
-use super::types::params::I32s;
-use super::types::requant::ChannelRequant;
 use crate::config::HEAD_HIDDEN;
 use crate::fixed::Requant;
+use crate::kernels::types::params::I32s;
+use crate::kernels::types::requant::ChannelRequant;
 
 /// The epilogue of a hidden 3D convolution (`HEAD_HIDDEN` outputs per candidate) in 32-bit
 /// scalar lanes, bit for bit the head's 64-bit one (`model::head`):
@@ -132,7 +132,7 @@ impl ConvEpilogue {
                 if self.carry.is_none() || center.is_some() {
                     let x = center.filter(|_| self.carry.is_some());
                     if let Some(bits) =
-                        super::arch::dsp::conv_epilogue(acc, x, &self.channel_params, &self.carried, out)
+                        crate::kernels::arch::dsp::conv_epilogue(acc, x, &self.channel_params, &self.carried, out)
                     {
                         return bits < 1 << 30;
                     }
@@ -163,7 +163,7 @@ impl ConvEpilogue {
                         };
                         #[cfg(bino_mve)]
                         if x.len() >= acc.len()
-                            && super::arch::mve::conv_epilogue(
+                            && crate::kernels::arch::mve::conv_epilogue(
                                 acc,
                                 x,
                                 &self.lanes,

@@ -1,11 +1,11 @@
 //! What follows a matrix multiply: bias and per-channel requantisation to int8 (the residual
-//! add is `kernels::residual`).
+//! add is `kernels::dispatch::residual`).
 
 pub use super::residual::{residual_add, residual_add_prepared, residual_add_reference, PreparedResidual};
-pub use super::types::requant::{ChannelRequant, ChannelRescale};
-use super::types::requant::{ChunkParams, NarrowChunk, CHANNEL_CHUNK};
-use super::I32s;
 use crate::fixed::sat_i8_i64;
+pub use crate::kernels::types::requant::{ChannelRequant, ChannelRescale};
+use crate::kernels::types::requant::{ChunkParams, NarrowChunk, CHANNEL_CHUNK};
+use crate::kernels::I32s;
 
 /// Rows of accumulators (`channels` per row) to int8: `out = sat(rq(acc) + zero[c])`.
 pub fn requant_rows<B: I32s + ?Sized, M: I32s + ?Sized, Z: I32s + ?Sized>(
@@ -100,7 +100,7 @@ impl NarrowChunk {
     #[inline]
     fn row(&self, acc: &[i32], out: &mut [i8]) -> bool {
         #[cfg(target_arch = "x86_64")]
-        return super::arch::x86::avx2::requant_row_narrow(self, acc, out);
+        return crate::kernels::arch::x86::avx2::requant_row_narrow(self, acc, out);
         #[cfg(not(target_arch = "x86_64"))]
         {
             let _ = (acc, out);
@@ -117,9 +117,9 @@ impl NarrowChunk {
 #[inline(always)]
 pub(crate) fn scaled_requant_lanes(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
     #[cfg(bino_mve)]
-    return super::arch::scaled_requant_lanes(n, recip_q, mult, round, post, out);
+    return crate::kernels::arch::scaled_requant_lanes(n, recip_q, mult, round, post, out);
     #[cfg(bino_dsp)]
-    if super::arch::dsp::scaled_requant(n, recip_q, mult, round, post, out) {
+    if crate::kernels::arch::dsp::scaled_requant(n, recip_q, mult, round, post, out) {
         return true;
     }
     #[cfg(not(bino_mve))]

@@ -1,10 +1,11 @@
 //! Matrix multiply with the requantisation fused in: `out[m][c] = sat8(rq_c(a_m . w_c) + zero[c])`
 //! in one pass, int8 out, no `i32` buffer in between on cores with an assembly kernel.
 
-use super::arch;
 use super::epilogue::{requant_rows, ChannelRequant};
-use super::matmul::{dot, matmul_i8};
-use super::I32s;
+use super::matmul::matmul_i8;
+use crate::kernels::arch;
+pub use crate::kernels::reference::gemm::matmul_requant_reference;
+use crate::kernels::I32s;
 
 /// `out` (`m x n` int8) = [`requant_rows`] of [`matmul_i8`]`(a, w, k)`, with `n` = the rows of
 /// `w` = the channels of `rq`.
@@ -57,28 +58,4 @@ pub fn matmul_requant_i8_prepared<B, M, Z>(
         return;
     }
     matmul_requant_i8(a, w, k, rq, zero, acc, out);
-}
-
-/// The portable [`matmul_requant_i8`], output by output: the specification.
-pub fn matmul_requant_reference<B, M, Z>(
-    a: &[i8],
-    w: &[i8],
-    k: usize,
-    rq: &ChannelRequant<'_, B, M>,
-    zero: &Z,
-    out: &mut [i8],
-) where
-    B: I32s + ?Sized,
-    M: I32s + ?Sized,
-    Z: I32s + ?Sized,
-{
-    let n = rq.channels();
-    if k == 0 || n == 0 || w.len() / k < n {
-        return;
-    }
-    for (a_row, out_row) in a.chunks_exact(k).zip(out.chunks_exact_mut(n)) {
-        for (c, (o, w_row)) in out_row.iter_mut().zip(w.chunks_exact(k)).enumerate() {
-            *o = crate::fixed::sat_i8_i64(rq.apply(c, dot(a_row, w_row)) + zero.at(c) as i64);
-        }
-    }
 }

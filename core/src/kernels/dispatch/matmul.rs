@@ -6,9 +6,10 @@
 //! together so each weight row is loaded once per four outputs.
 
 #[cfg(not(bino_dsp))]
-use super::reference::matmul::dot4_portable;
-pub use super::reference::matmul::{dot, dot4_pairs};
-pub use super::types::code::Code;
+use crate::kernels::reference::matmul::dot4_portable;
+use crate::kernels::reference::matmul::matmul_rows;
+pub use crate::kernels::reference::matmul::{dot, dot4_pairs, matmul_i8_reference};
+pub use crate::kernels::types::code::Code;
 
 /// `out` (`m x n`, row-major) = `a` (`m x k`) times the transpose of `w` (`n x k`).
 ///
@@ -18,68 +19,33 @@ pub use super::types::code::Code;
 /// On Cortex-M7 and Cortex-M55 this runs the core's assembly tile (`kernels::arch`), on AVX2
 /// hosts the AVX-512 VNNI tile where the CPU has it (`kernels::arch::x86::vnni`) or the AVX2 tile
 /// (`kernels::arch::x86::avx2`), where it takes the shape, and
-/// [`matmul_i8_reference`] otherwise: the results are the same.
+/// [`matmul_i8_portable`] otherwise: the results are the same as [`matmul_i8_reference`]'s.
 #[inline]
 pub fn matmul_i8(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     #[cfg(target_arch = "x86_64")]
-    if super::arch::x86::vnni::matmul_i32(a, w, k, out) || super::arch::x86::avx2::matmul_i32(a, w, k, out) {
+    if crate::kernels::arch::x86::vnni::matmul_i32(a, w, k, out)
+        || crate::kernels::arch::x86::avx2::matmul_i32(a, w, k, out)
+    {
         return;
     }
-    if !super::arch::matmul_i32(a, w, k, out) {
-        super::arch::vectorised(
+    if !crate::kernels::arch::matmul_i32(a, w, k, out) {
+        crate::kernels::arch::vectorised(
             #[inline(always)]
-            || matmul_i8_reference(a, w, k, out),
+            || matmul_i8_portable(a, w, k, out),
         )
     }
 }
 
-/// The portable [`matmul_i8`]: the specification the assembly kernels are tested against.
-pub fn matmul_i8_reference(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
-    // Cortex-M7 (`bino_dsp`): the model width as a constant, so the two-row products unroll
-    // with constant offsets.
+/// [`matmul_i8`]'s portable path as this core compiles it: the reference loops
+/// ([`matmul_rows`]) on this core's [`dot4`]. On Cortex-M7 (`bino_dsp`) the model widths are
+/// constants, so the two-row products unroll with constant offsets.
+pub fn matmul_i8_portable(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     if cfg!(bino_dsp) && k == crate::config::DIM {
-        matmul_body(a, w, crate::config::DIM, out)
+        matmul_rows(a, w, crate::config::DIM, out, dot4::<i8>)
     } else if cfg!(bino_dsp) && k == crate::config::MLP_HIDDEN {
-        matmul_body(a, w, crate::config::MLP_HIDDEN, out)
+        matmul_rows(a, w, crate::config::MLP_HIDDEN, out, dot4::<i8>)
     } else {
-        matmul_body(a, w, k, out)
-    }
-}
-
-#[inline(always)]
-fn matmul_body(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
-    if k == 0 || w.len() < k {
-        out.fill(0);
-        return;
-    }
-    let n = w.len() / k;
-    // Checked rather than saturating: LLVM then still knows a block is exactly four rows of
-    // `k` (no per-block bounds checks); sizes that overflow compute nothing.
-    let (Some(quad_in), Some(quad_out)) = (k.checked_mul(4), n.checked_mul(4)) else {
-        out.fill(0);
-        return;
-    };
-    let mut a_quads = a.chunks_exact(quad_in);
-    let mut out_quads = out.chunks_exact_mut(quad_out);
-    for (a4, o4) in (&mut a_quads).zip(&mut out_quads) {
-        let (a01, a23) = a4.split_at(2 * k);
-        let (a0, a1) = a01.split_at(k);
-        let (a2, a3) = a23.split_at(k);
-        for (j, w_row) in w.chunks_exact(k).enumerate() {
-            let s = dot4(a0, a1, a2, a3, w_row);
-            for (r, value) in s.into_iter().enumerate() {
-                if let Some(o) = o4.get_mut(r * n + j) {
-                    *o = value;
-                }
-            }
-        }
-    }
-    let rest_a = a_quads.remainder();
-    let rest_out = out_quads.into_remainder();
-    for (a_row, out_row) in rest_a.chunks_exact(k).zip(rest_out.chunks_exact_mut(n)) {
-        for (o, w_row) in out_row.iter_mut().zip(w.chunks_exact(k)) {
-            *o = dot(a_row, w_row);
-        }
+        matmul_rows(a, w, k, out, dot4::<i8>)
     }
 }
 
@@ -89,7 +55,7 @@ fn matmul_body(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
 pub fn dot4<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32; 4] {
     #[cfg(target_arch = "x86_64")]
     {
-        use super::arch::x86::avx2::{dot4 as dot4_simd, LANES};
+        use crate::kernels::arch::x86::avx2::{dot4 as dot4_simd, LANES};
         let head = w.len() - w.len() % LANES;
         if let Some(s) = dot4_simd(a0, a1, a2, a3, w.get(..head).unwrap_or(&[])) {
             fn tail<T>(x: &[T], head: usize) -> &[T] {

@@ -6,11 +6,11 @@
 //! scale, rotated with Q14 cosines and sines, then rounded to int8.
 
 use super::epilogue::ChannelRequant;
-use super::types::rope::PRE_ROPE_LIMIT;
-pub use super::types::rope::{Angles, PRE_ROPE_FRAC_BITS, QUARTER, TRIG_FRAC_BITS};
-use super::I32s;
 use crate::config::{DIM, HEAD_DIM};
 use crate::fixed::{round_shift, sat_i8_i64};
+use crate::kernels::types::rope::PRE_ROPE_LIMIT;
+pub use crate::kernels::types::rope::{Angles, PRE_ROPE_FRAC_BITS, QUARTER, TRIG_FRAC_BITS};
+use crate::kernels::I32s;
 
 /// Requantises `acc` (all heads of one token, `heads * HEAD_DIM` channels; `rq` must give Q8 of
 /// the output scale) and rotates each head by the row and column angles into `out`.

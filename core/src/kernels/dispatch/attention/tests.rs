@@ -1,4 +1,5 @@
 use super::*;
+use crate::fixed::Requant;
 use crate::testutil::{requant_of, Rng};
 
 fn exp(x: f64) -> f64 {

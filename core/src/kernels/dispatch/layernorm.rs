@@ -1,0 +1,627 @@
+//! Integer LayerNorm without its affine part (gamma and beta are folded into the next linear
+//! layer by the quantiser), robust to the large per-channel offsets of a ViT residual stream.
+//!
+//! The input is int8 with a per-channel format `real = scale[c] * (q - zero[c])`; `rel[c]`
+//! holds `scale[c]` in a common unit, so `v[c] = (q - zero[c]) * rel[c]` is the real value in
+//! that unit. The row is centred exactly (`D * v - sum v`), renormalised to 24 significant
+//! bits so the variance fits in 64 bits, and divided by an integer square root. The output is
+//! `z / out_scale`, rounded and saturated to int8.
+
+use crate::fixed::{bit_length, sat_i8_i64, Requant};
+use crate::kernels::layernorm::{layernorm_row, BUFFERED_DIM};
+pub use crate::kernels::reference::layernorm::layernorm_rows_reference;
+use crate::kernels::reference::layernorm::{reciprocal_std, RECIP_BITS, WORK_BITS};
+pub use crate::kernels::types::layernorm::{LayerNormQ, Z_FRAC_BITS};
+use crate::kernels::I32s;
+
+/// Normalises each `dim`-channel row of `x` into `out`. Never inlined: its parameter and lane
+/// buffers (3 KiB) then live on the stack only while it runs.
+#[inline(never)]
+pub fn layernorm_rows<Z: I32s + ?Sized, R: I32s + ?Sized>(
+    x: &[i8],
+    dim: usize,
+    p: &LayerNormQ<'_, Z, R>,
+    out: &mut [i8],
+) {
+    if dim == 0 {
+        return;
+    }
+    let mut storage = [0i32; 2 * BUFFERED_DIM];
+    if let Some(narrow) = NarrowParams::decode(p, dim, &mut storage) {
+        crate::kernels::arch::vectorised(
+            #[inline(always)]
+            || narrow.rows(x, out),
+        );
+        return;
+    }
+    for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
+        layernorm_row(row, p, out_row);
+    }
+}
+/// A LayerNorm's per-channel parameters decoded once into plain arrays, for formats whose
+/// values `(q - zero) * rel` fit 32 bits (`|zero|, |rel| <= 2^15`: quantiser-made formats
+/// have `|zero| < 2^9` and `rel <= 2^15`) and rows of at most [`BUFFERED_DIM`] channels. Gives
+/// the codes of [`layernorm_row`] bit for bit, with 32-bit values and one 32 x 32 -> 64-bit
+/// product per step where 64 bits are needed (the bounds are at each step).
+struct NarrowParams<'s> {
+    zero: &'s [i32],
+    rel: &'s [i32],
+    dim: usize,
+    eps: i64,
+    out: Requant,
+}
+
+/// A LayerNorm's parameters decoded and checked once for the calls of a pass that share them
+/// (the encoder normalises one token block at a time), in storage the caller lends (two words
+/// a channel), instead of once per call.
+pub struct PreparedLayerNorm<'s> {
+    narrow: NarrowParams<'s>,
+    values: &'s mut [i32],
+    normalised: &'s mut [i32],
+}
+
+impl<'s> PreparedLayerNorm<'s> {
+    /// Words of storage [`PreparedLayerNorm::new`] takes for rows of `dim` channels: the
+    /// parameters and the lanes' two buffers.
+    pub const fn storage_words(dim: usize) -> usize {
+        2 * dim + 2 * LANE_DIM
+    }
+
+    /// `p` for rows of `dim` channels, in `storage`; `None` for formats outside the narrow
+    /// path's bounds (zero points and scales within `2^15`, `dim` at most 256) or a `storage`
+    /// of fewer than [`PreparedLayerNorm::storage_words`] (then [`layernorm_rows`]).
+    pub fn new<Z: I32s + ?Sized, R: I32s + ?Sized>(
+        p: &LayerNormQ<'_, Z, R>,
+        dim: usize,
+        storage: &'s mut [i32],
+    ) -> Option<Self> {
+        let (params, lanes) = storage.get_mut(..Self::storage_words(dim))?.split_at_mut(2 * dim);
+        let (values, normalised) = lanes.split_at_mut(LANE_DIM);
+        let narrow = NarrowParams::decode(p, dim, params)?;
+        Some(PreparedLayerNorm {
+            narrow,
+            values,
+            normalised,
+        })
+    }
+}
+
+/// [`layernorm_rows`] with the parameters prepared once.
+pub fn layernorm_rows_prepared(x: &[i8], p: &mut PreparedLayerNorm<'_>, out: &mut [i8]) {
+    crate::kernels::arch::vectorised(
+        #[inline(always)]
+        || p.narrow.rows_with(x, out, p.values, p.normalised),
+    );
+}
+
+/// Bound on `|zero|` and `|rel|` of [`NarrowParams`].
+const NARROW_LIMIT: u32 = 1 << 15;
+
+impl<'s> NarrowParams<'s> {
+    /// `p`'s zero points and scales for `dim` channels copied into `storage` (`2 dim` words)
+    /// and checked; `None` outside the bounds.
+    fn decode<Z: I32s + ?Sized, R: I32s + ?Sized>(
+        p: &LayerNormQ<'_, Z, R>,
+        dim: usize,
+        storage: &'s mut [i32],
+    ) -> Option<Self> {
+        if dim > BUFFERED_DIM || p.eps < 0 || !(1..=crate::fixed::MAX_SHIFT).contains(&p.out.shift) {
+            return None;
+        }
+        let (zeros, rels) = storage.get_mut(..2 * dim)?.split_at_mut(dim);
+        for (c, (z, r)) in zeros.iter_mut().zip(rels.iter_mut()).enumerate() {
+            let (zero, rel) = (p.zero.at(c), p.rel.at(c));
+            if zero.unsigned_abs() > NARROW_LIMIT || rel.unsigned_abs() > NARROW_LIMIT {
+                return None;
+            }
+            (*z, *r) = (zero, rel);
+        }
+        Some(NarrowParams {
+            zero: zeros,
+            rel: rels,
+            dim,
+            eps: p.eps,
+            out: p.out,
+        })
+    }
+
+    /// Every `dim`-channel row of `x` into `out`.
+    #[inline(always)]
+    fn rows(&self, x: &[i8], out: &mut [i8]) {
+        let (mut values, mut normalised) = ([0i32; LANE_DIM], [0i32; LANE_DIM]);
+        self.rows_with(x, out, &mut values, &mut normalised);
+    }
+
+    /// [`NarrowParams::rows`] with the lanes' buffers lent (`LANE_DIM` words each).
+    #[inline(always)]
+    fn rows_with(&self, x: &[i8], out: &mut [i8], values: &mut [i32], normalised: &mut [i32]) {
+        if self.dim == 0 {
+            return;
+        }
+        let mut scratch = LaneScratch { values, normalised };
+        for (row, out_row) in x.chunks_exact(self.dim).zip(out.chunks_exact_mut(self.dim)) {
+            self.row(row, out_row, &mut scratch);
+        }
+    }
+
+    /// [`layernorm_row`] of one row (`dim` codes).
+    // Inlined on x86 so that `dispatch::vectorised` compiles it for the CPU's vector unit.
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
+    fn row(&self, row: &[i8], out: &mut [i8], scratch: &mut LaneScratch) {
+        let dim = self.dim.min(row.len()).min(out.len());
+        if dim == 0 {
+            return;
+        }
+        let (row, out) = (&row[..dim], &mut out[..dim]);
+        // On x86 hosts LLVM vectorises the lanes' 32-bit arithmetic as well.
+        if cfg!(any(bino_mve, bino_dsp, test, target_arch = "x86_64")) && self.row_in_lanes(row, out, scratch) {
+            return;
+        }
+        let d = dim as i64;
+        // |q - zero| <= 2^15 + 128 and |rel| <= 2^15: every value fits 31 bits.
+        let mut v = [0i32; BUFFERED_DIM];
+        let v = &mut v[..dim];
+        for (((x, &q), &zero), &rel) in v.iter_mut().zip(row).zip(self.zero).zip(self.rel) {
+            *x = (q as i32 - zero).wrapping_mul(rel);
+        }
+        let sum = v.iter().fold(0i64, |a, &x| a + x as i64);
+        let (lo, hi) = v
+            .iter()
+            .fold((i32::MAX, i32::MIN), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+        // d * v - sum grows with v: its largest magnitude is at the smallest or largest value.
+        let max_dev = (hi as i64 * d - sum).max(sum - lo as i64 * d) as u64;
+        let shift = bit_length(max_dev) as i32 - WORK_BITS;
+        // Normalised values have at most 24 significant bits (one more after rounding up).
+        let mut n = [0i32; BUFFERED_DIM];
+        let n = &mut n[..dim];
+        if shift > 0 {
+            let (half, s) = ((1i64 << (shift - 1)) - sum, shift as u32 & 63);
+            for (y, &x) in n.iter_mut().zip(v.iter()) {
+                *y = ((x as i64 * d + half) >> s) as i32;
+            }
+        } else {
+            let s = (-shift) as u32 & 63;
+            for (y, &x) in n.iter_mut().zip(v.iter()) {
+                *y = ((x as i64 * d - sum) << s) as i32;
+            }
+        }
+        // Squares < 2^50 each, at most 2^58 summed.
+        let sum_sq = n.iter().fold(0i64, |a, &y| a + y as i64 * y as i64);
+        // At most 2^21 whenever some value is non-zero (see layernorm_row); when all are zero
+        // the product is zero whatever the reciprocal, so clamping it changes nothing.
+        let recip = reciprocal_std(sum_sq / d, self.eps, d, shift).min(i32::MAX as i64);
+        let z_half = 1i64 << (RECIP_BITS - Z_FRAC_BITS - 1);
+        let (mult, out_shift) = (self.out.mult as i64, self.out.shift & 63);
+        let out_half = 1i64 << (out_shift.wrapping_sub(1) & 63);
+        for (o, &y) in out.iter_mut().zip(n.iter()) {
+            // |z| <= 2^21 and |mult| < 2^31: the output product never saturates.
+            let z = (y as i64 * recip + z_half) >> (RECIP_BITS - Z_FRAC_BITS);
+            *o = sat_i8_i64((z * mult + out_half) >> out_shift);
+        }
+    }
+}
+
+impl NarrowParams<'_> {
+    /// [`NarrowParams::row`] in 32-bit lanes, three passes that are Helium loops on Cortex-M55
+    /// (`kernels::arch`; portable twins below on Cortex-M7, where 32-bit lanes in scalar code
+    /// also beat 64-bit arithmetic, and in host tests), for rows of [`LANE_DIM`]
+    /// channels. `false` (nothing written) where an identity below needs more: a shift above
+    /// 13, a reciprocal from `2^23`, an output shift below 33.
+    ///
+    /// With `d = 2^7`, `H = half - sum` and the row's shift `s`, the scalar path's normalised
+    /// value `((v d + H) >> s) as i32` is, for `s <= 7`, `(v << (7 - s)) + (H >> s)` modulo 2^32
+    /// (no bits leave a right shift; for `s <= 0`, `H = -sum` and `>> s` is `<< -s`), and for
+    /// `7 < s <= 13` it is `(v + (H >> 7)) >> (s - 7)` (the 7 low bits of `H` never carry past a
+    /// multiple of `2^(s-7)`), whose sum is exact in 32 bits because `|v d - sum| < 2^(24+s)`.
+    /// The output's `(n recip + 2^23) >> 24` is `vrmulh(n, recip << 8)`, and
+    /// `(z mult + 2^(sh-1)) >> sh` for `sh >= 33` is `(vmulh(z, mult) + 2^(sh-33)) >> (sh - 32)`,
+    /// as in the fused GEMM epilogue.
+    #[cfg_attr(not(any(bino_mve, bino_dsp, test, target_arch = "x86_64")), allow(dead_code))]
+    #[cfg_attr(target_arch = "x86_64", inline(always))]
+    fn row_in_lanes(&self, row: &[i8], out: &mut [i8], scratch: &mut LaneScratch) -> bool {
+        let dim = row.len();
+        if dim != LANE_DIM || out.len() != dim || self.out.shift < 33 {
+            return false;
+        }
+        let (Some(zero), Some(rel)) = (self.zero.get(..dim), self.rel.get(..dim)) else {
+            return false;
+        };
+        let (Some(v), Some(n)) = (scratch.values.get_mut(..dim), scratch.normalised.get_mut(..dim)) else {
+            return false;
+        };
+        let Some((sum, lo, hi)) = lanes::values(row, zero, rel, v) else {
+            return false;
+        };
+        let d = dim as i64;
+        let max_dev = (hi as i64 * d - sum).max(sum - lo as i64 * d) as u64;
+        let shift = bit_length(max_dev) as i32 - WORK_BITS;
+        let (left, add, right) = match shift {
+            ..=0 => (
+                (7 - shift) as u32,
+                sum.wrapping_neg().wrapping_shl((-shift) as u32) as i32,
+                0,
+            ),
+            1..=7 => ((7 - shift) as u32, (((1i64 << (shift - 1)) - sum) >> shift) as i32, 0),
+            8..=13 => (0, (((1i64 << (shift - 1)) - sum) >> 7) as i32, (shift - 7) as u32),
+            _ => return false,
+        };
+        let Some(sum_sq) = lanes::normalise(v, left, add, right, n) else {
+            return false;
+        };
+        // `sum_sq / d` for d = 2^7: a sum of squares below 2^58 is not negative.
+        let recip = reciprocal_std(sum_sq >> 7, self.eps, d, shift).min(i32::MAX as i64);
+        if recip >= 1 << 23 {
+            return false;
+        }
+        let post = self.out.shift - 32;
+        lanes::output(n, (recip << 8) as i32, self.out.mult, 1 << (post - 1), post, out)
+    }
+}
+
+/// The lane passes' values and normalised values (`LANE_DIM` each), kept by
+/// [`layernorm_rows`] for all its rows and by a [`PreparedLayerNorm`] for a whole pass (zeroing
+/// them per row cost a 1 KiB `memclr` each).
+struct LaneScratch<'w> {
+    values: &'w mut [i32],
+    normalised: &'w mut [i32],
+}
+
+/// Row length of [`NarrowParams::row_in_lanes`]: the encoder's width, `2^7`.
+const LANE_DIM: usize = 128;
+
+/// The three lane passes of [`NarrowParams::row_in_lanes`]: the Helium loops of
+/// `kernels::arch` on Cortex-M55 (and DSP loops on Cortex-M7), these portable
+/// twins elsewhere (the same 32-bit lane arithmetic, so the host tests prove the identities
+/// the loops rely on).
+mod lanes {
+    /// `v = (q - zero) * rel` per channel; the 64-bit sum, the minimum and the maximum.
+    #[inline(always)]
+    pub(super) fn values(row: &[i8], zero: &[i32], rel: &[i32], v: &mut [i32]) -> Option<(i64, i32, i32)> {
+        #[cfg(bino_mve)]
+        return crate::kernels::arch::layernorm_values(row, zero, rel, v);
+        #[cfg(bino_dsp)]
+        if let Some(found) = crate::kernels::arch::dsp::layernorm_values(row, zero, rel, v) {
+            return Some(found);
+        }
+        #[cfg(not(bino_mve))]
+        crate::kernels::layernorm::lanes::values(row, zero, rel, v)
+    }
+
+    /// `n = ((v << left) + add) >> right` (wrapping, arithmetic shift) and the 64-bit sum of
+    /// the squares of `n`.
+    #[inline(always)]
+    pub(super) fn normalise(v: &[i32], left: u32, add: i32, right: u32, n: &mut [i32]) -> Option<i64> {
+        #[cfg(bino_mve)]
+        return crate::kernels::arch::layernorm_normalise(v, left, add, right, n);
+        #[cfg(bino_dsp)]
+        if let Some(sum_sq) = crate::kernels::arch::dsp::layernorm_normalise(v, left, add, right, n) {
+            return Some(sum_sq);
+        }
+        #[cfg(not(bino_mve))]
+        crate::kernels::layernorm::lanes::normalise(v, left, add, right, n)
+    }
+
+    /// `out = sat8((hi32(rnd_hi32(n * recip_q) * mult) + round) >> post)`.
+    #[inline(always)]
+    pub(super) fn output(n: &[i32], recip_q: i32, mult: i32, round: i32, post: u32, out: &mut [i8]) -> bool {
+        crate::kernels::dispatch::epilogue::scaled_requant_lanes(n, recip_q, mult, round, post, out)
+    }
+}
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::params::Uniform;
+    use crate::kernels::reference::layernorm::layernorm_row_unbuffered;
+    use crate::testutil::Rng;
+
+    /// sqrt for tests, without std: Newton's method.
+    fn sqrt(x: f64) -> f64 {
+        let mut r = if x > 1.0 { x } else { 1.0 };
+        for _ in 0..200 {
+            r = 0.5 * (r + x / r);
+        }
+        r
+    }
+
+    fn float_layernorm(real: &[f64], eps: f64, out_scale: f64, out: &mut [f64]) {
+        let n = real.len() as f64;
+        let mean = real.iter().sum::<f64>() / n;
+        let var = real.iter().map(|v| (v - mean) * (v - mean)).sum::<f64>() / n;
+        for (o, v) in out.iter_mut().zip(real) {
+            *o = ((v - mean) / sqrt(var + eps) / out_scale).clamp(-128.0, 127.0);
+        }
+    }
+
+    #[test]
+    fn buffered_rows_equal_the_unbuffered_path() {
+        const D: usize = 128;
+        let mut rng = Rng::new(3);
+        for trial in 0..40 {
+            // Ordinary formats, then extreme ones (saturation must agree too).
+            let wide = trial >= 30;
+            let zero: [i32; D] = core::array::from_fn(|_| {
+                if wide {
+                    rng.range(i32::MIN as i64, i32::MAX as i64) as i32
+                } else {
+                    rng.range(-600, 600) as i32
+                }
+            });
+            // Trials 20..30 have small scales: the centred values are left-shifted up to 24 bits.
+            let rel: [i32; D] = core::array::from_fn(|_| {
+                if wide {
+                    rng.range(0, i32::MAX as i64) as i32
+                } else if trial >= 20 {
+                    rng.range(1, 4) as i32
+                } else {
+                    rng.range(1, 40_000) as i32
+                }
+            });
+            let p = LayerNormQ {
+                zero: &zero,
+                rel: &rel,
+                eps: rng.range(0, 1 << 20),
+                out: Requant {
+                    mult: rng.range(1 << 30, i32::MAX as i64) as i32,
+                    shift: rng.range(20, 50) as u32,
+                },
+            };
+            let mut x = [0i8; D];
+            rng.fill_i8(&mut x);
+            let (mut fast, mut slow) = ([0i8; D], [0i8; D]);
+            layernorm_row(&x, &p, &mut fast);
+            layernorm_row_unbuffered(&x, &p, &mut slow);
+            assert_eq!(fast, slow, "trial {trial}");
+        }
+    }
+
+    #[test]
+    fn narrow_rows_equal_the_unbuffered_path() {
+        const D: usize = 128;
+        const ROWS: usize = 6;
+        let mut rng = Rng::new(29);
+        for trial in 0..60 {
+            let limit = NARROW_LIMIT as i64;
+            // Quantiser-like formats, then the largest the narrow path accepts.
+            let (zero_max, rel_lo) = if trial < 30 { (600, 1) } else { (limit, limit - 50) };
+            let zero: [i32; D] = core::array::from_fn(|_| rng.range(-zero_max, zero_max) as i32);
+            let rel: [i32; D] = core::array::from_fn(|c| {
+                if trial % 7 == 3 {
+                    rng.range(1, 4) as i32 // small scales: left shifts
+                } else if trial % 5 == 1 && c % 3 == 0 {
+                    -(rng.range(rel_lo, limit) as i32)
+                } else {
+                    rng.range(rel_lo, limit) as i32
+                }
+            });
+            let p = LayerNormQ {
+                zero: &zero,
+                rel: &rel,
+                eps: if trial % 4 == 0 { 0 } else { rng.range(0, 1 << 40) },
+                out: Requant {
+                    mult: rng.range(1 << 30, i32::MAX as i64) as i32,
+                    shift: rng.range(20, 62) as u32,
+                },
+            };
+            assert!(NarrowParams::decode(&p, D, &mut [0; 2 * D]).is_some());
+            let mut x = [0i8; D * ROWS];
+            rng.fill_i8(&mut x);
+            x[..D].fill(if trial % 2 == 0 { -128 } else { 127 }); // a constant row
+            x[D..2 * D]
+                .iter_mut()
+                .enumerate()
+                .for_each(|(c, v)| *v = if c % 2 == 0 { -128 } else { 127 });
+            let mut fast = [0i8; D * ROWS];
+            layernorm_rows(&x, D, &p, &mut fast);
+            for r in 0..ROWS {
+                let mut slow = [0i8; D];
+                layernorm_row_unbuffered(&x[r * D..(r + 1) * D], &p, &mut slow);
+                assert_eq!(fast[r * D..(r + 1) * D], slow, "trial {trial} row {r}");
+            }
+        }
+    }
+
+    #[test]
+    fn prepared_parameters_give_the_same_rows() {
+        const D: usize = LANE_DIM;
+        let mut rng = Rng::new(43);
+        for trial in 0..50 {
+            let zero: [i32; D] = core::array::from_fn(|_| rng.range(-600, 600) as i32);
+            let rel: [i32; D] = core::array::from_fn(|_| rng.range(1, 30_000) as i32);
+            let p = LayerNormQ {
+                zero: &zero,
+                rel: &rel,
+                eps: rng.range(0, 1 << 30),
+                out: Requant {
+                    mult: rng.range(1 << 30, i32::MAX as i64) as i32,
+                    shift: rng.range(33, 50) as u32,
+                },
+            };
+            let mut x = [0i8; 3 * D];
+            rng.fill_i8(&mut x);
+            let (mut want, mut got) = ([0i8; 3 * D], [0i8; 3 * D]);
+            layernorm_rows(&x, D, &p, &mut want);
+            let mut storage = [0i32; PreparedLayerNorm::storage_words(D)];
+            let mut prepared = PreparedLayerNorm::new(&p, D, &mut storage).expect("narrow formats");
+            layernorm_rows_prepared(&x, &mut prepared, &mut got);
+            assert_eq!(got, want, "trial {trial}");
+        }
+        // Too little storage: not prepared.
+        let p = LayerNormQ {
+            zero: &[0; D],
+            rel: &[1; D],
+            eps: 0,
+            out: Requant {
+                mult: 1 << 30,
+                shift: 40,
+            },
+        };
+        assert!(PreparedLayerNorm::new(&p, D, &mut [0; 2 * D]).is_none());
+    }
+
+    #[test]
+    fn lanes_equal_the_unbuffered_path_in_every_shift_class() {
+        const D: usize = LANE_DIM;
+        let mut rng = Rng::new(41);
+        // Rows taken by the lanes, per class of the row's shift: <= 0, 1..=7, 8..=13.
+        let mut taken = [0usize; 3];
+        for trial in 0..600 {
+            let limit = NARROW_LIMIT as i64;
+            let rel_max = [4, 300, 6_000, 30_000, limit][trial % 5];
+            let zero: [i32; D] = core::array::from_fn(|_| rng.range(-600, 600) as i32);
+            let rel: [i32; D] = core::array::from_fn(|c| {
+                let r = rng.range(1, rel_max) as i32;
+                if trial % 3 == 1 && c % 4 == 0 {
+                    -r
+                } else {
+                    r
+                }
+            });
+            let p = LayerNormQ {
+                zero: &zero,
+                rel: &rel,
+                eps: if trial % 4 == 0 { 0 } else { rng.range(0, 1 << 40) },
+                out: Requant {
+                    mult: rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32,
+                    shift: rng.range(30, 62) as u32,
+                },
+            };
+            let mut storage = [0i32; 2 * D];
+            let Some(narrow) = NarrowParams::decode(&p, D, &mut storage) else {
+                panic!("trial {trial}: {:?} {:?} {}", p.out, &rel[..4], p.eps);
+            };
+            let mut x = [0i8; D];
+            match trial % 11 {
+                0 => x.fill(-128),
+                1 => x
+                    .iter_mut()
+                    .enumerate()
+                    .for_each(|(c, v)| *v = if c % 2 == 0 { -128 } else { 127 }),
+                2 => x[7] = 100,
+                _ => rng.fill_i8(&mut x),
+            }
+            let (mut lanes, mut slow) = ([0i8; D], [0i8; D]);
+            layernorm_row_unbuffered(&x, &p, &mut slow);
+            let (mut values, mut normalised) = ([0i32; LANE_DIM], [0i32; LANE_DIM]);
+            let mut scratch = LaneScratch {
+                values: &mut values,
+                normalised: &mut normalised,
+            };
+            if narrow.row_in_lanes(&x, &mut lanes, &mut scratch) {
+                assert_eq!(lanes, slow, "trial {trial}");
+                let v: [i64; D] = core::array::from_fn(|c| (x[c] as i64 - zero[c] as i64) * rel[c] as i64);
+                let sum: i64 = v.iter().sum();
+                let max_dev = v
+                    .iter()
+                    .map(|&v| (v * D as i64 - sum).unsigned_abs())
+                    .max()
+                    .unwrap_or(0);
+                let shift = bit_length(max_dev) as i32 - WORK_BITS;
+                taken[match shift {
+                    ..=0 => 0,
+                    1..=7 => 1,
+                    _ => 2,
+                }] += 1;
+            } else {
+                assert!(
+                    p.out.shift < 33 || trial % 11 != 3,
+                    "trial {trial}: declined an ordinary row"
+                );
+            }
+        }
+        assert!(taken.iter().all(|&t| t >= 10), "rows per shift class: {taken:?}");
+    }
+
+    #[test]
+    fn matches_float_layernorm_with_channel_formats() {
+        const D: usize = 128;
+        let mut rng = Rng::new(11);
+        let out_scale = 4.0 / 127.0;
+        // 1 / (out_scale * 2^16) as mult / 2^shift.
+        let factor = 1.0 / (out_scale * 65536.0);
+        let shift = 40u32;
+        let out = Requant {
+            mult: (factor * (1u64 << shift) as f64) as i32,
+            shift,
+        };
+        let mut zero = [0i32; D];
+        let mut rel = [0i32; D];
+        let mut scale = [0f64; D];
+        for c in 0..D {
+            // Channel scales over two decades, offsets far from zero (a shared "common vector").
+            scale[c] = 0.002 * (1 + rng.range(0, 100)) as f64;
+            zero[c] = rng.range(-600, 600) as i32;
+        }
+        let unit = scale.iter().cloned().fold(0.0, f64::max) / 32768.0;
+        for c in 0..D {
+            rel[c] = (scale[c] / unit) as i32;
+        }
+        let eps_real = 1e-5;
+        let p = LayerNormQ {
+            zero: &zero,
+            rel: &rel,
+            eps: (eps_real / (unit * unit)) as i64,
+            out,
+        };
+        for trial in 0..50 {
+            let mut x = [0i8; D];
+            rng.fill_i8(&mut x);
+            if trial == 0 {
+                x = [5; D]; // constant codes, channel formats differ: still a real distribution
+            }
+            let mut got = [0i8; D];
+            layernorm_rows(&x, D, &p, &mut got);
+            let real: [f64; D] = core::array::from_fn(|c| (x[c] as f64 - zero[c] as f64) * rel[c] as f64 * unit);
+            let mut want = [0f64; D];
+            float_layernorm(&real, eps_real, out_scale, &mut want);
+            for c in 0..D {
+                assert!(
+                    (got[c] as f64 - want[c]).abs() <= 0.51,
+                    "trial {trial} c {c}: {} vs {}",
+                    got[c],
+                    want[c]
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn constant_row_gives_zeros() {
+        let out = Requant {
+            mult: 1 << 30,
+            shift: 31,
+        };
+        let p = LayerNormQ {
+            zero: &Uniform(0),
+            rel: &Uniform(1 << 15),
+            eps: 1 << 20,
+            out,
+        };
+        let mut got = [9i8; 16];
+        layernorm_rows(&[77i8; 16], 16, &p, &mut got);
+        assert_eq!(got, [0; 16]);
+    }
+
+    #[test]
+    fn extreme_parameters_do_not_panic() {
+        let out = Requant {
+            mult: i32::MAX,
+            shift: 1,
+        };
+        let p = LayerNormQ {
+            zero: &Uniform(i32::MIN),
+            rel: &Uniform(i32::MAX),
+            eps: i64::MAX,
+            out,
+        };
+        let mut got = [0i8; 8];
+        layernorm_rows(&[-128, 127, 0, 1, -1, 5, 6, 7], 8, &p, &mut got);
+        let p = LayerNormQ {
+            zero: &Uniform(0),
+            rel: &Uniform(0),
+            eps: 0,
+            out,
+        };
+        layernorm_rows(&[-128, 127, 0, 1, -1, 5, 6, 7], 8, &p, &mut got);
+        assert_eq!(got, [0; 8]);
+    }
+}

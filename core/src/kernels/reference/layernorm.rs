@@ -1,0 +1,80 @@
+//! The saturating 64-bit LayerNorm: the specification of every faster path (the buffered
+//! rows, the narrow rows and their 32-bit lanes, the Helium and DSP loops).
+
+use crate::fixed::{bit_length, isqrt_u64, round_shift, sat_i8_i64};
+use crate::kernels::types::layernorm::{LayerNormQ, Z_FRAC_BITS};
+use crate::kernels::types::params::I32s;
+
+/// Significant bits the centred values are renormalised to.
+pub const WORK_BITS: i32 = 24;
+/// Fraction bits of the reciprocal standard deviation.
+pub const RECIP_BITS: u32 = 40;
+
+/// `dispatch::layernorm_rows` by the saturating 64-bit path only: the specification every faster path
+/// (the narrow rows, their 32-bit lanes, the Helium loops) is tested against.
+pub fn layernorm_rows_reference<Z: I32s + ?Sized, R: I32s + ?Sized>(
+    x: &[i8],
+    dim: usize,
+    p: &LayerNormQ<'_, Z, R>,
+    out: &mut [i8],
+) {
+    if dim == 0 {
+        return;
+    }
+    for (row, out_row) in x.chunks_exact(dim).zip(out.chunks_exact_mut(dim)) {
+        layernorm_row_unbuffered(row, p, out_row);
+    }
+}
+
+/// `2^RECIP_BITS / sqrt(var + eps)`, with eps (in unit^2) brought to the centred values'
+/// scale: they carry a factor `d` and `2^-shift`.
+pub fn reciprocal_std(var: i64, eps: i64, d: i64, shift: i32) -> i64 {
+    let eps = scale_pow2(eps.saturating_mul(d * d), -2 * shift);
+    let std = (isqrt_u64(var.saturating_add(eps).max(0) as u64) as i64).max(1);
+    (1i64 << RECIP_BITS) / std
+}
+
+/// One row (`row.len()` channels) by the saturating formulas.
+pub fn layernorm_row_unbuffered<Z: I32s + ?Sized, R: I32s + ?Sized>(
+    row: &[i8],
+    p: &LayerNormQ<'_, Z, R>,
+    out: &mut [i8],
+) {
+    let d = row.len() as i64;
+    let value = |c: usize, q: i8| (q as i64 - p.zero.at(c) as i64) * p.rel.at(c) as i64;
+    let sum: i64 = row
+        .iter()
+        .enumerate()
+        .map(|(c, &q)| value(c, q))
+        .fold(0, i64::saturating_add);
+    // Centred and scaled by D, exactly: no rounding of the mean.
+    let centred = |c: usize, q: i8| value(c, q).saturating_mul(d).saturating_sub(sum);
+    let max_dev = row
+        .iter()
+        .enumerate()
+        .map(|(c, &q)| centred(c, q).unsigned_abs())
+        .max()
+        .unwrap_or(0);
+    let shift = bit_length(max_dev) as i32 - WORK_BITS;
+    let norm = |c: usize, q: i8| scale_pow2(centred(c, q), -shift);
+    let sum_sq = row.iter().enumerate().map(|(c, &q)| {
+        let v = norm(c, q);
+        v.saturating_mul(v)
+    });
+    let recip = reciprocal_std(sum_sq.fold(0i64, i64::saturating_add) / d, p.eps, d, shift);
+    for (c, (&q, o)) in row.iter().zip(out.iter_mut()).enumerate() {
+        let z_q16 = round_shift(norm(c, q).saturating_mul(recip), RECIP_BITS - Z_FRAC_BITS);
+        *o = sat_i8_i64(p.out.apply_i64(z_q16));
+    }
+}
+
+/// `x * 2^e`, saturating, rounding on right shifts.
+fn scale_pow2(x: i64, e: i32) -> i64 {
+    if e >= 0 {
+        let e = e.min(62) as u32;
+        x.checked_mul(1i64 << e)
+            .unwrap_or(if x < 0 { i64::MIN } else { i64::MAX })
+    } else {
+        round_shift(x, e.unsigned_abs())
+    }
+}

@@ -1,0 +1,30 @@
+//! Attention's parameters, block size and key layouts.
+
+use crate::fixed::Requant;
+
+/// Fraction bits of the normalised weighted average before the output factor.
+pub const AVG_FRAC_BITS: u32 = 16;
+
+/// Quantisation parameters of one head's attention.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AttentionQ {
+    /// Score gap (int32 units of `q . k`) to Q8 base-2 units: folds the q and k scales,
+    /// `1/sqrt(head_dim)` and `log2(e)`.
+    pub to_log2_q8: Requant,
+    /// Q16 weighted average of value codes to output codes (`value scale / output scale / 2^16`).
+    pub out: Requant,
+}
+
+/// Queries attended together by `dispatch::attend_block`: each key and value is read once per block.
+pub const QUERY_BLOCK: usize = 4;
+
+/// How a head's keys are stored: as rows for `dispatch::attend_block` (every core), transposed for the
+/// x86 VNNI `attend_block_keys_transposed`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum KeyLayout {
+    /// Token by token, `HEAD_DIM` codes each (every core).
+    Rows,
+    /// Blocks of eight tokens transposed into groups of four codes, flipped to unsigned
+    /// (`dispatch::store_key`; x86 hosts with AVX-512 VNNI, where `dispatch::key_layout` picks it).
+    Transposed,
+}
