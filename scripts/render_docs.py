@@ -531,6 +531,68 @@ def board_headline(src: Sources) -> str:
     return table(header, rows) + "\n\n" + footer(src)
 
 
+def board_pathways(src: Sources) -> str:
+    """The board's two pathways side by side: cost of a checked 48x160 band pair on each core
+    and the accuracy of its refined head readout on the eval split at w160 (the board's
+    160-px bands, the preset's 12 candidates)."""
+    ex, na = src.metrics("eval_w160"), src.metrics("native_w160")
+    pathways = (
+        (
+            "export (the board's default): encode (L, L) and (R, R), head, mirrored head",
+            "band_pair_instructions",
+            ex,
+        ),
+        (
+            "native: one encode on (L, R), native head, right view from its logits",
+            "native_band_pair_instructions",
+            na,
+        ),
+    )
+    rows = []
+    for label, key, metrics in pathways:
+        accuracy = ep_b1(metrics_of(metrics["mean"]["int8_head+lr+ref"]))
+        row = [label, "int8 `head+lr+ref`", accuracy]
+        for core in CORES:
+            c = src.core(core)
+            ins = c[key]
+            row.append(f"{mega(ins)} ({ins / (c['clock_mhz'] * 1e6):.2f} s)")
+        rows.append(row)
+    header = ["pathway, left-right check included", "readout", "eval w160 epe / bad1tok"]
+    header += [f"{core.upper()} instructions (s at IPC 1)" for core in CORES]
+    return table(header, rows) + "\n\n" + footer(src)
+
+
+NATIVE_CHECKS = {
+    "none": "no check",
+    "mirrored": "second encoder pass on the mirrored pair",
+    "diagonal": "right view from the logits' diagonal (one pass; shipped)",
+    "confident0.5": "softmax peak >= 0.5",
+}
+FOLDER_TITLES = {
+    "heldout": "held-out labeled",
+    "synth": "synthetic",
+    "synthreal": "synthetic, real textures",
+}
+
+
+def native_checks(src: Sources) -> str:
+    """The native head's left-right checks on the validation folders (float, unrefined)."""
+    data = src.json("train/checkpoints/metrics/native_checks.json")
+    folders = list(data["folders"].items())
+    rows = []
+    for check, label in NATIVE_CHECKS.items():
+        row = [label]
+        for _, f in folders:
+            m = f[check]["mean"]
+            row.append(f"{ep_b1(m)} ({m['kept']:.0f} %)")
+        rows.append(row)
+    header = ["check"]
+    for path, f in folders:
+        kind = Path(path).name.rstrip("0123456789")
+        header.append(f"{FOLDER_TITLES.get(kind, kind)} w{f['width']}")
+    return table(header, rows, [False] * len(header)) + "\n\n" + footer(src)
+
+
 def fw_memory(src: Sources) -> str:
     cs = {k: src.core(k) for k in CORES}
     runs = {k: src.run(k) for k in CORES}
@@ -820,6 +882,8 @@ RENDERERS: dict[str, Callable[[Sources], str]] = {
     "occlusion-w160": occlusion_export,
     "native-vs-export": native_vs_export,
     "native-float": native_float,
+    "board-pathways": board_pathways,
+    "native-checks": native_checks,
     "bench": bench_table,
     "fw-memory": fw_memory,
     "fw-stages": fw_stages,
