@@ -145,7 +145,7 @@ fn class_counts_are_optional_checked_and_priced() {
     assert!(md.contains("a model, not a measurement"), "{md}");
     assert!(md.contains("| encode_left | 0.0 | 955 | 0.0 | 0.95 |"), "{md}");
     assert!(md.contains("| dual_issue_pair | 300 | -0.5 |"), "{md}");
-    let j = to_json(std::slice::from_ref(&r));
+    let j = to_json(std::slice::from_ref(&r)).unwrap();
     let cm = j.cores[0].cycle_model.as_ref().unwrap();
     assert_eq!(cm.class_counts["other"], 1000 + 100 + 60_000_000);
     assert_eq!(j.cores[0].stages[1].modelled_cycles, Some(955.0));
@@ -269,7 +269,7 @@ fn markdown_and_json_carry_the_numbers() {
         "{md}"
     );
     assert!(md.contains("not cycles"), "{md}");
-    let j = to_json(&runs);
+    let j = to_json(&runs).unwrap();
     assert_eq!(j.cores[0].band_pair_instructions, 760_000_100);
     assert_eq!(j.cores[0].refine_arena_bytes, Some(6881));
     assert_eq!(j.cores[0].assumed_instructions_per_cycle, 1.0);
