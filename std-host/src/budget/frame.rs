@@ -247,10 +247,10 @@ pub fn scale(run: &CoreRun, pathway: Pathway, frame: Frame) -> Result<Vec<Scaled
 pub struct FrameBudget {
     /// The exact arena (the preset's `const fn` for the frame's size), bytes.
     pub arena_bytes: u64,
-    /// Bands the pipeline runs.
-    pub bands: usize,
     /// The frame's instructions over the measured band pair's on this pathway.
     pub band_pairs: f64,
+    /// Bands the pipeline runs.
+    pub bands: usize,
     /// Clock of the times, MHz.
     pub clock_mhz: f64,
     /// `m55` or `m7`.
@@ -310,20 +310,22 @@ pub fn frame_budget(
         Some(other) => fitted(run, other, pathway, frame)?,
         None => None,
     };
-    let seconds = c.ms(instructions.round() as u64) / 1e3;
-    let modelled_seconds = modelled.map(|n| c.cycles_ms(n) / 1e3);
+    // Rounded to a millionth: figures that print short and read back the same.
+    let seconds = round6(c.ms(instructions.round() as u64) / 1e3);
+    let modelled = modelled.map(f64::round);
+    let modelled_seconds = modelled.map(|n| round6(c.cycles_ms(n) / 1e3));
     Ok(Some(FrameBudget {
         arena_bytes: pathway.arena_bytes(frame) as u64,
         bands: frame.plan()?.len(),
-        band_pairs: instructions / band_pair.max(1) as f64,
+        band_pairs: round6(instructions / band_pair.max(1) as f64),
         clock_mhz: c.mhz,
         core: run.core.clone(),
         frame,
         fitted_instructions: fitted.map(|n| n.round() as u64),
-        frames_per_s_ipc1: 1.0 / seconds,
+        frames_per_s_ipc1: round6(1.0 / seconds),
         instructions: instructions.round() as u64,
         modelled_cycles: modelled,
-        modelled_frames_per_s: modelled_seconds.map(|s| 1.0 / s),
+        modelled_frames_per_s: modelled_seconds.map(|s| round6(1.0 / s)),
         modelled_seconds,
         pathway,
         seconds_ipc1: seconds,
@@ -448,7 +450,11 @@ pub fn check(run: &CoreRun, other: &CoreRun) -> Result<ScalingCheck> {
 }
 
 fn percent(predicted: f64, measured: u64) -> f64 {
-    100.0 * (predicted - measured as f64) / measured.max(1) as f64
+    round6(100.0 * (predicted - measured as f64) / measured.max(1) as f64)
+}
+
+fn round6(x: f64) -> f64 {
+    (x * 1e6).round() / 1e6
 }
 
 /// The scaling rule in one sentence, for the reports.

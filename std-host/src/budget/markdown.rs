@@ -204,7 +204,7 @@ pub fn frames_markdown(runs: &[CoreRun], frames: &FramesReport) -> String {
         let opt = |v: Option<f64>, f: &dyn Fn(f64) -> String| v.map_or("-".to_string(), f);
         let _ = writeln!(
             md,
-            "| {} | {} | {} at {} MHz | {} | {} | {:.2} | {:.2} | {:.3} | {} | {} | {} | {} |",
+            "| {} | {} | {} at {} MHz | {} | {} | {:.2} | {:.2} | {} | {} | {} | {} | {} |",
             e.frame,
             e.bands,
             e.core.to_uppercase(),
@@ -213,9 +213,9 @@ pub fn frames_markdown(runs: &[CoreRun], frames: &FramesReport) -> String {
             grouped(e.instructions),
             e.band_pairs,
             e.seconds_ipc1,
-            e.frames_per_s_ipc1,
+            fps(e.frames_per_s_ipc1),
             opt(e.modelled_seconds, &|s| format!("{s:.2}")),
-            opt(e.modelled_frames_per_s, &|f| format!("{f:.3}")),
+            opt(e.modelled_frames_per_s, &fps),
             e.fitted_instructions.map_or("-".to_string(), grouped),
             if e.arena_bytes > TARGETS.arena_bytes {
                 format!("**{} B**", grouped(e.arena_bytes))
@@ -305,4 +305,14 @@ pub fn frames_markdown(runs: &[CoreRun], frames: &FramesReport) -> String {
 /// A band as the report names it: height x width.
 fn hw(f: super::Frame) -> String {
     format!("{}x{}", f.height, f.width)
+}
+
+/// Frames per second to three significant digits (`0.082`, `0.00298`).
+fn fps(x: f64) -> String {
+    let digits = if x > 0.0 {
+        (2 - x.log10().floor() as i32).max(0)
+    } else {
+        3
+    };
+    format!("{x:.*}", digits as usize)
 }

@@ -37,7 +37,7 @@ pub struct BudgetArgs {
     #[arg(long = "frame", value_name = "WxH", value_parser = parse_frame)]
     frames: Vec<Frame>,
     /// Clock of every core for the frame figures, MHz (default: M55 400, M7 480).
-    #[arg(long, value_name = "F", value_parser = parse_clock)]
+    #[arg(long, value_name = "F", value_parser = parse_clock, allow_negative_numbers = true)]
     clock_mhz: Option<f64>,
 }
 
