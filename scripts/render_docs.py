@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import math
 import re
 import sys
 import tempfile
@@ -867,6 +868,66 @@ def board_regions(src: Sources) -> str:
     return text + "\n\nBuilt from: " + "; ".join(notes) + ".\n\n" + footer(src)
 
 
+def fps3(x: float) -> str:
+    """Frames per second to three significant digits."""
+    return f"{x:.3g}" if x >= 1 else f"{x:.{max(0, 2 - math.floor(math.log10(x)))}f}"
+
+
+def fw_frames(src: Sources) -> str:
+    b = src.budget()
+    rows = []
+    for e in b["frames"]["estimates"]:
+        f = e["frame"]
+        rows.append(
+            [
+                f"{f['width']}x{f['height']}",
+                str(e["bands"]),
+                f"{core_label(src.core(e['core'])).split(' (')[0]} at {e['clock_mhz']:.0f} MHz",
+                e["pathway"],
+                mega(e["instructions"]),
+                f"{e['seconds_ipc1']:,.1f} s / {fps3(e['frames_per_s_ipc1'])}",
+                f"{e['modelled_seconds']:,.1f} s / {fps3(e['modelled_frames_per_s'])}",
+                mega(e["fitted_instructions"]),
+                f"{n(e['arena_bytes'])} B",
+            ]
+        )
+    header = [
+        "frame (W x H)",
+        "bands",
+        "core",
+        "pathway",
+        "instructions",
+        "IPC 1: s / fps",
+        "cycle model: s / fps",
+        "fitted through 48x32",
+        "arena (exact)",
+    ]
+    right = [False, True, False, False, True, True, True, True, True]
+    return table(header, rows, right) + "\n\n" + footer(src)
+
+
+def fw_frame_check(src: Sources) -> str:
+    checks = src.budget()["frames"]["scaling_check"]
+    header = ["stage", "scaled by"]
+    for c in checks:
+        k = c["core"].upper()
+        header += [f"{k} predicted", f"{k} measured", f"{k} error"]
+    by = {
+        "encoder": "encoder MACs per band",
+        "pairs": "rows x candidate pairs",
+        "cells": "rows x cells",
+    }
+    rows = []
+    for i, s in enumerate(checks[0]["stages"]):
+        name = s["name"] if s.get("scaling") else f"**{s['name']}**"
+        row = [name, by.get(s.get("scaling", ""), "")]
+        for c in checks:
+            t = c["stages"][i]
+            row += [n(t["predicted"]), n(t["measured"]), f"{t['error_percent']:+.1f} %"]
+        rows.append(row)
+    return table(header, rows, [False, False] + [True] * (len(header) - 2)) + "\n\n" + footer(src)
+
+
 RENDERERS: dict[str, Callable[[Sources], str]] = {
     "board-regions": board_regions,
     "accuracy-headline": accuracy_headline,
@@ -890,6 +951,8 @@ RENDERERS: dict[str, Callable[[Sources], str]] = {
     "fw-targets": fw_targets,
     "fw-camera": fw_camera,
     "fw-cycle-model": fw_cycle_model,
+    "fw-frames": fw_frames,
+    "fw-frame-check": fw_frame_check,
     "weights-files": weights_files,
     "training-summary": training_summary,
     "blob-size": blob_size,

@@ -14,7 +14,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::{grouped, CoreRun, TARGETS};
+use super::{grouped, CoreRun, NATIVE_PREFIX, TARGETS};
 
 /// Chart size in pixels.
 pub const SIZE: (u32, u32) = (960, 600);
@@ -129,6 +129,98 @@ impl Ranged for StageAxis {
     }
 }
 
+/// Height of a panel's header: its title and under it the legend, outside the plot, so no bar
+/// or value label can meet the legend.
+const HEADER: u32 = 44;
+/// Height of the x label area: two lines of stage name, then the pathway captions.
+const X_LABEL_AREA: u32 = 50;
+/// Font size of the axis labels, legend and captions.
+const LABEL_SIZE: u32 = 12;
+/// Vertical distance of the x label rows, pixels.
+const ROW_STEP: i32 = 14;
+/// Least horizontal gap between two labels on one row, pixels.
+#[cfg(test)]
+pub(super) const LABEL_GAP: i32 = 4;
+
+/// A stage's label: its name without the `native_` prefix (the pathway caption under it says
+/// so), split into two lines at its first `_`.
+pub(super) fn stage_label(name: &str) -> Vec<String> {
+    let short = name.strip_prefix(NATIVE_PREFIX).unwrap_or(name);
+    match short.split_once('_') {
+        Some((a, b)) => vec![a.to_string(), b.to_string()],
+        None => vec![short.to_string()],
+    }
+}
+
+/// The pathway captions under the stage names: (caption, first stage, one past the last), for
+/// each run of consecutive stages of one group (boot, export, native).
+pub(super) fn groups(stages: &[String]) -> Vec<(&'static str, usize, usize)> {
+    let group = |name: &str| {
+        if name == "load" {
+            "boot"
+        } else if name.starts_with(NATIVE_PREFIX) {
+            "native pathway"
+        } else {
+            "export pathway"
+        }
+    };
+    let mut out: Vec<(&'static str, usize, usize)> = Vec::new();
+    for (i, name) in stages.iter().enumerate() {
+        let g = group(name);
+        match out.last_mut() {
+            Some(last) if last.0 == g => last.2 = i + 1,
+            _ => out.push((g, i, i + 1)),
+        }
+    }
+    out
+}
+
+/// A text placed under the plot: its row (0 and 1: stage names, 2: captions) and horizontal
+/// extent in pixels.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub(super) struct Placed {
+    pub text: String,
+    pub row: i32,
+    pub left: i32,
+    pub width: i32,
+}
+
+/// Where the x labels go for a plot spanning pixels `x0..x1`, each text centred under its stage
+/// (or its group's stages), `measure` giving a text's width in pixels.
+pub(super) fn x_label_layout(stages: &[String], (x0, x1): (i32, i32), measure: &dyn Fn(&str) -> i32) -> Vec<Placed> {
+    let slot = f64::from(x1 - x0) / stages.len().max(1) as f64;
+    let centre = |from: usize, to: usize| x0 + ((from + to) as f64 * slot / 2.0).round() as i32;
+    let place = |text: &str, row: i32, mid: i32| {
+        let width = measure(text);
+        Placed {
+            text: text.to_string(),
+            row,
+            left: mid - width / 2,
+            width,
+        }
+    };
+    let mut out = Vec::new();
+    for (i, name) in stages.iter().enumerate() {
+        for (row, line) in stage_label(name).iter().enumerate() {
+            out.push(place(line, row as i32, centre(i, i + 1)));
+        }
+    }
+    for (caption, from, to) in groups(stages) {
+        out.push(place(caption, 2, centre(from, to)));
+    }
+    out
+}
+
+/// Width of `text` in the chart's label font, pixels (12 a character if the font is missing,
+/// more than any of its glyphs).
+pub(super) fn text_width(text: &str) -> i32 {
+    let _ = font();
+    (FONT, LABEL_SIZE)
+        .into_font()
+        .box_size(text)
+        .map_or(text.len() as i32 * LABEL_SIZE as i32, |(w, _)| w as i32)
+}
+
 /// One panel of grouped bars, a group per stage, a bar per series, each labelled with its
 /// value; `(base, y)`: the value axis (linear or log) and the value the bars rise from.
 fn panel<Y>(
@@ -145,22 +237,35 @@ where
     Y::CoordDescType: Ranged<ValueType = f64> + ValueFormatter<f64>,
 {
     let n = stages.len().max(1);
+    let (header, body) = area.split_vertically(HEADER);
+    header
+        .draw(&Text::new(
+            title.to_string(),
+            (header.dim_in_pixel().0 as i32 / 2, 6),
+            (FONT, 15)
+                .into_font()
+                .color(&BLACK)
+                .pos(Pos::new(HPos::Center, VPos::Top)),
+        ))
+        .map_err(plot_error)?;
+    legend(&header, series, limit.as_ref())?;
+
     let x = StageAxis { stages: n };
-    let mut chart = ChartBuilder::on(area)
+    let mut chart = ChartBuilder::on(&body)
         .margin(10)
-        .caption(title, (FONT, 15))
-        .x_label_area_size(24)
+        .margin_top(4)
+        .x_label_area_size(X_LABEL_AREA)
         .y_label_area_size(60)
         .build_cartesian_2d(x, y)
         .map_err(plot_error)?;
-    let stage_of = |x: &f64| stages.get(x.floor() as usize).cloned().unwrap_or_default();
     chart
         .configure_mesh()
         .disable_x_mesh()
         .x_labels(n)
-        .x_label_formatter(&stage_of)
+        // The stage names are drawn below, on two lines where they are long.
+        .x_label_formatter(&|_| String::new())
         .y_label_formatter(&|v| tidy(label(*v)))
-        .label_style((FONT, 12))
+        .label_style((FONT, LABEL_SIZE))
         .light_line_style(WHITE)
         .draw()
         .map_err(plot_error)?;
@@ -175,11 +280,7 @@ where
             .iter()
             .enumerate()
             .map(|(i, &v)| Rectangle::new([(x0(i), base), (x0(i) + bar_w * 0.9, v.max(base))], colour.filled()));
-        chart
-            .draw_series(bars)
-            .map_err(plot_error)?
-            .label(s.name.as_str())
-            .legend(move |(lx, ly)| Rectangle::new([(lx, ly - 5), (lx + 12, ly + 5)], colour.filled()));
+        chart.draw_series(bars).map_err(plot_error)?;
         // Neighbouring labels alternate in height so wide ones do not overlap.
         let text = (FONT, 11)
             .into_font()
@@ -191,23 +292,77 @@ where
         });
         chart.draw_series(labels).map_err(plot_error)?;
     }
-    if let Some(limit) = limit {
+    if let Some(limit) = &limit {
         let style = LIMIT_RED.stroke_width(1);
         let line = [(0.0, limit.value), (n as f64, limit.value)];
         chart
             .draw_series(DashedLineSeries::new(line, 6, 4, style))
-            .map_err(plot_error)?
-            .label(limit.label.as_str())
-            .legend(move |(lx, ly)| PathElement::new([(lx, ly), (lx + 12, ly)], style));
+            .map_err(plot_error)?;
     }
-    chart
-        .configure_series_labels()
-        .position(SeriesLabelPosition::UpperLeft)
-        .label_font((FONT, 12))
-        .background_style(WHITE.mix(0.9))
-        .border_style(BLACK)
-        .draw()
+
+    // The plot's pixels, relative to the panel's area.
+    let plot = chart.plotting_area();
+    let (origin, (pw, ph)) = (area.get_base_pixel(), plot.dim_in_pixel());
+    let at = plot.get_base_pixel();
+    let (x0, top) = (at.0 - origin.0, at.1 - origin.1);
+    let (x1, bottom) = (x0 + pw as i32, top + ph as i32);
+    // A grey rule between the pathways' groups.
+    let slot = f64::from(x1 - x0) / n as f64;
+    for (_, from, _) in groups(stages).iter().skip(1) {
+        let gx = x0 + (*from as f64 * slot).round() as i32;
+        area.draw(&PathElement::new(
+            [(gx, top), (gx, bottom + 2 * ROW_STEP + 4)],
+            RGBColor(160, 160, 160),
+        ))
         .map_err(plot_error)?;
+    }
+    let style = (FONT, LABEL_SIZE)
+        .into_font()
+        .color(&BLACK)
+        .pos(Pos::new(HPos::Center, VPos::Top));
+    for p in x_label_layout(stages, (x0, x1), &text_width) {
+        let yy = bottom + 5 + p.row * ROW_STEP + if p.row == 2 { 4 } else { 0 };
+        area.draw(&Text::new(p.text, (p.left + p.width / 2, yy), style.clone()))
+            .map_err(plot_error)?;
+    }
+    Ok(())
+}
+
+/// The legend on one line under the panel's title: a swatch and a name per series, then the
+/// target line's.
+fn legend(header: &DrawingArea<BitMapBackend<'_>, Shift>, series: &[Series], limit: Option<&Limit>) -> Result<()> {
+    let mut entries: Vec<(Option<RGBColor>, &str)> = series
+        .iter()
+        .enumerate()
+        .map(|(k, s)| (Some(COLOURS[k % COLOURS.len()]), s.name.as_str()))
+        .collect();
+    if let Some(l) = limit {
+        entries.push((None, l.label.as_str()));
+    }
+    let swatch = 12;
+    let widths: Vec<i32> = entries.iter().map(|(_, name)| swatch + 4 + text_width(name)).collect();
+    let spacing = 18;
+    let total: i32 = widths.iter().sum::<i32>() + spacing * (entries.len() as i32 - 1).max(0);
+    let mut x = (header.dim_in_pixel().0 as i32 - total) / 2;
+    let y = 30;
+    let text = (FONT, LABEL_SIZE)
+        .into_font()
+        .color(&BLACK)
+        .pos(Pos::new(HPos::Left, VPos::Center));
+    for ((colour, name), w) in entries.iter().zip(&widths) {
+        match colour {
+            Some(c) => header
+                .draw(&Rectangle::new([(x, y - 5), (x + swatch, y + 5)], c.filled()))
+                .map_err(plot_error)?,
+            None => header
+                .draw(&PathElement::new([(x, y), (x + swatch, y)], LIMIT_RED.stroke_width(1)))
+                .map_err(plot_error)?,
+        }
+        header
+            .draw(&Text::new(name.to_string(), (x + swatch + 4, y), text.clone()))
+            .map_err(plot_error)?;
+        x += w + spacing;
+    }
     Ok(())
 }
 

@@ -19,13 +19,15 @@ use anyhow::Result;
 mod chart;
 pub mod cycles;
 mod elf;
+pub mod frame;
 mod markdown;
 mod report;
 mod runs;
 mod verdict;
 
 pub use elf::elf_sections;
-pub use markdown::{grouped, markdown};
+pub use frame::{Frame, FrameOptions, FramesReport};
+pub use markdown::{frames_markdown, grouped, markdown};
 pub use report::{Band, BudgetReport, CoreBudget, CoreCycles, StageBudget, SCHEMA};
 pub use runs::{load_runs, CoreRun, SectionSource, Sections, StageRun, NATIVE_PREFIX};
 pub use verdict::{verdicts, Verdict};
@@ -89,13 +91,16 @@ pub fn clock(core: &str) -> Clock {
     }
 }
 
-/// The report as JSON.
-pub fn to_json(runs: &[CoreRun]) -> BudgetReport {
-    BudgetReport::new(runs)
+/// The report as JSON, with the default frames and no second band width.
+pub fn to_json(runs: &[CoreRun]) -> Result<BudgetReport> {
+    Ok(BudgetReport::new(
+        runs,
+        FramesReport::new(runs, &[], &FrameOptions::default())?,
+    ))
 }
 
 /// Options of `bino budget`.
-#[derive(Debug, Clone, PartialEq, Eq)]
+#[derive(Debug, Clone, PartialEq)]
 pub struct BudgetOptions {
     /// Folder with the runs' `<core>.json`.
     pub firmware: PathBuf,
@@ -105,14 +110,28 @@ pub struct BudgetOptions {
     pub md: Option<PathBuf>,
     /// Write the bar chart here.
     pub png: Option<PathBuf>,
+    /// The frames section's frames and clock.
+    pub frames: FrameOptions,
 }
+
+/// Where the second measured band width lives, inside the firmware folder.
+pub const SECOND_WIDTH_DIR: &str = "small";
 
 /// Runs `bino budget`: returns the Markdown report after writing the files asked for.
 pub fn run_budget(opts: &BudgetOptions) -> Result<String> {
     let runs = load_runs(&opts.firmware)?;
-    let md = markdown(&runs);
+    // The same firmware at a second band width (`scripts/firmware.sh --band small`), when there.
+    let second_dir = opts.firmware.join(SECOND_WIDTH_DIR);
+    let second = if second_dir.is_dir() {
+        load_runs(&second_dir)?
+    } else {
+        Vec::new()
+    };
+    let frames = FramesReport::new(&runs, &second, &opts.frames)?;
+    let md = markdown(&runs) + &frames_markdown(&runs, &frames);
     if let Some(path) = &opts.json {
-        let text = serde_json::to_string_pretty(&to_json(&runs))? + "\n";
+        let report = BudgetReport::new(&runs, frames);
+        let text = serde_json::to_string_pretty(&report)? + "\n";
         write_file(path, text.as_bytes())?;
     }
     if let Some(path) = &opts.md {

@@ -6,9 +6,11 @@ use std::collections::BTreeMap;
 
 use serde::Serialize;
 
+use super::frame::FramesReport;
 use super::{clock, cycles, verdicts, CoreRun, SectionSource, Verdict};
 
-/// Schema name and version of the file.
+/// Schema name and version of the file. Fields are only ever added (`frames` is the latest), so
+/// readers of version 1 read every report.
 pub const SCHEMA: &str = "bino-budget/1";
 
 /// The whole report.
@@ -16,6 +18,9 @@ pub const SCHEMA: &str = "bino-budget/1";
 pub struct BudgetReport {
     /// One entry per firmware run, in the order the runs were read (M55, M7).
     pub cores: Vec<CoreBudget>,
+    /// Whole frames scaled from the band pair, per core and pathway, and the scaling rule's
+    /// check against a second measured band width.
+    pub frames: FramesReport,
     /// What the instruction counts and times are (and are not).
     pub note: &'static str,
     /// [`SCHEMA`].
@@ -129,10 +134,11 @@ pub struct StageBudget {
 }
 
 impl BudgetReport {
-    /// The report of `runs`.
-    pub fn new(runs: &[CoreRun]) -> Self {
+    /// The report of `runs` with its frames section.
+    pub fn new(runs: &[CoreRun], frames: FramesReport) -> Self {
         Self {
             cores: runs.iter().map(CoreBudget::new).collect(),
+            frames,
             note: "instructions are executed instructions counted under QEMU, not cycles; estimated_ms assumes \
                    the stated clock and instructions per cycle",
             schema: SCHEMA,

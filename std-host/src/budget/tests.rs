@@ -145,7 +145,7 @@ fn class_counts_are_optional_checked_and_priced() {
     assert!(md.contains("a model, not a measurement"), "{md}");
     assert!(md.contains("| encode_left | 0.0 | 955 | 0.0 | 0.95 |"), "{md}");
     assert!(md.contains("| dual_issue_pair | 300 | -0.5 |"), "{md}");
-    let j = to_json(std::slice::from_ref(&r));
+    let j = to_json(std::slice::from_ref(&r)).unwrap();
     let cm = j.cores[0].cycle_model.as_ref().unwrap();
     assert_eq!(cm.class_counts["other"], 1000 + 100 + 60_000_000);
     assert_eq!(j.cores[0].stages[1].modelled_cycles, Some(955.0));
@@ -269,7 +269,7 @@ fn markdown_and_json_carry_the_numbers() {
         "{md}"
     );
     assert!(md.contains("not cycles"), "{md}");
-    let j = to_json(&runs);
+    let j = to_json(&runs).unwrap();
     assert_eq!(j.cores[0].band_pair_instructions, 760_000_100);
     assert_eq!(j.cores[0].refine_arena_bytes, Some(6881));
     assert_eq!(j.cores[0].assumed_instructions_per_cycle, 1.0);
@@ -317,4 +317,185 @@ fn the_chart_draws_bars_and_text() {
     let title = (0..25).flat_map(|y| (0..chart::SIZE.0).map(move |x| (x, y)));
     let title_ink = title.filter(|&(x, y)| chart.get_pixel(x, y).0[0] < 128).count();
     assert!(title_ink > 600, "{title_ink} title pixels");
+}
+
+/// A synthetic run at 48x160: the frame rule is exact arithmetic on it.
+fn frame_run() -> CoreRun {
+    let mut v: Value = serde_json::from_str(&run_json("m55", 1_000_000_000)).unwrap();
+    let stages = v["stages"].as_array_mut().unwrap();
+    for (name, n) in [
+        ("match", 520_000u64),
+        ("native_head", 4_000_000),
+        ("native_encode_pair", 2_000_000_000),
+    ] {
+        stages.push(json!({"name": name, "instructions": n, "arena_in_use": 1, "stack_peak": 1}));
+    }
+    CoreRun::parse(&v.to_string()).unwrap()
+}
+
+#[test]
+fn frames_scale_each_stage_by_its_work() {
+    use crate::bench::encoder_macs;
+    use frame::{pairs, scale, Pathway, Scaling};
+    let run = frame_run();
+    let by_name = |pathway, f: Frame| -> std::collections::BTreeMap<String, f64> {
+        scale(&run, pathway, f)
+            .unwrap()
+            .into_iter()
+            .map(|s| (s.name, s.instructions))
+            .collect()
+    };
+    // The measured band itself: every stage as measured, load left out.
+    let same = by_name(Pathway::Export, Frame::new(48, 160));
+    assert_eq!(same["encode_left"], 1e9);
+    assert!(!same.contains_key("load") && !same.contains_key("native_head"));
+
+    // 320x240: 60 token rows of 80 cells against 12 of 40; seven bands of 12 token rows.
+    let f = Frame::new(240, 320);
+    assert_eq!(f.plan().unwrap().len(), 7);
+    let got = by_name(Pathway::Export, f);
+    // A per-cell stage is exactly linear: (80 / 40) x (60 / 12) = 10 times.
+    assert_eq!(got["head"], 100.0 * 10.0);
+    assert_eq!(got["refine"], 60e6 * 10.0);
+    // The encoder follows encoder_macs per band: 12 x 160 tokens against 12 x 80.
+    let want = 1e9 * 7.0 * encoder_macs(12 * 160) as f64 / encoder_macs(12 * 80) as f64;
+    assert!(
+        (got["encode_left"] - want).abs() < 1e-3,
+        "{} vs {want}",
+        got["encode_left"]
+    );
+    assert!(
+        got["encode_left"] > 1e9 * 7.0 * 2.0,
+        "attention grows faster than the width"
+    );
+    // The matcher: 16 candidates, fewer in the first 15 columns.
+    assert_eq!((pairs(40, 16), pairs(80, 16), pairs(8, 16)), (520, 1160, 36));
+    assert!((got["match"] - 520_000.0 * 5.0 * 1160.0 / 520.0).abs() < 1e-6);
+    let native = by_name(Pathway::Native, f);
+    assert_eq!(native["native_head"], 4e6 * 10.0);
+    assert!((native["native_encode_pair"] - 2.0 * want).abs() < 1e-3);
+    assert_eq!(Scaling::of("load"), Scaling::Boot);
+    assert_eq!(Scaling::of("native_encode_pair"), Scaling::Encoder);
+
+    // A fit through two widths is exact at both and linear in the work between.
+    let (a, b) = (Frame::new(48, 160), Frame::new(48, 32));
+    let cells = Scaling::Cells;
+    // 1000 per token row plus 10 per cell: 12 x (1000 + 400) at 160 px, 12 x (1000 + 80) at 32.
+    let fit = |to| cells.fitted((a, 16_800), (b, 12_960), to).unwrap().unwrap();
+    assert!((fit(a) - 16_800.0).abs() < 1e-6 && (fit(b) - 12_960.0).abs() < 1e-6);
+    assert!((fit(Frame::new(240, 320)) - 60.0 * (1000.0 + 800.0)).abs() < 1e-6);
+}
+
+#[test]
+fn frame_budgets_carry_time_fps_and_the_exact_arena() {
+    let run = frame_run();
+    let frames = FramesReport::new(
+        std::slice::from_ref(&run),
+        &[],
+        &FrameOptions {
+            frames: vec![Frame::new(120, 160)],
+            clock_mhz: Some(100.0),
+        },
+    )
+    .unwrap();
+    assert!(frames.scaling_check.is_empty());
+    let [export, native] = &frames.estimates[..] else {
+        panic!("{:?}", frames.estimates)
+    };
+    assert_eq!((export.bands, export.clock_mhz), (4, 100.0));
+    assert_eq!(export.arena_bytes, bino_core::preset::arena_bytes(120, 160) as u64);
+    assert_eq!(
+        native.arena_bytes,
+        bino_core::preset::native_arena_bytes(120, 160) as u64
+    );
+    // Rounded to a millionth.
+    assert!((export.seconds_ipc1 - export.instructions as f64 / 100e6).abs() <= 5e-7);
+    assert!((export.frames_per_s_ipc1 * export.seconds_ipc1 - 1.0).abs() < 1e-5);
+    assert_eq!(export.modelled_seconds, None, "no class counts in this run");
+    let md = frames_markdown(std::slice::from_ref(&run), &frames);
+    assert!(md.contains("| 160x120 | 4 | M55 at 100 MHz | export |"), "{md}");
+    assert!(md.contains("not checked here"), "{md}");
+
+    // Parsing: WxH, on the pipeline's grid.
+    assert_eq!("320x240".parse::<Frame>().unwrap(), Frame::new(240, 320));
+    for (bad, why) in [
+        ("640x", "expected WxH"),
+        ("x480", "expected WxH"),
+        ("640", "expected WxH"),
+        ("642x480", "width 642 is not a multiple of 4"),
+        ("640x482", "height 482 is not a multiple of 4"),
+        ("0x480", "zero rows or columns"),
+        ("640x100000", "exceeds the maximum"),
+    ] {
+        let err = format!("{:#}", bad.parse::<Frame>().unwrap_err());
+        assert!(err.contains(why), "{bad}: {err}");
+        assert!(!err.contains('\n'), "{bad}: one line: {err}");
+    }
+}
+
+#[test]
+fn the_scaling_check_compares_a_run_with_its_second_width() {
+    let run = frame_run();
+    let mut v: Value = serde_json::from_str(&run_json("m55", 110_000_000)).unwrap();
+    v["band"]["width"] = json!(32);
+    let small = CoreRun::parse(&v.to_string()).unwrap();
+    let c = frame::check(&run, &small).unwrap();
+    let head = c.stages.iter().find(|s| s.name == "head").unwrap();
+    // 100 at 160 px scaled to 32 px: 20, measured 100: -80 %.
+    assert_eq!((head.predicted, head.measured), (20, 100));
+    assert!((head.error_percent + 80.0).abs() < 1e-9);
+    assert!(c.stages.iter().any(|s| s.name == "band pair, export"));
+    assert!(
+        !c.stages.iter().any(|s| s.name == "native_head"),
+        "the small run lacks it"
+    );
+    let frames = FramesReport::new(
+        std::slice::from_ref(&run),
+        std::slice::from_ref(&small),
+        &FrameOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(frames.scaling_check.len(), 1);
+    assert!(frames.estimates.iter().all(|e| e.fitted_instructions.is_some()));
+    let md = frames_markdown(std::slice::from_ref(&run), &frames);
+    assert!(md.contains("the 48x160 band pair scaled to 48x32"), "{md}");
+    assert!(md.contains("| head | rows x cells | 20 | 100 | -80.0 % |"), "{md}");
+}
+
+/// The chart's stage names and pathway captions, as laid out for the committed runs' stages,
+/// do not overlap on any row, measured in the chart's font and with a conservative 8 px a
+/// character.
+#[test]
+fn chart_labels_do_not_overlap() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware-sim/measured");
+    let runs = load_runs(&dir).unwrap();
+    let stages: Vec<String> = runs[0].stages.iter().map(|s| s.name.clone()).collect();
+    assert!(stages.len() >= 13, "{stages:?}");
+    // The plot spans the chart less its margins (10 px) and the y labels (60 px).
+    let span = (70, chart::SIZE.0 as i32 - 10);
+    let font = |t: &str| chart::text_width(t);
+    let conservative = |t: &str| 8 * t.chars().count() as i32;
+    for measure in [&font as &dyn Fn(&str) -> i32, &conservative] {
+        let placed = chart::x_label_layout(&stages, span, measure);
+        for row in 0..3 {
+            let mut boxes: Vec<&chart::Placed> = placed.iter().filter(|p| p.row == row).collect();
+            boxes.sort_by_key(|p| p.left);
+            for pair in boxes.windows(2) {
+                assert!(
+                    pair[0].left + pair[0].width + chart::LABEL_GAP <= pair[1].left,
+                    "row {row}: {:?} and {:?} overlap",
+                    pair[0],
+                    pair[1]
+                );
+            }
+            for b in &boxes {
+                assert!(
+                    b.left >= span.0 - 35 && b.left + b.width <= span.1 + 10,
+                    "{b:?} off the chart"
+                );
+            }
+        }
+    }
+    assert_eq!(chart::stage_label("native_encode_pair"), ["encode", "pair"]);
+    assert_eq!(chart::stage_label("head"), ["head"]);
 }

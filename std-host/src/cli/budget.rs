@@ -3,7 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use bino_host::budget::{run_budget, BudgetOptions};
+use bino_host::budget::frame::{Frame, DEFAULT_FRAMES};
+use bino_host::budget::{run_budget, BudgetOptions, FrameOptions};
 use bino_host::io::checkout;
 use clap::Args;
 
@@ -13,6 +14,10 @@ use clap::Args;
 /// RAM, executed instructions per stage per core and milliseconds at a stated clock (M55
 /// 400 MHz, M7 480 MHz, 1 instruction per cycle assumed), against the targets. Reads the runs
 /// of `scripts/firmware.sh` and the firmware ELF.
+///
+/// Frames: per core and pathway, whole frames (160x120 and 320x240, and any `--frame`) from
+/// the band pair's stages scaled by their work, with the exact arena; the rule is checked
+/// against the 48x32 run in `<firmware>/small` when it is there.
 #[derive(Args)]
 pub struct BudgetArgs {
     /// Folder with the firmware runs (m55.json, m7.json); the default is the checkout's.
@@ -27,6 +32,25 @@ pub struct BudgetArgs {
     /// Also draw a bar chart of memory and instructions per stage (PNG).
     #[arg(long)]
     png: Option<PathBuf>,
+    /// Also report a frame of this size, `WxH` in pixels (width a multiple of 4, height a
+    /// multiple of 4); repeatable. 160x120 and 320x240 are always reported.
+    #[arg(long = "frame", value_name = "WxH", value_parser = parse_frame)]
+    frames: Vec<Frame>,
+    /// Clock of every core for the frame figures, MHz (default: M55 400, M7 480).
+    #[arg(long, value_name = "F", value_parser = parse_clock, allow_negative_numbers = true)]
+    clock_mhz: Option<f64>,
+}
+
+fn parse_frame(s: &str) -> Result<Frame, String> {
+    s.parse::<Frame>().map_err(|e| format!("{e:#}"))
+}
+
+fn parse_clock(s: &str) -> Result<f64, String> {
+    match s.trim().parse::<f64>() {
+        Ok(mhz) if mhz.is_finite() && mhz > 0.0 => Ok(mhz),
+        Ok(_) => Err(format!("{s}: expected a clock above 0 MHz")),
+        Err(_) => Err(format!("{s}: expected a number of MHz")),
+    }
 }
 
 /// Runs the verb (well under a second: no progress bar).
@@ -36,7 +60,22 @@ pub fn run(args: BudgetArgs) -> Result<()> {
         json: args.json,
         md: args.md,
         png: args.png,
+        frames: FrameOptions {
+            frames: frames_to_report(args.frames),
+            clock_mhz: args.clock_mhz,
+        },
     })?;
     print!("{report}");
     Ok(())
+}
+
+/// The default frames, then the asked-for ones not among them.
+fn frames_to_report(asked: Vec<Frame>) -> Vec<Frame> {
+    let mut frames = DEFAULT_FRAMES.to_vec();
+    for f in asked {
+        if !frames.contains(&f) {
+            frames.push(f);
+        }
+    }
+    frames
 }
