@@ -1,14 +1,15 @@
 #!/usr/bin/env bash
 # Reproduces everything in weights/ from scratch, or resumes an interrupted run.
 #
-#   scripts/train_weights.sh            # from scratch (about 3 h of CPU on this project's 2 cores)
+#   scripts/train_weights.sh            # from scratch (about 6 h of CPU on this project's 2 cores)
 #   scripts/train_weights.sh --resume   # continue the runs in train/runs/ where they stopped
 #
 # Each stage checkpoints (pretraining every few minutes, the head every 5 minutes) and `--resume`
 # continues exactly, so the script can be stopped and restarted at will: a stage whose target is
 # already reached returns at once. Stages: pretraining (p7_short_blur's recipe, every schedule
 # over 30,000 pairs; the shipped encoder is its student at the end) -> shared head and native
-# pathway head (HEAD_STEPS steps each) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
+# pathway head (HEAD_STEPS steps each) -> the shared head trained on ground truth (GT_HEAD_STEPS,
+# from a cache of 8,000 encoded crops) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
 # the trained encoder and the random init, head vs StereoSGBM on the eval split) -> int8 blob ->
 # MANIFEST.json. Set BINO_THREADS to change the torch thread count (default 2).
 set -euo pipefail
@@ -28,6 +29,9 @@ pretrain_pairs=30000
 head_steps="${HEAD_STEPS:-1000}"
 pre=runs/p7_short_blur
 head=runs/head_p7
+gt_head=runs/hgt40_p7
+gt_cache=runs/headcache/gt40_p7_8000_d16.pt
+gt_steps="${GT_HEAD_STEPS:-20000}"
 native_head=runs/hnat_p7
 # The student snapshot the run writes at its final evaluation (--eval-student).
 encoder="$pre/student_$(printf %07d "$pretrain_pairs").pt"
@@ -48,13 +52,31 @@ else
     --eval-minutes 10 --eval-student
 fi
 
-step "shared head to $head_steps steps ($head)"
+step "shared head to $head_steps steps ($head): synthetic pairs and StereoSGBM pseudo-labels"
 if [[ ${#resume[@]} -eq 0 ]]; then
   py -m bino_train.head_train --encoder "$encoder" --out "$head" --steps "$head_steps" \
     --threads "$threads" --no-eval --val-every 0
 else
   py -m bino_train.head_train --out "$head" --resume --steps "$head_steps" --threads "$threads" \
     --no-eval --val-every 0
+fi
+
+# The shipped shared head: the head above trained on for $gt_steps steps with 16 candidates on
+# 8,000 cached crops (layered synthetic scenes, the labeled train pairs' ground truth less the
+# held-out four, confident StereoSGBM labels); validated on the held-out labeled pairs.
+step "shared head on ground truth to $gt_steps steps ($gt_head; cache $gt_cache)"
+if [[ ! -f "train/$gt_cache" ]]; then
+  py -m bino_train.head_cache --encoder "$encoder" --out "$gt_cache" --count 8000 --threads "$threads" \
+    --max-disp 16 --synthetic-fraction 0.4 --labeled-fraction 0.4 --synthetic-kind layered \
+    --blur-prob 0.2 --label-weighting lr
+fi
+if [[ ${#resume[@]} -eq 0 || ! -f "train/$gt_head/last.pt" ]]; then
+  py -m bino_train.head_train --encoder "$encoder" --cache "$gt_cache" --out "$gt_head" \
+    --steps "$gt_steps" --batch 8 --lr 1e-3 --max-disp 16 --init-head "$head/last.pt" \
+    --val-every 500 --checkpoint-minutes 10 --threads "$threads" --no-eval
+else
+  py -m bino_train.head_train --out "$gt_head" --resume --steps "$gt_steps" --threads "$threads" \
+    --checkpoint-minutes 10 --no-eval
 fi
 
 step "native pathway head to $head_steps steps ($native_head): the shared head's recipe on the fused grid"
@@ -67,7 +89,7 @@ else
 fi
 
 step "exports and state dicts"
-py -m bino_train.head --checkpoint "$head/last.pt" --out "$weights/bino_head.onnx" --logits \
+py -m bino_train.head --checkpoint "$gt_head/last.pt" --out "$weights/bino_head.onnx" --logits \
   --state-dict "$weights/bino_head.pt"
 py -m bino_train.head --checkpoint "$native_head/last.pt" --out "$weights/bino_native_head.onnx" --logits \
   --state-dict "$weights/bino_native_head.pt"
@@ -81,7 +103,7 @@ py -m bino_train.benchmark --checkpoint "$encoder" --threads "$threads" >"$metri
 py -m bino_train.benchmark --random-init-seed 0 --threads "$threads" >"$metrics/benchmark_random.json"
 py -m bino_train.probe --checkpoint "$encoder" --threads "$threads" >"$metrics/probe_trained.json"
 py -m bino_train.probe --random-init-seed 0 --threads "$threads" >"$metrics/probe_random.json"
-py -m bino_train.head_eval --encoder "$encoder" --head "$head/last.pt" --threads "$threads" \
+py -m bino_train.head_eval --encoder "$encoder" --head "$gt_head/last.pt" --threads "$threads" \
   >"$metrics/head_eval_w160.json"
 
 step "int8 blob"
@@ -94,5 +116,5 @@ cargo run -q --release --locked -p bino-host --bin bino -- compare --data "$data
 
 step "manifest"
 py -m bino_train.manifest --pretrain-run "$pre" --pretrain-pairs "$pretrain_pairs" \
-  --pretrain-role student --head-run "$head" --native-head-run "$native_head" --metrics-dir runs/metrics \
+  --pretrain-role student --head-run "$gt_head" --native-head-run "$native_head" --metrics-dir runs/metrics \
   --experiments experiments.json --out "$weights/MANIFEST.json"

@@ -382,9 +382,9 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
     assert!(matches!(err, Err(Error::ArenaTooSmall { .. })), "{err:?}");
 }
 
-/// The native pathway (issue 15): its head and head+lr grids refine as the whole map, on one
-/// band and many (the check's rows come after the band's second, mirrored pass); the matching
-/// readouts it does not have are refused.
+/// The native pathway: its head and head+lr grids refine as the whole map, on one band and
+/// many (with the check on, a head refinement still gets every row); the matching readouts it
+/// does not have are refused.
 #[test]
 fn the_native_pathway_refines_its_head_as_the_whole_map() {
     let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();

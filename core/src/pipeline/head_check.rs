@@ -176,12 +176,14 @@ impl<'a> OnePassCheck<'a> {
 }
 
 /// Forwards the native head's rows to the sink with their one-pass check, and feeds the
-/// refinement the filled row when it reads head+lr.
+/// refinement the row (`head`) or the filled row (`head+lr`, `checked`) when it reads the head.
 pub(super) struct OnePassRows<'k, 'a, 'b, 'w, K> {
     pub(super) sink: &'k mut K,
     pub(super) weights: &'k HeadWeights<'w>,
     pub(super) check: &'k mut OnePassCheck<'a>,
     pub(super) refine: Option<Feed<'k, 'a, 'b>>,
+    /// Whether the refinement reads head+lr (the mask goes with each row) rather than head.
+    pub(super) checked: bool,
 }
 
 impl<K: Sink> HeadSink for OnePassRows<'_, '_, '_, '_, K> {
@@ -189,20 +191,23 @@ impl<K: Sink> HeadSink for OnePassRows<'_, '_, '_, '_, K> {
         let checked = self.check.check(self.weights, &row);
         let (index, disparity) = (row.row, row.disparity_q8);
         self.sink.head(row);
-        // Equal lengths by construction (the row and the check are `cols` wide); a mismatch
-        // emits no check, and the refinement misses the row, which it reports.
-        let Ok(kept) = checked else {
-            return;
-        };
         let check = &mut *self.check;
-        check.kept += kept;
-        self.sink.head_checked(&HeadChecked {
-            row: index,
-            right_q8: check.right,
-            consistent: check.mask,
-        });
+        // Equal lengths by construction (the row and the check are `cols` wide); a mismatch
+        // emits no check, and a head+lr refinement misses the row, which it reports.
+        if let Ok(kept) = checked {
+            check.kept += kept;
+            self.sink.head_checked(&HeadChecked {
+                row: index,
+                right_q8: check.right,
+                consistent: check.mask,
+            });
+        }
         if let Some(feed) = self.refine.as_mut() {
-            feed.push(index, disparity, Some(check.mask), self.sink);
+            match (self.checked, checked.is_ok()) {
+                (false, _) => feed.push(index, disparity, None, self.sink),
+                (true, true) => feed.push(index, disparity, Some(check.mask), self.sink),
+                (true, false) => {}
+            }
         }
     }
 }

@@ -282,11 +282,19 @@ impl<'a, 'w> Readouts<'a, 'w> {
         sink.stage(Stage::Head);
         match self.check.as_mut() {
             Some(check) => {
+                // The refinement reads head+lr, or head (the check then only reports).
+                let checked = matches!(self.refine, Some((RefineInput::HeadLr, _)));
+                let input = if checked {
+                    RefineInput::HeadLr
+                } else {
+                    RefineInput::Head
+                };
                 let mut rows = OnePassRows {
                     sink: &mut *sink,
                     weights: &self.weights,
                     check,
-                    refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr, Stage::Head),
+                    refine: Feed::of(&mut self.refine, io, input, Stage::Head),
+                    checked,
                 };
                 pair_step(stream, tokens, &mut rows)?;
             }

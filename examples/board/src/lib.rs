@@ -45,10 +45,10 @@ pub const EXPECTED: Digests = Digests([
     0x113a_3050, // wta
     0xb17a_90d3, // sgm
     0x4c17_6611, // left_right
-    0x84a0_c3e2, // head
-    0x68a4_69bd, // head_left_right
-    0x2300_3cce, // refined
-    0xd09a_4827, // sectors
+    0x5ba3_d7cd, // head
+    0x58d6_4326, // head_left_right
+    0x25de_a906, // refined
+    0x18bf_5e7d, // sectors
 ]);
 
 /// CRC-32 (IEEE) of each of [`OUTPUTS`].

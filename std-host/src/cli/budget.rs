@@ -32,8 +32,9 @@ pub struct BudgetArgs {
     /// Also draw a bar chart of memory and instructions per stage (PNG).
     #[arg(long)]
     png: Option<PathBuf>,
-    /// Also report a frame of this size, `WxH` in pixels (width a multiple of 4, height a
-    /// multiple of 4); repeatable. 160x120 and 320x240 are always reported.
+    /// Also report a frame of this size, `WxH` pixels (repeatable).
+    ///
+    /// Width and height multiples of 4; 160x120 and 320x240 are always reported.
     #[arg(long = "frame", value_name = "WxH", value_parser = parse_frame)]
     frames: Vec<Frame>,
     /// Clock of every core for the frame figures, MHz (default: M55 400, M7 480).
