@@ -3,7 +3,7 @@
 //! and every accumulation is bounded by the model's fixed sizes or done with wrapping /
 //! saturating arithmetic.
 //!
-//! Layers, bottom up (`docs/kernels.md`): [`types`], [`reference`], [`arch`] (one module per
+//! Layers, bottom up (`docs/kernels.md`): [`types`], [`mod@reference`], [`arch`] (one module per
 //! instruction set), the portable families ([`layernorm`], [`lut`]) and [`dispatch`], the one
 //! place that picks an instruction set and the only kernel module the model calls.
 
