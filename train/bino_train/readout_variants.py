@@ -27,6 +27,7 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
+from .check_variants import folder_width
 from .head import StereoHead, head_candidates, load_head, with_candidates
 from .head_eval import consistent, fill_rejected, pair_inputs
 from .model import BinoEncoder
@@ -172,8 +173,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     loaded = load_head(args.head).eval()
     result: dict[str, Any] = {"head": str(args.head), "folders": {}}
     for folder in args.folders:
-        first = load_pairs(folder, "val")[0]
-        width = int(load_gray(first.left).shape[1])
+        width = folder_width(folder)
         head = with_candidates(loaded, head_candidates(width)).eval()
         scores = score_folder(encoder, head, folder)
         result["folders"][str(folder)] = {"width": width, **scores}
