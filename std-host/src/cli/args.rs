@@ -95,8 +95,8 @@ pub struct PathwayChoice {
     /// Pathway: export (each view encoded alone) or native (one encoder pass on the pair).
     ///
     /// export: each view encoded alone, two encoder passes per band; every readout. native:
-    /// one pass on the pair (L, R); the native head's readouts, head+lr with a second pass on
-    /// the mirrored pair.
+    /// one pass on the pair (L, R); the native head's readouts, head+lr with its right view
+    /// read from the same pass.
     #[arg(long, value_enum, default_value_t = bino_host::readout::pathway::Pathway::Export)]
     pub pathway: bino_host::readout::pathway::Pathway,
 }

@@ -4,7 +4,7 @@
 //!   readout (nolink, sgm and the shared head, each with its own left-right check).
 //! - `native`: every band encoded once, on the actual pair (L, R); the native head reads the
 //!   fused grid. Its readouts are the head's (`head`, `head+lr`, each optionally `+ref`);
-//!   `head+lr` costs a second pass, on the mirrored pair.
+//!   `head+lr` reads the right view from the same pass (the head's logits along their diagonal).
 
 use anyhow::{bail, Result};
 
