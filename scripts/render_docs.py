@@ -444,17 +444,24 @@ def bench_rows(b: Json) -> list[tuple[str, Json]]:
     return rows
 
 
+BENCH_RUNS = ("bench_w160", "bench_w160_avx2", "bench_w160_xeon", "bench_w160_xeon_avx2")
+"""`bino bench` runs, each CPU's VNNI run then its AVX2 one."""
+
+
 def speed_headline(src: Sources) -> str:
-    b = src.metrics("bench_w160")
-    a = src.metrics("bench_w160_avx2")
     rows = []
-    for run in (b, a):
+    for run in (src.metrics(name) for name in BENCH_RUNS):
         ort = run.get("onnxruntime_int8_over_int8")
         rows.append(
             [
                 f"{run['cpu']}, `{run['x86_kernels']}` kernels",
-                ms(run["int8"]["median_s"]),
-                ms(run["onnxruntime_int8_dynamic"]["median_s"]) if ort is not None else "-",
+                ms(run["int8"]["median_s"]) + f" (min {ms(run['int8']['min_s'])})",
+                (
+                    ms(run["onnxruntime_int8_dynamic"]["median_s"])
+                    + f" (min {ms(run['onnxruntime_int8_dynamic']['min_s'])})"
+                    if ort is not None
+                    else "-"
+                ),
                 ms(run["tract_f32"]["median_s"]),
                 f"{ort:.2f}x" if ort is not None else "-",
                 f"{run['tract_over_int8']:.2f}x",
@@ -462,8 +469,8 @@ def speed_headline(src: Sources) -> str:
         )
     header = [
         "host (one thread, one 48x160 band)",
-        "int8 engine",
-        "onnxruntime int8",
+        "int8 engine, median (min)",
+        "onnxruntime int8, median (min)",
         "tract f32",
         "onnxruntime int8 / engine",
         "tract / engine",
@@ -472,10 +479,8 @@ def speed_headline(src: Sources) -> str:
 
 
 def bench_table(src: Sources) -> str:
-    b = src.metrics("bench_w160")
-    a = src.metrics("bench_w160_avx2")
     out = []
-    for run in (b, a):
+    for run in (src.metrics(name) for name in BENCH_RUNS):
         rows = [
             [name, ms(t["median_s"]), ms(t["min_s"]), f"{t['gmac_per_s']:.1f}"]
             for name, t in bench_rows(run)
@@ -1059,7 +1064,7 @@ def self_test() -> int:
         (root / MANIFEST).write_text(
             json.dumps({"files": {"bino_int8.bin": "ab" * 32}}), encoding="utf-8"
         )
-        for name in ("bench_w160", "bench_w160_avx2"):
+        for name in BENCH_RUNS:
             (root / METRICS / f"{name}.json").write_text(json.dumps(b), encoding="utf-8")
         doc = root / "docs" / "t.md"
         doc.write_text(
