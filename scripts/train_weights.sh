@@ -8,8 +8,9 @@
 # continues exactly, so the script can be stopped and restarted at will: a stage whose target is
 # already reached returns at once. Stages: pretraining (p7_short_blur's recipe, every schedule
 # over 30,000 pairs; the shipped encoder is its student at the end) -> shared head and native
-# pathway head (HEAD_STEPS steps each) -> the shared head trained on ground truth (GT_HEAD_STEPS,
-# from a cache of 8,000 encoded crops) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
+# pathway head (HEAD_STEPS steps each) -> both heads trained on ground truth (GT_HEAD_STEPS,
+# each from a cache of 8,000 encoded crops; the native one shipped as its midpoint with its
+# start) -> ONNX exports and state dicts -> measurements (controlled benchmark and no-linkage probe for
 # the trained encoder and the random init, head vs StereoSGBM on the eval split) -> int8 blob ->
 # MANIFEST.json. Set BINO_THREADS to change the torch thread count (default 2).
 set -euo pipefail
@@ -33,6 +34,9 @@ gt_head=runs/hgt40_p7
 gt_cache=runs/headcache/gt40_p7_8000_d16.pt
 gt_steps="${GT_HEAD_STEPS:-20000}"
 native_head=runs/hnat_p7
+gt_native_head=runs/hgt40nat_p7
+gt_native_cache=runs/headcache/gt40nat_p7_8000_d16.pt
+shipped_native_head=runs/hgt40nat_p7_mid
 # The student snapshot the run writes at its final evaluation (--eval-student).
 encoder="$pre/student_$(printf %07d "$pretrain_pairs").pt"
 weights="$BINO_ROOT/weights"
@@ -88,10 +92,34 @@ else
     --no-eval --val-every 0
 fi
 
+# The native head above trained on ground truth with the shared head's
+# recipe (its own cache of 8,000 one-pass crops), validated with the one-pass check.
+step "native head on ground truth to $gt_steps steps ($gt_native_head; cache $gt_native_cache)"
+if [[ ! -f "train/$gt_native_cache" ]]; then
+  py -m bino_train.head_cache --encoder "$encoder" --out "$gt_native_cache" --count 8000 --threads "$threads" \
+    --max-disp 16 --synthetic-fraction 0.4 --labeled-fraction 0.4 --synthetic-kind layered \
+    --blur-prob 0.2 --label-weighting lr --pathway native
+fi
+if [[ ${#resume[@]} -eq 0 || ! -f "train/$gt_native_head/last.pt" ]]; then
+  py -m bino_train.head_train --encoder "$encoder" --cache "$gt_native_cache" --pathway native \
+    --out "$gt_native_head" --steps "$gt_steps" --batch 8 --lr 1e-3 --max-disp 16 \
+    --init-head "$native_head/last.pt" --val-every 500 --checkpoint-minutes 10 --threads "$threads" --no-eval
+else
+  py -m bino_train.head_train --out "$gt_native_head" --resume --steps "$gt_steps" --threads "$threads" \
+    --checkpoint-minutes 10 --no-eval
+fi
+
+# The shipped native head is the midpoint of the two native heads in weight space: the head
+# trained on ground truth lost on the held-out labeled pairs at w320, the midpoint beats its
+# start on every validation set (experiments.json, hgt40nat_p7_mid).
+step "native head: the midpoint of $native_head and $gt_native_head ($shipped_native_head)"
+py -m bino_train.head_interpolate --start "$native_head/last.pt" --end "$gt_native_head/last.pt" \
+  --alpha 0.5 --out "$shipped_native_head/last.pt"
+
 step "exports and state dicts"
 py -m bino_train.head --checkpoint "$gt_head/last.pt" --out "$weights/bino_head.onnx" --logits \
   --state-dict "$weights/bino_head.pt"
-py -m bino_train.head --checkpoint "$native_head/last.pt" --out "$weights/bino_native_head.onnx" --logits \
+py -m bino_train.head --checkpoint "$shipped_native_head/last.pt" --out "$weights/bino_native_head.onnx" --logits \
   --state-dict "$weights/bino_native_head.pt"
 py -m bino_train.export --checkpoint "$encoder" --out "$weights/bino_encoder.onnx" \
   --state-dict "$weights/bino_encoder.pt"
@@ -116,5 +144,5 @@ cargo run -q --release --locked -p bino-host --bin bino -- compare --data "$data
 
 step "manifest"
 py -m bino_train.manifest --pretrain-run "$pre" --pretrain-pairs "$pretrain_pairs" \
-  --pretrain-role student --head-run "$gt_head" --native-head-run "$native_head" --metrics-dir runs/metrics \
+  --pretrain-role student --head-run "$gt_head" --native-head-run "$shipped_native_head" --metrics-dir runs/metrics \
   --experiments experiments.json --out "$weights/MANIFEST.json"
