@@ -798,6 +798,15 @@ def weights_files(src: Sources) -> str:
     )
 
 
+def shipped_head(run: Json) -> str:
+    """"last", or the interpolation `head_interpolate` made between two runs' heads."""
+    mix = run.get("interpolated")
+    if not mix:
+        return "last"
+    start, end = (Path(mix[k]).parent.name for k in ("start", "end"))
+    return f"{mix['alpha']:g} of the way from `{start}` to `{end}` (weights)"
+
+
 def training_summary(src: Sources) -> str:
     man = src.json(MANIFEST)
     pre, head, nat = man["pretraining"], man["head_training"], man["native_head_training"]
@@ -815,7 +824,7 @@ def training_summary(src: Sources) -> str:
             f"{head['train_seconds'] / 3600:.1f} h",
             "last",
         ],
-        ["native head", f"{n(nat['steps'])} steps", f"{nat['train_seconds'] / 3600:.1f} h", "last"],
+        ["native head", f"{n(nat['steps'])} steps", f"{nat['train_seconds'] / 3600:.1f} h", shipped_head(nat)],
     ]
     text = table(["model", "training", "time", "shipped"], rows, [False, False, True, False])
     text += (

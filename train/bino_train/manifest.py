@@ -69,6 +69,9 @@ def run_summary(run: Path, upto_pairs: int | None = None, role: str = "teacher")
         "pairs_seen": state.get("pairs_seen"),
         "train_seconds": state.get("train_seconds"),
     }
+    if "interpolated" in state:
+        # head_interpolate's output: the weights lie between two runs' heads.
+        summary["interpolated"] = state["interpolated"]
     log = run / "log.jsonl"
     records = []
     if log.is_file():

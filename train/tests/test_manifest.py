@@ -92,3 +92,13 @@ def test_run_summary_names_a_missing_snapshot(tmp_path: Path) -> None:
     _write_run(run)
     with pytest.raises(SystemExit, match="teacher_0000048.pt"):
         run_summary(run, 48)
+
+
+def test_run_summary_says_when_a_head_is_interpolated(tmp_path: Path) -> None:
+    run = tmp_path / "mid"
+    run.mkdir()
+    mix = {"start": "a/last.pt", "end": "b/last.pt", "alpha": 0.5}
+    torch.save({"train_config": {"lr": 1e-3}, "step": 20, "interpolated": mix}, run / "last.pt")
+    assert run_summary(run)["interpolated"] == mix
+    torch.save({"train_config": {"lr": 1e-3}, "step": 20}, run / "last.pt")
+    assert "interpolated" not in run_summary(run)
