@@ -448,6 +448,11 @@ BENCH_RUNS = ("bench_w160", "bench_w160_avx2", "bench_w160_xeon", "bench_w160_xe
 """`bino bench` runs, each CPU's VNNI run then its AVX2 one."""
 
 
+def median_min(timing: Json) -> str:
+    """A bench timing as "median (min min)"."""
+    return f"{ms(timing['median_s'])} (min {ms(timing['min_s'])})"
+
+
 def speed_headline(src: Sources) -> str:
     rows = []
     for run in (src.metrics(name) for name in BENCH_RUNS):
@@ -455,13 +460,8 @@ def speed_headline(src: Sources) -> str:
         rows.append(
             [
                 f"{run['cpu']}, `{run['x86_kernels']}` kernels",
-                ms(run["int8"]["median_s"]) + f" (min {ms(run['int8']['min_s'])})",
-                (
-                    ms(run["onnxruntime_int8_dynamic"]["median_s"])
-                    + f" (min {ms(run['onnxruntime_int8_dynamic']['min_s'])})"
-                    if ort is not None
-                    else "-"
-                ),
+                median_min(run["int8"]),
+                median_min(run["onnxruntime_int8_dynamic"]) if ort is not None else "-",
                 ms(run["tract_f32"]["median_s"]),
                 f"{ort:.2f}x" if ort is not None else "-",
                 f"{run['tract_over_int8']:.2f}x",
@@ -822,7 +822,7 @@ def training_summary(src: Sources) -> str:
             "shared head",
             f"{n(head['steps'])} steps",
             f"{head['train_seconds'] / 3600:.1f} h",
-            "last",
+            shipped_head(head),
         ],
         ["native head", f"{n(nat['steps'])} steps", f"{nat['train_seconds'] / 3600:.1f} h", shipped_head(nat)],
     ]

@@ -6,14 +6,15 @@
 
 use std::fs;
 use std::path::{Path, PathBuf};
+use std::sync::LazyLock;
 
 /// The crate's `src/`, found at run time: a test binary built in one checkout and reused from a
 /// shared target folder by another (cargo keeps it fresh across a moved workspace) must scan
 /// the checkout it runs in, not the one it was compiled in.
-fn src() -> PathBuf {
+static SRC: LazyLock<PathBuf> = LazyLock::new(|| {
     let manifest = std::env::var_os("CARGO_MANIFEST_DIR").unwrap_or_else(|| env!("CARGO_MANIFEST_DIR").into());
     PathBuf::from(manifest).join("src")
-}
+});
 
 /// Kernel modules above the reference kernels: the portable families, the instruction sets
 /// and the dispatch. (The instruction sets come last: they may not import the others.)
@@ -54,7 +55,7 @@ fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
 /// followed by `mod tests`, and `tests.rs` files may use any layer).
 fn code_lines(dir: &str) -> Vec<(String, usize, String)> {
     let mut files = Vec::new();
-    rust_files(&src().join(dir), &mut files);
+    rust_files(&SRC.join(dir), &mut files);
     let mut lines = Vec::new();
     for file in files {
         if file.file_name().is_some_and(|n| n == "tests.rs") {
@@ -171,11 +172,11 @@ fn the_model_and_the_pipeline_call_the_kernels_through_the_dispatch_only() {
 #[test]
 fn only_the_dispatch_and_the_instruction_sets_name_an_instruction_set() {
     let mut files = Vec::new();
-    rust_files(&src(), &mut files);
+    rust_files(&SRC, &mut files);
     let mut found = Vec::new();
     for file in files {
         let rel = file
-            .strip_prefix(src())
+            .strip_prefix(&*SRC)
             .unwrap_or(&file)
             .to_string_lossy()
             .replace('\\', "/");
@@ -242,7 +243,7 @@ fn the_scan_finds_what_is_there() {
 /// A module's name at the granularity of the check: a top-level module, or a submodule of
 /// `kernels` or `model` (`kernels::arch` is one module with its instruction sets).
 fn module_of(file: &Path) -> String {
-    let rel = file.strip_prefix(src()).unwrap_or(file).with_extension("");
+    let rel = file.strip_prefix(&*SRC).unwrap_or(file).with_extension("");
     let mut parts: Vec<String> = rel.iter().map(|p| p.to_string_lossy().into_owned()).collect();
     if parts.last().is_some_and(|p| p == "mod" || p == "lib") {
         parts.pop();
@@ -258,7 +259,7 @@ fn module_of(file: &Path) -> String {
 /// `model/`), outside unit tests.
 fn import_graph() -> std::collections::BTreeMap<String, std::collections::BTreeSet<String>> {
     let mut files = Vec::new();
-    rust_files(&src(), &mut files);
+    rust_files(&SRC, &mut files);
     let mut graph = std::collections::BTreeMap::<String, std::collections::BTreeSet<String>>::new();
     for file in files {
         if file.file_name().is_some_and(|n| n == "tests.rs") {
@@ -266,7 +267,7 @@ fn import_graph() -> std::collections::BTreeMap<String, std::collections::BTreeS
         }
         let from = module_of(&file);
         let rel: Vec<String> = file
-            .strip_prefix(src())
+            .strip_prefix(&*SRC)
             .unwrap_or(&file)
             .iter()
             .map(|p| p.to_string_lossy().into_owned())
