@@ -606,3 +606,37 @@ fn default_weights_resolve_from_another_working_directory() {
     let run = eval(&["--blob", "weights/bino_int8.bin"]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
 }
+
+#[test]
+fn describe_writes_the_engines_maps_and_names_bad_crops() {
+    use bino_host::io::npy::{self, Array};
+    let dir = scratch("describe");
+    let crops = dir.join("crops.npy");
+    let pixels = (0..2 * 48 * 160).map(|i| ((i * 37) % 251) as f32 / 255.0).collect();
+    std::fs::write(&crops, npy::encode(&Array::new(vec![1, 2, 48, 160], pixels).unwrap())).unwrap();
+    let out = dir.join("maps.npy");
+    for pathway in ["export", "native"] {
+        let run = bino(&["describe", "--crops", s(&crops), "--pathway", pathway, "--out", s(&out)]);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let maps = npy::decode(&std::fs::read(&out).unwrap()).unwrap();
+        assert_eq!(maps.shape, [1, 2, 12, 40, 128], "{pathway}");
+        assert!(maps.data.iter().any(|&v| v != 0.0), "{pathway}: all-zero maps");
+    }
+
+    let odd = dir.join("odd.npy");
+    std::fs::write(
+        &odd,
+        npy::encode(&Array::new(vec![1, 2, 47, 160], vec![0.5; 2 * 47 * 160]).unwrap()),
+    )
+    .unwrap();
+    let run = bino(&["describe", "--crops", s(&odd), "--out", s(&out)]);
+    assert_fails_with(&run, &["odd.npy", "47"]);
+    let flat = dir.join("flat.npy");
+    std::fs::write(
+        &flat,
+        npy::encode(&Array::new(vec![48, 160], vec![0.5; 48 * 160]).unwrap()),
+    )
+    .unwrap();
+    let run = bino(&["describe", "--crops", s(&flat), "--out", s(&out)]);
+    assert_fails_with(&run, &["flat.npy", "(N, 2, H, W)"]);
+}

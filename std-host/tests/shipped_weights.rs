@@ -281,3 +281,62 @@ fn eval_scores_every_readout_in_both_precisions_next_to_sgbm() {
     assert!(report.table().contains("f32 sgm"));
     assert!(report.table().contains("int8 head+lr+ref"));
 }
+
+/// Three 48x160 crop pairs cut from the demo scene, as `bino describe` reads them.
+fn scene_crops() -> (bino_host::io::npy::Array, Vec<bino_host::data::profile::View>) {
+    let scene = default_scene(160, 144);
+    let as_view = |img: &bino_host::io::image_io::GrayImage, band: usize| bino_host::data::profile::View {
+        width: 160,
+        height: 48,
+        pixels: img.pixels[band * 48 * 160..(band + 1) * 48 * 160]
+            .iter()
+            .map(|&p| f32::from(p) / 255.0)
+            .collect(),
+    };
+    let mut views = Vec::new();
+    for band in 0..3 {
+        views.push(as_view(&scene.left, band));
+        views.push(as_view(&scene.right, band));
+    }
+    let data = views.iter().flat_map(|v| v.pixels.iter().copied()).collect();
+    (
+        bino_host::io::npy::Array::new(vec![3, 2, 48, 160], data).unwrap(),
+        views,
+    )
+}
+
+#[test]
+fn crop_maps_are_the_engines_maps_whatever_the_thread_count() {
+    use bino_host::int8::crop_maps::crop_maps;
+    use bino_host::int8::Int8Model;
+    use bino_host::readout::pathway::Pathway;
+
+    let model = Int8Model::load(Path::new(DEFAULT_BLOB)).expect("shipped blob");
+    let (crops, views) = scene_crops();
+    let export = crop_maps(&model, &crops, Pathway::Export, 1).unwrap();
+    assert_eq!(export.shape, [3, 2, 12, 40, 128]);
+    assert_eq!(export, crop_maps(&model, &crops, Pathway::Export, 2).unwrap());
+    let per_view = 12 * 40 * 128;
+    for (k, view) in views.iter().enumerate() {
+        let want = model.descriptors(view).unwrap().data;
+        assert_eq!(export.data[k * per_view..(k + 1) * per_view], want[..], "view {k}");
+    }
+
+    let native = crop_maps(&model, &crops, Pathway::Native, 2).unwrap();
+    assert_eq!(native.shape, export.shape);
+    assert_ne!(native.data, export.data, "the native maps see the pair, not one view");
+    let fused = model.pair_tokens(&views[2], &views[3]).unwrap().data;
+    let (even, odd) = (
+        &native.data[2 * per_view..3 * per_view],
+        &native.data[3 * per_view..4 * per_view],
+    );
+    let interleaved = bino_host::int8::interleave_phases(even, odd, 128);
+    assert_eq!(
+        interleaved, fused,
+        "crop 1: the phase maps interleave into the fused grid"
+    );
+
+    let bad = bino_host::io::npy::Array::new(vec![3, 48, 160], crops.data[..3 * 48 * 160].to_vec()).unwrap();
+    let err = crop_maps(&model, &bad, Pathway::Export, 1).unwrap_err().to_string();
+    assert!(err.contains("expected (N, 2, H, W)"), "{err}");
+}

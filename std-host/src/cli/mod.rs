@@ -11,6 +11,7 @@ mod bench;
 mod budget;
 mod compare;
 mod demo;
+mod describe;
 mod eval;
 mod pairs;
 mod progress;
@@ -45,6 +46,7 @@ enum Command {
     Reference(reference::ReferenceArgs),
     Pairs(pairs::PairsArgs),
     Compare(compare::CompareArgs),
+    Describe(describe::DescribeArgs),
     Quantize(quantize::QuantizeArgs),
 }
 
@@ -61,6 +63,7 @@ impl Cli {
             Command::Reference(args) => reference::run(args),
             Command::Pairs(args) => pairs::run(args),
             Command::Compare(args) => compare::run(args),
+            Command::Describe(args) => describe::run(args),
             Command::Quantize(args) => quantize::run(args),
         }
     }

@@ -3,6 +3,7 @@
 //! comparisons.
 
 pub mod blob_writer;
+pub mod crop_maps;
 pub mod pipeline_maps;
 
 use std::path::{Path, PathBuf};
