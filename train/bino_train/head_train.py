@@ -57,6 +57,7 @@ from .head_data import (
     encode,
     gather,
 )
+from .head_qat import HeadRanges, calibrate, check_head, qat_forward
 from .head_val import ValidationSet
 from .model import BinoEncoder, parameter_count
 from .photometric import photometric_terms
@@ -67,6 +68,8 @@ ASSUMED_STEPS_PER_S = {"cpu": 0.5, "cuda": 10.0}
 --schedule-steps is given (CPU: measured on 1 busy core; CUDA: a rough guess)."""
 
 SMOKE_ENCODER = EncoderConfig(dim=32, depth=2, heads=2, mlp_hidden=64)
+QAT_CALIBRATION = 256
+"""Samples the quantisation-aware run calibrates its ranges on."""
 SMOKE_HEAD = HeadConfig(proj_dim=16, groups=4, hidden=8, middle_layers=1)
 
 
@@ -101,6 +104,8 @@ class HeadTrainConfig:
     init_head: str = ""
     """Head checkpoint whose weights start the run (no weight depends on the candidate count,
     so a 12-candidate head starts a 16-candidate run); empty: a fresh head."""
+    qat: bool = False
+    """Train through the int8 engine's roundings (head_qat.py; the shared head only)."""
 
     def to_dict(self) -> dict[str, Any]:
         return {**asdict(self), "head": self.head.to_dict()}
@@ -220,6 +225,9 @@ class HeadTrainer:
             self.validation = ValidationSet.build(
                 self.encoder, data_dir, cfg.data, device=device, pathway=self.pathway
             )
+        if cfg.qat:
+            check_head(self.head)
+        self.qat_ranges: HeadRanges | None = None
         self.step = 0
         self.train_seconds = 0.0
         self.encode_seconds = 0.0
@@ -262,7 +270,12 @@ class HeadTrainer:
         for group in self.opt.param_groups:
             group["lr"] = lr
         self.head.train()
-        out = self.head(data.left, data.right)
+        if cfg.qat and self.qat_ranges is None:
+            self.qat_ranges = self.calibrate_qat()
+        if self.qat_ranges is not None:
+            out = qat_forward(self.head, self.qat_ranges, data.left.float(), data.right.float())
+        else:
+            out = self.head(data.left, data.right)
         weight = None if cfg.uniform_weights else data.weight
         parts = head_loss(out, data.label, cfg.ce_weight, weight)
         loss = parts.loss
@@ -292,8 +305,20 @@ class HeadTrainer:
             "grad_norm": grad_norm,
         }
 
+    def calibrate_qat(self) -> HeadRanges:
+        """The fake-quantised forward's ranges, from the head as it starts on the first
+        QAT_CALIBRATION samples (the cache's, else the pool's)."""
+        data = self.cache.data if self.cache is not None else self.pool.data
+        if data is None:
+            raise ValueError("no descriptors to calibrate the quantisation-aware head on")
+        n = min(QAT_CALIBRATION, int(data.left.shape[0]))
+        ranges = calibrate(self.head, data.left[:n].float(), data.right[:n].float())
+        print(f"qat ranges: {ranges.to_dict()}", flush=True)
+        return ranges
+
     def state_dict(self) -> dict[str, Any]:
         return {
+            "qat_ranges": None if self.qat_ranges is None else self.qat_ranges.to_dict(),
             "head_config": self.cfg.head.to_dict(),
             "head": self.head.state_dict(),
             "train_config": self.cfg.to_dict(),
@@ -307,6 +332,8 @@ class HeadTrainer:
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.head.load_state_dict(state["head"])
+        ranges = state.get("qat_ranges")
+        self.qat_ranges = None if ranges is None else HeadRanges.from_dict(ranges)
         self.opt.load_state_dict(state["optimizer"])
         set_rng_states(state["rng"])
         self.step = int(state["step"])
@@ -444,6 +471,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     )
     p.add_argument("--uniform-weights", action="store_true", help="ignore label confidence")
     p.add_argument("--init-head", type=Path, help="head checkpoint that starts the run's weights")
+    p.add_argument(
+        "--qat", action="store_true", help="train through the int8 head's roundings (head_qat.py)"
+    )
     p.add_argument("--photometric", type=float, help="weight of the photometric term")
     p.add_argument("--smoothness", type=float, help="weight of the edge-aware smoothness term")
     p.add_argument("--val-every", type=int, help="steps between validations (0: none)")
@@ -513,6 +543,7 @@ def build_config(args: argparse.Namespace, desc_dim: int, device: torch.device) 
         cache=str(args.cache.resolve()) if args.cache is not None else "",
         uniform_weights=args.uniform_weights,
         init_head=str(args.init_head.resolve()) if args.init_head is not None else "",
+        qat=args.qat,
         **_given(
             batch=args.batch,
             pool=args.pool,
