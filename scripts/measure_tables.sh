@@ -20,9 +20,9 @@ nuisances=gain,gamma,noise,blur,occlude
 runs=(
   "eval_w160|--profile w160"
   "eval_w320|--profile w320 --max-cols 16"
-  "eval_nuisance_w160|--profile w160 --readout sgm+lr+ref,head+lr+ref --nuisance $nuisances"
-  "eval_nuisance_w320|--profile w320 --max-cols 16 --precision int8 --readout sgm+lr+ref,head+lr+ref --nuisance $nuisances"
-  "occlusion_w160|--profile w160 --precision int8 --readout sgm+lr+ref,head,head+lr,head+lr+ref --occlude 10,20,30,40"
+  "eval_nuisance_w160|--profile w160 --readout sgm+lr+ref,head+lr+ref,fuse+lr+ref --nuisance $nuisances"
+  "eval_nuisance_w320|--profile w320 --max-cols 16 --precision int8 --readout sgm+lr+ref,head+lr+ref,fuse+lr+ref --nuisance $nuisances"
+  "occlusion_w160|--profile w160 --precision int8 --readout sgm+lr+ref,head,head+lr,head+lr+ref,fuse+lr+ref --occlude 10,20,30,40"
   "native_w160|--profile w160 --precision int8,f32 --pathway native"
   "native_occlusion_w160|--profile w160 --precision int8 --readout head,head+lr,head+lr+ref --occlude 10,20,30,40 --pathway native"
   "native_w320|--profile w320 --max-cols 16 --precision int8 --pathway native"

@@ -161,6 +161,23 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
             },
         )?);
     }
+    if model.has_head() {
+        let export = PipelineOptions {
+            pathway: Pathway::Export,
+            max_cols: opts.max_cols,
+            penalties: opts.penalties,
+            lr_max_diff_q8: DEMO_LR_MAX_DIFF_Q8,
+            head: true,
+            head_lr: true,
+            head_candidates: crate::readout::head_candidates(left.width),
+        };
+        let maps = steps.run(
+            "fuse+lr+ref: head and SGM fused by their checks, refined (`bino run`'s default; int8 pipeline)",
+            || run_pipeline(&model, &left, &right, &export, &mut |_, _| {}),
+        )?;
+        let fused = Readout::FUSED_LR.refined(true);
+        readouts.push(scored_pixels("fuse+lr+ref", maps.methods.pixels(fused)?, &truth)?);
+    }
     if model.has_head_of(HeadKind::Native) {
         let native = PipelineOptions {
             pathway: Pathway::Native,

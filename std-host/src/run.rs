@@ -145,7 +145,7 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
     let disparity = maps.methods.pixels(opts.readout)?;
     let (tokens, consistent) = maps.methods.method(opts.readout.method)?;
     let consistent = consistent.context("the method's left-right check did not run")?;
-    let valid = upsample_mask(consistent, tokens.width, disparity.width, disparity.height);
+    let valid = upsample_mask(&consistent, tokens.width, disparity.width, disparity.height);
     finish(&mut timings, started);
 
     let started = step("writing outputs", &mut timings, &mut progress);

@@ -39,7 +39,16 @@ fn read_pfm(path: &Path) -> DisparityMap {
 
 #[test]
 fn run_writes_what_eval_scores_on_a_multi_band_pair() {
-    let readouts = ["nolink+lr", "sgm", "head", "head+lr", "sgm+ref", "head+lr+ref"];
+    let readouts = [
+        "nolink+lr",
+        "sgm",
+        "head",
+        "head+lr",
+        "sgm+ref",
+        "head+lr+ref",
+        "fuse+lr",
+        "fuse+lr+ref",
+    ];
     let report = run_matches_eval(Profile::W160, &readouts, &[]);
     // The refinement changes the map (and, on this pair, lowers the head's error).
     let epe = |r: &str| {

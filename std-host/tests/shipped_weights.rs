@@ -63,6 +63,7 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
             "head",
             "head+lr",
             "head+lr+ref",
+            "fuse+lr+ref",
             "native_head",
             "native_head+lr",
             "native_head+lr+ref"
@@ -87,17 +88,26 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     assert_ne!(epe[3], epe[2], "head+lr fills some cells");
     // The pixel refinement sharpens the planes' edges the bilinear upsampling blurs.
     assert!(epe[4] < epe[3], "head+lr+ref epe {} vs head+lr {}", epe[4], epe[3]);
+    // The fused readout (`bino run`'s default) takes the better of head and SGM where they
+    // disagree in their checks: it beats both of its refined parts' unrefined inputs.
+    assert!(
+        epe[5] < epe[1].min(epe[3]),
+        "fuse+lr+ref epe {} vs sgm {} and head+lr {}",
+        epe[5],
+        epe[1],
+        epe[3]
+    );
     // The native pathway reads the scene too, and its refinement helps it as well.
     assert!(
-        epe[5] < 0.8 * constant_epe,
+        epe[6] < 0.8 * constant_epe,
         "native head epe {} vs {constant_epe}",
-        epe[5]
+        epe[6]
     );
     assert!(
-        epe[7] < epe[6],
+        epe[8] < epe[7],
         "native head+lr+ref epe {} vs head+lr {}",
-        epe[7],
-        epe[6]
+        epe[8],
+        epe[7]
     );
     for name in [
         "left.png",

@@ -162,3 +162,16 @@ fn sim_draws_the_refined_pixels_run_writes() {
         w * h
     );
 }
+
+#[test]
+fn the_fused_readout_is_refused_until_the_board_streams_it() {
+    let dir = scratch("fused");
+    let run = bino(&["sim", "--readout", "fuse+lr+ref", "--out", s(&dir)]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("fuse+lr+ref") && stderr.contains("no fused readout"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "{stderr}");
+}

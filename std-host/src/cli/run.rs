@@ -30,12 +30,12 @@ pub struct RunArgs {
     /// Int8 weight blob; the default is the checkout's shipped one.
     #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
-    /// Readout: nolink, sgm or head, each optionally +lr, then optionally +ref; default by width.
+    /// Readout: nolink, sgm, head or fuse, each optionally +lr, then optionally +ref.
     ///
     /// +lr: cells the method's own left-right check rejects filled from the nearest kept cell to
-    /// their left; +ref: the same as --refine on. Default: on the export pathway head+lr for
-    /// views up to 160 px wide and sgm+lr above (chosen on held-out train pairs), on the native
-    /// pathway head+lr.
+    /// their left; +ref: the same as --refine on. fuse+lr: the head and SGM, their midpoint where
+    /// both pass their checks, the one that passes elsewhere. Default: fuse+lr on the export
+    /// pathway (chosen on held-out train pairs and synthetic scenes), head+lr on the native one.
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
@@ -63,7 +63,7 @@ pub fn run(args: RunArgs) -> Result<()> {
     let pathway = args.pathway.pathway;
     let default = match args.readout {
         Some(readout) => readout,
-        None => pathway.default_readout(bino_host::data::profile::view_width(&args.left, args.profile.profile)?),
+        None => pathway.default_readout(),
     };
     let readout = args
         .refine

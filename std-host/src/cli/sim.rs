@@ -34,8 +34,8 @@ pub struct SimArgs {
     /// nolink, sgm, head: cells their left-right check rejects are dark; +lr: those cells filled
     /// from the left, as `bino eval` scores; each token row as the pipeline streams it. A +ref
     /// readout draws its refined pixel rows as the pipeline's refinement stage streams them. The
-    /// default is `bino run`'s for the view's width, refined (export: head+lr+ref up to 160 px,
-    /// sgm+lr+ref above; native: head+lr+ref).
+    /// default is the board's for the view's width, refined (export: head+lr+ref up to 160 px,
+    /// sgm+lr+ref above; native: head+lr+ref); the board's pipeline has no fused readout yet.
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
@@ -69,7 +69,7 @@ pub fn run(args: SimArgs) -> Result<()> {
         blob: args.blob,
         readout: match args.readout {
             Some(readout) => readout,
-            None => args.pathway.pathway.default_readout(width).refined(true),
+            None => args.pathway.pathway.board_readout(width).refined(true),
         },
         pathway: args.pathway.pathway,
         max_cols: args.candidates.max_cols,

@@ -199,7 +199,7 @@ fn score_readout(maps: &MethodMaps, readout: Readout, gt: &GroundTruthMap) -> Re
     let large = score(&pixels, &gt.large_disparity_subset())?;
     let (lr_keep, gt_lr_epe) = match mask {
         Some(mask) => {
-            let keep = upsample_mask(mask, tokens.width, pixels.width, pixels.height);
+            let keep = upsample_mask(&mask, tokens.width, pixels.width, pixels.height);
             let restricted = GroundTruthMap {
                 valid: gt.valid.iter().zip(&keep).map(|(&g, &k)| g && k).collect(),
                 ..gt.clone()

@@ -7,6 +7,8 @@
 //! |---|---|
 //! | `nolink`, `sgm`, `head` | the method's disparity, every cell |
 //! | `nolink+lr`, `sgm+lr`, `head+lr` | the same, cells the method's own left-right check rejects filled from the nearest kept cell to their left (`bino_core::lr::fill_rejected`) |
+//! | `fuse` | the midpoint of `head` and `sgm` in every cell (Q8, `bino_core::lr::fuse_row` with every cell kept) |
+//! | `fuse+lr` | `bino_core::lr::fuse_row` of the head and SGM with their own checks: the midpoint where both pass, the one that passes, else rejected and filled as above |
 //!
 //! | suffix | pixels |
 //! |---|---|
@@ -23,14 +25,16 @@
 pub mod pathway;
 pub mod refine;
 
+use std::borrow::Cow;
 use std::fmt;
 use std::str::FromStr;
 
 use anyhow::{bail, ensure, Context, Result};
 use bino_core::config::{CELL_W, HEAD_CANDIDATES_LIMIT, HEAD_MAX_DISP};
+use bino_core::matching::DISPARITY_FRAC_BITS;
 
 use crate::eval::{upsample_disparity, DisparityMap};
-use crate::readout::refine::{refine_pixels, GrayViews};
+use crate::readout::refine::{refine_pixels, tokens_q8, GrayViews};
 
 /// How disparity is read from the descriptors.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -41,6 +45,8 @@ pub enum Method {
     Sgm,
     /// The shared head.
     Head,
+    /// The head and SGM fused ([`bino_core::lr::fuse_row`]); needs both.
+    Fused,
 }
 
 /// A readout: a method, with or without its left-right check and fill, upsampled or refined.
@@ -63,20 +69,24 @@ impl Readout {
     pub const HEAD: Readout = Readout::new(Method::Head, false);
     /// `head+lr`.
     pub const HEAD_LR: Readout = Readout::new(Method::Head, true);
+    /// `fuse+lr`.
+    pub const FUSED_LR: Readout = Readout::new(Method::Fused, true);
     /// The token-grid readouts (upsampled bilinearly), in the order tables list them.
-    pub const UNREFINED: [Readout; 6] = [
+    pub const UNREFINED: [Readout; 8] = [
         Readout::NOLINK,
         Readout::new(Method::Nolink, true),
         Readout::SGM,
         Readout::new(Method::Sgm, true),
         Readout::HEAD,
         Readout::HEAD_LR,
+        Readout::new(Method::Fused, false),
+        Readout::FUSED_LR,
     ];
     /// Every readout, in the order tables list them: each unrefined one, then its `+ref`.
-    pub const ALL: [Readout; 12] = {
-        let mut all = [Readout::NOLINK; 12];
+    pub const ALL: [Readout; 16] = {
+        let mut all = [Readout::NOLINK; 16];
         let mut i = 0;
-        while i < 6 {
+        while i < 8 {
             all[2 * i] = Readout::UNREFINED[i];
             all[2 * i + 1] = Readout::UNREFINED[i].refined(true);
             i += 1;
@@ -113,12 +123,16 @@ impl Readout {
             (Method::Head, false, true) => "head+ref",
             (Method::Head, true, false) => "head+lr",
             (Method::Head, true, true) => "head+lr+ref",
+            (Method::Fused, false, false) => "fuse",
+            (Method::Fused, false, true) => "fuse+ref",
+            (Method::Fused, true, false) => "fuse+lr",
+            (Method::Fused, true, true) => "fuse+lr+ref",
         }
     }
 
     /// Whether it needs the shared head.
     pub fn uses_head(self) -> bool {
-        self.method == Method::Head
+        matches!(self.method, Method::Head | Method::Fused)
     }
 }
 
@@ -135,7 +149,7 @@ impl FromStr for Readout {
         match Readout::ALL.iter().find(|r| r.name() == s) {
             Some(&r) => Ok(r),
             None => bail!(
-                "unknown readout {s:?} (expected nolink, sgm or head, each optionally with +lr, then optionally +ref)"
+                "unknown readout {s:?} (expected nolink, sgm, head or fuse, each optionally with +lr, then optionally +ref)"
             ),
         }
     }
@@ -174,35 +188,99 @@ pub struct MethodMaps {
     pub views: GrayViews,
 }
 
+/// One method's token-grid disparity and its left-right mask (`None`: the check did not run),
+/// borrowed from [`MethodMaps`] or, for `fuse`, computed from it.
+pub type MethodMap<'m> = (Cow<'m, DisparityMap>, Option<Cow<'m, [bool]>>);
+
 impl MethodMaps {
-    /// `method`'s disparity and its mask (`None`: the check did not run).
-    pub fn method(&self, method: Method) -> Result<(&DisparityMap, Option<&[bool]>)> {
+    /// `method`'s disparity and its mask (`None`: the check did not run). For `fuse` the
+    /// checked fusion ([`bino_core::lr::fuse_row`]) and its mask (cells either method keeps).
+    pub fn method(&self, method: Method) -> Result<MethodMap<'_>> {
         fn export<'m>(map: &'m Option<DisparityMap>, name: &str) -> Result<&'m DisparityMap> {
             map.as_ref()
                 .with_context(|| format!("the run had no {name} readout (the native pathway has only its head)"))
         }
         Ok(match method {
-            Method::Nolink => (export(&self.nolink, "nolink")?, Some(&self.nolink_consistent[..])),
-            Method::Sgm => (export(&self.sgm, "sgm")?, Some(&self.sgm_consistent[..])),
-            Method::Head => (
-                self.head.as_ref().context("the run had no head")?,
-                self.head_consistent.as_deref(),
+            Method::Nolink => (
+                Cow::Borrowed(export(&self.nolink, "nolink")?),
+                Some(Cow::Borrowed(&self.nolink_consistent[..])),
             ),
+            Method::Sgm => (
+                Cow::Borrowed(export(&self.sgm, "sgm")?),
+                Some(Cow::Borrowed(&self.sgm_consistent[..])),
+            ),
+            Method::Head => (
+                Cow::Borrowed(self.head.as_ref().context("the run had no head")?),
+                self.head_consistent.as_deref().map(Cow::Borrowed),
+            ),
+            Method::Fused => {
+                let (map, kept) = self.fused(true)?;
+                (Cow::Owned(map), Some(Cow::Owned(kept)))
+            }
         })
+    }
+
+    /// The head and SGM fused row by row by [`bino_core::lr::fuse_row`] on the core's Q8 grid,
+    /// with their own checks (`checked`) or with every cell kept (the unchecked `fuse`).
+    fn fused(&self, checked: bool) -> Result<(DisparityMap, Vec<bool>)> {
+        let sgm = self
+            .sgm
+            .as_ref()
+            .context("the run had no sgm readout: fuse needs the export pathway")?;
+        let head = self.head.as_ref().context("the run had no head: fuse needs it")?;
+        ensure!(
+            (head.width, head.height) == (sgm.width, sgm.height),
+            "the head and SGM grids differ in size"
+        );
+        let every = vec![true; head.values.len()];
+        let (head_kept, sgm_kept) = if checked {
+            let head_kept = self
+                .head_consistent
+                .as_deref()
+                .context("fuse+lr: the head's check did not run")?;
+            (head_kept, &self.sgm_consistent[..])
+        } else {
+            (&every[..], &every[..])
+        };
+        ensure!(
+            head_kept.len() == every.len() && sgm_kept.len() == every.len(),
+            "fuse: mask and disparity sizes differ"
+        );
+        let bytes = |m: &[bool]| m.iter().map(|&k| u8::from(k)).collect::<Vec<u8>>();
+        let (head_q8, sgm_q8) = (tokens_q8(head), tokens_q8(sgm));
+        let (head_kept, sgm_kept) = (bytes(head_kept), bytes(sgm_kept));
+        let mut out = vec![0u16; every.len()];
+        let mut kept = vec![0u8; every.len()];
+        let cols = head.width.max(1);
+        let rows = (head_q8.chunks_exact(cols).zip(head_kept.chunks_exact(cols)))
+            .zip(sgm_q8.chunks_exact(cols).zip(sgm_kept.chunks_exact(cols)))
+            .zip(out.chunks_exact_mut(cols).zip(kept.chunks_exact_mut(cols)));
+        for (((h, hk), (s, sk)), (o, ok)) in rows {
+            bino_core::lr::fuse_row(h, hk, s, sk, o, ok).map_err(anyhow::Error::msg)?;
+        }
+        let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
+        let map = DisparityMap {
+            values: out.iter().map(|&d| d as f32 / unit).collect(),
+            ..*head
+        };
+        Ok((map, kept.iter().map(|&k| k != 0).collect()))
     }
 
     /// The readout's token-grid disparity (see the module table).
     pub fn tokens(&self, readout: Readout) -> Result<DisparityMap> {
+        if readout.method == Method::Fused && !readout.lr {
+            return Ok(self.fused(false)?.0);
+        }
         let (map, mask) = self.method(readout.method)?;
         if !readout.lr {
-            return Ok(map.clone());
+            return Ok(map.into_owned());
         }
         let mask = mask.with_context(|| format!("{readout}: the left-right check did not run"))?;
         ensure!(
             mask.len() == map.values.len(),
             "{readout}: mask and disparity sizes differ"
         );
-        Ok(fill_rejected(map, mask))
+        Ok(fill_rejected(&map, &mask))
     }
 
     /// The readout's pixel disparity: [`MethodMaps::tokens`] upsampled bilinearly (EVAL.md),
@@ -217,7 +295,7 @@ impl MethodMaps {
             } else {
                 None
             };
-            refine_pixels(&tokens, &self.views, kept).with_context(|| format!("{readout}: refinement"))
+            refine_pixels(&tokens, &self.views, kept.as_deref()).with_context(|| format!("{readout}: refinement"))
         } else {
             Ok(upsample_disparity(&tokens))
         }
@@ -251,7 +329,7 @@ mod tests {
             assert_eq!(r.to_string(), r.name());
         }
         let names: std::collections::BTreeSet<_> = Readout::ALL.iter().map(|r| r.name()).collect();
-        assert_eq!(names.len(), 12, "distinct names");
+        assert_eq!(names.len(), 16, "distinct names");
         assert_eq!("head+lr".parse::<Readout>().unwrap(), Readout::HEAD_LR);
         assert_eq!(
             "head+lr+ref".parse::<Readout>().unwrap(),

@@ -45,10 +45,22 @@ impl Pathway {
         Ok(())
     }
 
-    /// The readout a command uses when none is given, for views `view_width` px wide: on the
-    /// export pathway head+lr up to [`HEAD_DEFAULT_MAX_WIDTH`] and sgm+lr above, on the native
-    /// pathway head+lr (its only checked readout).
-    pub fn default_readout(self, view_width: usize) -> Readout {
+    /// The readout `bino run` uses when none is given: on the export pathway `fuse+lr` (the
+    /// head and SGM fused by their checks, better than either on every validation set at 160
+    /// and 320 px: `train/experiments.json`, `fused_readout`), on the native pathway `head+lr`
+    /// (its only checked readout).
+    pub fn default_readout(self) -> Readout {
+        match self {
+            Pathway::Export => Readout::FUSED_LR,
+            Pathway::Native => Readout::HEAD_LR,
+        }
+    }
+
+    /// The readout the board's streaming pipeline refines ([`bino_core::preset`], what `bino
+    /// sim` shows by default), for views `view_width` px wide: on the export pathway head+lr up
+    /// to [`HEAD_DEFAULT_MAX_WIDTH`] and sgm+lr above, on the native pathway head+lr. The
+    /// pipeline does not stream the fused readout yet.
+    pub fn board_readout(self, view_width: usize) -> Readout {
         match self {
             Pathway::Export if view_width > HEAD_DEFAULT_MAX_WIDTH => Readout::new(Method::Sgm, true),
             Pathway::Export | Pathway::Native => Readout::HEAD_LR,
@@ -56,7 +68,7 @@ impl Pathway {
     }
 }
 
-/// Widest view (px) whose default export readout is head+lr rather than sgm+lr. Chosen off the
+/// Widest view (px) whose board readout on the export pathway is head+lr rather than sgm+lr. Chosen off the
 /// eval split, on the 22 held-out train pairs against left-right-consistent StereoSGBM
 /// (`bino_train.val_folder`, `bino eval --split val`), int8, refined (as `bino run` writes):
 /// head+lr+ref against sgm+lr+ref 0.483 / 0.542 px epe at 160 px, 0.522 / 0.506 at 200, 0.611 /
@@ -87,7 +99,7 @@ mod tests {
         for readout in Readout::ALL {
             assert!(Pathway::Export.check(readout).is_ok(), "{readout}");
             let native = Pathway::Native.check(readout);
-            assert_eq!(native.is_ok(), readout.uses_head(), "{readout}");
+            assert_eq!(native.is_ok(), readout.method == Method::Head, "{readout}");
             if let Err(e) = native {
                 assert!(e.to_string().contains("needs the export pathway"), "{e}");
             }
@@ -96,16 +108,19 @@ mod tests {
         let native: Vec<_> = Pathway::Native.readouts().iter().map(|r| r.name()).collect();
         assert_eq!(native, ["head", "head+ref", "head+lr", "head+lr+ref"]);
         for pathway in [Pathway::Export, Pathway::Native] {
+            assert!(pathway.check(pathway.default_readout()).is_ok());
             for width in [160, 320, 1280] {
-                assert!(pathway.check(pathway.default_readout(width)).is_ok());
+                assert!(pathway.check(pathway.board_readout(width)).is_ok());
             }
             assert_eq!(pathway.core().pathway(), pathway.to_string());
         }
     }
 
     #[test]
-    fn default_readout_follows_the_view_width() {
-        let name = |p: Pathway, w: usize| p.default_readout(w).name();
+    fn run_fuses_and_the_board_readout_follows_the_view_width() {
+        assert_eq!(Pathway::Export.default_readout().name(), "fuse+lr");
+        assert_eq!(Pathway::Native.default_readout().name(), "head+lr");
+        let name = |p: Pathway, w: usize| p.board_readout(w).name();
         assert_eq!(name(Pathway::Export, 160), "head+lr");
         assert_eq!(name(Pathway::Export, 161), "sgm+lr");
         assert_eq!(name(Pathway::Export, 320), "sgm+lr");

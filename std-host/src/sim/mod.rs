@@ -13,7 +13,7 @@ pub mod sensor;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use anyhow::{ensure, Result};
+use anyhow::{bail, ensure, Result};
 use bino_core::config::HEAD_MAX_DISP;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
@@ -126,6 +126,11 @@ impl SimReport {
 pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimReport> {
     ensure!(opts.frames >= 1, "--frames must be at least 1");
     opts.pathway.check(opts.readout)?;
+    ensure!(
+        opts.readout.method != Method::Fused,
+        "--readout {}: {FUSED_NOT_STREAMED}",
+        opts.readout
+    );
     progress("loading the pair and the blob");
     let (source, left, right) = load_pair(opts)?;
     let (width, height) = (left.width, left.height);
@@ -146,10 +151,10 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         head_candidates: crate::readout::head_candidates(width),
     };
     // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
-    let refine = opts
-        .readout
-        .refine
-        .then(|| Refine::for_width(refine_input(opts.readout), width));
+    let refine = match opts.readout.refine {
+        true => Some(Refine::for_width(refine_input(opts.readout)?, width)),
+        false => None,
+    };
     let layout = Layout::new(opts.display, width, height)?;
     let arena_bytes = match &refine {
         Some(r) => pipeline::arena_bytes_refined(height, width, &pipeline_opts, r),
@@ -210,17 +215,22 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     Ok(sim)
 }
 
+/// Why `bino sim` has no fused readout: the board's streaming pipeline does not compute it.
+const FUSED_NOT_STREAMED: &str = "the board's streaming pipeline (bino_core::pipeline), which bino sim runs, \
+     has no fused readout yet; bino run and bino eval compute it";
+
 /// The core pipeline's refinement input for a `+ref` readout: the same token grid `bino run`
 /// and `bino eval` refine.
-fn refine_input(readout: Readout) -> RefineInput {
-    match (readout.method, readout.lr) {
+fn refine_input(readout: Readout) -> Result<RefineInput> {
+    Ok(match (readout.method, readout.lr) {
         (Method::Nolink, false) => RefineInput::Nolink,
         (Method::Nolink, true) => RefineInput::NolinkLr,
         (Method::Sgm, false) => RefineInput::Sgm,
         (Method::Sgm, true) => RefineInput::SgmLr,
         (Method::Head, false) => RefineInput::Head,
         (Method::Head, true) => RefineInput::HeadLr,
-    }
+        (Method::Fused, _) => bail!("--readout {readout}: {FUSED_NOT_STREAMED}"),
+    })
 }
 
 /// The pair as the sensor delivers it: gray bytes at the profile's size.
@@ -240,7 +250,8 @@ fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
     let kept = match readout.method {
         Method::Nolink => sim.pipeline.wta_kept,
         Method::Sgm => sim.pipeline.sgm_kept,
-        Method::Head => sim.pipeline.head_kept,
+        // Fused readouts are refused by `run_sim`.
+        Method::Head | Method::Fused => sim.pipeline.head_kept,
     };
     let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
     vec![
@@ -516,7 +527,7 @@ impl Sink for DisplaySink<'_> {
         match self.readout.method {
             Method::Nolink => self.show_row(row.row, row.wta_q8, row.wta_consistent),
             Method::Sgm => self.show_row(row.row, row.sgm_q8, row.sgm_consistent),
-            Method::Head => {}
+            Method::Head | Method::Fused => {}
         }
     }
 
