@@ -30,7 +30,7 @@ runs=(
 )
 
 selected=("$@")
-known=" ${runs[*]%%|*} int8_compare_w160 "
+known=" ${runs[*]%%|*} int8_compare_w160 heldout_w160 heldout_w320 "
 for w in "${selected[@]}"; do
   if [[ "$known" != *" $w "* ]]; then
     echo "error: measure_tables.sh: unknown run '$w' (known:$known)" >&2
@@ -56,6 +56,23 @@ for run in "${runs[@]}"; do
   printf '== %s: %d s\n' "$name" $((SECONDS - start))
 done
 
+# The held-out labeled train pairs (bino_train.labeled.LABELED_HOLDOUT: validation, no head trains
+# on them, never the eval split), resized by bino_train.labeled_folder and scored like the eval
+# split: the readouts every recipe was chosen with, StereoSGBM in the same run.
+for width in 160 320; do
+  name="heldout_w$width"
+  wanted "$name" || continue
+  printf '\n== %s: labeled_folder --width %d, bino eval --split val\n' "$name" "$width"
+  start=$SECONDS
+  folder="$(mktemp -d)"
+  (cd train && "$BINO_VENV/bin/python" -W ignore -m bino_train.labeled_folder --width "$width" \
+    --out "$folder" --data "$data")
+  cols=$((width == 320 ? 16 : 10))
+  "$bino" eval --data "$folder" --split val --profile native --precision int8 --max-cols "$cols" \
+    --readout sgm+lr+ref,head+lr+ref,fuse+lr+ref --json "$metrics/$name.json"
+  rm -rf "$folder"
+  printf '== %s: %d s\n' "$name" $((SECONDS - start))
+done
 if wanted int8_compare_w160; then
   printf '\n== int8_compare_w160: bino compare\n'
   start=$SECONDS

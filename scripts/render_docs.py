@@ -142,8 +142,9 @@ def metrics_of(entry: Json) -> Json:
     return dict(entry["metrics"]) if "metrics" in entry else entry
 
 
-READOUTS = ["nolink", "nolink+lr", "sgm", "sgm+lr", "head", "head+lr"]
-DEFAULT = {"w160": "head+lr+ref", "w320": "sgm+lr+ref"}
+READOUTS = ["nolink", "nolink+lr", "sgm", "sgm+lr", "head", "head+lr", "fuse", "fuse+lr"]
+DEFAULT = {"w160": "fuse+lr+ref", "w320": "fuse+lr+ref"}
+"""`bino run`'s default readout (`Pathway::default_readout`) at each profile."""
 
 
 # ---------------------------------------------------------------- accuracy
@@ -581,6 +582,36 @@ FOLDER_TITLES = {
 }
 
 
+def heldout_labeled(src: Sources) -> str:
+    """The held-out labeled train pairs (validation): per pair, the readouts every recipe was
+    chosen with against StereoSGBM, and how far the worst pair is from StereoSGBM's epe."""
+    evs = {w: src.metrics(f"heldout_w{w}") for w in (160, 320)}
+    readouts = ["sgm+lr+ref", "head+lr+ref", DEFAULT["w160"]]
+    rows = []
+    pairs = [p["pair_id"] for p in evs[160]["per_pair"]]
+    for i, pair in enumerate(pairs + ["mean"]):
+        row = [f"`{pair}`" if pair != "mean" else "mean"]
+        for w in (160, 320):
+            ev = evs[w]
+            got = ev["mean"] if pair == "mean" else ev["per_pair"][i]["readouts"]
+            for r in readouts:
+                row.append(ep_b1(metrics_of(got[f"int8_{r}"])))
+            sgbm = metrics_of(got["sgbm"])
+            ours = metrics_of(got[f"int8_{DEFAULT[f'w{w}']}"])
+            row += [ep_b1(sgbm), f"{ours['epe'] / sgbm['epe']:.2f}"]
+        rows.append(row)
+    header = ["pair"]
+    for w in (160, 320):
+        header += [f"w{w} int8 `{r}`" for r in readouts]
+        header += [f"w{w} StereoSGBM", "default / SGBM epe"]
+    note = (
+        "epe px / bad1tok %, int8, the held-out labeled MiddEval3-Q train pairs "
+        "(`bino_train.labeled.LABELED_HOLDOUT`, resized by `bino_train.labeled_folder`), "
+        "StereoSGBM in the same run; `scripts/measure_tables.sh heldout_w160 heldout_w320`."
+    )
+    return note + "\n\n" + table(header, rows, [False] * len(header)) + "\n\n" + footer(src)
+
+
 def native_checks(src: Sources) -> str:
     """The native head's left-right checks on the validation folders (float, unrefined)."""
     data = src.json("train/checkpoints/metrics/native_checks.json")
@@ -959,6 +990,7 @@ RENDERERS: dict[str, Callable[[Sources], str]] = {
     "native-float": native_float,
     "board-pathways": board_pathways,
     "native-checks": native_checks,
+    "heldout-labeled": heldout_labeled,
     "bench": bench_table,
     "fw-memory": fw_memory,
     "fw-stages": fw_stages,
