@@ -555,11 +555,12 @@ fn help_lists_each_verb_on_one_short_public_line_developer_verbs_last() {
             "reference",
             "pairs",
             "compare",
+            "describe",
             "quantize"
         ]
     );
     for (verb, about) in &verbs {
-        let developer = ["reference", "pairs", "compare", "quantize"].contains(verb);
+        let developer = ["reference", "pairs", "compare", "describe", "quantize"].contains(verb);
         assert_eq!(about.starts_with("(developer)"), developer, "{verb}: {about}");
     }
 }

@@ -108,7 +108,7 @@ mod tests {
     }
 
     /// The verbs `bino --help` labels "(developer)": for measuring the engine and making weights.
-    const DEVELOPER_VERBS: [&str; 4] = ["reference", "pairs", "compare", "quantize"];
+    const DEVELOPER_VERBS: [&str; 5] = ["reference", "pairs", "compare", "describe", "quantize"];
 
     /// Words that point inside the project rather than at what a user can see.
     const INTERNAL: [&str; 6] = ["EVAL.md", "paper", "issue", "session", "bino_core::", "README"];
@@ -219,10 +219,10 @@ mod tests {
                 seen += 1;
             }
         }
-        // demo, run, sim, eval, compare, bench: --blob; eval, compare, bench, reference, quantize:
-        // --onnx; eval: --head-onnx, --native-head-onnx; eval, compare, pairs: --data; quantize:
-        // --calib; budget: --firmware.
-        assert_eq!(seen, 6 + 5 + 2 + 3 + 1 + 1);
+        // demo, run, sim, eval, compare, bench, describe: --blob; eval, compare, bench, reference,
+        // quantize: --onnx; eval: --head-onnx, --native-head-onnx; eval, compare, pairs: --data;
+        // quantize: --calib; budget: --firmware.
+        assert_eq!(seen, 7 + 5 + 2 + 3 + 1 + 1);
         // quantize writes where the others read.
         assert_eq!(
             flag("quantize", "out").0,
