@@ -33,8 +33,8 @@ pub struct RunArgs {
     /// Readout: nolink, sgm, head or fuse, each optionally +lr, then optionally +ref.
     ///
     /// +lr: cells the method's own left-right check rejects filled from the nearest kept cell to
-    /// their left; +ref: the same as --refine on. fuse+lr: the head and SGM, their midpoint where
-    /// both pass their checks, the one that passes elsewhere. Default: fuse+lr on the export
+    /// their left; +ref: the same as --refine on. fuse+lr: the head and SGM, their weighted mean
+    /// where both pass their checks, the one that passes elsewhere. Default: fuse+lr on the export
     /// pathway (chosen on held-out train pairs and synthetic scenes), head+lr on the native one.
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
