@@ -4,7 +4,6 @@ ONNX export and exact resume."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -14,6 +13,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 import torch
+from conftest import TINY_DATA
 
 import bino_train.augment as augment
 from bino_train.export import random_encoder
@@ -58,16 +58,7 @@ from bino_train.pairs import SplitError, load_gray_u8, load_pairs
 from bino_train.probe import similarity_volume, window_descriptors, wta_subtoken
 from bino_train.synthetic import shifted_pair, smooth_texture
 
-TINY_DATA = DataConfig(crop_h=32, crop_w=96, min_width=96, max_width=160)
-
-
-@pytest.fixture(autouse=True)
-def one_thread() -> Iterator[None]:
-    """Tiny tensors: extra threads only add barrier waits (minutes on a busy machine)."""
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def test_parameter_count_is_the_papers() -> None:

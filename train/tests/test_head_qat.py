@@ -2,36 +2,19 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 import pytest
 import torch
+from conftest import TINY_SYNTHETIC_DATA, cpu_trainer, save_tiny_cache, tiny_cached_config
 
 import bino_train.head_qat as qat
 from bino_train.export import random_encoder
 from bino_train.head import HeadConfig, StereoHead, make_head
-from bino_train.head_cache import build_cache, save_cache
-from bino_train.head_data import DataConfig
-from bino_train.head_train import (
-    SMOKE_ENCODER,
-    SMOKE_HEAD,
-    EncoderSource,
-    HeadTrainConfig,
-    HeadTrainer,
-    encoder_digest,
-)
+from bino_train.head_train import SMOKE_ENCODER, SMOKE_HEAD
 
-TINY_DATA = DataConfig(crop_h=32, crop_w=96, min_width=96, max_width=160, synthetic_fraction=1.0)
-
-
-@pytest.fixture(autouse=True)
-def one_thread() -> Iterator[None]:
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def tiny_head(seed: int = 0) -> StereoHead:
@@ -103,34 +86,17 @@ def test_only_the_shared_head_trains_quantisation_aware() -> None:
 
 def test_a_qat_run_keeps_its_ranges_and_resumes_exactly(tmp_path: Path) -> None:
     encoder = random_encoder(0, SMOKE_ENCODER)
-    cache = build_cache(encoder, encoder_digest(encoder), TINY_DATA, 0, 8, None, progress=False)
     path = tmp_path / "cache.pt"
-    save_cache(cache, path)
-    source = EncoderSource(
-        "random-init", seed=0, config=SMOKE_ENCODER.to_dict(), sha256=encoder_digest(encoder)
-    )
-    cfg = HeadTrainConfig(
-        head=replace(SMOKE_HEAD, desc_dim=SMOKE_ENCODER.dim),
-        data=TINY_DATA,
-        batch=4,
-        refresh=4,
-        pool=8,
-        schedule_steps=6,
-        cache=str(path),
-        qat=True,
-    )
-
-    def trainer() -> HeadTrainer:
-        return HeadTrainer(cfg, encoder, source, None, torch.device("cpu"))
-
-    straight = trainer()
+    save_tiny_cache(path, encoder, TINY_SYNTHETIC_DATA, 0, 8)
+    cfg = replace(tiny_cached_config(path, TINY_SYNTHETIC_DATA), qat=True)
+    straight = cpu_trainer(cfg, encoder)
     for _ in range(4):
         straight.train_step()
     assert straight.qat_ranges is not None
-    split = trainer()
+    split = cpu_trainer(cfg, encoder)
     for _ in range(2):
         split.train_step()
-    resumed = trainer()
+    resumed = cpu_trainer(cfg, encoder)
     resumed.load_state_dict(split.state_dict())
     assert resumed.qat_ranges == split.qat_ranges == straight.qat_ranges
     for _ in range(2):

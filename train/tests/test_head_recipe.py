@@ -3,18 +3,17 @@ the validation split that is never the eval split."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
-from conftest import HEADER
+from conftest import HEADER, TINY_DATA, cpu_trainer, save_tiny_cache, tiny_cached_config
 
 from bino_train.export import random_encoder
 from bino_train.head import HeadConfig, HeadOutput, head_loss
-from bino_train.head_cache import build_cache, load_cache, load_cache_meta, save_cache
+from bino_train.head_cache import load_cache, load_cache_meta, save_cache
 from bino_train.head_data import (
     DataConfig,
     cell_weights,
@@ -24,29 +23,14 @@ from bino_train.head_data import (
     sgbm_disparity,
     validation_pairs,
 )
-from bino_train.head_train import (
-    SMOKE_ENCODER,
-    SMOKE_HEAD,
-    EncoderSource,
-    HeadTrainConfig,
-    HeadTrainer,
-    encoder_digest,
-)
+from bino_train.head_train import SMOKE_ENCODER, SMOKE_HEAD, HeadTrainer
 from bino_train.head_val import ValidationSet
 from bino_train.pairs import load_pairs
 from bino_train.photometric import photometric_terms, pixel_disparity, warp_right
 from bino_train.probe import upsample_disparity
 from bino_train.synthetic import shifted_pair
 
-TINY_DATA = DataConfig(crop_h=32, crop_w=96, min_width=96, max_width=160)
-
-
-@pytest.fixture(autouse=True)
-def one_thread() -> Iterator[None]:
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _write_index(folder: Path, datasets: dict[str, int]) -> Path:
@@ -143,32 +127,16 @@ def test_photometric_gradient_points_to_the_true_disparity() -> None:
 
 
 def _cache_trainer(cache_path: Path, data: DataConfig, data_dir: Path) -> HeadTrainer:
-    encoder = random_encoder(0, SMOKE_ENCODER)
-    source = EncoderSource(
-        "random-init", seed=0, config=SMOKE_ENCODER.to_dict(), sha256=encoder_digest(encoder)
-    )
-    cfg = HeadTrainConfig(
-        head=replace(SMOKE_HEAD, desc_dim=SMOKE_ENCODER.dim),
-        data=data,
-        batch=4,
-        refresh=4,
-        pool=8,
-        schedule_steps=6,
-        cache=str(cache_path),
-        photometric=0.5,
-        smoothness=0.05,
-    )
-    return HeadTrainer(cfg, encoder, source, data_dir, torch.device("cpu"))
+    cfg = replace(tiny_cached_config(cache_path, data), photometric=0.5, smoothness=0.05)
+    return cpu_trainer(cfg, random_encoder(0, SMOKE_ENCODER), data_dir)
 
 
 def test_cached_training_matches_its_data_and_resumes_exactly(
     data_dir: Path, tmp_path: Path
 ) -> None:
     data = replace(TINY_DATA, synthetic_fraction=0.5, label_weighting="lr")
-    encoder = random_encoder(0, SMOKE_ENCODER)
-    cache = build_cache(encoder, encoder_digest(encoder), data, 0, 12, data_dir, progress=False)
     path = tmp_path / "cache.pt"
-    save_cache(cache, path)
+    cache = save_tiny_cache(path, random_encoder(0, SMOKE_ENCODER), data, 0, 12, data_dir)
     loaded = load_cache(path)
     assert loaded.count == 12 and load_cache_meta(path)["count"] == 12
     assert loaded.data.images is not None and loaded.data.images.shape == (12, 2, 32, 96)

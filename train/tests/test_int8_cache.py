@@ -10,14 +10,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
+from conftest import TINY_SYNTHETIC_DATA, save_tiny_cache
 
 from bino_train.export import random_encoder
-from bino_train.head_cache import build_cache, load_cache, save_cache
-from bino_train.head_data import DataConfig, HeadSampler
-from bino_train.head_train import SMOKE_ENCODER, encoder_digest
+from bino_train.head_cache import load_cache
+from bino_train.head_data import HeadSampler
+from bino_train.head_train import SMOKE_ENCODER
 from bino_train.int8_cache import crop_stack, int8_cache, main, same_labels
-
-TINY_DATA = DataConfig(crop_h=32, crop_w=96, min_width=96, max_width=160, synthetic_fraction=1.0)
 
 FAKE_BINO = """#!{python}
 # Stand-in for `bino describe`: each map token is its crop view's mean grey (DIM 32).
@@ -39,23 +38,21 @@ def fake_bino(tmp_path: Path) -> Path:
 
 
 def tiny_cache(tmp_path: Path, count: int = 6) -> Path:
-    encoder = random_encoder(0, SMOKE_ENCODER)
-    cache = build_cache(encoder, encoder_digest(encoder), TINY_DATA, 3, count, None, progress=False)
     path = tmp_path / "float.pt"
-    save_cache(cache, path)
+    save_tiny_cache(path, random_encoder(0, SMOKE_ENCODER), TINY_SYNTHETIC_DATA, 3, count)
     return path
 
 
 def test_regenerated_samples_are_the_cache_crops_and_labels(tmp_path: Path) -> None:
     cache = load_cache(tiny_cache(tmp_path))
-    samples = HeadSampler(TINY_DATA, 3, None).samples(range(cache.count))
+    samples = HeadSampler(TINY_SYNTHETIC_DATA, 3, None).samples(range(cache.count))
     stack = crop_stack(samples)
     assert stack.shape == (6, 2, 32, 96) and stack.dtype == np.float32
     assert same_labels(samples, cache.data.label)
     moved = cache.data.label.clone()
     moved[torch.isfinite(moved)] += 0.25
     assert not same_labels(samples, moved)
-    other_seed = HeadSampler(TINY_DATA, 4, None).samples(range(cache.count))
+    other_seed = HeadSampler(TINY_SYNTHETIC_DATA, 4, None).samples(range(cache.count))
     assert not same_labels(other_seed, cache.data.label)
 
 
@@ -77,7 +74,7 @@ def test_maps_are_replaced_and_everything_else_kept(tmp_path: Path) -> None:
         assert torch.equal(kept.nan_to_num(-1.0), original.nan_to_num(-1.0)), name
     # The stand-in's maps are the mean grey of the crop the encoder reads: the views after the
     # nuisances (the cache keeps the clean ones for the photometric terms), left then right.
-    views = crop_stack(HeadSampler(TINY_DATA, 3, None).samples(range(6)))
+    views = crop_stack(HeadSampler(TINY_SYNTHETIC_DATA, 3, None).samples(range(6)))
     for v, maps in enumerate((cache.data.left, cache.data.right)):
         want = torch.from_numpy(views[:, v].mean(axis=(1, 2)))
         assert torch.allclose(maps[:, 0, 0, 0].float(), want, atol=1e-3), v

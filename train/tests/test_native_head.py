@@ -5,7 +5,6 @@ encoder's pass over the mirrored pair."""
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -14,6 +13,7 @@ import onnx
 import onnxruntime as ort
 import pytest
 import torch
+from conftest import TINY_SYNTHETIC_DATA, cpu_trainer, save_tiny_cache
 from torch.utils.flop_counter import FlopCounterMode
 
 from bino_train.config import PAPER_CONFIG
@@ -31,36 +31,21 @@ from bino_train.head import (
     make_head,
     write_native_fixture,
 )
-from bino_train.head_cache import build_cache, cache_pathway, save_cache
-from bino_train.head_data import DataConfig, HeadSampler, encode
+from bino_train.head_cache import cache_pathway
+from bino_train.head_data import HeadSampler, encode
 from bino_train.head_eval import consistent, diagonal_right, evaluate_head, head_lr, pair_inputs
-from bino_train.head_train import (
-    SMOKE_ENCODER,
-    SMOKE_HEAD,
-    EncoderSource,
-    HeadTrainConfig,
-    HeadTrainer,
-    encoder_digest,
-    main,
-)
+from bino_train.head_train import SMOKE_ENCODER, SMOKE_HEAD, HeadTrainConfig, main
 from bino_train.head_val import ValidationSet
 from bino_train.model import BinoEncoder, encoder_macs, parameter_count, phase_maps
 from bino_train.probe import encoder_phase_maps
 
-TINY_DATA = DataConfig(crop_h=32, crop_w=96, min_width=96, max_width=160, synthetic_fraction=1.0)
 TINY_NATIVE = replace(SMOKE_HEAD, desc_dim=SMOKE_ENCODER.dim, pair_features="concat")
 
 PARAMETER_BUDGET = 200_000
 MAC_BUDGET = 0.15
 """Issue 15: at most 0.2M parameters and 15 % of one encoder pass's MACs at 48x160."""
 
-
-@pytest.fixture(autouse=True)
-def one_thread() -> Iterator[None]:
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(threads)
+pytestmark = pytest.mark.usefixtures("one_torch_thread")
 
 
 def _encoder() -> BinoEncoder:
@@ -88,7 +73,7 @@ def test_phase_maps_are_the_even_and_odd_fused_columns() -> None:
 
 def test_native_encoding_is_one_pass_on_the_pair() -> None:
     enc = _encoder()
-    samples = HeadSampler(TINY_DATA, seed=0, data_dir=None).samples(range(3))
+    samples = HeadSampler(TINY_SYNTHETIC_DATA, seed=0, data_dir=None).samples(range(3))
     native = encode(enc, samples, torch.device("cpu"), "native")
     export = encode(enc, samples, torch.device("cpu"), "export")
     s = samples[1]
@@ -286,29 +271,21 @@ def test_the_diagonal_reads_a_consistent_scene_from_the_right() -> None:
     assert kept.tolist() == [False, False] + [True] * 10
 
 
-def _trainer(cfg: HeadTrainConfig, encoder: BinoEncoder) -> HeadTrainer:
-    source = EncoderSource(
-        "random-init", seed=0, config=SMOKE_ENCODER.to_dict(), sha256=encoder_digest(encoder)
-    )
-    return HeadTrainer(cfg, encoder, source, None, torch.device("cpu"))
-
-
 def test_a_cache_trains_only_its_own_pathway(tmp_path: Path) -> None:
     enc = _encoder()
-    cache = build_cache(enc, encoder_digest(enc), TINY_DATA, 0, 6, None, False, "native")
     path = tmp_path / "native.pt"
-    save_cache(cache, path)
+    save_tiny_cache(path, enc, TINY_SYNTHETIC_DATA, 0, 6, pathway="native")
     assert cache_pathway(json.loads((tmp_path / "native.pt.json").read_text())) == "native"
     assert cache_pathway({}) == "export"  # caches from before the native pathway
-    native = HeadTrainConfig(head=TINY_NATIVE, data=TINY_DATA, batch=4, cache=str(path))
-    trainer = _trainer(native, enc)
+    native = HeadTrainConfig(head=TINY_NATIVE, data=TINY_SYNTHETIC_DATA, batch=4, cache=str(path))
+    trainer = cpu_trainer(native, enc)
     first = trainer.train_step()
     assert np.isfinite(first["loss"]) and isinstance(trainer.head, NativeHead)
     export = replace(native, head=replace(TINY_NATIVE, pair_features=""))
     with pytest.raises(
         ValueError, match="native-pathway maps, this run trains a head of the export pathway"
     ):
-        _trainer(export, enc)
+        cpu_trainer(export, enc)
     with pytest.raises(SystemExit, match="--pathway native"):
         main(
             ["--random-init-seed", "0", "--out", str(tmp_path / "r"), "--cache", str(path)]
@@ -329,7 +306,9 @@ def test_native_smoke_run_reduces_the_loss(tmp_path: Path) -> None:
 def test_validation_and_evaluation_score_native_heads(data_dir: Path) -> None:
     enc = _encoder()
     head = NativeHead(TINY_NATIVE)
-    val = ValidationSet.build(enc, data_dir, TINY_DATA, synthetic_count=4, pathway="native")
+    val = ValidationSet.build(
+        enc, data_dir, TINY_SYNTHETIC_DATA, synthetic_count=4, pathway="native"
+    )
     scores = val.score(head)
     assert np.isfinite(scores["val_synthetic"]["epe"])
     with pytest.raises(ValueError, match="export-pathway head on a native"):
