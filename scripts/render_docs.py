@@ -540,25 +540,27 @@ def board_headline(src: Sources) -> str:
 
 def board_pathways(src: Sources) -> str:
     """The board's two pathways side by side: cost of a checked 48x160 band pair on each core
-    and the accuracy of its refined head readout on the eval split at w160 (the board's
-    160-px bands, the preset's 12 candidates)."""
+    and the accuracy of the refined readout its preset streams on the eval split at w160 (the
+    board's 160-px bands): the export pathway's default (fused), the native head's."""
     ex, na = src.metrics("eval_w160"), src.metrics("native_w160")
     pathways = (
         (
-            "export (the board's default): encode (L, L) and (R, R), head, mirrored head",
+            "export (the board's default): encode (L, L) and (R, R), SGM, head, mirrored head",
             "band_pair_instructions",
             ex,
+            DEFAULT["w160"],
         ),
         (
             "native: one encode on (L, R), native head, right view from its logits",
             "native_band_pair_instructions",
             na,
+            "head+lr+ref",
         ),
     )
     rows = []
-    for label, key, metrics in pathways:
-        accuracy = ep_b1(metrics_of(metrics["mean"]["int8_head+lr+ref"]))
-        row = [label, "int8 `head+lr+ref`", accuracy]
+    for label, key, metrics, readout in pathways:
+        accuracy = ep_b1(metrics_of(metrics["mean"][f"int8_{readout}"]))
+        row = [label, f"int8 `{readout}`", accuracy]
         for core in CORES:
             c = src.core(core)
             ins = c[key]
@@ -673,8 +675,8 @@ STAGE_NOTES = {
     "match": "match (inverse norms, cost row, WTA)",
     "sgm": "sgm (two streams)",
     "left_right": "left_right",
-    "head": "head (the left head, then the mirrored head for its check)",
-    "refine": "refine (pixel refinement of the head+lr grid, depth sectors)",
+    "head": "head (the left head, then the mirrored head for its check, fused with the SGM rows)",
+    "refine": "refine (pixel refinement of the fuse+lr grid, depth sectors)",
     "native_rows": "native_rows",
     "native_encode_pair": "native_encode_pair: one pass on (L, R)",
     "native_head": "native_head: the native head on the pair tokens, its check from its logits",

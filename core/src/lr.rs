@@ -83,6 +83,23 @@ pub fn fill_rejected<T: Copy + Default>(row: &mut [T], consistent: &[u8]) -> Res
     Ok(())
 }
 
+/// The head's share, in 256ths, of a fused cell where both the head and SGM pass their checks
+/// ([`fuse_row`]), for views `width` px wide: 160 (0.625) up to
+/// [`FUSE_HEAD_HEAVY_MAX_WIDTH`], 128 (the midpoint) above. Chosen on the held-out labeled
+/// pairs and the synthetic folders (`train/experiments.json`, `fused_weight`): at 160 px 0.625
+/// beats the midpoint on all three sets, at 320 px the midpoint beats 0.625 and 0.75 on two of
+/// three. The pipeline and the host both take it from here.
+pub const fn fuse_head_weight(width: usize) -> u8 {
+    if width <= FUSE_HEAD_HEAVY_MAX_WIDTH {
+        160
+    } else {
+        128
+    }
+}
+
+/// Widest view (px) whose fused readout leans on the head ([`fuse_head_weight`]).
+pub const FUSE_HEAD_HEAVY_MAX_WIDTH: usize = 160;
+
 /// The fused readout's row (`fuse+lr`): where both the head and SGM pass their own left-right
 /// checks, their weighted mean in Q8 (`head_weight / 256` of the head's disparity, the rest the
 /// SGM's, rounded half up; 128 is the midpoint); where one passes, its disparity; where neither
@@ -205,6 +222,14 @@ mod tests {
             consistent_row(&[0; 2], &[0; 2], 0, &mut mask),
             Err(Error::BufferSize { .. })
         ));
+    }
+
+    #[test]
+    fn the_fused_readout_leans_on_the_head_at_160_px_only() {
+        assert_eq!(fuse_head_weight(160), 160);
+        assert_eq!(fuse_head_weight(96), 160);
+        assert_eq!(fuse_head_weight(161), 128);
+        assert_eq!(fuse_head_weight(320), 128);
     }
 
     #[test]

@@ -51,7 +51,7 @@ mod streams;
 /// A head row as [`Sink::head`] receives it.
 pub use crate::model::head::HeadRow;
 pub use api::{
-    HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink, SlicePair, Stage,
+    FusedRow, HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink, SlicePair, Stage,
 };
 pub use driver::Pipeline;
 pub use sizing::{arena_bytes, arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes};

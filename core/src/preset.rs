@@ -1,13 +1,14 @@
 //! The readouts the firmware (`firmware-sim`) and the board apps (`boards/`) run, in one place so
 //! every target computes the same numbers: the `bino` CLI's defaults (16 candidates, SGM
 //! penalties 96 / 192 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch column, the head with its own left-right
-//! check), the pixel refinement of the head+lr grid, and (feature `depth`) the example board's
+//! check), the pixel refinement of the fused grid (the head and SGM fused by their checks,
+//! `fuse+lr`, the default of `bino run`), and (feature `depth`) the example board's
 //! calibration and sector count of the obstacle summary.
 //!
 //! ```
 //! use bino_core::preset::{arena_bytes, OPTIONS, REFINE};
 //! use bino_core::pipeline::RefineInput;
-//! assert_eq!(REFINE.input, RefineInput::HeadLr);
+//! assert_eq!(REFINE.input, RefineInput::FusedLr);
 //! assert!(OPTIONS.head && OPTIONS.head_lr);
 //! // The 48x160 band pair of the budget: 486,918 bytes.
 //! assert_eq!(arena_bytes(48, 160), 486_918);
@@ -32,7 +33,7 @@ pub const OPTIONS: Options = Options {
 };
 
 /// The pixel refinement: the default parameters on the readout the pipeline's rule picks for
-/// [`OPTIONS`] (head+lr).
+/// [`OPTIONS`] (fuse+lr: the head and SGM fused by their own left-right checks).
 pub const REFINE: Refine = Refine::for_options(&OPTIONS);
 
 /// Arena bytes a `height x width` band pair needs with [`OPTIONS`] and [`REFINE`].

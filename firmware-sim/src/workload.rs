@@ -5,7 +5,8 @@
 //!
 //! - Export: both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the left-right
 //!   check, the shared head and its own left-right check (the head on the mirrored pair, rerun
-//!   on the head's arena), row by row, and the pixel refinement of the head+lr grid.
+//!   on the head's arena), row by row, the head and SGM fused by their checks, and the pixel
+//!   refinement of the fused grid (fuse+lr).
 //! - Native: one encoder pass on (L, R) and the native head on its pair tokens, its left-right
 //!   check read from the head's own logits (no second pass), and the refinement of its head+lr
 //!   grid.
@@ -18,7 +19,9 @@ use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
 use bino_core::depth::{DepthModel, DisparityUnit, SectorSummary};
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pathway, Pipeline, Refine, Report, RowSource, Sink};
+use bino_core::pipeline::{
+    self, FusedRow, HeadChecked, MatchedRow, Options, Pathway, Pipeline, Refine, Report, RowSource, Sink,
+};
 use bino_core::Error;
 
 // The readouts, the refinement, the example board's calibration and the sector count: the
@@ -114,7 +117,7 @@ impl Stage {
 }
 
 /// The outputs the firmware digests: one slot each, filled by the pathways that make it.
-pub const OUTPUTS: [&str; 10] = [
+pub const OUTPUTS: [&str; 11] = [
     "descriptors_left",
     "descriptors_right",
     "wta",
@@ -125,12 +128,13 @@ pub const OUTPUTS: [&str; 10] = [
     "refined",
     "sectors",
     "pair_tokens",
+    "fused",
 ];
 
 /// The slots of [`OUTPUTS`] `pathway`'s run fills, in order.
 pub const fn outputs(pathway: Pathway) -> &'static [usize] {
     match pathway {
-        Pathway::Export => &[0, 1, 2, 3, 4, 5, 6, 7, 8],
+        Pathway::Export => &[0, 1, 2, 3, 4, 5, 6, 10, 7, 8],
         Pathway::Native => &[9, 5, 6, 7, 8],
     }
 }
@@ -221,6 +225,13 @@ impl<H: Hooks> Sink for Recorder<'_, H> {
         self.digest(|c| {
             update_u16(&mut c[6], row.right_q8);
             c[6].update(row.consistent);
+        });
+    }
+
+    fn fused(&mut self, row: &FusedRow<'_>) {
+        self.digest(|c| {
+            update_u16(&mut c[10], row.disparity_q8);
+            c[10].update(row.consistent);
         });
     }
 

@@ -162,15 +162,7 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         )?);
     }
     if model.has_head() {
-        let export = PipelineOptions {
-            pathway: Pathway::Export,
-            max_cols: opts.max_cols,
-            penalties: opts.penalties,
-            lr_max_diff_q8: DEMO_LR_MAX_DIFF_Q8,
-            head: true,
-            head_lr: true,
-            head_candidates: crate::readout::head_candidates(left.width),
-        };
+        let export = pipeline_options(opts, Pathway::Export, left.width);
         let maps = steps.run(
             "fuse+lr+ref: head and SGM fused by their checks, refined (`bino run`'s default; int8 pipeline)",
             || run_pipeline(&model, &left, &right, &export, &mut |_, _| {}),
@@ -179,15 +171,7 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         readouts.push(scored_pixels("fuse+lr+ref", maps.methods.pixels(fused)?, &truth)?);
     }
     if model.has_head_of(HeadKind::Native) {
-        let native = PipelineOptions {
-            pathway: Pathway::Native,
-            max_cols: opts.max_cols,
-            penalties: opts.penalties,
-            lr_max_diff_q8: DEMO_LR_MAX_DIFF_Q8,
-            head: true,
-            head_lr: true,
-            head_candidates: crate::readout::head_candidates(left.width),
-        };
+        let native = pipeline_options(opts, Pathway::Native, left.width);
         let maps = steps.run(
             "native pathway: one encoder pass on (L, R), native head and its check (int8 pipeline)",
             || run_pipeline(&model, &left, &right, &native, &mut |_, _| {}),
@@ -229,6 +213,20 @@ impl<P: FnMut(&str)> Steps<'_, P> {
         let value = step()?;
         self.timings.push((name, started.elapsed()));
         Ok(value)
+    }
+}
+
+/// The pipeline's options for `pathway` on views `width` px wide: the head with its check, the
+/// demo's candidates, penalties and tolerance.
+fn pipeline_options(opts: &DemoOptions, pathway: Pathway, width: usize) -> PipelineOptions {
+    PipelineOptions {
+        pathway,
+        max_cols: opts.max_cols,
+        penalties: opts.penalties,
+        lr_max_diff_q8: DEMO_LR_MAX_DIFF_Q8,
+        head: true,
+        head_lr: true,
+        head_candidates: crate::readout::head_candidates(width),
     }
 }
 

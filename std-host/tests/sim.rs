@@ -114,7 +114,8 @@ fn a_bad_display_size_or_a_lone_view_is_refused() {
 }
 
 /// One readout, one number: the refined pixels sim draws as the pipeline streams them are the
-/// pixels `bino run` writes for the same readout (its `disparity.pfm`), colour for colour.
+/// pixels `bino run` writes for the same readout (its `disparity.pfm`), colour for colour. Both
+/// default to the fused readout (fuse+lr, refined), which the board's pipeline streams.
 #[test]
 fn sim_draws_the_refined_pixels_run_writes() {
     let dir = scratch("refined");
@@ -129,11 +130,12 @@ fn sim_draws_the_refined_pixels_run_writes() {
     let (left, right) = (dir.join("l.png"), dir.join("r.png"));
     let pair = ["--left", s(&left), "--right", s(&right), "--profile", "native"];
     let run_dir = dir.join("run");
-    let run = bino(&[&["run", "--readout", "head+lr", "--out", s(&run_dir)][..], &pair].concat());
+    let run = bino(&[&["run", "--out", s(&run_dir)][..], &pair].concat());
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let sim = bino(&[&["sim", "--readout", "head+lr+ref", "--out", s(&dir)][..], &pair].concat());
+    let sim = bino(&[&["sim", "--out", s(&dir)][..], &pair].concat());
     let stdout = String::from_utf8_lossy(&sim.stdout);
     assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
+    assert!(stdout.contains("fuse+lr+ref"), "sim's default readout: {stdout}");
     assert!(
         stdout.contains(&format!("{h} rows drawn")),
         "one drawn row per pixel row: {stdout}"
@@ -164,14 +166,25 @@ fn sim_draws_the_refined_pixels_run_writes() {
 }
 
 #[test]
-fn the_fused_readout_is_refused_until_the_board_streams_it() {
+fn sim_streams_the_checked_fusion_and_refuses_the_unchecked_one() {
     let dir = scratch("fused");
-    let run = bino(&["sim", "--readout", "fuse+lr+ref", "--out", s(&dir)]);
-    let stderr = String::from_utf8_lossy(&run.stderr);
-    assert!(!run.status.success(), "{stderr}");
+    let run = bino(&["sim", "--readout", "fuse+lr", "--out", s(&dir)]);
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let (_, h) = DEFAULT_SCENE;
     assert!(
-        stderr.contains("fuse+lr+ref") && stderr.contains("no fused readout"),
-        "{stderr}"
+        stdout.contains(&format!("{} rows drawn", h / 4)),
+        "one drawn row per token row: {stdout}"
     );
-    assert!(!stderr.contains("panicked"), "{stderr}");
+    for readout in ["fuse", "fuse+ref"] {
+        let run = bino(&["sim", "--readout", readout, "--out", s(&dir)]);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{stderr}");
+        assert!(
+            stderr.contains(&format!("--readout {readout}:"))
+                && stderr.contains("fuses the head and SGM by their checks"),
+            "{stderr}"
+        );
+        assert!(!stderr.contains("panicked"), "{stderr}");
+    }
 }

@@ -5,7 +5,8 @@
 //! written by `scripts/firmware.sh --profile --out firmware-sim/measured`). The refined rows'
 //! digest is also recomputed from the specification: the whole-map refinement the preset names
 //! (`refine::sharpness::refine_map_equalised`, or `refine::refine_map` without equalisation) on
-//! the whole head+lr token map of a plain pipeline run.
+//! the whole token map of a plain pipeline run the preset reads: the head and SGM fused by their
+//! checks (`lr::fuse_row`, export pathway) or the head+lr map (native), filled.
 
 use std::path::{Path, PathBuf};
 
@@ -15,7 +16,7 @@ mod workload;
 
 use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
-use bino_core::lr::fill_rejected;
+use bino_core::lr::{fill_rejected, fuse_head_weight, fuse_row};
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{HeadChecked, MatchedRow, Pathway, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::sharpness::refine_map_equalised;
@@ -65,15 +66,21 @@ fn firmware_digests(core: &str) -> Vec<(String, String, u32)> {
         .collect()
 }
 
-/// The head's rows and its check's masks of a run, by token row.
+/// The head's rows and its check's masks of a run, and the SGM's, by token row.
 struct HeadMaps {
     cols: usize,
     head: Vec<u16>,
     mask: Vec<u8>,
+    sgm: Vec<u16>,
+    sgm_mask: Vec<u8>,
 }
 
 impl Sink for HeadMaps {
-    fn matched(&mut self, _: &MatchedRow<'_>) {}
+    fn matched(&mut self, row: &MatchedRow<'_>) {
+        let c = self.cols;
+        self.sgm[row.row * c..(row.row + 1) * c].copy_from_slice(row.sgm_q8);
+        self.sgm_mask[row.row * c..(row.row + 1) * c].copy_from_slice(row.sgm_consistent);
+    }
     fn head(&mut self, row: HeadRow<'_>) {
         let c = self.cols;
         self.head[row.row * c..(row.row + 1) * c].copy_from_slice(row.disparity_q8);
@@ -84,12 +91,23 @@ impl Sink for HeadMaps {
     }
 }
 
-/// CRC-32 of the preset's whole-map refinement on the filled head+lr grid of `pathway`'s run (its rejected cells kept at the bilinear step) without the refinement
-/// stage, rows top to bottom, values little-endian: what the workload's `refined` digest must be.
+/// CRC-32 of the preset's whole-map refinement on the filled grid of `pathway`'s run (fuse+lr on
+/// the export pathway, head+lr on the native one; rejected cells kept at the bilinear step)
+/// without the refinement stage, rows top to bottom, values little-endian: what the workload's
+/// `refined` digest must be.
 fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8], right: &[u8]) -> u32 {
     let (height, width) = (48, 160);
     let (options, refine) = workload::preset(pathway);
-    assert_eq!(refine.input, RefineInput::HeadLr);
+    let fused = match pathway {
+        Pathway::Export => true,
+        Pathway::Native => false,
+    };
+    let want = if fused {
+        RefineInput::FusedLr
+    } else {
+        RefineInput::HeadLr
+    };
+    assert_eq!(refine.input, want);
     let pipeline = Pipeline::new(Blob::parse(blob).unwrap()).unwrap();
     let cols = width / 4;
     let cells = height / 4 * cols;
@@ -97,12 +115,32 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
         cols,
         head: vec![0; cells],
         mask: vec![0; cells],
+        sgm: vec![0; cells],
+        sgm_mask: vec![0; cells],
     };
     let mut arena = vec![0u8; bino_core::pipeline::arena_bytes_for(height, width, &options)];
     let mut source = SlicePair::new(left, right, width, height).unwrap();
     pipeline.run(&mut source, &options, &mut arena, &mut maps).unwrap();
-    let mut grid = maps.head.clone();
-    for (row, m) in grid.chunks_exact_mut(cols).zip(maps.mask.chunks_exact(cols)) {
+    let (mut grid, mut mask) = (maps.head.clone(), maps.mask.clone());
+    if fused {
+        for r in 0..height / 4 {
+            let row = r * cols..(r + 1) * cols;
+            let (head, sgm) = (&maps.head[row.clone()], &maps.sgm[row.clone()]);
+            let (head_mask, sgm_mask) = (&maps.mask[row.clone()], &maps.sgm_mask[row.clone()]);
+            let weight = fuse_head_weight(width);
+            fuse_row(
+                head,
+                head_mask,
+                sgm,
+                sgm_mask,
+                weight,
+                &mut grid[row.clone()],
+                &mut mask[row],
+            )
+            .unwrap();
+        }
+    }
+    for (row, m) in grid.chunks_exact_mut(cols).zip(mask.chunks_exact(cols)) {
         fill_rejected(row, m).unwrap();
     }
     let mut scratch = vec![0u32; scratch_len(width, &refine.params)];
@@ -113,7 +151,7 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
         refine_map
     };
     whole(left, right, width, &grid, &refine.params, &mut scratch, &mut refined).unwrap();
-    keep_rejected_map(width, &grid, &maps.mask, &mut refined).unwrap();
+    keep_rejected_map(width, &grid, &mask, &mut refined).unwrap();
     let mut crc = Crc32::new();
     for v in refined {
         crc.update(&v.to_le_bytes());
@@ -135,7 +173,7 @@ fn outputs_are_bit_identical_across_runs_threads_and_targets() {
         assert_eq!(
             first[refined],
             refined_digest_from_the_whole_map(&blob, pathway, &left, &right),
-            "{pathway:?}: the streamed refinement against the whole head+lr map's"
+            "{pathway:?}: the streamed refinement against the whole map's"
         );
         assert_eq!(
             digests(&blob, pathway, &left, &right),

@@ -5,13 +5,14 @@
 //! `refine::refine_map`) of that readout's token map (filled by its left-right check for the
 //! `+lr` ones, whose rejected cells then keep the bilinear step: `refine::keep_rejected_map`),
 //! computed from the same run's token rows; the other outputs do not change, and
-//! the arena grows as documented.
+//! the arena grows as documented. The fused rows the pipeline streams are `lr::fuse_row` of
+//! its own head and SGM rows with their checks.
 
-use bino_core::lr::fill_rejected;
+use bino_core::lr::{fill_rejected, fuse_head_weight, fuse_row};
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
-    arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes, HeadChecked, MatchedRow, Options,
-    Pipeline, Refine, RefineInput, Sink, SlicePair, Stage,
+    arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes, FusedRow, HeadChecked, MatchedRow,
+    Options, Pipeline, Refine, RefineInput, Sink, SlicePair, Stage,
 };
 use bino_core::refine::sharpness::{decide_map_row, refine_map_equalised};
 use bino_core::refine::{keep_rejected_map, refine_map, scratch_len, RefineParams};
@@ -25,13 +26,14 @@ const MAX_COLS: usize = 16;
 /// One band; 2 bands; 3 bands 8 token rows apart (the ring's worst case); an odd stride; 4.
 const SIZES: [(usize, usize); 5] = [(160, 48), (32, 56), (32, 80), (48, 100), (32, 144)];
 
-const INPUTS: [RefineInput; 6] = [
+const INPUTS: [RefineInput; 7] = [
     RefineInput::Nolink,
     RefineInput::NolinkLr,
     RefineInput::Sgm,
     RefineInput::SgmLr,
     RefineInput::Head,
     RefineInput::HeadLr,
+    RefineInput::FusedLr,
 ];
 
 fn options(head: bool, head_lr: bool) -> Options {
@@ -57,6 +59,10 @@ struct Collect {
     sgm_mask: Vec<u8>,
     head: Vec<u16>,
     head_mask: Vec<u8>,
+    fused: Vec<u16>,
+    fused_mask: Vec<u8>,
+    /// Token rows of the fused readout, in arrival order.
+    fused_rows: Vec<usize>,
     refined_rows: Vec<usize>,
     refined: Vec<u16>,
     /// The stage of each refined row's arrival.
@@ -76,6 +82,8 @@ impl Collect {
             sgm_mask: vec![0; cells],
             head: vec![0; cells],
             head_mask: vec![0; cells],
+            fused: vec![0; cells],
+            fused_mask: vec![0; cells],
             refine_stage_ok: true,
             ..Self::default()
         }
@@ -91,6 +99,7 @@ impl Collect {
             RefineInput::NolinkLr => Some(&self.wta_mask),
             RefineInput::SgmLr => Some(&self.sgm_mask),
             RefineInput::HeadLr => Some(&self.head_mask),
+            RefineInput::FusedLr => Some(&self.fused_mask),
             _ => None,
         }
     }
@@ -101,9 +110,10 @@ impl Collect {
             RefineInput::Nolink | RefineInput::NolinkLr => (&self.wta, &self.wta_mask),
             RefineInput::Sgm | RefineInput::SgmLr => (&self.sgm, &self.sgm_mask),
             RefineInput::Head | RefineInput::HeadLr => (&self.head, &self.head_mask),
+            RefineInput::FusedLr => (&self.fused, &self.fused_mask),
         };
         let mut grid = map.clone();
-        if matches!(input, RefineInput::NolinkLr | RefineInput::SgmLr | RefineInput::HeadLr) {
+        if self.mask(input).is_some() {
             for (row, m) in grid.chunks_exact_mut(self.cols).zip(mask.chunks_exact(self.cols)) {
                 fill_rejected(row, m).unwrap();
             }
@@ -130,6 +140,12 @@ impl Sink for Collect {
     fn head_checked(&mut self, row: &HeadChecked<'_>) {
         let c = self.cols;
         Self::put(&mut self.head_mask, c, row.row, row.consistent);
+    }
+    fn fused(&mut self, row: &FusedRow<'_>) {
+        let c = self.cols;
+        Self::put(&mut self.fused, c, row.row, row.disparity_q8);
+        Self::put(&mut self.fused_mask, c, row.row, row.consistent);
+        self.fused_rows.push(row.row);
     }
     fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
         assert_eq!(disparity_q8.len(), self.width);
@@ -242,6 +258,38 @@ fn whole_map(s: &Scene, out: &Collect, refine: &Refine) -> Vec<u16> {
     expected
 }
 
+/// The fused rows came once each, in order, and are `fuse_row` of the run's own head and SGM
+/// rows and their checks, with the head's share of the view width.
+fn assert_fused_is_the_checked_mean(out: &Collect, width: usize, height: usize) {
+    assert_eq!(out.fused_rows, (0..height / 4).collect::<Vec<_>>(), "{width}x{height}");
+    let cells = out.cols * (height / 4);
+    let (mut fused, mut kept) = (vec![0u16; cells], vec![0u8; cells]);
+    let c = out.cols;
+    for r in 0..height / 4 {
+        let row = r * c..(r + 1) * c;
+        fuse_row(
+            &out.head[row.clone()],
+            &out.head_mask[row.clone()],
+            &out.sgm[row.clone()],
+            &out.sgm_mask[row.clone()],
+            fuse_head_weight(width),
+            &mut fused[row.clone()],
+            &mut kept[row],
+        )
+        .unwrap();
+    }
+    assert!(
+        (&fused, &kept) == (&out.fused, &out.fused_mask),
+        "{width}x{height}: {}",
+        first_difference(&out.fused, &fused, c)
+    );
+    // The scenes exercise every case: both pass, one passes, neither.
+    let both = (0..cells)
+        .filter(|&i| out.head_mask[i] == 1 && out.sgm_mask[i] == 1)
+        .count();
+    assert!(both > 0 && kept.contains(&1), "{width}x{height}");
+}
+
 fn first_difference(got: &[u16], want: &[u16], width: usize) -> String {
     match got.iter().zip(want).position(|(a, b)| a != b) {
         Some(i) => format!(
@@ -263,6 +311,7 @@ fn every_readout_refines_as_the_whole_map_on_one_band_and_many() {
     for ((width, height), equalise) in SIZES.into_iter().flat_map(|size| [(size, false), (size, true)]) {
         let s = scene_for(width, height, equalise);
         let plain = run(&pipeline, &s, &opts, None).unwrap();
+        assert_fused_is_the_checked_mean(&plain, width, height);
         for input in INPUTS {
             let refine = Refine {
                 equalise,
@@ -288,10 +337,12 @@ fn every_readout_refines_as_the_whole_map_on_one_band_and_many() {
                 sgm,
                 head,
                 head_mask,
+                fused,
                 ..
             } = &out;
             assert!(
-                (wta, sgm, head, head_mask) == (&plain.wta, &plain.sgm, &plain.head, &plain.head_mask),
+                (wta, sgm, head, head_mask, fused)
+                    == (&plain.wta, &plain.sgm, &plain.head, &plain.head_mask, &plain.fused),
                 "{what}"
             );
         }
@@ -306,7 +357,7 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
     let opts = options(false, false);
     let refine = Refine::for_options(&opts);
     assert_eq!(refine.input, RefineInput::SgmLr);
-    assert_eq!(Refine::for_options(&options(true, true)).input, RefineInput::HeadLr);
+    assert_eq!(Refine::for_options(&options(true, true)).input, RefineInput::FusedLr);
     assert_eq!(Refine::for_options(&options(true, false)).input, RefineInput::SgmLr);
     let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap();
     assert_eq!(out.refined, whole_map(&s, &out, &refine));
@@ -319,6 +370,8 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
         (opts, RefineInput::Head),
         (opts, RefineInput::HeadLr),
         (head_only, RefineInput::HeadLr),
+        (opts, RefineInput::FusedLr),
+        (head_only, RefineInput::FusedLr),
     ] {
         let refine = Refine::of(input);
         let err = run(&pipeline, &s, &opts, Some(&refine)).err();
@@ -405,7 +458,8 @@ fn the_native_pathway_refines_its_head_as_the_whole_map() {
                 ..Refine::of(input)
             };
             let what = format!("native {width}x{height} {} equalise {equalise}", input.name());
-            if !input.uses_head() {
+            // The native pathway has its head only: no SGM to fuse with.
+            if !matches!(input, RefineInput::Head | RefineInput::HeadLr) {
                 let err = run(&pipeline, &s, &opts, Some(&refine)).unwrap_err();
                 assert_eq!(err, Error::MissingReadout { readout: input.name() }, "{what}");
                 continue;

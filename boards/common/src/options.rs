@@ -1,6 +1,6 @@
 //! The readouts the boards run: those of the QEMU firmware (`firmware-sim/src/workload.rs`)
 //! and of `bino run` — head with its left-right check, SGM, and the pixel refinement of the
-//! head+lr grid — on one 48x160 band pair.
+//! fuse+lr grid (the head and SGM fused by their checks) — on one 48x160 band pair.
 
 /// Band height in pixels (one encoder band: the arena below is the one-band size).
 pub const BAND_HEIGHT: usize = 48;

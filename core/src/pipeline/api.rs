@@ -188,18 +188,22 @@ pub enum RefineInput {
     /// The shared head, filled by its own left-right check (needs [`Options::head`] and
     /// [`Options::head_lr`]).
     HeadLr,
+    /// The head and SGM fused by their own left-right checks ([`crate::lr::fuse_row`], the
+    /// head's share [`crate::lr::fuse_head_weight`] of the view width), filled where both
+    /// reject (export pathway; needs [`Options::head`] and [`Options::head_lr`]).
+    FusedLr,
 }
 
 impl RefineInput {
-    /// The rule: [`RefineInput::HeadLr`] when the run checks the head ([`Options::head`] and
-    /// [`Options::head_lr`]), else [`RefineInput::SgmLr`] — the best readout each run has
-    /// (README: head+lr at w160, sgm+lr the default of `bino run`).
-    /// The native pathway has only its head: head+lr with the check, else head.
+    /// The rule: the best readout each run has. On the export pathway
+    /// [`RefineInput::FusedLr`] when the run checks the head ([`Options::head`] and
+    /// [`Options::head_lr`]), else [`RefineInput::SgmLr`] (the default of `bino run` is
+    /// `fuse+lr+ref`). The native pathway has only its head: head+lr with the check, else head.
     pub const fn for_options(opts: &Options) -> Self {
         match opts.pathway {
             Pathway::Native if opts.head_lr => RefineInput::HeadLr,
             Pathway::Native => RefineInput::Head,
-            Pathway::Export if opts.head && opts.head_lr => RefineInput::HeadLr,
+            Pathway::Export if opts.head && opts.head_lr => RefineInput::FusedLr,
             Pathway::Export => RefineInput::SgmLr,
         }
     }
@@ -213,12 +217,18 @@ impl RefineInput {
             RefineInput::SgmLr => "sgm+lr",
             RefineInput::Head => "head",
             RefineInput::HeadLr => "head+lr",
+            RefineInput::FusedLr => "fuse+lr",
         }
     }
 
-    /// Whether it is one of the head's.
+    /// Whether it reads the head (its rows then trail the band by [`HEAD_LAG`] token rows).
     pub const fn uses_head(self) -> bool {
-        matches!(self, RefineInput::Head | RefineInput::HeadLr)
+        matches!(self, RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr)
+    }
+
+    /// Whether it needs the head's left-right check ([`Options::head_lr`]).
+    pub const fn needs_head_check(self) -> bool {
+        matches!(self, RefineInput::HeadLr | RefineInput::FusedLr)
     }
 
     /// Token rows its rows trail the band's kept rows by.
@@ -311,6 +321,18 @@ pub struct HeadChecked<'r> {
     pub consistent: &'r [u8],
 }
 
+/// One token row of the fused readout (export pathway, with the head's check): the head and
+/// SGM fused by their own left-right checks ([`crate::lr::fuse_row`]), before the fill.
+#[derive(Debug, Clone, Copy)]
+pub struct FusedRow<'r> {
+    /// Token row.
+    pub row: usize,
+    /// Fused disparity per patch column, Q8 patch columns (rejected cells hold the head's).
+    pub disparity_q8: &'r [u16],
+    /// 1 where the head or SGM passes its check, else 0 (`fuse+lr` fills these cells).
+    pub consistent: &'r [u8],
+}
+
 /// Receives what the pipeline produces, in order.
 pub trait Sink {
     /// The pipeline enters `stage`.
@@ -337,6 +359,11 @@ pub trait Sink {
     /// With [`Options::head_lr`]: the head's left-right check of a row, after its
     /// [`Sink::head`] row.
     fn head_checked(&mut self, row: &HeadChecked<'_>) {
+        let _ = row;
+    }
+    /// On the export pathway with [`Options::head_lr`]: the fused readout's row, after its
+    /// [`Sink::head_checked`] row.
+    fn fused(&mut self, row: &FusedRow<'_>) {
         let _ = row;
     }
     /// With [`Pipeline::run_refined`]: pixel row `row` of the refined disparity (`width`
@@ -383,6 +410,9 @@ pub struct Report {
     pub sgm_kept: usize,
     /// Cells whose head disparity passed the head's left-right check ([`Options::head_lr`]).
     pub head_kept: usize,
+    /// Cells the fused readout kept: the head or SGM passed its check (export pathway with
+    /// [`Options::head_lr`]).
+    pub fused_kept: usize,
 }
 
 #[cfg(test)]

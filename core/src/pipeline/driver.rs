@@ -69,7 +69,8 @@ impl<'w> Pipeline<'w> {
     /// go to [`Sink::refined`]. The arena must hold [`arena_bytes_refined`] bytes.
     ///
     /// Errors as [`Pipeline::run`], and [`Error::MissingReadout`] for a head input of a run
-    /// without the head (or, for [`RefineInput::HeadLr`], without its check),
+    /// without the head (or, for [`RefineInput::HeadLr`] and [`RefineInput::FusedLr`], without
+    /// its check; the fused one also on the native pathway, which has no SGM),
     /// [`Error::OutOfRange`] for bad [`RefineParams`].
     pub fn run_refined(
         &self,
@@ -126,6 +127,7 @@ impl<'w> Pipeline<'w> {
             let missing = match r.input {
                 RefineInput::Head => head.is_none(),
                 RefineInput::HeadLr => !head_lr,
+                RefineInput::FusedLr => native || !head_lr,
                 _ => native,
             };
             if missing {
@@ -197,7 +199,7 @@ impl<'w> Pipeline<'w> {
             report.streams = streams.used;
             report.refine = streams.refine_used() + io.scratch.used();
             (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
-            report.head_kept = streams.head_kept();
+            (report.head_kept, report.fused_kept) = (streams.head_kept(), streams.fused_kept());
             let after = match refine {
                 // The refinement's state sits at a fixed offset after the streams' region.
                 Some(_) => stream_len - state_len + streams.refine_used() + io.scratch.used(),
@@ -231,7 +233,7 @@ impl<'w> Pipeline<'w> {
             report.streams = streams.used;
             report.refine = streams.refine_used() + scratch_used.max(io.scratch.used());
             (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
-            report.head_kept = streams.head_kept();
+            (report.head_kept, report.fused_kept) = (streams.head_kept(), streams.fused_kept());
             let refine_scratch = match refine {
                 Some(_) => desc_len + scratch_used.max(io.scratch.used()),
                 None => 0,

@@ -1,20 +1,22 @@
 //! The head's rows on their way out: forwarded to the sink, kept for the head's left-right
 //! check, checked against the mirrored head's rows (export pathway) or against the right view
-//! read from their own logits (native pathway, one pass), and fed to the refinement when it
-//! reads a head readout.
+//! read from their own logits (native pathway, one pass), fused with the SGM rows kept for them
+//! (export pathway), and fed to the refinement when it reads a head or fused readout.
 
-use super::api::{HeadChecked, RefineInput, Sink, Stage};
+use super::api::{FusedRow, HeadChecked, RefineInput, Sink, Stage};
 use super::refine_stage::{RefineIo, RefineStage};
-use super::sizing::check_rows_bytes;
 #[cfg(doc)]
 use super::sizing::HEAD_CHECK_ROWS;
+use super::sizing::{check_rows_bytes, fusion_bytes};
 use crate::arena::Carver;
-use crate::lr::consistent_row;
+use crate::lr::{consistent_row, fuse_row};
 use crate::model::head::{right_view_row, HeadRow, HeadSink, HeadStream, HeadWeights};
 use crate::Error;
 
 /// The refinement fed from inside a head stream's callback.
 pub(super) struct Feed<'k, 'a, 'b> {
+    /// The readout the refinement reads.
+    pub(super) input: RefineInput,
     pub(super) stage: &'k mut RefineStage<'a>,
     pub(super) io: &'k mut RefineIo<'b>,
     /// The head stage to return to.
@@ -30,7 +32,30 @@ impl Feed<'_, '_, '_> {
         back: Stage,
     ) -> Option<Feed<'k, 'a, 'b>> {
         match refine {
-            Some((input, stage)) if *input == want => Some(Feed { stage, io, back }),
+            Some((input, stage)) if *input == want => Some(Feed {
+                input: *input,
+                stage,
+                io,
+                back,
+            }),
+            _ => None,
+        }
+    }
+
+    /// The refinement, when it reads a readout of the head's check (head+lr or fuse+lr), fed
+    /// from head stage `back`.
+    pub(super) fn checked<'k, 'a, 'b>(
+        refine: &'k mut Option<(RefineInput, RefineStage<'a>)>,
+        io: &'k mut RefineIo<'b>,
+        back: Stage,
+    ) -> Option<Feed<'k, 'a, 'b>> {
+        match refine {
+            Some((input, stage)) if input.needs_head_check() => Some(Feed {
+                input: *input,
+                stage,
+                io,
+                back,
+            }),
             _ => None,
         }
     }
@@ -64,7 +89,8 @@ impl<K: Sink> HeadSink for HeadRows<'_, '_, '_, K> {
     }
 }
 
-/// The head's left-right check: the left rows kept for it, its mask row, what it kept.
+/// The head's left-right check: the left rows kept for it, its mask row, what it kept, and the
+/// fused readout made from it.
 pub(super) struct HeadCheck<'a> {
     pub(super) cols: usize,
     /// Rows of `left_rows`.
@@ -75,27 +101,72 @@ pub(super) struct HeadCheck<'a> {
     pub(super) left_rows: &'a mut [u16],
     pub(super) mask: &'a mut [u8],
     pub(super) kept: usize,
+    pub(super) fusion: Fusion<'a>,
+}
+
+/// The fused readout ([`fuse_row`]): the SGM rows and masks kept until the head's checked rows
+/// catch up with them (slot `r % rows`, as the left head rows), and the fused row.
+pub(super) struct Fusion<'a> {
+    head_weight: u8,
+    sgm_rows: &'a mut [u16],
+    sgm_masks: &'a mut [u8],
+    out: &'a mut [u16],
+    out_mask: &'a mut [u8],
+    pub(super) kept: usize,
 }
 
 impl<'a> HeadCheck<'a> {
-    /// A check keeping `rows` rows of `cols` left disparities, cut from the front of `arena`
-    /// ([`check_rows_bytes`]); returns it and the bytes it took.
+    /// A check keeping `rows` rows of `cols` left disparities (and as many SGM rows for the
+    /// fusion, the head's share `head_weight`), cut from the front of `arena`
+    /// ([`check_rows_bytes`] + [`fusion_bytes`]); returns it and the bytes it took.
     pub(super) fn carve(
         arena: &'a mut [u8],
         cols: usize,
         rows: usize,
         lr_max_diff_q8: u16,
+        head_weight: u8,
     ) -> Result<(Self, usize), Error> {
-        let mut carver = Carver::new(arena, check_rows_bytes(cols, rows))?;
+        let needed = check_rows_bytes(cols, rows).saturating_add(fusion_bytes(cols, rows));
+        let mut carver = Carver::new(arena, needed)?;
+        let cells = cols.saturating_mul(rows);
         let check = HeadCheck {
             cols,
             rows,
             lr_max_diff_q8,
-            left_rows: carver.u16s(cols.saturating_mul(rows))?,
+            left_rows: carver.u16s(cells)?,
             mask: carver.u8s(cols)?,
             kept: 0,
+            fusion: Fusion {
+                head_weight,
+                sgm_rows: carver.u16s(cells)?,
+                sgm_masks: carver.u8s(cells)?,
+                out: carver.u16s(cols)?,
+                out_mask: carver.u8s(cols)?,
+                kept: 0,
+            },
         };
         Ok((check, carver.used()))
+    }
+
+    /// Keeps SGM row `row` and its left-right mask for the fusion of the head's row `row`.
+    pub(super) fn keep_sgm(&mut self, row: usize, sgm_q8: &[u16], consistent: &[u8]) -> Result<(), Error> {
+        let at = (row % self.rows.max(1)) * self.cols;
+        let fusion = &mut self.fusion;
+        let (Some(rows), Some(masks)) = (
+            fusion.sgm_rows.get_mut(at..at + self.cols),
+            fusion.sgm_masks.get_mut(at..at + self.cols),
+        ) else {
+            return Err(Error::BufferSize {
+                what: "fused readout: SGM rows",
+                expected: at + self.cols,
+                found: fusion.sgm_rows.len(),
+            });
+        };
+        Error::check_len("fused readout: SGM row", rows.len(), sgm_q8.len())?;
+        Error::check_len("fused readout: SGM mask row", masks.len(), consistent.len())?;
+        rows.copy_from_slice(sgm_q8);
+        masks.copy_from_slice(consistent);
+        Ok(())
     }
 
     fn slot(&mut self, row: usize) -> Option<&mut [u16]> {
@@ -112,8 +183,32 @@ impl<'a> HeadCheck<'a> {
     }
 }
 
-/// Checks the mirrored head's rows against the left rows kept for them; feeds the refinement
-/// the filled left row when it reads head+lr.
+impl Fusion<'_> {
+    /// Fuses the checked left head row `head` (its mask `head_mask`) with the SGM row kept in
+    /// slot `slot` into [`Fusion::out`] and [`Fusion::out_mask`].
+    fn fuse(&mut self, slot: core::ops::Range<usize>, head: &[u16], head_mask: &[u8]) -> Result<(), Error> {
+        let (Some(sgm), Some(sgm_mask)) = (self.sgm_rows.get(slot.clone()), self.sgm_masks.get(slot.clone())) else {
+            return Err(Error::BufferSize {
+                what: "fused readout: SGM rows",
+                expected: slot.end,
+                found: self.sgm_rows.len(),
+            });
+        };
+        self.kept += fuse_row(
+            head,
+            head_mask,
+            sgm,
+            sgm_mask,
+            self.head_weight,
+            self.out,
+            self.out_mask,
+        )?;
+        Ok(())
+    }
+}
+
+/// Checks the mirrored head's rows against the left rows kept for them, fuses the checked rows
+/// with the SGM's; feeds the refinement the filled left row (head+lr) or fused row (fuse+lr).
 pub(super) struct CheckedRows<'k, 'a, 'b, K> {
     pub(super) sink: &'k mut K,
     pub(super) check: &'k mut HeadCheck<'a>,
@@ -122,24 +217,46 @@ pub(super) struct CheckedRows<'k, 'a, 'b, K> {
 
 impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
     fn row(&mut self, row: HeadRow<'_>) {
-        let check = &mut *self.check;
-        let tolerance = check.lr_max_diff_q8;
-        let at = (row.row % check.rows.max(1)) * check.cols;
-        let Some(left) = check.left_rows.get(at..at + check.cols) else {
+        let HeadCheck {
+            cols,
+            rows,
+            lr_max_diff_q8,
+            left_rows,
+            mask,
+            kept,
+            fusion,
+        } = &mut *self.check;
+        let at = (row.row % (*rows).max(1)) * *cols;
+        let slot = at..at + *cols;
+        let Some(left) = left_rows.get(slot.clone()) else {
             return;
         };
         // Equal lengths by construction (both streams are `cols` wide); a mismatch emits nothing.
-        let Ok(kept) = consistent_row(left, row.disparity_q8, tolerance, check.mask) else {
+        let Ok(row_kept) = consistent_row(left, row.disparity_q8, *lr_max_diff_q8, mask) else {
             return;
         };
-        check.kept += kept;
+        *kept += row_kept;
         self.sink.head_checked(&HeadChecked {
             row: row.row,
             right_q8: row.disparity_q8,
-            consistent: check.mask,
+            consistent: mask,
         });
+        // Sizes are equal by construction; a failure emits no fused row, and a fuse+lr
+        // refinement misses the row, which it reports.
+        let fused = fusion.fuse(slot, left, mask).is_ok();
+        if fused {
+            self.sink.fused(&FusedRow {
+                row: row.row,
+                disparity_q8: fusion.out,
+                consistent: fusion.out_mask,
+            });
+        }
         if let Some(feed) = self.refine.as_mut() {
-            feed.push(row.row, left, Some(check.mask), self.sink);
+            match feed.input {
+                RefineInput::FusedLr if fused => feed.push(row.row, fusion.out, Some(fusion.out_mask), self.sink),
+                RefineInput::FusedLr => {}
+                _ => feed.push(row.row, left, Some(mask), self.sink),
+            }
         }
     }
 }

@@ -66,15 +66,32 @@ pub(super) const fn sum(terms: &[usize]) -> usize {
 /// the left one by when both stream side by side (several bands: one row per convolution).
 pub(super) const HEAD_CHECK_ROWS: usize = max(BAND_TOKEN_ROWS, HEAD_CONVS + 1);
 
-/// Arena bytes of the head's left-right check: the left rows kept, one mask row, and for
-/// several bands (`streaming`) the mirrored head's own stream.
+/// Arena bytes of the head's left-right check: the left rows kept, one mask row, the fused
+/// readout's state ([`fusion_bytes`]), and for several bands (`streaming`) the mirrored head's
+/// own stream.
 const fn head_check_bytes(cols: usize, candidates: usize, streaming: bool) -> usize {
     let mirror = if streaming {
         head::arena_bytes_with(HeadKind::Export, cols, candidates)
     } else {
         0
     };
-    sum(&[mirror, check_rows_bytes(cols, HEAD_CHECK_ROWS)])
+    sum(&[
+        mirror,
+        check_rows_bytes(cols, HEAD_CHECK_ROWS),
+        fusion_bytes(cols, HEAD_CHECK_ROWS),
+    ])
+}
+
+/// Arena bytes of the fused readout's state beside a [`HeadCheck`] of `rows` rows: as many SGM
+/// rows (u16, aligned) and their masks, and the fused row (u16, aligned) and its mask.
+pub(super) const fn fusion_bytes(cols: usize, rows: usize) -> usize {
+    let cells = cols.saturating_mul(rows);
+    sum(&[
+        cells.saturating_mul(2).saturating_add(1),
+        cells,
+        cols.saturating_mul(2).saturating_add(1),
+        cols,
+    ])
 }
 
 /// Arena bytes of a [`HeadCheck`] keeping `rows` rows of `cols` left disparities (u16,

@@ -10,7 +10,7 @@ use super::sizing::{matching_bytes, refine_parts, stream_bytes, HEAD_CHECK_ROWS}
 use crate::arena::Carver;
 use crate::band::Band;
 use crate::config::{CELL_W, PATCH_H};
-use crate::lr::{consistent_row, right_view_costs, wta_costs};
+use crate::lr::{consistent_row, fuse_head_weight, right_view_costs, wta_costs};
 use crate::matching::{cost_row, inverse_norms, match_row};
 use crate::model::head::{self, HeadStream, HeadView};
 use crate::model::ids::HeadKind;
@@ -136,7 +136,9 @@ impl<'a, 'w> Streams<'a, 'w> {
                     } else {
                         (None, check_arena)
                     };
-                    let (check, check_used) = HeadCheck::carve(rest, cols, HEAD_CHECK_ROWS, ctx.opts.lr_max_diff_q8)?;
+                    let weight = fuse_head_weight(ctx.width);
+                    let (check, check_used) =
+                        HeadCheck::carve(rest, cols, HEAD_CHECK_ROWS, ctx.opts.lr_max_diff_q8, weight)?;
                     used += check_used;
                     Some((mirror, check))
                 } else {
@@ -208,6 +210,11 @@ impl<'a, 'w> Streams<'a, 'w> {
         self.check.as_ref().map_or(0, |(_, check)| check.kept)
     }
 
+    /// Cells the fused readout kept (0 without the head's check).
+    pub(super) fn fused_kept(&self) -> usize {
+        self.check.as_ref().map_or(0, |(_, check)| check.fusion.kept)
+    }
+
     /// Feeds the rows `band` keeps.
     pub(super) fn push_band(
         &mut self,
@@ -271,6 +278,10 @@ impl<'a, 'w> Streams<'a, 'w> {
         wta_costs(self.cost_right, mc, self.wta_right)?;
         self.wta_kept += consistent_row(self.wta, self.wta_right, self.lr_max_diff_q8, self.wta_mask)?;
         self.sgm_kept += consistent_row(self.sgm_out, self.sgm_right_out, self.lr_max_diff_q8, self.sgm_mask)?;
+        if let Some((_, check)) = self.check.as_mut() {
+            // The head's checked row `row` arrives a few rows later; it is fused with this one.
+            check.keep_sgm(row, self.sgm_out, self.sgm_mask)?;
+        }
         sink.matched(&MatchedRow {
             row,
             wta_q8: self.wta,
@@ -284,7 +295,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                 RefineInput::NolinkLr => Some((&*self.wta, Some(&*self.wta_mask))),
                 RefineInput::Sgm => Some((&*self.sgm_out, None)),
                 RefineInput::SgmLr => Some((&*self.sgm_out, Some(&*self.sgm_mask))),
-                RefineInput::Head | RefineInput::HeadLr => None,
+                RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr => None,
             };
             if let Some((disparity, mask)) = matched {
                 sink.stage(Stage::Refine);
@@ -317,7 +328,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                     let mut rows = CheckedRows {
                         sink: &mut *sink,
                         check,
-                        refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr, Stage::Head),
+                        refine: Feed::checked(&mut self.refine, io, Stage::Head),
                     };
                     head_step(mirror, input, &mut rows)?;
                 }
@@ -357,7 +368,7 @@ impl<'a, 'w> Streams<'a, 'w> {
         let mut rows = CheckedRows {
             sink,
             check,
-            refine: Feed::of(&mut self.refine, io, RefineInput::HeadLr, Stage::Head),
+            refine: Feed::checked(&mut self.refine, io, Stage::Head),
         };
         for row in band.keep_from..band.keep_to {
             let (l, r) = kept_row(band, row, self.cols, left, right)?;

@@ -59,17 +59,13 @@ pub struct SimArgs {
 
 /// Runs the verb.
 pub fn run(args: SimArgs) -> Result<()> {
-    let width = match &args.left {
-        Some(left) => bino_host::data::profile::view_width(left, args.profile.profile)?,
-        None => bino_host::sim::DEFAULT_SCENE.0,
-    };
     let opts = SimOptions {
         pair: args.left.zip(args.right),
         profile: args.profile.profile,
         blob: args.blob,
         readout: match args.readout {
             Some(readout) => readout,
-            None => args.pathway.pathway.board_readout(width).refined(true),
+            None => args.pathway.pathway.default_readout().refined(true),
         },
         pathway: args.pathway.pathway,
         max_cols: args.candidates.max_cols,

@@ -193,13 +193,13 @@ fn evaluate_set(
 /// Scores `readout` of `maps` against `gt`: the metrics of its pixel disparity, and the
 /// method's left-right keep rate and the error on the pixels it keeps.
 fn score_readout(maps: &MethodMaps, readout: Readout, gt: &GroundTruthMap) -> Result<ReadoutScore> {
-    let (tokens, mask) = maps.method(readout.method)?;
-    let pixels = maps.pixels(readout)?;
+    let grid = maps.grid(readout)?;
+    let pixels = maps.grid_pixels(&grid, readout)?;
     let metrics = score(&pixels, gt)?;
     let large = score(&pixels, &gt.large_disparity_subset())?;
-    let (lr_keep, gt_lr_epe) = match mask {
+    let (lr_keep, gt_lr_epe) = match grid.mask {
         Some(mask) => {
-            let keep = upsample_mask(&mask, tokens.width, pixels.width, pixels.height);
+            let keep = upsample_mask(&mask, grid.tokens.width, pixels.width, pixels.height);
             let restricted = GroundTruthMap {
                 valid: gt.valid.iter().zip(&keep).map(|(&g, &k)| g && k).collect(),
                 ..gt.clone()

@@ -267,57 +267,69 @@ impl MethodMaps {
         Ok((map, kept.iter().map(|&k| k != 0).collect()))
     }
 
+    /// The readout's token grid (filled by the check for `+lr`) and its method's left-right
+    /// mask, computed once (a fused readout fuses once).
+    pub fn grid(&self, readout: Readout) -> Result<ReadoutGrid<'_>> {
+        let (map, mask) = if readout.method == Method::Fused && !readout.lr {
+            // The unchecked fusion; the mask is the checked one's, when the head's check ran.
+            let mask = match self.head_consistent {
+                Some(_) => self.method(Method::Fused)?.1,
+                None => None,
+            };
+            (Cow::Owned(self.fused(false)?.0), mask)
+        } else {
+            self.method(readout.method)?
+        };
+        let tokens = if readout.lr {
+            let mask = mask
+                .as_deref()
+                .with_context(|| format!("{readout}: the left-right check did not run"))?;
+            ensure!(
+                mask.len() == map.values.len(),
+                "{readout}: mask and disparity sizes differ"
+            );
+            fill_rejected(&map, mask)
+        } else {
+            map.into_owned()
+        };
+        Ok(ReadoutGrid { tokens, mask })
+    }
+
     /// The readout's token-grid disparity (see the module table).
     pub fn tokens(&self, readout: Readout) -> Result<DisparityMap> {
-        if readout.method == Method::Fused && !readout.lr {
-            return Ok(self.fused(false)?.0);
-        }
-        let (map, mask) = self.method(readout.method)?;
-        if !readout.lr {
-            return Ok(map.into_owned());
-        }
-        let mask = mask.with_context(|| format!("{readout}: the left-right check did not run"))?;
-        ensure!(
-            mask.len() == map.values.len(),
-            "{readout}: mask and disparity sizes differ"
-        );
-        Ok(fill_rejected(&map, &mask))
+        Ok(self.grid(readout)?.tokens)
     }
 
     /// The readout's pixel disparity: [`MethodMaps::tokens`] upsampled bilinearly (EVAL.md),
     /// or refined on [`MethodMaps::views`] for `+ref` ([`crate::readout::refine::refine_pixels`]).
     /// What `bino run` writes and `bino eval` scores.
     pub fn pixels(&self, readout: Readout) -> Result<DisparityMap> {
-        let tokens = self.tokens(readout)?;
+        self.grid_pixels(&self.grid(readout)?, readout)
+    }
+
+    /// [`MethodMaps::pixels`] of a grid already read out ([`MethodMaps::grid`]).
+    pub fn grid_pixels(&self, grid: &ReadoutGrid<'_>, readout: Readout) -> Result<DisparityMap> {
         if readout.refine {
-            // `tokens` checked that a `+lr` readout has its mask.
-            let kept = if readout.lr {
-                self.method(readout.method)?.1
-            } else {
-                None
-            };
-            refine_pixels(&tokens, &self.views, kept.as_deref()).with_context(|| format!("{readout}: refinement"))
+            // `grid` checked that a `+lr` readout has its mask.
+            let kept = if readout.lr { grid.mask.as_deref() } else { None };
+            refine_pixels(&grid.tokens, &self.views, kept).with_context(|| format!("{readout}: refinement"))
         } else {
-            Ok(upsample_disparity(&tokens))
+            Ok(upsample_disparity(&grid.tokens))
         }
     }
 }
 
-/// The head's share, in 256ths, of a `fuse` cell where both the head and SGM pass their checks,
-/// for views `width` px wide: 160 (0.625) up to 160 px, 128 (the midpoint) above. Chosen on the
-/// held-out labeled pairs and the synthetic folders (`train/experiments.json`, `fused_weight`):
-/// at 160 px 0.625 beats the midpoint on all three sets, at 320 px the midpoint beats 0.625 and
-/// 0.75 on two of three.
-pub fn fuse_head_weight(width: usize) -> u8 {
-    if width <= FUSE_HEAD_HEAVY_MAX_WIDTH {
-        160
-    } else {
-        128
-    }
+/// A readout's token grid and its method's left-right mask ([`MethodMaps::grid`]).
+pub struct ReadoutGrid<'m> {
+    /// Token-grid disparity, filled by the check for a `+lr` readout.
+    pub tokens: DisparityMap,
+    /// The method's left-right mask on the token grid (`None`: the check did not run).
+    pub mask: Option<Cow<'m, [bool]>>,
 }
 
-/// Widest view (px) whose fused readout leans on the head ([`fuse_head_weight`]).
-pub const FUSE_HEAD_HEAVY_MAX_WIDTH: usize = 160;
+/// The head's share, in 256ths, of a `fuse` cell where both checks pass: the core's rule,
+/// which the board's pipeline follows too.
+pub use bino_core::lr::{fuse_head_weight, FUSE_HEAD_HEAVY_MAX_WIDTH};
 
 /// A left-right tolerance in patch columns as the core's Q8.
 pub fn lr_tolerance_q8(columns: f32) -> u16 {
@@ -338,14 +350,6 @@ pub fn head_candidates(width: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_fused_readout_leans_on_the_head_at_160_px_only() {
-        assert_eq!(fuse_head_weight(160), 160);
-        assert_eq!(fuse_head_weight(96), 160);
-        assert_eq!(fuse_head_weight(161), 128);
-        assert_eq!(fuse_head_weight(320), 128);
-    }
 
     #[test]
     fn names_round_trip_and_unknown_ones_are_errors() {

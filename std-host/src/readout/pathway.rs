@@ -45,7 +45,8 @@ impl Pathway {
         Ok(())
     }
 
-    /// The readout `bino run` uses when none is given: on the export pathway `fuse+lr` (the
+    /// The readout `bino run` and `bino sim` use when none is given, the one the board's
+    /// streaming pipeline refines (`bino_core::preset`): on the export pathway `fuse+lr` (the
     /// head and SGM fused by their checks, better than either on every validation set at 160
     /// and 320 px: `train/experiments.json`, `fused_readout`), on the native pathway `head+lr`
     /// (its only checked readout).
@@ -55,26 +56,7 @@ impl Pathway {
             Pathway::Native => Readout::HEAD_LR,
         }
     }
-
-    /// The readout the board's streaming pipeline refines ([`bino_core::preset`], what `bino
-    /// sim` shows by default), for views `view_width` px wide: on the export pathway head+lr up
-    /// to [`HEAD_DEFAULT_MAX_WIDTH`] and sgm+lr above, on the native pathway head+lr. The
-    /// pipeline does not stream the fused readout yet.
-    pub fn board_readout(self, view_width: usize) -> Readout {
-        match self {
-            Pathway::Export if view_width > HEAD_DEFAULT_MAX_WIDTH => Readout::new(Method::Sgm, true),
-            Pathway::Export | Pathway::Native => Readout::HEAD_LR,
-        }
-    }
 }
-
-/// Widest view (px) whose board readout on the export pathway is head+lr rather than sgm+lr. Chosen off the
-/// eval split, on the 22 held-out train pairs against left-right-consistent StereoSGBM
-/// (`bino_train.val_folder`, `bino eval --split val`), int8, refined (as `bino run` writes):
-/// head+lr+ref against sgm+lr+ref 0.483 / 0.542 px epe at 160 px, 0.522 / 0.506 at 200, 0.611 /
-/// 0.587 at 240, 0.718 / 0.591 at 280, 0.842 / 0.661 at 320. The head was trained on 0-44 px
-/// disparities, which a wider view exceeds; the boards' 160-px bands refine head+lr too.
-pub const HEAD_DEFAULT_MAX_WIDTH: usize = 160;
 
 impl Pathway {
     /// The readouts `bino eval` scores when none are named: every readout of the pathway,
@@ -109,21 +91,17 @@ mod tests {
         assert_eq!(native, ["head", "head+ref", "head+lr", "head+lr+ref"]);
         for pathway in [Pathway::Export, Pathway::Native] {
             assert!(pathway.check(pathway.default_readout()).is_ok());
-            for width in [160, 320, 1280] {
-                assert!(pathway.check(pathway.board_readout(width)).is_ok());
-            }
             assert_eq!(pathway.core().pathway(), pathway.to_string());
         }
     }
 
     #[test]
-    fn run_fuses_and_the_board_readout_follows_the_view_width() {
+    fn run_and_the_board_fuse_on_the_export_pathway() {
         assert_eq!(Pathway::Export.default_readout().name(), "fuse+lr");
         assert_eq!(Pathway::Native.default_readout().name(), "head+lr");
-        let name = |p: Pathway, w: usize| p.board_readout(w).name();
-        assert_eq!(name(Pathway::Export, 160), "head+lr");
-        assert_eq!(name(Pathway::Export, 161), "sgm+lr");
-        assert_eq!(name(Pathway::Export, 320), "sgm+lr");
-        assert_eq!(name(Pathway::Native, 320), "head+lr");
+        // The board's preset refines the same grids.
+        let board = |opts| bino_core::pipeline::RefineInput::for_options(&opts).name();
+        assert_eq!(board(bino_core::preset::OPTIONS), "fuse+lr");
+        assert_eq!(board(bino_core::preset::NATIVE_OPTIONS), "head+lr");
     }
 }

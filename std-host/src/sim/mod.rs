@@ -18,7 +18,8 @@ use bino_core::config::HEAD_MAX_DISP;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
-    self, HeadChecked, MatchedRow, Options as PipelineOptions, Pipeline, Refine, RefineInput, Report, Sink, Stage,
+    self, FusedRow, HeadChecked, MatchedRow, Options as PipelineOptions, Pipeline, Refine, RefineInput, Report, Sink,
+    Stage,
 };
 use bino_core::sgm::Penalties;
 use embedded_graphics::mono_font::ascii::FONT_6X10;
@@ -126,11 +127,8 @@ impl SimReport {
 pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimReport> {
     ensure!(opts.frames >= 1, "--frames must be at least 1");
     opts.pathway.check(opts.readout)?;
-    ensure!(
-        opts.readout.method != Method::Fused,
-        "--readout {}: {FUSED_NOT_STREAMED}",
-        opts.readout
-    );
+    // The pipeline must have the readout before any work starts.
+    let input = refine_input(opts.readout)?;
     progress("loading the pair and the blob");
     let (source, left, right) = load_pair(opts)?;
     let (width, height) = (left.width, left.height);
@@ -152,7 +150,7 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     };
     // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
     let refine = match opts.readout.refine {
-        true => Some(Refine::for_width(refine_input(opts.readout)?, width)),
+        true => Some(Refine::for_width(input, width)),
         false => None,
     };
     let layout = Layout::new(opts.display, width, height)?;
@@ -215,12 +213,13 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     Ok(sim)
 }
 
-/// Why `bino sim` has no fused readout: the board's streaming pipeline does not compute it.
-const FUSED_NOT_STREAMED: &str = "the board's streaming pipeline (bino_core::pipeline), which bino sim runs, \
-     has no fused readout yet; bino run and bino eval compute it";
+/// Why `bino sim` has no unchecked fused readout: the board's pipeline fuses the checked rows.
+const UNCHECKED_FUSE_NOT_STREAMED: &str = "the board's streaming pipeline (bino_core::pipeline), which bino sim \
+     runs, fuses the head and SGM by their checks (fuse+lr, fuse+lr+ref); the unchecked fuse is computed by \
+     bino run and bino eval only";
 
-/// The core pipeline's refinement input for a `+ref` readout: the same token grid `bino run`
-/// and `bino eval` refine.
+/// The core pipeline's refinement input for a readout: the same token grid `bino run` and
+/// `bino eval` refine (a readout the pipeline does not stream is an error).
 fn refine_input(readout: Readout) -> Result<RefineInput> {
     Ok(match (readout.method, readout.lr) {
         (Method::Nolink, false) => RefineInput::Nolink,
@@ -229,7 +228,8 @@ fn refine_input(readout: Readout) -> Result<RefineInput> {
         (Method::Sgm, true) => RefineInput::SgmLr,
         (Method::Head, false) => RefineInput::Head,
         (Method::Head, true) => RefineInput::HeadLr,
-        (Method::Fused, _) => bail!("--readout {readout}: {FUSED_NOT_STREAMED}"),
+        (Method::Fused, true) => RefineInput::FusedLr,
+        (Method::Fused, false) => bail!("--readout {readout}: {UNCHECKED_FUSE_NOT_STREAMED}"),
     })
 }
 
@@ -250,8 +250,8 @@ fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
     let kept = match readout.method {
         Method::Nolink => sim.pipeline.wta_kept,
         Method::Sgm => sim.pipeline.sgm_kept,
-        // Fused readouts are refused by `run_sim`.
-        Method::Head | Method::Fused => sim.pipeline.head_kept,
+        Method::Head => sim.pipeline.head_kept,
+        Method::Fused => sim.pipeline.fused_kept,
     };
     let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
     vec![
@@ -532,7 +532,7 @@ impl Sink for DisplaySink<'_> {
     }
 
     fn head(&mut self, row: HeadRow<'_>) {
-        if self.readout.uses_head() && !self.readout.refine {
+        if self.readout.method == Method::Head && !self.readout.refine {
             self.pending_heads.push((row.row, row.disparity_q8.to_vec()));
         }
     }
@@ -543,6 +543,12 @@ impl Sink for DisplaySink<'_> {
         };
         let (_, disparity) = self.pending_heads.remove(at);
         self.show_row(row.row, &disparity, row.consistent);
+    }
+
+    fn fused(&mut self, row: &FusedRow<'_>) {
+        if self.readout.method == Method::Fused && !self.readout.refine {
+            self.show_row(row.row, row.disparity_q8, row.consistent);
+        }
     }
 
     fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
