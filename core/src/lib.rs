@@ -45,7 +45,7 @@
 //! let after_passes = report.descriptors + report.streams + report.refine;
 //! assert_eq!(report.arena_used, report.pixels + report.descriptors + report.encoder.max(after_passes));
 //! // Bit for bit what the firmware computes on both Cortex-M cores.
-//! assert_eq!(sink.0.finish(), 0xd142_ef39);
+//! assert_eq!(sink.0.finish(), 0x0f8a_fba5);
 //! # Ok::<(), bino_core::Error>(())
 //! ```
 //!

@@ -100,37 +100,61 @@ pub const fn fuse_head_weight(width: usize) -> u8 {
 /// Widest view (px) whose fused readout leans on the head ([`fuse_head_weight`]).
 pub const FUSE_HEAD_HEAVY_MAX_WIDTH: usize = 160;
 
+/// One method's row as [`fuse_row`] reads it: Q8 disparities and their left-right mask (1 =
+/// kept).
+#[derive(Debug, Clone, Copy)]
+pub struct CheckedRow<'r> {
+    /// Disparity per cell, Q8 patch columns.
+    pub disparity_q8: &'r [u16],
+    /// 1 where the method's own left-right check keeps the cell, else 0.
+    pub kept: &'r [u8],
+}
+
+/// How far the head's confidence moves its share in [`fuse_row`]: a quarter of (confidence -
+/// 1/2), i.e. the share in 1024ths is `4 * head_weight + confidence_q8 - 128`. Chosen on the
+/// held-out labeled pairs and the synthetic folders (`train/experiments.json`,
+/// `fused_confidence`): slopes 1/8 to 1/2 tried, 1/4 the steepest better than the fixed share on
+/// all six sets.
+pub const FUSE_CONFIDENCE_SLOPE_INV: u32 = 4;
+
 /// The fused readout's row (`fuse+lr`): where both the head and SGM pass their own left-right
-/// checks, their weighted mean in Q8 (`head_weight / 256` of the head's disparity, the rest the
-/// SGM's, rounded half up; 128 is the midpoint); where one passes, its disparity; where neither
-/// does, the head's, marked rejected (0) for [`fill_rejected`]. Masks are 1 = kept. Returns the
-/// number of cells kept. The two methods fail in different places (SGM on slanted and thin
-/// structures, the head where its reach or the texture runs out), so their checked mean is better
-/// than either on every validation set.
+/// checks, their weighted mean in Q8 (rounded half up), the head's share `head_weight / 256`
+/// moved by its confidence (`head_confidence`, Q8 largest candidate probability, the head row's
+/// `confidence_q8`: see [`FUSE_CONFIDENCE_SLOPE_INV`]; a head sure of its answer weighs more);
+/// where one passes, its disparity; where neither does, the head's, marked rejected (0) for
+/// [`fill_rejected`]. Masks are 1 = kept. Returns the number of cells kept. The two methods fail
+/// in different places (SGM on slanted and thin structures, the head where its reach or the
+/// texture runs out), so their checked mean is better than either on every validation set.
 pub fn fuse_row(
-    head: &[u16],
-    head_kept: &[u8],
-    sgm: &[u16],
-    sgm_kept: &[u8],
+    head: CheckedRow<'_>,
+    head_confidence: &[u16],
+    sgm: CheckedRow<'_>,
     head_weight: u8,
     out: &mut [u16],
     out_kept: &mut [u8],
 ) -> Result<usize, Error> {
-    let cols = head.len();
-    if sgm.len() != cols {
+    let cols = head.disparity_q8.len();
+    if sgm.disparity_q8.len() != cols {
         return Err(Error::PairMismatch);
     }
-    Error::check_len("head mask row", cols, head_kept.len())?;
-    Error::check_len("SGM mask row", cols, sgm_kept.len())?;
+    Error::check_len("head mask row", cols, head.kept.len())?;
+    Error::check_len("head confidence row", cols, head_confidence.len())?;
+    Error::check_len("SGM mask row", cols, sgm.kept.len())?;
     Error::check_len("fused disparity row", cols, out.len())?;
     Error::check_len("fused mask row", cols, out_kept.len())?;
-    let (wh, ws) = (head_weight as u32, 256 - head_weight as u32);
+    const FULL: u32 = 1024;
+    let base = FUSE_CONFIDENCE_SLOPE_INV * head_weight as u32;
     let mut kept = 0;
-    let cells = head.iter().zip(head_kept).zip(sgm.iter().zip(sgm_kept));
-    for (((&h, &hk), (&s, &sk)), (o, ok)) in cells.zip(out.iter_mut().zip(out_kept.iter_mut())) {
+    let cells = head.disparity_q8.iter().zip(head.kept).zip(head_confidence);
+    let cells = cells.zip(sgm.disparity_q8.iter().zip(sgm.kept));
+    for ((((&h, &hk), &c), (&s, &sk)), (o, ok)) in cells.zip(out.iter_mut().zip(out_kept.iter_mut())) {
         *o = match (hk != 0, sk != 0) {
-            // At most 65535 * 256 + 128 before the shift: u32, and the result fits a u16.
-            (true, true) => ((h as u32 * wh + s as u32 * ws + 128) >> 8) as u16,
+            (true, true) => {
+                // The head's share in 1024ths, kept inside [0, 1024]; at most 65535 * 1024 + 512
+                // before the shift: u32, and the result fits a u16.
+                let w = (base + c as u32).saturating_sub(128).min(FULL);
+                ((h as u32 * w + s as u32 * (FULL - w) + FULL / 2) >> 10) as u16
+            }
             (false, true) => s,
             _ => h,
         };
@@ -232,16 +256,20 @@ mod tests {
         assert_eq!(fuse_head_weight(320), 128);
     }
 
+    fn row<'r>(disparity_q8: &'r [u16], kept: &'r [u8]) -> CheckedRow<'r> {
+        CheckedRow { disparity_q8, kept }
+    }
+
     #[test]
     fn fusion_averages_where_both_pass_and_keeps_the_one_that_passes() {
         let head = [256, 512, 300, 700, 65535];
         let sgm = [257, 1024, 900, 100, 65535];
         let (head_kept, sgm_kept) = ([1, 1, 0, 0, 1], [1, 0, 1, 0, 1]);
+        // Confidence 1/2 leaves the share as it is.
+        let half = [128u16; 5];
         let (mut out, mut kept) = ([0u16; 5], [9u8; 5]);
-        assert_eq!(
-            fuse_row(&head, &head_kept, &sgm, &sgm_kept, 128, &mut out, &mut kept),
-            Ok(4)
-        );
+        let (h, s) = (row(&head, &head_kept), row(&sgm, &sgm_kept));
+        assert_eq!(fuse_row(h, &half, s, 128, &mut out, &mut kept), Ok(4));
         assert_eq!(
             out,
             [257, 512, 900, 700, 65535],
@@ -250,22 +278,29 @@ mod tests {
         assert_eq!(kept, [1, 1, 1, 0, 1]);
         // 160 / 256 of the head: 0.625 * 256 + 0.375 * 1280 = 640.
         let (mut weighted, mut kept) = ([0u16; 1], [0u8; 1]);
-        assert_eq!(
-            fuse_row(&[256], &[1], &[1280], &[1], 160, &mut weighted, &mut kept),
-            Ok(1)
-        );
+        let fuse = |h: u16, c: u16, s: u16, w: u8, out: &mut [u16; 1], kept: &mut [u8; 1]| {
+            fuse_row(row(&[h], &[1]), &[c], row(&[s], &[1]), w, out, kept)
+        };
+        assert_eq!(fuse(256, 128, 1280, 160, &mut weighted, &mut kept), Ok(1));
         assert_eq!(weighted, [640]);
-        assert_eq!(
-            fuse_row(&[65535], &[1], &[65535], &[1], 255, &mut weighted, &mut kept),
-            Ok(1)
-        );
+        // A sure head weighs more, an unsure one less: (0.5 +- 0.125) of the head's 0 px.
+        fuse(0, 255, 1024, 128, &mut weighted, &mut kept).unwrap();
+        assert_eq!(weighted, [385], "share 639/1024");
+        fuse(0, 0, 1024, 128, &mut weighted, &mut kept).unwrap();
+        assert_eq!(weighted, [640], "share 384/1024");
+        // The share stays inside [0, 1]: all head, all SGM, no overflow.
+        fuse(65535, 255, 0, 255, &mut weighted, &mut kept).unwrap();
         assert_eq!(weighted, [65535]);
+        fuse(65535, 0, 7, 0, &mut weighted, &mut kept).unwrap();
+        assert_eq!(weighted, [7]);
+        let h = row(&head, &head_kept);
         assert_eq!(
-            fuse_row(&head, &head_kept, &sgm[..4], &sgm_kept, 128, &mut out, &mut kept),
+            fuse_row(h, &half, row(&sgm[..4], &sgm_kept[..4]), 128, &mut out, &mut [0u8; 5]),
             Err(Error::PairMismatch)
         );
-        let mut kept = [0u8; 5];
-        assert!(fuse_row(&head, &head_kept[..4], &sgm, &sgm_kept, 128, &mut out, &mut kept).is_err());
-        assert!(fuse_row(&head, &head_kept, &sgm, &sgm_kept, 128, &mut out[..4], &mut kept).is_err());
+        let s = row(&sgm, &sgm_kept);
+        assert!(fuse_row(row(&head, &head_kept[..4]), &half, s, 128, &mut out, &mut [0u8; 5]).is_err());
+        assert!(fuse_row(h, &half[..4], s, 128, &mut out, &mut [0u8; 5]).is_err());
+        assert!(fuse_row(h, &half, s, 128, &mut out[..4], &mut [0u8; 5]).is_err());
     }
 }

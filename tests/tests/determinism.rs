@@ -16,7 +16,7 @@ mod workload;
 
 use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
-use bino_core::lr::{fill_rejected, fuse_head_weight, fuse_row};
+use bino_core::lr::{fill_rejected, fuse_head_weight, fuse_row, CheckedRow};
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{HeadChecked, MatchedRow, Pathway, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::sharpness::refine_map_equalised;
@@ -70,6 +70,7 @@ fn firmware_digests(core: &str) -> Vec<(String, String, u32)> {
 struct HeadMaps {
     cols: usize,
     head: Vec<u16>,
+    confidence: Vec<u16>,
     mask: Vec<u8>,
     sgm: Vec<u16>,
     sgm_mask: Vec<u8>,
@@ -84,6 +85,7 @@ impl Sink for HeadMaps {
     fn head(&mut self, row: HeadRow<'_>) {
         let c = self.cols;
         self.head[row.row * c..(row.row + 1) * c].copy_from_slice(row.disparity_q8);
+        self.confidence[row.row * c..(row.row + 1) * c].copy_from_slice(row.confidence_q8);
     }
     fn head_checked(&mut self, row: &HeadChecked<'_>) {
         let c = self.cols;
@@ -114,6 +116,7 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
     let mut maps = HeadMaps {
         cols,
         head: vec![0; cells],
+        confidence: vec![0; cells],
         mask: vec![0; cells],
         sgm: vec![0; cells],
         sgm_mask: vec![0; cells],
@@ -125,19 +128,17 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
     if fused {
         for r in 0..height / 4 {
             let row = r * cols..(r + 1) * cols;
-            let (head, sgm) = (&maps.head[row.clone()], &maps.sgm[row.clone()]);
-            let (head_mask, sgm_mask) = (&maps.mask[row.clone()], &maps.sgm_mask[row.clone()]);
+            let head = CheckedRow {
+                disparity_q8: &maps.head[row.clone()],
+                kept: &maps.mask[row.clone()],
+            };
+            let sgm = CheckedRow {
+                disparity_q8: &maps.sgm[row.clone()],
+                kept: &maps.sgm_mask[row.clone()],
+            };
+            let confidence = &maps.confidence[row.clone()];
             let weight = fuse_head_weight(width);
-            fuse_row(
-                head,
-                head_mask,
-                sgm,
-                sgm_mask,
-                weight,
-                &mut grid[row.clone()],
-                &mut mask[row],
-            )
-            .unwrap();
+            fuse_row(head, confidence, sgm, weight, &mut grid[row.clone()], &mut mask[row]).unwrap();
         }
     }
     for (row, m) in grid.chunks_exact_mut(cols).zip(mask.chunks_exact(cols)) {

@@ -8,7 +8,7 @@
 //! the arena grows as documented. The fused rows the pipeline streams are `lr::fuse_row` of
 //! its own head and SGM rows with their checks.
 
-use bino_core::lr::{fill_rejected, fuse_head_weight, fuse_row};
+use bino_core::lr::{fill_rejected, fuse_head_weight, fuse_row, CheckedRow};
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
     arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes, FusedRow, HeadChecked, MatchedRow,
@@ -58,6 +58,7 @@ struct Collect {
     sgm: Vec<u16>,
     sgm_mask: Vec<u8>,
     head: Vec<u16>,
+    head_confidence: Vec<u16>,
     head_mask: Vec<u8>,
     fused: Vec<u16>,
     fused_mask: Vec<u8>,
@@ -81,6 +82,7 @@ impl Collect {
             sgm: vec![0; cells],
             sgm_mask: vec![0; cells],
             head: vec![0; cells],
+            head_confidence: vec![0; cells],
             head_mask: vec![0; cells],
             fused: vec![0; cells],
             fused_mask: vec![0; cells],
@@ -136,6 +138,7 @@ impl Sink for Collect {
     fn head(&mut self, row: HeadRow<'_>) {
         let c = self.cols;
         Self::put(&mut self.head, c, row.row, row.disparity_q8);
+        Self::put(&mut self.head_confidence, c, row.row, row.confidence_q8);
     }
     fn head_checked(&mut self, row: &HeadChecked<'_>) {
         let c = self.cols;
@@ -259,7 +262,7 @@ fn whole_map(s: &Scene, out: &Collect, refine: &Refine) -> Vec<u16> {
 }
 
 /// The fused rows came once each, in order, and are `fuse_row` of the run's own head and SGM
-/// rows and their checks, with the head's share of the view width.
+/// rows, their checks and the head's confidence, with the head's share of the view width.
 fn assert_fused_is_the_checked_mean(out: &Collect, width: usize, height: usize) {
     assert_eq!(out.fused_rows, (0..height / 4).collect::<Vec<_>>(), "{width}x{height}");
     let cells = out.cols * (height / 4);
@@ -267,16 +270,17 @@ fn assert_fused_is_the_checked_mean(out: &Collect, width: usize, height: usize) 
     let c = out.cols;
     for r in 0..height / 4 {
         let row = r * c..(r + 1) * c;
-        fuse_row(
-            &out.head[row.clone()],
-            &out.head_mask[row.clone()],
-            &out.sgm[row.clone()],
-            &out.sgm_mask[row.clone()],
-            fuse_head_weight(width),
-            &mut fused[row.clone()],
-            &mut kept[row],
-        )
-        .unwrap();
+        let head = CheckedRow {
+            disparity_q8: &out.head[row.clone()],
+            kept: &out.head_mask[row.clone()],
+        };
+        let sgm = CheckedRow {
+            disparity_q8: &out.sgm[row.clone()],
+            kept: &out.sgm_mask[row.clone()],
+        };
+        let confidence = &out.head_confidence[row.clone()];
+        let weight = fuse_head_weight(width);
+        fuse_row(head, confidence, sgm, weight, &mut fused[row.clone()], &mut kept[row]).unwrap();
     }
     assert!(
         (&fused, &kept) == (&out.fused, &out.fused_mask),

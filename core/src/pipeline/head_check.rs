@@ -9,7 +9,7 @@ use super::refine_stage::{RefineIo, RefineStage};
 use super::sizing::HEAD_CHECK_ROWS;
 use super::sizing::{check_rows_bytes, fusion_bytes};
 use crate::arena::Carver;
-use crate::lr::{consistent_row, fuse_row};
+use crate::lr::{consistent_row, fuse_row, CheckedRow};
 use crate::model::head::{right_view_row, HeadRow, HeadSink, HeadStream, HeadWeights};
 use crate::Error;
 
@@ -79,7 +79,7 @@ pub(super) struct HeadRows<'k, 'a, 'b, K> {
 impl<K: Sink> HeadSink for HeadRows<'_, '_, '_, K> {
     fn row(&mut self, row: HeadRow<'_>) {
         if let Some(check) = self.check.as_deref_mut() {
-            check.keep_left(row.row, row.disparity_q8);
+            check.keep_left(&row);
         }
         let (index, disparity) = (row.row, row.disparity_q8);
         self.sink.head(row);
@@ -104,10 +104,12 @@ pub(super) struct HeadCheck<'a> {
     pub(super) fusion: Fusion<'a>,
 }
 
-/// The fused readout ([`fuse_row`]): the SGM rows and masks kept until the head's checked rows
-/// catch up with them (slot `r % rows`, as the left head rows), and the fused row.
+/// The fused readout ([`fuse_row`]): the left head's confidence rows and the SGM rows and masks
+/// kept until the head's checked rows catch up with them (slot `r % rows`, as the left head
+/// rows), and the fused row.
 pub(super) struct Fusion<'a> {
     head_weight: u8,
+    confidence_rows: &'a mut [u16],
     sgm_rows: &'a mut [u16],
     sgm_masks: &'a mut [u8],
     out: &'a mut [u16],
@@ -138,6 +140,7 @@ impl<'a> HeadCheck<'a> {
             kept: 0,
             fusion: Fusion {
                 head_weight,
+                confidence_rows: carver.u16s(cells)?,
                 sgm_rows: carver.u16s(cells)?,
                 sgm_masks: carver.u8s(cells)?,
                 out: carver.u16s(cols)?,
@@ -169,40 +172,46 @@ impl<'a> HeadCheck<'a> {
         Ok(())
     }
 
-    fn slot(&mut self, row: usize) -> Option<&mut [u16]> {
-        let at = (row % self.rows.max(1)) * self.cols;
-        self.left_rows.get_mut(at..at + self.cols)
-    }
-
-    fn keep_left(&mut self, row: usize, disparity_q8: &[u16]) {
-        if let Some(slot) = self.slot(row) {
-            if slot.len() == disparity_q8.len() {
-                slot.copy_from_slice(disparity_q8);
+    fn keep_left(&mut self, row: &HeadRow<'_>) {
+        let at = (row.row % self.rows.max(1)) * self.cols;
+        let range = at..at + self.cols;
+        if let Some(slot) = self.left_rows.get_mut(range.clone()) {
+            if slot.len() == row.disparity_q8.len() {
+                slot.copy_from_slice(row.disparity_q8);
+            }
+        }
+        if let Some(slot) = self.fusion.confidence_rows.get_mut(range) {
+            if slot.len() == row.confidence_q8.len() {
+                slot.copy_from_slice(row.confidence_q8);
             }
         }
     }
 }
 
 impl Fusion<'_> {
-    /// Fuses the checked left head row `head` (its mask `head_mask`) with the SGM row kept in
-    /// slot `slot` into [`Fusion::out`] and [`Fusion::out_mask`].
+    /// Fuses the checked left head row `head` (its mask `head_mask`) with the confidence and
+    /// SGM rows kept in slot `slot` into [`Fusion::out`] and [`Fusion::out_mask`].
     fn fuse(&mut self, slot: core::ops::Range<usize>, head: &[u16], head_mask: &[u8]) -> Result<(), Error> {
-        let (Some(sgm), Some(sgm_mask)) = (self.sgm_rows.get(slot.clone()), self.sgm_masks.get(slot.clone())) else {
+        let (Some(confidence), Some(sgm), Some(sgm_mask)) = (
+            self.confidence_rows.get(slot.clone()),
+            self.sgm_rows.get(slot.clone()),
+            self.sgm_masks.get(slot.clone()),
+        ) else {
             return Err(Error::BufferSize {
-                what: "fused readout: SGM rows",
+                what: "fused readout: kept rows",
                 expected: slot.end,
                 found: self.sgm_rows.len(),
             });
         };
-        self.kept += fuse_row(
-            head,
-            head_mask,
-            sgm,
-            sgm_mask,
-            self.head_weight,
-            self.out,
-            self.out_mask,
-        )?;
+        let head = CheckedRow {
+            disparity_q8: head,
+            kept: head_mask,
+        };
+        let sgm = CheckedRow {
+            disparity_q8: sgm,
+            kept: sgm_mask,
+        };
+        self.kept += fuse_row(head, confidence, sgm, self.head_weight, self.out, self.out_mask)?;
         Ok(())
     }
 }

@@ -82,11 +82,13 @@ const fn head_check_bytes(cols: usize, candidates: usize, streaming: bool) -> us
     ])
 }
 
-/// Arena bytes of the fused readout's state beside a [`HeadCheck`] of `rows` rows: as many SGM
-/// rows (u16, aligned) and their masks, and the fused row (u16, aligned) and its mask.
+/// Arena bytes of the fused readout's state beside a [`HeadCheck`] of `rows` rows: as many rows
+/// of the left head's confidence and of SGM disparities (u16, aligned each) and the SGM's masks,
+/// and the fused row (u16, aligned) and its mask.
 pub(super) const fn fusion_bytes(cols: usize, rows: usize) -> usize {
     let cells = cols.saturating_mul(rows);
     sum(&[
+        cells.saturating_mul(2).saturating_add(1),
         cells.saturating_mul(2).saturating_add(1),
         cells,
         cols.saturating_mul(2).saturating_add(1),

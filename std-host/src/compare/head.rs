@@ -24,6 +24,26 @@ pub struct FloatHeadOutput {
 }
 
 impl FloatHeadOutput {
+    /// The largest candidate probability per cell in the core's Q8 (`255` x the probability, as
+    /// the int8 head's `confidence_q8`): the float twin of what the fused readout weighs the
+    /// head by ([`bino_core::lr::fuse_row`]).
+    pub fn confidence_q8(&self) -> Vec<u16> {
+        let cells = self.disparity.len();
+        let candidates = self.logits.len().checked_div(cells).unwrap_or(0);
+        (0..cells)
+            .map(|cell| {
+                let logits = (0..candidates).map(|k| self.logits[k * cells + cell]);
+                let max = logits.clone().fold(f32::NEG_INFINITY, f32::max);
+                let total: f32 = logits.map(|l| (l - max).exp()).sum();
+                if total > 0.0 {
+                    (255.0 / total).round() as u16
+                } else {
+                    0
+                }
+            })
+            .collect()
+    }
+
     /// The right view's disparity per cell (patch columns) of `(rows, cols)` maps, read from
     /// the logits' diagonal: right cell `q` soft-argmins over `k` the logit of left cell
     /// `q + k` at `k`, candidates with `q + k` outside the row excluded (the float twin of
@@ -190,6 +210,24 @@ mod tests {
         let c = compare_heads(&int8, &float).unwrap();
         assert!(c.logit_cosine < 0.99);
         assert!((c.disparity_mean_abs - 1.0 / 3.0).abs() < 1e-9);
+    }
+
+    /// The float head's confidence is 255 x its largest candidate probability, masked
+    /// candidates (the head's large negative logits) counting for nothing.
+    #[test]
+    fn confidence_is_the_largest_probability_in_q8() {
+        let masked = -1e4;
+        // Two cells, candidate-major: a sure one, and one split evenly over 3 candidates.
+        let mut logits = vec![masked; 2 * HEAD_MAX_DISP];
+        logits[0] = 40.0; // cell 0, candidate 0
+        for k in 0..3 {
+            logits[k * 2 + 1] = 2.0;
+        }
+        let out = FloatHeadOutput {
+            logits,
+            disparity: vec![0.0; 2],
+        };
+        assert_eq!(out.confidence_q8(), [255, 85]);
     }
 
     #[test]

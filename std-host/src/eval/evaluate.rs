@@ -261,7 +261,7 @@ fn float_maps(
         &sgm(&volume_right, opts.penalties, guide_right),
         opts.lr_max_diff,
     );
-    let (head, head_consistent) = match head {
+    let (head, head_consistent, head_confidence) = match head {
         Some(h) => {
             let map = |values: Vec<f32>| DisparityMap {
                 width: left.cols,
@@ -269,13 +269,15 @@ fn float_maps(
                 values,
             };
             let nd = head_candidates(item.left.width);
-            let head_left = map(h.forward(&left, &right, nd)?.disparity);
+            let out = h.forward(&left, &right, nd)?;
+            let confidence = out.confidence_q8();
+            let head_left = map(out.disparity);
             // The right view: the head on the mirrored pair, mirrored back.
             let head_right = mirror(&map(h.forward(&right.mirrored(), &left.mirrored(), nd)?.disparity));
             let mask = consistent(&head_left, &head_right, opts.lr_max_diff);
-            (Some(head_left), Some(mask))
+            (Some(head_left), Some(mask), Some(confidence))
         }
-        None => (None, None),
+        None => (None, None, None),
     };
     Ok(MethodMaps {
         nolink: Some(wta),
@@ -284,6 +286,7 @@ fn float_maps(
         nolink_consistent: wta_consistent,
         sgm_consistent,
         head_consistent,
+        head_confidence,
         // The refinement reads the pipeline's 8-bit views in both precisions.
         views: GrayViews::from_views(&item.left, &item.right)?,
     })
@@ -309,6 +312,7 @@ fn float_native_maps(
         values,
     };
     let head_right = map(out.right_view(even.rows, even.cols));
+    let head_confidence = Some(out.confidence_q8());
     let head_left = map(out.disparity);
     let mask = consistent(&head_left, &head_right, opts.lr_max_diff);
     Ok(MethodMaps {
@@ -318,6 +322,7 @@ fn float_native_maps(
         nolink_consistent: Vec::new(),
         sgm_consistent: Vec::new(),
         head_consistent: Some(mask),
+        head_confidence,
         views: GrayViews::from_views(&item.left, &item.right)?,
     })
 }

@@ -97,6 +97,7 @@ pub fn run_pipeline(
             nolink_consistent: m.wta_mask,
             sgm_consistent: m.sgm_mask,
             head_consistent: check_ran.then_some(m.head_mask),
+            head_confidence: head_ran.then_some(m.head_confidence),
             views,
         },
         stage_times: sink.stage_times,
@@ -110,6 +111,7 @@ struct Rows {
     wta: Vec<f32>,
     sgm: Vec<f32>,
     head: Vec<f32>,
+    head_confidence: Vec<u16>,
     wta_mask: Vec<bool>,
     sgm_mask: Vec<bool>,
     head_mask: Vec<bool>,
@@ -159,6 +161,7 @@ impl Sink for Collect<'_> {
 
     fn head(&mut self, row: HeadRow<'_>) {
         self.maps.head.extend(q8(row.disparity_q8));
+        self.maps.head_confidence.extend(row.confidence_q8);
     }
 
     fn head_checked(&mut self, row: &HeadChecked<'_>) {

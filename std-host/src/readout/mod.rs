@@ -7,7 +7,7 @@
 //! |---|---|
 //! | `nolink`, `sgm`, `head` | the method's disparity, every cell |
 //! | `nolink+lr`, `sgm+lr`, `head+lr` | the same, cells the method's own left-right check rejects filled from the nearest kept cell to their left (`bino_core::lr::fill_rejected`) |
-//! | `fuse` | the weighted mean of `head` and `sgm` in every cell (Q8, `bino_core::lr::fuse_row` with every cell kept; the head's share [`fuse_head_weight`]) |
+//! | `fuse` | the weighted mean of `head` and `sgm` in every cell (Q8, `bino_core::lr::fuse_row` with every cell kept; the head's share [`fuse_head_weight`], moved by its confidence) |
 //! | `fuse+lr` | `bino_core::lr::fuse_row` of the head and SGM with their own checks: the weighted mean where both pass, the one that passes, else rejected and filled as above |
 //!
 //! | suffix | pixels |
@@ -31,6 +31,7 @@ use std::str::FromStr;
 
 use anyhow::{bail, ensure, Context, Result};
 use bino_core::config::{CELL_W, HEAD_CANDIDATES_LIMIT, HEAD_MAX_DISP};
+use bino_core::lr::CheckedRow;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 
 use crate::eval::{upsample_disparity, DisparityMap};
@@ -184,6 +185,9 @@ pub struct MethodMaps {
     pub sgm_consistent: Vec<bool>,
     /// Cells whose head disparity passes the head's left-right check, when it ran.
     pub head_consistent: Option<Vec<bool>>,
+    /// The head's largest candidate probability per cell, Q8 (`confidence_q8`), with `head`:
+    /// what `fuse` weighs the head by.
+    pub head_confidence: Option<Vec<u16>>,
     /// The pair's views as the pipeline reads them (what `+ref` refines on).
     pub views: GrayViews,
 }
@@ -248,16 +252,31 @@ impl MethodMaps {
         );
         let bytes = |m: &[bool]| m.iter().map(|&k| u8::from(k)).collect::<Vec<u8>>();
         let (head_q8, sgm_q8) = (tokens_q8(head), tokens_q8(sgm));
+        let confidence = self
+            .head_confidence
+            .as_deref()
+            .context("fuse: the head's confidence was not kept")?;
+        ensure!(
+            confidence.len() == every.len(),
+            "fuse: confidence and disparity sizes differ"
+        );
         let (head_kept, sgm_kept) = (bytes(head_kept), bytes(sgm_kept));
         let weight = fuse_head_weight(self.views.width);
         let mut out = vec![0u16; every.len()];
         let mut kept = vec![0u8; every.len()];
         let cols = head.width.max(1);
-        let rows = (head_q8.chunks_exact(cols).zip(head_kept.chunks_exact(cols)))
-            .zip(sgm_q8.chunks_exact(cols).zip(sgm_kept.chunks_exact(cols)))
-            .zip(out.chunks_exact_mut(cols).zip(kept.chunks_exact_mut(cols)));
-        for (((h, hk), (s, sk)), (o, ok)) in rows {
-            bino_core::lr::fuse_row(h, hk, s, sk, weight, o, ok).map_err(anyhow::Error::msg)?;
+        for r in 0..every.len() / cols {
+            let at = r * cols..(r + 1) * cols;
+            let head = CheckedRow {
+                disparity_q8: &head_q8[at.clone()],
+                kept: &head_kept[at.clone()],
+            };
+            let sgm = CheckedRow {
+                disparity_q8: &sgm_q8[at.clone()],
+                kept: &sgm_kept[at.clone()],
+            };
+            let (o, ok) = (&mut out[at.clone()], &mut kept[at.clone()]);
+            bino_core::lr::fuse_row(head, &confidence[at], sgm, weight, o, ok).map_err(anyhow::Error::msg)?;
         }
         let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
         let map = DisparityMap {
@@ -404,6 +423,7 @@ mod tests {
             nolink_consistent: mask.iter().map(|&m| m != 0).collect(),
             sgm_consistent: vec![true; 24],
             head_consistent: None,
+            head_confidence: None,
             views: views(32, 12),
         };
         let host = maps.tokens(Readout::new(Method::Nolink, true)).unwrap();
@@ -438,6 +458,7 @@ mod tests {
             nolink_consistent: mask.clone(),
             sgm_consistent: mask.clone(),
             head_consistent: Some(mask.clone()),
+            head_confidence: Some((0..24).map(|i| (i * 23 % 256) as u16).collect()),
             views: views(32, 12),
         };
         let v = &maps.views;
