@@ -221,7 +221,7 @@ impl RefineInput {
         }
     }
 
-    /// Whether it reads the head (its rows then trail the band by [`HEAD_LAG`] token rows).
+    /// Whether it reads the head (its rows then trail the band by one token row per head convolution).
     pub const fn uses_head(self) -> bool {
         matches!(self, RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr)
     }
