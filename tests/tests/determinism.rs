@@ -6,7 +6,8 @@
 //! digest is also recomputed from the specification: the whole-map refinement the preset names
 //! (`refine::sharpness::refine_map_equalised`, or `refine::refine_map` without equalisation) on
 //! the whole token map of a plain pipeline run the preset reads: the head and SGM fused by their
-//! checks (`lr::fuse_row`, export pathway) or the head+lr map (native), filled.
+//! checks (`lr::fuse_row` through the host's `readout::fuse_grid`, export pathway) or the
+//! head+lr map (native), filled.
 
 use std::path::{Path, PathBuf};
 
@@ -16,11 +17,12 @@ mod workload;
 
 use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
-use bino_core::lr::{fill_rejected, fuse_head_weight, fuse_row, CheckedRow};
+use bino_core::lr::{fill_rejected, fuse_head_weight};
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{HeadChecked, MatchedRow, Pathway, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{keep_rejected_map, refine_map, scratch_len};
+use bino_host::readout::fuse_grid;
 use workload::{Hooks, Stage, OUTPUTS};
 
 struct Quiet;
@@ -124,23 +126,13 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
     let mut arena = vec![0u8; bino_core::pipeline::arena_bytes_for(height, width, &options)];
     let mut source = SlicePair::new(left, right, width, height).unwrap();
     pipeline.run(&mut source, &options, &mut arena, &mut maps).unwrap();
-    let (mut grid, mut mask) = (maps.head.clone(), maps.mask.clone());
-    if fused {
-        for r in 0..height / 4 {
-            let row = r * cols..(r + 1) * cols;
-            let head = CheckedRow {
-                disparity_q8: &maps.head[row.clone()],
-                kept: &maps.mask[row.clone()],
-            };
-            let sgm = CheckedRow {
-                disparity_q8: &maps.sgm[row.clone()],
-                kept: &maps.sgm_mask[row.clone()],
-            };
-            let confidence = &maps.confidence[row.clone()];
-            let weight = fuse_head_weight(width);
-            fuse_row(head, confidence, sgm, weight, &mut grid[row.clone()], &mut mask[row]).unwrap();
-        }
-    }
+    let (mut grid, mask) = if fused {
+        let weight = fuse_head_weight(width);
+        let (head, sgm) = ((&maps.head[..], &maps.mask[..]), (&maps.sgm[..], &maps.sgm_mask[..]));
+        fuse_grid(head, &maps.confidence, sgm, cols, weight).unwrap()
+    } else {
+        (maps.head.clone(), maps.mask.clone())
+    };
     for (row, m) in grid.chunks_exact_mut(cols).zip(mask.chunks_exact(cols)) {
         fill_rejected(row, m).unwrap();
     }

@@ -8,7 +8,7 @@
 //! the arena grows as documented. The fused rows the pipeline streams are `lr::fuse_row` of
 //! its own head and SGM rows with their checks.
 
-use bino_core::lr::{fill_rejected, fuse_head_weight, fuse_row, CheckedRow};
+use bino_core::lr::{fill_rejected, fuse_head_weight};
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
     arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes, FusedRow, HeadChecked, MatchedRow,
@@ -20,6 +20,7 @@ use bino_core::Error;
 use bino_host::data::synthetic;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
 use bino_host::int8::Int8Model;
+use bino_host::readout::fuse_grid;
 
 const MAX_COLS: usize = 16;
 
@@ -262,26 +263,20 @@ fn whole_map(s: &Scene, out: &Collect, refine: &Refine) -> Vec<u16> {
 }
 
 /// The fused rows came once each, in order, and are `fuse_row` of the run's own head and SGM
-/// rows, their checks and the head's confidence, with the head's share of the view width.
+/// rows, their checks and the head's confidence, with the head's share of the view width: the
+/// host's whole-grid fusion (`bino_host::readout::fuse_grid`, what `bino run` reads out).
 fn assert_fused_is_the_checked_mean(out: &Collect, width: usize, height: usize) {
     assert_eq!(out.fused_rows, (0..height / 4).collect::<Vec<_>>(), "{width}x{height}");
     let cells = out.cols * (height / 4);
-    let (mut fused, mut kept) = (vec![0u16; cells], vec![0u8; cells]);
     let c = out.cols;
-    for r in 0..height / 4 {
-        let row = r * c..(r + 1) * c;
-        let head = CheckedRow {
-            disparity_q8: &out.head[row.clone()],
-            kept: &out.head_mask[row.clone()],
-        };
-        let sgm = CheckedRow {
-            disparity_q8: &out.sgm[row.clone()],
-            kept: &out.sgm_mask[row.clone()],
-        };
-        let confidence = &out.head_confidence[row.clone()];
-        let weight = fuse_head_weight(width);
-        fuse_row(head, confidence, sgm, weight, &mut fused[row.clone()], &mut kept[row]).unwrap();
-    }
+    let (fused, kept) = fuse_grid(
+        (&out.head, &out.head_mask),
+        &out.head_confidence,
+        (&out.sgm, &out.sgm_mask),
+        c,
+        fuse_head_weight(width),
+    )
+    .unwrap();
     assert!(
         (&fused, &kept) == (&out.fused, &out.fused_mask),
         "{width}x{height}: {}",

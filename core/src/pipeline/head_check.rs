@@ -31,15 +31,7 @@ impl Feed<'_, '_, '_> {
         want: RefineInput,
         back: Stage,
     ) -> Option<Feed<'k, 'a, 'b>> {
-        match refine {
-            Some((input, stage)) if *input == want => Some(Feed {
-                input: *input,
-                stage,
-                io,
-                back,
-            }),
-            _ => None,
-        }
+        Self::when(refine, io, back, |input| input == want)
     }
 
     /// The refinement, when it reads a readout of the head's check (head+lr or fuse+lr), fed
@@ -49,8 +41,18 @@ impl Feed<'_, '_, '_> {
         io: &'k mut RefineIo<'b>,
         back: Stage,
     ) -> Option<Feed<'k, 'a, 'b>> {
+        Self::when(refine, io, back, RefineInput::needs_head_check)
+    }
+
+    /// The refinement, when the readout it reads passes `reads`, fed from head stage `back`.
+    fn when<'k, 'a, 'b>(
+        refine: &'k mut Option<(RefineInput, RefineStage<'a>)>,
+        io: &'k mut RefineIo<'b>,
+        back: Stage,
+        reads: impl Fn(RefineInput) -> bool,
+    ) -> Option<Feed<'k, 'a, 'b>> {
         match refine {
-            Some((input, stage)) if input.needs_head_check() => Some(Feed {
+            Some((input, stage)) if reads(*input) => Some(Feed {
                 input: *input,
                 stage,
                 io,
@@ -151,17 +153,23 @@ impl<'a> HeadCheck<'a> {
         Ok((check, carver.used()))
     }
 
+    /// The cells of the slot that keeps token row `row` (in every ring of rows).
+    fn slot(&self, row: usize) -> core::ops::Range<usize> {
+        let at = (row % self.rows.max(1)) * self.cols;
+        at..at + self.cols
+    }
+
     /// Keeps SGM row `row` and its left-right mask for the fusion of the head's row `row`.
     pub(super) fn keep_sgm(&mut self, row: usize, sgm_q8: &[u16], consistent: &[u8]) -> Result<(), Error> {
-        let at = (row % self.rows.max(1)) * self.cols;
+        let slot = self.slot(row);
         let fusion = &mut self.fusion;
         let (Some(rows), Some(masks)) = (
-            fusion.sgm_rows.get_mut(at..at + self.cols),
-            fusion.sgm_masks.get_mut(at..at + self.cols),
+            fusion.sgm_rows.get_mut(slot.clone()),
+            fusion.sgm_masks.get_mut(slot.clone()),
         ) else {
             return Err(Error::BufferSize {
                 what: "fused readout: SGM rows",
-                expected: at + self.cols,
+                expected: slot.end,
                 found: fusion.sgm_rows.len(),
             });
         };
@@ -173,8 +181,7 @@ impl<'a> HeadCheck<'a> {
     }
 
     fn keep_left(&mut self, row: &HeadRow<'_>) {
-        let at = (row.row % self.rows.max(1)) * self.cols;
-        let range = at..at + self.cols;
+        let range = self.slot(row.row);
         if let Some(slot) = self.left_rows.get_mut(range.clone()) {
             if slot.len() == row.disparity_q8.len() {
                 slot.copy_from_slice(row.disparity_q8);
@@ -226,17 +233,15 @@ pub(super) struct CheckedRows<'k, 'a, 'b, K> {
 
 impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
     fn row(&mut self, row: HeadRow<'_>) {
+        let slot = self.check.slot(row.row);
         let HeadCheck {
-            cols,
-            rows,
             lr_max_diff_q8,
             left_rows,
             mask,
             kept,
             fusion,
+            ..
         } = &mut *self.check;
-        let at = (row.row % (*rows).max(1)) * *cols;
-        let slot = at..at + *cols;
         let Some(left) = left_rows.get(slot.clone()) else {
             return;
         };

@@ -261,23 +261,14 @@ impl MethodMaps {
             "fuse: confidence and disparity sizes differ"
         );
         let (head_kept, sgm_kept) = (bytes(head_kept), bytes(sgm_kept));
-        let weight = fuse_head_weight(self.views.width);
-        let mut out = vec![0u16; every.len()];
-        let mut kept = vec![0u8; every.len()];
-        let cols = head.width.max(1);
-        for r in 0..every.len() / cols {
-            let at = r * cols..(r + 1) * cols;
-            let head = CheckedRow {
-                disparity_q8: &head_q8[at.clone()],
-                kept: &head_kept[at.clone()],
-            };
-            let sgm = CheckedRow {
-                disparity_q8: &sgm_q8[at.clone()],
-                kept: &sgm_kept[at.clone()],
-            };
-            let (o, ok) = (&mut out[at.clone()], &mut kept[at.clone()]);
-            bino_core::lr::fuse_row(head, &confidence[at], sgm, weight, o, ok).map_err(anyhow::Error::msg)?;
-        }
+        let head_rows = (&head_q8[..], &head_kept[..]);
+        let (out, kept) = fuse_grid(
+            head_rows,
+            confidence,
+            (&sgm_q8, &sgm_kept),
+            head.width,
+            fuse_head_weight(self.views.width),
+        )?;
         let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
         let map = DisparityMap {
             values: out.iter().map(|&d| d as f32 / unit).collect(),
@@ -346,6 +337,43 @@ pub struct ReadoutGrid<'m> {
     pub mask: Option<Cow<'m, [bool]>>,
 }
 
+/// The fused grid of whole token maps (`cols` cells a row, Q8, masks 1 = kept): each row by
+/// [`bino_core::lr::fuse_row`] from the head's `(disparities, mask)`, its confidence and SGM's
+/// `(disparities, mask)`, the head's share `weight`. Returns the fused disparities and mask.
+pub fn fuse_grid(
+    head: (&[u16], &[u8]),
+    head_confidence: &[u16],
+    sgm: (&[u16], &[u8]),
+    cols: usize,
+    weight: u8,
+) -> Result<(Vec<u16>, Vec<u8>)> {
+    let cells = head.0.len();
+    ensure!(
+        cols > 0 && cells.is_multiple_of(cols),
+        "fuse: {cells} cells are not rows of {cols}"
+    );
+    ensure!(
+        [head.1.len(), head_confidence.len(), sgm.0.len(), sgm.1.len()]
+            .iter()
+            .all(|&n| n == cells),
+        "fuse: the head's and SGM's grids, masks and confidence differ in size"
+    );
+    let (mut out, mut kept) = (vec![0u16; cells], vec![0u8; cells]);
+    fn row<'m>((d, k): (&'m [u16], &'m [u8]), at: std::ops::Range<usize>) -> CheckedRow<'m> {
+        CheckedRow {
+            disparity_q8: &d[at.clone()],
+            kept: &k[at],
+        }
+    }
+    let rows = out.chunks_exact_mut(cols).zip(kept.chunks_exact_mut(cols)).enumerate();
+    for (r, (o, ok)) in rows {
+        let at = r * cols..(r + 1) * cols;
+        let (h, s) = (row(head, at.clone()), row(sgm, at.clone()));
+        bino_core::lr::fuse_row(h, &head_confidence[at], s, weight, o, ok).map_err(anyhow::Error::msg)?;
+    }
+    Ok((out, kept))
+}
+
 /// The head's share, in 256ths, of a `fuse` cell where both checks pass: the core's rule,
 /// which the board's pipeline follows too.
 pub use bino_core::lr::{fuse_head_weight, FUSE_HEAD_HEAVY_MAX_WIDTH};
@@ -369,6 +397,17 @@ pub fn head_candidates(width: usize) -> usize {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_grid_fusion_is_fuse_row_per_row_and_checks_its_sizes() {
+        let (head, sgm) = ([256u16, 512, 768, 1024], [512u16, 512, 256, 0]);
+        let (head_kept, sgm_kept, confidence) = ([1u8, 0, 1, 0], [1u8, 1, 0, 0], [128u16; 4]);
+        let (out, kept) = fuse_grid((&head, &head_kept), &confidence, (&sgm, &sgm_kept), 2, 128).unwrap();
+        assert_eq!((out, kept), (vec![384, 512, 768, 1024], vec![1, 1, 1, 0]));
+        assert!(fuse_grid((&head, &head_kept), &confidence, (&sgm, &sgm_kept), 3, 128).is_err());
+        let short = &confidence[..3];
+        assert!(fuse_grid((&head, &head_kept), short, (&sgm, &sgm_kept), 2, 128).is_err());
+    }
 
     #[test]
     fn names_round_trip_and_unknown_ones_are_errors() {
