@@ -32,6 +32,25 @@ fn write_png(path: &Path, width: u32, height: u32) {
         .unwrap();
 }
 
+/// `bino reference` with `flags` on `dir`'s `l.png` / `r.png` (random encoder) into `o.npz`.
+fn reference_on_pair(dir: &Path, flags: &[&str]) -> Output {
+    let (left, right, out) = (dir.join("l.png"), dir.join("r.png"), dir.join("o.npz"));
+    let mut args = vec!["reference"];
+    args.extend_from_slice(flags);
+    let onnx = random_onnx();
+    args.extend_from_slice(&[
+        "--left",
+        s(&left),
+        "--right",
+        s(&right),
+        "--onnx",
+        s(&onnx),
+        "--out",
+        s(&out),
+    ]);
+    bino(&args)
+}
+
 #[test]
 fn reference_on_builtin_scene_writes_documented_arrays() {
     let dir = scratch("builtin");
@@ -81,17 +100,7 @@ fn reference_runs_on_a_real_pair_at_w160() {
 fn missing_image_is_named() {
     let dir = scratch("missing");
     write_png(&dir.join("r.png"), 64, 48);
-    let run = bino(&[
-        "reference",
-        "--left",
-        s(&dir.join("l.png")),
-        "--right",
-        s(&dir.join("r.png")),
-        "--onnx",
-        s(&random_onnx()),
-        "--out",
-        s(&dir.join("o.npz")),
-    ]);
+    let run = reference_on_pair(&dir, &[]);
     assert_fails_with(&run, &["l.png", "does not exist"]);
     assert!(!dir.join("o.npz").exists());
 }
@@ -101,17 +110,7 @@ fn unreadable_image_is_named() {
     let dir = scratch("garbage");
     std::fs::write(dir.join("l.png"), b"\x89PNG but truncated").unwrap();
     write_png(&dir.join("r.png"), 64, 48);
-    let run = bino(&[
-        "reference",
-        "--left",
-        s(&dir.join("l.png")),
-        "--right",
-        s(&dir.join("r.png")),
-        "--onnx",
-        s(&random_onnx()),
-        "--out",
-        s(&dir.join("o.npz")),
-    ]);
+    let run = reference_on_pair(&dir, &[]);
     assert_fails_with(&run, &["l.png", "cannot decode"]);
 }
 
@@ -120,17 +119,7 @@ fn mismatched_pair_is_refused() {
     let dir = scratch("mismatch");
     write_png(&dir.join("l.png"), 64, 48);
     write_png(&dir.join("r.png"), 68, 48);
-    let run = bino(&[
-        "reference",
-        "--left",
-        s(&dir.join("l.png")),
-        "--right",
-        s(&dir.join("r.png")),
-        "--onnx",
-        s(&random_onnx()),
-        "--out",
-        s(&dir.join("o.npz")),
-    ]);
+    let run = reference_on_pair(&dir, &[]);
     assert_fails_with(&run, &["l.png", "64x48", "68x48"]);
 }
 
@@ -139,34 +128,12 @@ fn size_off_the_profile_is_refused() {
     let dir = scratch("profile");
     write_png(&dir.join("l.png"), 66, 50);
     write_png(&dir.join("r.png"), 66, 50);
-    let run = bino(&[
-        "reference",
-        "--profile",
-        "native",
-        "--left",
-        s(&dir.join("l.png")),
-        "--right",
-        s(&dir.join("r.png")),
-        "--onnx",
-        s(&random_onnx()),
-        "--out",
-        s(&dir.join("o.npz")),
-    ]);
+    let run = reference_on_pair(&dir, &["--profile", "native"]);
     assert_fails_with(&run, &["l.png", "66x50", "multiples of 4"]);
     // A sliver leaves no 4-row band at width 160.
     write_png(&dir.join("l.png"), 640, 3);
     write_png(&dir.join("r.png"), 640, 3);
-    let run = bino(&[
-        "reference",
-        "--left",
-        s(&dir.join("l.png")),
-        "--right",
-        s(&dir.join("r.png")),
-        "--onnx",
-        s(&random_onnx()),
-        "--out",
-        s(&dir.join("o.npz")),
-    ]);
+    let run = reference_on_pair(&dir, &[]);
     assert_fails_with(&run, &["640x3", "w160"]);
 }
 
