@@ -22,15 +22,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import cv2
 import numpy as np
 
+from .folder_writer import write_index, write_pair
 from .labeled import LABELED_HOLDOUT, heldout_labeled_pairs, load_checked_gt
-from .pairs import COLUMNS, load_gray
-from .pfm import encode_pfm
+from .pairs import load_gray
 from .profile import resize_gt, resize_image, to_u8
-
-SPLIT = "val"
 
 
 def write_folder(out: Path, width: int, data_dir: Path | None = None) -> list[str]:
@@ -39,7 +36,7 @@ def write_folder(out: Path, width: int, data_dir: Path | None = None) -> list[st
     if not pairs:
         raise ValueError(f"none of {', '.join(LABELED_HOLDOUT)} is a labeled train pair here")
     out.mkdir(parents=True, exist_ok=True)
-    rows = ["\t".join(COLUMNS)]
+    rows = []
     for pair in pairs:
         grays = [load_gray(p) for p in (pair.left, pair.right)]
         disparity, valid = load_checked_gt(pair, grays[0].shape)
@@ -47,16 +44,9 @@ def write_folder(out: Path, width: int, data_dir: Path | None = None) -> list[st
         disp, ok = resize_gt(disparity, valid, width)
         if disp.shape != views[0].shape:
             raise AssertionError(f"{pair.pair_id}: labels {disp.shape} vs view {views[0].shape}")
-        names = [f"{pair.pair_id}_{v}.png" for v in ("left", "right")]
-        for name, image in zip(names, views, strict=True):
-            if not cv2.imwrite(str(out / name), image):
-                raise OSError(f"cannot write {out / name}")
-        gt = np.where(ok, disp, np.float32(np.nan)).astype(np.float32)
-        (out / f"{pair.pair_id}_gt.pfm").write_bytes(encode_pfm(gt))
-        height, w = views[0].shape
-        fields = [pair.pair_id, SPLIT, pair.dataset, *names, f"{pair.pair_id}_gt.pfm"]
-        rows.append("\t".join([*fields, "pfm", "1", "", str(w), str(height)]))
-    (out / "PAIRS.tsv").write_text("\n".join(rows) + "\n")
+        gt = np.where(ok, disp, np.float32(np.nan))
+        rows.append(write_pair(out, pair.pair_id, pair.dataset, views, gt))
+    write_index(out, rows)
     return [p.pair_id for p in pairs]
 
 

@@ -27,12 +27,11 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .pairs import COLUMNS, load_gray, training_pairs
-from .pfm import encode_pfm
+from .folder_writer import write_index, write_pair
+from .pairs import load_gray, training_pairs
 from .profile import to_u8
 from .synthetic import smooth_texture
 
-SPLIT = "val"
 SEED = 20261204
 """Scene i uses the generator seeded [SEED, i]; no training run draws from it."""
 
@@ -155,19 +154,13 @@ def write_folder(
     width (the w320 profile's 16 candidates of 4 px); returns the number of pairs."""
     out.mkdir(parents=True, exist_ok=True)
     max_disparity = 60.0 * width / 320
-    rows = ["\t".join(COLUMNS)]
+    rows = []
+    dataset = "synthetic_real" if real else "synthetic"
     for i in range(count):
         left, right, disparity = scene(i, height, width, max_disparity, real)
-        pair_id = f"synth_{i:02d}"
-        names = [f"{pair_id}_{v}.png" for v in ("left", "right")]
-        for name, image in zip(names, (left, right), strict=True):
-            if not cv2.imwrite(str(out / name), to_u8(image)):
-                raise OSError(f"cannot write {out / name}")
-        (out / f"{pair_id}_gt.pfm").write_bytes(encode_pfm(disparity))
-        dataset = "synthetic_real" if real else "synthetic"
-        fields = [pair_id, SPLIT, dataset, *names, f"{pair_id}_gt.pfm"]
-        rows.append("\t".join([*fields, "pfm", "1", "", str(width), str(height)]))
-    (out / "PAIRS.tsv").write_text("\n".join(rows) + "\n")
+        views = [to_u8(left), to_u8(right)]
+        rows.append(write_pair(out, f"synth_{i:02d}", dataset, views, disparity))
+    write_index(out, rows)
     return count
 
 

@@ -17,35 +17,25 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import cv2
 import numpy as np
 
+from .folder_writer import write_index, write_pair
 from .head_data import consistent_sgbm, validation_pairs
-from .pairs import COLUMNS, load_gray
-from .pfm import encode_pfm
+from .pairs import load_gray
 from .profile import resize_image, to_u8
-
-SPLIT = "val"
 
 
 def write_folder(out: Path, width: int, data_dir: Path | None = None) -> int:
     """Write the folder; returns the number of pairs."""
     out.mkdir(parents=True, exist_ok=True)
-    rows = ["\t".join(COLUMNS)]
+    rows = []
     for pair in validation_pairs(data_dir):
         views = [to_u8(resize_image(load_gray(p), width)) for p in (pair.left, pair.right)]
         disparity, valid, _ = consistent_sgbm(views[0], views[1])
-        names = [f"{pair.pair_id}_{v}.png" for v in ("left", "right")]
-        for name, image in zip(names, views, strict=True):
-            if not cv2.imwrite(str(out / name), image):
-                raise OSError(f"cannot write {out / name}")
-        gt = np.where(valid, disparity, np.float32(np.nan)).astype(np.float32)
-        (out / f"{pair.pair_id}_gt.pfm").write_bytes(encode_pfm(gt))
-        height, w = views[0].shape
-        fields = [pair.pair_id, SPLIT, pair.dataset, *names, f"{pair.pair_id}_gt.pfm"]
-        rows.append("\t".join([*fields, "pfm", "1", "", str(w), str(height)]))
-    (out / "PAIRS.tsv").write_text("\n".join(rows) + "\n")
-    return len(rows) - 1
+        gt = np.where(valid, disparity, np.float32(np.nan))
+        rows.append(write_pair(out, pair.pair_id, pair.dataset, views, gt))
+    write_index(out, rows)
+    return len(rows)
 
 
 def main(argv: list[str] | None = None) -> None:
