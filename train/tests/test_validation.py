@@ -1,7 +1,9 @@
-"""The validation table: `bino eval --json` files of several sets in one table, with ratios."""
+"""The validation sets' tools: the folder writers' errors, and the table of `bino eval --json`
+files of several sets with ratios to a baseline."""
 
 from __future__ import annotations
 
+import importlib
 import json
 from pathlib import Path
 
@@ -53,3 +55,17 @@ def test_an_empty_folder_and_a_foreign_json_are_named_errors(
     _write(tmp_path, "real160", {"int8_head": (1.25, 3.0)})
     main([str(tmp_path)])
     assert "| int8_head | 1.250 / 3.00 |" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("module", "extra"),
+    [("labeled_folder", []), ("val_folder", []), ("synth_folder", ["--textures", "real"])],
+)
+def test_folder_writers_name_a_missing_index_in_one_line(
+    tmp_path: Path, module: str, extra: list[str]
+) -> None:
+    main_of = importlib.import_module(f"bino_train.{module}").main
+    missing = tmp_path / "no-data"
+    args = ["--out", str(tmp_path / "out"), "--width", "160", "--data", str(missing), *extra]
+    with pytest.raises(SystemExit, match=rf"^error: {module}: no PAIRS\.tsv in .*no-data$"):
+        main_of(args)
