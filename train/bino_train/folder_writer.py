@@ -4,12 +4,14 @@ PNGs and its ground truth as a PFM (NaN where unknown), indexed by a PAIRS.tsv o
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from .pairs import COLUMNS
+from .pairs import COLUMNS, SplitError
 from .pfm import encode_pfm
 
 SPLIT = "val"
@@ -32,3 +34,13 @@ def write_pair(
 def write_index(out: Path, rows: list[str]) -> None:
     """Write the folder's PAIRS.tsv: the header, then `rows`."""
     (out / "PAIRS.tsv").write_text("\n".join(["\t".join(COLUMNS), *rows]) + "\n")
+
+
+@contextmanager
+def errors_as_one_line(tool: str) -> Iterator[None]:
+    """A folder tool's bad data (a missing or unreadable file, a bad index) as one line naming
+    the tool and the problem, not a traceback."""
+    try:
+        yield
+    except (OSError, ValueError, SplitError) as err:
+        raise SystemExit(f"error: {tool}: {err}") from None

@@ -27,8 +27,8 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .folder_writer import write_index, write_pair
-from .pairs import SplitError, load_gray, training_pairs
+from .folder_writer import errors_as_one_line, write_index, write_pair
+from .pairs import load_gray, training_pairs
 from .profile import to_u8
 from .synthetic import smooth_texture
 
@@ -177,11 +177,9 @@ def main(argv: list[str] | None = None) -> None:
     )
     p.add_argument("--data", type=Path, help="folder with PAIRS.tsv for real textures")
     args = p.parse_args(argv)
-    try:
+    with errors_as_one_line("synth_folder"):
         real = RealTextures(args.data) if args.textures == "real" else None
         n = write_folder(args.out, args.width, args.height, args.count, real)
-    except (OSError, ValueError, SplitError) as err:
-        raise SystemExit(f"error: synth_folder: {err}") from None
     print(f"{n} synthetic scenes at {args.width}x{args.height} px in {args.out}")
 
 

@@ -19,9 +19,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .folder_writer import write_index, write_pair
+from .folder_writer import errors_as_one_line, write_index, write_pair
 from .head_data import consistent_sgbm, validation_pairs
-from .pairs import SplitError, load_gray
+from .pairs import load_gray
 from .profile import resize_image, to_u8
 
 
@@ -46,10 +46,8 @@ def main(argv: list[str] | None = None) -> None:
     p.add_argument("--width", type=int, required=True, help="width of the resized views (px)")
     p.add_argument("--data", type=Path, help="folder with PAIRS.tsv (default ../shared/data)")
     args = p.parse_args(argv)
-    try:
+    with errors_as_one_line("val_folder"):
         count = write_folder(args.out, args.width, args.data)
-    except (OSError, ValueError, SplitError) as err:
-        raise SystemExit(f"error: val_folder: {err}") from None
     print(f"{count} validation pairs at {args.width} px in {args.out}")
 
 
