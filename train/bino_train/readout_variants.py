@@ -75,12 +75,10 @@ def fill_two_sided(disparity: Grid, kept: Mask, choose: str, guide: Grid | None 
     return out
 
 
-def sgm_soft_argmin(logits: Grid, p1: float, p2: float) -> Grid:
-    """Disparity of 4-path SGM over the cost `-logits` (D, T, P), soft-argmin of the negated
-    aggregate (costs normalised per cell so the winning candidate costs 0)."""
-    cost = -(logits - logits.max(axis=0, keepdims=True))  # (D, T, P), >= 0
-    d, t, p = cost.shape
-    cost = np.transpose(cost, (1, 2, 0))  # (T, P, D)
+def sgm_aggregate(cost: Grid, p1: float, p2: float) -> Grid:
+    """Sum of the 4 streaming SGM paths (left to right, right to left, top to bottom, top-left
+    diagonal) over a (T, P, D) cost volume; +inf costs mark impossible candidates."""
+    t, p, _ = cost.shape
     total = np.zeros_like(cost)
 
     def step(prev: Grid, here: Grid) -> Grid:
@@ -113,6 +111,15 @@ def sgm_soft_argmin(logits: Grid, p1: float, p2: float) -> Grid:
         agg[y] = step(prev, cost[y])
         agg[y, 0] = cost[y, 0]  # no predecessor on the diagonal
     total += agg
+    return total
+
+
+def sgm_soft_argmin(logits: Grid, p1: float, p2: float) -> Grid:
+    """Disparity of 4-path SGM over the cost `-logits` (D, T, P), soft-argmin of the negated
+    aggregate (costs normalised per cell so the winning candidate costs 0)."""
+    cost = -(logits - logits.max(axis=0, keepdims=True))  # (D, T, P), >= 0
+    d = cost.shape[0]
+    total = sgm_aggregate(np.transpose(cost, (1, 2, 0)), p1, p2)  # (T, P, D)
     z = -(total - total.min(axis=-1, keepdims=True))
     w = np.exp(z)
     k = np.arange(d, dtype=np.float64)
