@@ -82,6 +82,7 @@
 pub mod arena;
 pub mod band;
 pub mod blob;
+pub mod census;
 pub mod config;
 pub mod crc32;
 #[cfg(feature = "depth")]

@@ -591,6 +591,8 @@ fn subpixel_step(costs: &[u32], valid: &[bool], slot: usize) -> i64 {
 pub mod ring;
 pub mod sharpness;
 
+/// Census codes of one pixel row from its window of rows (`window[j]` = row `clamp(v + j - r)`).
+pub(crate) use ring::census_fast as census_codes;
 pub use ring::RowRefiner;
 
 #[cfg(test)]

@@ -72,6 +72,20 @@ fn run_writes_what_eval_scores_at_w320() {
     assert!(report["per_pair"][0]["readouts"]["int8_head"]["metrics"]["epe"].is_number());
 }
 
+/// The census readouts on the native pathway (one encoder pass; the census SGM reads the
+/// pixels): `run` writes what `eval` scores, and fusing the head changes the census map.
+#[test]
+fn run_writes_what_eval_scores_for_the_census_readouts() {
+    let readouts = ["census+lr", "fuse-census+lr", "fuse-census+lr+ref"];
+    let report = run_matches_eval(Profile::W160, &readouts, &["--pathway", "native"]);
+    let epe = |r: &str| {
+        report["per_pair"][0]["readouts"][format!("int8_{r}")]["metrics"]["epe"]
+            .as_f64()
+            .unwrap()
+    };
+    assert_ne!(epe("census+lr"), epe("fuse-census+lr"));
+}
+
 /// The guided SGM (`--sgm-edge`): its guide rows come from each band's pixel buffer in the
 /// pipeline, so the three bands of this pair check the guide across band seams; and it changes
 /// the map (the option is not ignored).

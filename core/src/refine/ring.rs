@@ -179,7 +179,7 @@ fn column_cost(left: &[&[u32]], right: &[&[u32]], u: usize, d: usize) -> u32 {
 
 /// The reference's census of one row (`window[j]` = image row `clamp(v + j - r)`), its interior
 /// one neighbour at a time over the whole row.
-fn census_fast(window: &[&[u8]], r: usize, out: &mut [u32]) {
+pub(crate) fn census_fast(window: &[&[u8]], r: usize, out: &mut [u32]) {
     let width = out.len();
     if width < 2 * r + 1 || window.len() < 2 * r + 1 {
         census_row(window, r, out);

@@ -289,6 +289,7 @@ fn float_maps(
         head_confidence,
         // The refinement reads the pipeline's 8-bit views in both precisions.
         views: GrayViews::from_views(&item.left, &item.right)?,
+        census: Default::default(),
     })
 }
 
@@ -324,6 +325,7 @@ fn float_native_maps(
         head_consistent: Some(mask),
         head_confidence,
         views: GrayViews::from_views(&item.left, &item.right)?,
+        census: Default::default(),
     })
 }
 

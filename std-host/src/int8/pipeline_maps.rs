@@ -99,6 +99,7 @@ pub fn run_pipeline(
             head_consistent: check_ran.then_some(m.head_mask),
             head_confidence: head_ran.then_some(m.head_confidence),
             views,
+            census: Default::default(),
         },
         stage_times: sink.stage_times,
         report,

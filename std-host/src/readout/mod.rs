@@ -22,6 +22,7 @@
 //! and `sgm` the right view comes from the reindexed cost row (`bino_core::lr`), for `head` from
 //! the head on the mirrored pair (`bino_core::model::head::HeadView::Right`).
 
+pub mod census;
 pub mod pathway;
 pub mod refine;
 
@@ -48,6 +49,10 @@ pub enum Method {
     Head,
     /// The head and SGM fused ([`bino_core::lr::fuse_row`]); needs both.
     Fused,
+    /// Census matching of the views' pixels with SGM ([`bino_core::census`]); no encoder.
+    Census,
+    /// The head and the census SGM fused as `Fused` fuses the head and SGM.
+    CensusFused,
 }
 
 /// A readout: a method, with or without its left-right check and fill, upsampled or refined.
@@ -73,7 +78,7 @@ impl Readout {
     /// `fuse+lr`.
     pub const FUSED_LR: Readout = Readout::new(Method::Fused, true);
     /// The token-grid readouts (upsampled bilinearly), in the order tables list them.
-    pub const UNREFINED: [Readout; 8] = [
+    pub const UNREFINED: [Readout; 12] = [
         Readout::NOLINK,
         Readout::new(Method::Nolink, true),
         Readout::SGM,
@@ -82,12 +87,16 @@ impl Readout {
         Readout::HEAD_LR,
         Readout::new(Method::Fused, false),
         Readout::FUSED_LR,
+        Readout::new(Method::Census, false),
+        Readout::new(Method::Census, true),
+        Readout::new(Method::CensusFused, false),
+        Readout::new(Method::CensusFused, true),
     ];
     /// Every readout, in the order tables list them: each unrefined one, then its `+ref`.
-    pub const ALL: [Readout; 16] = {
-        let mut all = [Readout::NOLINK; 16];
+    pub const ALL: [Readout; 24] = {
+        let mut all = [Readout::NOLINK; 24];
         let mut i = 0;
-        while i < 8 {
+        while i < 12 {
             all[2 * i] = Readout::UNREFINED[i];
             all[2 * i + 1] = Readout::UNREFINED[i].refined(true);
             i += 1;
@@ -128,12 +137,25 @@ impl Readout {
             (Method::Fused, false, true) => "fuse+ref",
             (Method::Fused, true, false) => "fuse+lr",
             (Method::Fused, true, true) => "fuse+lr+ref",
+            (Method::Census, false, false) => "census",
+            (Method::Census, false, true) => "census+ref",
+            (Method::Census, true, false) => "census+lr",
+            (Method::Census, true, true) => "census+lr+ref",
+            (Method::CensusFused, false, false) => "fuse-census",
+            (Method::CensusFused, false, true) => "fuse-census+ref",
+            (Method::CensusFused, true, false) => "fuse-census+lr",
+            (Method::CensusFused, true, true) => "fuse-census+lr+ref",
         }
     }
 
     /// Whether it needs the shared head.
     pub fn uses_head(self) -> bool {
-        matches!(self.method, Method::Head | Method::Fused)
+        matches!(self.method, Method::Head | Method::Fused | Method::CensusFused)
+    }
+
+    /// Whether it fuses the head with a second opinion (`fuse`, `fuse-census`).
+    pub fn fuses(self) -> bool {
+        matches!(self.method, Method::Fused | Method::CensusFused)
     }
 }
 
@@ -150,7 +172,7 @@ impl FromStr for Readout {
         match Readout::ALL.iter().find(|r| r.name() == s) {
             Some(&r) => Ok(r),
             None => bail!(
-                "unknown readout {s:?} (expected nolink, sgm, head or fuse, each optionally with +lr, then optionally +ref)"
+                "unknown readout {s:?} (expected nolink, sgm, head, fuse, census or fuse-census, each optionally with +lr, then optionally +ref)"
             ),
         }
     }
@@ -190,6 +212,8 @@ pub struct MethodMaps {
     pub head_confidence: Option<Vec<u16>>,
     /// The pair's views as the pipeline reads them (what `+ref` refines on).
     pub views: GrayViews,
+    /// The census SGM's grid and mask, computed from `views` when first asked for.
+    pub census: std::cell::OnceCell<(DisparityMap, Vec<bool>)>,
 }
 
 /// One method's token-grid disparity and its left-right mask (`None`: the check did not run),
@@ -217,20 +241,40 @@ impl MethodMaps {
                 Cow::Borrowed(self.head.as_ref().context("the run had no head")?),
                 self.head_consistent.as_deref().map(Cow::Borrowed),
             ),
-            Method::Fused => {
-                let (map, kept) = self.fused(true)?;
+            Method::Census => {
+                let (map, kept) = self.census_maps()?;
+                (Cow::Borrowed(map), Some(Cow::Borrowed(&kept[..])))
+            }
+            Method::Fused | Method::CensusFused => {
+                let (map, kept) = self.fused(method, true)?;
                 (Cow::Owned(map), Some(Cow::Owned(kept)))
             }
         })
     }
 
-    /// The head and SGM fused row by row by [`bino_core::lr::fuse_row`] on the core's Q8 grid,
-    /// with their own checks (`checked`) or with every cell kept (the unchecked `fuse`).
-    fn fused(&self, checked: bool) -> Result<(DisparityMap, Vec<bool>)> {
-        let sgm = self
-            .sgm
-            .as_ref()
-            .context("the run had no sgm readout: fuse needs the export pathway")?;
+    /// The census SGM's grid and mask ([`census::census_grid`]), computed once.
+    fn census_maps(&self) -> Result<&(DisparityMap, Vec<bool>)> {
+        if self.census.get().is_none() {
+            let maps = census::census_grid(&self.views)?;
+            let _ = self.census.set(maps);
+        }
+        self.census.get().context("census: the grid was not kept")
+    }
+
+    /// The head and its second opinion (`sgm` for `fuse`, `census` for `fuse-census`) fused row
+    /// by row by [`bino_core::lr::fuse_row`] on the core's Q8 grid, with their own checks
+    /// (`checked`) or with every cell kept (the unchecked readout).
+    fn fused(&self, method: Method, checked: bool) -> Result<(DisparityMap, Vec<bool>)> {
+        let (sgm, sgm_consistent) = if method == Method::CensusFused {
+            let (map, kept) = self.census_maps()?;
+            (map, &kept[..])
+        } else {
+            let sgm = self
+                .sgm
+                .as_ref()
+                .context("the run had no sgm readout: fuse needs the export pathway")?;
+            (sgm, &self.sgm_consistent[..])
+        };
         let head = self.head.as_ref().context("the run had no head: fuse needs it")?;
         ensure!(
             (head.width, head.height) == (sgm.width, sgm.height),
@@ -242,7 +286,7 @@ impl MethodMaps {
                 .head_consistent
                 .as_deref()
                 .context("fuse+lr: the head's check did not run")?;
-            (head_kept, &self.sgm_consistent[..])
+            (head_kept, sgm_consistent)
         } else {
             (&every[..], &every[..])
         };
@@ -267,7 +311,10 @@ impl MethodMaps {
             confidence,
             (&sgm_q8, &sgm_kept),
             head.width,
-            fuse_head_weight(self.views.width),
+            match method {
+                Method::CensusFused => census::FUSE_HEAD_WEIGHT,
+                _ => fuse_head_weight(self.views.width),
+            },
         )?;
         let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
         let map = DisparityMap {
@@ -280,13 +327,13 @@ impl MethodMaps {
     /// The readout's token grid (filled by the check for `+lr`) and its method's left-right
     /// mask, computed once (a fused readout fuses once).
     pub fn grid(&self, readout: Readout) -> Result<ReadoutGrid<'_>> {
-        let (map, mask) = if readout.method == Method::Fused && !readout.lr {
+        let (map, mask) = if readout.fuses() && !readout.lr {
             // The unchecked fusion; the mask is the checked one's, when the head's check ran.
             let mask = match self.head_consistent {
-                Some(_) => self.method(Method::Fused)?.1,
+                Some(_) => self.method(readout.method)?.1,
                 None => None,
             };
-            (Cow::Owned(self.fused(false)?.0), mask)
+            (Cow::Owned(self.fused(readout.method, false)?.0), mask)
         } else {
             self.method(readout.method)?
         };
@@ -416,7 +463,7 @@ mod tests {
             assert_eq!(r.to_string(), r.name());
         }
         let names: std::collections::BTreeSet<_> = Readout::ALL.iter().map(|r| r.name()).collect();
-        assert_eq!(names.len(), 16, "distinct names");
+        assert_eq!(names.len(), 24, "distinct names");
         assert_eq!("head+lr".parse::<Readout>().unwrap(), Readout::HEAD_LR);
         assert_eq!(
             "head+lr+ref".parse::<Readout>().unwrap(),
@@ -464,6 +511,7 @@ mod tests {
             head_consistent: None,
             head_confidence: None,
             views: views(32, 12),
+            census: Default::default(),
         };
         let host = maps.tokens(Readout::new(Method::Nolink, true)).unwrap();
         let mut core = q8.clone();
@@ -499,9 +547,14 @@ mod tests {
             head_consistent: Some(mask.clone()),
             head_confidence: Some((0..24).map(|i| (i * 23 % 256) as u16).collect()),
             views: views(32, 12),
+            census: Default::default(),
         };
         let v = &maps.views;
-        for readout in Readout::ALL {
+        // The census readouts' grids come from the views, not from `q8` (their own test).
+        let from_q8 = Readout::ALL
+            .into_iter()
+            .filter(|r| !matches!(r.method, Method::Census | Method::CensusFused));
+        for readout in from_q8 {
             let pixels = maps.pixels(readout).unwrap();
             assert_eq!((pixels.width, pixels.height), (32, 12), "{readout}");
             let tokens = maps.tokens(readout).unwrap();

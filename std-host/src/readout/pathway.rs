@@ -36,10 +36,11 @@ impl Pathway {
 
     /// An error unless `readout` exists on this pathway (the native one has only its head).
     pub fn check(self, readout: Readout) -> Result<()> {
-        if self == Pathway::Native && readout.method != Method::Head {
+        let native = matches!(readout.method, Method::Head | Method::Census | Method::CensusFused);
+        if self == Pathway::Native && !native {
             bail!(
-                "--readout {readout} needs the export pathway: the native pathway's readouts are its head's \
-                 (head, head+lr, each optionally +ref)"
+                "--readout {readout} needs the export pathway: the native pathway's readouts are its head's, \
+                 the census SGM's and their fusion (head, census, fuse-census, each optionally with +lr, then +ref)"
             );
         }
         Ok(())
@@ -77,18 +78,35 @@ mod tests {
     use super::*;
 
     #[test]
-    fn the_native_pathway_has_only_head_readouts() {
+    fn the_native_pathway_has_no_descriptor_readouts() {
         for readout in Readout::ALL {
             assert!(Pathway::Export.check(readout).is_ok(), "{readout}");
             let native = Pathway::Native.check(readout);
-            assert_eq!(native.is_ok(), readout.method == Method::Head, "{readout}");
+            let descriptors = matches!(readout.method, Method::Nolink | Method::Sgm | Method::Fused);
+            assert_eq!(native.is_ok(), !descriptors, "{readout}");
             if let Err(e) = native {
                 assert!(e.to_string().contains("needs the export pathway"), "{e}");
             }
         }
         assert_eq!(Pathway::Export.readouts(), Readout::ALL);
         let native: Vec<_> = Pathway::Native.readouts().iter().map(|r| r.name()).collect();
-        assert_eq!(native, ["head", "head+ref", "head+lr", "head+lr+ref"]);
+        assert_eq!(
+            native,
+            [
+                "head",
+                "head+ref",
+                "head+lr",
+                "head+lr+ref",
+                "census",
+                "census+ref",
+                "census+lr",
+                "census+lr+ref",
+                "fuse-census",
+                "fuse-census+ref",
+                "fuse-census+lr",
+                "fuse-census+lr+ref"
+            ]
+        );
         for pathway in [Pathway::Export, Pathway::Native] {
             assert!(pathway.check(pathway.default_readout()).is_ok());
             assert_eq!(pathway.core().pathway(), pathway.to_string());

@@ -230,6 +230,10 @@ fn refine_input(readout: Readout) -> Result<RefineInput> {
         (Method::Head, true) => RefineInput::HeadLr,
         (Method::Fused, true) => RefineInput::FusedLr,
         (Method::Fused, false) => bail!("--readout {readout}: {UNCHECKED_FUSE_NOT_STREAMED}"),
+        (Method::Census | Method::CensusFused, _) => bail!(
+            "--readout {readout}: the board's streaming pipeline (bino_core::pipeline), which bino sim runs, \
+             does not compute the census SGM yet; bino run and bino eval do"
+        ),
     })
 }
 
@@ -252,6 +256,8 @@ fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
         Method::Sgm => sim.pipeline.sgm_kept,
         Method::Head => sim.pipeline.head_kept,
         Method::Fused => sim.pipeline.fused_kept,
+        // `refine_input` refuses them before a run.
+        Method::Census | Method::CensusFused => 0,
     };
     let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
     vec![
@@ -527,7 +533,7 @@ impl Sink for DisplaySink<'_> {
         match self.readout.method {
             Method::Nolink => self.show_row(row.row, row.wta_q8, row.wta_consistent),
             Method::Sgm => self.show_row(row.row, row.sgm_q8, row.sgm_consistent),
-            Method::Head | Method::Fused => {}
+            Method::Head | Method::Fused | Method::Census | Method::CensusFused => {}
         }
     }
 

@@ -1,0 +1,292 @@
+//! A classical second opinion beside the heads: census matching with SGM, needing no encoder.
+//!
+//! Per token row: the 5x5 census codes of both views' pixel rows, the Hamming distance of every
+//! left pixel `x` and right pixel `x - d` at every pixel disparity `d`, summed over each 4x4
+//! cell, give the left view's cost row; the same distances summed over the right view's cells
+//! (right pixel `x` at `d` is left pixel `x + d` at `d`) give the right view's. Each feeds a
+//! streaming SGM ([`crate::sgm::SgmStream`], its four paths), whose winner is divided by the
+//! cell width into Q8 patch columns, and the two maps check each other
+//! ([`crate::lr::consistent_row`]). The native pathway has no descriptors, so no `sgm` of its
+//! own; this is what its `fuse` fuses the head with. Memory: one token row's codes and costs
+//! and the two SGM states, never a cost volume.
+
+use crate::config::{CELL_W, PATCH_H};
+use crate::lr::consistent_row;
+use crate::matching::check_candidates;
+use crate::refine::census_codes;
+use crate::sgm::{self, Penalties, SgmStream};
+use crate::Error;
+
+/// Census window radius (5x5 codes, 24 bits: the pixel refinement's).
+pub const CENSUS_RADIUS: usize = 2;
+/// Pixel rows one token row's costs read: its `PATCH_H` rows and the census reach around them.
+pub const WINDOW_ROWS: usize = PATCH_H + 2 * CENSUS_RADIUS;
+/// Distance charged to a pixel whose match lies outside the other view (every census bit).
+pub const OUTSIDE_COST: u16 = 24;
+/// SGM penalties in cell-summed Hamming units (a cell sums 16 pixels of 0..=24), chosen on the
+/// validation sets off the eval split (`train/experiments.json`, `census_companion`).
+pub const DEFAULT_PENALTIES: Penalties = Penalties {
+    p1: 32,
+    p2: 128,
+    edge: 0,
+};
+
+/// Pixel disparities searched alongside a head of `candidates` patch columns: the same reach.
+pub const fn disparities(candidates: usize) -> usize {
+    candidates.saturating_mul(CELL_W)
+}
+
+/// `u32` scratch of a stream over views `width` px wide with `disparities` pixel disparities:
+/// both views' codes of one pixel row, and both SGM sums.
+pub const fn scratch_u32_len(width: usize, disparities: usize) -> usize {
+    let cells = sgm::state_len(width / CELL_W, disparities);
+    (2 * width).saturating_add(cells.saturating_mul(2))
+}
+
+/// `u16` scratch of the same stream: both cost rows, both SGM states (vertical and diagonal),
+/// and the right view's disparity row.
+pub const fn scratch_u16_len(width: usize, disparities: usize) -> usize {
+    let cells = sgm::state_len(width / CELL_W, disparities);
+    cells.saturating_mul(6).saturating_add(width / CELL_W)
+}
+
+/// Bytes of [`scratch_u32_len`] and [`scratch_u16_len`] together.
+pub const fn stream_bytes(width: usize, disparities: usize) -> usize {
+    scratch_u32_len(width, disparities)
+        .saturating_mul(4)
+        .saturating_add(scratch_u16_len(width, disparities).saturating_mul(2))
+}
+
+/// The census SGM of one band, token row after token row, with its left-right check.
+pub struct CensusSgm<'a> {
+    width: usize,
+    disparities: usize,
+    max_diff_q8: u16,
+    codes: &'a mut [u32],
+    left_cost: &'a mut [u16],
+    right_cost: &'a mut [u16],
+    right_row: &'a mut [u16],
+    left_sgm: SgmStream<'a>,
+    right_sgm: SgmStream<'a>,
+}
+
+impl<'a> CensusSgm<'a> {
+    /// A stream over views `width` px wide (a multiple of the cell width), searching
+    /// `disparities` pixel disparities (1..=64), its check keeping cells within `max_diff_q8`
+    /// (Q8 patch columns); scratch of [`scratch_u32_len`] and [`scratch_u16_len`].
+    pub fn new(
+        width: usize,
+        disparities: usize,
+        penalties: Penalties,
+        max_diff_q8: u16,
+        scratch_u32: &'a mut [u32],
+        scratch_u16: &'a mut [u16],
+    ) -> Result<Self, Error> {
+        let cols = width / CELL_W;
+        if cols == 0 {
+            return Err(Error::EmptyImage);
+        }
+        if !width.is_multiple_of(CELL_W) {
+            return Err(Error::NotMultiple {
+                what: "width",
+                value: width,
+                multiple: CELL_W,
+            });
+        }
+        check_candidates(disparities)?;
+        Error::check_len(
+            "census SGM u32 scratch",
+            scratch_u32_len(width, disparities),
+            scratch_u32.len(),
+        )?;
+        Error::check_len(
+            "census SGM u16 scratch",
+            scratch_u16_len(width, disparities),
+            scratch_u16.len(),
+        )?;
+        let cells = cols * disparities;
+        let (codes, sums) = scratch_u32.split_at_mut(2 * width);
+        let (left_sum, right_sum) = sums.split_at_mut(cells);
+        let (left_cost, rest) = scratch_u16.split_at_mut(cells);
+        let (right_cost, rest) = rest.split_at_mut(cells);
+        let (left_vertical, rest) = rest.split_at_mut(cells);
+        let (left_diagonal, rest) = rest.split_at_mut(cells);
+        let (right_vertical, rest) = rest.split_at_mut(cells);
+        let (right_diagonal, right_row) = rest.split_at_mut(cells);
+        let left_sgm = SgmStream::new(cols, disparities, penalties, left_vertical, left_diagonal, left_sum)?;
+        let right_sgm = SgmStream::new(cols, disparities, penalties, right_vertical, right_diagonal, right_sum)?;
+        Ok(Self {
+            width,
+            disparities,
+            max_diff_q8,
+            codes,
+            left_cost,
+            right_cost,
+            right_row,
+            left_sgm,
+            right_sgm,
+        })
+    }
+
+    /// The next token row: `left[j]` and `right[j]` hold view row `clamp(4 t + j - 2)` for
+    /// `j = 0..8` ([`WINDOW_ROWS`]), `width` px each. Writes the left view's disparity in Q8
+    /// patch columns and its check's mask (1 = kept); returns the number kept.
+    pub fn push_row(
+        &mut self,
+        left: &[&[u8]],
+        right: &[&[u8]],
+        disparity: &mut [u16],
+        kept: &mut [u8],
+    ) -> Result<usize, Error> {
+        let (w, n) = (self.width, self.disparities);
+        for window in [left, right] {
+            Error::check_len("census SGM window", WINDOW_ROWS, window.len())?;
+            for row in window {
+                Error::check_len("census SGM pixel row", w, row.len())?;
+            }
+        }
+        self.left_cost.fill(0);
+        self.right_cost.fill(0);
+        for i in 0..PATCH_H {
+            let rows = i..i + 2 * CENSUS_RADIUS + 1;
+            let (codes_left, codes_right) = self.codes.split_at_mut(w);
+            census_codes(left.get(rows.clone()).unwrap_or_default(), CENSUS_RADIUS, codes_left);
+            census_codes(right.get(rows).unwrap_or_default(), CENSUS_RADIUS, codes_right);
+            add_distances(codes_left, codes_right, n, self.left_cost, self.right_cost);
+        }
+        self.left_sgm.push_row(self.left_cost, disparity)?;
+        self.right_sgm.push_row(self.right_cost, self.right_row)?;
+        for d in disparity.iter_mut().chain(self.right_row.iter_mut()) {
+            *d = pixels_to_columns(*d);
+        }
+        consistent_row(disparity, self.right_row, self.max_diff_q8, kept)
+    }
+}
+
+/// Q8 pixels to Q8 patch columns, rounded half up.
+fn pixels_to_columns(q8_px: u16) -> u16 {
+    ((q8_px as u32 + (CELL_W as u32 / 2)) / CELL_W as u32) as u16
+}
+
+/// Adds one pixel row's distances to both cost rows (`cols x n`, disparities fastest): left
+/// pixel `x` against right pixel `x - d` into the left cell of `x` and the right cell of
+/// `x - d`, [`OUTSIDE_COST`] where the other pixel is outside the view.
+fn add_distances(left: &[u32], right: &[u32], n: usize, left_cost: &mut [u16], right_cost: &mut [u16]) {
+    let width = left.len().min(right.len());
+    let used = width / CELL_W * CELL_W;
+    for d in 0..n {
+        for x in 0..used {
+            let cell = x / CELL_W * n + d;
+            let cost = match x.checked_sub(d).and_then(|xr| right.get(xr)) {
+                Some(&r) => left.get(x).map_or(OUTSIDE_COST, |&l| (l ^ r).count_ones() as u16),
+                None => OUTSIDE_COST,
+            };
+            if let Some(c) = left_cost.get_mut(cell) {
+                *c = c.saturating_add(cost);
+            }
+            // The right view's pixel `x` at `d` is the left view's `x + d`.
+            let mirrored = match left.get(x + d) {
+                Some(&l) => right.get(x).map_or(OUTSIDE_COST, |&r| (l ^ r).count_ones() as u16),
+                None => OUTSIDE_COST,
+            };
+            if let Some(c) = right_cost.get_mut(cell) {
+                *c = c.saturating_add(mirrored);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::Rng;
+
+    const W: usize = 48;
+    const H: usize = 16;
+    const N: usize = 16;
+
+    /// A textured pair whose left pixel `x` is right pixel `x - shift`.
+    fn shifted_pair(shift: usize) -> ([u8; W * H], [u8; W * H]) {
+        let mut rng = Rng::new(41);
+        let mut base = [0u8; (W + 8) * H];
+        for b in base.iter_mut() {
+            *b = rng.range(0, 255) as u8;
+        }
+        let (mut left, mut right) = ([0u8; W * H], [0u8; W * H]);
+        for y in 0..H {
+            for x in 0..W {
+                left[y * W + x] = base[y * (W + 8) + x];
+                right[y * W + x] = base[y * (W + 8) + x + shift];
+            }
+        }
+        (left, right)
+    }
+
+    fn window(view: &[u8], t: usize) -> [&[u8]; WINDOW_ROWS] {
+        let mut rows: [&[u8]; WINDOW_ROWS] = [&[]; WINDOW_ROWS];
+        for (j, row) in rows.iter_mut().enumerate() {
+            let y = (4 * t + j).saturating_sub(CENSUS_RADIUS).min(H - 1);
+            *row = &view[y * W..(y + 1) * W];
+        }
+        rows
+    }
+
+    #[test]
+    fn a_constant_shift_is_found_and_kept_where_its_match_is_inside() {
+        let (left, right) = shifted_pair(8);
+        let (mut s32, mut s16) = ([0u32; scratch_u32_len(W, N)], [0u16; scratch_u16_len(W, N)]);
+        let mut sgm = CensusSgm::new(W, N, DEFAULT_PENALTIES, 256, &mut s32, &mut s16).unwrap();
+        let (mut d, mut k) = ([0u16; W / 4], [0u8; W / 4]);
+        for t in 0..H / 4 {
+            sgm.push_row(&window(&left, t), &window(&right, t), &mut d, &mut k)
+                .unwrap();
+            // 8 px = 2 patch columns = 512 in Q8, give or take the parabola step.
+            for c in 2..W / 4 {
+                assert!(d[c].abs_diff(512) <= 16, "row {t} cell {c}: {}", d[c]);
+                assert_eq!(k[c], 1, "row {t} cell {c}");
+            }
+        }
+    }
+
+    #[test]
+    fn the_distances_charge_the_outside_and_count_the_right_cells() {
+        // Identical views: every distance at d = 0 is 0; at d > 0 the first d left pixels and
+        // the last d right pixels are outside.
+        let codes: [u32; 8] = [1, 2, 4, 8, 16, 32, 64, 128];
+        let (mut l, mut r) = ([0u16; 2 * 3], [0u16; 2 * 3]);
+        add_distances(&codes, &codes, 3, &mut l, &mut r);
+        assert_eq!(l[0], 0);
+        assert_eq!(l[1], OUTSIDE_COST + 3 * 2, "x = 0 outside, x = 1..3 differ by two bits");
+        assert_eq!(l[3 + 2], 4 * 2);
+        assert_eq!(r[3 + 1], 3 * 2 + OUTSIDE_COST, "right x = 7 has no left x + 1");
+    }
+
+    #[test]
+    fn bad_sizes_are_errors() {
+        let (mut s32, mut s16) = ([0u32; scratch_u32_len(W, N)], [0u16; scratch_u16_len(W, N)]);
+        assert!(matches!(
+            CensusSgm::new(W + 1, N, DEFAULT_PENALTIES, 256, &mut s32, &mut s16),
+            Err(Error::NotMultiple { .. })
+        ));
+        assert!(matches!(
+            CensusSgm::new(W, N, DEFAULT_PENALTIES, 256, &mut s32[1..], &mut s16),
+            Err(Error::BufferSize { .. })
+        ));
+        assert!(matches!(
+            CensusSgm::new(W, 65, DEFAULT_PENALTIES, 256, &mut s32, &mut s16),
+            Err(Error::Candidates { .. }) | Err(Error::BufferSize { .. })
+        ));
+        assert!(matches!(
+            CensusSgm::new(0, N, DEFAULT_PENALTIES, 256, &mut [], &mut []),
+            Err(Error::EmptyImage)
+        ));
+        let (left, right) = shifted_pair(0);
+        let mut sgm = CensusSgm::new(W, N, DEFAULT_PENALTIES, 256, &mut s32, &mut s16).unwrap();
+        let (mut d, mut k) = ([0u16; W / 4], [0u8; W / 4]);
+        let short = &window(&left, 0)[..WINDOW_ROWS - 1];
+        assert!(sgm.push_row(short, &window(&right, 0), &mut d, &mut k).is_err());
+        assert!(sgm
+            .push_row(&window(&left, 0), &window(&right, 0), &mut d[1..], &mut k)
+            .is_err());
+    }
+}
