@@ -124,6 +124,12 @@ impl<'a> SgmStream<'a> {
         Ok(self)
     }
 
+    /// The last row's summed aggregates (`cols x candidates`, candidates fastest): what its
+    /// disparities were read from (a uniqueness test reads them too).
+    pub fn sums(&self) -> &[u32] {
+        self.sum
+    }
+
     /// Aggregates one row of costs (`cols x candidates`, candidates fastest) and writes each
     /// cell's disparity in Q8 patch columns to `out`, with `p2` everywhere.
     pub fn push_row(&mut self, cost: &[u16], out: &mut [u16]) -> Result<(), Error> {
