@@ -40,6 +40,13 @@ pub const DEFAULT_PENALTIES: Penalties = Penalties {
 /// the synthetic scenes at both widths and, in the three-way fusion, won all eight sets.
 pub const DEFAULT_UNIQUENESS: u8 = 10;
 
+/// The head's share, in 256ths, of a fused cell where the head's and the census's checks both
+/// pass (then moved by the head's confidence, [`crate::lr::fuse_row`]): the midpoint at every
+/// width. On the native pathway's validation it beat 0.625 on all four sets at 160 px; 0.375
+/// won three of four at both widths and lost the synthetic scenes (`train/experiments.json`,
+/// `census_companion`).
+pub const FUSE_HEAD_WEIGHT: u8 = 128;
+
 /// Pixel disparities searched alongside a head of `candidates` patch columns: the same reach.
 pub const fn disparities(candidates: usize) -> usize {
     candidates.saturating_mul(CELL_W)

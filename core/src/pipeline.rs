@@ -40,6 +40,7 @@
 //! refinement as a stage.
 
 mod api;
+mod census_stage;
 mod driver;
 mod feeding;
 mod head_check;

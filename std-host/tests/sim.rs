@@ -118,7 +118,21 @@ fn a_bad_display_size_or_a_lone_view_is_refused() {
 /// default to the fused readout (fuse+lr, refined), which the board's pipeline streams.
 #[test]
 fn sim_draws_the_refined_pixels_run_writes() {
-    let dir = scratch("refined");
+    sim_matches_run("refined", &[], "fuse+lr+ref");
+}
+
+/// The same for the native pathway's fusion with the census SGM, which the pipeline streams
+/// beside the native head across the scene's two bands.
+#[test]
+fn sim_draws_the_fused_census_pixels_run_writes() {
+    let native = ["--pathway", "native", "--readout", "fuse-census+lr+ref"];
+    sim_matches_run("census", &native, "fuse-census+lr+ref");
+}
+
+/// Runs `bino run` and `bino sim` with `extra` on the default scene and checks sim's display
+/// shows run's `disparity.pfm` pixel for pixel, sim naming `readout`.
+fn sim_matches_run(name: &str, extra: &[&str], readout: &str) {
+    let dir = scratch(name);
     let (w, h) = DEFAULT_SCENE;
     let scene = bino_host::data::synthetic::default_scene(w, h);
     for (name, view) in [("l.png", &scene.left), ("r.png", &scene.right)] {
@@ -130,12 +144,12 @@ fn sim_draws_the_refined_pixels_run_writes() {
     let (left, right) = (dir.join("l.png"), dir.join("r.png"));
     let pair = ["--left", s(&left), "--right", s(&right), "--profile", "native"];
     let run_dir = dir.join("run");
-    let run = bino(&[&["run", "--out", s(&run_dir)][..], &pair].concat());
+    let run = bino(&[&["run", "--out", s(&run_dir)][..], &pair, extra].concat());
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let sim = bino(&[&["sim", "--out", s(&dir)][..], &pair].concat());
+    let sim = bino(&[&["sim", "--out", s(&dir)][..], &pair, extra].concat());
     let stdout = String::from_utf8_lossy(&sim.stdout);
     assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
-    assert!(stdout.contains("fuse+lr+ref"), "sim's default readout: {stdout}");
+    assert!(stdout.contains(readout), "sim's readout: {stdout}");
     assert!(
         stdout.contains(&format!("{h} rows drawn")),
         "one drawn row per pixel row: {stdout}"

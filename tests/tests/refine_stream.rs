@@ -102,7 +102,7 @@ impl Collect {
             RefineInput::NolinkLr => Some(&self.wta_mask),
             RefineInput::SgmLr => Some(&self.sgm_mask),
             RefineInput::HeadLr => Some(&self.head_mask),
-            RefineInput::FusedLr => Some(&self.fused_mask),
+            RefineInput::FusedLr | RefineInput::FusedCensusLr => Some(&self.fused_mask),
             _ => None,
         }
     }
@@ -113,7 +113,7 @@ impl Collect {
             RefineInput::Nolink | RefineInput::NolinkLr => (&self.wta, &self.wta_mask),
             RefineInput::Sgm | RefineInput::SgmLr => (&self.sgm, &self.sgm_mask),
             RefineInput::Head | RefineInput::HeadLr => (&self.head, &self.head_mask),
-            RefineInput::FusedLr => (&self.fused, &self.fused_mask),
+            RefineInput::FusedLr | RefineInput::FusedCensusLr => (&self.fused, &self.fused_mask),
         };
         let mut grid = map.clone();
         if self.mask(input).is_some() {
@@ -477,6 +477,46 @@ fn the_native_pathway_refines_its_head_as_the_whole_map() {
         let head_lr = Refine::for_options(&opts);
         let err = run(&pipeline, &s, &unchecked, Some(&head_lr)).unwrap_err();
         assert_eq!(err, Error::MissingReadout { readout: "head+lr" });
+    }
+}
+
+/// The native pathway's fusion with the census SGM (`fuse-census+lr`): streamed beside the
+/// head over one band and many, every pixel row refined as the whole map of its fused grid,
+/// the head's rows unchanged by it; the export pathway, and the native one without the head's
+/// check, refuse it.
+#[test]
+fn the_native_pathway_refines_its_fusion_with_the_census_as_the_whole_map() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let opts = Options {
+        pathway: bino_core::pipeline::Pathway::Native,
+        ..options(false, true)
+    };
+    for ((width, height), equalise) in SIZES.into_iter().flat_map(|size| [(size, false), (size, true)]) {
+        let s = scene_for(width, height, equalise);
+        let plain = run(&pipeline, &s, &opts, None).unwrap();
+        let refine = Refine {
+            equalise,
+            ..Refine::of(RefineInput::FusedCensusLr)
+        };
+        let what = format!("native {width}x{height} fuse-census+lr equalise {equalise}");
+        let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
+        assert_eq!(out.refined_rows, (0..height).collect::<Vec<_>>(), "{what}");
+        assert!(out.refine_stage_ok, "{what}");
+        assert_eq!(out.fused.len(), out.head.len(), "{what}: a fused row per head row");
+        let want = whole_map(&s, &out, &refine);
+        assert!(
+            out.refined == want,
+            "{what}: {}",
+            first_difference(&out.refined, &want, width)
+        );
+        assert!((&out.head, &out.head_mask) == (&plain.head, &plain.head_mask), "{what}");
+        let unchecked = Options { head_lr: false, ..opts };
+        let missing = Error::MissingReadout {
+            readout: "fuse-census+lr",
+        };
+        assert_eq!(run(&pipeline, &s, &unchecked, Some(&refine)).unwrap_err(), missing);
+        assert_eq!(run(&pipeline, &s, &options(true, true), Some(&refine)).unwrap_err(), missing);
     }
 }
 

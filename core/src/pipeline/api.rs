@@ -24,7 +24,8 @@ pub enum Stage {
     EncodeRight,
     /// Inverse norms, the cosine cost row and the no-linkage WTA of one token row.
     Match,
-    /// SGM aggregation of one token row, left and right views.
+    /// SGM aggregation of one token row, left and right views: the descriptor SGM (export
+    /// pathway) or the census SGM with its census codes and costs (native pathway).
     Sgm,
     /// Right-view WTA and the left-right check of both readouts.
     LeftRight,
@@ -192,6 +193,10 @@ pub enum RefineInput {
     /// head's share [`crate::lr::fuse_head_weight`] of the view width), filled where both
     /// reject (export pathway; needs [`Options::head`] and [`Options::head_lr`]).
     FusedLr,
+    /// The native head and the census SGM ([`crate::census`]) fused by their own left-right
+    /// checks as [`RefineInput::FusedLr`] fuses the head and SGM, the head's share
+    /// [`crate::census::FUSE_HEAD_WEIGHT`] (native pathway; needs [`Options::head_lr`]).
+    FusedCensusLr,
 }
 
 impl RefineInput {
@@ -218,17 +223,24 @@ impl RefineInput {
             RefineInput::Head => "head",
             RefineInput::HeadLr => "head+lr",
             RefineInput::FusedLr => "fuse+lr",
+            RefineInput::FusedCensusLr => "fuse-census+lr",
         }
     }
 
     /// Whether it reads the head (its rows then trail the band by one token row per head convolution).
     pub const fn uses_head(self) -> bool {
-        matches!(self, RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr)
+        matches!(
+            self,
+            RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr | RefineInput::FusedCensusLr
+        )
     }
 
     /// Whether it needs the head's left-right check ([`Options::head_lr`]).
     pub const fn needs_head_check(self) -> bool {
-        matches!(self, RefineInput::HeadLr | RefineInput::FusedLr)
+        matches!(
+            self,
+            RefineInput::HeadLr | RefineInput::FusedLr | RefineInput::FusedCensusLr
+        )
     }
 
     /// Token rows its rows trail the band's kept rows by.
@@ -410,8 +422,9 @@ pub struct Report {
     pub sgm_kept: usize,
     /// Cells whose head disparity passed the head's left-right check ([`Options::head_lr`]).
     pub head_kept: usize,
-    /// Cells the fused readout kept: the head or SGM passed its check (export pathway with
-    /// [`Options::head_lr`]).
+    /// Cells the fused readout kept: the head or its second opinion passed its check (export
+    /// pathway with [`Options::head_lr`]: the SGM; native pathway refining
+    /// [`RefineInput::FusedCensusLr`]: the census SGM).
     pub fused_kept: usize,
 }
 

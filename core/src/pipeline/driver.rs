@@ -128,6 +128,7 @@ impl<'w> Pipeline<'w> {
                 RefineInput::Head => head.is_none(),
                 RefineInput::HeadLr => !head_lr,
                 RefineInput::FusedLr => native || !head_lr,
+                RefineInput::FusedCensusLr => !native || !head_lr,
                 _ => native,
             };
             if missing {

@@ -4,6 +4,7 @@
 //! (export pathway), and fed to the refinement when it reads a head or fused readout.
 
 use super::api::{FusedRow, HeadChecked, RefineInput, Sink, Stage};
+use super::census_stage::CensusStage;
 use super::refine_stage::{RefineIo, RefineStage};
 #[cfg(doc)]
 use super::sizing::HEAD_CHECK_ROWS;
@@ -306,21 +307,24 @@ impl<'a> OnePassCheck<'a> {
     }
 }
 
-/// Forwards the native head's rows to the sink with their one-pass check, and feeds the
-/// refinement the row (`head`) or the filled row (`head+lr`, `checked`) when it reads the head.
+/// Forwards the native head's rows to the sink with their one-pass check, fuses each checked
+/// row with the census row kept for it (with a census stage), and feeds the refinement the row
+/// (`head`), the filled row (`head+lr`, `checked`) or the fused row (`fuse-census+lr`).
 pub(super) struct OnePassRows<'k, 'a, 'b, 'w, K> {
     pub(super) sink: &'k mut K,
     pub(super) weights: &'k HeadWeights<'w>,
     pub(super) check: &'k mut OnePassCheck<'a>,
+    pub(super) census: Option<&'k mut CensusStage<'a>>,
     pub(super) refine: Option<Feed<'k, 'a, 'b>>,
-    /// Whether the refinement reads head+lr (the mask goes with each row) rather than head.
+    /// Whether the refinement reads a checked readout (the mask goes with each row) rather
+    /// than head.
     pub(super) checked: bool,
 }
 
 impl<K: Sink> HeadSink for OnePassRows<'_, '_, '_, '_, K> {
     fn row(&mut self, row: HeadRow<'_>) {
         let checked = self.check.check(self.weights, &row);
-        let (index, disparity) = (row.row, row.disparity_q8);
+        let (index, disparity, confidence) = (row.row, row.disparity_q8, row.confidence_q8);
         self.sink.head(row);
         let check = &mut *self.check;
         // Equal lengths by construction (the row and the check are `cols` wide); a mismatch
@@ -333,11 +337,29 @@ impl<K: Sink> HeadSink for OnePassRows<'_, '_, '_, '_, K> {
                 consistent: check.mask,
             });
         }
+        // The fused row; a failure (a census row not kept) emits none, and a fuse-census+lr
+        // refinement misses the row, which it reports.
+        let fused = match (self.census.as_deref_mut(), checked.is_ok()) {
+            (Some(census), true) => census.fuse(index, disparity, check.mask, confidence).is_ok().then(|| {
+                self.sink.fused(&FusedRow {
+                    row: index,
+                    disparity_q8: census.out,
+                    consistent: census.out_mask,
+                });
+                (&*census.out, &*census.out_mask)
+            }),
+            _ => None,
+        };
         if let Some(feed) = self.refine.as_mut() {
-            match (self.checked, checked.is_ok()) {
-                (false, _) => feed.push(index, disparity, None, self.sink),
-                (true, true) => feed.push(index, disparity, Some(check.mask), self.sink),
-                (true, false) => {}
+            match (feed.input, self.checked, checked.is_ok()) {
+                (RefineInput::FusedCensusLr, _, _) => {
+                    if let Some((out, mask)) = fused {
+                        feed.push(index, out, Some(mask), self.sink);
+                    }
+                }
+                (_, false, _) => feed.push(index, disparity, None, self.sink),
+                (_, true, true) => feed.push(index, disparity, Some(check.mask), self.sink),
+                (_, true, false) => {}
             }
         }
     }

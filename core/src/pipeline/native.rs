@@ -12,6 +12,7 @@
 //! [`Encoder::pair_tokens_in_place`]: crate::model::encoder::Encoder::pair_tokens_in_place
 
 use super::api::{Options, Refine, RefineInput, Report, RowSource, Sink, Stage};
+use super::census_stage::{self, CensusStage};
 use super::driver::Context;
 use super::feeding::BandRows;
 use super::head_check::{Feed, HeadRows, OnePassCheck, OnePassRows};
@@ -67,12 +68,23 @@ pub(super) const fn arena_bytes(height: usize, width: usize, opts: &Options, ref
         None => (0, 0),
     };
     let state = aligned(state);
-    let check = check_bytes(cols, opts.head_lr);
+    let check = check_bytes(cols, opts.head_lr).saturating_add(census_bytes(width, opts, refine));
     if height <= band_rows {
         let after = sum(&[tokens, head, scratch]);
         sum(&[pixels, check, state, max(encoder, after)])
     } else {
         sum(&[pixels, head, check, state, max(encoder, tokens.saturating_add(scratch))])
+    }
+}
+
+/// Arena bytes of the census stage, rounded up to [`REGION_ALIGN`]: only when the refinement
+/// reads the fused readout ([`RefineInput::FusedCensusLr`]).
+const fn census_bytes(width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+    match refine {
+        Some(r) if matches!(r.input, RefineInput::FusedCensusLr) => {
+            aligned(census_stage::bytes(width, opts.head_candidates))
+        }
+        _ => 0,
     }
 }
 
@@ -93,6 +105,7 @@ pub(super) fn run(
     let head_len = aligned(head::arena_bytes_with(HeadKind::Native, cols, nd));
     let stream_len = if streaming { head_len } else { 0 };
     let check_len = check_bytes(cols, ctx.head_lr());
+    let census_len = census_bytes(width, ctx.opts, ctx.refine);
     let state_len = aligned(match ctx.refine {
         Some(r) => refine_parts(ctx.height, width, r).0,
         None => 0,
@@ -105,8 +118,9 @@ pub(super) fn run(
     let (left_px, right_px) = pixels.split_at_mut(pixel_len);
     let (stream_arena, rest) = split(rest, stream_len).ok_or(too_small)?;
     let (check_arena, rest) = split(rest, check_len).ok_or(too_small)?;
+    let (census_arena, rest) = split(rest, census_len).ok_or(too_small)?;
     let (state_arena, scratch) = split(rest, state_len).ok_or(too_small)?;
-    let mut readouts = Readouts::new(ctx, weights, check_arena, state_arena, streaming)?;
+    let mut readouts = Readouts::new(ctx, weights, check_arena, census_arena, state_arena, streaming)?;
     // Several bands: the stream for the whole run, outside the encoder's scratch.
     let mut stream = if streaming {
         Some(HeadStream::with_candidates(
@@ -171,10 +185,11 @@ pub(super) fn run(
         after_tokens = after_tokens.max(len + own_len);
     }
     readouts.refine_done()?;
-    report.streams = stream_len + readouts.check_used;
+    report.streams = stream_len + readouts.check_used + readouts.census_used;
     report.refine = readouts.refine_used() + scratch_used;
     report.head_kept = readouts.check.as_ref().map_or(0, |check| check.kept);
-    let fixed = report.pixels + stream_len + check_len + state_len;
+    report.fused_kept = readouts.census.as_ref().map_or(0, |census| census.kept);
+    let fixed = report.pixels + stream_len + check_len + census_len + state_len;
     report.arena_used = fixed + report.encoder.max(after_tokens + scratch_used);
     Ok(report)
 }
@@ -184,12 +199,15 @@ fn split(arena: &mut [u8], at: usize) -> Option<(&mut [u8], &mut [u8])> {
     (at <= arena.len()).then(|| arena.split_at_mut(at))
 }
 
-/// What outlives a pass: the check's rows (with `head_lr`) and the refinement.
+/// What outlives a pass: the check's rows (with `head_lr`), the census stage (for the fused
+/// readout) and the refinement.
 struct Readouts<'a, 'w> {
     cols: usize,
     weights: HeadWeights<'w>,
     check: Option<OnePassCheck<'a>>,
     check_used: usize,
+    census: Option<CensusStage<'a>>,
+    census_used: usize,
     refine: Option<(RefineInput, RefineStage<'a>)>,
 }
 
@@ -198,6 +216,7 @@ impl<'a, 'w> Readouts<'a, 'w> {
         ctx: &Context<'_, '_>,
         weights: HeadWeights<'w>,
         check: &'a mut [u8],
+        census: &'a mut [u8],
         state: &'a mut [u8],
         streaming: bool,
     ) -> Result<Self, Error> {
@@ -207,6 +226,15 @@ impl<'a, 'w> Readouts<'a, 'w> {
             (Some(check), used)
         } else {
             (None, 0)
+        };
+        let (census, census_used) = match ctx.refine {
+            Some(r) if r.input == RefineInput::FusedCensusLr => {
+                let nd = ctx.opts.head_candidates;
+                let lr = ctx.opts.lr_max_diff_q8;
+                let (stage, used) = CensusStage::carve(census, ctx.width, ctx.height, nd, lr)?;
+                (Some(stage), used)
+            }
+            _ => (None, 0),
         };
         let refine = match ctx.refine {
             Some(r) => {
@@ -225,6 +253,8 @@ impl<'a, 'w> Readouts<'a, 'w> {
             weights,
             check,
             check_used,
+            census,
+            census_used,
             refine,
         })
     }
@@ -265,6 +295,12 @@ impl<'a, 'w> Readouts<'a, 'w> {
                     found: tokens.len(),
                 });
             };
+            if let Some(census) = self.census.as_mut() {
+                // The census row now, while the band holds its view rows; fused when the
+                // head's checked row comes out.
+                sink.stage(Stage::Sgm);
+                census.compute(row, &io.view)?;
+            }
             self.step(stream, Some(tokens), io, sink)?;
         }
         Ok(())
@@ -282,19 +318,19 @@ impl<'a, 'w> Readouts<'a, 'w> {
         sink.stage(Stage::Head);
         match self.check.as_mut() {
             Some(check) => {
-                // The refinement reads head+lr, or head (the check then only reports).
-                let checked = matches!(self.refine, Some((RefineInput::HeadLr, _)));
-                let input = if checked {
-                    RefineInput::HeadLr
-                } else {
-                    RefineInput::Head
+                // The refinement reads head+lr or the fused readout, or head (the check then
+                // only reports).
+                let input = match self.refine {
+                    Some((input @ (RefineInput::HeadLr | RefineInput::FusedCensusLr), _)) => input,
+                    _ => RefineInput::Head,
                 };
                 let mut rows = OnePassRows {
                     sink: &mut *sink,
                     weights: &self.weights,
                     check,
+                    census: self.census.as_mut(),
                     refine: Feed::of(&mut self.refine, io, input, Stage::Head),
-                    checked,
+                    checked: input != RefineInput::Head,
                 };
                 pair_step(stream, tokens, &mut rows)?;
             }

@@ -295,7 +295,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                 RefineInput::NolinkLr => Some((&*self.wta, Some(&*self.wta_mask))),
                 RefineInput::Sgm => Some((&*self.sgm_out, None)),
                 RefineInput::SgmLr => Some((&*self.sgm_out, Some(&*self.sgm_mask))),
-                RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr => None,
+                RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr | RefineInput::FusedCensusLr => None,
             };
             if let Some((disparity, mask)) = matched {
                 sink.stage(Stage::Refine);

@@ -11,11 +11,8 @@ use crate::eval::DisparityMap;
 use crate::readout::head_candidates;
 use crate::readout::refine::GrayViews;
 
-/// The head's share, in 256ths, of a `fuse-census` cell where both checks pass (then moved by
-/// the head's confidence as in `fuse`): the midpoint at every width. On the native pathway's
-/// validation it beat 0.625 on all four sets at 160 px; 0.375 won three of four at both widths
-/// and lost the synthetic scenes (`train/experiments.json`, `census_companion`).
-pub const FUSE_HEAD_WEIGHT: u8 = 128;
+/// The head's share in `fuse-census` (the core's, which the pipeline uses too).
+pub use bino_core::census::FUSE_HEAD_WEIGHT;
 
 /// The left-right tolerance of the census check, Q8 patch columns: one column, the CLI's
 /// default `--lr-max-diff` (the census map is computed from the views alone, once per pair).

@@ -230,9 +230,12 @@ fn refine_input(readout: Readout) -> Result<RefineInput> {
         (Method::Head, true) => RefineInput::HeadLr,
         (Method::Fused, true) => RefineInput::FusedLr,
         (Method::Fused, false) => bail!("--readout {readout}: {UNCHECKED_FUSE_NOT_STREAMED}"),
+        (Method::CensusFused, true) => RefineInput::FusedCensusLr,
         (Method::Census | Method::CensusFused, _) => bail!(
             "--readout {readout}: the board's streaming pipeline (bino_core::pipeline), which bino sim runs, \
-             does not compute the census SGM yet; bino run and bino eval do"
+             streams the census SGM fused with the native head by their checks (fuse-census+lr, \
+             fuse-census+lr+ref, --pathway native); census and the unchecked fuse-census are computed by \
+             bino run and bino eval only"
         ),
     })
 }
@@ -255,9 +258,9 @@ fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
         Method::Nolink => sim.pipeline.wta_kept,
         Method::Sgm => sim.pipeline.sgm_kept,
         Method::Head => sim.pipeline.head_kept,
-        Method::Fused => sim.pipeline.fused_kept,
-        // `refine_input` refuses them before a run.
-        Method::Census | Method::CensusFused => 0,
+        Method::Fused | Method::CensusFused => sim.pipeline.fused_kept,
+        // `refine_input` refuses it before a run.
+        Method::Census => 0,
     };
     let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
     vec![
@@ -552,7 +555,7 @@ impl Sink for DisplaySink<'_> {
     }
 
     fn fused(&mut self, row: &FusedRow<'_>) {
-        if self.readout.method == Method::Fused && !self.readout.refine {
+        if self.readout.fuses() && !self.readout.refine {
             self.show_row(row.row, row.disparity_q8, row.consistent);
         }
     }

@@ -1,0 +1,180 @@
+//! The census SGM ([`crate::census`]) as a stage of the native pathway, for its fused readout
+//! ([`RefineInput::FusedCensusLr`](super::RefineInput::FusedCensusLr)).
+//!
+//! Token row `t`'s census row is computed just before the head takes its pair token row, while
+//! the band holding it is in the buffer: it reads view rows `4t - 2 ..= 4t + 5`, which lie inside
+//! that band (the band plan keeps rows at least [`CUT_MARGIN`] token rows from a cut; the
+//! image's own edges clamp). The SGM runs over the token rows top to bottom, once each, as the
+//! host's whole-map readout does. The row waits in a ring of [`RING_ROWS`] until the head's
+//! checked row `t` comes out ([`HEAD_LAG`] rows later), and the two are fused by
+//! [`fuse_row`] with the head's share [`census::FUSE_HEAD_WEIGHT`].
+
+use super::refine_stage::{BandView, CUT_MARGIN, HEAD_LAG};
+use super::sizing::sum;
+use crate::arena::{Carver, ALIGN_SLACK};
+use crate::census::{self, CensusSgm, CENSUS_RADIUS, WINDOW_ROWS};
+use crate::config::{CELL_W, PATCH_H};
+use crate::lr::{fuse_row, CheckedRow};
+use crate::Error;
+
+/// Census rows kept for the head: the row being fused and the [`HEAD_LAG`] computed after it.
+pub(super) const RING_ROWS: usize = HEAD_LAG + 1;
+
+// The census window reaches two view rows beyond a token row's; the band plan's margin keeps
+// them inside the band that holds the row.
+const _: () = assert!(PATCH_H * CUT_MARGIN >= CENSUS_RADIUS);
+
+/// Arena bytes of the stage for views `width` px wide and a head of `candidates`: the census
+/// SGM's stream, the ring of rows and masks, and the fused row and its mask.
+pub(super) const fn bytes(width: usize, candidates: usize) -> usize {
+    let cols = width / CELL_W;
+    let n = census::disparities(candidates);
+    sum(&[
+        census::scratch_u32_len(width, n)
+            .saturating_mul(4)
+            .saturating_add(ALIGN_SLACK),
+        census::scratch_u16_len(width, n)
+            .saturating_mul(2)
+            .saturating_add(ALIGN_SLACK),
+        cols.saturating_mul(RING_ROWS)
+            .saturating_mul(2)
+            .saturating_add(ALIGN_SLACK),
+        cols.saturating_mul(RING_ROWS),
+        cols.saturating_mul(2).saturating_add(ALIGN_SLACK),
+        cols,
+    ])
+}
+
+/// The stage: the census SGM, its rows kept for the head, the fused row.
+pub(super) struct CensusStage<'a> {
+    sgm: CensusSgm<'a>,
+    cols: usize,
+    height: usize,
+    rows: &'a mut [u16],
+    masks: &'a mut [u8],
+    /// The fused row and its mask (1 where the head or the census passes its check).
+    pub(super) out: &'a mut [u16],
+    pub(super) out_mask: &'a mut [u8],
+    /// Next token row to compute.
+    next: usize,
+    /// Cells the fused rows kept.
+    pub(super) kept: usize,
+}
+
+impl<'a> CensusStage<'a> {
+    /// The stage for `height x width` views and a head of `candidates`, cut from the front of
+    /// `arena` ([`bytes`]); its check keeps cells within `lr_max_diff_q8`. Returns it and the
+    /// bytes it took.
+    pub(super) fn carve(
+        arena: &'a mut [u8],
+        width: usize,
+        height: usize,
+        candidates: usize,
+        lr_max_diff_q8: u16,
+    ) -> Result<(Self, usize), Error> {
+        let cols = width / CELL_W;
+        let n = census::disparities(candidates);
+        let mut carver = Carver::new(arena, bytes(width, candidates))?;
+        let s32 = carver.u32s(census::scratch_u32_len(width, n))?;
+        let s16 = carver.u16s(census::scratch_u16_len(width, n))?;
+        let rows = carver.u16s(cols.saturating_mul(RING_ROWS))?;
+        let masks = carver.u8s(cols.saturating_mul(RING_ROWS))?;
+        let out = carver.u16s(cols)?;
+        let out_mask = carver.u8s(cols)?;
+        let sgm = CensusSgm::new(width, n, census::DEFAULT_PENALTIES, lr_max_diff_q8, s32, s16)?;
+        let stage = Self {
+            sgm,
+            cols,
+            height,
+            rows,
+            masks,
+            out,
+            out_mask,
+            next: 0,
+            kept: 0,
+        };
+        Ok((stage, carver.used()))
+    }
+
+    /// The ring slot of token row `row`.
+    fn slot(&self, row: usize) -> core::ops::Range<usize> {
+        let at = (row % RING_ROWS) * self.cols;
+        at..at + self.cols
+    }
+
+    /// Computes token row `row` (the next one) from the band buffer `view`.
+    pub(super) fn compute(&mut self, row: usize, view: &BandView<'_>) -> Result<(), Error> {
+        if row != self.next {
+            return Err(Error::OutOfRange {
+                what: "census token row",
+                value: row,
+                min: self.next,
+                max: self.next,
+            });
+        }
+        let mut left: [&[u8]; WINDOW_ROWS] = [&[]; WINDOW_ROWS];
+        let mut right: [&[u8]; WINDOW_ROWS] = [&[]; WINDOW_ROWS];
+        let last = self.height.saturating_sub(1);
+        for (j, (l, r)) in left.iter_mut().zip(right.iter_mut()).enumerate() {
+            let v = (PATCH_H * row + j).saturating_sub(CENSUS_RADIUS).min(last);
+            let Some(rows) = view.row(v) else {
+                return Err(Error::OutOfRange {
+                    what: "view row of the census SGM",
+                    value: v,
+                    min: view.first,
+                    max: view.first + view.rows,
+                });
+            };
+            (*l, *r) = rows;
+        }
+        let slot = self.slot(row);
+        let (Some(disparity), Some(kept)) = (self.rows.get_mut(slot.clone()), self.masks.get_mut(slot)) else {
+            return Err(Error::BufferSize {
+                what: "census rows",
+                expected: self.cols * RING_ROWS,
+                found: self.rows.len(),
+            });
+        };
+        self.sgm.push_row(&left, &right, disparity, kept)?;
+        self.next += 1;
+        Ok(())
+    }
+
+    /// Fuses the head's checked row `row` (`head`, its mask and confidence) with the census
+    /// row kept for it into [`CensusStage::out`] and [`CensusStage::out_mask`].
+    pub(super) fn fuse(&mut self, row: usize, head: &[u16], head_mask: &[u8], confidence: &[u16]) -> Result<(), Error> {
+        if row >= self.next || row + RING_ROWS < self.next {
+            return Err(Error::OutOfRange {
+                what: "census row kept for the head",
+                value: row,
+                min: self.next.saturating_sub(RING_ROWS),
+                max: self.next.saturating_sub(1),
+            });
+        }
+        let slot = self.slot(row);
+        let (Some(disparity), Some(kept)) = (self.rows.get(slot.clone()), self.masks.get(slot)) else {
+            return Err(Error::BufferSize {
+                what: "census rows",
+                expected: self.cols * RING_ROWS,
+                found: self.rows.len(),
+            });
+        };
+        let head = CheckedRow {
+            disparity_q8: head,
+            kept: head_mask,
+        };
+        let census = CheckedRow {
+            disparity_q8: disparity,
+            kept,
+        };
+        self.kept += fuse_row(
+            head,
+            confidence,
+            census,
+            census::FUSE_HEAD_WEIGHT,
+            self.out,
+            self.out_mask,
+        )?;
+        Ok(())
+    }
+}
