@@ -144,6 +144,8 @@ def metrics_of(entry: Json) -> Json:
 
 READOUTS = ["nolink", "nolink+lr", "sgm", "sgm+lr", "head", "head+lr", "fuse", "fuse+lr"]
 DEFAULT = {"w160": "fuse+lr+ref", "w320": "fuse+lr+ref"}
+NATIVE_DEFAULT = "fuse-census+lr+ref"
+"""The native pathway's default readout (`bino run --pathway native`, the native preset)."""
 """`bino run`'s default readout (`Pathway::default_readout`) at each profile."""
 
 
@@ -366,20 +368,29 @@ def native_vs_export(src: Sources) -> str:
     ex320, na320 = src.metrics("eval_w320"), src.metrics("native_w320")
     exo, nao = src.metrics("occlusion_w160"), src.metrics("native_occlusion_w160")
     rows = []
-    for r in ("head", "head+lr", "head+lr+ref"):
-        k = f"int8_{r}"
-        eo, no = exo["occlusion"]["summary"][k], nao["occlusion"]["summary"][k]
+    # Each head readout on both pathways, then each pathway's default (its head fused with its
+    # second opinion: the descriptor SGM, the census SGM).
+    pairs = [(f"int8 `{r}`", f"int8_{r}", f"int8_{r}") for r in ("head", "head+lr", "head+lr+ref")]
+    pairs.append(
+        (
+            f"each default: int8 `{DEFAULT['w160']}` / `{NATIVE_DEFAULT}`",
+            f"int8_{DEFAULT['w160']}",
+            f"int8_{NATIVE_DEFAULT}",
+        )
+    )
+    for label, k, kn in pairs:
+        eo, no = exo["occlusion"]["summary"][k], nao["occlusion"]["summary"][kn]
         rows.append(
             [
-                f"int8 `{r}`",
+                label,
                 ep_b1(metrics_of(ex160["mean"][k])),
-                ep_b1(metrics_of(na160["mean"][k])),
+                ep_b1(metrics_of(na160["mean"][kn])),
                 ep_b1(exo["mean"][k]["large"]),
-                ep_b1(nao["mean"][k]["large"]),
+                ep_b1(nao["mean"][kn]["large"]),
                 f"{signed(eo['delta_epe'])} / {signed(eo['delta_bad1tok'], 2)}",
                 f"{signed(no['delta_epe'])} / {signed(no['delta_bad1tok'], 2)}",
                 ep_b1(metrics_of(ex320["mean"][k])),
-                ep_b1(metrics_of(na320["mean"][k])),
+                ep_b1(metrics_of(na320["mean"][kn])),
             ]
         )
     so = exo["occlusion"]["summary"]["StereoSGBM"]
@@ -541,32 +552,34 @@ def board_headline(src: Sources) -> str:
 def board_pathways(src: Sources) -> str:
     """The board's two pathways side by side: cost of a checked 48x160 band pair on each core
     and the accuracy of the refined readout its preset streams on the eval split at w160 (the
-    board's 160-px bands): the export pathway's default (fused), the native head's."""
+    board's 160-px bands): each pathway's default (the head fused with the descriptor SGM, or
+    with the census SGM)."""
     ex, na = src.metrics("eval_w160"), src.metrics("native_w160")
+    ex320, na320 = src.metrics("eval_w320"), src.metrics("native_w320")
     pathways = (
         (
             "export (the board's default): encode (L, L) and (R, R), SGM, head, mirrored head",
             "band_pair_instructions",
-            ex,
+            (ex, ex320),
             DEFAULT["w160"],
         ),
         (
-            "native: one encode on (L, R), native head, right view from its logits",
+            "native: one encode on (L, R), native head, right view from its logits, census SGM",
             "native_band_pair_instructions",
-            na,
-            "head+lr+ref",
+            (na, na320),
+            NATIVE_DEFAULT,
         ),
     )
     rows = []
     for label, key, metrics, readout in pathways:
-        accuracy = ep_b1(metrics_of(metrics["mean"][f"int8_{readout}"]))
-        row = [label, f"int8 `{readout}`", accuracy]
+        row = [label, f"int8 `{readout}`"]
+        row += [ep_b1(metrics_of(m["mean"][f"int8_{readout}"])) for m in metrics]
         for core in CORES:
             c = src.core(core)
             ins = c[key]
             row.append(f"{mega(ins)} ({ins / (c['clock_mhz'] * 1e6):.2f} s)")
         rows.append(row)
-    header = ["pathway, left-right check included", "readout", "eval w160 epe / bad1tok"]
+    header = ["pathway, left-right check included", "readout", "eval w160 epe / bad1tok", "eval w320"]
     header += [f"{core.upper()} instructions (s at IPC 1)" for core in CORES]
     return table(header, rows) + "\n\n" + footer(src)
 
@@ -679,8 +692,9 @@ STAGE_NOTES = {
     "refine": "refine (pixel refinement of the fuse+lr grid, depth sectors)",
     "native_rows": "native_rows",
     "native_encode_pair": "native_encode_pair: one pass on (L, R)",
-    "native_head": "native_head: the native head on the pair tokens, its check from its logits",
-    "native_refine": "native_refine: the head+lr grid",
+    "native_sgm": "native_sgm: the census SGM (census codes, cell costs, two streams)",
+    "native_head": "native_head: the native head on the pair tokens, its check from its logits, fused with the census rows",
+    "native_refine": "native_refine: pixel refinement of the fuse-census+lr grid, depth sectors",
 }
 
 

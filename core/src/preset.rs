@@ -12,9 +12,9 @@
 //! assert!(OPTIONS.head && OPTIONS.head_lr);
 //! // The 48x160 band pair of the budget: 486,918 bytes.
 //! assert_eq!(arena_bytes(48, 160), 486_918);
-//! // The native pathway (one encoder pass on (L, R), the head's check read from the same pass)
-//! // needs less.
-//! assert_eq!(bino_core::preset::native_arena_bytes(48, 160), 425_862);
+//! // The native pathway (one encoder pass on (L, R), the head's check read from the same pass,
+//! // the census SGM beside it) needs less.
+//! assert_eq!(bino_core::preset::native_arena_bytes(48, 160), 466_598);
 //! ```
 
 use crate::pipeline::{self, Options, Pathway, Refine};
@@ -42,13 +42,15 @@ pub const fn arena_bytes(height: usize, width: usize) -> usize {
 }
 
 /// [`OPTIONS`] on the native pathway: one encoder pass on (L, R) and the native head, with its
-/// left-right check read from the same pass (the right view from the head's own logits).
+/// left-right check read from the same pass (the right view from the head's own logits),
+/// fused with the census SGM ([`crate::census`]).
 pub const NATIVE_OPTIONS: Options = Options {
     pathway: Pathway::Native,
     ..OPTIONS
 };
 
-/// The pixel refinement of the native pathway's head+lr grid.
+/// The pixel refinement of the native pathway's fused grid (fuse-census+lr: the native head and
+/// the census SGM fused by their own left-right checks).
 pub const NATIVE_REFINE: Refine = Refine::for_options(&NATIVE_OPTIONS);
 
 /// Arena bytes a `height x width` band pair needs with [`NATIVE_OPTIONS`] and [`NATIVE_REFINE`].

@@ -135,7 +135,7 @@ pub const OUTPUTS: [&str; 11] = [
 pub const fn outputs(pathway: Pathway) -> &'static [usize] {
     match pathway {
         Pathway::Export => &[0, 1, 2, 3, 4, 5, 6, 10, 7, 8],
-        Pathway::Native => &[9, 5, 6, 7, 8],
+        Pathway::Native => &[9, 5, 6, 10, 7, 8],
     }
 }
 

@@ -173,13 +173,17 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
     if model.has_head_of(HeadKind::Native) {
         let native = pipeline_options(opts, Pathway::Native, left.width);
         let maps = steps.run(
-            "native pathway: one encoder pass on (L, R), native head and its check (int8 pipeline)",
+            "native pathway: one encoder pass on (L, R), native head and its check, fused with the census SGM (int8 pipeline)",
             || run_pipeline(&model, &left, &right, &native, &mut |_, _| {}),
         )?;
         for (name, readout) in [
             ("native_head", Readout::HEAD),
             ("native_head+lr", Readout::HEAD_LR),
             ("native_head+lr+ref", Readout::HEAD_LR.refined(true)),
+            (
+                "native_fuse-census+lr+ref",
+                crate::readout::pathway::Pathway::Native.default_readout().refined(true),
+            ),
         ] {
             readouts.push(scored_pixels(name, maps.methods.pixels(readout)?, &truth)?);
         }

@@ -66,7 +66,8 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
             "fuse+lr+ref",
             "native_head",
             "native_head+lr",
-            "native_head+lr+ref"
+            "native_head+lr+ref",
+            "native_fuse-census+lr+ref"
         ],
         "the shipped blob carries both pathways' heads"
     );

@@ -446,7 +446,7 @@ fn the_native_pathway_refines_its_head_as_the_whole_map() {
         ..options(false, true)
     };
     let unchecked = Options { head_lr: false, ..opts };
-    assert_eq!(Refine::for_options(&opts).input, RefineInput::HeadLr);
+    assert_eq!(Refine::for_options(&opts).input, RefineInput::FusedCensusLr);
     assert_eq!(Refine::for_options(&unchecked).input, RefineInput::Head);
     for ((width, height), equalise) in SIZES.into_iter().flat_map(|size| [(size, false), (size, true)]) {
         let s = scene_for(width, height, equalise);
@@ -474,7 +474,7 @@ fn the_native_pathway_refines_its_head_as_the_whole_map() {
             );
             assert!((&out.head, &out.head_mask) == (&plain.head, &plain.head_mask), "{what}");
         }
-        let head_lr = Refine::for_options(&opts);
+        let head_lr = Refine::of(RefineInput::HeadLr);
         let err = run(&pipeline, &s, &unchecked, Some(&head_lr)).unwrap_err();
         assert_eq!(err, Error::MissingReadout { readout: "head+lr" });
     }
@@ -516,7 +516,10 @@ fn the_native_pathway_refines_its_fusion_with_the_census_as_the_whole_map() {
             readout: "fuse-census+lr",
         };
         assert_eq!(run(&pipeline, &s, &unchecked, Some(&refine)).unwrap_err(), missing);
-        assert_eq!(run(&pipeline, &s, &options(true, true), Some(&refine)).unwrap_err(), missing);
+        assert_eq!(
+            run(&pipeline, &s, &options(true, true), Some(&refine)).unwrap_err(),
+            missing
+        );
     }
 }
 

@@ -203,10 +203,11 @@ impl RefineInput {
     /// The rule: the best readout each run has. On the export pathway
     /// [`RefineInput::FusedLr`] when the run checks the head ([`Options::head`] and
     /// [`Options::head_lr`]), else [`RefineInput::SgmLr`] (the default of `bino run` is
-    /// `fuse+lr+ref`). The native pathway has only its head: head+lr with the check, else head.
+    /// `fuse+lr+ref`). On the native pathway with the head's check
+    /// [`RefineInput::FusedCensusLr`] (the head fused with the census SGM), else head.
     pub const fn for_options(opts: &Options) -> Self {
         match opts.pathway {
-            Pathway::Native if opts.head_lr => RefineInput::HeadLr,
+            Pathway::Native if opts.head_lr => RefineInput::FusedCensusLr,
             Pathway::Native => RefineInput::Head,
             Pathway::Export if opts.head && opts.head_lr => RefineInput::FusedLr,
             Pathway::Export => RefineInput::SgmLr,

@@ -74,7 +74,7 @@ pub fn verdicts(runs: &[CoreRun]) -> Vec<Verdict> {
             out.push(Verdict {
                 target: format!(
                     "{} native band pair with the head's check (one encoder pass on (L, R), native head, \
-                     right view from its logits) <= {:.0} % of the export pathway's",
+                     right view from its logits, census SGM) <= {:.0} % of the export pathway's",
                     core_name(&r.core),
                     100.0 * NATIVE_SHARE_OF_EXPORT
                 ),

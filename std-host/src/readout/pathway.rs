@@ -49,12 +49,13 @@ impl Pathway {
     /// The readout `bino run` and `bino sim` use when none is given, the one the board's
     /// streaming pipeline refines (`bino_core::preset`): on the export pathway `fuse+lr` (the
     /// head and SGM fused by their checks, better than either on every validation set at 160
-    /// and 320 px: `train/experiments.json`, `fused_readout`), on the native pathway `head+lr`
-    /// (its only checked readout).
+    /// and 320 px: `train/experiments.json`, `fused_readout`), on the native pathway
+    /// `fuse-census+lr` (the native head and the census SGM fused by their checks, better than
+    /// the head alone on every validation set: `census_companion`).
     pub fn default_readout(self) -> Readout {
         match self {
             Pathway::Export => Readout::FUSED_LR,
-            Pathway::Native => Readout::HEAD_LR,
+            Pathway::Native => Readout::new(Method::CensusFused, true),
         }
     }
 }
@@ -116,10 +117,10 @@ mod tests {
     #[test]
     fn run_and_the_board_fuse_on_the_export_pathway() {
         assert_eq!(Pathway::Export.default_readout().name(), "fuse+lr");
-        assert_eq!(Pathway::Native.default_readout().name(), "head+lr");
+        assert_eq!(Pathway::Native.default_readout().name(), "fuse-census+lr");
         // The board's preset refines the same grids.
         let board = |opts| bino_core::pipeline::RefineInput::for_options(&opts).name();
         assert_eq!(board(bino_core::preset::OPTIONS), "fuse+lr");
-        assert_eq!(board(bino_core::preset::NATIVE_OPTIONS), "head+lr");
+        assert_eq!(board(bino_core::preset::NATIVE_OPTIONS), "fuse-census+lr");
     }
 }
