@@ -222,29 +222,28 @@ fn pixels_to_columns(q8_px: u16) -> u16 {
 }
 
 /// Adds one pixel row's distances to both cost rows (`cols x n`, disparities fastest): left
-/// pixel `x` against right pixel `x - d` into the left cell of `x` and the right cell of
-/// `x - d`, [`OUTSIDE_COST`] where the other pixel is outside the view.
+/// pixel `x` against right pixel `x - d`, each distance computed once and added to the left
+/// cell of `x` and the right cell of `x - d`; [`OUTSIDE_COST`] where the other pixel is outside
+/// the view (left pixels `x < d`, right pixels `x + d >= width`).
 fn add_distances(left: &[u32], right: &[u32], n: usize, left_cost: &mut [u16], right_cost: &mut [u16]) {
-    let width = left.len().min(right.len());
-    let used = width / CELL_W * CELL_W;
+    let width = left.len().min(right.len()) / CELL_W * CELL_W;
+    let add = |costs: &mut [u16], x: usize, d: usize, cost: u16| {
+        if let Some(c) = costs.get_mut(x / CELL_W * n + d) {
+            *c = c.saturating_add(cost);
+        }
+    };
     for d in 0..n {
-        for x in 0..used {
-            let cell = x / CELL_W * n + d;
-            let cost = match x.checked_sub(d).and_then(|xr| right.get(xr)) {
-                Some(&r) => left.get(x).map_or(OUTSIDE_COST, |&l| (l ^ r).count_ones() as u16),
-                None => OUTSIDE_COST,
-            };
-            if let Some(c) = left_cost.get_mut(cell) {
-                *c = c.saturating_add(cost);
-            }
-            // The right view's pixel `x` at `d` is the left view's `x + d`.
-            let mirrored = match left.get(x + d) {
-                Some(&l) => right.get(x).map_or(OUTSIDE_COST, |&r| (l ^ r).count_ones() as u16),
-                None => OUTSIDE_COST,
-            };
-            if let Some(c) = right_cost.get_mut(cell) {
-                *c = c.saturating_add(mirrored);
-            }
+        for x in 0..width.min(d) {
+            add(left_cost, x, d, OUTSIDE_COST);
+        }
+        for x in width.saturating_sub(d)..width {
+            add(right_cost, x, d, OUTSIDE_COST);
+        }
+        let pairs = left.get(d..width).unwrap_or_default().iter().zip(right);
+        for (xr, (&l, &r)) in pairs.enumerate() {
+            let cost = (l ^ r).count_ones() as u16;
+            add(left_cost, xr + d, d, cost);
+            add(right_cost, xr, d, cost);
         }
     }
 }
