@@ -25,6 +25,8 @@ runs=(
   "occlusion_w160|--profile w160 --precision int8 --readout sgm+lr+ref,head,head+lr,head+lr+ref,fuse+lr+ref --occlude 10,20,30,40"
   "native_w160|--profile w160 --precision int8,f32 --pathway native"
   "native_occlusion_w160|--profile w160 --precision int8 --readout head,head+lr,head+lr+ref,fuse-census+lr+ref --occlude 10,20,30,40 --pathway native"
+  "native_nuisance_w160|--profile w160 --precision int8 --readout head+lr+ref,fuse-census+lr+ref --nuisance $nuisances --pathway native"
+  "native_nuisance_w320|--profile w320 --max-cols 16 --precision int8 --readout head+lr+ref,fuse-census+lr+ref --nuisance $nuisances --pathway native"
   "native_w320|--profile w320 --max-cols 16 --precision int8 --pathway native"
   "native_f32_w320|--profile w320 --max-cols 16 --precision f32 --pathway native"
 )

@@ -310,9 +310,11 @@ def pck_benchmark(src: Sources) -> str:
 # ---------------------------------------------------------------- robustness
 
 
-def nuisance(profile: str) -> Callable[[Sources], str]:
+def nuisance(profile: str, run: str = "eval_nuisance") -> Callable[[Sources], str]:
+    """The nuisance table of `{run}_{profile}` (the export or the native pathway's run)."""
+
     def render(src: Sources) -> str:
-        ev = src.metrics(f"eval_nuisance_{profile}")
+        ev = src.metrics(f"{run}_{profile}")
         names = list(ev["nuisances"])
         rows = []
         for key in ev["mean"]:
@@ -1001,6 +1003,8 @@ RENDERERS: dict[str, Callable[[Sources], str]] = {
     "pck-benchmark": pck_benchmark,
     "nuisance-w160": nuisance("w160"),
     "nuisance-w320": nuisance("w320"),
+    "native-nuisance-w160": nuisance("w160", "native_nuisance"),
+    "native-nuisance-w320": nuisance("w320", "native_nuisance"),
     "occlusion-w160": occlusion_export,
     "native-vs-export": native_vs_export,
     "native-float": native_float,
