@@ -86,6 +86,19 @@ fn run_writes_what_eval_scores_for_the_census_readouts() {
     assert_ne!(epe("census+lr"), epe("fuse-census+lr"));
 }
 
+/// The three-way fusion on the export pathway: `run` writes what `eval` scores, and it differs
+/// from the head fused with the SGM alone.
+#[test]
+fn run_writes_what_eval_scores_for_the_three_way_fusion() {
+    let report = run_matches_eval(Profile::W160, &["fuse+lr", "fuse-all+lr", "fuse-all+lr+ref"], &[]);
+    let epe = |r: &str| {
+        report["per_pair"][0]["readouts"][format!("int8_{r}")]["metrics"]["epe"]
+            .as_f64()
+            .unwrap()
+    };
+    assert_ne!(epe("fuse+lr"), epe("fuse-all+lr"));
+}
+
 /// The guided SGM (`--sgm-edge`): its guide rows come from each band's pixel buffer in the
 /// pipeline, so the three bands of this pair check the guide across band seams; and it changes
 /// the map (the option is not ignored).

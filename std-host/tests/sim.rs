@@ -201,4 +201,14 @@ fn sim_streams_the_checked_fusion_and_refuses_the_unchecked_one() {
         );
         assert!(!stderr.contains("panicked"), "{stderr}");
     }
+    // The readouts the pipeline does not stream yet are refused by name.
+    for readout in ["fuse-all+lr", "census+lr+ref"] {
+        let run = bino(&["sim", "--readout", readout, "--out", s(&dir)]);
+        let stderr = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{stderr}");
+        assert!(
+            stderr.contains(&format!("--readout {readout}:")) && stderr.contains("bino run and bino eval only"),
+            "{stderr}"
+        );
+    }
 }

@@ -12,7 +12,7 @@ use super::progress::Progress;
 
 /// Score the readouts, int8 and f32, on a data folder's eval pairs beside StereoSGBM.
 ///
-/// The readouts nolink, sgm, head, fuse, census, fuse-census, each also +lr, each of those also +ref; int8 (the core
+/// The readouts nolink, sgm, head, fuse, census, fuse-census, fuse-all, each also +lr, each of those also +ref; int8 (the core
 /// pipeline) and f32; epe, bad1tok and bad2 per pair and mean, StereoSGBM in the same run; with
 /// --nuisance also with the right view degraded, with --occlude with it partly covered.
 #[derive(Args)]
@@ -49,10 +49,10 @@ pub struct EvalArgs {
     precision: Vec<bino_host::eval::Precision>,
     /// Readouts to score (repeat or comma-separate); the default is every readout of the pathway.
     ///
-    /// nolink, sgm, head, fuse, census or fuse-census, each optionally with +lr (cells the
+    /// nolink, sgm, head, fuse, census, fuse-census or fuse-all, each optionally with +lr (cells the
     /// method's own left-right check rejects filled from the left), then optionally +ref (pixels
     /// by the integer refinement instead of bilinear upsampling). Default: every readout of the
-    /// pathway, each unrefined then refined (all 24 on export; the head's, census's and
+    /// pathway, each unrefined then refined (all 28 on export; the head's, census's and
     /// fuse-census's twelve on native).
     #[arg(long, value_delimiter = ',')]
     readout: Vec<bino_host::readout::Readout>,

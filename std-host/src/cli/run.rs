@@ -30,15 +30,17 @@ pub struct RunArgs {
     /// Int8 weight blob; the default is the checkout's shipped one.
     #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
-    /// Readout: nolink, sgm, head, fuse, census or fuse-census, each optionally +lr, then
-    /// optionally +ref.
+    /// Readout: a method (see below), optionally +lr, then optionally +ref.
+    ///
+    /// Methods: nolink, sgm, head, fuse, census, fuse-census, fuse-all.
     ///
     /// +lr: cells the method's own left-right check rejects filled from the nearest kept cell to
     /// their left; +ref: the same as --refine on. fuse+lr: the head and SGM, their weighted mean
     /// where both pass their checks, the one that passes elsewhere. census: census matching of
     /// the pixels with SGM (no encoder); fuse-census: the head fused with it as fuse+lr fuses
-    /// the head and SGM (on either pathway). Default: fuse+lr on the export
-    /// pathway (chosen on held-out train pairs and synthetic scenes), head+lr on the native one.
+    /// the head and SGM (on either pathway); fuse-all: the head fused with the census, then with
+    /// the SGM (export pathway). Default: fuse+lr on the export pathway (chosen on held-out train
+    /// pairs and synthetic scenes), fuse-census+lr on the native one.
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]

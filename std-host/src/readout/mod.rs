@@ -53,6 +53,8 @@ pub enum Method {
     Census,
     /// The head and the census SGM fused as `Fused` fuses the head and SGM.
     CensusFused,
+    /// The head fused with the census SGM, then with the SGM (export pathway).
+    FusedAll,
 }
 
 /// A readout: a method, with or without its left-right check and fill, upsampled or refined.
@@ -78,7 +80,7 @@ impl Readout {
     /// `fuse+lr`.
     pub const FUSED_LR: Readout = Readout::new(Method::Fused, true);
     /// The token-grid readouts (upsampled bilinearly), in the order tables list them.
-    pub const UNREFINED: [Readout; 12] = [
+    pub const UNREFINED: [Readout; 14] = [
         Readout::NOLINK,
         Readout::new(Method::Nolink, true),
         Readout::SGM,
@@ -91,12 +93,14 @@ impl Readout {
         Readout::new(Method::Census, true),
         Readout::new(Method::CensusFused, false),
         Readout::new(Method::CensusFused, true),
+        Readout::new(Method::FusedAll, false),
+        Readout::new(Method::FusedAll, true),
     ];
     /// Every readout, in the order tables list them: each unrefined one, then its `+ref`.
-    pub const ALL: [Readout; 24] = {
-        let mut all = [Readout::NOLINK; 24];
+    pub const ALL: [Readout; 28] = {
+        let mut all = [Readout::NOLINK; 28];
         let mut i = 0;
-        while i < 12 {
+        while i < 14 {
             all[2 * i] = Readout::UNREFINED[i];
             all[2 * i + 1] = Readout::UNREFINED[i].refined(true);
             i += 1;
@@ -145,17 +149,24 @@ impl Readout {
             (Method::CensusFused, false, true) => "fuse-census+ref",
             (Method::CensusFused, true, false) => "fuse-census+lr",
             (Method::CensusFused, true, true) => "fuse-census+lr+ref",
+            (Method::FusedAll, false, false) => "fuse-all",
+            (Method::FusedAll, false, true) => "fuse-all+ref",
+            (Method::FusedAll, true, false) => "fuse-all+lr",
+            (Method::FusedAll, true, true) => "fuse-all+lr+ref",
         }
     }
 
     /// Whether it needs the shared head.
     pub fn uses_head(self) -> bool {
-        matches!(self.method, Method::Head | Method::Fused | Method::CensusFused)
+        matches!(
+            self.method,
+            Method::Head | Method::Fused | Method::CensusFused | Method::FusedAll
+        )
     }
 
     /// Whether it fuses the head with a second opinion (`fuse`, `fuse-census`).
     pub fn fuses(self) -> bool {
-        matches!(self.method, Method::Fused | Method::CensusFused)
+        matches!(self.method, Method::Fused | Method::CensusFused | Method::FusedAll)
     }
 }
 
@@ -172,7 +183,7 @@ impl FromStr for Readout {
         match Readout::ALL.iter().find(|r| r.name() == s) {
             Some(&r) => Ok(r),
             None => bail!(
-                "unknown readout {s:?} (expected nolink, sgm, head, fuse, census or fuse-census, each optionally with +lr, then optionally +ref)"
+                "unknown readout {s:?} (expected nolink, sgm, head, fuse, census, fuse-census or fuse-all, each optionally with +lr, then optionally +ref)"
             ),
         }
     }
@@ -245,7 +256,7 @@ impl MethodMaps {
                 let (map, kept) = self.census_maps()?;
                 (Cow::Borrowed(map), Some(Cow::Borrowed(&kept[..])))
             }
-            Method::Fused | Method::CensusFused => {
+            Method::Fused | Method::CensusFused | Method::FusedAll => {
                 let (map, kept) = self.fused(method, true)?;
                 (Cow::Owned(map), Some(Cow::Owned(kept)))
             }
@@ -261,60 +272,79 @@ impl MethodMaps {
         self.census.get().context("census: the grid was not kept")
     }
 
-    /// The head and its second opinion (`sgm` for `fuse`, `census` for `fuse-census`) fused row
-    /// by row by [`bino_core::lr::fuse_row`] on the core's Q8 grid, with their own checks
-    /// (`checked`) or with every cell kept (the unchecked readout).
+    /// The head and its second opinion (`sgm` for `fuse`, `census` for `fuse-census`; for
+    /// `fuse-all` the head fused with the census first, then with `sgm`) fused row by row by
+    /// [`bino_core::lr::fuse_row`] on the core's Q8 grid, with their own checks (`checked`) or
+    /// with every cell kept (the unchecked readout).
     fn fused(&self, method: Method, checked: bool) -> Result<(DisparityMap, Vec<bool>)> {
-        let (sgm, sgm_consistent) = if method == Method::CensusFused {
-            let (map, kept) = self.census_maps()?;
-            (map, &kept[..])
-        } else {
+        let head = self.head.as_ref().context("the run had no head: fuse needs it")?;
+        let every = vec![true; head.values.len()];
+        let kept = |mask: &'_ [bool]| -> Vec<bool> {
+            if checked {
+                mask.to_vec()
+            } else {
+                every.clone()
+            }
+        };
+        let sgm = || -> Result<(&DisparityMap, Vec<bool>)> {
             let sgm = self
                 .sgm
                 .as_ref()
-                .context("the run had no sgm readout: fuse needs the export pathway")?;
-            (sgm, &self.sgm_consistent[..])
+                .with_context(|| format!("the run had no sgm readout: {method:?} needs the export pathway"))?;
+            Ok((sgm, kept(&self.sgm_consistent)))
         };
-        let head = self.head.as_ref().context("the run had no head: fuse needs it")?;
+        let head_kept = if checked {
+            self.head_consistent
+                .clone()
+                .context("fuse+lr: the head's check did not run")?
+        } else {
+            every.clone()
+        };
+        match method {
+            Method::CensusFused => {
+                let (census, census_kept) = self.census_maps()?;
+                let second = (census, kept(census_kept));
+                self.fuse_pair((head, head_kept), second, census::FUSE_HEAD_WEIGHT)
+            }
+            Method::FusedAll => {
+                let (first, first_kept) = self.fused(Method::CensusFused, checked)?;
+                self.fuse_pair((&first, first_kept), sgm()?, FUSE_ALL_FIRST_WEIGHT)
+            }
+            _ => self.fuse_pair((head, head_kept), sgm()?, fuse_head_weight(self.views.width)),
+        }
+    }
+
+    /// `head` and `second` (each a grid and its mask) fused by [`fuse_grid`] with the head's
+    /// confidence, the head's share `weight`.
+    fn fuse_pair(
+        &self,
+        (head, head_kept): (&DisparityMap, Vec<bool>),
+        (second, second_kept): (&DisparityMap, Vec<bool>),
+        weight: u8,
+    ) -> Result<(DisparityMap, Vec<bool>)> {
         ensure!(
-            (head.width, head.height) == (sgm.width, sgm.height),
+            (head.width, head.height) == (second.width, second.height),
             "the head and SGM grids differ in size"
         );
-        let every = vec![true; head.values.len()];
-        let (head_kept, sgm_kept) = if checked {
-            let head_kept = self
-                .head_consistent
-                .as_deref()
-                .context("fuse+lr: the head's check did not run")?;
-            (head_kept, sgm_consistent)
-        } else {
-            (&every[..], &every[..])
-        };
+        let cells = head.values.len();
         ensure!(
-            head_kept.len() == every.len() && sgm_kept.len() == every.len(),
+            head_kept.len() == cells && second_kept.len() == cells,
             "fuse: mask and disparity sizes differ"
         );
         let bytes = |m: &[bool]| m.iter().map(|&k| u8::from(k)).collect::<Vec<u8>>();
-        let (head_q8, sgm_q8) = (tokens_q8(head), tokens_q8(sgm));
+        let (head_q8, second_q8) = (tokens_q8(head), tokens_q8(second));
         let confidence = self
             .head_confidence
             .as_deref()
             .context("fuse: the head's confidence was not kept")?;
-        ensure!(
-            confidence.len() == every.len(),
-            "fuse: confidence and disparity sizes differ"
-        );
-        let (head_kept, sgm_kept) = (bytes(head_kept), bytes(sgm_kept));
-        let head_rows = (&head_q8[..], &head_kept[..]);
+        ensure!(confidence.len() == cells, "fuse: confidence and disparity sizes differ");
+        let (head_kept, second_kept) = (bytes(&head_kept), bytes(&second_kept));
         let (out, kept) = fuse_grid(
-            head_rows,
+            (&head_q8, &head_kept),
             confidence,
-            (&sgm_q8, &sgm_kept),
+            (&second_q8, &second_kept),
             head.width,
-            match method {
-                Method::CensusFused => census::FUSE_HEAD_WEIGHT,
-                _ => fuse_head_weight(self.views.width),
-            },
+            weight,
         )?;
         let unit = (1u32 << DISPARITY_FRAC_BITS) as f32;
         let map = DisparityMap {
@@ -421,6 +451,12 @@ pub fn fuse_grid(
     Ok((out, kept))
 }
 
+/// The share, in 256ths, of `fuse-all`'s first fusion (the head with the census SGM) in its
+/// second, with the SGM, where both checks pass (then moved by the head's confidence). Chosen
+/// on the validation sets (`train/experiments.json`, `census_companion`: with the census
+/// uniqueness test it won all eight against `fuse`; 0.75 was tried too).
+pub const FUSE_ALL_FIRST_WEIGHT: u8 = 160;
+
 /// The head's share, in 256ths, of a `fuse` cell where both checks pass: the core's rule,
 /// which the board's pipeline follows too.
 pub use bino_core::lr::{fuse_head_weight, FUSE_HEAD_HEAVY_MAX_WIDTH};
@@ -463,7 +499,7 @@ mod tests {
             assert_eq!(r.to_string(), r.name());
         }
         let names: std::collections::BTreeSet<_> = Readout::ALL.iter().map(|r| r.name()).collect();
-        assert_eq!(names.len(), 24, "distinct names");
+        assert_eq!(names.len(), 28, "distinct names");
         assert_eq!("head+lr".parse::<Readout>().unwrap(), Readout::HEAD_LR);
         assert_eq!(
             "head+lr+ref".parse::<Readout>().unwrap(),
@@ -553,7 +589,7 @@ mod tests {
         // The census readouts' grids come from the views, not from `q8` (their own test).
         let from_q8 = Readout::ALL
             .into_iter()
-            .filter(|r| !matches!(r.method, Method::Census | Method::CensusFused));
+            .filter(|r| !matches!(r.method, Method::Census | Method::CensusFused | Method::FusedAll));
         for readout in from_q8 {
             let pixels = maps.pixels(readout).unwrap();
             assert_eq!((pixels.width, pixels.height), (32, 12), "{readout}");

@@ -83,7 +83,10 @@ mod tests {
         for readout in Readout::ALL {
             assert!(Pathway::Export.check(readout).is_ok(), "{readout}");
             let native = Pathway::Native.check(readout);
-            let descriptors = matches!(readout.method, Method::Nolink | Method::Sgm | Method::Fused);
+            let descriptors = matches!(
+                readout.method,
+                Method::Nolink | Method::Sgm | Method::Fused | Method::FusedAll
+            );
             assert_eq!(native.is_ok(), !descriptors, "{readout}");
             if let Err(e) = native {
                 assert!(e.to_string().contains("needs the export pathway"), "{e}");

@@ -231,11 +231,11 @@ fn refine_input(readout: Readout) -> Result<RefineInput> {
         (Method::Fused, true) => RefineInput::FusedLr,
         (Method::Fused, false) => bail!("--readout {readout}: {UNCHECKED_FUSE_NOT_STREAMED}"),
         (Method::CensusFused, true) => RefineInput::FusedCensusLr,
-        (Method::Census | Method::CensusFused, _) => bail!(
+        (Method::Census | Method::CensusFused | Method::FusedAll, _) => bail!(
             "--readout {readout}: the board's streaming pipeline (bino_core::pipeline), which bino sim runs, \
              streams the census SGM fused with the native head by their checks (fuse-census+lr, \
-             fuse-census+lr+ref, --pathway native); census and the unchecked fuse-census are computed by \
-             bino run and bino eval only"
+             fuse-census+lr+ref, --pathway native); census, fuse-all and the unchecked fuse-census are computed \
+             by bino run and bino eval only"
         ),
     })
 }
@@ -259,8 +259,8 @@ fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
         Method::Sgm => sim.pipeline.sgm_kept,
         Method::Head => sim.pipeline.head_kept,
         Method::Fused | Method::CensusFused => sim.pipeline.fused_kept,
-        // `refine_input` refuses it before a run.
-        Method::Census => 0,
+        // `refine_input` refuses them before a run.
+        Method::Census | Method::FusedAll => 0,
     };
     let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
     vec![
@@ -536,7 +536,7 @@ impl Sink for DisplaySink<'_> {
         match self.readout.method {
             Method::Nolink => self.show_row(row.row, row.wta_q8, row.wta_consistent),
             Method::Sgm => self.show_row(row.row, row.sgm_q8, row.sgm_consistent),
-            Method::Head | Method::Fused | Method::Census | Method::CensusFused => {}
+            Method::Head | Method::Fused | Method::Census | Method::CensusFused | Method::FusedAll => {}
         }
     }
 
