@@ -32,6 +32,18 @@ pub const DEFAULT_PENALTIES: Penalties = Penalties {
     edge: 0,
 };
 
+/// The view row `j` (`0..WINDOW_ROWS`) of token row `token_row`'s window in an image of
+/// `height` rows: `4 t + j - 2`, clamped to the image.
+pub const fn window_row(token_row: usize, j: usize, height: usize) -> usize {
+    let v = (PATCH_H * token_row + j).saturating_sub(CENSUS_RADIUS);
+    let last = height.saturating_sub(1);
+    if v < last {
+        v
+    } else {
+        last
+    }
+}
+
 /// StereoSGBM's uniqueness ratio, in percent, that the check applies besides the left-right
 /// test ([`CensusSgm::with_uniqueness`]): a cell is kept only if no candidate more than one
 /// away from its winner costs less than `100 / 90` of it. Where the census is blind (flat
@@ -277,7 +289,7 @@ mod tests {
     fn window(view: &[u8], t: usize) -> [&[u8]; WINDOW_ROWS] {
         let mut rows: [&[u8]; WINDOW_ROWS] = [&[]; WINDOW_ROWS];
         for (j, row) in rows.iter_mut().enumerate() {
-            let y = (4 * t + j).saturating_sub(CENSUS_RADIUS).min(H - 1);
+            let y = window_row(t, j, H);
             *row = &view[y * W..(y + 1) * W];
         }
         rows

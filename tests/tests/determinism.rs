@@ -111,7 +111,7 @@ fn census_whole_map(left: &[u8], right: &[u8], width: usize, height: usize, cand
     fn window(view: &[u8], width: usize, height: usize, t: usize) -> Vec<&[u8]> {
         (0..census::WINDOW_ROWS)
             .map(|j| {
-                let y = (4 * t + j).saturating_sub(census::CENSUS_RADIUS).min(height - 1);
+                let y = census::window_row(t, j, height);
                 &view[y * width..(y + 1) * width]
             })
             .collect()

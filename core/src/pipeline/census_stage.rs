@@ -114,9 +114,8 @@ impl<'a> CensusStage<'a> {
         }
         let mut left: [&[u8]; WINDOW_ROWS] = [&[]; WINDOW_ROWS];
         let mut right: [&[u8]; WINDOW_ROWS] = [&[]; WINDOW_ROWS];
-        let last = self.height.saturating_sub(1);
         for (j, (l, r)) in left.iter_mut().zip(right.iter_mut()).enumerate() {
-            let v = (PATCH_H * row + j).saturating_sub(CENSUS_RADIUS).min(last);
+            let v = census::window_row(row, j, self.height);
             let Some(rows) = view.row(v) else {
                 return Err(Error::OutOfRange {
                     what: "view row of the census SGM",

@@ -44,7 +44,7 @@ pub fn census_grid(views: &GrayViews) -> Result<(DisparityMap, Vec<bool>)> {
     fn window(view: &[u8], width: usize, height: usize, t: usize) -> Vec<&[u8]> {
         (0..WINDOW_ROWS)
             .map(|j| {
-                let y = (PATCH_H * t + j).saturating_sub(census::CENSUS_RADIUS).min(height - 1);
+                let y = census::window_row(t, j, height);
                 &view[y * width..(y + 1) * width]
             })
             .collect()
