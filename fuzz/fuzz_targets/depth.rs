@@ -27,7 +27,11 @@ fuzz_target!(|input: Input| {
         baseline_mm: input.baseline_mm,
         sensor_width_px: input.sensor_width_px,
     };
-    let unit = if input.patch_columns { DisparityUnit::PatchColumns } else { DisparityUnit::Pixels };
+    let unit = if input.patch_columns {
+        DisparityUnit::PatchColumns
+    } else {
+        DisparityUnit::Pixels
+    };
     let Ok(model) = DepthModel::new(&cal, usize::from(input.profile_width_px), unit) else {
         return;
     };
@@ -44,7 +48,10 @@ fuzz_target!(|input: Input| {
             let got = f64::from(got.unwrap());
             if want < f64::from(u32::MAX) * 0.99 {
                 // The documented bound of `depth_mm`.
-                assert!((got - want).abs() <= 0.5 + want * 1e-6 + 1e-5, "q8 {q8}: {got} mm, expected {want}");
+                assert!(
+                    (got - want).abs() <= 0.5 + want * 1e-6 + 1e-5,
+                    "q8 {q8}: {got} mm, expected {want}"
+                );
             }
         }
     }
@@ -59,6 +66,10 @@ fuzz_target!(|input: Input| {
     }
     for s in summary.sectors() {
         assert!(s.first_col < s.end_col && usize::from(s.end_col) <= cols);
-        assert!(s.bearing_rad.abs() <= core::f32::consts::FRAC_PI_2 + 1e-3, "{}", s.bearing_rad);
+        assert!(
+            s.bearing_rad.abs() <= core::f32::consts::FRAC_PI_2 + 1e-3,
+            "{}",
+            s.bearing_rad
+        );
     }
 });

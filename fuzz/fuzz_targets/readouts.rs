@@ -1,9 +1,11 @@
 //! The readouts' public functions with arbitrary lengths and values: inverse norms, WTA
-//! matching, cost rows, streaming SGM, the right view and the left-right check, band plans.
+//! matching, cost rows, streaming SGM, the right view and the left-right check, the census SGM,
+//! band plans.
 #![no_main]
 
 use arbitrary::Arbitrary;
 use bino_core::band::BandPlan;
+use bino_core::census::{self, CensusSgm, WINDOW_ROWS};
 use bino_core::config::DIM;
 use bino_core::lr::{consistent_row, right_view_costs, wta_costs};
 use bino_core::matching::{cost_row, inverse_norms, match_row, MAX_CANDIDATES};
@@ -110,6 +112,27 @@ fuzz_target!(|input: Input| {
     let mut mask = vec![0u8; out_len];
     if let Ok(kept) = consistent_row(&wta_left, &wta_right, input.lr_max_diff_q8, &mut mask) {
         assert!(kept <= cells);
+    }
+
+    // The census SGM over fuzzed pixels: a width of whole cells or not, any disparity count,
+    // penalties and uniqueness, windows and rows of the right length or not.
+    let width = cells * 4 + usize::from(input.tail % 4);
+    let disparities = usize::from(input.candidates);
+    let (mut s32, mut s16) = (
+        vec![0u32; adjust(census::scratch_u32_len(width, disparities), input.guide_delta)],
+        vec![0u16; census::scratch_u16_len(width, disparities)],
+    );
+    let pixels: Vec<u8> = resized(&input.guide, adjust(width, input.out_delta));
+    let rows = adjust(WINDOW_ROWS, input.norms_delta % 2);
+    if let Ok(sgm) = CensusSgm::new(width, disparities, penalties, input.lr_max_diff_q8, &mut s32, &mut s16) {
+        let mut sgm = sgm.with_uniqueness(input.edge);
+        let window: Vec<&[u8]> = (0..rows).map(|_| &pixels[..]).collect();
+        let (mut disparity, mut kept) = (vec![0u16; out_len], vec![0u8; cells]);
+        for _ in 0..input.sgm_rows % 4 {
+            if let Ok(count) = sgm.push_row(&window, &window, &mut disparity, &mut kept) {
+                assert!(count <= cells);
+            }
+        }
     }
 
     if let Ok(plan) = BandPlan::new(input.token_rows) {

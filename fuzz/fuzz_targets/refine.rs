@@ -8,7 +8,8 @@
 use arbitrary::Arbitrary;
 use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{
-    keep_rejected_map, refine_map, refine_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
+    keep_rejected_map, refine_map, refine_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner,
+    TokenRows, ViewRows,
 };
 use libfuzzer_sys::fuzz_target;
 
