@@ -47,7 +47,11 @@ step() { printf '\n== %s\n' "$*"; }
 scripts/setup.sh
 
 step "pretraining to $pretrain_pairs pairs ($pre)"
-if [[ ${#resume[@]} -eq 0 ]]; then
+if [[ ${#resume[@]} -eq 1 && -f "train/$encoder" && ! -f "train/$pre/last.pt" ]]; then
+  # A resume point without the pretraining's optimiser state (train/checkpoints/README.md keeps
+  # only the final student): the stage is done.
+  echo "pretraining done: train/$encoder"
+elif [[ ${#resume[@]} -eq 0 ]]; then
   py -m bino_train.pretrain --out "$pre" --pairs "$pretrain_pairs" --schedule-pairs 30000 \
     --lr 5e-4 --threads "$threads" --teacher-clean --head-bn --momentum 0.99 --blur-prob 0.25 \
     --eval-minutes 10 --eval-student
