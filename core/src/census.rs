@@ -59,6 +59,13 @@ pub const DEFAULT_UNIQUENESS: u8 = 10;
 /// `census_companion`).
 pub const FUSE_HEAD_WEIGHT: u8 = 128;
 
+/// The share, in 256ths, of `fuse-all`'s first fusion (the head with the census SGM, share
+/// [`FUSE_HEAD_WEIGHT`]) in its second, with the descriptor SGM, where both checks pass (then
+/// moved by the head's confidence). Chosen on the validation sets (`train/experiments.json`,
+/// `census_companion`: it won all eight against the head fused with the SGM alone; 0.75 was
+/// tried too).
+pub const FUSE_ALL_FIRST_WEIGHT: u8 = 160;
+
 /// Pixel disparities searched alongside a head of `candidates` patch columns: the same reach.
 pub const fn disparities(candidates: usize) -> usize {
     candidates.saturating_mul(CELL_W)

@@ -5,7 +5,9 @@
 //! a rectified pair in, disparity rows out, in one caller-owned arena whose size is a `const fn`.
 //! It never allocates and never panics on input: bad input is an [`Error`].
 //!
-//! The whole pipeline on the firmware's 48x160 test band, with the boards' readouts:
+//! The whole pipeline on the firmware's 48x160 test band, with the boards' readouts (the
+//! native pathway: one encoder pass on (L, R), the native head checked from the same pass and
+//! fused with a census SGM, then refined to pixels):
 //!
 //! ```
 //! use bino_core::blob::Blob;
@@ -15,7 +17,7 @@
 //!
 //! const HEIGHT: usize = 48; // one band (a taller image needs more, the same for any height)
 //! const WIDTH: usize = 160;
-//! const ARENA_BYTES: usize = preset::arena_bytes(HEIGHT, WIDTH); // a const fn: 486,918 B
+//! const ARENA_BYTES: usize = preset::arena_bytes(HEIGHT, WIDTH); // a const fn: 466,598 B
 //!
 //! // The weight blob, read in place (in flash on a board), checked once.
 //! static BLOB: &[u8] = include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/bino_int8.bin"));
@@ -41,18 +43,18 @@
 //! let mut sink = Refined(Crc32::new());
 //! let report = pipeline.run_refined(&mut rows, &preset::OPTIONS, &preset::REFINE, &mut arena, &mut sink)?;
 //! assert!(report.arena_used <= ARENA_BYTES);
-//! // The encoder's scratch is reused by the readouts after the passes (`Report::arena_used`).
-//! let after_passes = report.descriptors + report.streams + report.refine;
-//! assert_eq!(report.arena_used, report.pixels + report.descriptors + report.encoder.max(after_passes));
+//! // One encoder pass per band: no descriptor band is held (`Report::arena_used`).
+//! assert_eq!((report.bands, report.descriptors), (1, 0));
 //! // Bit for bit what the firmware computes on both Cortex-M cores.
-//! assert_eq!(sink.0.finish(), 0x0f8a_fba5);
+//! assert_eq!(sink.0.finish(), 0xdd7b_6fae);
 //! # Ok::<(), bino_core::Error>(())
 //! ```
 //!
 //! The main types: [`blob::Blob`] (the weights, parsed in place), [`pipeline::Pipeline`] with
 //! its [`pipeline::RowSource`] (rows in; [`pipeline::SlicePair`] for a pair in memory) and
 //! [`pipeline::Sink`] (readouts out), and [`preset`], the readouts the firmware and the boards
-//! run with the `const fn` sizing their arena ([`preset::arena_bytes`]; for other
+//! run with the `const fn` sizing their arena ([`preset::arena_bytes`]; the export pathway's
+//! [`preset::EXPORT_OPTIONS`] and [`preset::export_arena_bytes`]; for other
 //! [`pipeline::Options`], [`pipeline::arena_bytes_refined`]). Every error is an [`Error`].
 //! `examples/board` (a `no_std` program for Cortex-M) and `examples/host` (a PNG pair in, a
 //! disparity PNG out) in the repository build on this.

@@ -1,29 +1,36 @@
-//! The readouts the firmware (`firmware-sim`) and the board apps (`boards/`) run, in one place so
+//! The readouts the board apps (`boards/`) and the firmware (`firmware-sim`) run, in one place so
 //! every target computes the same numbers: the `bino` CLI's defaults (16 candidates, SGM
-//! penalties 96 / 192 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch column, the head with its own left-right
-//! check), the pixel refinement of the fused grid (the head and SGM fused by their checks,
-//! `fuse+lr`, the default of `bino run`), and (feature `depth`) the example board's
-//! calibration and sector count of the obstacle summary.
+//! penalties 96 / 192 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch column, the
+//! head with its own left-right check) and the pixel refinement of the readout the pipeline's
+//! rule picks for them ([`RefineInput::for_options`](crate::pipeline::RefineInput::for_options)),
+//! and (feature `depth`) the example board's calibration and sector count of the obstacle
+//! summary.
+//!
+//! The board runs the native pathway ([`OPTIONS`]): one encoder pass per band on (L, R), the
+//! native head with its left-right check read from the same pass, fused with the census SGM
+//! (`fuse-census+lr`). [`EXPORT_OPTIONS`] is the export pathway (two passes per band, the
+//! descriptors for every readout, `fuse-all+lr`: `bino run`'s default), which the firmware runs
+//! too.
 //!
 //! ```
-//! use bino_core::preset::{arena_bytes, OPTIONS, REFINE};
-//! use bino_core::pipeline::RefineInput;
-//! assert_eq!(REFINE.input, RefineInput::FusedLr);
-//! assert!(OPTIONS.head && OPTIONS.head_lr);
-//! // The 48x160 band pair of the budget: 486,918 bytes.
-//! assert_eq!(arena_bytes(48, 160), 486_918);
-//! // The native pathway (one encoder pass on (L, R), the head's check read from the same pass,
-//! // the census SGM beside it) needs less.
-//! assert_eq!(bino_core::preset::native_arena_bytes(48, 160), 466_598);
+//! use bino_core::preset::{arena_bytes, export_arena_bytes, EXPORT_REFINE, OPTIONS, REFINE};
+//! use bino_core::pipeline::{Pathway, RefineInput};
+//! assert_eq!(OPTIONS.pathway, Pathway::Native);
+//! assert_eq!(REFINE.input, RefineInput::FusedCensusLr);
+//! assert_eq!(EXPORT_REFINE.input, RefineInput::FusedAllLr);
+//! // The 48x160 band pair of the budget.
+//! assert_eq!(arena_bytes(48, 160), 466_598);
+//! assert_eq!(export_arena_bytes(48, 160), 486_918);
 //! ```
 
 use crate::pipeline::{self, Options, Pathway, Refine};
 
-/// Readout options: 16 candidates, SGM penalties 96 / 192 (`sgm::DEFAULT_PENALTIES`), left-right tolerance one patch
-/// column (Q8 256), the head (its trained 12 candidates: a 160-px view's disparities stay
-/// below 44 px) with its own left-right check.
+/// The board's readout options: the native pathway, the head (its trained 12 candidates: a
+/// 160-px view's disparities stay below 44 px) with its left-right check read from the same
+/// pass, left-right tolerance one patch column (Q8 256); 16 candidates and SGM penalties 96 /
+/// 192 (`sgm::DEFAULT_PENALTIES`) for the descriptor readouts of [`EXPORT_OPTIONS`].
 pub const OPTIONS: Options = Options {
-    pathway: Pathway::Export,
+    pathway: Pathway::Native,
     max_cols: 16,
     penalties: crate::sgm::DEFAULT_PENALTIES,
     lr_max_diff_q8: 256,
@@ -32,8 +39,9 @@ pub const OPTIONS: Options = Options {
     head_candidates: crate::config::HEAD_MAX_DISP,
 };
 
-/// The pixel refinement: the default parameters on the readout the pipeline's rule picks for
-/// [`OPTIONS`] (fuse+lr: the head and SGM fused by their own left-right checks).
+/// The board's pixel refinement: the default parameters on the readout the pipeline's rule
+/// picks for [`OPTIONS`] (fuse-census+lr: the native head and the census SGM
+/// ([`crate::census`]) fused by their own left-right checks).
 pub const REFINE: Refine = Refine::for_options(&OPTIONS);
 
 /// Arena bytes a `height x width` band pair needs with [`OPTIONS`] and [`REFINE`].
@@ -41,21 +49,20 @@ pub const fn arena_bytes(height: usize, width: usize) -> usize {
     pipeline::arena_bytes_refined(height, width, &OPTIONS, &REFINE)
 }
 
-/// [`OPTIONS`] on the native pathway: one encoder pass on (L, R) and the native head, with its
-/// left-right check read from the same pass (the right view from the head's own logits),
-/// fused with the census SGM ([`crate::census`]).
-pub const NATIVE_OPTIONS: Options = Options {
-    pathway: Pathway::Native,
+/// [`OPTIONS`] on the export pathway: both encoder passes, (L, L) and (R, R), the descriptor
+/// readouts, the shared head and its check on the mirrored pair.
+pub const EXPORT_OPTIONS: Options = Options {
+    pathway: Pathway::Export,
     ..OPTIONS
 };
 
-/// The pixel refinement of the native pathway's fused grid (fuse-census+lr: the native head and
-/// the census SGM fused by their own left-right checks).
-pub const NATIVE_REFINE: Refine = Refine::for_options(&NATIVE_OPTIONS);
+/// The pixel refinement of the export pathway's readout (fuse-all+lr: the shared head fused with
+/// the census SGM, then with the descriptor SGM, by their own left-right checks).
+pub const EXPORT_REFINE: Refine = Refine::for_options(&EXPORT_OPTIONS);
 
-/// Arena bytes a `height x width` band pair needs with [`NATIVE_OPTIONS`] and [`NATIVE_REFINE`].
-pub const fn native_arena_bytes(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes_refined(height, width, &NATIVE_OPTIONS, &NATIVE_REFINE)
+/// Arena bytes a `height x width` band pair needs with [`EXPORT_OPTIONS`] and [`EXPORT_REFINE`].
+pub const fn export_arena_bytes(height: usize, width: usize) -> usize {
+    pipeline::arena_bytes_refined(height, width, &EXPORT_OPTIONS, &EXPORT_REFINE)
 }
 
 /// Column sectors of the obstacle summary.

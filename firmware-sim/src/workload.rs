@@ -3,13 +3,15 @@
 //! on either pathway, with a CRC-32 digest of every output and the obstacle summary of the
 //! refined rows (`bino_core::depth`: nearest depth and bearing in [`SECTORS`] column sectors).
 //!
+//! - Native (the board's preset): one encoder pass on (L, R) and the native head on its pair
+//!   tokens, its left-right check read from the head's own logits (no second pass), the census
+//!   SGM beside it, the two fused by their checks, and the pixel refinement of the fused grid
+//!   (fuse-census+lr).
 //! - Export: both encoder passes, (L, L) and (R, R), then WTA matching, SGM, the left-right
-//!   check, the shared head and its own left-right check (the head on the mirrored pair, rerun
-//!   on the head's arena), row by row, the head and SGM fused by their checks, and the pixel
-//!   refinement of the fused grid (fuse+lr).
-//! - Native: one encoder pass on (L, R) and the native head on its pair tokens, its left-right
-//!   check read from the head's own logits (no second pass), and the refinement of its head+lr
-//!   grid.
+//!   check, the census SGM, the shared head and its own left-right check (the head on the
+//!   mirrored pair, rerun on the head's arena), row by row, the head fused with the census and
+//!   that with the SGM by their checks, and the pixel refinement of the fused grid
+//!   (fuse-all+lr, `bino run`'s default).
 //!
 //! The rows come from any `RowSource`: `build.rs` hands over the embedded band as a
 //! `SlicePair`, the firmware the interrupt-fed camera (`camera.rs`); the digests must agree.
@@ -26,12 +28,12 @@ use bino_core::Error;
 
 // The readouts, the refinement, the example board's calibration and the sector count: the
 // preset the board apps (`boards/`) run too.
-pub use bino_core::preset::{CALIBRATION, NATIVE_OPTIONS, NATIVE_REFINE, OPTIONS, REFINE, SECTORS};
+pub use bino_core::preset::{CALIBRATION, EXPORT_OPTIONS, EXPORT_REFINE, OPTIONS, REFINE, SECTORS};
 
 /// Arena bytes for a `height x width` band pair on both pathways (one arena serves each run).
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
-    let export = bino_core::preset::arena_bytes(height, width);
-    let native = bino_core::preset::native_arena_bytes(height, width);
+    let export = bino_core::preset::export_arena_bytes(height, width);
+    let native = bino_core::preset::arena_bytes(height, width);
     if export > native {
         export
     } else {
@@ -42,8 +44,8 @@ pub const fn arena_bytes(height: usize, width: usize) -> usize {
 /// The readout options and refinement of `pathway`'s run.
 pub const fn preset(pathway: Pathway) -> (Options, Refine) {
     match pathway {
-        Pathway::Export => (OPTIONS, REFINE),
-        Pathway::Native => (NATIVE_OPTIONS, NATIVE_REFINE),
+        Pathway::Export => (EXPORT_OPTIONS, EXPORT_REFINE),
+        Pathway::Native => (OPTIONS, REFINE),
     }
 }
 

@@ -62,6 +62,9 @@ pub struct Run {
     pub head_lr: bool,
     /// The head's disparity candidates (valid: 1 to 64).
     pub head_candidates: u8,
+    /// The refinement's input, an index into [`REFINE_INPUTS`] (`None`: no refinement; a
+    /// readout the run does not make must be refused).
+    pub refine: Option<u8>,
     /// Arena bytes relative to what `arena_bytes` asks for.
     pub arena_delta: i16,
     /// Pixel values, cycled over both views.
@@ -107,6 +110,7 @@ impl RowSource for FuzzSource<'_> {
 struct CountSink {
     rows: usize,
     head_rows: usize,
+    refined_rows: usize,
     checksum: u64,
 }
 
@@ -123,7 +127,26 @@ impl Sink for CountSink {
             self.checksum = self.checksum.wrapping_mul(31).wrapping_add(v as u64);
         }
     }
+    fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
+        self.refined_rows += 1;
+        for &v in disparity_q8 {
+            self.checksum = self.checksum.wrapping_mul(31).wrapping_add(v as u64);
+        }
+    }
 }
+
+/// Every readout the pipeline's refinement can read.
+pub const REFINE_INPUTS: [pipeline::RefineInput; 9] = [
+    pipeline::RefineInput::Nolink,
+    pipeline::RefineInput::NolinkLr,
+    pipeline::RefineInput::Sgm,
+    pipeline::RefineInput::SgmLr,
+    pipeline::RefineInput::Head,
+    pipeline::RefineInput::HeadLr,
+    pipeline::RefineInput::FusedLr,
+    pipeline::RefineInput::FusedCensusLr,
+    pipeline::RefineInput::FusedAllLr,
+];
 
 /// Runs `run` through the pipeline of `blob`; returns the pipeline's result.
 pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error> {
@@ -163,7 +186,13 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
     };
     // The arena a caller would size from the reported shape, nudged by the fuzzer; capped so
     // an absurd (saturated) size is not allocated: the pipeline must reject it anyway.
-    let wanted = pipeline::arena_bytes_for(reported_height, reported_width, &opts);
+    let refine = run
+        .refine
+        .map(|i| pipeline::Refine::of(REFINE_INPUTS[usize::from(i) % REFINE_INPUTS.len()]));
+    let wanted = match &refine {
+        Some(r) => pipeline::arena_bytes_refined(reported_height, reported_width, &opts, r),
+        None => pipeline::arena_bytes_for(reported_height, reported_width, &opts),
+    };
     let len = (wanted as i64 + i64::from(run.arena_delta)).clamp(0, 1 << 22) as usize;
     let mut arena = vec![0u8; len];
     let mut source = FuzzSource {
@@ -174,7 +203,14 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
         row: 0,
     };
     let mut sink = CountSink::default();
-    let report = pipeline.run(&mut source, &opts, &mut arena, &mut sink)?;
+    let report = match &refine {
+        Some(r) => pipeline.run_refined(&mut source, &opts, r, &mut arena, &mut sink)?,
+        None => pipeline.run(&mut source, &opts, &mut arena, &mut sink)?,
+    };
+    if refine.is_some() {
+        // Every pixel row of the image was refined, once.
+        assert_eq!(sink.refined_rows, report.rows * bino_core::config::PATCH_H);
+    }
     // A finished run emitted one row per token row of each readout it ran (the native pathway
     // has only its head) and stayed inside its arena.
     if run.native {

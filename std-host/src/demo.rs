@@ -164,11 +164,11 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
     if model.has_head() {
         let export = pipeline_options(opts, Pathway::Export, left.width);
         let maps = steps.run(
-            "fuse+lr+ref: head and SGM fused by their checks, refined (`bino run`'s default; int8 pipeline)",
+            "fuse-all+lr+ref: head, census SGM and SGM fused by their checks, refined (`bino run`'s default; int8 pipeline)",
             || run_pipeline(&model, &left, &right, &export, &mut |_, _| {}),
         )?;
-        let fused = Readout::FUSED_LR.refined(true);
-        readouts.push(scored_pixels("fuse+lr+ref", maps.methods.pixels(fused)?, &truth)?);
+        let fused = crate::readout::pathway::Pathway::Export.default_readout().refined(true);
+        readouts.push(scored_pixels("fuse-all+lr+ref", maps.methods.pixels(fused)?, &truth)?);
     }
     if model.has_head_of(HeadKind::Native) {
         let native = pipeline_options(opts, Pathway::Native, left.width);

@@ -167,8 +167,8 @@ fn budget_reports_the_committed_runs() {
         assert!(matches!((w, h), (160, 120) | (320, 240)), "{e}");
         assert_eq!(e["bands"], if h == 120 { 4 } else { 7 }, "{e}");
         let want = match e["pathway"].as_str().unwrap() {
-            "export" => bino_core::preset::arena_bytes(h as usize, w as usize),
-            _ => bino_core::preset::native_arena_bytes(h as usize, w as usize),
+            "export" => bino_core::preset::export_arena_bytes(h as usize, w as usize),
+            _ => bino_core::preset::arena_bytes(h as usize, w as usize),
         };
         assert_eq!(e["arena_bytes"], want as u64, "{e}");
         assert!(e["modelled_seconds"].as_f64().unwrap() > 0.0, "{e}");
@@ -199,7 +199,7 @@ fn budget_frames_take_a_size_and_a_clock() {
     let run = bino(&["--frame", "640x480", "--clock-mhz", "200"]);
     let stdout = String::from_utf8_lossy(&run.stdout);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let arena = bino_host::budget::grouped(bino_core::preset::arena_bytes(480, 640) as u64);
+    let arena = bino_host::budget::grouped(bino_core::preset::export_arena_bytes(480, 640) as u64);
     assert!(
         stdout.contains("| 640x480 | 15 | M55 at 200 MHz | export |"),
         "{stdout}"

@@ -63,7 +63,7 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
             "head",
             "head+lr",
             "head+lr+ref",
-            "fuse+lr+ref",
+            "fuse-all+lr+ref",
             "native_head",
             "native_head+lr",
             "native_head+lr+ref",
@@ -89,11 +89,11 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
     assert_ne!(epe[3], epe[2], "head+lr fills some cells");
     // The pixel refinement sharpens the planes' edges the bilinear upsampling blurs.
     assert!(epe[4] < epe[3], "head+lr+ref epe {} vs head+lr {}", epe[4], epe[3]);
-    // The fused readout (`bino run`'s default) takes the better of head and SGM where they
-    // disagree in their checks: it beats both of its refined parts' unrefined inputs.
+    // The fused readout (`bino run`'s default: the head, the census SGM and the SGM) takes the
+    // better where they disagree in their checks: it beats the SGM and the head+lr it fuses.
     assert!(
         epe[5] < epe[1].min(epe[3]),
-        "fuse+lr+ref epe {} vs sgm {} and head+lr {}",
+        "fuse-all+lr+ref epe {} vs sgm {} and head+lr {}",
         epe[5],
         epe[1],
         epe[3]

@@ -115,10 +115,17 @@ fn a_bad_display_size_or_a_lone_view_is_refused() {
 
 /// One readout, one number: the refined pixels sim draws as the pipeline streams them are the
 /// pixels `bino run` writes for the same readout (its `disparity.pfm`), colour for colour. Both
-/// default to the fused readout (fuse+lr, refined), which the board's pipeline streams.
+/// default to the export pathway's fused readout (fuse-all+lr, refined: the head, the census SGM
+/// and the descriptor SGM), which the pipeline streams across the scene's two bands.
 #[test]
 fn sim_draws_the_refined_pixels_run_writes() {
-    sim_matches_run("refined", &[], "fuse+lr+ref");
+    sim_matches_run("refined", &[], "fuse-all+lr+ref");
+}
+
+/// The same for the head and SGM fused without the census.
+#[test]
+fn sim_draws_the_fused_pixels_run_writes() {
+    sim_matches_run("fused-sgm", &["--readout", "fuse+lr+ref"], "fuse+lr+ref");
 }
 
 /// The same for the native pathway's fusion with the census SGM, which the pipeline streams
@@ -182,14 +189,20 @@ fn sim_matches_run(name: &str, extra: &[&str], readout: &str) {
 #[test]
 fn sim_streams_the_checked_fusion_and_refuses_the_unchecked_one() {
     let dir = scratch("fused");
-    let run = bino(&["sim", "--readout", "fuse+lr", "--out", s(&dir)]);
-    let stdout = String::from_utf8_lossy(&run.stdout);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let (_, h) = DEFAULT_SCENE;
-    assert!(
-        stdout.contains(&format!("{} rows drawn", h / 4)),
-        "one drawn row per token row: {stdout}"
-    );
+    for readout in [
+        &["--readout", "fuse+lr"][..],
+        &["--readout", "fuse-all+lr"],
+        &["--pathway", "native", "--readout", "fuse-census+lr"],
+    ] {
+        let run = bino(&[&["sim", "--out", s(&dir)][..], readout].concat());
+        let stdout = String::from_utf8_lossy(&run.stdout);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        assert!(
+            stdout.contains(&format!("{} rows drawn", h / 4)),
+            "{readout:?}: one drawn row per token row: {stdout}"
+        );
+    }
     for readout in ["fuse", "fuse+ref"] {
         let run = bino(&["sim", "--readout", readout, "--out", s(&dir)]);
         let stderr = String::from_utf8_lossy(&run.stderr);
@@ -201,8 +214,8 @@ fn sim_streams_the_checked_fusion_and_refuses_the_unchecked_one() {
         );
         assert!(!stderr.contains("panicked"), "{stderr}");
     }
-    // The readouts the pipeline does not stream yet are refused by name.
-    for readout in ["fuse-all+lr", "census+lr+ref"] {
+    // The readouts the pipeline does not stream are refused by name.
+    for readout in ["fuse-all", "fuse-all+ref", "census+lr+ref"] {
         let run = bino(&["sim", "--readout", readout, "--out", s(&dir)]);
         let stderr = String::from_utf8_lossy(&run.stderr);
         assert!(!run.status.success(), "{stderr}");

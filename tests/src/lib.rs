@@ -50,3 +50,44 @@ pub fn available(what: &str, present: bool) -> bool {
     }
     present
 }
+
+/// The census SGM's grid and mask over a whole `height x width` pair, token row after token row
+/// (`bino_core::census`), independent of the pipeline's streaming of it.
+pub fn census_whole_map(
+    left: &[u8],
+    right: &[u8],
+    width: usize,
+    height: usize,
+    candidates: usize,
+) -> (Vec<u16>, Vec<u8>) {
+    let n = bino_core::census::disparities(candidates);
+    let (mut s32, mut s16) = (
+        vec![0u32; bino_core::census::scratch_u32_len(width, n)],
+        vec![0u16; bino_core::census::scratch_u16_len(width, n)],
+    );
+    let mut sgm =
+        bino_core::census::CensusSgm::new(width, n, bino_core::census::DEFAULT_PENALTIES, 256, &mut s32, &mut s16)
+            .unwrap();
+    let cols = width / 4;
+    let (mut grid, mut mask) = (vec![0u16; height / 4 * cols], vec![0u8; height / 4 * cols]);
+    // View rows clamp(4 t + j - 2), j = 0..8: the token row's pixel rows and the census reach.
+    fn window(view: &[u8], width: usize, height: usize, t: usize) -> Vec<&[u8]> {
+        (0..bino_core::census::WINDOW_ROWS)
+            .map(|j| {
+                let y = bino_core::census::window_row(t, j, height);
+                &view[y * width..(y + 1) * width]
+            })
+            .collect()
+    }
+    for t in 0..height / 4 {
+        let at = t * cols..(t + 1) * cols;
+        sgm.push_row(
+            &window(left, width, height, t),
+            &window(right, width, height, t),
+            &mut grid[at.clone()],
+            &mut mask[at],
+        )
+        .unwrap();
+    }
+    (grid, mask)
+}

@@ -18,12 +18,13 @@ mod workload;
 use bino_core::blob::Blob;
 use bino_core::census;
 use bino_core::crc32::Crc32;
-use bino_core::lr::{fill_rejected, fuse_head_weight};
+use bino_core::lr::fill_rejected;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{HeadChecked, MatchedRow, Pathway, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{keep_rejected_map, refine_map, scratch_len};
 use bino_host::readout::fuse_grid;
+use bino_tests::census_whole_map;
 use workload::{Hooks, Stage, OUTPUTS};
 
 struct Quiet;
@@ -96,49 +97,16 @@ impl Sink for HeadMaps {
     }
 }
 
-/// The census SGM's grid and mask over a whole `height x width` pair, token row after token row
-/// (`bino_core::census`), independent of the pipeline's streaming of it.
-fn census_whole_map(left: &[u8], right: &[u8], width: usize, height: usize, candidates: usize) -> (Vec<u16>, Vec<u8>) {
-    let n = census::disparities(candidates);
-    let (mut s32, mut s16) = (
-        vec![0u32; census::scratch_u32_len(width, n)],
-        vec![0u16; census::scratch_u16_len(width, n)],
-    );
-    let mut sgm = census::CensusSgm::new(width, n, census::DEFAULT_PENALTIES, 256, &mut s32, &mut s16).unwrap();
-    let cols = width / 4;
-    let (mut grid, mut mask) = (vec![0u16; height / 4 * cols], vec![0u8; height / 4 * cols]);
-    // View rows clamp(4 t + j - 2), j = 0..8: the token row's pixel rows and the census reach.
-    fn window(view: &[u8], width: usize, height: usize, t: usize) -> Vec<&[u8]> {
-        (0..census::WINDOW_ROWS)
-            .map(|j| {
-                let y = census::window_row(t, j, height);
-                &view[y * width..(y + 1) * width]
-            })
-            .collect()
-    }
-    for t in 0..height / 4 {
-        let at = t * cols..(t + 1) * cols;
-        sgm.push_row(
-            &window(left, width, height, t),
-            &window(right, width, height, t),
-            &mut grid[at.clone()],
-            &mut mask[at],
-        )
-        .unwrap();
-    }
-    (grid, mask)
-}
-
-/// CRC-32 of the preset's whole-map refinement on the filled grid of `pathway`'s run (fuse+lr on
-/// the export pathway, fuse-census+lr on the native one: the head fused with the census SGM
-/// computed over the whole map; rejected cells kept at the bilinear step) without the
-/// refinement stage, rows top to bottom, values little-endian: what the workload's `refined`
-/// digest must be.
+/// CRC-32 of the preset's whole-map refinement on the filled grid of `pathway`'s run (fuse-all+lr
+/// on the export pathway: the head fused with the census SGM computed over the whole map, that
+/// with the SGM; fuse-census+lr on the native one: the head fused with the census SGM; rejected
+/// cells kept at the bilinear step) without the refinement stage, rows top to bottom, values
+/// little-endian: what the workload's `refined` digest must be.
 fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8], right: &[u8]) -> u32 {
     let (height, width) = (48, 160);
     let (options, refine) = workload::preset(pathway);
     let want = match pathway {
-        Pathway::Export => RefineInput::FusedLr,
+        Pathway::Export => RefineInput::FusedAllLr,
         Pathway::Native => RefineInput::FusedCensusLr,
     };
     assert_eq!(refine.input, want);
@@ -157,16 +125,16 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
     let mut source = SlicePair::new(left, right, width, height).unwrap();
     pipeline.run(&mut source, &options, &mut arena, &mut maps).unwrap();
     let head = (&maps.head[..], &maps.mask[..]);
+    let (census, census_mask) = census_whole_map(left, right, width, height, options.head_candidates);
+    let with_census = (&census[..], &census_mask[..]);
+    let (first, first_mask) = fuse_grid(head, &maps.confidence, with_census, cols, census::FUSE_HEAD_WEIGHT).unwrap();
     let (mut grid, mask) = match pathway {
         Pathway::Export => {
             let sgm = (&maps.sgm[..], &maps.sgm_mask[..]);
-            fuse_grid(head, &maps.confidence, sgm, cols, fuse_head_weight(width)).unwrap()
+            let first = (&first[..], &first_mask[..]);
+            fuse_grid(first, &maps.confidence, sgm, cols, census::FUSE_ALL_FIRST_WEIGHT).unwrap()
         }
-        Pathway::Native => {
-            let (census, census_mask) = census_whole_map(left, right, width, height, options.head_candidates);
-            let second = (&census[..], &census_mask[..]);
-            fuse_grid(head, &maps.confidence, second, cols, census::FUSE_HEAD_WEIGHT).unwrap()
-        }
+        Pathway::Native => (first, first_mask),
     };
     for (row, m) in grid.chunks_exact_mut(cols).zip(mask.chunks_exact(cols)) {
         fill_rejected(row, m).unwrap();

@@ -8,6 +8,7 @@
 //! the arena grows as documented. The fused rows the pipeline streams are `lr::fuse_row` of
 //! its own head and SGM rows with their checks.
 
+use bino_core::census;
 use bino_core::lr::{fill_rejected, fuse_head_weight};
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
@@ -21,6 +22,7 @@ use bino_host::data::synthetic;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
 use bino_host::int8::Int8Model;
 use bino_host::readout::fuse_grid;
+use bino_tests::census_whole_map;
 
 const MAX_COLS: usize = 16;
 
@@ -102,7 +104,7 @@ impl Collect {
             RefineInput::NolinkLr => Some(&self.wta_mask),
             RefineInput::SgmLr => Some(&self.sgm_mask),
             RefineInput::HeadLr => Some(&self.head_mask),
-            RefineInput::FusedLr | RefineInput::FusedCensusLr => Some(&self.fused_mask),
+            RefineInput::FusedLr | RefineInput::FusedCensusLr | RefineInput::FusedAllLr => Some(&self.fused_mask),
             _ => None,
         }
     }
@@ -113,7 +115,9 @@ impl Collect {
             RefineInput::Nolink | RefineInput::NolinkLr => (&self.wta, &self.wta_mask),
             RefineInput::Sgm | RefineInput::SgmLr => (&self.sgm, &self.sgm_mask),
             RefineInput::Head | RefineInput::HeadLr => (&self.head, &self.head_mask),
-            RefineInput::FusedLr | RefineInput::FusedCensusLr => (&self.fused, &self.fused_mask),
+            RefineInput::FusedLr | RefineInput::FusedCensusLr | RefineInput::FusedAllLr => {
+                (&self.fused, &self.fused_mask)
+            }
         };
         let mut grid = map.clone();
         if self.mask(input).is_some() {
@@ -356,7 +360,7 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
     let opts = options(false, false);
     let refine = Refine::for_options(&opts);
     assert_eq!(refine.input, RefineInput::SgmLr);
-    assert_eq!(Refine::for_options(&options(true, true)).input, RefineInput::FusedLr);
+    assert_eq!(Refine::for_options(&options(true, true)).input, RefineInput::FusedAllLr);
     assert_eq!(Refine::for_options(&options(true, false)).input, RefineInput::SgmLr);
     let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap();
     assert_eq!(out.refined, whole_map(&s, &out, &refine));
@@ -371,6 +375,8 @@ fn without_the_head_the_rule_refines_sgm_lr_and_head_inputs_are_refused() {
         (head_only, RefineInput::HeadLr),
         (opts, RefineInput::FusedLr),
         (head_only, RefineInput::FusedLr),
+        (opts, RefineInput::FusedAllLr),
+        (head_only, RefineInput::FusedAllLr),
     ] {
         let refine = Refine::of(input);
         let err = run(&pipeline, &s, &opts, Some(&refine)).err();
@@ -395,10 +401,15 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
     let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
     let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
     let head_lr = options(true, true);
-    let refine = Refine::for_options(&head_lr);
-    // One band: the refinement fits beside the streams in the encoder's scratch.
+    let refine = Refine::of(RefineInput::FusedLr);
+    // One band: the refinement (and for fuse-all the census SGM) fits beside the streams in the
+    // encoder's scratch.
     assert_eq!(arena_bytes_head_lr(48, 160, MAX_COLS), 486_918);
     assert_eq!(arena_bytes_refined(48, 160, &head_lr, &refine), 486_918);
+    let fuse_all = Refine::for_options(&head_lr);
+    assert_eq!(arena_bytes_refined(48, 160, &head_lr, &fuse_all), 486_918);
+    // Several bands: the census SGM's stream and its rows kept for the head's check add to it.
+    assert!(arena_bytes_refined(96, 160, &head_lr, &fuse_all) > arena_bytes_refined(96, 160, &head_lr, &refine));
     let sgm = options(false, false);
     assert_eq!(
         arena_bytes_refined(48, 160, &sgm, &Refine::for_options(&sgm)),
@@ -415,8 +426,11 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
     assert_eq!(refine_bytes(48, 160, &plain), 12_085);
     // Several bands: the state (and for a head input the view ring) adds to the streams; the
     // row scratch lives in the encoder's.
-    for (height, opts) in [(96, head_lr), (96, sgm), (480, head_lr)] {
-        let r = Refine::for_options(&opts);
+    for (height, opts, r) in [
+        (96, head_lr, refine),
+        (96, sgm, Refine::for_options(&sgm)),
+        (480, head_lr, refine),
+    ] {
         let growth = arena_bytes_refined(height, 160, &opts, &r) - arena_bytes_for(height, 160, &opts);
         let state = refine_bytes(height, 160, &r) - refine_bytes(48, 160, &r) + 241; // token rows 161 B, masks 80 B
         assert_eq!(growth, state, "{height} {}", r.input.name());
@@ -520,6 +534,72 @@ fn the_native_pathway_refines_its_fusion_with_the_census_as_the_whole_map() {
             run(&pipeline, &s, &options(true, true), Some(&refine)).unwrap_err(),
             missing
         );
+    }
+}
+
+/// The export pathway's three-way fusion (`fuse-all+lr`, the rule's and `bino run`'s default):
+/// the census SGM streamed beside the matching over one band and many, its fused rows `fuse_row`
+/// of the run's own head with a census SGM computed independently over the whole map, then of
+/// that with the run's SGM; every pixel row refined as the whole map of that grid; the other
+/// readouts unchanged by it. The native pathway refuses it.
+#[test]
+fn the_export_pathway_refines_the_head_fused_with_the_census_and_the_sgm_as_the_whole_map() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let opts = options(true, true);
+    for ((width, height), equalise) in SIZES.into_iter().flat_map(|size| [(size, false), (size, true)]) {
+        let s = scene_for(width, height, equalise);
+        let plain = run(&pipeline, &s, &opts, None).unwrap();
+        let refine = Refine {
+            equalise,
+            ..Refine::of(RefineInput::FusedAllLr)
+        };
+        let what = format!("{width}x{height} fuse-all+lr equalise {equalise}");
+        let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
+        assert_eq!(out.refined_rows, (0..height).collect::<Vec<_>>(), "{what}");
+        assert_eq!(out.fused_rows, (0..height / 4).collect::<Vec<_>>(), "{what}");
+        assert!(out.refine_stage_ok, "{what}");
+        let c = out.cols;
+        let (census, census_mask) = census_whole_map(&s.left, &s.right, width, height, opts.head_candidates);
+        let head = (&out.head[..], &out.head_mask[..]);
+        let (first, first_mask) = fuse_grid(
+            head,
+            &out.head_confidence,
+            (&census, &census_mask),
+            c,
+            census::FUSE_HEAD_WEIGHT,
+        )
+        .unwrap();
+        let (fused, kept) = fuse_grid(
+            (&first, &first_mask),
+            &out.head_confidence,
+            (&out.sgm, &out.sgm_mask),
+            c,
+            census::FUSE_ALL_FIRST_WEIGHT,
+        )
+        .unwrap();
+        assert!(
+            (&fused, &kept) == (&out.fused, &out.fused_mask),
+            "{what}: {}",
+            first_difference(&out.fused, &fused, c)
+        );
+        assert_ne!(out.fused, plain.fused, "{what}: the census moved some cells");
+        let want = whole_map(&s, &out, &refine);
+        assert!(
+            out.refined == want,
+            "{what}: {}",
+            first_difference(&out.refined, &want, width)
+        );
+        assert!(
+            (&out.wta, &out.sgm, &out.head, &out.head_mask) == (&plain.wta, &plain.sgm, &plain.head, &plain.head_mask),
+            "{what}"
+        );
+        let native = Options {
+            pathway: bino_core::pipeline::Pathway::Native,
+            ..opts
+        };
+        let missing = Error::MissingReadout { readout: "fuse-all+lr" };
+        assert_eq!(run(&pipeline, &s, &native, Some(&refine)).unwrap_err(), missing);
     }
 }
 

@@ -197,19 +197,24 @@ pub enum RefineInput {
     /// checks as [`RefineInput::FusedLr`] fuses the head and SGM, the head's share
     /// [`crate::census::FUSE_HEAD_WEIGHT`] (native pathway; needs [`Options::head_lr`]).
     FusedCensusLr,
+    /// The shared head fused with the census SGM as in [`RefineInput::FusedCensusLr`], and
+    /// that fused with the descriptor SGM as in [`RefineInput::FusedLr`], its share
+    /// [`crate::census::FUSE_ALL_FIRST_WEIGHT`] (export pathway; needs [`Options::head`] and
+    /// [`Options::head_lr`]).
+    FusedAllLr,
 }
 
 impl RefineInput {
     /// The rule: the best readout each run has. On the export pathway
-    /// [`RefineInput::FusedLr`] when the run checks the head ([`Options::head`] and
-    /// [`Options::head_lr`]), else [`RefineInput::SgmLr`] (the default of `bino run` is
-    /// `fuse+lr+ref`). On the native pathway with the head's check
+    /// [`RefineInput::FusedAllLr`] when the run checks the head ([`Options::head`] and
+    /// [`Options::head_lr`]; the default of `bino run` is `fuse-all+lr+ref`), else
+    /// [`RefineInput::SgmLr`]. On the native pathway with the head's check
     /// [`RefineInput::FusedCensusLr`] (the head fused with the census SGM), else head.
     pub const fn for_options(opts: &Options) -> Self {
         match opts.pathway {
             Pathway::Native if opts.head_lr => RefineInput::FusedCensusLr,
             Pathway::Native => RefineInput::Head,
-            Pathway::Export if opts.head && opts.head_lr => RefineInput::FusedLr,
+            Pathway::Export if opts.head && opts.head_lr => RefineInput::FusedAllLr,
             Pathway::Export => RefineInput::SgmLr,
         }
     }
@@ -225,6 +230,7 @@ impl RefineInput {
             RefineInput::HeadLr => "head+lr",
             RefineInput::FusedLr => "fuse+lr",
             RefineInput::FusedCensusLr => "fuse-census+lr",
+            RefineInput::FusedAllLr => "fuse-all+lr",
         }
     }
 
@@ -232,7 +238,11 @@ impl RefineInput {
     pub const fn uses_head(self) -> bool {
         matches!(
             self,
-            RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr | RefineInput::FusedCensusLr
+            RefineInput::Head
+                | RefineInput::HeadLr
+                | RefineInput::FusedLr
+                | RefineInput::FusedCensusLr
+                | RefineInput::FusedAllLr
         )
     }
 
@@ -240,7 +250,7 @@ impl RefineInput {
     pub const fn needs_head_check(self) -> bool {
         matches!(
             self,
-            RefineInput::HeadLr | RefineInput::FusedLr | RefineInput::FusedCensusLr
+            RefineInput::HeadLr | RefineInput::FusedLr | RefineInput::FusedCensusLr | RefineInput::FusedAllLr
         )
     }
 

@@ -1,12 +1,14 @@
-//! The census SGM ([`crate::census`]) as a stage of the native pathway, for its fused readout
-//! ([`RefineInput::FusedCensusLr`](super::RefineInput::FusedCensusLr)).
+//! The census SGM ([`crate::census`]) as a stage of either pathway, for the fused readouts
+//! ([`RefineInput::FusedCensusLr`](super::RefineInput::FusedCensusLr) on the native pathway,
+//! [`RefineInput::FusedAllLr`](super::RefineInput::FusedAllLr) on the export one).
 //!
-//! Token row `t`'s census row is computed just before the head takes its pair token row, while
-//! the band holding it is in the buffer: it reads view rows `4t - 2 ..= 4t + 5`, which lie inside
-//! that band (the band plan keeps rows at least [`CUT_MARGIN`] token rows from a cut; the
-//! image's own edges clamp). The SGM runs over the token rows top to bottom, once each, as the
-//! host's whole-map readout does. The row waits in a ring of [`RING_ROWS`] until the head's
-//! checked row `t` comes out ([`HEAD_LAG`] rows later), and the two are fused by
+//! Token row `t`'s census row is computed while the band holding it is in the buffer (native:
+//! just before the head takes its pair token row; export: beside the row's matching): it reads
+//! view rows `4t - 2 ..= 4t + 5`, which lie inside that band (the band plan keeps rows at least
+//! [`CUT_MARGIN`] token rows from a cut; the image's own edges clamp). The SGM runs over the
+//! token rows top to bottom, once each, as the host's whole-map readout does. The row waits in
+//! a ring until the head's checked row `t` comes out (native: [`RING_ROWS`], [`HEAD_LAG`] rows
+//! later; export: as many rows as the head's check keeps), and the two are fused by
 //! [`fuse_row`] with the head's share [`census::FUSE_HEAD_WEIGHT`].
 
 use super::refine_stage::{BandView, CUT_MARGIN, HEAD_LAG};
@@ -17,16 +19,18 @@ use crate::config::{CELL_W, PATCH_H};
 use crate::lr::{fuse_row, CheckedRow};
 use crate::Error;
 
-/// Census rows kept for the head: the row being fused and the [`HEAD_LAG`] computed after it.
+/// Census rows the native pathway keeps for the head: the row being fused and the
+/// [`HEAD_LAG`] computed after it.
 pub(super) const RING_ROWS: usize = HEAD_LAG + 1;
 
 // The census window reaches two view rows beyond a token row's; the band plan's margin keeps
 // them inside the band that holds the row.
 const _: () = assert!(PATCH_H * CUT_MARGIN >= CENSUS_RADIUS);
 
-/// Arena bytes of the stage for views `width` px wide and a head of `candidates`: the census
-/// SGM's stream, the ring of rows and masks, and the fused row and its mask.
-pub(super) const fn bytes(width: usize, candidates: usize) -> usize {
+/// Arena bytes of the stage for views `width` px wide, a head of `candidates` and a ring of
+/// `ring` rows: the census SGM's stream, the ring of rows and masks, and the fused row and its
+/// mask.
+pub(super) const fn bytes(width: usize, candidates: usize, ring: usize) -> usize {
     let cols = width / CELL_W;
     let n = census::disparities(candidates);
     sum(&[
@@ -36,10 +40,8 @@ pub(super) const fn bytes(width: usize, candidates: usize) -> usize {
         census::scratch_u16_len(width, n)
             .saturating_mul(2)
             .saturating_add(ALIGN_SLACK),
-        cols.saturating_mul(RING_ROWS)
-            .saturating_mul(2)
-            .saturating_add(ALIGN_SLACK),
-        cols.saturating_mul(RING_ROWS),
+        cols.saturating_mul(ring).saturating_mul(2).saturating_add(ALIGN_SLACK),
+        cols.saturating_mul(ring),
         cols.saturating_mul(2).saturating_add(ALIGN_SLACK),
         cols,
     ])
@@ -50,6 +52,8 @@ pub(super) struct CensusStage<'a> {
     sgm: CensusSgm<'a>,
     cols: usize,
     height: usize,
+    /// Rows of the ring.
+    ring: usize,
     rows: &'a mut [u16],
     masks: &'a mut [u8],
     /// The fused row and its mask (1 where the head or the census passes its check).
@@ -62,23 +66,25 @@ pub(super) struct CensusStage<'a> {
 }
 
 impl<'a> CensusStage<'a> {
-    /// The stage for `height x width` views and a head of `candidates`, cut from the front of
-    /// `arena` ([`bytes`]); its check keeps cells within `lr_max_diff_q8`. Returns it and the
-    /// bytes it took.
+    /// The stage for `height x width` views, a head of `candidates` and a ring of `ring` rows
+    /// (at least one), cut from the front of `arena` ([`bytes`]); its check keeps cells within
+    /// `lr_max_diff_q8`. Returns it and the bytes it took.
     pub(super) fn carve(
         arena: &'a mut [u8],
         width: usize,
         height: usize,
         candidates: usize,
         lr_max_diff_q8: u16,
+        ring: usize,
     ) -> Result<(Self, usize), Error> {
         let cols = width / CELL_W;
         let n = census::disparities(candidates);
-        let mut carver = Carver::new(arena, bytes(width, candidates))?;
+        let ring = ring.max(1);
+        let mut carver = Carver::new(arena, bytes(width, candidates, ring))?;
         let s32 = carver.u32s(census::scratch_u32_len(width, n))?;
         let s16 = carver.u16s(census::scratch_u16_len(width, n))?;
-        let rows = carver.u16s(cols.saturating_mul(RING_ROWS))?;
-        let masks = carver.u8s(cols.saturating_mul(RING_ROWS))?;
+        let rows = carver.u16s(cols.saturating_mul(ring))?;
+        let masks = carver.u8s(cols.saturating_mul(ring))?;
         let out = carver.u16s(cols)?;
         let out_mask = carver.u8s(cols)?;
         let sgm = CensusSgm::new(width, n, census::DEFAULT_PENALTIES, lr_max_diff_q8, s32, s16)?;
@@ -86,6 +92,7 @@ impl<'a> CensusStage<'a> {
             sgm,
             cols,
             height,
+            ring,
             rows,
             masks,
             out,
@@ -98,7 +105,7 @@ impl<'a> CensusStage<'a> {
 
     /// The ring slot of token row `row`.
     fn slot(&self, row: usize) -> core::ops::Range<usize> {
-        let at = (row % RING_ROWS) * self.cols;
+        let at = (row % self.ring) * self.cols;
         at..at + self.cols
     }
 
@@ -130,7 +137,7 @@ impl<'a> CensusStage<'a> {
         let (Some(disparity), Some(kept)) = (self.rows.get_mut(slot.clone()), self.masks.get_mut(slot)) else {
             return Err(Error::BufferSize {
                 what: "census rows",
-                expected: self.cols * RING_ROWS,
+                expected: self.cols.saturating_mul(self.ring),
                 found: self.rows.len(),
             });
         };
@@ -142,11 +149,11 @@ impl<'a> CensusStage<'a> {
     /// Fuses the head's checked row `row` (`head`, its mask and confidence) with the census
     /// row kept for it into [`CensusStage::out`] and [`CensusStage::out_mask`].
     pub(super) fn fuse(&mut self, row: usize, head: &[u16], head_mask: &[u8], confidence: &[u16]) -> Result<(), Error> {
-        if row >= self.next || row + RING_ROWS < self.next {
+        if row >= self.next || row + self.ring < self.next {
             return Err(Error::OutOfRange {
                 what: "census row kept for the head",
                 value: row,
-                min: self.next.saturating_sub(RING_ROWS),
+                min: self.next.saturating_sub(self.ring),
                 max: self.next.saturating_sub(1),
             });
         }
@@ -154,7 +161,7 @@ impl<'a> CensusStage<'a> {
         let (Some(disparity), Some(kept)) = (self.rows.get(slot.clone()), self.masks.get(slot)) else {
             return Err(Error::BufferSize {
                 what: "census rows",
-                expected: self.cols * RING_ROWS,
+                expected: self.cols.saturating_mul(self.ring),
                 found: self.rows.len(),
             });
         };

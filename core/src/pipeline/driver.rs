@@ -69,8 +69,9 @@ impl<'w> Pipeline<'w> {
     /// go to [`Sink::refined`]. The arena must hold [`arena_bytes_refined`] bytes.
     ///
     /// Errors as [`Pipeline::run`], and [`Error::MissingReadout`] for a head input of a run
-    /// without the head (or, for [`RefineInput::HeadLr`] and [`RefineInput::FusedLr`], without
-    /// its check; the fused one also on the native pathway, which has no SGM),
+    /// without the head (or, for [`RefineInput::HeadLr`], [`RefineInput::FusedLr`] and
+    /// [`RefineInput::FusedAllLr`], without its check; the last two also on the native pathway,
+    /// which has no descriptor SGM; [`RefineInput::FusedCensusLr`] on the export pathway),
     /// [`Error::OutOfRange`] for bad [`RefineParams`].
     pub fn run_refined(
         &self,
@@ -127,7 +128,7 @@ impl<'w> Pipeline<'w> {
             let missing = match r.input {
                 RefineInput::Head => head.is_none(),
                 RefineInput::HeadLr => !head_lr,
-                RefineInput::FusedLr => native || !head_lr,
+                RefineInput::FusedLr | RefineInput::FusedAllLr => native || !head_lr,
                 RefineInput::FusedCensusLr => !native || !head_lr,
                 _ => native,
             };
@@ -272,9 +273,8 @@ impl Context<'_, '_> {
     /// The head's shape in the arena (sized even without a head: see [`arena_bytes_for`]).
     pub(super) fn head_shape(&self) -> ReadoutShape {
         ReadoutShape {
-            candidates: self.opts.head_candidates,
             lr: self.head_lr(),
-            guided: self.opts.penalties.guided(),
+            ..ReadoutShape::of(self.opts, self.refine)
         }
     }
 

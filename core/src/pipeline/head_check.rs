@@ -1,7 +1,8 @@
 //! The head's rows on their way out: forwarded to the sink, kept for the head's left-right
 //! check, checked against the mirrored head's rows (export pathway) or against the right view
 //! read from their own logits (native pathway, one pass), fused with the SGM rows kept for them
-//! (export pathway), and fed to the refinement when it reads a head or fused readout.
+//! (export pathway; for `fuse-all` with the census rows first) or with the census rows (native
+//! pathway), and fed to the refinement when it reads a head or fused readout.
 
 use super::api::{FusedRow, HeadChecked, RefineInput, Sink, Stage};
 use super::census_stage::CensusStage;
@@ -197,6 +198,25 @@ impl<'a> HeadCheck<'a> {
 }
 
 impl Fusion<'_> {
+    /// `fuse-all`: the checked left head row `head` (row `row`, mask `head_mask`) fused with the
+    /// census row kept for it, then that with the SGM row kept in slot `slot`.
+    fn fuse_all(
+        &mut self,
+        slot: core::ops::Range<usize>,
+        census: &mut CensusStage<'_>,
+        row: usize,
+        head: &[u16],
+        head_mask: &[u8],
+    ) -> Result<(), Error> {
+        let confidence = self.confidence_rows.get(slot.clone()).ok_or(Error::BufferSize {
+            what: "fused readout: confidence rows",
+            expected: slot.end,
+            found: self.confidence_rows.len(),
+        })?;
+        census.fuse(row, head, head_mask, confidence)?;
+        self.fuse(slot, census.out, census.out_mask)
+    }
+
     /// Fuses the checked left head row `head` (its mask `head_mask`) with the confidence and
     /// SGM rows kept in slot `slot` into [`Fusion::out`] and [`Fusion::out_mask`].
     fn fuse(&mut self, slot: core::ops::Range<usize>, head: &[u16], head_mask: &[u8]) -> Result<(), Error> {
@@ -225,10 +245,12 @@ impl Fusion<'_> {
 }
 
 /// Checks the mirrored head's rows against the left rows kept for them, fuses the checked rows
-/// with the SGM's; feeds the refinement the filled left row (head+lr) or fused row (fuse+lr).
+/// with the SGM's (with a census stage: with the census's first, `fuse-all`); feeds the
+/// refinement the filled left row (head+lr) or fused row (fuse+lr, fuse-all+lr).
 pub(super) struct CheckedRows<'k, 'a, 'b, K> {
     pub(super) sink: &'k mut K,
     pub(super) check: &'k mut HeadCheck<'a>,
+    pub(super) census: Option<&'k mut CensusStage<'a>>,
     pub(super) refine: Option<Feed<'k, 'a, 'b>>,
 }
 
@@ -258,7 +280,11 @@ impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
         });
         // Sizes are equal by construction; a failure emits no fused row, and a fuse+lr
         // refinement misses the row, which it reports.
-        let fused = fusion.fuse(slot, left, mask).is_ok();
+        let fused = match self.census.as_deref_mut() {
+            Some(census) => fusion.fuse_all(slot, census, row.row, left, mask),
+            None => fusion.fuse(slot, left, mask),
+        }
+        .is_ok();
         if fused {
             self.sink.fused(&FusedRow {
                 row: row.row,
@@ -268,8 +294,10 @@ impl<K: Sink> HeadSink for CheckedRows<'_, '_, '_, K> {
         }
         if let Some(feed) = self.refine.as_mut() {
             match feed.input {
-                RefineInput::FusedLr if fused => feed.push(row.row, fusion.out, Some(fusion.out_mask), self.sink),
-                RefineInput::FusedLr => {}
+                RefineInput::FusedLr | RefineInput::FusedAllLr if fused => {
+                    feed.push(row.row, fusion.out, Some(fusion.out_mask), self.sink)
+                }
+                RefineInput::FusedLr | RefineInput::FusedAllLr => {}
                 _ => feed.push(row.row, left, Some(mask), self.sink),
             }
         }

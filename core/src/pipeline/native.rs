@@ -81,9 +81,11 @@ pub(super) const fn arena_bytes(height: usize, width: usize, opts: &Options, ref
 /// reads the fused readout ([`RefineInput::FusedCensusLr`]).
 const fn census_bytes(width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
     match refine {
-        Some(r) if matches!(r.input, RefineInput::FusedCensusLr) => {
-            aligned(census_stage::bytes(width, opts.head_candidates))
-        }
+        Some(r) if matches!(r.input, RefineInput::FusedCensusLr) => aligned(census_stage::bytes(
+            width,
+            opts.head_candidates,
+            census_stage::RING_ROWS,
+        )),
         _ => 0,
     }
 }
@@ -231,7 +233,7 @@ impl<'a, 'w> Readouts<'a, 'w> {
             Some(r) if r.input == RefineInput::FusedCensusLr => {
                 let nd = ctx.opts.head_candidates;
                 let lr = ctx.opts.lr_max_diff_q8;
-                let (stage, used) = CensusStage::carve(census, ctx.width, ctx.height, nd, lr)?;
+                let (stage, used) = CensusStage::carve(census, ctx.width, ctx.height, nd, lr, census_stage::RING_ROWS)?;
                 (Some(stage), used)
             }
             _ => (None, 0),

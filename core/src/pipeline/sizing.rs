@@ -2,8 +2,8 @@
 //! the driver and the streams cut the arena by (saturating, so an absurd size is never a small
 //! wrong one).
 
-use super::api::{Options, Pathway, Refine};
-use super::{native, refine_stage};
+use super::api::{Options, Pathway, Refine, RefineInput};
+use super::{census_stage, native, refine_stage};
 use crate::arena::ALIGN_SLACK;
 use crate::config::{BAND_TOKEN_ROWS, CELL_W, DIM, PATCH_H};
 use crate::model::encoder;
@@ -103,21 +103,25 @@ pub(super) const fn check_rows_bytes(cols: usize, rows: usize) -> usize {
 }
 
 /// What sizes an export-pathway run's readout streams: the head's disparity candidates,
-/// whether it is checked ([`Options::head_lr`]), and whether the SGM is guided
-/// ([`Penalties::edge`]: two guide rows and two previous ones).
+/// whether it is checked ([`Options::head_lr`]), whether the SGM is guided
+/// ([`Penalties::edge`]: two guide rows and two previous ones), and whether the census SGM
+/// runs beside it (the refinement reads [`RefineInput::FusedAllLr`]).
 #[derive(Clone, Copy)]
 pub(super) struct ReadoutShape {
     pub(super) candidates: usize,
     pub(super) lr: bool,
     pub(super) guided: bool,
+    pub(super) census: bool,
 }
 
 impl ReadoutShape {
-    const fn of(opts: &Options) -> Self {
+    pub(super) const fn of(opts: &Options, refine: Option<&Refine>) -> Self {
+        let lr = opts.head && opts.head_lr;
         ReadoutShape {
             candidates: opts.head_candidates,
-            lr: opts.head && opts.head_lr,
+            lr,
             guided: opts.penalties.guided(),
+            census: lr && uses_census(refine),
         }
     }
 
@@ -127,20 +131,38 @@ impl ReadoutShape {
             candidates: crate::config::HEAD_MAX_DISP,
             lr,
             guided: false,
+            census: false,
         }
     }
 }
 
+/// Whether the refinement reads the export pathway's census fusion.
+const fn uses_census(refine: Option<&Refine>) -> bool {
+    matches!(
+        refine,
+        Some(Refine {
+            input: RefineInput::FusedAllLr,
+            ..
+        })
+    )
+}
+
 /// Arena bytes of the readout streams (with the head, and its check when `head.lr`; the check
-/// needs a second head stream only when `streaming` several bands).
+/// needs a second head stream only when `streaming` several bands; the census stage when
+/// `head.census`, its ring as long as the check's).
 pub(super) const fn stream_bytes(cols: usize, max_cols: usize, head: ReadoutShape, streaming: bool) -> usize {
     let check = if head.lr {
         head_check_bytes(cols, head.candidates, streaming)
     } else {
         0
     };
+    let census = if head.census {
+        census_stage::bytes(cols.saturating_mul(CELL_W), head.candidates, HEAD_CHECK_ROWS)
+    } else {
+        0
+    };
     let stream = head::arena_bytes_with(HeadKind::Export, cols, head.candidates);
-    sum(&[matching_bytes(cols, max_cols, head.guided), stream, check])
+    sum(&[matching_bytes(cols, max_cols, head.guided), stream, check, census])
 }
 
 /// Arena bytes the pipeline needs for a `height x width` pair with `max_cols` candidates
@@ -178,7 +200,7 @@ pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, re
 /// The arena bytes of a run with `opts`, refined when `refine` is given, on either pathway.
 pub(super) const fn arena_bytes_run(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
     match opts.pathway {
-        Pathway::Export => arena_bytes_of(height, width, opts.max_cols, ReadoutShape::of(opts), refine),
+        Pathway::Export => arena_bytes_of(height, width, opts.max_cols, ReadoutShape::of(opts, refine), refine),
         Pathway::Native => native::arena_bytes(height, width, opts, refine),
     }
 }

@@ -1,7 +1,9 @@
 //! The export pathway's readout streams: per kept token row the no-linkage WTA, SGM, both
-//! left-right checks, the shared head (and its check) and the refinement's input.
+//! left-right checks, the census SGM (for `fuse-all`), the shared head (and its check) and the
+//! refinement's input.
 
 use super::api::{MatchedRow, RefineInput, Sink, Stage};
+use super::census_stage::{self, CensusStage};
 use super::driver::Context;
 use super::feeding::kept_row;
 use super::head_check::{head_step, CheckedRows, Feed, HeadCheck, HeadRows};
@@ -9,6 +11,7 @@ use super::refine_stage::{self, BandView, RefineIo, RefineStage};
 use super::sizing::{matching_bytes, refine_parts, stream_bytes, HEAD_CHECK_ROWS};
 use crate::arena::Carver;
 use crate::band::Band;
+use crate::census;
 use crate::config::{CELL_W, PATCH_H};
 use crate::lr::{consistent_row, fuse_head_weight, right_view_costs, wta_costs};
 use crate::matching::{cost_row, inverse_norms, match_row};
@@ -44,6 +47,8 @@ pub(super) struct Streams<'a, 'w> {
     head: Option<HeadStream<'a, 'w>>,
     /// With `head_lr`: the mirrored head and the check.
     check: Option<(Option<HeadStream<'a, 'w>>, HeadCheck<'a>)>,
+    /// With a `fuse-all+lr` refinement: the census SGM, its rows kept for the head's check.
+    census: Option<CensusStage<'a>>,
     /// With the refinement: the readout it reads and its state.
     refine: Option<(RefineInput, RefineStage<'a>)>,
     pub(super) used: usize,
@@ -56,8 +61,29 @@ impl<'a, 'w> Streams<'a, 'w> {
     /// a mirrored head beside the left one instead of rerunning the band after it.
     pub(super) fn new(ctx: &Context<'_, 'w>, arena: &'a mut [u8], streaming: bool) -> Result<Self, Error> {
         let (cols, max_cols) = (ctx.cols, ctx.opts.max_cols);
-        let streams = stream_bytes(cols, max_cols, ctx.head_shape(), streaming);
+        let shape = ctx.head_shape();
+        let streams = stream_bytes(cols, max_cols, shape, streaming);
         let (arena, refine_arena) = arena.split_at_mut(streams.min(arena.len()));
+        // The census stage sits at the front of the streams' region (its own alignment).
+        let census_len = if shape.census {
+            census_stage::bytes(ctx.width, shape.candidates, HEAD_CHECK_ROWS)
+        } else {
+            0
+        };
+        let (census_arena, arena) = arena.split_at_mut(census_len.min(arena.len()));
+        let (census, census_used) = if shape.census {
+            let (stage, used) = CensusStage::carve(
+                census_arena,
+                ctx.width,
+                ctx.height,
+                shape.candidates,
+                ctx.opts.lr_max_diff_q8,
+                HEAD_CHECK_ROWS,
+            )?;
+            (Some(stage), used)
+        } else {
+            (None, 0)
+        };
         let refine = match ctx.refine {
             Some(r) => {
                 let (state, _) = refine_parts(ctx.height, ctx.width, r);
@@ -136,7 +162,12 @@ impl<'a, 'w> Streams<'a, 'w> {
                     } else {
                         (None, check_arena)
                     };
-                    let weight = fuse_head_weight(ctx.width);
+                    // fuse-all fuses the head with the census first, that with the SGM here.
+                    let weight = if shape.census {
+                        census::FUSE_ALL_FIRST_WEIGHT
+                    } else {
+                        fuse_head_weight(ctx.width)
+                    };
                     let (check, check_used) =
                         HeadCheck::carve(rest, cols, HEAD_CHECK_ROWS, ctx.opts.lr_max_diff_q8, weight)?;
                     used += check_used;
@@ -148,6 +179,8 @@ impl<'a, 'w> Streams<'a, 'w> {
             }
             None => (None, None),
         };
+        // The census stage's bytes precede the rest (`matching` counts from the rest's start).
+        used = census_len.max(census_used).saturating_add(used);
         Ok(Self {
             cols,
             max_cols,
@@ -169,6 +202,7 @@ impl<'a, 'w> Streams<'a, 'w> {
             guide_right,
             head,
             check,
+            census,
             refine,
             used,
             wta_kept: 0,
@@ -282,6 +316,11 @@ impl<'a, 'w> Streams<'a, 'w> {
             // The head's checked row `row` arrives a few rows later; it is fused with this one.
             check.keep_sgm(row, self.sgm_out, self.sgm_mask)?;
         }
+        if let Some(census) = self.census.as_mut() {
+            // While the band holding the row's census window is loaded; kept for the head too.
+            sink.stage(Stage::Sgm);
+            census.compute(row, &io.view)?;
+        }
         sink.matched(&MatchedRow {
             row,
             wta_q8: self.wta,
@@ -295,7 +334,11 @@ impl<'a, 'w> Streams<'a, 'w> {
                 RefineInput::NolinkLr => Some((&*self.wta, Some(&*self.wta_mask))),
                 RefineInput::Sgm => Some((&*self.sgm_out, None)),
                 RefineInput::SgmLr => Some((&*self.sgm_out, Some(&*self.sgm_mask))),
-                RefineInput::Head | RefineInput::HeadLr | RefineInput::FusedLr | RefineInput::FusedCensusLr => None,
+                RefineInput::Head
+                | RefineInput::HeadLr
+                | RefineInput::FusedLr
+                | RefineInput::FusedCensusLr
+                | RefineInput::FusedAllLr => None,
             };
             if let Some((disparity, mask)) = matched {
                 sink.stage(Stage::Refine);
@@ -328,6 +371,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                     let mut rows = CheckedRows {
                         sink: &mut *sink,
                         check,
+                        census: self.census.as_mut(),
                         refine: Feed::checked(&mut self.refine, io, Stage::Head),
                     };
                     head_step(mirror, input, &mut rows)?;
@@ -368,6 +412,7 @@ impl<'a, 'w> Streams<'a, 'w> {
         let mut rows = CheckedRows {
             sink,
             check,
+            census: self.census.as_mut(),
             refine: Feed::checked(&mut self.refine, io, Stage::Head),
         };
         for row in band.keep_from..band.keep_to {

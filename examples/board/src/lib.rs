@@ -4,8 +4,9 @@
 //! [`ARENA_BYTES`]. This library does the rest, the same on the board and on the host: parse the
 //! blob, pull the band's rows one at a time from a [`RowSource`] (here [`Camera`], standing in for
 //! a sensor), and fold every output the pipeline hands its [`Sink`] into the CRC-32 [`Digests`]
-//! the firmware computes (`docs/integration.md`, "The output digests": slots 0-8 of the export
-//! pathway). [`EXPECTED`] holds the firmware's digests of the shipped test band.
+//! the firmware computes (`docs/integration.md`, "The output digests": the native pathway's,
+//! which the board preset runs). [`EXPECTED`] holds the firmware's digests of the shipped test
+//! band.
 #![no_std]
 
 use bino_core::band::Band;
@@ -13,7 +14,7 @@ use bino_core::blob::Blob;
 use bino_core::crc32::Crc32;
 use bino_core::depth::{DepthModel, DisparityUnit, SectorSummary};
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{HeadChecked, MatchedRow, Pipeline, Report, RowSource, Sink};
+use bino_core::pipeline::{FusedRow, HeadChecked, Pipeline, Report, RowSource, Sink};
 use bino_core::preset::{self, CALIBRATION, SECTORS};
 use bino_core::Error;
 
@@ -24,36 +25,25 @@ pub const WIDTH: usize = 160;
 /// Arena bytes the run needs, from the preset's `const fn`.
 pub const ARENA_BYTES: usize = preset::arena_bytes(HEIGHT, WIDTH);
 
-/// The outputs digested, in slot order.
-pub const OUTPUTS: [&str; 9] = [
-    "descriptors_left",
-    "descriptors_right",
-    "wta",
-    "sgm",
-    "left_right",
-    "head",
-    "head_left_right",
-    "refined",
-    "sectors",
-];
+/// The outputs digested, in slot order: those of the preset's native pathway (one encoder pass
+/// on (L, R): its pair tokens, the native head, its one-pass left-right check, the head fused
+/// with the census SGM, the refined pixels and their obstacle summary).
+pub const OUTPUTS: [&str; 6] = ["pair_tokens", "head", "head_left_right", "fused", "refined", "sectors"];
 
 /// The firmware's digests of the shipped 48x160 test band (`firmware-sim/assets/`) on both
 /// Cortex-M cores and on the host (`firmware-sim/measured/m55.json`, `m7.json`).
 pub const EXPECTED: Digests = Digests([
-    0xfd47_6d5f, // descriptors_left
-    0x42a1_ce33, // descriptors_right
-    0x113a_3050, // wta
-    0xb17a_90d3, // sgm
-    0x4c17_6611, // left_right
-    0x5ba3_d7cd, // head
-    0x58d6_4326, // head_left_right
-    0x0f8a_fba5, // refined
-    0xc2e4_7e82, // sectors
+    0x0671_5462, // pair_tokens
+    0x6c08_208a, // head
+    0xfa75_38c0, // head_left_right
+    0xc2c4_9888, // fused
+    0xdd7b_6fae, // refined
+    0x4a07_76c0, // sectors
 ]);
 
 /// CRC-32 (IEEE) of each of [`OUTPUTS`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub struct Digests(pub [u32; 9]);
+pub struct Digests(pub [u32; OUTPUTS.len()]);
 
 /// A camera stand-in: hands over a frame already in memory one row at a time, as a DMA line
 /// buffer would. A real driver waits in `next_row` for the sensor's next line and copies it.
@@ -100,42 +90,40 @@ impl RowSource for Camera<'_> {
 /// Digests every output it is handed, and summarises the refined rows' nearest depth per column
 /// sector.
 struct Recorder {
-    crcs: [Crc32; 9],
+    crcs: [Crc32; OUTPUTS.len()],
     sectors: SectorSummary<SECTORS>,
     /// The first error of the sector summary.
     error: Option<Error>,
 }
 
 impl Sink for Recorder {
-    fn band(&mut self, band: Band, left: &[i8], right: &[i8]) {
-        // The token rows this band keeps (one band: all of them), `cols x 128` codes each.
-        let row_len = left.len() / band.rows.max(1);
+    fn pair_band(&mut self, band: Band, tokens: &[i8]) {
+        // The token rows this band keeps (one band: all of them), `cols x 2 x 128` codes each.
+        let row_len = tokens.len() / band.rows.max(1);
         let kept = (band.keep_from - band.start) * row_len..(band.keep_to - band.start) * row_len;
-        update_i8(&mut self.crcs[0], left.get(kept.clone()).unwrap_or_default());
-        update_i8(&mut self.crcs[1], right.get(kept).unwrap_or_default());
-    }
-
-    fn matched(&mut self, row: &MatchedRow<'_>) {
-        update_u16(&mut self.crcs[2], row.wta_q8);
-        update_u16(&mut self.crcs[3], row.sgm_q8);
-        self.crcs[4].update(row.wta_consistent).update(row.sgm_consistent);
+        update_i8(&mut self.crcs[0], tokens.get(kept).unwrap_or_default());
     }
 
     fn head(&mut self, row: HeadRow<'_>) {
-        update_u16(&mut self.crcs[5], row.disparity_q8);
-        update_u16(&mut self.crcs[5], row.confidence_q8);
+        update_u16(&mut self.crcs[1], row.disparity_q8);
+        update_u16(&mut self.crcs[1], row.confidence_q8);
         for l in row.logits {
-            self.crcs[5].update(&l.to_le_bytes());
+            self.crcs[1].update(&l.to_le_bytes());
         }
     }
 
     fn head_checked(&mut self, row: &HeadChecked<'_>) {
-        update_u16(&mut self.crcs[6], row.right_q8);
-        self.crcs[6].update(row.consistent);
+        update_u16(&mut self.crcs[2], row.right_q8);
+        self.crcs[2].update(row.consistent);
+    }
+
+    fn fused(&mut self, row: &FusedRow<'_>) {
+        update_u16(&mut self.crcs[3], row.disparity_q8);
+        self.crcs[3].update(row.consistent);
     }
 
     fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
-        update_u16(&mut self.crcs[7], disparity_q8);
+        update_u16(&mut self.crcs[4], disparity_q8);
         if let Err(e) = self.sectors.push_row(disparity_q8, None) {
             self.error.get_or_insert(e);
         }
@@ -149,7 +137,7 @@ pub fn run_band(blob: &[u8], camera: &mut impl RowSource, arena: &mut [u8]) -> R
                                                        // Refined rows are Q8 pixels at the band's width.
     let depth = DepthModel::new(&CALIBRATION, camera.width(), DisparityUnit::Pixels)?;
     let mut recorder = Recorder {
-        crcs: [Crc32::new(); 9],
+        crcs: [Crc32::new(); OUTPUTS.len()],
         sectors: SectorSummary::new(&depth, camera.width())?,
         error: None,
     };
@@ -158,7 +146,7 @@ pub fn run_band(blob: &[u8], camera: &mut impl RowSource, arena: &mut [u8]) -> R
         return Err(e);
     }
     let mut digests = recorder.crcs.map(|c| c.finish());
-    digests[8] = sectors_digest(&recorder.sectors);
+    digests[5] = sectors_digest(&recorder.sectors);
     Ok((Digests(digests), report))
 }
 

@@ -23,7 +23,7 @@ fn band_digests_equal_the_firmware() {
     assert!(report.arena_used <= ARENA_BYTES);
 }
 
-/// `EXPECTED` is what the firmware measured on both cores (export pathway).
+/// `EXPECTED` is what the firmware measured on both cores (native pathway, the preset's).
 #[test]
 fn expected_digests_are_the_firmwares() {
     for core in ["m55", "m7"] {
@@ -31,10 +31,10 @@ fn expected_digests_are_the_firmwares() {
             serde_json::from_slice(&read(&format!("firmware-sim/measured/{core}.json"))).unwrap();
         let outputs = json["outputs"].as_array().expect("outputs");
         let digest = |name: &str| {
-            let o = outputs.iter().find(|o| o["pathway"] == "export" && o["name"] == name);
+            let o = outputs.iter().find(|o| o["pathway"] == "native" && o["name"] == name);
             let hex = o
                 .and_then(|o| o["digest"].as_str())
-                .unwrap_or_else(|| panic!("{core}.json: no export digest of {name}"));
+                .unwrap_or_else(|| panic!("{core}.json: no native digest of {name}"));
             u32::from_str_radix(hex, 16).unwrap()
         };
         assert_eq!(

@@ -18,7 +18,7 @@
 //!
 //! Modelled cycles scale by the same ratio as the instructions. The firmware's arena for a
 //! frame is the band pipeline's for an `H x W` image: the preset's `const fn`
-//! ([`arena_bytes`], [`native_arena_bytes`]), exact. [`check`] holds the rule against a second
+//! ([`export_arena_bytes`], [`arena_bytes`]: the board's, native), exact. [`check`] holds the rule against a second
 //! measured band width.
 
 use std::fmt;
@@ -27,7 +27,7 @@ use std::str::FromStr;
 use anyhow::{anyhow, bail, Result};
 use bino_core::band::BandPlan;
 use bino_core::config::{check_view_size, PATCH_H};
-use bino_core::preset::{arena_bytes, native_arena_bytes, OPTIONS};
+use bino_core::preset::{arena_bytes, export_arena_bytes, OPTIONS};
 use serde::Serialize;
 
 use super::{clock, Clock, CoreRun, NATIVE_PREFIX};
@@ -201,8 +201,8 @@ impl Pathway {
     /// The exact arena of a `frame` on this pathway (the preset's `const fn`), bytes.
     pub fn arena_bytes(self, frame: Frame) -> usize {
         match self {
-            Pathway::Export => arena_bytes(frame.height, frame.width),
-            Pathway::Native => native_arena_bytes(frame.height, frame.width),
+            Pathway::Export => export_arena_bytes(frame.height, frame.width),
+            Pathway::Native => arena_bytes(frame.height, frame.width),
         }
     }
 }

@@ -184,8 +184,8 @@ pub fn frames_markdown(runs: &[CoreRun], frames: &FramesReport) -> String {
         md,
         "A frame runs the bands the pipeline cuts it into (48 rows each, overlapping: \
          `bino_core::band::BandPlan`); its figures come from the {}x{} band pair, {RULE}. Times at {clocks}; IPC 1 and the cycle model as above. The arena is the \
-         firmware's for a frame of that size, exact: `preset::arena_bytes(h, w)` (export) and \
-         `preset::native_arena_bytes(h, w)` (native). \"fitted\" adds to each stage a constant per \
+         firmware's for a frame of that size, exact: `preset::export_arena_bytes(h, w)` (export) and \
+         `preset::arena_bytes(h, w)` (native, the board's preset). \"fitted\" adds to each stage a constant per \
          run (per band for the encoder, per token row for the others) fitted through both measured \
          band widths: exact at both, an estimate elsewhere. With more than one band the readouts' \
          state carries from band to band beside the encoder's scratch instead of reusing it, so \

@@ -91,6 +91,11 @@ pub struct CoreCycles {
     pub band_pair_modelled_cycles: f64,
     /// Those cycles in milliseconds at the core's clock.
     pub band_pair_modelled_ms: f64,
+    /// Modelled cycles of one band pair on the native pathway (the board's preset), when the
+    /// firmware ran it.
+    pub native_band_pair_modelled_cycles: Option<f64>,
+    /// Those cycles in milliseconds at the core's clock.
+    pub native_band_pair_modelled_ms: Option<f64>,
     /// The band pair's instructions per class and the adjustments' counts.
     pub class_counts: BTreeMap<String, u64>,
     /// Cycles per instruction of each class, or per adjustment event, on this core.
@@ -169,6 +174,8 @@ impl CoreBudget {
             cycle_model: r.band_pair_modelled_cycles().map(|n| CoreCycles {
                 band_pair_modelled_cycles: n,
                 band_pair_modelled_ms: c.cycles_ms(n),
+                native_band_pair_modelled_cycles: r.native_band_pair_modelled_cycles(),
+                native_band_pair_modelled_ms: r.native_band_pair_modelled_cycles().map(|n| c.cycles_ms(n)),
                 class_counts: r.band_pair_class_counts().unwrap_or_default(),
                 costs: cycles::cost_table(&r.core)
                     .iter()

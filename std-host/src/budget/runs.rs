@@ -282,6 +282,20 @@ impl CoreRun {
             .sum()
     }
 
+    /// Modelled cycles of one band pair on the native pathway (its `native_` stages), with class
+    /// counts; `None` without them or without a native run.
+    pub fn native_band_pair_modelled_cycles(&self) -> Option<f64> {
+        let native: Vec<&StageRun> = self
+            .stages
+            .iter()
+            .filter(|s| s.name.starts_with(NATIVE_PREFIX))
+            .collect();
+        if native.is_empty() {
+            return None;
+        }
+        native.iter().map(|s| s.modelled_cycles(&self.core)).sum()
+    }
+
     /// Per class and adjustment, the band pair's counts (every stage but blob loading).
     pub fn band_pair_class_counts(&self) -> Option<BTreeMap<String, u64>> {
         let mut total = BTreeMap::new();

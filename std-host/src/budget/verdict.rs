@@ -37,10 +37,16 @@ pub fn verdicts(runs: &[CoreRun]) -> Vec<Verdict> {
     for r in runs {
         let n = r.band_pair_instructions();
         let c = clock(&r.core);
+        // The time targets judge the band pair the board runs: its preset's native pathway
+        // where the firmware ran it, else the export pathway.
+        let (board, pathway) = match r.native_band_pair_instructions() {
+            Some(native) => (native, "the board's native pathway"),
+            None => (n, "the export pathway"),
+        };
         match r.core.as_str() {
             "m55" => out.push(Verdict {
                 target: format!(
-                    "Cortex-M55 <= {}M instructions per band pair ({:.1} s at {} MHz, IPC {})",
+                    "Cortex-M55 <= {}M instructions per band pair, {pathway} ({:.1} s at {} MHz, IPC {})",
                     TARGETS.m55_instructions / 1_000_000,
                     Clock::ms(&c, TARGETS.m55_instructions) / 1e3,
                     c.mhz,
@@ -48,24 +54,24 @@ pub fn verdicts(runs: &[CoreRun]) -> Vec<Verdict> {
                 ),
                 measured: format!(
                     "{:.0}M ({:.1}x the target; {:.2} s)",
-                    n as f64 / 1e6,
-                    n as f64 / TARGETS.m55_instructions as f64,
-                    c.ms(n) / 1e3
+                    board as f64 / 1e6,
+                    board as f64 / TARGETS.m55_instructions as f64,
+                    c.ms(board) / 1e3
                 ),
-                met: n <= TARGETS.m55_instructions,
+                met: board <= TARGETS.m55_instructions,
             }),
             "m7" => out.push(Verdict {
                 target: format!(
-                    "Cortex-M7 <= {} s per band pair at {} MHz, IPC {}",
+                    "Cortex-M7 <= {} s per band pair, {pathway}, at {} MHz, IPC {}",
                     TARGETS.m7_seconds, c.mhz, c.ipc
                 ),
                 measured: format!(
                     "{:.2} s ({:.0}M instructions; {:.1}x the target)",
-                    c.ms(n) / 1e3,
-                    n as f64 / 1e6,
-                    c.ms(n) / 1e3 / TARGETS.m7_seconds
+                    c.ms(board) / 1e3,
+                    board as f64 / 1e6,
+                    c.ms(board) / 1e3 / TARGETS.m7_seconds
                 ),
-                met: c.ms(n) / 1e3 <= TARGETS.m7_seconds,
+                met: c.ms(board) / 1e3 <= TARGETS.m7_seconds,
             }),
             _ => {}
         }

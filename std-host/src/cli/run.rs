@@ -39,8 +39,8 @@ pub struct RunArgs {
     /// where both pass their checks, the one that passes elsewhere. census: census matching of
     /// the pixels with SGM (no encoder); fuse-census: the head fused with it as fuse+lr fuses
     /// the head and SGM (on either pathway); fuse-all: the head fused with the census, then with
-    /// the SGM (export pathway). Default: fuse+lr on the export pathway (chosen on held-out train
-    /// pairs and synthetic scenes), fuse-census+lr on the native one.
+    /// the SGM (export pathway). Default: fuse-all+lr on the export pathway (chosen on held-out
+    /// train pairs and synthetic scenes), fuse-census+lr on the native one (the board's).
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]

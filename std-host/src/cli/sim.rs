@@ -29,13 +29,14 @@ pub struct SimArgs {
     /// Int8 weight blob; the default is the checkout's shipped one.
     #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
-    /// Readout drawn: nolink, sgm or head, each optionally +lr, then optionally +ref; default by width.
+    /// Readout drawn: nolink, sgm or head, each optionally +lr, or a checked fusion (fuse+lr,
+    /// fuse-all+lr; native: fuse-census+lr), then optionally +ref; default `bino run`'s.
     ///
     /// nolink, sgm, head: cells their left-right check rejects are dark; +lr: those cells filled
     /// from the left, as `bino eval` scores; each token row as the pipeline streams it. A +ref
     /// readout draws its refined pixel rows as the pipeline's refinement stage streams them. The
-    /// default is the board's for the view's width, refined (export: head+lr+ref up to 160 px,
-    /// sgm+lr+ref above; native: head+lr+ref); the board's pipeline has no fused readout yet.
+    /// default is `bino run`'s for the pathway, refined (export: fuse-all+lr+ref; native, the
+    /// board's: fuse-census+lr+ref).
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]

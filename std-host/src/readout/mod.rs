@@ -451,11 +451,8 @@ pub fn fuse_grid(
     Ok((out, kept))
 }
 
-/// The share, in 256ths, of `fuse-all`'s first fusion (the head with the census SGM) in its
-/// second, with the SGM, where both checks pass (then moved by the head's confidence). Chosen
-/// on the validation sets (`train/experiments.json`, `census_companion`: with the census
-/// uniqueness test it won all eight against `fuse`; 0.75 was tried too).
-pub const FUSE_ALL_FIRST_WEIGHT: u8 = 160;
+/// The share of `fuse-all`'s first fusion in its second: the core's, which the pipeline uses too.
+pub use bino_core::census::FUSE_ALL_FIRST_WEIGHT;
 
 /// The head's share, in 256ths, of a `fuse` cell where both checks pass: the core's rule,
 /// which the board's pipeline follows too.

@@ -46,15 +46,16 @@ impl Pathway {
         Ok(())
     }
 
-    /// The readout `bino run` and `bino sim` use when none is given, the one the board's
-    /// streaming pipeline refines (`bino_core::preset`): on the export pathway `fuse+lr` (the
-    /// head and SGM fused by their checks, better than either on every validation set at 160
-    /// and 320 px: `train/experiments.json`, `fused_readout`), on the native pathway
+    /// The readout `bino run` and `bino sim` use when none is given, the one the streaming
+    /// pipeline refines by its rule (`RefineInput::for_options`; the board's preset runs the
+    /// native one): on the export pathway `fuse-all+lr` (the head fused with the census SGM,
+    /// then with the descriptor SGM, by their checks: better than `fuse+lr` on all eight
+    /// validation sets, `train/experiments.json`, `census_companion`), on the native pathway
     /// `fuse-census+lr` (the native head and the census SGM fused by their checks, better than
     /// the head alone on every validation set: `census_companion`).
     pub fn default_readout(self) -> Readout {
         match self {
-            Pathway::Export => Readout::FUSED_LR,
+            Pathway::Export => Readout::new(Method::FusedAll, true),
             Pathway::Native => Readout::new(Method::CensusFused, true),
         }
     }
@@ -118,12 +119,20 @@ mod tests {
     }
 
     #[test]
-    fn run_and_the_board_fuse_on_the_export_pathway() {
-        assert_eq!(Pathway::Export.default_readout().name(), "fuse+lr");
+    fn run_and_the_pipeline_read_out_the_same_fusion_on_each_pathway() {
+        assert_eq!(Pathway::Export.default_readout().name(), "fuse-all+lr");
         assert_eq!(Pathway::Native.default_readout().name(), "fuse-census+lr");
-        // The board's preset refines the same grids.
-        let board = |opts| bino_core::pipeline::RefineInput::for_options(&opts).name();
-        assert_eq!(board(bino_core::preset::OPTIONS), "fuse+lr");
-        assert_eq!(board(bino_core::preset::NATIVE_OPTIONS), "fuse-census+lr");
+        // The pipeline's rule refines the same grids; the board's preset is the native pathway's.
+        let rule = |opts| bino_core::pipeline::RefineInput::for_options(&opts).name();
+        for pathway in [Pathway::Export, Pathway::Native] {
+            let opts = bino_core::pipeline::Options {
+                pathway: pathway.core(),
+                ..bino_core::preset::OPTIONS
+            };
+            assert_eq!(rule(opts), pathway.default_readout().name(), "{pathway}");
+        }
+        assert_eq!(bino_core::preset::OPTIONS.pathway, Pathway::Native.core());
+        assert_eq!(rule(bino_core::preset::OPTIONS), "fuse-census+lr");
+        assert_eq!(rule(bino_core::preset::EXPORT_OPTIONS), "fuse-all+lr");
     }
 }

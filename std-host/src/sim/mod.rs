@@ -149,7 +149,10 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         head_candidates: crate::readout::head_candidates(width),
     };
     // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
-    let refine = match opts.readout.refine {
+    // The census SGM streams beside a refinement of its fusion only, so an unrefined census
+    // fusion runs that refinement too and draws the fused token rows instead.
+    let census = matches!(input, RefineInput::FusedCensusLr | RefineInput::FusedAllLr);
+    let refine = match opts.readout.refine || census {
         true => Some(Refine::for_width(input, width)),
         false => None,
     };
@@ -231,10 +234,11 @@ fn refine_input(readout: Readout) -> Result<RefineInput> {
         (Method::Fused, true) => RefineInput::FusedLr,
         (Method::Fused, false) => bail!("--readout {readout}: {UNCHECKED_FUSE_NOT_STREAMED}"),
         (Method::CensusFused, true) => RefineInput::FusedCensusLr,
+        (Method::FusedAll, true) => RefineInput::FusedAllLr,
         (Method::Census | Method::CensusFused | Method::FusedAll, _) => bail!(
             "--readout {readout}: the board's streaming pipeline (bino_core::pipeline), which bino sim runs, \
-             streams the census SGM fused with the native head by their checks (fuse-census+lr, \
-             fuse-census+lr+ref, --pathway native); census, fuse-all and the unchecked fuse-census are computed \
+             streams the census SGM fused by the checks (fuse-census+lr with --pathway native, fuse-all+lr \
+             with --pathway export, each optionally +ref); census alone and the unchecked fusions are computed \
              by bino run and bino eval only"
         ),
     })
@@ -258,9 +262,9 @@ fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
         Method::Nolink => sim.pipeline.wta_kept,
         Method::Sgm => sim.pipeline.sgm_kept,
         Method::Head => sim.pipeline.head_kept,
-        Method::Fused | Method::CensusFused => sim.pipeline.fused_kept,
-        // `refine_input` refuses them before a run.
-        Method::Census | Method::FusedAll => 0,
+        Method::Fused | Method::CensusFused | Method::FusedAll => sim.pipeline.fused_kept,
+        // `refine_input` refuses it before a run.
+        Method::Census => 0,
     };
     let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
     vec![
@@ -561,7 +565,9 @@ impl Sink for DisplaySink<'_> {
     }
 
     fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
-        self.draw_pixel_row(row, disparity_q8);
+        if self.readout.refine {
+            self.draw_pixel_row(row, disparity_q8);
+        }
     }
 }
 
