@@ -29,8 +29,10 @@ pub struct SimArgs {
     /// Int8 weight blob; the default is the checkout's shipped one.
     #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     blob: PathBuf,
-    /// Readout drawn: nolink, sgm or head, each optionally +lr, or a checked fusion (fuse+lr,
-    /// fuse-all+lr; native: fuse-census+lr), then optionally +ref; default `bino run`'s.
+    /// Readout drawn (a method, optionally +lr, then optionally +ref); default `bino run`'s.
+    ///
+    /// Methods: nolink, sgm, head, each optionally +lr, and the checked fusions fuse+lr and
+    /// fuse-all+lr (native pathway: fuse-census+lr).
     ///
     /// nolink, sgm, head: cells their left-right check rejects are dark; +lr: those cells filled
     /// from the left, as `bino eval` scores; each token row as the pipeline streams it. A +ref
