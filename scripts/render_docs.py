@@ -701,7 +701,7 @@ STAGE_NOTES = {
     "sgm": "sgm (two streams)",
     "left_right": "left_right",
     "head": "head (the left head, then the mirrored head for its check, fused with the SGM rows)",
-    "refine": "refine (pixel refinement of the fuse+lr grid, depth sectors)",
+    "refine": "refine (pixel refinement of the fuse-all+lr grid, depth sectors)",
     "native_rows": "native_rows",
     "native_encode_pair": "native_encode_pair: one pass on (L, R)",
     "native_sgm": "native_sgm: the census SGM (census codes, cell costs, two streams)",
