@@ -27,8 +27,6 @@ Scored with EVAL.md's metrics against each folder's ground truth (mean over pair
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -38,12 +36,12 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from .check_variants import folder_width
-from .head import StereoHead, head_candidates, load_head, with_candidates
+from .folder_scoring import per_variant, run_cli
+from .head import StereoHead
 from .head_eval import consistent, diagonal_right, fill_rejected
 from .model import BinoEncoder
 from .pairs import load_gray, load_gray_u8, load_gt, load_pairs
-from .probe import encoder_phase_maps, mean_metrics, score
+from .probe import encoder_phase_maps, score
 from .readout_variants import sgm_aggregate
 from .refine import CELL, RefineParams, _popcount, census, upsample_float
 
@@ -224,40 +222,11 @@ def score_folder(encoder: BinoEncoder, head: StereoHead, folder: Path) -> dict[s
         for name, (grid, kept) in maps.items():
             pred = refined(boxed, grid, kept, search)
             per.setdefault(name, []).append(score(pred, gt, valid))
-    return {
-        name: {"mean": mean_metrics(rows), "pairs": dict(zip(names, rows, strict=True))}
-        for name, rows in per.items()
-    }
+    return per_variant(names, per)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    p.add_argument("--encoder", type=Path, required=True, help="encoder the head was trained on")
-    p.add_argument("--head", type=Path, required=True, help="native head checkpoint")
-    p.add_argument("--folders", type=Path, nargs="+", required=True, help="labeled val folders")
-    p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
-    p.add_argument("--out", type=Path, help="also write the JSON here")
-    args = p.parse_args(argv)
-    if args.threads > 0:
-        torch.set_num_threads(args.threads)
-    from .export import load_encoder
-
-    encoder = load_encoder(args.encoder).eval()
-    loaded = load_head(args.head).eval()
-    result: dict[str, Any] = {"head": str(args.head), "folders": {}}
-    for folder in args.folders:
-        width = folder_width(folder)
-        head = with_candidates(loaded, head_candidates(width)).eval()
-        scores = score_folder(encoder, head, folder)
-        result["folders"][str(folder)] = {"width": width, **scores}
-        print(f"{folder} (w{width}):", flush=True)
-        for name, s in scores.items():
-            m = s["mean"]
-            print(f"  {name:28s} {m['epe']:.3f} / {m['bad1tok']:.2f}", flush=True)
-        if args.out is not None:
-            args.out.write_text(json.dumps(result, indent=1) + "\n")
+    run_cli(__doc__ or "", "native head checkpoint", score_folder, argv)
 
 
 if __name__ == "__main__":

@@ -21,8 +21,6 @@ width). Never the eval split: the check is chosen here.
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -31,11 +29,12 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from .head import StereoHead, head_candidates, load_head, with_candidates
+from .folder_scoring import per_variant, run_cli
+from .head import StereoHead
 from .head_eval import LR_MAX_DIFF, consistent, diagonal_right, fill_rejected, pair_inputs
 from .model import BinoEncoder
 from .pairs import load_gray, load_gt, load_pairs
-from .probe import mean_metrics, score, upsample_disparity
+from .probe import score, upsample_disparity
 
 Grid = NDArray[np.float32]
 Mask = NDArray[np.bool_]
@@ -81,10 +80,7 @@ def score_folder(encoder: BinoEncoder, head: StereoHead, folder: Path) -> dict[s
             metrics = score(upsample_disparity(filled), gt, valid)
             metrics["kept"] = 100.0 if kept is None else float(100.0 * kept.mean())
             per.setdefault(name, []).append(metrics)
-    return {
-        name: {"mean": mean_metrics(rows), "pairs": dict(zip(names, rows, strict=True))}
-        for name, rows in per.items()
-    }
+    return per_variant(names, per)
 
 
 def summary(m: dict[str, float]) -> str:
@@ -92,40 +88,8 @@ def summary(m: dict[str, float]) -> str:
     return f"{m['epe']:.3f} / {m['bad1tok']:.2f} (kept {m['kept']:.1f} %)"
 
 
-def folder_width(folder: Path) -> int:
-    """The views' width of a folder's first pair (every pair of a folder shares it)."""
-    first = load_pairs(folder, "val")[0]
-    return int(load_gray(first.left).shape[1])
-
-
 def main(argv: Sequence[str] | None = None) -> None:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    p.add_argument("--encoder", type=Path, required=True, help="encoder the head was trained on")
-    p.add_argument("--head", type=Path, required=True, help="head checkpoint")
-    p.add_argument("--folders", type=Path, nargs="+", required=True, help="labeled val folders")
-    p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
-    p.add_argument("--out", type=Path, help="also write the JSON here")
-    args = p.parse_args(argv)
-    if args.threads > 0:
-        torch.set_num_threads(args.threads)
-    from .export import load_encoder
-
-    encoder = load_encoder(args.encoder).eval()
-    loaded = load_head(args.head).eval()
-    result: dict[str, Any] = {"head": str(args.head), "folders": {}}
-    for folder in args.folders:
-        width = folder_width(folder)
-        head: StereoHead = with_candidates(loaded, head_candidates(width)).eval()
-        scores = score_folder(encoder, head, folder)
-        result["folders"][str(folder)] = {"width": width, "candidates": head.cfg.max_disp, **scores}
-        print(f"{folder} (w{width}):")
-        for name, s in scores.items():
-            print(f"  {name:24s} {summary(s['mean'])}")
-    text = json.dumps(result, indent=1)
-    if args.out is not None:
-        args.out.write_text(text + "\n")
+    run_cli(__doc__ or "", "head checkpoint", score_folder, argv, summary=summary)
 
 
 if __name__ == "__main__":

@@ -17,8 +17,6 @@ Variants (each after the head's own left-right check, `head_eval.head_lr`):
 
 from __future__ import annotations
 
-import argparse
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -27,12 +25,12 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from .check_variants import folder_width
-from .head import StereoHead, head_candidates, load_head, with_candidates
+from .folder_scoring import per_variant, run_cli
+from .head import StereoHead
 from .head_eval import consistent, fill_rejected, pair_inputs
 from .model import BinoEncoder
 from .pairs import load_gray, load_gt, load_pairs
-from .probe import mean_metrics, score, upsample_disparity
+from .probe import score, upsample_disparity
 
 Grid = NDArray[np.float64]
 Mask = NDArray[np.bool_]
@@ -156,40 +154,11 @@ def score_folder(encoder: BinoEncoder, head: StereoHead, folder: Path) -> dict[s
             per.setdefault(name, []).append(
                 score(upsample_disparity(grid.astype(np.float32)), gt, valid)
             )
-    return {
-        name: {"mean": mean_metrics(rows), "pairs": dict(zip(names, rows, strict=True))}
-        for name, rows in per.items()
-    }
+    return per_variant(names, per)
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    p.add_argument("--encoder", type=Path, required=True, help="encoder the head was trained on")
-    p.add_argument("--head", type=Path, required=True, help="export head checkpoint")
-    p.add_argument("--folders", type=Path, nargs="+", required=True, help="labeled val folders")
-    p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
-    p.add_argument("--out", type=Path, help="also write the JSON here")
-    args = p.parse_args(argv)
-    if args.threads > 0:
-        torch.set_num_threads(args.threads)
-    from .export import load_encoder
-
-    encoder = load_encoder(args.encoder).eval()
-    loaded = load_head(args.head).eval()
-    result: dict[str, Any] = {"head": str(args.head), "folders": {}}
-    for folder in args.folders:
-        width = folder_width(folder)
-        head = with_candidates(loaded, head_candidates(width)).eval()
-        scores = score_folder(encoder, head, folder)
-        result["folders"][str(folder)] = {"width": width, **scores}
-        print(f"{folder} (w{width}):")
-        for name, s in scores.items():
-            m = s["mean"]
-            print(f"  {name:24s} {m['epe']:.3f} / {m['bad1tok']:.2f}")
-    if args.out is not None:
-        args.out.write_text(json.dumps(result, indent=1) + "\n")
+    run_cli(__doc__ or "", "export head checkpoint", score_folder, argv)
 
 
 if __name__ == "__main__":
