@@ -72,6 +72,9 @@ for width in 160 320; do
   cols=$((width == 320 ? 16 : 10))
   "$bino" eval --data "$folder" --split val --profile native --precision int8 --max-cols "$cols" \
     --readout sgm+lr+ref,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --json "$metrics/$name.json"
+  # The board's readout (the native pathway) on the same pairs.
+  "$bino" eval --data "$folder" --split val --profile native --precision int8 --pathway native \
+    --readout head+lr+ref,fuse-census+lr+ref --json "$metrics/native_$name.json"
   rm -rf "$folder"
   printf '== %s: %d s\n' "$name" $((SECONDS - start))
 done

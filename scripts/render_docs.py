@@ -613,6 +613,7 @@ def heldout_labeled(src: Sources) -> str:
     """The held-out labeled train pairs (validation): per pair, the readouts every recipe was
     chosen with against StereoSGBM, and how far the worst pair is from StereoSGBM's epe."""
     evs = {w: src.metrics(f"heldout_w{w}") for w in (160, 320)}
+    natives = {w: src.metrics(f"native_heldout_w{w}") for w in (160, 320)}
     readouts = ["sgm+lr+ref", "head+lr+ref", "fuse+lr+ref", DEFAULT["w160"]]
     rows = []
     pairs = [p["pair_id"] for p in evs[160]["per_pair"]]
@@ -623,6 +624,9 @@ def heldout_labeled(src: Sources) -> str:
             got = ev["mean"] if pair == "mean" else ev["per_pair"][i]["readouts"]
             for r in readouts:
                 row.append(ep_b1(metrics_of(got[f"int8_{r}"])))
+            na = natives[w]
+            native = na["mean"] if pair == "mean" else na["per_pair"][i]["readouts"]
+            row.append(ep_b1(metrics_of(native[f"int8_{NATIVE_DEFAULT}"])))
             sgbm = metrics_of(got["sgbm"])
             ours = metrics_of(got[f"int8_{DEFAULT[f'w{w}']}"])
             row += [ep_b1(sgbm), f"{ours['epe'] / sgbm['epe']:.2f}"]
@@ -630,11 +634,13 @@ def heldout_labeled(src: Sources) -> str:
     header = ["pair"]
     for w in (160, 320):
         header += [f"w{w} int8 `{r}`" for r in readouts]
+        header += [f"w{w} native `{NATIVE_DEFAULT}` (the board's)"]
         header += [f"w{w} StereoSGBM", "default / SGBM epe"]
     note = (
         "epe px / bad1tok %, int8, the held-out labeled MiddEval3-Q train pairs "
         "(`bino_train.labeled.LABELED_HOLDOUT`, resized by `bino_train.labeled_folder`), "
-        "StereoSGBM in the same run; `scripts/measure_tables.sh heldout_w160 heldout_w320`."
+        "StereoSGBM in the same run; `scripts/measure_tables.sh heldout_w160 heldout_w320` "
+        "(the native pathway's run: `native_heldout_w160`, `native_heldout_w320`)."
     )
     return note + "\n\n" + table(header, rows, [False] * len(header)) + "\n\n" + footer(src)
 
