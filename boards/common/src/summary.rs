@@ -1,5 +1,5 @@
 //! The board's report of one band pair, gathered as the pipeline streams (a
-//! [`Sink`]): the refined pixel disparity of the fuse+lr readout summarised per vertical
+//! [`Sink`]): the refined pixel disparity of the preset's fuse-census+lr readout summarised per vertical
 //! sector (median and near disparity, and the nearest depth in mm through
 //! `bino_core::depth` with the preset's example calibration, what an obstacle check reads), the share of cells the
 //! head's left-right check confirms per sector, a CRC-32 of the refined rows (to compare with
