@@ -260,12 +260,16 @@ impl CoreRun {
     /// the head's left-right check included, read from the same pass), `None` for a firmware
     /// that ran only the export pathway.
     pub fn native_band_pair_instructions(&self) -> Option<u64> {
-        let native: Vec<&StageRun> = self
-            .stages
+        let native = self.native_stages();
+        (!native.is_empty()).then(|| native.iter().map(|s| s.instructions).sum())
+    }
+
+    /// The native run's stages (`native_*`), in run order.
+    fn native_stages(&self) -> Vec<&StageRun> {
+        self.stages
             .iter()
             .filter(|s| s.name.starts_with(NATIVE_PREFIX))
-            .collect();
-        (!native.is_empty()).then(|| native.iter().map(|s| s.instructions).sum())
+            .collect()
     }
 
     /// Whether every stage has its instruction classes (runs before the cycle model have none).
@@ -285,11 +289,7 @@ impl CoreRun {
     /// Modelled cycles of one band pair on the native pathway (its `native_` stages), with class
     /// counts; `None` without them or without a native run.
     pub fn native_band_pair_modelled_cycles(&self) -> Option<f64> {
-        let native: Vec<&StageRun> = self
-            .stages
-            .iter()
-            .filter(|s| s.name.starts_with(NATIVE_PREFIX))
-            .collect();
+        let native = self.native_stages();
         if native.is_empty() {
             return None;
         }
