@@ -266,6 +266,27 @@ fn whole_map(s: &Scene, out: &Collect, refine: &Refine) -> Vec<u16> {
     expected
 }
 
+/// Runs `s` refining `refine` and checks that every pixel row came once, in order, in the
+/// refine stage, and equals the whole-map refinement of the run's own grid; returns the run.
+fn refined_as_the_whole_map(
+    pipeline: &Pipeline<'_>,
+    s: &Scene,
+    opts: &Options,
+    refine: &Refine,
+    what: &str,
+) -> Collect {
+    let out = run(pipeline, s, opts, Some(refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
+    assert_eq!(out.refined_rows, (0..s.height).collect::<Vec<_>>(), "{what}");
+    assert!(out.refine_stage_ok, "{what}");
+    let want = whole_map(s, &out, refine);
+    assert!(
+        out.refined == want,
+        "{what}: {}",
+        first_difference(&out.refined, &want, s.width)
+    );
+    out
+}
+
 /// The fused rows came once each, in order, and are `fuse_row` of the run's own head and SGM
 /// rows, their checks and the head's confidence, with the head's share of the view width: the
 /// host's whole-grid fusion (`bino_host::readout::fuse_grid`, what `bino run` reads out).
@@ -514,16 +535,8 @@ fn the_native_pathway_refines_its_fusion_with_the_census_as_the_whole_map() {
             ..Refine::of(RefineInput::FusedCensusLr)
         };
         let what = format!("native {width}x{height} fuse-census+lr equalise {equalise}");
-        let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
-        assert_eq!(out.refined_rows, (0..height).collect::<Vec<_>>(), "{what}");
-        assert!(out.refine_stage_ok, "{what}");
+        let out = refined_as_the_whole_map(&pipeline, &s, &opts, &refine, &what);
         assert_eq!(out.fused.len(), out.head.len(), "{what}: a fused row per head row");
-        let want = whole_map(&s, &out, &refine);
-        assert!(
-            out.refined == want,
-            "{what}: {}",
-            first_difference(&out.refined, &want, width)
-        );
         assert!((&out.head, &out.head_mask) == (&plain.head, &plain.head_mask), "{what}");
         let unchecked = Options { head_lr: false, ..opts };
         let missing = Error::MissingReadout {
@@ -555,10 +568,8 @@ fn the_export_pathway_refines_the_head_fused_with_the_census_and_the_sgm_as_the_
             ..Refine::of(RefineInput::FusedAllLr)
         };
         let what = format!("{width}x{height} fuse-all+lr equalise {equalise}");
-        let out = run(&pipeline, &s, &opts, Some(&refine)).unwrap_or_else(|e| panic!("{what}: {e:?}"));
-        assert_eq!(out.refined_rows, (0..height).collect::<Vec<_>>(), "{what}");
+        let out = refined_as_the_whole_map(&pipeline, &s, &opts, &refine, &what);
         assert_eq!(out.fused_rows, (0..height / 4).collect::<Vec<_>>(), "{what}");
-        assert!(out.refine_stage_ok, "{what}");
         let c = out.cols;
         let (census, census_mask) = census_whole_map(&s.left, &s.right, width, height, opts.head_candidates);
         let head = (&out.head[..], &out.head_mask[..]);
@@ -584,12 +595,6 @@ fn the_export_pathway_refines_the_head_fused_with_the_census_and_the_sgm_as_the_
             first_difference(&out.fused, &fused, c)
         );
         assert_ne!(out.fused, plain.fused, "{what}: the census moved some cells");
-        let want = whole_map(&s, &out, &refine);
-        assert!(
-            out.refined == want,
-            "{what}: {}",
-            first_difference(&out.refined, &want, width)
-        );
         assert!(
             (&out.wta, &out.sgm, &out.head, &out.head_mask) == (&plain.wta, &plain.sgm, &plain.head, &plain.head_mask),
             "{what}"
