@@ -61,7 +61,7 @@ else
 fi
 
 step "shared head to $head_steps steps ($head): synthetic pairs and StereoSGBM pseudo-labels"
-if [[ ${#resume[@]} -eq 0 ]]; then
+if [[ ${#resume[@]} -eq 0 || ! -f "train/$head/last.pt" ]]; then
   py -m bino_train.head_train --encoder "$encoder" --out "$head" --steps "$head_steps" \
     --threads "$threads" --no-eval --val-every 0
 else
@@ -88,7 +88,7 @@ else
 fi
 
 step "native pathway head to $head_steps steps ($native_head): the shared head's recipe on the fused grid"
-if [[ ${#resume[@]} -eq 0 ]]; then
+if [[ ${#resume[@]} -eq 0 || ! -f "train/$native_head/last.pt" ]]; then
   py -m bino_train.head_train --encoder "$encoder" --pathway native --out "$native_head" \
     --steps "$head_steps" --threads "$threads" --no-eval --val-every 0
 else
