@@ -43,8 +43,13 @@ def draw_panel(
     origin: tuple[int, int],
     title: str,
     lines: dict[str, list[tuple[float, float]]],
+    x_unit: str = "pairs",
+    colours: dict[str, tuple[int, int, int]] | None = None,
 ) -> None:
-    """One panel: axes with their value range, one polyline (or dot) per series, a legend."""
+    """One panel: axes with their value range, one polyline (or dot) per series, a legend.
+
+    `x_unit` names the x axis's quantity (pairs seen, or steps); `colours` maps a series name's
+    first word to its BGR colour (default `COLOURS`)."""
     x0, y0 = origin
     w, h = PANEL_W - 2 * MARGIN, PANEL_H - 2 * MARGIN
     cv2.rectangle(
@@ -75,7 +80,7 @@ def draw_panel(
     cv2.putText(canvas, f"{y_lo:.3g}", (x0 + 2, y0 + MARGIN + h), 0, small, (0, 0, 0), 1)
     cv2.putText(
         canvas,
-        f"{int(x_hi):,} pairs",
+        f"{int(x_hi):,} {x_unit}",
         (x0 + MARGIN + w - 90, y0 + MARGIN + h + 16),
         0,
         small,
@@ -83,7 +88,7 @@ def draw_panel(
         1,
     )
     for i, (name, values) in enumerate(lines.items()):
-        colour = COLOURS.get(name.split()[0], (0, 0, 0))
+        colour = (colours or COLOURS).get(name.split()[0], (0, 0, 0))
         pts = np.array([at(p) for p in values], dtype=np.int32)
         if len(pts) > 1:
             cv2.polylines(canvas, [pts], False, colour, 1, cv2.LINE_AA)

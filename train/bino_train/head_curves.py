@@ -18,6 +18,15 @@ import numpy as np
 
 from .curves import PANEL_H, PANEL_W, draw_panel, plot_run_cli
 
+HEAD_COLOURS = {
+    "loss": (60, 60, 60),
+    "w160": (180, 90, 20),
+    "w320": (40, 140, 230),
+    "synthetic": (40, 150, 60),
+    "sgbm_lr": (160, 60, 160),
+}
+"""BGR colours of a head run's series."""
+
 
 def step_series(records: Sequence[dict[str, Any]], key: str) -> list[tuple[float, float]]:
     """(step, value) of `key` over the step records (no "kind")."""
@@ -56,7 +65,7 @@ def plot(records: Sequence[dict[str, Any]]) -> np.ndarray:
     canvas = np.full((2 * PANEL_H, 2 * PANEL_W, 3), 255, np.uint8)
     loss = step_series(records, "loss")
     panels = [
-        ("training loss (x: steps)", {"loss": loss, "loss mean": smoothed(loss)}),
+        ("training loss", {"loss": loss, "loss mean": smoothed(loss)}),
         (
             "held-out labeled head+lr epe (px)",
             {
@@ -80,7 +89,8 @@ def plot(records: Sequence[dict[str, Any]]) -> np.ndarray:
         ),
     ]
     for i, (title, lines) in enumerate(panels):
-        draw_panel(canvas, ((i % 2) * PANEL_W, (i // 2) * PANEL_H), title, lines)
+        origin = ((i % 2) * PANEL_W, (i // 2) * PANEL_H)
+        draw_panel(canvas, origin, title, lines, x_unit="steps", colours=HEAD_COLOURS)
     return canvas
 
 

@@ -209,8 +209,8 @@ def test_init_head_takes_a_twelve_candidate_heads_weights_and_refuses_another_ki
 def test_head_curves_read_the_labeled_validation_records(tmp_path: Path) -> None:
     import json
 
+    from bino_train.head_curves import HEAD_COLOURS, smoothed, step_series, val_series
     from bino_train.head_curves import main as curves_main
-    from bino_train.head_curves import smoothed, step_series, val_series
 
     records = [{"kind": "start", "step": 0}]
     records += [{"step": s, "loss": 10.0 / s} for s in range(10, 410, 10)]
@@ -235,3 +235,5 @@ def test_head_curves_read_the_labeled_validation_records(tmp_path: Path) -> None
     curves_main(["--run", str(run), "--out", str(tmp_path / "c.png")])
     image = cv2.imread(str(tmp_path / "c.png"))
     assert image is not None and image.shape[0] > 100
+    for colour in (HEAD_COLOURS["w160"], HEAD_COLOURS["w320"], HEAD_COLOURS["synthetic"]):
+        assert np.all(image == np.array(colour, np.uint8), axis=-1).any(), colour
