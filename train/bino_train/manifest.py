@@ -160,6 +160,21 @@ def collect_metrics(folder: Path) -> dict[str, Any]:
     return metrics
 
 
+def check_head_metrics(metrics: dict[str, Any], head: dict[str, Any] | None) -> None:
+    """Refuses head metrics measured on another head than the shipped one.
+
+    `head_eval_w160` records the step of the head it scored; a head trained on after the
+    metric was written would otherwise ship beside another head's figures."""
+    scored = metrics.get("head_eval_w160")
+    if head is None or not isinstance(scored, dict) or "head_step" not in scored:
+        return
+    if scored["head_step"] != head["steps"]:
+        raise SystemExit(
+            f"error: metrics head_eval_w160 scored a head at step {scored['head_step']}, the "
+            f"shipped head ({head['run']}) is at step {head['steps']}: re-run bino_train.head_eval"
+        )
+
+
 def build_manifest(
     weights: Path,
     pretrain_run: Path,
@@ -172,12 +187,14 @@ def build_manifest(
     pretrain_role: str = "teacher",
 ) -> dict[str, Any]:
     pairs = training_pairs(data_dir)
+    head = run_summary(head_run) if head_run is not None else None
+    check_head_metrics(metrics, head)
     return {
         "files": file_hashes(weights),
         "code_commit": git_commit(weights.parent),
         "hardware": hardware(),
         "pretraining": run_summary(pretrain_run, pretrain_pairs, pretrain_role),
-        "head_training": run_summary(head_run) if head_run is not None else None,
+        "head_training": head,
         "native_head_training": (
             run_summary(native_head_run) if native_head_run is not None else None
         ),

@@ -434,8 +434,18 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
             # Either encoder may probe lower; both are kept (p6's best student was lost).
             roles.append(("student", trainer.student))
         for role, encoder in roles:
+            # Self-describing, so a finished run's snapshot alone makes the manifest (its
+            # last.pt, the optimiser state, is not kept).
             torch.save(
-                {"config": trainer.cfg.encoder.to_dict(), "encoder": encoder.state_dict()},
+                {
+                    "config": trainer.cfg.encoder.to_dict(),
+                    "encoder": encoder.state_dict(),
+                    "train_config": trainer.cfg.to_dict(),
+                    "step": trainer.step,
+                    "pairs_seen": trainer.pairs_seen,
+                    "train_seconds": trainer.train_seconds,
+                    "role": role,
+                },
                 opts.out / f"{role}_{trainer.pairs_seen:07d}.pt",
             )
         record = {"kind": "eval", "step": trainer.step, "pairs": trainer.pairs_seen, **metrics}

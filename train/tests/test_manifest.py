@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from bino_train.manifest import collect_metrics, file_hashes, run_summary
+from bino_train.manifest import check_head_metrics, collect_metrics, file_hashes, run_summary
 
 
 def test_file_hashes_cover_artifacts_but_not_docs_or_the_manifest(tmp_path: Path) -> None:
@@ -102,3 +102,14 @@ def test_run_summary_says_when_a_head_is_interpolated(tmp_path: Path) -> None:
     assert run_summary(run)["interpolated"] == mix
     torch.save({"train_config": {"lr": 1e-3}, "step": 20}, run / "last.pt")
     assert "interpolated" not in run_summary(run)
+
+
+def test_head_metrics_must_score_the_shipped_head(tmp_path: Path) -> None:
+    run = tmp_path / "hgt"
+    run.mkdir()
+    torch.save({"train_config": {"lr": 1e-3}, "step": 20000}, run / "last.pt")
+    head = run_summary(run)
+    check_head_metrics({"head_eval_w160": {"head_step": 20000}}, head)
+    check_head_metrics({}, head)
+    with pytest.raises(SystemExit, match="step 1000, the shipped head \\(hgt\\) is at step 20000"):
+        check_head_metrics({"head_eval_w160": {"head_step": 1000}}, head)

@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from bino_train.export import load_encoder
+from bino_train.manifest import run_summary
 from bino_train.pretrain import (
     TrainConfig,
     Trainer,
@@ -163,6 +164,11 @@ def test_evaluation_with_the_student_snapshots_it_too(data_dir: Path, tmp_path: 
         for a, b in zip(teacher.state_dict().values(), student.state_dict().values(), strict=True)
     ]
     assert any(differ), "the student's own weights, not the teacher's"
+    # A finished run's student alone (last.pt not kept) describes the run for the manifest.
+    (out / "last.pt").unlink()
+    summary = run_summary(out, upto_pairs=2, role="student")
+    assert summary["pairs_seen"] == 2 and summary["train_config"]["batch"] > 0
+    assert summary["shipped_checkpoint"] == "student_0000002.pt"
 
 
 def test_anneal_compresses_the_rest_of_the_schedule() -> None:
