@@ -144,9 +144,9 @@ def metrics_of(entry: Json) -> Json:
 
 READOUTS = ["nolink", "nolink+lr", "sgm", "sgm+lr", "head", "head+lr", "fuse", "fuse+lr"]
 DEFAULT = {"w160": "fuse-all+lr+ref", "w320": "fuse-all+lr+ref"}
+"""`bino run`'s default readout (`Pathway::default_readout`) at each profile."""
 NATIVE_DEFAULT = "fuse-census+lr+ref"
 """The native pathway's default readout (`bino run --pathway native`, the native preset)."""
-"""`bino run`'s default readout (`Pathway::default_readout`) at each profile."""
 
 
 # ---------------------------------------------------------------- accuracy
@@ -645,6 +645,34 @@ def heldout_labeled(src: Sources) -> str:
     return note + "\n\n" + table(header, rows, [False] * len(header)) + "\n\n" + footer(src)
 
 
+REPRO = "train/checkpoints/repro_p7_short_blur/metrics"
+"""The from-scratch reproduction's measurements (its own blob, the same commands)."""
+
+
+def reproduction(src: Sources) -> str:
+    """The weights `scripts/train_weights.sh` reproduced from scratch against the shipped ones:
+    the encoder's probe and, int8, each pathway's default readout on the eval split and the
+    held-out labeled pairs, StereoSGBM in the same runs."""
+    rows = []
+    probes = (src.metrics("probe_trained"), src.json(f"{REPRO}/probe_trained.json"))
+    rows.append(["no-linkage probe, eval w160 (float)", *(ep_b1(p) for p in probes)])
+    for label, pattern in (("eval split", "eval_w{w}"), ("held-out labeled", "heldout_w{w}")):
+        for w in (160, 320):
+            name = pattern.format(w=w)
+            runs = [(f"`{DEFAULT[f'w{w}']}`", name)]
+            if pattern.startswith("heldout"):
+                runs.append((f"native `{NATIVE_DEFAULT}`", f"native_{name}"))
+            for readout, run in runs:
+                key = f"int8_{readout.split('`')[1]}"
+                got = [src.metrics(run)["mean"][key], src.json(f"{REPRO}/{run}.json")["mean"][key]]
+                rows.append([f"{label} w{w}, {readout}", *(ep_b1(metrics_of(g)) for g in got)])
+            sgbm = [src.metrics(name)["mean"]["sgbm"], src.json(f"{REPRO}/{name}.json")["mean"]["sgbm"]]
+            rows.append([f"{label} w{w}, StereoSGBM", *(ep_b1(metrics_of(g)) for g in sgbm)])
+    header = ["readout (int8 unless said)", "shipped weights", "reproduced from scratch"]
+    note = "epe px / bad1tok %, each set scored by the same command on both blobs."
+    return note + "\n\n" + table(header, rows, [False] * 3) + "\n\n" + footer(src)
+
+
 def native_checks(src: Sources) -> str:
     """The native head's left-right checks on the validation folders (float, unrefined)."""
     data = src.json("train/checkpoints/metrics/native_checks.json")
@@ -1027,6 +1055,7 @@ RENDERERS: dict[str, Callable[[Sources], str]] = {
     "board-pathways": board_pathways,
     "native-checks": native_checks,
     "heldout-labeled": heldout_labeled,
+    "reproduction": reproduction,
     "bench": bench_table,
     "fw-memory": fw_memory,
     "fw-stages": fw_stages,
