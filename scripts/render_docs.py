@@ -653,21 +653,22 @@ def reproduction(src: Sources) -> str:
     """The weights `scripts/train_weights.sh` reproduced from scratch against the shipped ones:
     the encoder's probe and, int8, each pathway's default readout on the eval split and the
     held-out labeled pairs, StereoSGBM in the same runs."""
-    rows = []
+
+    def both(run: str, key: str) -> list[str]:
+        """The shipped and the reproduced blob's mean of `key` in `run`."""
+        got = (src.metrics(run)["mean"][key], src.json(f"{REPRO}/{run}.json")["mean"][key])
+        return [ep_b1(metrics_of(g)) for g in got]
+
     probes = (src.metrics("probe_trained"), src.json(f"{REPRO}/probe_trained.json"))
-    rows.append(["no-linkage probe, eval w160 (float)", *(ep_b1(p) for p in probes)])
-    for label, pattern in (("eval split", "eval_w{w}"), ("held-out labeled", "heldout_w{w}")):
+    rows = [["no-linkage probe, eval w160 (float)", *(ep_b1(p) for p in probes)]]
+    for label, prefix in (("eval split", "eval"), ("held-out labeled", "heldout")):
         for w in (160, 320):
-            name = pattern.format(w=w)
-            runs = [(f"`{DEFAULT[f'w{w}']}`", name)]
-            if pattern.startswith("heldout"):
-                runs.append((f"native `{NATIVE_DEFAULT}`", f"native_{name}"))
-            for readout, run in runs:
-                key = f"int8_{readout.split('`')[1]}"
-                got = [src.metrics(run)["mean"][key], src.json(f"{REPRO}/{run}.json")["mean"][key]]
-                rows.append([f"{label} w{w}, {readout}", *(ep_b1(metrics_of(g)) for g in got)])
-            sgbm = [src.metrics(name)["mean"]["sgbm"], src.json(f"{REPRO}/{name}.json")["mean"]["sgbm"]]
-            rows.append([f"{label} w{w}, StereoSGBM", *(ep_b1(metrics_of(g)) for g in sgbm)])
+            run, default = f"{prefix}_w{w}", DEFAULT[f"w{w}"]
+            rows.append([f"{label} w{w}, `{default}`", *both(run, f"int8_{default}")])
+            if prefix == "heldout":
+                native = both(f"native_{run}", f"int8_{NATIVE_DEFAULT}")
+                rows.append([f"{label} w{w}, native `{NATIVE_DEFAULT}`", *native])
+            rows.append([f"{label} w{w}, StereoSGBM", *both(run, "sgbm")])
     header = ["readout (int8 unless said)", "shipped weights", "reproduced from scratch"]
     note = "epe px / bad1tok %, each set scored by the same command on both blobs."
     return note + "\n\n" + table(header, rows, [False] * 3) + "\n\n" + footer(src)

@@ -315,11 +315,21 @@ class Trainer:
             record["batch"] = self.batch_size
         return record
 
+    def run_fields(self) -> dict[str, Any]:
+        """The run's configuration and progress, kept in every file the run writes (checkpoint,
+        evaluation snapshots, weights-only snapshots) so each one describes the run alone."""
+        return {
+            "train_config": self.cfg.to_dict(),
+            "step": self.step,
+            "pairs_seen": self.pairs_seen,
+            "train_seconds": self.train_seconds,
+        }
+
     def state_dict(self) -> dict[str, Any]:
         return {
             "config": self.cfg.encoder.to_dict(),
             "encoder": self.teacher.state_dict(),
-            "train_config": self.cfg.to_dict(),
+            **self.run_fields(),
             "student": self.student.state_dict(),
             "teacher": self.teacher.state_dict(),
             "student_head": self.student_head.state_dict(),
@@ -329,9 +339,6 @@ class Trainer:
             "data": self.sampler.state_dict(),
             "masker": self.masker.state_dict(),
             "rng": rng_states(),
-            "step": self.step,
-            "pairs_seen": self.pairs_seen,
-            "train_seconds": self.train_seconds,
         }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
@@ -434,16 +441,13 @@ def run(trainer: Trainer, opts: RunOptions) -> list[dict[str, Any]]:
             # Either encoder may probe lower; both are kept (p6's best student was lost).
             roles.append(("student", trainer.student))
         for role, encoder in roles:
-            # Self-describing, so a finished run's snapshot alone makes the manifest (its
+            # With the run's fields, a finished run's snapshot alone makes the manifest (its
             # last.pt, the optimiser state, is not kept).
             torch.save(
                 {
                     "config": trainer.cfg.encoder.to_dict(),
                     "encoder": encoder.state_dict(),
-                    "train_config": trainer.cfg.to_dict(),
-                    "step": trainer.step,
-                    "pairs_seen": trainer.pairs_seen,
-                    "train_seconds": trainer.train_seconds,
+                    **trainer.run_fields(),
                     "role": role,
                 },
                 opts.out / f"{role}_{trainer.pairs_seen:07d}.pt",

@@ -50,10 +50,7 @@ def snapshot(trainer: Trainer, role: str) -> dict[str, Any]:
         "config": trainer.cfg.encoder.to_dict(),
         "encoder": half(encoder.state_dict()),
         "head": half(head.state_dict()),
-        "train_config": trainer.cfg.to_dict(),
-        "step": trainer.step,
-        "pairs_seen": trainer.pairs_seen,
-        "train_seconds": trainer.train_seconds,
+        **trainer.run_fields(),
     }
     if role == "teacher":
         out["center"] = trainer.loss.center.detach().cpu().float()
