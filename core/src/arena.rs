@@ -133,3 +133,8 @@ mod tests {
         assert!(matches!(carver.i8s(100), Err(Error::ArenaTooSmall { .. })));
     }
 }
+
+/// `arena` cut at `at`, or `None` when it is shorter (the pipeline's regions, cut in order).
+pub fn split(arena: &mut [u8], at: usize) -> Option<(&mut [u8], &mut [u8])> {
+    (at <= arena.len()).then(|| arena.split_at_mut(at))
+}

@@ -33,13 +33,14 @@
 //! arena does not grow: the refinement fits beside the streams in the encoder's scratch.
 //!
 //! # Files
-//! `api.rs`: the public types; `sizing.rs`: the arena sizes; `driver.rs`: [`Pipeline`] and what
+//! `api.rs`: the public types; `census_run.rs`: the encoder-free census readout ([`run_census`]); `sizing.rs`: the arena sizes; `driver.rs`: [`Pipeline`] and what
 //! a run's stages share; `feeding.rs`: the band buffer and the rows a band keeps; `streams.rs`:
 //! the export pathway's readouts; `head_check.rs`: the head's rows, its left-right check and the
 //! refinement fed from them; `native.rs`: the native pathway; `refine_stage.rs`: the pixel
 //! refinement as a stage.
 
 mod api;
+mod census_run;
 mod census_stage;
 mod driver;
 mod feeding;
@@ -52,7 +53,11 @@ mod streams;
 /// A head row as [`Sink::head`] receives it.
 pub use crate::model::head::HeadRow;
 pub use api::{
-    FusedRow, HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink, SlicePair, Stage,
+    CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink,
+    SlicePair, Stage,
 };
+pub use census_run::run_census;
 pub use driver::Pipeline;
-pub use sizing::{arena_bytes, arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes};
+pub use sizing::{
+    arena_bytes, arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, census_arena_bytes, refine_bytes,
+};

@@ -19,7 +19,7 @@ use serde::Serialize;
 use crate::data::profile::{Profile, View};
 use crate::data::synthetic::{default_scene, SyntheticPair};
 use crate::eval::{score, upsample_disparity, DisparityMap, GroundTruthMap, Metrics};
-use crate::int8::pipeline_maps::run_pipeline;
+use crate::int8::pipeline_maps::{run_census_stream, run_pipeline};
 use crate::int8::{guide_map, match_rows, sgm_rows, Int8Model};
 use crate::io::colour::{colourise, error_colour};
 use crate::io::keyed::Keyed;
@@ -161,10 +161,18 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
             },
         )?);
     }
+    let census = pipeline_options(opts, Pathway::Export, left.width);
+    let default = crate::readout::pathway::DEFAULT_READOUT.refined(true);
+    let maps = steps.run(
+        "census+lr+ref: census SGM of the pixels, its check, refined, no encoder (`bino run`'s default; streamed)",
+        || run_census_stream(&left, &right, &census, default),
+    )?;
+    let refined = maps.refined.context("the census run refined no pixels")?;
+    readouts.push(scored_pixels("census+lr+ref", refined, &truth)?);
     if model.has_head() {
         let export = pipeline_options(opts, Pathway::Export, left.width);
         let maps = steps.run(
-            "fuse-all+lr+ref: head, census SGM and SGM fused by their checks, refined (`bino run`'s default; int8 pipeline)",
+            "fuse-all+lr+ref: head, census SGM and SGM fused by their checks, refined (the export pathway's; int8 pipeline)",
             || run_pipeline(&model, &left, &right, &export, &mut |_, _| {}),
         )?;
         let fused = crate::readout::pathway::Pathway::Export.default_readout().refined(true);

@@ -17,12 +17,12 @@ use bino_core::sgm::Penalties;
 use crate::data::profile::load_profiled_pair;
 use crate::data::profile::Profile;
 use crate::eval::{upsample_mask, DisparityMap};
-use crate::int8::pipeline_maps::run_pipeline;
+use crate::int8::pipeline_maps::{run_census_stream, run_pipeline};
 use crate::int8::Int8Model;
 use crate::io::colour::colourise;
 use crate::readout::lr_tolerance_q8;
 use crate::readout::pathway::Pathway;
-use crate::readout::Readout;
+use crate::readout::{Method, Readout};
 
 /// `bino run --refine`: whether the readout's pixels are refined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -103,17 +103,24 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         Instant::now()
     };
     opts.pathway.check(opts.readout)?;
+    crate::io::files::check_output_dir(&opts.out, "--out")?;
     let started = step("loading the pair and the blob", &mut timings, &mut progress);
     let (left, right) = load_profiled_pair(&opts.left, &opts.right, opts.profile)?;
-    let model = Int8Model::load(&opts.blob)?;
-    if opts.readout.uses_head() {
+    // The census readouts read pixels only: no blob, no encoder.
+    let census_only = opts.readout.method == Method::Census;
+    let model = match census_only {
+        true => None,
+        false => Some(Int8Model::load(&opts.blob)?),
+    };
+    if let (true, Some(model)) = (opts.readout.uses_head(), model.as_ref()) {
         model.require_head(opts.pathway.core())?;
     }
     finish(&mut timings, started);
 
-    let pipeline_step = match opts.pathway {
-        Pathway::Export => "int8 pipeline: rows -> encoder (L,L), (R,R) -> readouts, band by band",
-        Pathway::Native => "int8 pipeline: rows -> encoder (L,R) -> native head, band by band",
+    let pipeline_step = match (census_only, opts.pathway) {
+        (true, _) => "integer pipeline: rows -> census SGM -> left-right check -> pixels, band by band (no encoder)",
+        (false, Pathway::Export) => "int8 pipeline: rows -> encoder (L,L), (R,R) -> readouts, band by band",
+        (false, Pathway::Native) => "int8 pipeline: rows -> encoder (L,R) -> native head, band by band",
     };
     let started = step(pipeline_step, &mut timings, &mut progress);
     let head = opts.readout.uses_head();
@@ -132,17 +139,24 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
             progress(&format!("  band {i} of {n}"));
         }
     };
-    let maps = run_pipeline(&model, &left, &right, &pipeline_opts, &mut on_band)?;
+    let maps = match model.as_ref() {
+        Some(model) => run_pipeline(model, &left, &right, &pipeline_opts, &mut on_band)?,
+        None => run_census_stream(&left, &right, &pipeline_opts, opts.readout)?,
+    };
     finish(&mut timings, started);
 
-    let pixels = if opts.readout.refine {
-        "pixels (integer refinement), left-right mask"
-    } else {
-        "pixels (bilinear), left-right mask"
+    let pixels = match (opts.readout.refine, maps.refined.is_some()) {
+        (true, true) => "left-right mask (pixels refined in the pipeline)",
+        (true, false) => "pixels (integer refinement), left-right mask",
+        (false, _) => "pixels (bilinear), left-right mask",
     };
     let started = step(pixels, &mut timings, &mut progress);
-    // The readout exactly as `bino eval` scores it; the mask is its method's own check.
-    let disparity = maps.methods.pixels(opts.readout)?;
+    // The readout exactly as `bino eval` scores it (the core's refined rows equal it, pinned by
+    // tests); the mask is its method's own check.
+    let disparity = match maps.refined {
+        Some(refined) => refined,
+        None => maps.methods.pixels(opts.readout)?,
+    };
     let (tokens, consistent) = maps.methods.method(opts.readout.method)?;
     let consistent = consistent.context("the method's left-right check did not run")?;
     let valid = upsample_mask(&consistent, tokens.width, disparity.width, disparity.height);

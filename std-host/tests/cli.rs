@@ -217,6 +217,43 @@ fn run_refuses_views_of_different_sizes() {
     assert!(!dir.join("out").exists(), "nothing is written on bad input");
 }
 
+/// `--out` naming a file is refused before anything is loaded or computed, naming it.
+#[test]
+fn run_and_sim_refuse_an_output_that_is_a_file_before_any_work() {
+    let dir = scratch("out-is-a-file");
+    let (left, right) = (dir.join("l.png"), dir.join("r.png"));
+    write_png(&left, 200, 60);
+    write_png(&right, 200, 60);
+    let taken = dir.join("taken.txt");
+    std::fs::write(&taken, b"keep me").unwrap();
+    for verb in ["run", "sim"] {
+        let started = std::time::Instant::now();
+        let out = bino(&[verb, "--left", s(&left), "--right", s(&right), "--out", s(&taken)]);
+        assert_fails_with(&out, &["--out", "taken.txt", "is a file, not a folder"]);
+        // Refused before the pipeline: the blob is not even loaded (a run takes seconds).
+        assert!(started.elapsed().as_secs_f64() < 5.0, "{verb}: {:?}", started.elapsed());
+        assert_eq!(std::fs::read(&taken).unwrap(), b"keep me", "{verb}");
+    }
+}
+
+/// `bino --version` names the command users type; `quantize` never replaces an existing blob
+/// (by default the shipped one) without `--force`, and says so before calibrating.
+#[test]
+fn version_names_bino_and_quantize_keeps_an_existing_blob() {
+    let version = bino(&["--version"]);
+    assert!(version.status.success());
+    let stdout = String::from_utf8_lossy(&version.stdout);
+    assert!(stdout.starts_with("bino 0."), "{stdout}");
+    let dir = scratch("quantize-keep");
+    let blob = dir.join("blob.bin");
+    std::fs::write(&blob, b"not replaced").unwrap();
+    let out = bino(&["quantize", "--onnx", s(&random_onnx()), "--out", s(&blob)]);
+    assert_fails_with(&out, &["--out", "blob.bin", "exists", "--force"]);
+    assert_eq!(std::fs::read(&blob).unwrap(), b"not replaced");
+    let default = bino(&["quantize", "--onnx", s(&random_onnx())]);
+    assert_fails_with(&default, &["bino_int8.bin", "exists", "--force"]);
+}
+
 /// `--refine off` writes the readout's token grid upsampled bilinearly, the formula `bino run`
 /// used before the refinement existed; the default writes the readout's `+ref`, the core's
 /// refinement of the same grid on the same 8-bit views. The mask is the method's either way.

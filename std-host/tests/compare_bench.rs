@@ -55,6 +55,8 @@ fn blob() -> Option<&'static Path> {
             "640",
             "--out",
             s(&out),
+            // The scratch folder outlives a test run.
+            "--force",
         ]);
         assert_ok(&run);
         Some(out)

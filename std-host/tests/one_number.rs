@@ -86,6 +86,21 @@ fn run_writes_what_eval_scores_for_the_census_readouts() {
     assert_ne!(epe("census+lr"), epe("fuse-census+lr"));
 }
 
+/// The encoder-free census readouts: `run` streams them through the core's census run (no blob,
+/// no encoder; `+ref` refined in the core) and writes what `eval` scores from the whole-map
+/// refinement of the same grid, across the pair's three bands.
+#[test]
+fn run_writes_what_eval_scores_for_the_encoder_free_census() {
+    let readouts = ["census", "census+lr", "census+ref", "census+lr+ref"];
+    let report = run_matches_eval(Profile::W160, &readouts, &[]);
+    let epe = |r: &str| {
+        report["per_pair"][0]["readouts"][format!("int8_{r}")]["metrics"]["epe"]
+            .as_f64()
+            .unwrap()
+    };
+    assert_ne!(epe("census+lr"), epe("census+lr+ref"));
+}
+
 /// The three-way fusion on the export pathway: `run` writes what `eval` scores, and it differs
 /// from the head fused with the SGM alone.
 #[test]

@@ -115,11 +115,18 @@ fn a_bad_display_size_or_a_lone_view_is_refused() {
 
 /// One readout, one number: the refined pixels sim draws as the pipeline streams them are the
 /// pixels `bino run` writes for the same readout (its `disparity.pfm`), colour for colour. Both
-/// default to the export pathway's fused readout (fuse-all+lr, refined: the head, the census SGM
-/// and the descriptor SGM), which the pipeline streams across the scene's two bands.
+/// default to the census SGM with its check, refined (census+lr+ref), which the pipeline streams
+/// without the encoder across the scene's two bands.
 #[test]
 fn sim_draws_the_refined_pixels_run_writes() {
-    sim_matches_run("refined", &[], "fuse-all+lr+ref");
+    sim_matches_run("refined", &[], "census+lr+ref");
+}
+
+/// The same for the export pathway's learned readout (fuse-all+lr, refined: the head, the census
+/// SGM and the descriptor SGM), its default when the pathway is named.
+#[test]
+fn sim_draws_the_export_pathways_pixels_run_writes() {
+    sim_matches_run("export", &["--pathway", "export"], "fuse-all+lr+ref");
 }
 
 /// The same for the head and SGM fused without the census.
@@ -194,6 +201,7 @@ fn sim_streams_the_checked_fusion_and_refuses_the_unchecked_one() {
         &["--readout", "fuse+lr"][..],
         &["--readout", "fuse-all+lr"],
         &["--pathway", "native", "--readout", "fuse-census+lr"],
+        &["--readout", "census+lr"],
     ] {
         let run = bino(&[&["sim", "--out", s(&dir)][..], readout].concat());
         let stdout = String::from_utf8_lossy(&run.stdout);
@@ -215,7 +223,7 @@ fn sim_streams_the_checked_fusion_and_refuses_the_unchecked_one() {
         assert!(!stderr.contains("panicked"), "{stderr}");
     }
     // The readouts the pipeline does not stream are refused by name.
-    for readout in ["fuse-all", "fuse-all+ref", "census+lr+ref"] {
+    for readout in ["fuse-all", "fuse-all+ref", "fuse-census+ref"] {
         let run = bino(&["sim", "--readout", readout, "--out", s(&dir)]);
         let stderr = String::from_utf8_lossy(&run.stderr);
         assert!(!run.status.success(), "{stderr}");

@@ -202,6 +202,11 @@ pub enum RefineInput {
     /// [`crate::census::FUSE_ALL_FIRST_WEIGHT`] (export pathway; needs [`Options::head`] and
     /// [`Options::head_lr`]).
     FusedAllLr,
+    /// The census SGM of the views' pixels alone ([`crate::census`]): no encoder, no weights
+    /// ([`crate::pipeline::run_census`]; either pathway's options).
+    Census,
+    /// The census SGM, filled by its own left-right check and uniqueness test.
+    CensusLr,
 }
 
 impl RefineInput {
@@ -231,7 +236,15 @@ impl RefineInput {
             RefineInput::FusedLr => "fuse+lr",
             RefineInput::FusedCensusLr => "fuse-census+lr",
             RefineInput::FusedAllLr => "fuse-all+lr",
+            RefineInput::Census => "census",
+            RefineInput::CensusLr => "census+lr",
         }
+    }
+
+    /// Whether it reads the census SGM alone, so the run needs no encoder pass and no weights
+    /// ([`crate::pipeline::run_census`]).
+    pub const fn census_only(self) -> bool {
+        matches!(self, RefineInput::Census | RefineInput::CensusLr)
     }
 
     /// Whether it reads the head (its rows then trail the band by one token row per head convolution).
@@ -356,6 +369,18 @@ pub struct FusedRow<'r> {
     pub consistent: &'r [u8],
 }
 
+/// One token row of the census SGM ([`crate::pipeline::run_census`]), before any fill.
+#[derive(Debug, Clone, Copy)]
+pub struct CensusRow<'r> {
+    /// Token row.
+    pub row: usize,
+    /// Census SGM disparity per patch column, Q8 patch columns.
+    pub disparity_q8: &'r [u16],
+    /// 1 where the cell passes the census check (left-right agreement and uniqueness), else 0
+    /// (`census+lr` fills these cells).
+    pub consistent: &'r [u8],
+}
+
 /// Receives what the pipeline produces, in order.
 pub trait Sink {
     /// The pipeline enters `stage`.
@@ -387,6 +412,10 @@ pub trait Sink {
     /// On the export pathway with [`Options::head_lr`]: the fused readout's row, after its
     /// [`Sink::head_checked`] row.
     fn fused(&mut self, row: &FusedRow<'_>) {
+        let _ = row;
+    }
+    /// With [`crate::pipeline::run_census`]: one token row of the census SGM, top to bottom.
+    fn census(&mut self, row: &CensusRow<'_>) {
         let _ = row;
     }
     /// With [`Pipeline::run_refined`]: pixel row `row` of the refined disparity (`width`
@@ -437,6 +466,8 @@ pub struct Report {
     /// pathway with [`Options::head_lr`]: the SGM; native pathway refining
     /// [`RefineInput::FusedCensusLr`]: the census SGM).
     pub fused_kept: usize,
+    /// Cells whose census SGM disparity passed its check ([`crate::pipeline::run_census`]).
+    pub census_kept: usize,
 }
 
 #[cfg(test)]

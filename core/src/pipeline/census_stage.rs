@@ -134,36 +134,54 @@ impl<'a> CensusStage<'a> {
             (*l, *r) = rows;
         }
         let slot = self.slot(row);
+        let ring_error = self.ring_error();
         let (Some(disparity), Some(kept)) = (self.rows.get_mut(slot.clone()), self.masks.get_mut(slot)) else {
-            return Err(Error::BufferSize {
-                what: "census rows",
-                expected: self.cols.saturating_mul(self.ring),
-                found: self.rows.len(),
-            });
+            return Err(ring_error);
         };
         self.sgm.push_row(&left, &right, disparity, kept)?;
         self.next += 1;
         Ok(())
     }
 
-    /// Fuses the head's checked row `row` (`head`, its mask and confidence) with the census
-    /// row kept for it into [`CensusStage::out`] and [`CensusStage::out_mask`].
-    pub(super) fn fuse(&mut self, row: usize, head: &[u16], head_mask: &[u8], confidence: &[u16]) -> Result<(), Error> {
+    /// The ring slot of token row `row`, when it was computed and is still kept.
+    fn kept_slot(&self, row: usize) -> Result<core::ops::Range<usize>, Error> {
         if row >= self.next || row + self.ring < self.next {
             return Err(Error::OutOfRange {
-                what: "census row kept for the head",
+                what: "census row kept",
                 value: row,
                 min: self.next.saturating_sub(self.ring),
                 max: self.next.saturating_sub(1),
             });
         }
-        let slot = self.slot(row);
+        Ok(self.slot(row))
+    }
+
+    /// The error of a ring shorter than its rows (a carving bug; never from input).
+    fn ring_error(&self) -> Error {
+        Error::BufferSize {
+            what: "census rows",
+            expected: self.cols.saturating_mul(self.ring),
+            found: self.rows.len(),
+        }
+    }
+
+    /// Token row `row` of the census SGM (computed, still in the ring): its disparity (Q8 patch
+    /// columns) and its check's mask (1 where the cell passes the left-right check and the
+    /// uniqueness test).
+    pub(super) fn row(&self, row: usize) -> Result<(&[u16], &[u8]), Error> {
+        let slot = self.kept_slot(row)?;
+        match (self.rows.get(slot.clone()), self.masks.get(slot)) {
+            (Some(disparity), Some(kept)) => Ok((disparity, kept)),
+            _ => Err(self.ring_error()),
+        }
+    }
+
+    /// Fuses the head's checked row `row` (`head`, its mask and confidence) with the census
+    /// row kept for it into [`CensusStage::out`] and [`CensusStage::out_mask`].
+    pub(super) fn fuse(&mut self, row: usize, head: &[u16], head_mask: &[u8], confidence: &[u16]) -> Result<(), Error> {
+        let slot = self.kept_slot(row)?;
         let (Some(disparity), Some(kept)) = (self.rows.get(slot.clone()), self.masks.get(slot)) else {
-            return Err(Error::BufferSize {
-                what: "census rows",
-                expected: self.cols.saturating_mul(self.ring),
-                found: self.rows.len(),
-            });
+            return Err(self.ring_error());
         };
         let head = CheckedRow {
             disparity_q8: head,

@@ -72,7 +72,9 @@ impl<'w> Pipeline<'w> {
     /// without the head (or, for [`RefineInput::HeadLr`], [`RefineInput::FusedLr`] and
     /// [`RefineInput::FusedAllLr`], without its check; the last two also on the native pathway,
     /// which has no descriptor SGM; [`RefineInput::FusedCensusLr`] on the export pathway),
-    /// [`Error::OutOfRange`] for bad [`RefineParams`].
+    /// [`Error::OutOfRange`] for bad [`RefineParams`]. A census input ([`RefineInput::Census`],
+    /// [`RefineInput::CensusLr`]) runs no encoder and no head: it is
+    /// [`run_census`](super::run_census), in [`census_arena_bytes`](super::census_arena_bytes).
     pub fn run_refined(
         &self,
         source: &mut impl RowSource,
@@ -100,6 +102,10 @@ impl<'w> Pipeline<'w> {
         arena: &mut [u8],
         sink: &mut impl Sink,
     ) -> Result<Report, Error> {
+        if let Some(r) = refine.filter(|r| r.input.census_only()) {
+            // The census readout reads pixels only: no encoder pass, no head.
+            return super::census_run::run_census(source, opts, Some(r), arena, sink);
+        }
         let (width, height) = (source.width(), source.height());
         let (token_rows, cols) = check_view_size(height, width)?;
         if width > self.encoder.max_width() {
@@ -130,6 +136,7 @@ impl<'w> Pipeline<'w> {
                 RefineInput::HeadLr => !head_lr,
                 RefineInput::FusedLr | RefineInput::FusedAllLr => native || !head_lr,
                 RefineInput::FusedCensusLr => !native || !head_lr,
+                RefineInput::Census | RefineInput::CensusLr => false,
                 _ => native,
             };
             if missing {

@@ -18,6 +18,7 @@ use super::feeding::BandRows;
 use super::head_check::{Feed, HeadRows, OnePassCheck, OnePassRows};
 use super::refine_stage;
 use super::sizing::{band_pixel_rows, check_rows_bytes, max, refine_parts, sum};
+use crate::arena::split;
 use crate::band::{Band, BandPlan};
 use crate::config::{CELL_W, DIM, PATCH_H};
 use crate::model::encoder::{self, GrayBand};
@@ -194,11 +195,6 @@ pub(super) fn run(
     let fixed = report.pixels + stream_len + check_len + census_len + state_len;
     report.arena_used = fixed + report.encoder.max(after_tokens + scratch_used);
     Ok(report)
-}
-
-/// `arena` cut at `at`, or `None` when it is shorter.
-fn split(arena: &mut [u8], at: usize) -> Option<(&mut [u8], &mut [u8])> {
-    (at <= arena.len()).then(|| arena.split_at_mut(at))
 }
 
 /// What outlives a pass: the check's rows (with `head_lr`), the census stage (for the fused

@@ -199,10 +199,34 @@ pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, re
 
 /// The arena bytes of a run with `opts`, refined when `refine` is given, on either pathway.
 pub(super) const fn arena_bytes_run(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+    if let Some(r) = refine {
+        if r.input.census_only() {
+            return census_arena_bytes(height, width, opts, refine);
+        }
+    }
     match opts.pathway {
         Pathway::Export => arena_bytes_of(height, width, opts.max_cols, ReadoutShape::of(opts, refine), refine),
         Pathway::Native => native::arena_bytes(height, width, opts, refine),
     }
+}
+
+/// Census rows the encoder-free run keeps: each goes on (sink, refinement) as soon as it is
+/// computed.
+pub(super) const CENSUS_RING_ROWS: usize = 1;
+
+/// Arena bytes of [`run_census`](super::run_census) for a `height x width` pair with `opts` (the
+/// census searches `4 x opts.head_candidates` pixel disparities,
+/// [`crate::census::disparities`]), refined when `refine` is given: the pixel band, the census
+/// stage and the refinement, no encoder. Depends on the band and the width, never on the
+/// height.
+pub const fn census_arena_bytes(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+    let pixels = band_pixel_rows(height).saturating_mul(width).saturating_mul(2);
+    let census = census_stage::bytes(width, opts.head_candidates, CENSUS_RING_ROWS);
+    let (state, scratch) = match refine {
+        Some(r) => refine_parts(height, width, r),
+        None => (0, 0),
+    };
+    sum(&[pixels, census, state, scratch])
 }
 
 /// Bytes of the refinement's buffers in a run of a `height x width` pair: its state kept

@@ -338,7 +338,10 @@ impl<'a, 'w> Streams<'a, 'w> {
                 | RefineInput::HeadLr
                 | RefineInput::FusedLr
                 | RefineInput::FusedCensusLr
-                | RefineInput::FusedAllLr => None,
+                | RefineInput::FusedAllLr
+                // Never here: the driver runs census inputs without the encoder.
+                | RefineInput::Census
+                | RefineInput::CensusLr => None,
             };
             if let Some((disparity, mask)) = matched {
                 sink.stage(Stage::Refine);

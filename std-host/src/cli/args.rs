@@ -89,6 +89,19 @@ pub struct LeftRightCheck {
     pub lr_max_diff: f32,
 }
 
+/// `--pathway` of `run` and `sim`: optional, since their default readout runs no encoder.
+#[derive(Args, Debug, Clone, Copy)]
+pub struct ReadoutPathway {
+    /// Pathway of the learned readouts: export (each view encoded alone) or native (one pass).
+    ///
+    /// export: each view encoded alone, two encoder passes per band; every readout, default
+    /// fuse-all+lr. native: one pass on the pair (L, R); the native head's readouts, default
+    /// fuse-census+lr (the board's learned preset). Without --pathway and --readout the readout
+    /// is census+lr, which runs no encoder; a --readout without --pathway runs on export.
+    #[arg(long, value_enum)]
+    pub pathway: Option<bino_host::readout::pathway::Pathway>,
+}
+
 /// `--pathway`: how each band reaches the readouts.
 #[derive(Args, Debug, Clone, Copy)]
 pub struct PathwayChoice {

@@ -23,6 +23,7 @@ mod sim;
 /// BINO edge: a binocular ViT stereo encoder for edge boards, host tools.
 #[derive(Parser)]
 #[command(
+    name = "bino",
     version,
     about,
     after_help = "(developer): verbs for measuring the engine and making the weights (docs/cli.md)."

@@ -55,9 +55,12 @@ pub struct QuantizeArgs {
     /// Widest band the blob supports, in pixels.
     #[arg(long, default_value_t = 640)]
     max_width: usize,
-    /// Output blob; the default replaces the checkout's shipped one.
+    /// Output blob; the default is the checkout's shipped one, which is replaced only with --force.
     #[arg(long, default_value_os_t = checkout::path(checkout::BLOB))]
     out: PathBuf,
+    /// Replace an existing --out blob (the shipped one included).
+    #[arg(long)]
+    force: bool,
 }
 
 /// Runs the verb.
@@ -74,6 +77,17 @@ pub fn run(args: QuantizeArgs) -> Result<()> {
         max_width: args.max_width,
     };
     let out = args.out;
+    // Checked before the minutes of calibration: an existing blob (by default the shipped one,
+    // which every other verb reads) is replaced only when asked.
+    if out.exists() && !args.force {
+        super::usage_error(
+            "quantize",
+            format!(
+                "--out {} exists (the shipped blob by default): pass --force to replace it, or --out another file",
+                out.display()
+            ),
+        );
+    }
     let started = Instant::now();
     let progress = Progress::new(false);
     progress.status("calibrating: bands");

@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use bino_host::io::checkout;
-use bino_host::readout::pathway::Pathway;
+use bino_host::readout::Method;
 use bino_host::run::RunOptions;
 use clap::Args;
 
-use super::args::{LeftRightCheck, PairCandidates, PairProfile, PathwayChoice, SgmPenalties};
+use super::args::{LeftRightCheck, PairCandidates, PairProfile, ReadoutPathway, SgmPenalties};
 use super::progress::Progress;
 
 /// Compute the disparity of a rectified pair of any size with the int8 pipeline.
@@ -39,12 +39,13 @@ pub struct RunArgs {
     /// where both pass their checks, the one that passes elsewhere. census: census matching of
     /// the pixels with SGM (no encoder); fuse-census: the head fused with it as fuse+lr fuses
     /// the head and SGM (on either pathway); fuse-all: the head fused with the census, then with
-    /// the SGM (export pathway). Default: fuse-all+lr on the export pathway (chosen on held-out
-    /// train pairs and synthetic scenes), fuse-census+lr on the native one (the board's).
+    /// the SGM (export pathway). Default: census+lr, no encoder (the most accurate on the real
+    /// labeled validation pairs); with --pathway, that pathway's learned readout: fuse-all+lr on
+    /// export, fuse-census+lr on native (the board's learned preset).
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
-    pathway: PathwayChoice,
+    pathway: ReadoutPathway,
     /// Pixel refinement of the readout: on (its +ref) or off (the token grid upsampled).
     ///
     /// on: the views' sharpness equalised where one is defocused, then a census 5x5 search
@@ -65,14 +66,10 @@ pub struct RunArgs {
 
 /// Runs the verb.
 pub fn run(args: RunArgs) -> Result<()> {
-    let pathway = args.pathway.pathway;
-    let default = match args.readout {
-        Some(readout) => readout,
-        None => pathway.default_readout(),
-    };
+    let (chosen, pathway) = bino_host::readout::pathway::resolve(args.readout, args.pathway.pathway);
     let readout = args
         .refine
-        .apply(default)
+        .apply(chosen)
         .unwrap_or_else(|msg| super::usage_error("run", msg));
     let opts = RunOptions {
         left: args.left,
@@ -89,10 +86,14 @@ pub fn run(args: RunArgs) -> Result<()> {
     let progress = Progress::new(false);
     let report = bino_host::run::run_pair(&opts, |step| progress.step(step))?;
     progress.finish();
+    // One consistency figure: the pixels the readout's own check keeps (lr_mask.png).
+    let pathway = match opts.readout.method {
+        Method::Census => "no encoder".to_string(),
+        _ => format!("{} pathway", opts.pathway),
+    };
     println!(
-        "bino run: {} readout, {} pathway, at {}x{} ({}), {:.1} % of pixels left-right consistent",
+        "bino run: {} readout, {pathway}, at {}x{} ({}), {:.1} % of pixels left-right consistent",
         opts.readout.name(),
-        opts.pathway,
         report.width,
         report.height,
         opts.profile,
@@ -102,20 +103,7 @@ pub fn run(args: RunArgs) -> Result<()> {
         println!("  {step}: {:.1} ms", took.as_secs_f64() * 1e3);
     }
     let p = &report.pipeline;
-    let kept = |cells: usize| 100.0 * cells as f64 / (p.rows * p.cols).max(1) as f64;
-    match opts.pathway {
-        Pathway::Export => println!(
-            "  {} band(s); left-right check keeps {:.1} % of WTA and {:.1} % of SGM cells (LRkeep)",
-            p.bands,
-            kept(p.wta_kept),
-            kept(p.sgm_kept)
-        ),
-        Pathway::Native => println!(
-            "  {} band(s); the head's left-right check keeps {:.1} % of its cells (LRkeep)",
-            p.bands,
-            kept(p.head_kept)
-        ),
-    }
+    println!("  {} band(s)", p.bands);
     println!("  time inside the pipeline by stage:");
     for (stage, took) in &report.stage_times {
         if !took.is_zero() {
@@ -123,8 +111,8 @@ pub fn run(args: RunArgs) -> Result<()> {
         }
     }
     println!(
-        "arena: {} bytes used of {} (pixel band {}, descriptors {}, encoder {}, readout streams {})",
-        p.arena_used, report.arena_bytes, p.pixels, p.descriptors, p.encoder, p.streams
+        "arena: {} bytes used of {} (pixel band {}, descriptors {}, encoder {}, readout streams {}, refinement {})",
+        p.arena_used, report.arena_bytes, p.pixels, p.descriptors, p.encoder, p.streams, p.refine
     );
     for file in &report.files {
         println!("wrote {}", file.display());

@@ -7,7 +7,7 @@ use bino_host::io::checkout;
 use bino_host::sim::SimOptions;
 use clap::Args;
 
-use super::args::{LeftRightCheck, PairCandidates, PairProfile, PathwayChoice, SgmPenalties};
+use super::args::{LeftRightCheck, PairCandidates, PairProfile, ReadoutPathway, SgmPenalties};
 use super::progress::Progress;
 
 /// Simulate the board on the host: camera rows in, display out.
@@ -31,18 +31,19 @@ pub struct SimArgs {
     blob: PathBuf,
     /// Readout drawn (a method, optionally +lr, then optionally +ref); default `bino run`'s.
     ///
-    /// Methods: nolink, sgm, head, each optionally +lr, and the checked fusions fuse+lr and
-    /// fuse-all+lr (native pathway: fuse-census+lr).
+    /// Methods: nolink, sgm, head, census, each optionally +lr, and the checked fusions fuse+lr
+    /// and fuse-all+lr (native pathway: fuse-census+lr).
     ///
-    /// nolink, sgm, head: cells their left-right check rejects are dark; +lr: those cells filled
-    /// from the left, as `bino eval` scores; each token row as the pipeline streams it. A +ref
-    /// readout draws its refined pixel rows as the pipeline's refinement stage streams them. The
-    /// default is `bino run`'s for the pathway, refined (export: fuse-all+lr+ref; native, the
-    /// board's: fuse-census+lr+ref).
+    /// nolink, sgm, head, census: cells their left-right check rejects are dark; +lr: those
+    /// cells filled from the left, as `bino eval` scores; each token row as the pipeline streams
+    /// it. A +ref readout draws its refined pixel rows as the pipeline's refinement stage
+    /// streams them. The default is `bino run`'s, refined: census+lr+ref (no encoder); with
+    /// --pathway, that pathway's (export: fuse-all+lr+ref; native, the board's learned preset:
+    /// fuse-census+lr+ref).
     #[arg(long)]
     readout: Option<bino_host::readout::Readout>,
     #[command(flatten)]
-    pathway: PathwayChoice,
+    pathway: ReadoutPathway,
     #[command(flatten)]
     candidates: PairCandidates,
     #[command(flatten)]
@@ -62,15 +63,17 @@ pub struct SimArgs {
 
 /// Runs the verb.
 pub fn run(args: SimArgs) -> Result<()> {
+    let (readout, pathway) = match bino_host::readout::pathway::resolve(args.readout, args.pathway.pathway) {
+        // The default readouts are refined, as `bino run`'s.
+        (readout, pathway) if args.readout.is_none() => (readout.refined(true), pathway),
+        chosen => chosen,
+    };
     let opts = SimOptions {
         pair: args.left.zip(args.right),
         profile: args.profile.profile,
         blob: args.blob,
-        readout: match args.readout {
-            Some(readout) => readout,
-            None => args.pathway.pathway.default_readout().refined(true),
-        },
-        pathway: args.pathway.pathway,
+        readout,
+        pathway,
         max_cols: args.candidates.max_cols,
         penalties: args.sgm.penalties(),
         lr_max_diff: args.lr.lr_max_diff,

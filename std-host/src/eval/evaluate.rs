@@ -28,11 +28,11 @@ use crate::data::occlusion::{check_severities, occlude_item};
 use crate::data::pairs::{read_index, Split};
 use crate::float::head::FloatHead;
 use crate::float::reference::ReferenceEncoder;
-use crate::int8::pipeline_maps::run_pipeline;
+use crate::int8::pipeline_maps::{run_census_stream, run_pipeline};
 use crate::int8::{guide_map, to_u8, Int8Model};
 use crate::readout::pathway::Pathway;
 use crate::readout::refine::GrayViews;
-use crate::readout::{head_candidates, lr_tolerance_q8, MethodMaps, Readout};
+use crate::readout::{head_candidates, lr_tolerance_q8, Method, MethodMaps, Readout};
 
 /// Runs the readouts over the split; `progress(done, total, pair)` after each pair.
 pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &PairEval)) -> Result<EvalReport> {
@@ -229,6 +229,11 @@ fn int8_maps(opts: &EvalOptions, model: &Int8Model, item: &EvalItem) -> Result<M
         head_lr: head,
         head_candidates: head_candidates(item.left.width),
     };
+    if opts.readouts.iter().all(|r| r.method == Method::Census) {
+        // Nothing here reads the encoder: the core's encoder-free census run gives the grid.
+        let unrefined = Readout::new(Method::Census, false);
+        return Ok(run_census_stream(&item.left, &item.right, &pipeline, unrefined)?.methods);
+    }
     Ok(run_pipeline(model, &item.left, &item.right, &pipeline, &mut |_, _| {})?.methods)
 }
 

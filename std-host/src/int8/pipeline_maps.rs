@@ -1,5 +1,7 @@
 //! The core pipeline (`bino_core::pipeline`) on a host pair, its rows gathered into whole
-//! token-grid maps: what `bino run` and `bino eval` read their int8 readouts from.
+//! token-grid maps: what `bino run` and `bino eval` read their int8 readouts from. The census
+//! readouts run the core's encoder-free stream ([`run_census_stream`]): no blob, no encoder,
+//! their pixels refined in the core.
 
 use std::time::{Duration, Instant};
 
@@ -8,13 +10,15 @@ use bino_core::band::BandPlan;
 use bino_core::config::PATCH_H;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{self, HeadChecked, MatchedRow, Options, Pipeline, Report, Sink, SlicePair, Stage};
+use bino_core::pipeline::{
+    self, CensusRow, HeadChecked, MatchedRow, Options, Pipeline, Refine, RefineInput, Report, Sink, SlicePair, Stage,
+};
 
 use crate::data::profile::View;
 use crate::eval::DisparityMap;
 use crate::int8::Int8Model;
 use crate::readout::refine::GrayViews;
-use crate::readout::MethodMaps;
+use crate::readout::{Method, MethodMaps, Readout};
 
 /// Every method of one run as token-grid maps (patch columns), with their left-right masks.
 #[derive(Debug, Clone)]
@@ -27,6 +31,9 @@ pub struct PipelineMaps {
     pub report: Report,
     /// Arena bytes allocated for the run.
     pub arena_bytes: usize,
+    /// The readout's pixels as the core refined them, when the run refined one
+    /// ([`run_census_stream`] of a `+ref` readout).
+    pub refined: Option<DisparityMap>,
 }
 
 /// Runs the int8 pipeline on two views of the same size; `on_band(i, n)` as band `i` of `n`
@@ -58,13 +65,12 @@ pub fn run_pipeline(
         bands_started: 0,
         on_band,
         maps: Default::default(),
-        stage_times: Stage::ALL.iter().map(|&s| (s, Duration::ZERO)).collect(),
-        current: None,
+        times: StageTimes::new(),
     };
     let report = pipeline
         .run(&mut source, opts, &mut arena, &mut sink)
         .map_err(anyhow::Error::msg)?;
-    sink.stage_done();
+    sink.times.stage_done();
     let (rows, cols) = (report.rows, report.cols);
     let m = sink.maps;
     let cells = rows * cols;
@@ -101,10 +107,154 @@ pub fn run_pipeline(
             views,
             census: Default::default(),
         },
-        stage_times: sink.stage_times,
+        stage_times: sink.times.times,
         report,
         arena_bytes,
+        refined: None,
     })
+}
+
+/// The core's encoder-free census run (`bino_core::pipeline::run_census`) on two views of the
+/// same size, for a census readout (`census`, `census+lr`, each optionally `+ref`): the census
+/// grid and its check's mask as [`MethodMaps::census`] (no other method), and for `+ref` the
+/// pixels the core refined (Q8 px / 256), which equal [`MethodMaps::pixels`] of that grid.
+/// Of `opts` the census reads `head_candidates` (its check's tolerance is
+/// [`crate::readout::census::CENSUS_LR_MAX_DIFF_Q8`], as everywhere on the host).
+pub fn run_census_stream(left: &View, right: &View, opts: &Options, readout: Readout) -> Result<PipelineMaps> {
+    ensure!(
+        readout.method == Method::Census,
+        "{readout} is not a census readout: it needs the encoder"
+    );
+    ensure!(
+        (left.width, left.height) == (right.width, right.height),
+        "the views differ in size: {}x{} and {}x{}",
+        left.width,
+        left.height,
+        right.width,
+        right.height
+    );
+    let (w, h) = (left.width, left.height);
+    let views = GrayViews::from_views(left, right)?;
+    let input = if readout.lr {
+        RefineInput::CensusLr
+    } else {
+        RefineInput::Census
+    };
+    let refine = readout.refine.then(|| Refine::for_width(input, w));
+    // The census check's tolerance is one column on every command (`bino eval`'s census grid).
+    let opts = &Options {
+        lr_max_diff_q8: crate::readout::census::CENSUS_LR_MAX_DIFF_Q8,
+        ..*opts
+    };
+    let mut source = SlicePair::new(&views.left, &views.right, w, h).map_err(anyhow::Error::msg)?;
+    let arena_bytes = pipeline::census_arena_bytes(h, w, opts, refine.as_ref());
+    let mut arena = vec![0u8; arena_bytes];
+    let mut sink = CensusCollect {
+        width: w,
+        times: StageTimes::new(),
+        grid: Vec::new(),
+        mask: Vec::new(),
+        refined: Vec::new(),
+    };
+    let report =
+        pipeline::run_census(&mut source, opts, refine.as_ref(), &mut arena, &mut sink).map_err(anyhow::Error::msg)?;
+    sink.times.stage_done();
+    let (rows, cols) = (report.rows, report.cols);
+    ensure!(
+        sink.grid.len() == rows * cols && sink.mask.len() == rows * cols,
+        "the census run emitted {} cells for {rows}x{cols}",
+        sink.grid.len()
+    );
+    ensure!(
+        sink.refined.len() == if refine.is_some() { w * h } else { 0 },
+        "the census run refined {} of {} pixels",
+        sink.refined.len(),
+        w * h
+    );
+    let grid = DisparityMap {
+        width: cols,
+        height: rows,
+        values: q8(&sink.grid).collect(),
+    };
+    let census = std::cell::OnceCell::new();
+    let _ = census.set((grid, sink.mask.iter().map(|&k| k != 0).collect()));
+    let refined = refine.map(|_| DisparityMap {
+        width: w,
+        height: h,
+        values: q8(&sink.refined).collect(),
+    });
+    Ok(PipelineMaps {
+        methods: MethodMaps {
+            nolink: None,
+            sgm: None,
+            head: None,
+            nolink_consistent: Vec::new(),
+            sgm_consistent: Vec::new(),
+            head_consistent: None,
+            head_confidence: None,
+            views,
+            census,
+        },
+        stage_times: sink.times.times,
+        report,
+        arena_bytes,
+        refined,
+    })
+}
+
+/// Wall time per pipeline stage, charged at each stage change.
+struct StageTimes {
+    times: Vec<(Stage, Duration)>,
+    current: Option<(Stage, Instant)>,
+}
+
+impl StageTimes {
+    fn new() -> Self {
+        Self {
+            times: Stage::ALL.iter().map(|&s| (s, Duration::ZERO)).collect(),
+            current: None,
+        }
+    }
+
+    /// Charges the time since the last stage change to that stage.
+    fn stage_done(&mut self) {
+        if let Some((stage, since)) = self.current.take() {
+            if let Some(entry) = self.times.iter_mut().find(|(s, _)| *s == stage) {
+                entry.1 += since.elapsed();
+            }
+        }
+    }
+
+    fn enter(&mut self, stage: Stage) {
+        self.stage_done();
+        self.current = Some((stage, Instant::now()));
+    }
+}
+
+/// The census run's rows, gathered.
+struct CensusCollect {
+    width: usize,
+    times: StageTimes,
+    grid: Vec<u16>,
+    mask: Vec<u8>,
+    refined: Vec<u16>,
+}
+
+impl Sink for CensusCollect {
+    fn stage(&mut self, stage: Stage) {
+        self.times.enter(stage);
+    }
+
+    fn census(&mut self, row: &CensusRow<'_>) {
+        self.grid.extend_from_slice(row.disparity_q8);
+        self.mask.extend_from_slice(row.consistent);
+    }
+
+    fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
+        // Rows arrive once each, top to bottom (the core's contract).
+        debug_assert_eq!(self.refined.len(), row * self.width);
+        self.refined.extend_from_slice(disparity_q8);
+    }
 }
 
 #[derive(Default)]
@@ -123,19 +273,7 @@ struct Collect<'p> {
     bands_started: usize,
     on_band: &'p mut dyn FnMut(usize, usize),
     maps: Rows,
-    stage_times: Vec<(Stage, Duration)>,
-    current: Option<(Stage, Instant)>,
-}
-
-impl Collect<'_> {
-    /// Charges the time since the last stage change to that stage.
-    fn stage_done(&mut self) {
-        if let Some((stage, since)) = self.current.take() {
-            if let Some(entry) = self.stage_times.iter_mut().find(|(s, _)| *s == stage) {
-                entry.1 += since.elapsed();
-            }
-        }
-    }
+    times: StageTimes,
 }
 
 fn q8(values: &[u16]) -> impl Iterator<Item = f32> + '_ {
@@ -145,12 +283,11 @@ fn q8(values: &[u16]) -> impl Iterator<Item = f32> + '_ {
 
 impl Sink for Collect<'_> {
     fn stage(&mut self, stage: Stage) {
-        self.stage_done();
         if stage == Stage::EncodeLeft || stage == Stage::EncodePair {
             self.bands_started += 1;
             (self.on_band)(self.bands_started, self.bands);
         }
-        self.current = Some((stage, Instant::now()));
+        self.times.enter(stage);
     }
 
     fn matched(&mut self, row: &MatchedRow<'_>) {

@@ -70,6 +70,35 @@ pub fn create_dir(dir: &Path) -> Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create output folder {}", dir.display()))
 }
 
+/// Checks, before any work, that `dir` can be an output folder: it is a folder already, or the
+/// nearest part of its path that exists is one (nothing is created here). The error names the
+/// part that is a file.
+pub fn check_output_dir(dir: &Path, flag: &str) -> Result<()> {
+    for part in dir.ancestors().filter(|p| !p.as_os_str().is_empty()) {
+        match std::fs::metadata(part) {
+            Ok(meta) if meta.is_dir() => return Ok(()),
+            Ok(_) if part == dir => bail!("{flag} {}: is a file, not a folder", dir.display()),
+            Ok(_) => bail!(
+                "{flag} {}: cannot create the folder, {} is a file",
+                dir.display(),
+                part.display()
+            ),
+            // Missing, or below a file: the nearest existing part says which.
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::NotFound | std::io::ErrorKind::NotADirectory
+                ) =>
+            {
+                continue
+            }
+            Err(e) => bail!("{flag} {}: {e}", dir.display()),
+        }
+    }
+    // A relative path whose every part is missing lies in the current folder.
+    Ok(())
+}
+
 /// The temporary name `path` is written under before it is renamed into place.
 pub fn partial_path(path: &Path) -> PathBuf {
     let mut name = path.file_name().unwrap_or_default().to_os_string();
@@ -181,6 +210,28 @@ mod tests {
         // A parent that is a file cannot hold an output folder.
         let err = format!("{:#}", write_bytes(&out.join("x.json"), b"{}").unwrap_err());
         assert!(err.contains("cannot create output folder"), "{err}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn an_output_folder_that_is_a_file_is_refused_before_any_work() {
+        let dir = scratch("out-check");
+        let file = dir.join("taken");
+        std::fs::write(&file, b"x").unwrap();
+        check_output_dir(&dir, "--out").unwrap();
+        check_output_dir(&dir.join("new/deeper"), "--out").unwrap();
+        check_output_dir(Path::new("relative-and-missing"), "--out").unwrap();
+        let err = check_output_dir(&file, "--out").unwrap_err().to_string();
+        assert!(
+            err.contains("is a file, not a folder") && err.contains("taken"),
+            "{err}"
+        );
+        let err = check_output_dir(&file.join("below"), "--out").unwrap_err().to_string();
+        assert!(
+            err.contains("cannot create the folder") && err.contains("taken"),
+            "{err}"
+        );
+        assert!(!dir.join("new").exists(), "nothing created");
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }

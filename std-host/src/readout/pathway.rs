@@ -46,8 +46,9 @@ impl Pathway {
         Ok(())
     }
 
-    /// The readout `bino run` and `bino sim` use when none is given, the one the streaming
-    /// pipeline refines by its rule (`RefineInput::for_options`; the board's preset runs the
+    /// The pathway's learned readout, what `bino run --pathway P` and `bino sim --pathway P`
+    /// use when no readout is given (without `--pathway` they use [`DEFAULT_READOUT`]), the one
+    /// the streaming pipeline refines by its rule (`RefineInput::for_options`; the board's preset runs the
     /// native one): on the export pathway `fuse-all+lr` (the head fused with the census SGM,
     /// then with the descriptor SGM, by their checks: better than `fuse+lr` on all eight
     /// validation sets, `train/experiments.json`, `census_companion`), on the native pathway
@@ -59,6 +60,25 @@ impl Pathway {
             Pathway::Native => Readout::new(Method::CensusFused, true),
         }
     }
+}
+
+/// The readout `bino run` and `bino sim` use when neither `--readout` nor `--pathway` is given:
+/// `census+lr` (refined, `census+lr+ref`), the census SGM of the pixels with its own check and
+/// no encoder. It is more accurate than every learned readout on the real labeled validation
+/// pairs at both widths (`train/experiments.json`, `census_default`) and costs a fraction of
+/// their instructions on the board.
+pub const DEFAULT_READOUT: Readout = Readout::new(Method::Census, true);
+
+/// The readout of a run: `readout` when given, else the named pathway's learned default
+/// ([`Pathway::default_readout`]), else [`DEFAULT_READOUT`]; and the pathway it runs on (the
+/// export pathway unless named).
+pub fn resolve(readout: Option<Readout>, pathway: Option<Pathway>) -> (Readout, Pathway) {
+    let chosen = match (readout, pathway) {
+        (Some(readout), _) => readout,
+        (None, Some(pathway)) => pathway.default_readout(),
+        (None, None) => DEFAULT_READOUT,
+    };
+    (chosen, pathway.unwrap_or_default())
 }
 
 impl Pathway {
@@ -134,5 +154,18 @@ mod tests {
         assert_eq!(bino_core::preset::OPTIONS.pathway, Pathway::Native.core());
         assert_eq!(rule(bino_core::preset::OPTIONS), "fuse-census+lr");
         assert_eq!(rule(bino_core::preset::EXPORT_OPTIONS), "fuse-all+lr");
+    }
+
+    #[test]
+    fn without_a_pathway_the_default_is_the_census_and_with_one_its_learned_readout() {
+        let census = resolve(None, None);
+        assert_eq!((census.0.name(), census.1), ("census+lr", Pathway::Export));
+        // The census runs no encoder: the core streams it as its own input.
+        assert!(!census.0.uses_head() && census.0.method == Method::Census);
+        assert_eq!(resolve(None, Some(Pathway::Native)).0.name(), "fuse-census+lr");
+        assert_eq!(resolve(None, Some(Pathway::Export)).0.name(), "fuse-all+lr");
+        let head = Readout::HEAD_LR;
+        assert_eq!(resolve(Some(head), None), (head, Pathway::Export));
+        assert_eq!(resolve(Some(head), Some(Pathway::Native)), (head, Pathway::Native));
     }
 }

@@ -18,8 +18,8 @@ use bino_core::config::HEAD_MAX_DISP;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
-    self, FusedRow, HeadChecked, MatchedRow, Options as PipelineOptions, Pipeline, Refine, RefineInput, Report, Sink,
-    Stage,
+    self, CensusRow, FusedRow, HeadChecked, MatchedRow, Options as PipelineOptions, Pipeline, Refine, RefineInput,
+    Report, Sink, Stage,
 };
 use bino_core::sgm::Penalties;
 use embedded_graphics::mono_font::ascii::FONT_6X10;
@@ -129,19 +129,31 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     opts.pathway.check(opts.readout)?;
     // The pipeline must have the readout before any work starts.
     let input = refine_input(opts.readout)?;
+    crate::io::files::check_output_dir(&opts.out, "--out")?;
     progress("loading the pair and the blob");
     let (source, left, right) = load_pair(opts)?;
     let (width, height) = (left.width, left.height);
-    let model = Int8Model::load(&opts.blob)?;
-    let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
-    if opts.readout.uses_head() {
+    // The census readouts read pixels only: no blob, no encoder.
+    let model = match input.census_only() {
+        true => None,
+        false => Some(Int8Model::load(&opts.blob)?),
+    };
+    let pipeline = match model.as_ref() {
+        Some(model) => Some(Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?),
+        None => None,
+    };
+    if let (true, Some(model)) = (opts.readout.uses_head(), model.as_ref()) {
         model.require_head(opts.pathway.core())?;
     }
     let pipeline_opts = PipelineOptions {
         pathway: opts.pathway.core(),
         max_cols: opts.max_cols,
         penalties: opts.penalties,
-        lr_max_diff_q8: crate::readout::lr_tolerance_q8(opts.lr_max_diff),
+        // The census check's tolerance is one column on every command (as `bino run`'s).
+        lr_max_diff_q8: match input.census_only() {
+            true => crate::readout::census::CENSUS_LR_MAX_DIFF_Q8,
+            false => crate::readout::lr_tolerance_q8(opts.lr_max_diff),
+        },
         head: opts.readout.uses_head(),
         // The head's own left-right check: the display darkens (or, for head+lr, fills) the
         // cells it rejects, as for the other methods.
@@ -158,6 +170,7 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     };
     let layout = Layout::new(opts.display, width, height)?;
     let arena_bytes = match &refine {
+        _ if input.census_only() => pipeline::census_arena_bytes(height, width, &pipeline_opts, refine.as_ref()),
         Some(r) => pipeline::arena_bytes_refined(height, width, &pipeline_opts, r),
         None => pipeline::arena_bytes_for(height, width, &pipeline_opts),
     };
@@ -166,8 +179,13 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     let mut frame_times = Vec::with_capacity(opts.frames);
     let mut last = None;
     for frame in 0..opts.frames {
+        let encoder = match (input.census_only(), opts.pathway) {
+            (true, _) => "census SGM (no encoder)",
+            (false, crate::readout::pathway::Pathway::Export) => "encoder (L,L), (R,R)",
+            (false, crate::readout::pathway::Pathway::Native) => "encoder (L,R)",
+        };
         progress(&format!(
-            "frame {}/{}: sensor rows -> band buffer -> encoder (L,L), (R,R) -> {} -> display",
+            "frame {}/{}: sensor rows -> band buffer -> {encoder} -> {} -> display",
             frame + 1,
             opts.frames,
             opts.readout.name()
@@ -177,9 +195,10 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         let mut sensor = SensorSource::new(&left.pixels, &right.pixels, width, height).map_err(anyhow::Error::msg)?;
         let mut sink = DisplaySink::new(&mut fb, layout.disparity, opts.readout, opts.max_cols);
         let started = Instant::now();
-        let report = match &refine {
-            Some(r) => pipeline.run_refined(&mut sensor, &pipeline_opts, r, &mut arena, &mut sink),
-            None => pipeline.run(&mut sensor, &pipeline_opts, &mut arena, &mut sink),
+        let report = match (&pipeline, &refine) {
+            (None, _) => pipeline::run_census(&mut sensor, &pipeline_opts, refine.as_ref(), &mut arena, &mut sink),
+            (Some(p), Some(r)) => p.run_refined(&mut sensor, &pipeline_opts, r, &mut arena, &mut sink),
+            (Some(p), None) => p.run(&mut sensor, &pipeline_opts, &mut arena, &mut sink),
         }
         .map_err(anyhow::Error::msg)?;
         sink.finish();
@@ -235,11 +254,13 @@ fn refine_input(readout: Readout) -> Result<RefineInput> {
         (Method::Fused, false) => bail!("--readout {readout}: {UNCHECKED_FUSE_NOT_STREAMED}"),
         (Method::CensusFused, true) => RefineInput::FusedCensusLr,
         (Method::FusedAll, true) => RefineInput::FusedAllLr,
-        (Method::Census | Method::CensusFused | Method::FusedAll, _) => bail!(
+        (Method::Census, false) => RefineInput::Census,
+        (Method::Census, true) => RefineInput::CensusLr,
+        (Method::CensusFused | Method::FusedAll, false) => bail!(
             "--readout {readout}: the board's streaming pipeline (bino_core::pipeline), which bino sim runs, \
              streams the census SGM fused by the checks (fuse-census+lr with --pathway native, fuse-all+lr \
-             with --pathway export, each optionally +ref); census alone and the unchecked fusions are computed \
-             by bino run and bino eval only"
+             with --pathway export, each optionally +ref); the unchecked fusions are computed by bino run and \
+             bino eval only"
         ),
     })
 }
@@ -263,8 +284,7 @@ fn status_lines(sim: &SimReport, readout: Readout) -> Vec<String> {
         Method::Sgm => sim.pipeline.sgm_kept,
         Method::Head => sim.pipeline.head_kept,
         Method::Fused | Method::CensusFused | Method::FusedAll => sim.pipeline.fused_kept,
-        // `refine_input` refuses it before a run.
-        Method::Census => 0,
+        Method::Census => sim.pipeline.census_kept,
     };
     let kept = 100.0 * kept as f64 / (sim.pipeline.rows * sim.pipeline.cols).max(1) as f64;
     vec![
@@ -438,9 +458,12 @@ pub struct DisplaySink<'f> {
 }
 
 impl<'f> DisplaySink<'f> {
-    /// A sink drawing `readout` into `panel` of `fb`; `max_cols` candidates of nolink and sgm.
+    /// A sink drawing `readout` into `panel` of `fb`; `max_cols` candidates of nolink and sgm
+    /// (the head's and the census's colour scale is the head's trained range).
     pub fn new(fb: &'f mut Framebuffer, panel: Panel, readout: Readout, max_cols: usize) -> Self {
-        let candidates = if readout.uses_head() { HEAD_MAX_DISP } else { max_cols };
+        // The census searches as far as the head (4 px a head candidate).
+        let head_range = readout.uses_head() || readout.method == Method::Census;
+        let candidates = if head_range { HEAD_MAX_DISP } else { max_cols };
         Self {
             fb,
             panel,
@@ -560,6 +583,12 @@ impl Sink for DisplaySink<'_> {
 
     fn fused(&mut self, row: &FusedRow<'_>) {
         if self.readout.fuses() && !self.readout.refine {
+            self.show_row(row.row, row.disparity_q8, row.consistent);
+        }
+    }
+
+    fn census(&mut self, row: &CensusRow<'_>) {
+        if self.readout.method == Method::Census && !self.readout.refine {
             self.show_row(row.row, row.disparity_q8, row.consistent);
         }
     }

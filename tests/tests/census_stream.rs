@@ -1,0 +1,237 @@
+//! The encoder-free census readout as the core streams it (`bino_core::pipeline::run_census`):
+//! on one band and on images of several bands, its token rows equal a census SGM computed
+//! independently over the whole map, its refined pixel rows equal the whole-map refinement of
+//! that grid (filled by its check for `census+lr`, rejected cells keeping the bilinear step), it
+//! never enters an encoder stage, `Pipeline::run_refined` with a census input is the same run,
+//! and its arena does not grow with the image's height.
+
+use bino_core::lr::fill_rejected;
+use bino_core::pipeline::{
+    arena_bytes_refined, census_arena_bytes, run_census, CensusRow, Options, Pathway, Pipeline, Refine, RefineInput,
+    Report, Sink, SlicePair, Stage,
+};
+use bino_core::refine::sharpness::refine_map_equalised;
+use bino_core::refine::{keep_rejected_map, refine_map, scratch_len};
+use bino_core::Error;
+use bino_host::data::synthetic;
+use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
+use bino_host::int8::Int8Model;
+use bino_tests::census_whole_map;
+
+/// One band; 2 bands; 3 bands 8 token rows apart; an odd stride; 4; a 160x120 frame.
+const SIZES: [(usize, usize); 6] = [(160, 48), (32, 56), (32, 80), (48, 100), (32, 144), (160, 120)];
+
+fn options(pathway: Pathway) -> Options {
+    Options {
+        pathway,
+        max_cols: 16,
+        penalties: DEFAULT_PENALTIES,
+        lr_max_diff_q8: 256,
+        head: false,
+        head_lr: false,
+        head_candidates: bino_core::config::HEAD_MAX_DISP,
+    }
+}
+
+#[derive(Default, Debug)]
+struct Collect {
+    census_rows: Vec<usize>,
+    grid: Vec<u16>,
+    mask: Vec<u8>,
+    refined_rows: Vec<usize>,
+    refined: Vec<u16>,
+    stage: Option<Stage>,
+    encoded: bool,
+    refined_outside_stage: bool,
+}
+
+impl Sink for Collect {
+    fn stage(&mut self, stage: Stage) {
+        self.encoded |= stage.encodes();
+        self.stage = Some(stage);
+    }
+    fn census(&mut self, row: &CensusRow<'_>) {
+        self.census_rows.push(row.row);
+        self.grid.extend_from_slice(row.disparity_q8);
+        self.mask.extend_from_slice(row.consistent);
+    }
+    fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
+        self.refined_outside_stage |= self.stage != Some(Stage::Refine);
+        self.refined_rows.push(row);
+        self.refined.extend_from_slice(disparity_q8);
+    }
+}
+
+struct Scene {
+    width: usize,
+    height: usize,
+    left: Vec<u8>,
+    right: Vec<u8>,
+}
+
+fn scene(width: usize, height: usize) -> Scene {
+    let s = synthetic::default_scene(width, height);
+    Scene {
+        width,
+        height,
+        left: s.left.pixels,
+        right: s.right.pixels,
+    }
+}
+
+fn run(s: &Scene, opts: &Options, refine: Option<&Refine>) -> Result<(Collect, Report), Error> {
+    let mut out = Collect::default();
+    let mut source = SlicePair::new(&s.left, &s.right, s.width, s.height)?;
+    let needed = census_arena_bytes(s.height, s.width, opts, refine);
+    let mut arena = vec![0u8; needed];
+    let report = run_census(&mut source, opts, refine, &mut arena, &mut out)?;
+    assert!(report.arena_used <= needed, "{report:?} needed {needed}");
+    Ok((out, report))
+}
+
+/// The whole-map refinement of the census grid (filled by its check for `census+lr`).
+fn whole_map(s: &Scene, grid: &[u16], mask: &[u8], refine: &Refine) -> Vec<u16> {
+    let cols = s.width / 4;
+    let lr = refine.input == RefineInput::CensusLr;
+    let mut grid = grid.to_vec();
+    if lr {
+        for (row, m) in grid.chunks_exact_mut(cols).zip(mask.chunks_exact(cols)) {
+            fill_rejected(row, m).unwrap();
+        }
+    }
+    let mut scratch = vec![0u32; scratch_len(s.width, &refine.params)];
+    let mut expected = vec![0u16; s.width * s.height];
+    let whole = if refine.equalise {
+        refine_map_equalised
+    } else {
+        refine_map
+    };
+    whole(
+        &s.left,
+        &s.right,
+        s.width,
+        &grid,
+        &refine.params,
+        &mut scratch,
+        &mut expected,
+    )
+    .unwrap();
+    if lr {
+        keep_rejected_map(s.width, &grid, mask, &mut expected).unwrap();
+    }
+    expected
+}
+
+#[test]
+fn the_census_streams_and_refines_as_the_whole_map_on_one_band_and_many() {
+    for (width, height) in SIZES {
+        let s = scene(width, height);
+        let (want_grid, want_mask) = census_whole_map(&s.left, &s.right, width, height, 12);
+        let (plain, report) = run(&s, &options(Pathway::Export), None).unwrap();
+        let what = format!("{width}x{height}");
+        assert_eq!(plain.census_rows, (0..height / 4).collect::<Vec<_>>(), "{what}");
+        assert!((&plain.grid, &plain.mask) == (&want_grid, &want_mask), "{what}");
+        assert!(!plain.encoded && plain.refined.is_empty(), "{what}");
+        let kept = want_mask.iter().filter(|&&k| k == 1).count();
+        assert!(kept > 0 && kept < want_mask.len(), "{what}: {kept} kept");
+        assert_eq!(report.census_kept, kept, "{what}");
+        for input in [RefineInput::Census, RefineInput::CensusLr] {
+            for equalise in [false, true] {
+                let refine = Refine {
+                    equalise,
+                    ..Refine::for_width(input, width)
+                };
+                let what = format!("{what} {} equalise {equalise}", input.name());
+                let (out, _) = run(&s, &options(Pathway::Native), Some(&refine)).unwrap();
+                assert_eq!(out.refined_rows, (0..height).collect::<Vec<_>>(), "{what}");
+                assert!(!out.refined_outside_stage && !out.encoded, "{what}");
+                assert!((&out.grid, &out.mask) == (&want_grid, &want_mask), "{what}");
+                assert!(out.refined == whole_map(&s, &want_grid, &want_mask, &refine), "{what}");
+            }
+        }
+    }
+}
+
+#[test]
+fn run_refined_with_a_census_input_is_the_encoder_free_run() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    for pathway in [Pathway::Export, Pathway::Native] {
+        let s = scene(48, 100);
+        let opts = options(pathway);
+        let refine = Refine::of(RefineInput::CensusLr);
+        let needed = arena_bytes_refined(s.height, s.width, &opts, &refine);
+        assert_eq!(needed, census_arena_bytes(s.height, s.width, &opts, Some(&refine)));
+        let mut arena = vec![0u8; needed];
+        let mut out = Collect::default();
+        let mut source = SlicePair::new(&s.left, &s.right, s.width, s.height).unwrap();
+        pipeline
+            .run_refined(&mut source, &opts, &refine, &mut arena, &mut out)
+            .unwrap();
+        let (direct, _) = run(&s, &opts, Some(&refine)).unwrap();
+        assert!(!out.encoded, "{pathway:?}");
+        assert!(out.refined == direct.refined && out.grid == direct.grid, "{pathway:?}");
+    }
+}
+
+#[test]
+fn the_arena_does_not_grow_with_the_height_and_bad_runs_are_refused() {
+    let opts = options(Pathway::Native);
+    let refine = Refine::of(RefineInput::CensusLr);
+    let band = census_arena_bytes(48, 160, &opts, Some(&refine));
+    // Taller than a band: a few view rows kept for the refinement across band loads, the same
+    // for every height.
+    let frame = census_arena_bytes(52, 160, &opts, Some(&refine));
+    assert!(frame > band && frame - band <= 4 * 160, "{band} {frame}");
+    for height in [96, 120, 240, 480, 4000] {
+        assert_eq!(census_arena_bytes(height, 160, &opts, Some(&refine)), frame, "{height}");
+    }
+    // Far below the encoder's: the pixel band, the census stage and the refinement.
+    let native = arena_bytes_refined(48, 160, &opts, &Refine::of(RefineInput::FusedCensusLr));
+    assert!(band * 4 < native, "{band} against {native}");
+
+    let s = scene(160, 48);
+    let head = Refine::of(RefineInput::HeadLr);
+    assert_eq!(
+        run(&s, &opts, Some(&head)).unwrap_err(),
+        Error::MissingReadout { readout: "head+lr" }
+    );
+    let mut arena = vec![0u8; band - 1];
+    let mut source = SlicePair::new(&s.left, &s.right, s.width, s.height).unwrap();
+    let err = run_census(&mut source, &opts, Some(&refine), &mut arena, &mut Collect::default()).unwrap_err();
+    assert_eq!(
+        err,
+        Error::ArenaTooSmall {
+            needed: band,
+            available: band - 1
+        }
+    );
+    let none = Options {
+        head_candidates: 0,
+        ..opts
+    };
+    assert!(run(&s, &none, None).is_err());
+    // Rows that stop early: the source's error, no panic.
+    let mut short = SlicePair::new(&s.left[..160 * 40], &s.right[..160 * 40], 160, 40).unwrap();
+    let mut tall = TallerThanItIs(&mut short);
+    let mut arena = vec![0u8; band];
+    assert!(matches!(
+        run_census(&mut tall, &opts, Some(&refine), &mut arena, &mut Collect::default()),
+        Err(Error::EndOfRows { .. })
+    ));
+}
+
+/// A source that claims 48 rows and delivers 40.
+struct TallerThanItIs<'a, 'p>(&'a mut SlicePair<'p>);
+
+impl bino_core::pipeline::RowSource for TallerThanItIs<'_, '_> {
+    fn width(&self) -> usize {
+        self.0.width()
+    }
+    fn height(&self) -> usize {
+        48
+    }
+    fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
+        self.0.next_row(left, right)
+    }
+}
