@@ -20,9 +20,9 @@ nuisances=gain,gamma,noise,blur,occlude
 runs=(
   "eval_w160|--profile w160"
   "eval_w320|--profile w320 --max-cols 16"
-  "eval_nuisance_w160|--profile w160 --readout sgm+lr+ref,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --nuisance $nuisances"
-  "eval_nuisance_w320|--profile w320 --max-cols 16 --precision int8 --readout sgm+lr+ref,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --nuisance $nuisances"
-  "occlusion_w160|--profile w160 --precision int8 --readout sgm+lr+ref,head,head+lr,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --occlude 10,20,30,40"
+  "eval_nuisance_w160|--profile w160 --readout census+lr+ref,sgm+lr+ref,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --nuisance $nuisances"
+  "eval_nuisance_w320|--profile w320 --max-cols 16 --precision int8 --readout census+lr+ref,sgm+lr+ref,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --nuisance $nuisances"
+  "occlusion_w160|--profile w160 --precision int8 --readout census+lr+ref,sgm+lr+ref,head,head+lr,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --occlude 10,20,30,40"
   "native_w160|--profile w160 --precision int8,f32 --pathway native"
   "native_occlusion_w160|--profile w160 --precision int8 --readout head,head+lr,head+lr+ref,fuse-census+lr+ref --occlude 10,20,30,40 --pathway native"
   "native_nuisance_w160|--profile w160 --precision int8 --readout head+lr+ref,fuse-census+lr+ref --nuisance $nuisances --pathway native"
@@ -71,7 +71,7 @@ for width in 160 320; do
     --out "$folder" --data "$data")
   cols=$((width == 320 ? 16 : 10))
   "$bino" eval --data "$folder" --split val --profile native --precision int8 --max-cols "$cols" \
-    --readout sgm+lr+ref,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --json "$metrics/$name.json"
+    --readout census+lr+ref,sgm+lr+ref,head+lr+ref,fuse+lr+ref,fuse-all+lr+ref --json "$metrics/$name.json"
   # The board's readout (the native pathway) on the same pairs.
   "$bino" eval --data "$folder" --split val --profile native --precision int8 --pathway native \
     --readout head+lr+ref,fuse-census+lr+ref --json "$metrics/native_$name.json"
