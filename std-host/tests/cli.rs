@@ -189,13 +189,78 @@ fn run_writes_disparity_pfm_and_mask() {
     ]);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     let stdout = String::from_utf8_lossy(&run.stdout);
-    assert!(stdout.contains("left-right consistent"), "{stdout}");
-    // w160: 200x60 -> 160x48.
-    let mask = image::open(out.join("lr_mask.png")).unwrap();
-    assert_eq!((mask.width(), mask.height()), (160, 48));
+    // Computed at w160 (200x60 -> 160x48), answered at the input's size.
+    assert!(
+        stdout.contains("computed at 160x48 (w160), written at 200x60") && stdout.contains("% of pixels valid"),
+        "{stdout}"
+    );
+    let mask = image::open(out.join("valid.png")).unwrap();
+    assert_eq!((mask.width(), mask.height()), (200, 60));
     let pfm = std::fs::read(out.join("disparity.pfm")).unwrap();
-    assert!(pfm.starts_with(b"Pf\n160 48\n-1.0\n"));
-    assert_eq!(pfm.len(), b"Pf\n160 48\n-1.0\n".len() + 160 * 48 * 4);
+    assert!(pfm.starts_with(b"Pf\n200 60\n-1.0\n"));
+    assert_eq!(pfm.len(), b"Pf\n200 60\n-1.0\n".len() + 200 * 60 * 4);
+    // The picture carries its colour bar below the map.
+    let png = image::open(out.join("disparity.png")).unwrap();
+    assert_eq!(png.width(), 200);
+    assert!(png.height() > 60, "{}", png.height());
+}
+
+/// A flat identical pair has nothing to match: the answer says so (almost every pixel invalid,
+/// infinite with `--invalid inf`), and a tiny image upscaled to the profile gets a warning.
+#[test]
+fn a_flat_pair_is_mostly_invalid_and_a_tiny_one_is_warned_about() {
+    let dir = scratch("run-flat");
+    let (left, right) = (dir.join("l.png"), dir.join("r.png"));
+    for path in [&left, &right] {
+        image::GrayImage::from_pixel(320, 96, image::Luma([128]))
+            .save(path)
+            .unwrap();
+    }
+    for pathway in [&[][..], &["--pathway", "native"]] {
+        let out = dir.join(format!("out{}", pathway.len()));
+        let mut args = vec![
+            "run",
+            "--left",
+            s(&left),
+            "--right",
+            s(&right),
+            "--invalid",
+            "inf",
+            "--out",
+            s(&out),
+        ];
+        args.extend(pathway);
+        let run = bino(&args);
+        assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+        let pfm = bino_host::io::pfm::load(&out.join("disparity.pfm"), "disparity").unwrap();
+        let invalid = pfm.values.iter().filter(|v| v.is_infinite()).count();
+        assert!(
+            invalid * 10 >= pfm.values.len() * 9,
+            "{pathway:?}: {invalid} of {} invalid",
+            pfm.values.len()
+        );
+        let mask = image::open(out.join("valid.png")).unwrap().to_luma8();
+        let zeros = mask.pixels().filter(|p| p.0[0] == 0).count();
+        assert_eq!(zeros, invalid, "{pathway:?}: the mask and the PFM agree");
+    }
+    let (tiny_l, tiny_r) = (dir.join("tl.png"), dir.join("tr.png"));
+    write_png(&tiny_l, 8, 8);
+    write_png(&tiny_r, 8, 8);
+    let run = bino(&[
+        "run",
+        "--left",
+        s(&tiny_l),
+        "--right",
+        s(&tiny_r),
+        "--out",
+        s(&dir.join("tiny")),
+    ]);
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    assert!(stderr.contains("warning: the 8x8 input is upscaled 40.0x"), "{stderr}");
+    assert!(stderr.contains("shorter than one 48-row band"), "{stderr}");
+    let pfm = bino_host::io::pfm::load(&dir.join("tiny/disparity.pfm"), "disparity").unwrap();
+    assert_eq!((pfm.width, pfm.height), (8, 8));
 }
 
 #[test]
@@ -315,7 +380,7 @@ fn run_refine_off_is_the_upsampled_grid_and_the_default_its_refinement() {
         "default: the refinement, rejected cells kept"
     );
     assert!(pfm(&on) != pfm(&off));
-    let mask = |dir: &Path| std::fs::read(dir.join("lr_mask.png")).unwrap();
+    let mask = |dir: &Path| std::fs::read(dir.join("valid.png")).unwrap();
     assert!(mask(&on) == mask(&off), "the method's mask either way");
 }
 

@@ -152,7 +152,8 @@ fn run_matches_eval(profile: Profile, readouts: &[&str], extra: &[&str]) -> serd
         path
     };
     let gt = record.gt.as_ref().unwrap();
-    let (left, right) = (link("l.png", &record.left), link("r.png", &record.right));
+    link("l.png", &record.left);
+    link("r.png", &record.right);
     link("gt.pgm", &gt.path);
     std::fs::write(
         dir.join("PAIRS.tsv"),
@@ -189,6 +190,19 @@ fn run_matches_eval(profile: Profile, readouts: &[&str], extra: &[&str]) -> serd
     let report: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
     let max_cols = report["max_cols"].as_u64().unwrap().to_string();
 
+    // `bino run` answers at the input's size and eval scores at the profile's: run reads the
+    // pair as the profile made it (its 8-bit views, the pipeline's input) with --profile native.
+    let save = |name: &str, view: &bino_host::data::profile::View| -> PathBuf {
+        let path = dir.join(name);
+        let pixels = bino_host::int8::to_u8(&view.pixels);
+        image::GrayImage::from_raw(view.width as u32, view.height as u32, pixels)
+            .unwrap()
+            .save(&path)
+            .unwrap();
+        path
+    };
+    let (left, right) = (save("profiled_l.png", &item.left), save("profiled_r.png", &item.right));
+    let native = "native".to_string();
     for &readout in readouts {
         let out = dir.join(format!("run-{readout}"));
         // The refined readouts by run's default, the others with --refine off.
@@ -203,7 +217,7 @@ fn run_matches_eval(profile: Profile, readouts: &[&str], extra: &[&str]) -> serd
             "--right",
             s(&right),
             "--profile",
-            &profile_name,
+            &native,
             "--readout",
             name,
             "--max-cols",

@@ -13,10 +13,11 @@ use super::progress::Progress;
 
 /// Compute the disparity of a rectified pair of any size with the int8 pipeline.
 ///
-/// Writes disparity.png (colour), disparity.pfm (float32 pixel disparities, dense, the readout
-/// exactly as `bino eval` scores it: refined, the readout's +ref, unless --refine off) and
-/// lr_mask.png (pixels the readout's method keeps in its left-right check) to --out, all at the
-/// profile's size.
+/// Writes disparity.png (colour, with its colour bar), disparity.pfm (float32 disparities in
+/// the input's pixels, the readout as `bino eval` scores it: refined, the readout's +ref, unless
+/// --refine off; dense unless --invalid inf) and valid.png (pixels whose cell the readout's own
+/// check keeps and whose view has texture) to --out, all at the input's size; --profile chooses
+/// the size it is computed at.
 #[derive(Args)]
 pub struct RunArgs {
     /// Left view (PNG, PPM/PGM or JPEG; colour becomes gray).
@@ -59,6 +60,12 @@ pub struct RunArgs {
     sgm: SgmPenalties,
     #[command(flatten)]
     lr: LeftRightCheck,
+    /// What disparity.pfm holds at invalid pixels: keep (the readout's value) or inf.
+    ///
+    /// Invalid: the readout's own check rejects the pixel's cell, or the view has no texture
+    /// there (valid.png). inf is Middlebury's convention for unknown disparity.
+    #[arg(long, value_enum, default_value = "keep")]
+    invalid: bino_host::run::InvalidPixels,
     /// Output folder.
     #[arg(long, default_value = "out/run")]
     out: PathBuf,
@@ -81,22 +88,28 @@ pub fn run(args: RunArgs) -> Result<()> {
         max_cols: args.candidates.max_cols,
         penalties: args.sgm.penalties(),
         lr_max_diff: args.lr.lr_max_diff,
+        invalid: args.invalid,
         out: args.out,
     };
     let progress = Progress::new(false);
     let report = bino_host::run::run_pair(&opts, |step| progress.step(step))?;
     progress.finish();
-    // One consistency figure: the pixels the readout's own check keeps (lr_mask.png).
+    // One figure: the valid pixels (valid.png: the readout's own check keeps them, texture).
     let pathway = match opts.readout.method {
         Method::Census => "no encoder".to_string(),
         _ => format!("{} pathway", opts.pathway),
     };
+    for warning in &report.warnings {
+        eprintln!("warning: {warning}");
+    }
     println!(
-        "bino run: {} readout, {pathway}, at {}x{} ({}), {:.1} % of pixels left-right consistent",
+        "bino run: {} readout, {pathway}, computed at {}x{} ({}), written at {}x{}: {:.1} % of pixels valid",
         opts.readout.name(),
         report.width,
         report.height,
         opts.profile,
+        report.output.0,
+        report.output.1,
         report.density
     );
     for (step, took) in &report.timings {

@@ -216,6 +216,16 @@ pub fn view_width(path: &std::path::Path, profile: Profile) -> Result<usize> {
 /// Loads a stereo pair and applies `profile` to both views; views of different sizes, or a size
 /// the profile cannot take, are errors naming the files.
 pub fn load_profiled_pair(left: &std::path::Path, right: &std::path::Path, profile: Profile) -> Result<(View, View)> {
+    let (l, r, _) = load_profiled_pair_sized(left, right, profile)?;
+    Ok((l, r))
+}
+
+/// [`load_profiled_pair`], with the views' size as given (width, height), before the profile.
+pub fn load_profiled_pair_sized(
+    left: &std::path::Path,
+    right: &std::path::Path,
+    profile: Profile,
+) -> Result<(View, View, (usize, usize))> {
     use anyhow::Context;
     let (l, r) = (
         crate::io::image_io::load_gray(left)?,
@@ -233,7 +243,7 @@ pub fn load_profiled_pair(left: &std::path::Path, right: &std::path::Path, profi
     );
     let apply =
         |image: &GrayImage, path: &std::path::Path| profile.apply(image).with_context(|| format!("{}", path.display()));
-    Ok((apply(&l, left)?, apply(&r, right)?))
+    Ok((apply(&l, left)?, apply(&r, right)?, (l.width, l.height)))
 }
 
 #[cfg(test)]

@@ -6,6 +6,7 @@
 
 pub mod checkout;
 pub mod colour;
+pub mod colour_bar;
 pub mod files;
 pub mod image_io;
 pub(crate) mod keyed;

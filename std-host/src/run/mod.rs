@@ -1,10 +1,14 @@
-//! `bino run`: the int8 pipeline on any rectified pair: disparity as a colour picture, as raw
-//! float32 (PFM) and the left-right consistency mask, with timings and arena use.
+//! `bino run`: the int8 pipeline on any rectified pair: disparity as a colour picture (with its
+//! colour bar), as raw float32 (PFM) and a validity mask, at the size of the images given, with
+//! timings and arena use.
 //!
 //! The disparity is the readout's pixel map exactly as `bino eval` scores it
-//! ([`crate::readout::MethodMaps::pixels`]): refined (`+ref`) by default, `--refine off` for
-//! the bilinear upsampling of the token grid. Dense either way: every pixel holds a finite
-//! value, the cells the method's left-right check rejects are marked in `lr_mask.png` only.
+//! ([`crate::readout::MethodMaps::pixels`]) at the profile's size: refined (`+ref`) by default,
+//! `--refine off` for the bilinear upsampling of the token grid; then resampled to the input's
+//! size in its pixels ([`answer::to_input_size`]). Dense unless `--invalid inf`: the pixels whose
+//! cell the method's own check rejects, or whose view has no texture, are marked in `valid.png`.
+
+pub mod answer;
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -14,15 +18,17 @@ use anyhow::{Context, Result};
 use bino_core::pipeline::{Options as PipelineOptions, Report as PipelineReport, Stage};
 use bino_core::sgm::Penalties;
 
-use crate::data::profile::load_profiled_pair;
+use crate::data::profile::load_profiled_pair_sized;
 use crate::data::profile::Profile;
 use crate::eval::{upsample_mask, DisparityMap};
 use crate::int8::pipeline_maps::{run_census_stream, run_pipeline};
 use crate::int8::Int8Model;
 use crate::io::colour::colourise;
+use crate::io::colour_bar::with_colour_bar;
 use crate::readout::lr_tolerance_q8;
 use crate::readout::pathway::Pathway;
 use crate::readout::{Method, Readout};
+pub use answer::InvalidPixels;
 
 /// `bino run --refine`: whether the readout's pixels are refined.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -69,6 +75,8 @@ pub struct RunOptions {
     pub penalties: Penalties,
     /// Left-right check tolerance in patch columns.
     pub lr_max_diff: f32,
+    /// What `disparity.pfm` holds at invalid pixels.
+    pub invalid: InvalidPixels,
     /// Output folder.
     pub out: PathBuf,
 }
@@ -76,12 +84,16 @@ pub struct RunOptions {
 /// What a run measured and wrote.
 #[derive(Debug, Clone)]
 pub struct RunReport {
-    /// Size the pipeline ran at.
+    /// Size the pipeline ran at (the profile's).
     pub width: usize,
     /// Height it ran at.
     pub height: usize,
-    /// % of pixels that passed the left-right check.
+    /// Size of the answer written: the input's (width, height).
+    pub output: (usize, usize),
+    /// % of pixels valid: their cell passes the readout's own check and holds texture.
     pub density: f64,
+    /// What the user should know before trusting the answer ([`answer::warnings`]).
+    pub warnings: Vec<String>,
     /// Wall time of each step.
     pub timings: Vec<(&'static str, Duration)>,
     /// Wall time inside the core pipeline, per stage.
@@ -105,7 +117,7 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
     opts.pathway.check(opts.readout)?;
     crate::io::files::check_output_dir(&opts.out, "--out")?;
     let started = step("loading the pair and the blob", &mut timings, &mut progress);
-    let (left, right) = load_profiled_pair(&opts.left, &opts.right, opts.profile)?;
+    let (left, right, input) = load_profiled_pair_sized(&opts.left, &opts.right, opts.profile)?;
     // The census readouts read pixels only: no blob, no encoder.
     let census_only = opts.readout.method == Method::Census;
     let model = match census_only {
@@ -130,7 +142,7 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         penalties: opts.penalties,
         lr_max_diff_q8: lr_tolerance_q8(opts.lr_max_diff),
         head,
-        // The head's own left-right check (lr_mask.png, and the fill of head+lr).
+        // The head's own left-right check (valid.png, and the fill of head+lr).
         head_lr: head,
         head_candidates: crate::readout::head_candidates(left.width),
     };
@@ -159,7 +171,16 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
     };
     let (tokens, consistent) = maps.methods.method(opts.readout.method)?;
     let consistent = consistent.context("the method's left-right check did not run")?;
-    let valid = upsample_mask(&consistent, tokens.width, disparity.width, disparity.height);
+    // Valid: the method's own check keeps the cell and the view has texture there.
+    let views = &maps.methods.views;
+    let textured = answer::textured_cells(&views.left, views.width, views.height)?;
+    let cells: Vec<bool> = consistent.iter().zip(&textured).map(|(&c, &t)| c && t).collect();
+    let valid = upsample_mask(&cells, tokens.width, disparity.width, disparity.height);
+    let (disparity, valid) = answer::to_input_size(&disparity, &valid, opts.profile, input)?;
+    let disparity = match opts.invalid {
+        InvalidPixels::Keep => disparity,
+        InvalidPixels::Inf => answer::mark_invalid(&disparity, &valid),
+    };
     finish(&mut timings, started);
 
     let started = step("writing outputs", &mut timings, &mut progress);
@@ -169,6 +190,8 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
     Ok(RunReport {
         width: left.width,
         height: left.height,
+        output: input,
+        warnings: answer::warnings(input, (left.width, left.height)),
         density,
         timings,
         stage_times: maps.stage_times,
@@ -187,18 +210,23 @@ fn finish(timings: &mut [(&'static str, Duration)], started: Instant) {
 fn write_outputs(out: &Path, disparity: &DisparityMap, valid: &[bool]) -> Result<Vec<PathBuf>> {
     crate::io::files::create_dir(out)?;
     let (w, h) = (disparity.width, disparity.height);
-    let max = disparity.values.iter().cloned().fold(1.0f32, f32::max);
+    let max = disparity
+        .values
+        .iter()
+        .cloned()
+        .filter(|v| v.is_finite())
+        .fold(1.0f32, f32::max);
     let colour = image::RgbImage::from_raw(w as u32, h as u32, colourise(&disparity.values, max))
         .context("disparity picture size")?;
     let png = out.join("disparity.png");
-    crate::io::files::save_png(&colour.into(), &png)?;
+    crate::io::files::save_png(&with_colour_bar(colour, max).into(), &png)?;
     let mask = image::GrayImage::from_raw(
         w as u32,
         h as u32,
         valid.iter().map(|&v| if v { 255 } else { 0 }).collect(),
     )
     .context("mask size")?;
-    let mask_path = out.join("lr_mask.png");
+    let mask_path = out.join("valid.png");
     crate::io::files::save_png(&mask.into(), &mask_path)?;
     let pfm = out.join("disparity.pfm");
     crate::io::files::write_bytes(&pfm, &pfm_bytes(disparity))?;
