@@ -96,6 +96,11 @@ impl<'a> Carver<'a> {
     }
 }
 
+/// `arena` cut at `at`, or `None` when it is shorter (the pipeline's regions, cut in order).
+pub fn split(arena: &mut [u8], at: usize) -> Option<(&mut [u8], &mut [u8])> {
+    (at <= arena.len()).then(|| arena.split_at_mut(at))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -132,9 +137,4 @@ mod tests {
         assert!(carver.i32s(3).is_ok());
         assert!(matches!(carver.i8s(100), Err(Error::ArenaTooSmall { .. })));
     }
-}
-
-/// `arena` cut at `at`, or `None` when it is shorter (the pipeline's regions, cut in order).
-pub fn split(arena: &mut [u8], at: usize) -> Option<(&mut [u8], &mut [u8])> {
-    (at <= arena.len()).then(|| arena.split_at_mut(at))
 }

@@ -33,18 +33,25 @@
 //! arena does not grow: the refinement fits beside the streams in the encoder's scratch.
 //!
 //! # Files
-//! `api.rs`: the public types; `census_run.rs`: the encoder-free census readout ([`run_census`]); `sizing.rs`: the arena sizes; `driver.rs`: [`Pipeline`] and what
-//! a run's stages share; `feeding.rs`: the band buffer and the rows a band keeps; `streams.rs`:
-//! the export pathway's readouts; `head_check.rs`: the head's rows, its left-right check and the
-//! refinement fed from them; `native.rs`: the native pathway; `refine_stage.rs`: the pixel
-//! refinement as a stage.
+//! Layered bottom up, each importing only the layers below it (a test in
+//! `tests/tests/pipeline_layering.rs` keeps it so): `layout.rs`, the leaf (saturating sizes, the
+//! band buffer's rows, the head's lag, the refinement's reach); `api.rs`, the public types;
+//! `refine_stage.rs`, the pixel refinement as a stage; `census_stage.rs`, the census SGM as a
+//! stage, and `feeding.rs`, the band buffer; `head_check.rs`, the head's rows, its left-right
+//! check and the fusions fed from them; `sizing.rs`, the arena sizes, each stage's own summed;
+//! `context.rs`, what a run's stages share; `streams.rs` (the export pathway's readouts),
+//! `native.rs` (the native pathway) and `census_run.rs` (the encoder-free census readout,
+//! [`run_census`]); `export.rs`, the export pathway's band loop; `driver.rs`, [`Pipeline`].
 
 mod api;
 mod census_run;
 mod census_stage;
+mod context;
 mod driver;
+mod export;
 mod feeding;
 mod head_check;
+mod layout;
 mod native;
 mod refine_stage;
 mod sizing;

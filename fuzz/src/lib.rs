@@ -110,6 +110,7 @@ impl RowSource for FuzzSource<'_> {
 struct CountSink {
     rows: usize,
     head_rows: usize,
+    census_rows: usize,
     refined_rows: usize,
     checksum: u64,
 }
@@ -127,6 +128,12 @@ impl Sink for CountSink {
             self.checksum = self.checksum.wrapping_mul(31).wrapping_add(v as u64);
         }
     }
+    fn census(&mut self, row: &pipeline::CensusRow<'_>) {
+        self.census_rows += 1;
+        for &v in row.disparity_q8 {
+            self.checksum = self.checksum.wrapping_mul(31).wrapping_add(v as u64);
+        }
+    }
     fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
         self.refined_rows += 1;
         for &v in disparity_q8 {
@@ -135,8 +142,8 @@ impl Sink for CountSink {
     }
 }
 
-/// Every readout the pipeline's refinement can read.
-pub const REFINE_INPUTS: [pipeline::RefineInput; 9] = [
+/// Every readout the pipeline's refinement can read (the census ones by the encoder-free run).
+pub const REFINE_INPUTS: [pipeline::RefineInput; 11] = [
     pipeline::RefineInput::Nolink,
     pipeline::RefineInput::NolinkLr,
     pipeline::RefineInput::Sgm,
@@ -146,6 +153,8 @@ pub const REFINE_INPUTS: [pipeline::RefineInput; 9] = [
     pipeline::RefineInput::FusedLr,
     pipeline::RefineInput::FusedCensusLr,
     pipeline::RefineInput::FusedAllLr,
+    pipeline::RefineInput::Census,
+    pipeline::RefineInput::CensusLr,
 ];
 
 /// Runs `run` through the pipeline of `blob`; returns the pipeline's result.
@@ -212,8 +221,10 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
         assert_eq!(sink.refined_rows, report.rows * bino_core::config::PATCH_H);
     }
     // A finished run emitted one row per token row of each readout it ran (the native pathway
-    // has only its head) and stayed inside its arena.
-    if run.native {
+    // has only its head, the census run only the census) and stayed inside its arena.
+    if refine.is_some_and(|r| r.input.census_only()) {
+        assert_eq!((sink.rows, sink.head_rows, sink.census_rows), (0, 0, report.rows));
+    } else if run.native {
         assert_eq!((sink.rows, sink.head_rows), (0, report.rows));
     } else {
         assert_eq!(sink.rows, report.rows);

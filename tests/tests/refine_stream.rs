@@ -118,6 +118,8 @@ impl Collect {
             RefineInput::FusedLr | RefineInput::FusedCensusLr | RefineInput::FusedAllLr => {
                 (&self.fused, &self.fused_mask)
             }
+            // The encoder-free census run has its own test (census_stream.rs).
+            RefineInput::Census | RefineInput::CensusLr => unreachable!("not refined here"),
         };
         let mut grid = map.clone();
         if self.mask(input).is_some() {

@@ -2,7 +2,7 @@
 //! uses ([`Options`], [`Refine`]), where its output goes ([`Sink`]) and what it reports
 //! ([`Report`]).
 
-use super::refine_stage::{self, HEAD_LAG};
+use super::layout::{stage_reach, HEAD_LAG};
 use crate::band::Band;
 use crate::model::head::HeadRow;
 use crate::model::ids::HeadKind;
@@ -324,7 +324,7 @@ impl Refine {
 
     /// View rows above and below a pixel row the stage reads.
     pub const fn reach(&self) -> usize {
-        refine_stage::stage_reach(&self.params, self.equalise)
+        stage_reach(&self.params, self.equalise)
     }
 }
 

@@ -15,8 +15,9 @@
 use super::api::{CensusRow, Options, Refine, RefineInput, Report, RowSource, Sink, Stage};
 use super::census_stage::{self, CensusStage};
 use super::feeding::BandRows;
+use super::layout::band_pixel_rows;
 use super::refine_stage::{self, RefineIo, RefineStage, Scratch};
-use super::sizing::{band_pixel_rows, census_arena_bytes, refine_parts, CENSUS_RING_ROWS as RING_ROWS};
+use super::sizing::{census_arena_bytes, refine_parts, CENSUS_RING_ROWS as RING_ROWS};
 use crate::arena::split;
 use crate::band::BandPlan;
 use crate::config::{check_view_size, PATCH_H};

@@ -11,8 +11,8 @@
 //! later; export: as many rows as the head's check keeps), and the two are fused by
 //! [`fuse_row`] with the head's share [`census::FUSE_HEAD_WEIGHT`].
 
-use super::refine_stage::{BandView, CUT_MARGIN, HEAD_LAG};
-use super::sizing::sum;
+use super::layout::{sum, CUT_MARGIN, HEAD_LAG};
+use super::refine_stage::BandView;
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::census::{self, CensusSgm, CENSUS_RADIUS, WINDOW_ROWS};
 use crate::config::{CELL_W, PATCH_H};

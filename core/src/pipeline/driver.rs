@@ -1,19 +1,18 @@
-//! The driver: [`Pipeline`] checks a run, cuts the arena and moves band after band through the
-//! encoder and the readout streams (the native pathway in `native.rs`).
+//! The driver: [`Pipeline`] checks a run and hands it to its pathway: the export one
+//! (`export.rs`), the native one (`native.rs`) or, for a census input, the encoder-free run
+//! (`census_run.rs`).
 
-use super::api::{Options, Pathway, Refine, RefineInput, Report, RowSource, Sink, Stage};
-use super::feeding::BandRows;
-use super::native;
-use super::refine_stage::{BandView, RefineIo, Scratch};
-use super::sizing::{arena_bytes_run, band_pixel_rows, max, refine_parts, stream_bytes, ReadoutShape};
-use super::streams::Streams;
+use super::api::{Options, Pathway, Refine, RefineInput, Report, RowSource, Sink};
+use super::context::Context;
+use super::layout::band_pixel_rows;
+use super::sizing::arena_bytes_run;
+use super::{export, native};
 use crate::band::BandPlan;
-use crate::config::{check_view_size, DIM, PATCH_H};
+use crate::config::check_view_size;
 use crate::matching::check_candidates;
-use crate::model::encoder::{Encoder, GrayBand};
+use crate::model::encoder::Encoder;
 use crate::model::head::{self, HeadWeights};
 use crate::model::ids::HeadKind;
-use crate::model::probe::NoProbe;
 use crate::Error;
 #[cfg(doc)]
 use {
@@ -155,7 +154,7 @@ impl<'w> Pipeline<'w> {
         let plan = BandPlan::new(token_rows)?;
         let band_px = band_pixel_rows(height);
         let ctx = Context {
-            pipeline: self,
+            encoder: self.encoder,
             head,
             opts,
             refine,
@@ -167,89 +166,7 @@ impl<'w> Pipeline<'w> {
         if native {
             return native::run(&ctx, source, &plan, arena, sink);
         }
-        let desc_len = (band_px / PATCH_H) * cols * DIM;
-        let (pixels, rest) = arena.split_at_mut(2 * band_px * width);
-        let (left_px, right_px) = pixels.split_at_mut(band_px * width);
-        let (desc_left, scratch) = rest.split_at_mut(desc_len);
-        let desc_left: &mut [i8] = bytemuck::cast_slice_mut(desc_left);
-        let mut report = Report {
-            rows: token_rows,
-            cols,
-            bands: plan.len(),
-            pixels: 2 * band_px * width,
-            descriptors: desc_len,
-            ..Report::default()
-        };
-        let mut rows = BandRows {
-            source,
-            width,
-            first: 0,
-            loaded: 0,
-        };
-        let state_len = match refine {
-            Some(r) => refine_parts(height, width, r).0,
-            None => 0,
-        };
-        if plan.len() == 1 {
-            let band = plan.get(0).ok_or(Error::EmptyImage)?;
-            rows.load(band, left_px, right_px, sink)?;
-            let (encoder_used, right_desc, rest) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
-            sink.band(band, desc_left, right_desc);
-            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_shape(), false) + state_len;
-            let (stream_arena, rest) = rest.split_at_mut(stream_len.min(rest.len()));
-            let mut streams = Streams::new(&ctx, stream_arena, false)?;
-            let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
-            streams.push_band(band, desc_left, right_desc, &mut io, sink)?;
-            streams.finish(&mut io, sink)?;
-            // The whole map is here: the mirrored head reruns the band on the left head's arena.
-            streams.check_head_band(band, desc_left, right_desc, &mut io, sink)?;
-            streams.refine_done()?;
-            report.encoder = encoder_used;
-            report.streams = streams.used;
-            report.refine = streams.refine_used() + io.scratch.used();
-            (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
-            (report.head_kept, report.fused_kept) = (streams.head_kept(), streams.fused_kept());
-            let after = match refine {
-                // The refinement's state sits at a fixed offset after the streams' region.
-                Some(_) => stream_len - state_len + streams.refine_used() + io.scratch.used(),
-                None => streams.used,
-            };
-            report.arena_used = report.pixels + desc_len + max(encoder_used, desc_len + after);
-        } else {
-            let stream_len = stream_bytes(cols, opts.max_cols, ctx.head_shape(), true);
-            let (stream_arena, scratch) = scratch.split_at_mut((stream_len + state_len).min(scratch.len()));
-            let mut streams = Streams::new(&ctx, stream_arena, true)?;
-            let mut scratch_used = 0;
-            for (i, band) in plan.iter().enumerate() {
-                if i > 0 {
-                    // Rows the refinement still needs that the load drops go to its ring.
-                    streams.keep_view_rows(&rows.view(left_px, right_px), band.start * PATCH_H, sink)?;
-                }
-                rows.load(band, left_px, right_px, sink)?;
-                let (encoder_used, right_desc, rest) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
-                sink.band(band, desc_left, right_desc);
-                let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
-                streams.push_band(band, desc_left, right_desc, &mut io, sink)?;
-                scratch_used = io.scratch.used();
-                report.encoder = report.encoder.max(encoder_used);
-            }
-            // The encoder's scratch is free now: the last rows' refinement uses it from the
-            // same offset as between passes.
-            let rest = scratch.get_mut(desc_len..).unwrap_or_default();
-            let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
-            streams.finish(&mut io, sink)?;
-            streams.refine_done()?;
-            report.streams = streams.used;
-            report.refine = streams.refine_used() + scratch_used.max(io.scratch.used());
-            (report.wta_kept, report.sgm_kept) = (streams.wta_kept, streams.sgm_kept);
-            (report.head_kept, report.fused_kept) = (streams.head_kept(), streams.fused_kept());
-            let refine_scratch = match refine {
-                Some(_) => desc_len + scratch_used.max(io.scratch.used()),
-                None => 0,
-            };
-            report.arena_used = report.pixels + desc_len + stream_len + state_len + report.encoder.max(refine_scratch);
-        }
-        Ok(report)
+        export::run(&ctx, source, &plan, arena, sink)
     }
 }
 
@@ -257,67 +174,4 @@ impl<'w> Pipeline<'w> {
 /// blob without one.
 fn head_id(pathway: Pathway) -> crate::blob::TensorId {
     crate::model::ids::id(crate::model::ids::kind::LAYERNORM, pathway.layernorm())
-}
-
-/// What the stages of one run share.
-pub(super) struct Context<'p, 'w> {
-    pub(super) pipeline: &'p Pipeline<'w>,
-    pub(super) head: Option<HeadWeights<'w>>,
-    pub(super) opts: &'p Options,
-    pub(super) refine: Option<&'p Refine>,
-    pub(super) cols: usize,
-    pub(super) width: usize,
-    pub(super) height: usize,
-    pub(super) band_px: usize,
-}
-
-impl Context<'_, '_> {
-    /// Whether this run checks the head left against right.
-    pub(super) fn head_lr(&self) -> bool {
-        self.head.is_some() && self.opts.head_lr
-    }
-
-    /// The head's shape in the arena (sized even without a head: see [`arena_bytes_for`]).
-    pub(super) fn head_shape(&self) -> ReadoutShape {
-        ReadoutShape {
-            lr: self.head_lr(),
-            ..ReadoutShape::of(self.opts, self.refine)
-        }
-    }
-
-    /// The refinement's view of the band buffer and its row scratch, cut from `arena` (none
-    /// without the refinement).
-    pub(super) fn refine_io<'b>(&self, view: BandView<'b>, arena: &'b mut [u8]) -> Result<RefineIo<'b>, Error> {
-        let scratch = match self.refine {
-            Some(r) => Scratch::new(arena, self.width, self.height, &r.params, r.equalise)?,
-            None => Scratch::none(),
-        };
-        Ok(RefineIo { view, scratch })
-    }
-
-    /// Both encoder passes over the band in the pixel buffers: the left descriptors are copied
-    /// to `desc_left`, the right ones stay at the front of `scratch`. Returns the encoder's
-    /// high-water, the right descriptors and the rest of `scratch`.
-    pub(super) fn encode<'s>(
-        &self,
-        left_px: &[u8],
-        right_px: &[u8],
-        desc_left: &mut [i8],
-        scratch: &'s mut [u8],
-        sink: &mut impl Sink,
-    ) -> Result<(usize, &'s [i8], &'s mut [u8]), Error> {
-        let encoder = &self.pipeline.encoder;
-        sink.stage(Stage::EncodeLeft);
-        let view = GrayBand::new(left_px, self.width, self.band_px)?;
-        let (left_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
-        let codes: &[i8] = bytemuck::cast_slice(scratch.get(..len).unwrap_or_default());
-        Error::check_len("descriptor band", desc_left.len(), codes.len())?;
-        desc_left.copy_from_slice(codes);
-        sink.stage(Stage::EncodeRight);
-        let view = GrayBand::new(right_px, self.width, self.band_px)?;
-        let (right_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
-        let (right, rest) = scratch.split_at_mut(len);
-        let used = left_report.arena_used.max(right_report.arena_used);
-        Ok((used, bytemuck::cast_slice(right), rest))
-    }
 }

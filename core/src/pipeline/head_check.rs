@@ -6,14 +6,39 @@
 
 use super::api::{FusedRow, HeadChecked, RefineInput, Sink, Stage};
 use super::census_stage::CensusStage;
+use super::layout::{max, sum};
 use super::refine_stage::{RefineIo, RefineStage};
-#[cfg(doc)]
-use super::sizing::HEAD_CHECK_ROWS;
-use super::sizing::{check_rows_bytes, fusion_bytes};
 use crate::arena::Carver;
+use crate::config::BAND_TOKEN_ROWS;
 use crate::lr::{consistent_row, fuse_row, CheckedRow};
 use crate::model::head::{right_view_row, HeadRow, HeadSink, HeadStream, HeadWeights};
+use crate::model::ids::HEAD_CONVS;
 use crate::Error;
+
+/// Rows of left head disparities kept for the check: a whole band (one band: the mirrored
+/// head runs after the left one, on the same arena), or more than the mirrored head trails
+/// the left one by when both stream side by side (several bands: one row per convolution).
+pub(super) const HEAD_CHECK_ROWS: usize = max(BAND_TOKEN_ROWS, HEAD_CONVS + 1);
+
+/// Arena bytes of the fused readout's state beside a [`HeadCheck`] of `rows` rows: as many rows
+/// of the left head's confidence and of SGM disparities (u16, aligned each) and the SGM's masks,
+/// and the fused row (u16, aligned) and its mask.
+pub(super) const fn fusion_bytes(cols: usize, rows: usize) -> usize {
+    let cells = cols.saturating_mul(rows);
+    sum(&[
+        cells.saturating_mul(2).saturating_add(1),
+        cells.saturating_mul(2).saturating_add(1),
+        cells,
+        cols.saturating_mul(2).saturating_add(1),
+        cols,
+    ])
+}
+
+/// Arena bytes of a [`HeadCheck`] keeping `rows` rows of `cols` left disparities (u16,
+/// aligned) and its mask row.
+pub(super) const fn check_rows_bytes(cols: usize, rows: usize) -> usize {
+    sum(&[cols.saturating_mul(rows).saturating_mul(2).saturating_add(1), cols])
+}
 
 /// The refinement fed from inside a head stream's callback.
 pub(super) struct Feed<'k, 'a, 'b> {

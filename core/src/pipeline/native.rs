@@ -11,85 +11,23 @@
 //!
 //! [`Encoder::pair_tokens_in_place`]: crate::model::encoder::Encoder::pair_tokens_in_place
 
-use super::api::{Options, Refine, RefineInput, Report, RowSource, Sink, Stage};
+use super::api::{RefineInput, Report, RowSource, Sink, Stage};
 use super::census_stage::{self, CensusStage};
-use super::driver::Context;
+use super::context::Context;
 use super::feeding::BandRows;
 use super::head_check::{Feed, HeadRows, OnePassCheck, OnePassRows};
+use super::layout::aligned;
 use super::refine_stage;
-use super::sizing::{band_pixel_rows, check_rows_bytes, max, refine_parts, sum};
+use super::sizing::{native_arena_bytes, native_census_bytes, native_check_bytes, refine_parts};
 use crate::arena::split;
 use crate::band::{Band, BandPlan};
-use crate::config::{CELL_W, DIM, PATCH_H};
-use crate::model::encoder::{self, GrayBand};
+use crate::config::{DIM, PATCH_H};
+use crate::model::encoder::GrayBand;
 use crate::model::head::{self, HeadStream, HeadView, HeadWeights};
 use crate::model::ids::HeadKind;
 use crate::model::probe::NoProbe;
 use crate::pipeline::refine_stage::{BandView, RefineIo, RefineStage};
 use crate::Error;
-
-/// Arena bytes of the check's right-view row and mask row (0 without the check), rounded up
-/// to [`REGION_ALIGN`].
-const fn check_bytes(cols: usize, head_lr: bool) -> usize {
-    if head_lr {
-        aligned(check_rows_bytes(cols, 1))
-    } else {
-        0
-    }
-}
-
-/// Alignment of every region's start: the encoder's scratch starts where the export pathway's
-/// does, on a 16-byte boundary, so the assembly kernels' aligned paths apply (the M7's DSP
-/// GEMMs fall back to the portable kernels on unaligned rows, half again as many instructions
-/// for the whole pass).
-const REGION_ALIGN: usize = 16;
-
-/// `bytes` rounded up to [`REGION_ALIGN`] (saturating).
-const fn aligned(bytes: usize) -> usize {
-    match bytes.checked_add(REGION_ALIGN - 1) {
-        Some(n) => n / REGION_ALIGN * REGION_ALIGN,
-        None => usize::MAX,
-    }
-}
-
-/// Arena bytes of a native run of a `height x width` pair (saturating, like every sizing helper).
-///
-/// One band (images up to 48 rows): the head stream lives in the encoder's scratch after the
-/// pass's tokens, so only the check's rows and the refinement's state sit outside it. Several
-/// bands: the head stream carries state from band to band and sits outside the scratch.
-pub(super) const fn arena_bytes(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
-    let band_rows = band_pixel_rows(height);
-    let cols = width / CELL_W;
-    let pixels = band_rows.saturating_mul(width).saturating_mul(2);
-    let tokens = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(2 * DIM);
-    let encoder = encoder::arena_bytes(band_rows, width);
-    let head = aligned(head::arena_bytes_with(HeadKind::Native, cols, opts.head_candidates));
-    let (state, scratch) = match refine {
-        Some(r) => refine_parts(height, width, r),
-        None => (0, 0),
-    };
-    let state = aligned(state);
-    let check = check_bytes(cols, opts.head_lr).saturating_add(census_bytes(width, opts, refine));
-    if height <= band_rows {
-        let after = sum(&[tokens, head, scratch]);
-        sum(&[pixels, check, state, max(encoder, after)])
-    } else {
-        sum(&[pixels, head, check, state, max(encoder, tokens.saturating_add(scratch))])
-    }
-}
-
-/// Arena bytes of the census stage, rounded up to [`REGION_ALIGN`]: only when the refinement
-/// reads the fused readout ([`RefineInput::FusedCensusLr`]).
-const fn census_bytes(width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
-    match refine {
-        Some(r) if matches!(r.input, RefineInput::FusedCensusLr) => aligned(census_stage::bytes(
-            width,
-            opts.head_candidates,
-            census_stage::RING_ROWS,
-        )),
-        _ => 0,
-    }
-}
 
 /// Runs the native pathway over every band of `plan`; `ctx.head` holds the native head's
 /// weights and the arena was checked against [`arena_bytes`].
@@ -107,14 +45,14 @@ pub(super) fn run(
     let nd = ctx.opts.head_candidates;
     let head_len = aligned(head::arena_bytes_with(HeadKind::Native, cols, nd));
     let stream_len = if streaming { head_len } else { 0 };
-    let check_len = check_bytes(cols, ctx.head_lr());
-    let census_len = census_bytes(width, ctx.opts, ctx.refine);
+    let check_len = native_check_bytes(cols, ctx.head_lr());
+    let census_len = native_census_bytes(width, ctx.opts, ctx.refine);
     let state_len = aligned(match ctx.refine {
         Some(r) => refine_parts(ctx.height, width, r).0,
         None => 0,
     });
     let too_small = Error::ArenaTooSmall {
-        needed: arena_bytes(ctx.height, width, ctx.opts, ctx.refine),
+        needed: native_arena_bytes(ctx.height, width, ctx.opts, ctx.refine),
         available: arena.len(),
     };
     let (pixels, rest) = split(arena, 2 * pixel_len).ok_or(too_small)?;
@@ -160,10 +98,7 @@ pub(super) fn run(
         let left = GrayBand::new(left_px, width, band_px)?;
         let right = GrayBand::new(right_px, width, band_px)?;
         sink.stage(Stage::EncodePair);
-        let (pass, len) = ctx
-            .pipeline
-            .encoder
-            .pair_tokens_in_place(left, right, scratch, &mut NoProbe)?;
+        let (pass, len) = ctx.encoder.pair_tokens_in_place(left, right, scratch, &mut NoProbe)?;
         report.encoder = report.encoder.max(pass.arena_used);
         let (tokens, rest) = split(scratch, len).ok_or(too_small)?;
         let tokens: &[i8] = bytemuck::cast_slice(tokens);

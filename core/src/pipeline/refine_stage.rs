@@ -27,24 +27,16 @@
 //! output row; with several bands it lives in the encoder's scratch (free between passes), with
 //! one band beside the readout streams (which share the encoder's scratch after both passes).
 
-use super::sizing::sum;
-use super::Sink;
+use super::api::Sink;
+use super::layout::{stage_reach, sum, CUT_MARGIN};
 use crate::arena::{Carver, ALIGN_SLACK};
-use crate::config::{BAND_STRIDE_TOKEN_ROWS, BAND_TOKEN_ROWS, CELL_W, PATCH_H};
+use crate::config::{CELL_W, PATCH_H};
 use crate::lr::fill_rejected;
-use crate::model::ids::HEAD_CONVS;
-use crate::refine::sharpness::{equalised_reach, smoothed_len, EqualisedRefiner, MAX_EQUALISED_ROWS};
+use crate::refine::sharpness::{smoothed_len, EqualisedRefiner, MAX_EQUALISED_ROWS};
 use crate::refine::{
     keep_rejected_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
 };
 use crate::Error;
-
-/// Token rows the head's output trails its input by (one per convolution).
-pub(super) const HEAD_LAG: usize = HEAD_CONVS;
-
-/// Token rows a band's kept rows stay clear of the next band's first row: the plan cuts in the
-/// middle of an overlap of at least `BAND_TOKEN_ROWS - BAND_STRIDE_TOKEN_ROWS` rows.
-pub(super) const CUT_MARGIN: usize = (BAND_TOKEN_ROWS - BAND_STRIDE_TOKEN_ROWS) / 2;
 
 /// View rows of each view the ring holds for a readout whose rows trail the band's by `lag`
 /// token rows, with several bands.
@@ -82,16 +74,6 @@ pub(super) const fn scratch_bytes(width: usize, params: &RefineParams, equalise:
         width.saturating_mul(2).saturating_add(1),
         smoothed,
     ])
-}
-
-/// View rows above and below a pixel row the stage reads: the refinement's reach, or the
-/// equalisation's ([`equalised_reach`]).
-pub(super) const fn stage_reach(params: &RefineParams, equalise: bool) -> usize {
-    if equalise {
-        equalised_reach(params)
-    } else {
-        params.reach()
-    }
 }
 
 /// The pixel rows the band buffer holds now.

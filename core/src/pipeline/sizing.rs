@@ -3,34 +3,17 @@
 //! wrong one).
 
 use super::api::{Options, Pathway, Refine, RefineInput};
-use super::{census_stage, native, refine_stage};
+use super::head_check::{check_rows_bytes, fusion_bytes, HEAD_CHECK_ROWS};
+use super::layout::{aligned, band_pixel_rows, max, sum};
+use super::{census_stage, refine_stage};
 use crate::arena::ALIGN_SLACK;
-use crate::config::{BAND_TOKEN_ROWS, CELL_W, DIM, PATCH_H};
+use crate::config::{CELL_W, DIM, PATCH_H};
 use crate::model::encoder;
 use crate::model::head;
-use crate::model::ids::{HeadKind, HEAD_CONVS};
+use crate::model::ids::HeadKind;
 use crate::sgm::state_len;
 #[cfg(doc)]
 use {super::head_check::HeadCheck, super::Pipeline, crate::sgm::Penalties, crate::Error};
-
-pub(super) const fn max(a: usize, b: usize) -> usize {
-    if a > b {
-        a
-    } else {
-        b
-    }
-}
-
-/// Pixel rows of the band buffer for an image of `height` rows.
-pub(super) const fn band_pixel_rows(height: usize) -> usize {
-    let token_rows = height / PATCH_H;
-    let rows = if token_rows < BAND_TOKEN_ROWS {
-        token_rows
-    } else {
-        BAND_TOKEN_ROWS
-    };
-    rows * PATCH_H
-}
 
 /// Arena bytes of the matching, SGM and left-right state for `cols` patch columns
 /// (saturating, like every sizing helper here).
@@ -50,22 +33,6 @@ pub(super) const fn matching_bytes(cols: usize, max_cols: usize, guided: bool) -
     ])
 }
 
-/// Saturating sum (a `const fn` cannot use `Iterator::sum`).
-pub(super) const fn sum(terms: &[usize]) -> usize {
-    let mut total = 0usize;
-    let mut i = 0;
-    while i < terms.len() {
-        total = total.saturating_add(terms[i]);
-        i += 1;
-    }
-    total
-}
-
-/// Rows of left head disparities kept for the check: a whole band (one band: the mirrored
-/// head runs after the left one, on the same arena), or more than the mirrored head trails
-/// the left one by when both stream side by side (several bands: one row per convolution).
-pub(super) const HEAD_CHECK_ROWS: usize = max(BAND_TOKEN_ROWS, HEAD_CONVS + 1);
-
 /// Arena bytes of the head's left-right check: the left rows kept, one mask row, the fused
 /// readout's state ([`fusion_bytes`]), and for several bands (`streaming`) the mirrored head's
 /// own stream.
@@ -80,26 +47,6 @@ const fn head_check_bytes(cols: usize, candidates: usize, streaming: bool) -> us
         check_rows_bytes(cols, HEAD_CHECK_ROWS),
         fusion_bytes(cols, HEAD_CHECK_ROWS),
     ])
-}
-
-/// Arena bytes of the fused readout's state beside a [`HeadCheck`] of `rows` rows: as many rows
-/// of the left head's confidence and of SGM disparities (u16, aligned each) and the SGM's masks,
-/// and the fused row (u16, aligned) and its mask.
-pub(super) const fn fusion_bytes(cols: usize, rows: usize) -> usize {
-    let cells = cols.saturating_mul(rows);
-    sum(&[
-        cells.saturating_mul(2).saturating_add(1),
-        cells.saturating_mul(2).saturating_add(1),
-        cells,
-        cols.saturating_mul(2).saturating_add(1),
-        cols,
-    ])
-}
-
-/// Arena bytes of a [`HeadCheck`] keeping `rows` rows of `cols` left disparities (u16,
-/// aligned) and its mask row.
-pub(super) const fn check_rows_bytes(cols: usize, rows: usize) -> usize {
-    sum(&[cols.saturating_mul(rows).saturating_mul(2).saturating_add(1), cols])
 }
 
 /// What sizes an export-pathway run's readout streams: the head's disparity candidates,
@@ -206,7 +153,7 @@ pub(super) const fn arena_bytes_run(height: usize, width: usize, opts: &Options,
     }
     match opts.pathway {
         Pathway::Export => arena_bytes_of(height, width, opts.max_cols, ReadoutShape::of(opts, refine), refine),
-        Pathway::Native => native::arena_bytes(height, width, opts, refine),
+        Pathway::Native => native_arena_bytes(height, width, opts, refine),
     }
 }
 
@@ -281,5 +228,54 @@ const fn arena_bytes_of(
             state,
             max(encoder, descriptors.saturating_add(scratch)),
         ])
+    }
+}
+
+/// Arena bytes of the check's right-view row and mask row (0 without the check), rounded up
+/// to [`REGION_ALIGN`].
+pub(super) const fn native_check_bytes(cols: usize, head_lr: bool) -> usize {
+    if head_lr {
+        aligned(check_rows_bytes(cols, 1))
+    } else {
+        0
+    }
+}
+
+/// Arena bytes of a native run of a `height x width` pair (saturating, like every sizing helper).
+///
+/// One band (images up to 48 rows): the head stream lives in the encoder's scratch after the
+/// pass's tokens, so only the check's rows and the refinement's state sit outside it. Several
+/// bands: the head stream carries state from band to band and sits outside the scratch.
+pub(super) const fn native_arena_bytes(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+    let band_rows = band_pixel_rows(height);
+    let cols = width / CELL_W;
+    let pixels = band_rows.saturating_mul(width).saturating_mul(2);
+    let tokens = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(2 * DIM);
+    let encoder = encoder::arena_bytes(band_rows, width);
+    let head = aligned(head::arena_bytes_with(HeadKind::Native, cols, opts.head_candidates));
+    let (state, scratch) = match refine {
+        Some(r) => refine_parts(height, width, r),
+        None => (0, 0),
+    };
+    let state = aligned(state);
+    let check = native_check_bytes(cols, opts.head_lr).saturating_add(native_census_bytes(width, opts, refine));
+    if height <= band_rows {
+        let after = sum(&[tokens, head, scratch]);
+        sum(&[pixels, check, state, max(encoder, after)])
+    } else {
+        sum(&[pixels, head, check, state, max(encoder, tokens.saturating_add(scratch))])
+    }
+}
+
+/// Arena bytes of the census stage, rounded up to [`REGION_ALIGN`]: only when the refinement
+/// reads the fused readout ([`RefineInput::FusedCensusLr`]).
+pub(super) const fn native_census_bytes(width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+    match refine {
+        Some(r) if matches!(r.input, RefineInput::FusedCensusLr) => aligned(census_stage::bytes(
+            width,
+            opts.head_candidates,
+            census_stage::RING_ROWS,
+        )),
+        _ => 0,
     }
 }

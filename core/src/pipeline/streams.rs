@@ -4,11 +4,12 @@
 
 use super::api::{MatchedRow, RefineInput, Sink, Stage};
 use super::census_stage::{self, CensusStage};
-use super::driver::Context;
+use super::context::Context;
 use super::feeding::kept_row;
+use super::head_check::HEAD_CHECK_ROWS;
 use super::head_check::{head_step, CheckedRows, Feed, HeadCheck, HeadRows};
 use super::refine_stage::{self, BandView, RefineIo, RefineStage};
-use super::sizing::{matching_bytes, refine_parts, stream_bytes, HEAD_CHECK_ROWS};
+use super::sizing::{matching_bytes, refine_parts, stream_bytes};
 use crate::arena::Carver;
 use crate::band::Band;
 use crate::census;

@@ -1,0 +1,77 @@
+//! What the stages of one run share ([`Context`]): the encoder, the head's weights, the options
+//! and the view's size; its helpers cut the refinement's scratch and run the export pathway's
+//! two encoder passes.
+
+use super::api::{Options, Refine, Sink, Stage};
+#[cfg(doc)]
+use super::arena_bytes_for;
+use super::refine_stage::{BandView, RefineIo, Scratch};
+use super::sizing::ReadoutShape;
+use crate::model::encoder::{Encoder, GrayBand};
+use crate::model::head::HeadWeights;
+use crate::model::probe::NoProbe;
+use crate::Error;
+
+/// What the stages of one run share.
+pub(super) struct Context<'p, 'w> {
+    /// The blob's encoder.
+    pub(super) encoder: Encoder<'w>,
+    pub(super) head: Option<HeadWeights<'w>>,
+    pub(super) opts: &'p Options,
+    pub(super) refine: Option<&'p Refine>,
+    pub(super) cols: usize,
+    pub(super) width: usize,
+    pub(super) height: usize,
+    pub(super) band_px: usize,
+}
+
+impl Context<'_, '_> {
+    /// Whether this run checks the head left against right.
+    pub(super) fn head_lr(&self) -> bool {
+        self.head.is_some() && self.opts.head_lr
+    }
+
+    /// The head's shape in the arena (sized even without a head: see [`arena_bytes_for`]).
+    pub(super) fn head_shape(&self) -> ReadoutShape {
+        ReadoutShape {
+            lr: self.head_lr(),
+            ..ReadoutShape::of(self.opts, self.refine)
+        }
+    }
+
+    /// The refinement's view of the band buffer and its row scratch, cut from `arena` (none
+    /// without the refinement).
+    pub(super) fn refine_io<'b>(&self, view: BandView<'b>, arena: &'b mut [u8]) -> Result<RefineIo<'b>, Error> {
+        let scratch = match self.refine {
+            Some(r) => Scratch::new(arena, self.width, self.height, &r.params, r.equalise)?,
+            None => Scratch::none(),
+        };
+        Ok(RefineIo { view, scratch })
+    }
+
+    /// Both encoder passes over the band in the pixel buffers: the left descriptors are copied
+    /// to `desc_left`, the right ones stay at the front of `scratch`. Returns the encoder's
+    /// high-water, the right descriptors and the rest of `scratch`.
+    pub(super) fn encode<'s>(
+        &self,
+        left_px: &[u8],
+        right_px: &[u8],
+        desc_left: &mut [i8],
+        scratch: &'s mut [u8],
+        sink: &mut impl Sink,
+    ) -> Result<(usize, &'s [i8], &'s mut [u8]), Error> {
+        let encoder = &self.encoder;
+        sink.stage(Stage::EncodeLeft);
+        let view = GrayBand::new(left_px, self.width, self.band_px)?;
+        let (left_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
+        let codes: &[i8] = bytemuck::cast_slice(scratch.get(..len).unwrap_or_default());
+        Error::check_len("descriptor band", desc_left.len(), codes.len())?;
+        desc_left.copy_from_slice(codes);
+        sink.stage(Stage::EncodeRight);
+        let view = GrayBand::new(right_px, self.width, self.band_px)?;
+        let (right_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
+        let (right, rest) = scratch.split_at_mut(len);
+        let used = left_report.arena_used.max(right_report.arena_used);
+        Ok((used, bytemuck::cast_slice(right), rest))
+    }
+}
