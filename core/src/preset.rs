@@ -9,8 +9,10 @@
 //! The board runs the native pathway ([`OPTIONS`]): one encoder pass per band on (L, R), the
 //! native head with its left-right check read from the same pass, fused with the census SGM
 //! (`fuse-census+lr`). [`EXPORT_OPTIONS`] is the export pathway (two passes per band, the
-//! descriptors for every readout, `fuse-all+lr`: `bino run`'s default), which the firmware runs
-//! too.
+//! descriptors for every readout, `fuse-all+lr`: `bino run --pathway export`), which the
+//! firmware runs too. [`CENSUS_REFINE`] is the fast, encoder-free readout (`census+lr`,
+//! `bino run`'s default): no weights, an arena the size of [`census_arena_bytes`], the same
+//! for a band and for a whole frame of that width.
 //!
 //! ```
 //! use bino_core::preset::{arena_bytes, export_arena_bytes, EXPORT_REFINE, OPTIONS, REFINE};
@@ -21,6 +23,10 @@
 //! // The 48x160 band pair of the budget.
 //! assert_eq!(arena_bytes(48, 160), 466_598);
 //! assert_eq!(export_arena_bytes(48, 160), 486_918);
+//! // The fast preset: a 160x120 frame in a fraction of one learned band's arena.
+//! use bino_core::preset::census_arena_bytes;
+//! assert_eq!(census_arena_bytes(120, 160), census_arena_bytes(480, 160));
+//! assert!(census_arena_bytes(120, 160) * 6 < arena_bytes(48, 160));
 //! ```
 
 use crate::pipeline::{self, Options, Pathway, Refine};
@@ -63,6 +69,17 @@ pub const EXPORT_REFINE: Refine = Refine::for_options(&EXPORT_OPTIONS);
 /// Arena bytes a `height x width` band pair needs with [`EXPORT_OPTIONS`] and [`EXPORT_REFINE`].
 pub const fn export_arena_bytes(height: usize, width: usize) -> usize {
     pipeline::arena_bytes_refined(height, width, &EXPORT_OPTIONS, &EXPORT_REFINE)
+}
+
+/// The fast preset's refinement: the census SGM with its own check (`census+lr`, refined), run
+/// with [`OPTIONS`]'s search range and tolerance by [`pipeline::run_census`]: no encoder, no
+/// weights.
+pub const CENSUS_REFINE: Refine = Refine::of(pipeline::RefineInput::CensusLr);
+
+/// Arena bytes a `height x width` pair needs with [`OPTIONS`] and [`CENSUS_REFINE`]; the same for
+/// every height above one band.
+pub const fn census_arena_bytes(height: usize, width: usize) -> usize {
+    pipeline::census_arena_bytes(height, width, &OPTIONS, Some(&CENSUS_REFINE))
 }
 
 /// Column sectors of the obstacle summary.

@@ -12,5 +12,5 @@ pub const BAND_WIDTH: usize = 160;
 // The readouts and the refinement: the preset the QEMU firmware's native run uses too.
 pub use bino_core::preset::{arena_bytes, OPTIONS, REFINE};
 
-/// The boards' static arena: 466,598 bytes for the 48x160 band pair.
+/// The boards' static arena for the 48x160 band pair (its size: docs/boards.md).
 pub const ARENA_BYTES: usize = arena_bytes(BAND_HEIGHT, BAND_WIDTH);
