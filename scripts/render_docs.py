@@ -142,11 +142,36 @@ def metrics_of(entry: Json) -> Json:
     return dict(entry["metrics"]) if "metrics" in entry else entry
 
 
-READOUTS = ["nolink", "nolink+lr", "sgm", "sgm+lr", "head", "head+lr", "fuse", "fuse+lr"]
-DEFAULT = {"w160": "fuse-all+lr+ref", "w320": "fuse-all+lr+ref"}
-"""`bino run`'s default readout (`Pathway::default_readout`) at each profile."""
+READOUTS = [
+    "census",
+    "census+lr",
+    "nolink",
+    "nolink+lr",
+    "sgm",
+    "sgm+lr",
+    "head",
+    "head+lr",
+    "fuse",
+    "fuse+lr",
+]
+CENSUS = "census+lr+ref"
+"""The census SGM with its check, refined: no encoder; the baseline every learned readout must beat."""
+DEFAULT = {"w160": CENSUS, "w320": CENSUS}
+"""`bino run`'s default readout (`pathway::DEFAULT_READOUT`, refined) at each profile."""
+EXPORT_DEFAULT = "fuse-all+lr+ref"
+"""The export pathway's learned readout (`bino run --pathway export`)."""
 NATIVE_DEFAULT = "fuse-census+lr+ref"
-"""The native pathway's default readout (`bino run --pathway native`, the native preset)."""
+"""The native pathway's learned readout (`bino run --pathway native`, the board's preset)."""
+CENSUS_STAGES = ("native_rows", "native_sgm", "native_refine")
+"""The firmware's measured native band pair stages that the census readout runs alone: the rows,
+the census SGM (its codes, costs and SGM) and the refinement."""
+
+
+def census_instructions(core: Json) -> int:
+    """The census readout's instructions per 48x160 band pair on `core`: the measured native
+    run's rows, census SGM and refinement stages (the same code on the same band)."""
+    stages = {s["name"]: s["instructions"] for s in core["stages"]}
+    return sum(stages[name] for name in CENSUS_STAGES)
 
 
 # ---------------------------------------------------------------- accuracy
@@ -155,27 +180,42 @@ NATIVE_DEFAULT = "fuse-census+lr+ref"
 def accuracy_headline(src: Sources) -> str:
     rows = []
     for profile in ("w160", "w320"):
-        ev = src.metrics(f"eval_{profile}")
-        readout = DEFAULT[profile]
-        ours = metrics_of(ev["mean"][f"int8_{readout}"])
+        ev, na = src.metrics(f"eval_{profile}"), src.metrics(f"native_{profile}")
         sgbm = metrics_of(ev["mean"]["sgbm"])
-        wins = [k for k in ("epe", "bad1tok", "bad2") if ours[k] < sgbm[k]]
+        census = metrics_of(ev["mean"][f"int8_{CENSUS}"])
+        readouts = (
+            ("`bino run`'s default, no encoder", CENSUS, ev),
+            ("export pathway, learned", EXPORT_DEFAULT, ev),
+            ("native pathway, learned, the board's", NATIVE_DEFAULT, na),
+        )
+        for label, readout, run in readouts:
+            ours = metrics_of(run["mean"][f"int8_{readout}"])
+            wins = [k for k in ("epe", "bad1tok", "bad2") if ours[k] < sgbm[k]]
+            rows.append(
+                [
+                    f"{profile} ({ev['pairs']} eval pairs)",
+                    f"int8 `{readout}` ({label})",
+                    f3(ours["epe"]),
+                    f2(ours["bad1tok"]),
+                    f2(ours["bad2"]),
+                    f"{ours['epe'] / census['epe']:.2f}x",
+                    ", ".join(wins) if wins else "none",
+                ]
+            )
         rows.append(
             [
                 f"{profile} ({ev['pairs']} eval pairs)",
-                f"int8 `{readout}`",
-                f3(ours["epe"]),
-                f2(ours["bad1tok"]),
-                f2(ours["bad2"]),
+                "StereoSGBM (OpenCV, same run)",
                 f3(sgbm["epe"]),
                 f2(sgbm["bad1tok"]),
                 f2(sgbm["bad2"]),
-                ", ".join(wins) if wins else "none",
+                f"{sgbm['epe'] / census['epe']:.2f}x",
+                "",
             ]
         )
-    header = ["profile", "BINO (`bino run`'s default)", "epe px", "bad1tok %", "bad2 %"]
-    header += ["StereoSGBM epe", "bad1tok", "bad2", "BINO better on"]
-    return table(header, rows, [False, False] + [True] * 6 + [False]) + "\n\n" + footer(src)
+    header = ["profile", "readout", "epe px", "bad1tok %", "bad2 %", "epe / census"]
+    header += ["better than StereoSGBM on"]
+    return table(header, rows, [False, False] + [True] * 4 + [False]) + "\n\n" + footer(src)
 
 
 def eval_unrefined(src: Sources) -> str:
@@ -375,8 +415,8 @@ def native_vs_export(src: Sources) -> str:
     pairs = [(f"int8 `{r}`", f"int8_{r}", f"int8_{r}") for r in ("head", "head+lr", "head+lr+ref")]
     pairs.append(
         (
-            f"each default: int8 `{DEFAULT['w160']}` / `{NATIVE_DEFAULT}`",
-            f"int8_{DEFAULT['w160']}",
+            f"each learned default: int8 `{EXPORT_DEFAULT}` / `{NATIVE_DEFAULT}`",
+            f"int8_{EXPORT_DEFAULT}",
             f"int8_{NATIVE_DEFAULT}",
         )
     )
@@ -562,36 +602,43 @@ def board_headline(src: Sources) -> str:
 
 
 def board_pathways(src: Sources) -> str:
-    """The board's two pathways side by side: cost of a checked 48x160 band pair on each core
-    and the accuracy of the refined readout its preset streams on the eval split at w160 (the
-    board's 160-px bands): each pathway's default (the head fused with the descriptor SGM, or
-    with the census SGM)."""
+    """The board's readouts side by side: cost of a checked 48x160 band pair on each core and the
+    accuracy of the refined readout on the eval split at w160 (the board's 160-px bands) and
+    w320: the census alone (no encoder; its instructions the measured native run's rows, census
+    SGM and refinement stages) and each pathway's learned default (the head fused with the
+    descriptor SGM, or with the census SGM)."""
     ex, na = src.metrics("eval_w160"), src.metrics("native_w160")
     ex320, na320 = src.metrics("eval_w320"), src.metrics("native_w320")
     pathways = (
         (
-            "export (`bino run`'s default): encode (L, L) and (R, R), SGM, census SGM, head, mirrored head",
-            "band_pair_instructions",
+            "census, no encoder (`bino run`'s default): census SGM, its check, refinement",
+            census_instructions,
             (ex, ex320),
-            DEFAULT["w160"],
+            CENSUS,
+        ),
+        (
+            "export: encode (L, L) and (R, R), SGM, census SGM, head, mirrored head",
+            lambda c: c["band_pair_instructions"],
+            (ex, ex320),
+            EXPORT_DEFAULT,
         ),
         (
             "native (the board's preset): one encode on (L, R), native head, right view from its logits, census SGM",
-            "native_band_pair_instructions",
+            lambda c: c["native_band_pair_instructions"],
             (na, na320),
             NATIVE_DEFAULT,
         ),
     )
     rows = []
-    for label, key, metrics, readout in pathways:
+    for label, instructions, metrics, readout in pathways:
         row = [label, f"int8 `{readout}`"]
         row += [ep_b1(metrics_of(m["mean"][f"int8_{readout}"])) for m in metrics]
         for core in CORES:
             c = src.core(core)
-            ins = c[key]
+            ins = instructions(c)
             row.append(f"{mega(ins)} ({ins / (c['clock_mhz'] * 1e6):.2f} s)")
         rows.append(row)
-    header = ["pathway, left-right check included", "readout", "eval w160 epe / bad1tok", "eval w320"]
+    header = ["readout, left-right check included", "readout", "eval w160 epe / bad1tok", "eval w320"]
     header += [f"{core.upper()} instructions (s at IPC 1)" for core in CORES]
     return table(header, rows) + "\n\n" + footer(src)
 
@@ -614,7 +661,7 @@ def heldout_labeled(src: Sources) -> str:
     chosen with against StereoSGBM, and how far the worst pair is from StereoSGBM's epe."""
     evs = {w: src.metrics(f"heldout_w{w}") for w in (160, 320)}
     natives = {w: src.metrics(f"native_heldout_w{w}") for w in (160, 320)}
-    readouts = ["sgm+lr+ref", "head+lr+ref", "fuse+lr+ref", DEFAULT["w160"]]
+    readouts = [CENSUS, "sgm+lr+ref", "head+lr+ref", "fuse+lr+ref", EXPORT_DEFAULT]
     rows = []
     pairs = [p["pair_id"] for p in evs[160]["per_pair"]]
     for i, pair in enumerate(pairs + ["mean"]):
@@ -628,21 +675,36 @@ def heldout_labeled(src: Sources) -> str:
             native = na["mean"] if pair == "mean" else na["per_pair"][i]["readouts"]
             row.append(ep_b1(metrics_of(native[f"int8_{NATIVE_DEFAULT}"])))
             sgbm = metrics_of(got["sgbm"])
-            ours = metrics_of(got[f"int8_{DEFAULT[f'w{w}']}"])
-            row += [ep_b1(sgbm), f"{ours['epe'] / sgbm['epe']:.2f}"]
+            census = metrics_of(got[f"int8_{CENSUS}"])
+            learned = min(
+                metrics_of(got[f"int8_{EXPORT_DEFAULT}"])["epe"],
+                metrics_of(native[f"int8_{NATIVE_DEFAULT}"])["epe"],
+            )
+            row += [ep_b1(sgbm), f"{learned / census['epe']:.2f}"]
         rows.append(row)
     header = ["pair"]
     for w in (160, 320):
         header += [f"w{w} int8 `{r}`" for r in readouts]
         header += [f"w{w} native `{NATIVE_DEFAULT}` (the board's)"]
-        header += [f"w{w} StereoSGBM", "default / SGBM epe"]
+        header += [f"w{w} StereoSGBM", "best learned / census epe"]
     note = (
-        "epe px / bad1tok %, int8, the held-out labeled MiddEval3-Q train pairs "
-        "(`bino_train.labeled.LABELED_HOLDOUT`, resized by `bino_train.labeled_folder`), "
-        "StereoSGBM in the same run; `scripts/measure_tables.sh heldout_w160 heldout_w320` "
-        "(the native pathway's run: `native_heldout_w160`, `native_heldout_w320`)."
+        "epe px / bad1tok %, int8, the held-out labeled train pairs no head was trained on "
+        "(`bino_train.labeled.LABELED_HOLDOUT`: four MiddEval3-Q pairs and Middlebury 2006 "
+        "Monopoly, resized by `bino_train.labeled_folder`), StereoSGBM in the same run; "
+        "`scripts/measure_tables.sh heldout_w160 heldout_w320` (the native pathway's run: "
+        "`native_heldout_w160`, `native_heldout_w320`). The last column: the better of the two "
+        "learned defaults over `census+lr+ref`, below 1 where learning pays."
     )
     return note + "\n\n" + table(header, rows, [False] * len(header)) + "\n\n" + footer(src)
+
+
+def mean_over(run: Json, key: str, pairs: Sequence[str]) -> Json:
+    """The mean epe and bad1tok of `key` over `pairs` of an eval run's `per_pair`."""
+    got = {p["pair_id"]: metrics_of(p["readouts"][key]) for p in run["per_pair"]}
+    missing = [p for p in pairs if p not in got]
+    if missing:
+        raise SystemExit(f"{key}: no score for {', '.join(missing)}")
+    return {m: sum(got[p][m] for p in pairs) / len(pairs) for m in ("epe", "bad1tok")}
 
 
 REPRO = "train/checkpoints/repro_p7_short_blur/metrics"
@@ -655,15 +717,20 @@ def reproduction(src: Sources) -> str:
     held-out labeled pairs, StereoSGBM in the same runs."""
 
     def both(run: str, key: str) -> list[str]:
-        """The shipped and the reproduced blob's mean of `key` in `run`."""
-        got = (src.metrics(run)["mean"][key], src.json(f"{REPRO}/{run}.json")["mean"][key])
-        return [ep_b1(metrics_of(g)) for g in got]
+        """The shipped and the reproduced blob's mean of `key` in `run`, over the pairs the
+        reproduction scored (the held-out set grew after it)."""
+        shipped, repro = src.metrics(run), src.json(f"{REPRO}/{run}.json")
+        if "per_pair" not in repro:
+            got = (shipped["mean"][key], repro["mean"][key])
+            return [ep_b1(metrics_of(g)) for g in got]
+        pairs = [p["pair_id"] for p in repro["per_pair"]]
+        return [ep_b1(mean_over(r, key, pairs)) for r in (shipped, repro)]
 
     probes = (src.metrics("probe_trained"), src.json(f"{REPRO}/probe_trained.json"))
     rows = [["no-linkage probe, eval w160 (float)", *(ep_b1(p) for p in probes)]]
     for label, prefix in (("eval split", "eval"), ("held-out labeled", "heldout")):
         for w in (160, 320):
-            run, default = f"{prefix}_w{w}", DEFAULT[f"w{w}"]
+            run, default = f"{prefix}_w{w}", EXPORT_DEFAULT
             rows.append([f"{label} w{w}, `{default}`", *both(run, f"int8_{default}")])
             if prefix == "heldout":
                 native = both(f"native_{run}", f"int8_{NATIVE_DEFAULT}")
@@ -1036,7 +1103,61 @@ def fw_frame_check(src: Sources) -> str:
     return table(header, rows, [False, False] + [True] * (len(header) - 2)) + "\n\n" + footer(src)
 
 
+def census_vs_learned(src: Sources) -> str:
+    """One sentence: where `census+lr+ref` is more accurate than both learned defaults (epe),
+    where a learned one is, and what each costs on the board's M55 per 48x160 band pair."""
+    # Each set's name, then the widths where the census or a learned readout has the lower epe.
+    wins: dict[str, dict[bool, list[str]]] = {}
+
+    def judge(name: str, width: str, census: float, learned: float) -> None:
+        wins.setdefault(name, {True: [], False: []})[census <= learned].append(width)
+
+    def learned_epe(export: Json, native: Json) -> float:
+        return min(
+            metrics_of(export[f"int8_{EXPORT_DEFAULT}"])["epe"],
+            metrics_of(native[f"int8_{NATIVE_DEFAULT}"])["epe"],
+        )
+
+    for name, run in (("the eval split", "w"), ("the held-out real labeled pairs", "heldout_w")):
+        for w in (160, 320):
+            ex = src.metrics(f"eval_w{w}" if run == "w" else f"heldout_w{w}")
+            na = src.metrics(f"native_w{w}" if run == "w" else f"native_heldout_w{w}")
+            census = metrics_of(ex["mean"][f"int8_{CENSUS}"])["epe"]
+            judge(name, f"w{w}", census, learned_epe(ex["mean"], na["mean"]))
+    for w in (160, 320):
+        ev, na = src.metrics(f"eval_nuisance_w{w}"), src.metrics(f"native_nuisance_w{w}")
+        for name in ev["nuisances"]:
+            means = ev["nuisances"][name]["mean"], na["nuisances"][name]["mean"]
+            census = metrics_of(means[0][f"int8_{CENSUS}"])["epe"]
+            judge(f"{name} nuisance", f"w{w}", census, learned_epe(*means))
+    occ = src.metrics("occlusion_w160")["occlusion"]["summary"]
+    native_occ = src.metrics("native_occlusion_w160")["occlusion"]["summary"]
+    judge(
+        "the one-view occlusion benchmark (OccAUC)",
+        "w160",
+        occ[f"int8_{CENSUS}"]["auc_epe"],
+        min(occ[f"int8_{EXPORT_DEFAULT}"]["auc_epe"], native_occ[f"int8_{NATIVE_DEFAULT}"]["auc_epe"]),
+    )
+
+    def sets(census_better: bool) -> str:
+        parts = [f"{name} ({', '.join(w[census_better])})" for name, w in wins.items() if w[census_better]]
+        return ", ".join(parts) if parts else "none of them"
+
+    m55 = src.core("m55")
+    census_ins, native_ins = census_instructions(m55), m55["native_band_pair_instructions"]
+    clock = m55["clock_mhz"] * 1e6
+    return (
+        f"`{CENSUS}` has a lower epe than both learned readouts (`{EXPORT_DEFAULT}`, "
+        f"`{NATIVE_DEFAULT}`) on {sets(True)}; a learned readout is more accurate on "
+        f"{sets(False)}. On the board's Cortex-M55 a 48x160 band pair costs {mega(census_ins)} "
+        f"instructions with the census ({census_ins / clock:.2f} s at 400 MHz, IPC 1) against "
+        f"{mega(native_ins)} ({native_ins / clock:.2f} s) for the learned native preset.\n\n"
+        + footer(src)
+    )
+
+
 RENDERERS: dict[str, Callable[[Sources], str]] = {
+    "census-vs-learned": census_vs_learned,
     "board-regions": board_regions,
     "accuracy-headline": accuracy_headline,
     "board-headline": board_headline,
