@@ -9,10 +9,9 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
-use bino_core::config::BAND_ROWS;
 use bino_core::model::ids::HeadKind;
-use bino_core::model::{encoder, head};
-use bino_core::pipeline::{Options as PipelineOptions, Pathway};
+
+use bino_core::pipeline::{self, Options as PipelineOptions, Pathway, Refine, RefineInput};
 use bino_core::sgm::Penalties;
 use serde::Serialize;
 
@@ -80,10 +79,10 @@ pub struct DemoReport {
     pub readouts: Vec<ReadoutResult>,
     /// Wall time of each step.
     pub timings: Vec<(&'static str, Duration)>,
-    /// Arena bytes the encoder needs for one band of this width.
-    pub encoder_arena_bytes: usize,
-    /// Arena bytes the streaming head needs for this width.
-    pub head_arena_bytes: usize,
+    /// Arena bytes each streamed readout needs for this scene with its refinement (the sizes
+    /// `bino_core::pipeline` checks a run against): the census alone, then each pathway's
+    /// learned readout whose head the blob carries.
+    pub arenas: Vec<(&'static str, usize)>,
     /// Files written.
     pub files: Vec<PathBuf>,
 }
@@ -206,10 +205,31 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         height: opts.height,
         readouts,
         timings,
-        encoder_arena_bytes: encoder::arena_bytes(BAND_ROWS, opts.width),
-        head_arena_bytes: head::arena_bytes(cols),
+        arenas: arenas(opts, &model),
         files,
     })
+}
+
+/// The arena of each streamed readout the demo scores, refinement included.
+fn arenas(opts: &DemoOptions, model: &Int8Model) -> Vec<(&'static str, usize)> {
+    let (w, h) = (opts.width, opts.height);
+    let census = pipeline_options(opts, Pathway::Export, w);
+    let refine = Refine::for_width(RefineInput::CensusLr, w);
+    let mut out = vec![(
+        "census+lr+ref",
+        pipeline::census_arena_bytes(h, w, &census, Some(&refine)),
+    )];
+    for (name, pathway, kind) in [
+        ("export fuse-all+lr+ref", Pathway::Export, HeadKind::Export),
+        ("native fuse-census+lr+ref", Pathway::Native, HeadKind::Native),
+    ] {
+        if model.has_head_of(kind) {
+            let learned = pipeline_options(opts, pathway, w);
+            let refine = Refine::for_width(RefineInput::for_options(&learned), w);
+            out.push((name, pipeline::arena_bytes_refined(h, w, &learned, &refine)));
+        }
+    }
+    out
 }
 
 /// Runs the demo's steps in order, announcing and timing each.

@@ -66,9 +66,17 @@ pub fn run(args: DemoArgs) -> Result<()> {
     for (step, took) in &report.timings {
         println!("  {step}: {:.1} ms", took.as_secs_f64() * 1e3);
     }
+    // The arenas the core checks each run against (the firmware's figures at 48x160).
+    let arenas: Vec<String> = report
+        .arenas
+        .iter()
+        .map(|(name, bytes)| format!("{name} {bytes} B"))
+        .collect();
     println!(
-        "arena: encoder {} bytes per 48-row band, head {} bytes (both fixed, sized by const fn)",
-        report.encoder_arena_bytes, report.head_arena_bytes
+        "arena for the {}x{} scene, refinement included: {}",
+        report.width,
+        report.height,
+        arenas.join(", ")
     );
     for file in &report.files {
         println!("wrote {}", file.display());
