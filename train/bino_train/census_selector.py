@@ -55,10 +55,8 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -66,484 +64,57 @@ import numpy as np
 import torch
 from numpy.typing import NDArray
 
-from .census_companion import (
-    box_sums,
-    cell_costs,
-    fuse,
-    pixel_hamming,
-    refine_search,
-    refined,
-    right_view,
-    wta_parabola,
-)
-from .head import StereoHead, head_candidates, load_head, with_candidates
-from .head_eval import consistent, diagonal_right, fill_rejected
+from .census_companion import refined
+from .census_selector_cells import CENSUS_PENALTIES as CENSUS_PENALTIES
+from .census_selector_cells import CensusCells as CensusCells
+from .census_selector_cells import Grid as Grid
+from .census_selector_cells import Mask as Mask
+from .census_selector_cells import PairCells as PairCells
+from .census_selector_cells import Pixels as Pixels
+from .census_selector_cells import cell_ground_truth as cell_ground_truth
+from .census_selector_cells import cell_spread as cell_spread
+from .census_selector_cells import census_cells as census_cells
+from .census_selector_cells import head_stats as head_stats
+from .census_selector_cells import pair_cells as pair_cells
+from .census_selector_cells import uniqueness as uniqueness
+from .census_selector_fit import DISAGREEMENT_CLIP as DISAGREEMENT_CLIP
+from .census_selector_fit import FEATURES as FEATURES
+from .census_selector_fit import INIT_BIAS as INIT_BIAS
+from .census_selector_fit import INSAMPLE_L2 as INSAMPLE_L2
+from .census_selector_fit import L2, training_cells
+from .census_selector_fit import Q8 as Q8
+from .census_selector_fit import SETTINGS as SETTINGS
+from .census_selector_fit import Cells as Cells
+from .census_selector_fit import Selector as Selector
+from .census_selector_fit import census_selector as census_selector
+from .census_selector_fit import choose_q8 as choose_q8
+from .census_selector_fit import epe_gain as epe_gain
+from .census_selector_fit import features as features
+from .census_selector_fit import fit_fold as fit_fold
+from .census_selector_fit import fit_pairs as fit_pairs
+from .census_selector_fit import fit_selector as fit_selector
+from .census_selector_readouts import Readout, pixel_oracle
+from .census_selector_readouts import base_readouts as base_readouts
+from .census_selector_readouts import cell_errors as cell_errors
+from .census_selector_readouts import fill_background as fill_background
+from .census_selector_readouts import oracle_choice as oracle_choice
+from .census_selector_readouts import select as select
+from .head import head_candidates, load_head, with_candidates
+from .head_eval import fill_rejected
 from .labeled import LABELED_HOLDOUT, labeled_pairs, load_checked_gt
-from .model import BinoEncoder
 from .pairs import Pair, load_gray
-from .probe import encoder_phase_maps, mean_metrics, score
+from .probe import mean_metrics, score
 from .profile import resize_gt, resize_image, to_u8
-from .readout_variants import sgm_aggregate
-from .refine import CELL, RefineParams
-
-Grid = NDArray[np.float64]
-Mask = NDArray[np.bool_]
-Pixels = NDArray[np.float32]
+from .refine import CELL
 
 CLEAN_PAIRS = LABELED_HOLDOUT
 """Labeled train pairs no head was trained on (never the eval split)."""
-CENSUS_PENALTIES = (32.0, 128.0)
-"""`census::DEFAULT_PENALTIES` (P1, P2) in cell-summed Hamming units."""
-UNIQUENESS = 10
-"""`census::DEFAULT_UNIQUENESS`, percent."""
-FUSE_SHARE = 0.5
-"""`census::FUSE_HEAD_WEIGHT` / 256: the head's share in `fuse-census`."""
-DISAGREEMENT_CLIP = 4.0
-"""|head - census| (patch columns) at which the disagreement feature saturates at 1."""
-FEATURES = (
-    "census_kept",
-    "census_lr",
-    "census_margin",
-    "head_kept",
-    "head_peak",
-    "head_entropy",
-    "disagreement",
-    "head_only_kept",
-)
-"""The selector's features, each in [0, 1] (Q8-friendly): the census check (left-right and
-uniqueness) and its left-right part alone, the census winner's margin, the head's check, its
-softmax peak and normalised entropy, |head+lr - census+lr| / DISAGREEMENT_CLIP clipped to 1, and
-head kept where the census is not."""
-INIT_BIAS = -4.0
-"""The selector's starting bias: every cell the census's (the head is taken only where the
-features argue for it)."""
-L2 = 1e-3
-"""The fit's L2 pull towards the starting selector (per unit of mean cell weight)."""
-INSAMPLE_L2 = 1e-4
-"""L2 of the in-sample selector (fitted and scored on the same pairs: an optimistic bound of
-what this feature set can do, not a held-out result)."""
-SETTINGS = tuple((l2, threshold) for l2 in (1e-3, 1e-2, 1e-1) for threshold in (0.0, 1.0, 2.0))
-"""(L2, logit threshold) pairs a fold chooses from by leave-one-pair-out on its own training
-pairs (`fit_fold`); the threshold is folded into the bias. A fold none of them helps keeps the
-census selector."""
-Q8 = 256
 TEXTURELESS_GRADIENT = 2.0
 """Mean |horizontal gradient| of a cell (grey levels per px, central differences) below which a
 cell counts as textureless."""
 DISCONTINUITY_PX = 2.0
 """Spread (px) of the valid ground truth over a cell and its 8 neighbours above which a cell
 counts as near a discontinuity."""
-
-
-# --- per-cell quantities -------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class CensusCells:
-    """The census SGM of one view pair per token cell."""
-
-    disparity: Grid
-    """Left disparity, patch columns (winner with a parabola step, / CELL)."""
-    lr: Mask
-    """Left-right agreement (`head_eval.consistent`)."""
-    unique: Mask
-    """The uniqueness test (`bino_core::census::unique`)."""
-    margin: Grid
-    """(second - best) / second of the aggregate, the second over candidates more than one
-    away from the winner, in [0, 1] (1 where there is no such candidate or it costs 0)."""
-    runner_up: Grid
-    """That second candidate's disparity (patch columns, parabola step): a diagnostic of
-    whether the census's own costs hold the answer its winner missed."""
-
-    @property
-    def kept(self) -> Mask:
-        return self.lr & self.unique
-
-
-def uniqueness(total: Grid, ratio: int) -> tuple[Mask, Grid]:
-    """(unique, margin) of (T, P, N) aggregated costs: unique where every candidate more than one
-    away from the lowest costs more than 100 / (100 - ratio) times it (strictly; 0 keeps all);
-    the margin is (second - lowest) / second, second the lowest of those candidates."""
-    n = total.shape[-1]
-    best = total.argmin(axis=-1)
-    low = total.min(axis=-1)
-    far = np.abs(np.arange(n)[None, None, :] - best[..., None]) > 1
-    second = np.where(far, total, np.inf).min(axis=-1)
-    has = np.isfinite(second)
-    unique = ~has | (second * (100 - ratio) > low * 100) if ratio > 0 else np.ones_like(has)
-    safe = np.where(has & (second > 0), second, 1.0)
-    margin = np.where(has & (second > 0), (second - low) / safe, 1.0)
-    return np.asarray(unique, dtype=bool), np.clip(margin, 0.0, 1.0)
-
-
-def census_cells(
-    hamming: Grid,
-    rows: int,
-    cols: int,
-    penalties: tuple[float, float] = CENSUS_PENALTIES,
-    ratio: int = UNIQUENESS,
-) -> CensusCells:
-    """The census SGM of (H, W, N) pixel distances (`census_companion.pixel_hamming`, no
-    clamp): left and right aggregates, the left-right check, uniqueness and margin."""
-    p1, p2 = penalties
-    left = sgm_aggregate(cell_costs(hamming, rows, cols), p1, p2)
-    right = sgm_aggregate(cell_costs(right_view(hamming), rows, cols), p1, p2)
-    d_left = wta_parabola(left) / CELL
-    d_right = wta_parabola(right) / CELL
-    unique, margin = uniqueness(left, ratio)
-    n = left.shape[-1]
-    far = np.abs(np.arange(n)[None, None, :] - left.argmin(axis=-1)[..., None]) > 1
-    ceiling = left.max(axis=-1, keepdims=True) + 1.0
-    runner_up = wta_parabola(np.where(far, left, ceiling)) / CELL
-    return CensusCells(d_left, consistent(d_left, d_right), unique, margin, runner_up)
-
-
-def head_stats(logits: Grid) -> tuple[Grid, Grid]:
-    """(softmax peak, entropy / log D) per cell of (D, T, P) logits."""
-    z = logits - logits.max(axis=0, keepdims=True)
-    p = np.exp(z)
-    p /= p.sum(axis=0, keepdims=True)
-    entropy = -(p * np.log(np.maximum(p, 1e-300))).sum(axis=0)
-    return p.max(axis=0), entropy / math.log(logits.shape[0])
-
-
-def cell_sums(values: Grid, mask: Mask) -> tuple[Grid, Grid]:
-    """(sum over `mask`, count of `mask`) of (H, W) pixel values per 4x4 cell (H, W multiples of
-    4)."""
-    h, w = values.shape
-    shape = (h // CELL, CELL, w // CELL, CELL)
-    v = np.where(mask, values, 0.0).reshape(shape).sum(axis=(1, 3))
-    return v, mask.reshape(shape).sum(axis=(1, 3)).astype(np.float64)
-
-
-def cell_ground_truth(gt: Pixels, valid: Mask) -> Grid:
-    """Median of each cell's valid ground-truth pixels in patch columns (NaN: none valid)."""
-    h, w = gt.shape
-    blocks = np.where(valid, gt, np.nan).reshape(h // CELL, CELL, w // CELL, CELL)
-    flat = blocks.transpose(0, 2, 1, 3).reshape(h // CELL, w // CELL, -1)
-    out = np.full(flat.shape[:2], np.nan)
-    has = valid.reshape(h // CELL, CELL, w // CELL, CELL).any(axis=(1, 3))
-    out[has] = np.nanmedian(flat[has], axis=-1)
-    return out / CELL
-
-
-def cell_gradient(view: NDArray[np.uint8]) -> Grid:
-    """Mean |horizontal central difference| / 2 of each cell (grey levels per px)."""
-    v = view.astype(np.float64)
-    g = np.zeros_like(v)
-    g[:, 1:-1] = np.abs(v[:, 2:] - v[:, :-2]) / 2
-    s, n = cell_sums(g, np.ones(v.shape, dtype=bool))
-    return s / n
-
-
-def cell_spread(gt: Pixels, valid: Mask) -> Grid:
-    """Range (px) of the valid ground truth over each cell and its 8 neighbours (0: none)."""
-    h, w = gt.shape
-    shape = (h // CELL, CELL, w // CELL, CELL)
-    hi = np.where(valid, gt, -np.inf).reshape(shape).max(axis=(1, 3))
-    lo = np.where(valid, gt, np.inf).reshape(shape).min(axis=(1, 3))
-    rows, cols = hi.shape
-    hp = np.pad(hi, 1, constant_values=-np.inf)
-    lp = np.pad(lo, 1, constant_values=np.inf)
-    hi3 = np.max([hp[i : i + rows, j : j + cols] for i in range(3) for j in range(3)], axis=0)
-    lo3 = np.min([lp[i : i + rows, j : j + cols] for i in range(3) for j in range(3)], axis=0)
-    return np.where(np.isfinite(hi3) & np.isfinite(lo3), hi3 - lo3, 0.0)
-
-
-@dataclass(frozen=True)
-class PairCells:
-    """Everything the study reads of one pair: per-cell quantities and the pixels to score."""
-
-    pair_id: str
-    census: CensusCells
-    census_nouniq: Grid
-    """The census filled from the left by its left-right check alone (`census_companion`)."""
-    head: Grid
-    head_kept: Mask
-    head_peak: Grid
-    head_entropy: Grid
-    gt_cell: Grid
-    gradient: Grid
-    spread: Grid
-    gt: Pixels
-    valid: Mask
-    boxed: Grid
-    """`census_companion.box_sums` of the refinement's distances."""
-    search: int
-
-
-def pair_cells(
-    encoder: BinoEncoder,
-    head: StereoHead,
-    pair_id: str,
-    left_u8: NDArray[np.uint8],
-    right_u8: NDArray[np.uint8],
-    gt: Pixels,
-    valid: Mask,
-) -> PairCells:
-    """Runs the native head (one encoder pass) and the census SGM on one resized pair."""
-    left_px = left_u8.astype(np.float32) / np.float32(255.0)
-    right_px = right_u8.astype(np.float32) / np.float32(255.0)
-    with torch.no_grad():
-        out = head(*(t[None] for t in encoder_phase_maps(encoder, left_px, right_px)))
-    dh = out.disparity[0].double().numpy()
-    logits = out.logits[0].double().numpy()
-    kh = consistent(dh, diagonal_right(logits))
-    peak, entropy = head_stats(logits)
-    rows, cols = dh.shape
-    n = CELL * head.cfg.max_disp
-    cc = census_cells(pixel_hamming(left_u8, right_u8, n, False), rows, cols)
-    boxed = box_sums(pixel_hamming(left_u8, right_u8, n + 8, True), RefineParams().box_radius)
-    return PairCells(
-        pair_id=pair_id,
-        census=cc,
-        census_nouniq=fill_rejected(cc.disparity, cc.lr),
-        head=dh,
-        head_kept=kh,
-        head_peak=peak,
-        head_entropy=entropy,
-        gt_cell=cell_ground_truth(gt, valid),
-        gradient=cell_gradient(left_u8),
-        spread=cell_spread(gt, valid),
-        gt=gt,
-        valid=valid,
-        boxed=boxed,
-        search=refine_search(left_u8.shape[1]),
-    )
-
-
-# --- readouts ------------------------------------------------------------------------------
-
-Readout = tuple[Grid, Mask]
-"""(filled disparity in patch columns, kept mask): what `census_companion.refined` refines."""
-
-
-def base_readouts(c: PairCells) -> dict[str, Readout]:
-    """census+lr, head+lr and fuse-census+lr of one pair (filled from the left)."""
-    cc = c.census
-    head = (c.head, c.head_kept)
-    return {
-        "census": (fill_rejected(cc.disparity, cc.kept), cc.kept),
-        "head": (fill_rejected(c.head, c.head_kept), c.head_kept),
-        "fuse": fuse(head, c.head_peak, (cc.disparity, cc.kept), FUSE_SHARE),
-    }
-
-
-def fill_background(disparity: Grid, kept: Mask) -> Grid:
-    """Each rejected cell takes the lower of the nearest kept values to its left and right (the
-    background side of an occlusion; the one that exists at a row's ends; 0 in a row with nothing
-    kept): a classical alternative to `fill_rejected`'s left fill."""
-    from_left = fill_rejected(disparity, kept)
-    from_right = fill_rejected(disparity[:, ::-1], kept[:, ::-1])[:, ::-1]
-    cols = np.arange(kept.shape[1])
-    seen_left = np.maximum.accumulate(np.where(kept, cols, -1), axis=1) >= 0
-    seen_right = np.maximum.accumulate(np.where(kept, cols, -1)[:, ::-1] >= 0, axis=1)[:, ::-1]
-    both = np.minimum(from_left, from_right)
-    out = np.where(seen_left & seen_right, both, np.where(seen_left, from_left, from_right))
-    return np.where(kept, disparity, out)
-
-
-def select(readouts: Sequence[Readout], choice: NDArray[np.int64]) -> Readout:
-    """Each cell's (disparity, kept) from `readouts[choice]`."""
-    grids = np.stack([r[0] for r in readouts])
-    kept = np.stack([r[1] for r in readouts])
-    pick = choice[None]
-    return (
-        np.take_along_axis(grids, pick, 0)[0],
-        np.take_along_axis(kept, pick, 0)[0],
-    )
-
-
-def oracle_choice(readouts: Sequence[Readout], gt_cell: Grid) -> NDArray[np.int64]:
-    """Per cell the readout closest to the cell's ground truth (the first where unknown or
-    tied)."""
-    err = np.stack([np.abs(r[0] - gt_cell) for r in readouts])
-    err = np.where(np.isfinite(err), err, np.inf)
-    err[0] = np.where(np.isfinite(gt_cell), err[0], -1.0)
-    return np.asarray(err.argmin(axis=0), dtype=np.int64)
-
-
-def cell_errors(pred: Pixels, c: PairCells) -> tuple[Grid, Grid]:
-    """(sum, count) of |pred - gt| over each cell's valid pixels."""
-    return cell_sums(np.abs(pred.astype(np.float64) - c.gt), c.valid)
-
-
-def pixel_oracle(preds: Sequence[Pixels], c: PairCells) -> Pixels:
-    """Each cell's pixels from the refined map with the lowest error on them (the first where
-    the cell has no valid pixel)."""
-    sums = np.stack([cell_errors(p, c)[0] for p in preds])
-    choice = sums.argmin(axis=0)
-    pix = np.repeat(np.repeat(choice, CELL, axis=0), CELL, axis=1)
-    return np.take_along_axis(np.stack(preds), pix[None], 0)[0]
-
-
-# --- the selector --------------------------------------------------------------------------
-
-
-def features(c: PairCells, other: Readout | None = None) -> Grid:
-    """(T, P, F) `FEATURES` of one pair, each in [0, 1]; `other` is the cell the selector may
-    take instead of the census (default head+lr)."""
-    cc = c.census
-    census = fill_rejected(cc.disparity, cc.kept)
-    alt = other if other is not None else (fill_rejected(c.head, c.head_kept), c.head_kept)
-    disagreement = np.clip(np.abs(alt[0] - census) / DISAGREEMENT_CLIP, 0.0, 1.0)
-    kc = cc.kept.astype(np.float64)
-    kh = c.head_kept.astype(np.float64)
-    columns = (
-        kc,
-        cc.lr.astype(np.float64),
-        cc.margin,
-        kh,
-        c.head_peak,
-        np.clip(c.head_entropy, 0.0, 1.0),
-        disagreement,
-        kh * (1.0 - kc),
-    )
-    return np.stack(columns, axis=-1)
-
-
-@dataclass(frozen=True)
-class Selector:
-    """A logistic per-cell choice: the other cell where `features @ weights + bias > 0`."""
-
-    weights: NDArray[np.float64]
-    bias: float
-
-    def logits(self, x: Grid) -> Grid:
-        return np.asarray(x @ self.weights + self.bias)
-
-    def choose(self, x: Grid) -> Mask:
-        return np.asarray(self.logits(x) > 0)
-
-    def to_json(self) -> dict[str, Any]:
-        return {
-            "weights": dict(zip(FEATURES, map(float, self.weights), strict=True)),
-            "bias": float(self.bias),
-            "weights_q8": [int(v) for v in np.rint(self.weights * Q8)],
-            "bias_q8": int(np.rint(self.bias * Q8)),
-        }
-
-
-def census_selector(features_count: int = len(FEATURES), bias: float = INIT_BIAS) -> Selector:
-    """The selector that keeps every census cell: zero weights, a negative bias."""
-    if bias >= 0:
-        raise ValueError(f"a census-first selector needs a negative bias, not {bias}")
-    return Selector(np.zeros(features_count), bias)
-
-
-def choose_q8(selector: Selector, x: Grid) -> Mask:
-    """`Selector.choose` in integers: features and weights rounded to Q8, the bias to Q16
-    (i64 sums, as a fixed-point core computes them)."""
-    fq = np.rint(np.clip(x, 0.0, 1.0) * Q8).astype(np.int64)
-    wq = np.rint(selector.weights * Q8).astype(np.int64)
-    bq = int(np.rint(selector.bias * Q8)) * Q8
-    return np.asarray(fq @ wq + bq > 0)
-
-
-def fit_selector(
-    x: NDArray[np.float64],
-    label: Mask,
-    weight: NDArray[np.float64],
-    prior: Selector | None = None,
-    l2: float = L2,
-    iterations: int = 50,
-) -> Selector:
-    """Weighted logistic regression by Newton steps: minimises the weighted mean log-loss of
-    `label` (True: take the other cell) plus `l2 / 2 |theta - prior|^2` (theta the weights and
-    bias). Weights are normalised to mean 1 over cells with positive weight."""
-    prior = prior or census_selector(x.shape[1])
-    keep = weight > 0
-    if not keep.any():
-        return prior
-    xs = np.concatenate([x[keep], np.ones((int(keep.sum()), 1))], axis=1)
-    y = label[keep].astype(np.float64)
-    w = weight[keep] / weight[keep].mean()
-    n = float(len(y))
-    theta0 = np.append(prior.weights, prior.bias)
-
-    def objective(t: NDArray[np.float64]) -> float:
-        z = xs @ t
-        loss = np.logaddexp(0.0, z) - y * z
-        return float((w * loss).sum() / n + 0.5 * l2 * ((t - theta0) ** 2).sum())
-
-    theta = theta0.copy()
-    value = objective(theta)
-    for _ in range(iterations):
-        p = 1.0 / (1.0 + np.exp(-np.clip(xs @ theta, -40, 40)))
-        grad = xs.T @ (w * (p - y)) / n + l2 * (theta - theta0)
-        hess = (xs * (w * p * (1 - p))[:, None]).T @ xs / n + l2 * np.eye(len(theta))
-        step = np.linalg.solve(hess, grad)
-        # Damped Newton: halve the step until the objective does not rise.
-        scale = 1.0
-        while scale > 1e-6 and objective(theta - scale * step) > value:
-            scale /= 2
-        theta = theta - scale * step
-        new = objective(theta)
-        if value - new < 1e-12:
-            break
-        value = new
-    return Selector(theta[:-1], float(theta[-1]))
-
-
-def training_cells(
-    c: PairCells, census_pred: Pixels, other_pred: Pixels, other: Readout | None = None
-) -> tuple[NDArray[np.float64], Mask, NDArray[np.float64]]:
-    """(features, label, weight) of one pair's cells: label where the other refined map's
-    cell error is below the census's, weighted by what taking it changes the pair's epe (the
-    difference of the cells' summed pixel errors over the pair's valid pixels: every pair
-    weighs as in the mean over pairs); cells with no valid pixel weigh 0."""
-    sc, n = cell_errors(census_pred, c)
-    so, _ = cell_errors(other_pred, c)
-    diff = (sc - so) / max(float(n.sum()), 1.0)
-    f = features(c, other)
-    return f.reshape(-1, f.shape[-1]), (diff > 0).reshape(-1), np.abs(diff).reshape(-1)
-
-
-Cells = tuple[NDArray[np.float64], Mask, NDArray[np.float64]]
-"""`training_cells`' (features, label, weight) of one pair."""
-
-
-def epe_gain(take: Mask, cells: Cells) -> float:
-    """How much taking the other cell where `take` lowers the pair's epe (px, to first order:
-    each cell's refined pixels as refined in its own map)."""
-    _, label, weight = cells
-    return float((np.where(label, weight, -weight) * take).sum())
-
-
-def fit_pairs(cells: Sequence[Cells], l2: float = L2) -> Selector:
-    """`fit_selector` on the cells of several pairs together."""
-    x = np.concatenate([c[0] for c in cells])
-    label = np.concatenate([c[1] for c in cells])
-    weight = np.concatenate([c[2] for c in cells])
-    return fit_selector(x, label, weight, l2=l2)
-
-
-def fit_fold(
-    train: Sequence[Cells], settings: Sequence[tuple[float, float]] = SETTINGS
-) -> tuple[Selector, dict[str, Any]]:
-    """A selector from `train`'s pairs: each (L2, threshold) of `settings` scored by leave-one-
-    pair-out over them (mean `epe_gain` on the left-out pair), the best refitted on all and its
-    threshold folded into the bias; the census selector where none gains (the census path when
-    unsure)."""
-    gains = []
-    for l2, threshold in settings:
-        total = 0.0
-        for i, held in enumerate(train):
-            rest = [d for j, d in enumerate(train) if j != i]
-            sel = fit_pairs(rest, l2)
-            total += epe_gain(sel.logits(held[0]) > threshold, held)
-        gains.append(total / len(train))
-    best = int(np.argmax(gains))
-    info: dict[str, Any] = {
-        "inner_gain_px": {f"{l2:g}@{t:g}": g for (l2, t), g in zip(settings, gains, strict=True)}
-    }
-    if gains[best] <= 0:
-        info["setting"] = "census"
-        return census_selector(train[0][0].shape[1]), info
-    l2, threshold = settings[best]
-    sel = fit_pairs(train, l2)
-    info["setting"] = f"{l2:g}@{threshold:g}"
-    return Selector(sel.weights, sel.bias - threshold), info
 
 
 # --- conditions ----------------------------------------------------------------------------
