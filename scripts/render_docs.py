@@ -860,24 +860,9 @@ def fw_stages(src: Sources) -> str:
 
 # Instruction ceilings per export band pair that the kernels were tuned against; the budget file
 # judges the time targets.
-INSTRUCTION_CEILINGS = {"m55": 1.3e9, "m7": 8.0e9}
-
-
 def fw_targets(src: Sources) -> str:
     b = src.budget()
     rows = [[t["target"], t["measured"], "met" if t["met"] else "**missed**"] for t in b["targets"]]
-    for core, ceiling in INSTRUCTION_CEILINGS.items():
-        c = src.core(core)
-        ins = c["band_pair_instructions"]
-        margin = ceiling - ins
-        rows.append(
-            [
-                f"{core_label(c).split(' (')[0]} <= {ceiling / 1e9:g}G instructions "
-                "per export band pair",
-                f"{mega(ins)} ({'under' if margin >= 0 else 'over'} by {mega(abs(margin))})",
-                "met" if margin >= 0 else "**missed**",
-            ]
-        )
     return (
         table(["target", "measured", "state"], rows, [False, False, False]) + "\n\n" + footer(src)
     )

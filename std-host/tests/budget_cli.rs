@@ -135,7 +135,7 @@ fn budget_reports_the_committed_runs() {
     let targets = report["targets"].as_array().unwrap();
     // Weights, arena, then per core its band-pair instructions, the native band pair's share
     // and its refinement's share.
-    assert_eq!(targets.len(), 8);
+    assert_eq!(targets.len(), 10);
     for core in ["Cortex-M55", "Cortex-M7"] {
         let refinement = targets
             .iter()

@@ -53,6 +53,21 @@ pub const TARGETS: Targets = Targets {
     m7_seconds: 8.0,
 };
 
+/// Executed instructions per export band pair each core's kernels were tuned against.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ExportCeilings {
+    /// Cortex-M55.
+    pub m55: u64,
+    /// Cortex-M7.
+    pub m7: u64,
+}
+
+/// 1.3G instructions on the M55, 8G on the M7.
+pub const EXPORT_CEILINGS: ExportCeilings = ExportCeilings {
+    m55: 1_300_000_000,
+    m7: 8_000_000_000,
+};
+
 /// Issue 14: the pixel refinement (stage `refine`) costs at most this share of one encoder
 /// pass (stage `encode_left`) in executed instructions, on every core.
 pub const REFINE_SHARE_OF_ENCODER: f64 = 0.10;

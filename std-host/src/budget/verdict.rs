@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 
-use super::{clock, Clock, CoreRun, NATIVE_SHARE_OF_EXPORT, REFINE_SHARE_OF_ENCODER, TARGETS};
+use super::{clock, Clock, CoreRun, EXPORT_CEILINGS, NATIVE_SHARE_OF_EXPORT, REFINE_SHARE_OF_ENCODER, TARGETS};
 
 /// Bytes in a KiB.
 const KIB: f64 = 1024.0;
@@ -110,6 +110,30 @@ pub fn verdicts(runs: &[CoreRun]) -> Vec<Verdict> {
                 met: share <= REFINE_SHARE_OF_ENCODER,
             });
         }
+    }
+    // The export pathway's ceilings, which its kernels were tuned against: judged apart, since
+    // the board runs the native pathway.
+    for r in runs {
+        let ceiling = match r.core.as_str() {
+            "m55" => EXPORT_CEILINGS.m55,
+            "m7" => EXPORT_CEILINGS.m7,
+            _ => continue,
+        };
+        let n = r.band_pair_instructions();
+        let (side, margin) = if n <= ceiling {
+            ("under", ceiling - n)
+        } else {
+            ("over", n - ceiling)
+        };
+        out.push(Verdict {
+            target: format!(
+                "{} <= {}G instructions per export band pair",
+                core_name(&r.core),
+                ceiling as f64 / 1e9
+            ),
+            measured: format!("{:.1}M ({side} by {:.1}M)", n as f64 / 1e6, margin as f64 / 1e6),
+            met: n <= ceiling,
+        });
     }
     out
 }
