@@ -36,6 +36,25 @@ pub struct PipelineMaps {
     pub refined: Option<DisparityMap>,
 }
 
+/// The core's refinement input for `readout` when the core's pipeline streams it (every
+/// readout but the unchecked fusions `fuse`, `fuse-census` and `fuse-all`).
+pub fn streamed_input(readout: Readout) -> Option<RefineInput> {
+    Some(match (readout.method, readout.lr) {
+        (Method::Nolink, false) => RefineInput::Nolink,
+        (Method::Nolink, true) => RefineInput::NolinkLr,
+        (Method::Sgm, false) => RefineInput::Sgm,
+        (Method::Sgm, true) => RefineInput::SgmLr,
+        (Method::Head, false) => RefineInput::Head,
+        (Method::Head, true) => RefineInput::HeadLr,
+        (Method::Fused, true) => RefineInput::FusedLr,
+        (Method::CensusFused, true) => RefineInput::FusedCensusLr,
+        (Method::FusedAll, true) => RefineInput::FusedAllLr,
+        (Method::Census, false) => RefineInput::Census,
+        (Method::Census, true) => RefineInput::CensusLr,
+        (Method::Fused | Method::CensusFused | Method::FusedAll, false) => return None,
+    })
+}
+
 /// Runs the int8 pipeline on two views of the same size; `on_band(i, n)` as band `i` of `n`
 /// starts encoding.
 pub fn run_pipeline(
@@ -43,6 +62,20 @@ pub fn run_pipeline(
     left: &View,
     right: &View,
     opts: &Options,
+    on_band: &mut dyn FnMut(usize, usize),
+) -> Result<PipelineMaps> {
+    run_pipeline_refined(model, left, right, opts, None, on_band)
+}
+
+/// [`run_pipeline`], with the core's refinement of `refine.input`'s grid streamed beside the
+/// readouts ([`PipelineMaps::refined`]): what `bino run` writes for a `+ref` readout the core
+/// streams, equal to the whole-map refinement of the same grid ([`MethodMaps::pixels`]).
+pub fn run_pipeline_refined(
+    model: &Int8Model,
+    left: &View,
+    right: &View,
+    opts: &Options,
+    refine: Option<&Refine>,
     on_band: &mut dyn FnMut(usize, usize),
 ) -> Result<PipelineMaps> {
     ensure!(
@@ -57,7 +90,10 @@ pub fn run_pipeline(
     let (w, h) = (left.width, left.height);
     let views = GrayViews::from_views(left, right)?;
     let mut source = SlicePair::new(&views.left, &views.right, w, h).map_err(anyhow::Error::msg)?;
-    let arena_bytes = pipeline::arena_bytes_for(h, w, opts);
+    let arena_bytes = match refine {
+        Some(r) => pipeline::arena_bytes_refined(h, w, opts, r),
+        None => pipeline::arena_bytes_for(h, w, opts),
+    };
     let mut arena = vec![0u8; arena_bytes];
     let bands = BandPlan::new(h / PATCH_H).map_err(anyhow::Error::msg)?.len();
     let mut sink = Collect {
@@ -67,9 +103,17 @@ pub fn run_pipeline(
         maps: Default::default(),
         times: StageTimes::new(),
     };
-    let report = pipeline
-        .run(&mut source, opts, &mut arena, &mut sink)
-        .map_err(anyhow::Error::msg)?;
+    let report = match refine {
+        Some(r) => pipeline.run_refined(&mut source, opts, r, &mut arena, &mut sink),
+        None => pipeline.run(&mut source, opts, &mut arena, &mut sink),
+    }
+    .map_err(anyhow::Error::msg)?;
+    ensure!(
+        sink.maps.refined.len() == if refine.is_some() { w * h } else { 0 },
+        "the pipeline refined {} of {} pixels",
+        sink.maps.refined.len(),
+        w * h
+    );
     sink.times.stage_done();
     let (rows, cols) = (report.rows, report.cols);
     let m = sink.maps;
@@ -110,7 +154,11 @@ pub fn run_pipeline(
         stage_times: sink.times.times,
         report,
         arena_bytes,
-        refined: None,
+        refined: refine.map(|_| DisparityMap {
+            width: w,
+            height: h,
+            values: q8(&m.refined).collect(),
+        }),
     })
 }
 
@@ -266,6 +314,8 @@ struct Rows {
     wta_mask: Vec<bool>,
     sgm_mask: Vec<bool>,
     head_mask: Vec<bool>,
+    /// Refined pixel rows, Q8 px, in order.
+    refined: Vec<u16>,
 }
 
 struct Collect<'p> {
@@ -304,5 +354,10 @@ impl Sink for Collect<'_> {
 
     fn head_checked(&mut self, row: &HeadChecked<'_>) {
         self.maps.head_mask.extend(row.consistent.iter().map(|&m| m != 0));
+    }
+
+    fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
+        // Rows arrive once each, top to bottom (the core's contract, checked by its tests).
+        self.maps.refined.extend_from_slice(disparity_q8);
     }
 }

@@ -4,8 +4,10 @@
 //!
 //! The disparity is the readout's pixel map exactly as `bino eval` scores it
 //! ([`crate::readout::MethodMaps::pixels`]) at the profile's size: refined (`+ref`) by default,
-//! `--refine off` for the bilinear upsampling of the token grid; then resampled to the input's
-//! size in its pixels ([`answer::to_input_size`]). Dense unless `--invalid inf`: the pixels whose
+//! by the core's pipeline as it streams (every readout but the unchecked fusions, which are
+//! refined on the whole map; tests pin the two equal), `--refine off` for the bilinear
+//! upsampling of the token grid; then resampled to the input's size in its pixels
+//! ([`answer::to_input_size`]). Dense unless `--invalid inf`: the pixels whose
 //! cell the method's own check rejects, or whose view has no texture, are marked in `valid.png`.
 
 pub mod answer;
@@ -15,13 +17,13 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use bino_core::pipeline::{Options as PipelineOptions, Report as PipelineReport, Stage};
+use bino_core::pipeline::{Options as PipelineOptions, Refine as CoreRefine, Report as PipelineReport, Stage};
 use bino_core::sgm::Penalties;
 
 use crate::data::profile::load_profiled_pair_sized;
 use crate::data::profile::Profile;
 use crate::eval::{upsample_mask, DisparityMap};
-use crate::int8::pipeline_maps::{run_census_stream, run_pipeline};
+use crate::int8::pipeline_maps::{run_census_stream, run_pipeline_refined, streamed_input};
 use crate::int8::Int8Model;
 use crate::io::colour::colourise;
 use crate::io::colour_bar::with_colour_bar;
@@ -151,8 +153,14 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
             progress(&format!("  band {i} of {n}"));
         }
     };
+    // A `+ref` readout the core streams is refined in the pipeline, as the board refines it;
+    // the unchecked fusions, which it does not stream, on the whole map.
+    let refine = match (opts.readout.refine, streamed_input(opts.readout)) {
+        (true, Some(input)) => Some(CoreRefine::for_width(input, left.width)),
+        _ => None,
+    };
     let maps = match model.as_ref() {
-        Some(model) => run_pipeline(model, &left, &right, &pipeline_opts, &mut on_band)?,
+        Some(model) => run_pipeline_refined(model, &left, &right, &pipeline_opts, refine.as_ref(), &mut on_band)?,
         None => run_census_stream(&left, &right, &pipeline_opts, opts.readout)?,
     };
     finish(&mut timings, started);
