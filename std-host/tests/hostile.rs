@@ -206,14 +206,14 @@ fn an_unwritable_output_folder_is_named_and_nothing_is_left() {
     let (left, right) = (dir.join("l.png"), dir.join("r.png"));
     write_png(&left, 200, 60);
     write_png(&right, 200, 60);
-    // A regular file where a folder is needed: refused even for root.
+    // A regular file where a folder is needed: refused even for root, before any work.
     let blocker = dir.join("blocker");
     std::fs::write(&blocker, b"a file").unwrap();
     let before = listing(&dir);
     let out = blocker.join("out");
     assert_refused(
         &run(&left, &right, &out, &[]),
-        &["cannot create output folder", "blocker/out"],
+        &["--out", "blocker/out", "cannot create the folder", "blocker is a file"],
     );
     assert_eq!(listing(&dir), before, "no output, no partial file");
     assert_eq!(
