@@ -88,8 +88,18 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
         epe("nolink")
     );
     // SGM and the head regularise over the volume: both should beat winner-take-all.
-    assert!(epe("sgm") < epe("nolink"), "sgm epe {} vs nolink {}", epe("sgm"), epe("nolink"));
-    assert!(epe("head") < epe("nolink"), "head epe {} vs nolink {}", epe("head"), epe("nolink"));
+    assert!(
+        epe("sgm") < epe("nolink"),
+        "sgm epe {} vs nolink {}",
+        epe("sgm"),
+        epe("nolink")
+    );
+    assert!(
+        epe("head") < epe("nolink"),
+        "head epe {} vs nolink {}",
+        epe("head"),
+        epe("nolink")
+    );
     // The head's own left-right check and fill only replaces cells it rejects.
     assert!(epe("head+lr") < epe("nolink"));
     assert_ne!(epe("head+lr"), epe("head"), "head+lr fills some cells");
@@ -112,7 +122,11 @@ fn demo_on_the_shipped_blob_beats_a_constant_guess() {
         epe("head+lr")
     );
     // The native pathway reads the scene too, and its refinement helps it as well.
-    assert!(epe("native_head") < 0.8 * constant_epe, "native head epe {}", epe("native_head"));
+    assert!(
+        epe("native_head") < 0.8 * constant_epe,
+        "native head epe {}",
+        epe("native_head")
+    );
     assert!(epe("native_head+lr+ref") < epe("native_head+lr"));
     for name in [
         "left.png",

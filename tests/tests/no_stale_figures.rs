@@ -75,7 +75,9 @@ fn example_and_board_comments_carry_no_measured_figures() {
 #[test]
 fn the_rule_catches_byte_counts_and_measured_numbers_only() {
     assert!(carries_a_figure("// The arena: 466,598 bytes for the band."));
-    assert!(carries_a_figure("   firmware's measured peak is 14.4 KiB on the M7). */"));
+    assert!(carries_a_figure(
+        "   firmware's measured peak is 14.4 KiB on the M7). */"
+    ));
     assert!(carries_a_figure("// about 41 KB of arena"));
     assert!(!carries_a_figure("// keep at least 32 KiB for the stack"));
     assert!(!carries_a_figure("// measured: firmware-sim/measured/m55.json"));

@@ -10,7 +10,7 @@ use crate::kernels::types::requant::ChannelRequant;
 /// scalar lanes, bit for bit the head's 64-bit one (`model::head`):
 /// `sat8(carry(x - zero) + max(rq(acc), 0) + next_zero)`.
 ///
-/// As in `epilogue::residual_lanes`: a rounded shift `(P + 2^(s-1)) >> s` of a product is
+/// As in `dispatch::residual::residual_lanes`: a rounded shift `(P + 2^(s-1)) >> s` of a product is
 /// `(hi32(P 2^e) + 2^(s-33+e)) >> (s - 32 + e)` for `s - 32 + e >= 1`. The requantisation takes
 /// `e = 0` (shifts from 33, `|acc + bias| < 2^31` for `|acc|, |bias| < 2^30`); the carry's
 /// `x - zero`, below `2^16`, takes `e = 15` (shifts 18 to 47) or 0 (48 to 62). Each term is

@@ -100,7 +100,7 @@ macro_rules! residual_carry {
 
 /// The residual add of `len` channels of a block of [`RESIDUAL_ROWS`] rows of
 /// [`RESIDUAL_STRIDE`] codes on Cortex-M7, bit for bit the lanes' formula
-/// (`epilogue::residual_lanes`): per channel its ten parameters loaded once (`params`, see
+/// (`dispatch::residual::residual_lanes`): per channel its ten parameters loaded once (`params`, see
 /// [`RESIDUAL_WORDS`]), then for the eight rows `delta = ((acc + bias) * mult >> 32) + round) >>
 /// shift` plus the zero point into a stack slot, and `x <- ssat8(carry(x) + slot)` with
 /// `carry(x) = ((((x - zero) << left) * mult >> 32) + round) >> shift`: 16 instructions per code,
