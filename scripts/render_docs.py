@@ -164,7 +164,12 @@ def main(argv: Sequence[str] | None = None, root: Path = ROOT) -> int:
         if lines > README_MAX_LINES:
             print(f"README.md: {lines} lines, more than {README_MAX_LINES}", file=sys.stderr)
             return 1
-    for path in documents(root):
+    docs = documents(root)
+    if not docs:
+        # A wrong root would otherwise pass --check with nothing checked.
+        print(f"no README.md or docs/*.md under {root}", file=sys.stderr)
+        return 1
+    for path in docs:
         rel = str(path.relative_to(root))
         text = path.read_text(encoding="utf-8")
         out = render_text(text, root, rel)

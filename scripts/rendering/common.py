@@ -10,7 +10,8 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
+"""The repository: `scripts/rendering/common.py` is two folders below it."""
 METRICS = "train/checkpoints/metrics"
 MEASURED = "firmware-sim/measured"
 MANIFEST = "weights/MANIFEST.json"
