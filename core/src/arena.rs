@@ -21,12 +21,7 @@ impl<'a> Carver<'a> {
     /// Starts carving `arena`; `needed` is the total the run will take (for the error message).
     pub fn new(arena: &'a mut [u8], needed: usize) -> Result<Self, Error> {
         let capacity = arena.len();
-        if capacity < needed {
-            return Err(Error::ArenaTooSmall {
-                needed,
-                available: capacity,
-            });
-        }
+        check_size(arena, needed)?;
         Ok(Self {
             rest: arena,
             capacity,
@@ -94,6 +89,17 @@ impl<'a> Carver<'a> {
             available: 0,
         })
     }
+}
+
+/// [`Error::ArenaTooSmall`] unless `arena` holds `needed` bytes: a run's check before any work.
+pub fn check_size(arena: &[u8], needed: usize) -> Result<(), Error> {
+    if arena.len() < needed {
+        return Err(Error::ArenaTooSmall {
+            needed,
+            available: arena.len(),
+        });
+    }
+    Ok(())
 }
 
 /// `arena` cut at `at`, or `None` when it is shorter (the pipeline's regions, cut in order).

@@ -91,3 +91,60 @@ pub fn census_whole_map(
     }
     (grid, mask)
 }
+
+/// A pair in memory: two `width x height` grey views.
+pub struct Scene {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Left view, row by row.
+    pub left: Vec<u8>,
+    /// Right view.
+    pub right: Vec<u8>,
+}
+
+/// The built-in procedural scene (`bino_host::data::synthetic::default_scene`) at this size.
+pub fn scene(width: usize, height: usize) -> Scene {
+    let s = bino_host::data::synthetic::default_scene(width, height);
+    Scene {
+        width,
+        height,
+        left: s.left.pixels,
+        right: s.right.pixels,
+    }
+}
+
+/// The whole-map refinement (`refine_map_equalised` or `refine_map`) of the token `grid` (Q8
+/// patch columns, already filled for a `+lr` readout) on `s`; with the readout's check `mask`,
+/// the pixels of its rejected cells keep the bilinear step (`keep_rejected_map`): what the
+/// pipeline's refinement stage must stream.
+pub fn refine_whole_map(
+    s: &Scene,
+    grid: &[u16],
+    mask: Option<&[u8]>,
+    refine: &bino_core::pipeline::Refine,
+) -> Vec<u16> {
+    use bino_core::refine::{keep_rejected_map, refine_map, scratch_len, sharpness::refine_map_equalised};
+    let mut scratch = vec![0u32; scratch_len(s.width, &refine.params)];
+    let mut expected = vec![0u16; s.width * s.height];
+    let whole = if refine.equalise {
+        refine_map_equalised
+    } else {
+        refine_map
+    };
+    whole(
+        &s.left,
+        &s.right,
+        s.width,
+        grid,
+        &refine.params,
+        &mut scratch,
+        &mut expected,
+    )
+    .unwrap();
+    if let Some(mask) = mask {
+        keep_rejected_map(s.width, grid, mask, &mut expected).unwrap();
+    }
+    expected
+}

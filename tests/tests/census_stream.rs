@@ -10,13 +10,10 @@ use bino_core::pipeline::{
     arena_bytes_refined, census_arena_bytes, run_census, CensusRow, Options, Pathway, Pipeline, Refine, RefineInput,
     Report, Sink, SlicePair, Stage,
 };
-use bino_core::refine::sharpness::refine_map_equalised;
-use bino_core::refine::{keep_rejected_map, refine_map, scratch_len};
 use bino_core::Error;
-use bino_host::data::synthetic;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
 use bino_host::int8::Int8Model;
-use bino_tests::census_whole_map;
+use bino_tests::{census_whole_map, refine_whole_map, scene, Scene};
 
 /// One band; 2 bands; 3 bands 8 token rows apart; an odd stride; 4; a 160x120 frame.
 const SIZES: [(usize, usize); 6] = [(160, 48), (32, 56), (32, 80), (48, 100), (32, 144), (160, 120)];
@@ -62,23 +59,6 @@ impl Sink for Collect {
     }
 }
 
-struct Scene {
-    width: usize,
-    height: usize,
-    left: Vec<u8>,
-    right: Vec<u8>,
-}
-
-fn scene(width: usize, height: usize) -> Scene {
-    let s = synthetic::default_scene(width, height);
-    Scene {
-        width,
-        height,
-        left: s.left.pixels,
-        right: s.right.pixels,
-    }
-}
-
 fn run(s: &Scene, opts: &Options, refine: Option<&Refine>) -> Result<(Collect, Report), Error> {
     let mut out = Collect::default();
     let mut source = SlicePair::new(&s.left, &s.right, s.width, s.height)?;
@@ -91,35 +71,14 @@ fn run(s: &Scene, opts: &Options, refine: Option<&Refine>) -> Result<(Collect, R
 
 /// The whole-map refinement of the census grid (filled by its check for `census+lr`).
 fn whole_map(s: &Scene, grid: &[u16], mask: &[u8], refine: &Refine) -> Vec<u16> {
-    let cols = s.width / 4;
-    let lr = refine.input == RefineInput::CensusLr;
-    let mut grid = grid.to_vec();
-    if lr {
-        for (row, m) in grid.chunks_exact_mut(cols).zip(mask.chunks_exact(cols)) {
-            fill_rejected(row, m).unwrap();
-        }
+    if refine.input != RefineInput::CensusLr {
+        return refine_whole_map(s, grid, None, refine);
     }
-    let mut scratch = vec![0u32; scratch_len(s.width, &refine.params)];
-    let mut expected = vec![0u16; s.width * s.height];
-    let whole = if refine.equalise {
-        refine_map_equalised
-    } else {
-        refine_map
-    };
-    whole(
-        &s.left,
-        &s.right,
-        s.width,
-        &grid,
-        &refine.params,
-        &mut scratch,
-        &mut expected,
-    )
-    .unwrap();
-    if lr {
-        keep_rejected_map(s.width, &grid, mask, &mut expected).unwrap();
+    let mut filled = grid.to_vec();
+    for (row, m) in filled.chunks_exact_mut(s.width / 4).zip(mask.chunks_exact(s.width / 4)) {
+        fill_rejected(row, m).unwrap();
     }
-    expected
+    refine_whole_map(s, &filled, Some(mask), refine)
 }
 
 #[test]

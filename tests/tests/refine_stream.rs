@@ -15,14 +15,13 @@ use bino_core::pipeline::{
     arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes, FusedRow, HeadChecked, MatchedRow,
     Options, Pipeline, Refine, RefineInput, Sink, SlicePair, Stage,
 };
-use bino_core::refine::sharpness::{decide_map_row, refine_map_equalised};
-use bino_core::refine::{keep_rejected_map, refine_map, scratch_len, RefineParams};
+use bino_core::refine::sharpness::decide_map_row;
+use bino_core::refine::RefineParams;
 use bino_core::Error;
-use bino_host::data::synthetic;
 use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
 use bino_host::int8::Int8Model;
 use bino_host::readout::fuse_grid;
-use bino_tests::census_whole_map;
+use bino_tests::{census_whole_map, refine_whole_map, scene, Scene};
 
 const MAX_COLS: usize = 16;
 
@@ -165,23 +164,6 @@ impl Sink for Collect {
     }
 }
 
-struct Scene {
-    width: usize,
-    height: usize,
-    left: Vec<u8>,
-    right: Vec<u8>,
-}
-
-fn scene(width: usize, height: usize) -> Scene {
-    let s = synthetic::default_scene(width, height);
-    Scene {
-        width,
-        height,
-        left: s.left.pixels,
-        right: s.right.pixels,
-    }
-}
-
 /// [`scene`] with the right view's lower half defocused (twice a 5-tap mean along the row), so
 /// that the equalisation blurs some rows and not others.
 fn half_defocused_scene(width: usize, height: usize) -> Scene {
@@ -244,28 +226,7 @@ fn run(pipeline: &Pipeline<'_>, s: &Scene, opts: &Options, refine: Option<&Refin
 
 /// The whole-map refinement of `refine.input`'s grid from the run's own token rows.
 fn whole_map(s: &Scene, out: &Collect, refine: &Refine) -> Vec<u16> {
-    let mut scratch = vec![0u32; scratch_len(s.width, &refine.params)];
-    let mut expected = vec![0u16; s.width * s.height];
-    let whole = if refine.equalise {
-        refine_map_equalised
-    } else {
-        refine_map
-    };
-    let grid = out.grid(refine.input);
-    whole(
-        &s.left,
-        &s.right,
-        s.width,
-        &grid,
-        &refine.params,
-        &mut scratch,
-        &mut expected,
-    )
-    .unwrap();
-    if let Some(mask) = out.mask(refine.input) {
-        keep_rejected_map(s.width, &grid, mask, &mut expected).unwrap();
-    }
-    expected
+    refine_whole_map(s, &out.grid(refine.input), out.mask(refine.input), refine)
 }
 
 /// Runs `s` refining `refine` and checks that every pixel row came once, in order, in the

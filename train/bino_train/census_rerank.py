@@ -54,16 +54,12 @@ whether it needs the encoder.
 
 from __future__ import annotations
 
-import argparse
-import json
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 from numpy.typing import NDArray
 
 from .census_companion import pixel_hamming, refined
@@ -87,7 +83,7 @@ from .census_selector_fit import (
     fit_pairs,
 )
 from .census_selector_readouts import cell_errors, fill_background
-from .head import head_candidates, load_head, with_candidates
+from .census_study import load_models, study_parser, write_result
 from .head_eval import fill_rejected
 from .probe import mean_metrics, score
 from .refine import CELL
@@ -400,53 +396,17 @@ def study(
 
 
 def main(argv: Sequence[str] | None = None) -> None:
-    p = argparse.ArgumentParser(
-        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
-    root = Path(__file__).resolve().parents[1]
-    p.add_argument("--width", type=int, required=True, help="view width (160 or 320)")
-    p.add_argument("--out", type=Path, required=True, help="JSON to write")
-    p.add_argument(
-        "--encoder",
-        type=Path,
-        default=root / "checkpoints/p7_short_blur/student_0030000.pt",
-        help="encoder checkpoint",
-    )
-    p.add_argument(
-        "--head",
-        type=Path,
-        default=root / "checkpoints/hgt40nat_p7_mid/last.pt",
-        help="native head checkpoint (the shipped one by default)",
-    )
-    p.add_argument("--data", type=Path, help="folder with PAIRS.tsv (default ../shared/data)")
-    p.add_argument("--pairs", nargs="+", default=None, help="labeled train pairs")
-    p.add_argument("--threads", type=int, default=0, help="torch threads (0: default)")
-    args = p.parse_args(argv)
-    if args.threads > 0:
-        torch.set_num_threads(args.threads)
-    from .census_selector import CLEAN_PAIRS
-    from .export import load_encoder
-
+    args = study_parser(__doc__).parse_args(argv)
     start = time.perf_counter()
-    encoder = load_encoder(args.encoder).eval()
-    head = with_candidates(load_head(args.head), head_candidates(args.width)).eval()
+    encoder, head = load_models(args)
     cells = []
-    for pair in clean_pairs(args.data, args.pairs or list(CLEAN_PAIRS)):
+    for pair in clean_pairs(args.data, args.pairs):
         left, right, gt, valid = load_resized(pair, args.width)
         base = pair_cells(encoder, head, pair.pair_id, left, right, gt, valid)
         hamming = pixel_hamming(left, right, CELL * head.cfg.max_disp, False)
         cells.append(rerank_cells(base, hamming, head_logits(encoder, head, left, right)))
         print(f"{pair.pair_id}: {left.shape[1]}x{left.shape[0]}", flush=True)
-    result: dict[str, Any] = {
-        "width": args.width,
-        "candidates": head.cfg.max_disp,
-        "encoder": str(args.encoder),
-        "head": str(args.head),
-        **study(cells, log=lambda s: print(s, flush=True)),
-    }
-    result["seconds"] = round(time.perf_counter() - start, 1)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    result = write_result(args, head, study(cells, log=lambda s: print(s, flush=True)), start)
     for name, r in result["readouts"].items():
         m = r["mean"]
         flag = " E" if r["needs_encoder"] else "  "

@@ -52,12 +52,7 @@ pub fn run_census(
         }
     }
     let needed = census_arena_bytes(height, width, opts, refine);
-    if arena.len() < needed {
-        return Err(Error::ArenaTooSmall {
-            needed,
-            available: arena.len(),
-        });
-    }
+    crate::arena::check_size(arena, needed)?;
     let plan = BandPlan::new(token_rows)?;
     let band_px = band_pixel_rows(height);
     let pixel_len = band_px * width;

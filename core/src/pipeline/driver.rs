@@ -135,7 +135,7 @@ impl<'w> Pipeline<'w> {
                 RefineInput::HeadLr => !head_lr,
                 RefineInput::FusedLr | RefineInput::FusedAllLr => native || !head_lr,
                 RefineInput::FusedCensusLr => !native || !head_lr,
-                RefineInput::Census | RefineInput::CensusLr => false,
+                // Census inputs went to the encoder-free run above.
                 _ => native,
             };
             if missing {
@@ -144,13 +144,7 @@ impl<'w> Pipeline<'w> {
                 });
             }
         }
-        let needed = arena_bytes_run(height, width, opts, refine);
-        if arena.len() < needed {
-            return Err(Error::ArenaTooSmall {
-                needed,
-                available: arena.len(),
-            });
-        }
+        crate::arena::check_size(arena, arena_bytes_run(height, width, opts, refine))?;
         let plan = BandPlan::new(token_rows)?;
         let band_px = band_pixel_rows(height);
         let ctx = Context {
