@@ -15,7 +15,7 @@ use crate::kernels::exp::{exp_neg_u8_u32, ExpQ32};
 pub use crate::kernels::reference::attention::scores_block_reference;
 use crate::kernels::reference::attention::scores_block_with;
 pub use crate::kernels::reference::softmax::softmax_row;
-pub use crate::kernels::types::attention::{AttentionQ, KeyLayout, AVG_FRAC_BITS, QUERY_BLOCK};
+pub use crate::kernels::types::attention::{paired_offset, AttentionQ, KeyLayout, AVG_FRAC_BITS, QUERY_BLOCK};
 
 /// Most keys whose 8-bit weights a 32-bit sum holds exactly (`255 * MAX_KEYS < 2^32`; a band
 /// has 960). [`attend`] ignores keys beyond it; [`attend_block`], the engine's kernel, sums with
@@ -134,12 +134,48 @@ pub fn attend_block_keys_transposed(
     )
 }
 
+/// [`attend_block`] on keys stored in [`KeyLayout::Paired`] (x86 hosts with AVX2).
+#[cfg(target_arch = "x86_64")]
+#[allow(clippy::too_many_arguments)]
+pub fn attend_block_keys_paired(
+    queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
+    keys: &[i8],
+    values_t: &[i8],
+    sums: &[i32; HEAD_DIM],
+    p: &AttentionQ,
+    scores: &mut [i32],
+    weights: &mut [u8],
+    out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
+) {
+    crate::kernels::arch::vectorised(
+        #[inline(always)]
+        || {
+            attend_block_with(
+                scores_block_paired,
+                queries,
+                keys,
+                values_t,
+                sums,
+                p,
+                scores,
+                weights,
+                out,
+            );
+        },
+    )
+}
+
 /// The key layout of a band of `tokens` on this machine: [`KeyLayout::Transposed`] where the
-/// x86 VNNI scores run and the tokens fill blocks of eight, else [`KeyLayout::Rows`].
+/// x86 VNNI scores run and the tokens fill blocks of eight, [`KeyLayout::Paired`] where AVX2
+/// runs (without VNNI) and they fill blocks of sixteen, else [`KeyLayout::Rows`].
 pub fn key_layout(tokens: usize) -> KeyLayout {
     #[cfg(target_arch = "x86_64")]
     if crate::kernels::arch::x86::vnni::keys_transposed(tokens) {
         return KeyLayout::Transposed;
+    }
+    #[cfg(target_arch = "x86_64")]
+    if crate::kernels::arch::x86::avx2::keys_paired(tokens) {
+        return KeyLayout::Paired;
     }
     let _ = tokens;
     KeyLayout::Rows
@@ -160,6 +196,13 @@ pub fn store_key(layout: KeyLayout, key: &[i8], store: &mut [i8], t: usize) {
                     for (d, &c) in dst.iter_mut().zip(group) {
                         *d = c ^ i8::MIN;
                     }
+                }
+            }
+        }
+        KeyLayout::Paired => {
+            for (d, &c) in key.iter().enumerate().take(HEAD_DIM) {
+                if let Some(dst) = store.get_mut(paired_offset(t, d)) {
+                    *dst = c;
                 }
             }
         }
@@ -331,6 +374,32 @@ fn scores_block_transposed_reference(
     }
 }
 
+/// [`scores_block`] on keys in [`KeyLayout::Paired`] (`n` a multiple of sixteen): the x86 AVX2
+/// kernel, else the same sums read through the layout.
+#[cfg(any(test, target_arch = "x86_64"))]
+#[inline(always)]
+fn scores_block_paired(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys_p: &[i8], n: usize, scores: &mut [i32]) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::kernels::arch::x86::avx2::scores4_paired(queries, keys_p, n, scores) {
+        return;
+    }
+    scores_block_paired_reference(queries, keys_p, n, scores);
+}
+
+/// [`scores_block_paired`] in portable Rust (where the kernel declines).
+#[cfg(any(test, target_arch = "x86_64"))]
+fn scores_block_paired_reference(queries: &[[i8; HEAD_DIM]; QUERY_BLOCK], keys_p: &[i8], n: usize, scores: &mut [i32]) {
+    for (q, row) in queries.iter().zip(scores.chunks_exact_mut(n.max(1))) {
+        for (t, s) in row.iter_mut().enumerate().take(n) {
+            let key = (0..HEAD_DIM).map(|d| keys_p.get(paired_offset(t, d)).copied().unwrap_or(0));
+            *s = q
+                .iter()
+                .zip(key)
+                .fold(0i32, |acc, (&a, b)| acc.wrapping_add(i32::from(a) * i32::from(b)));
+        }
+    }
+}
+
 // The x86 kernels of host builds (`arch::x86::vnni` where the CPU has AVX-512 VNNI, else
 // `arch::x86::avx2`, each chosen at run time); `false` elsewhere, or where they decline the shape.
 #[inline(always)]
@@ -371,7 +440,7 @@ pub fn row_max(scores: &[i32]) -> i32 {
     arch::row_max(scores).unwrap_or_else(|| scores.iter().fold(i32::MIN, |m, &v| m.max(v)))
 }
 
-/// [`softmax_row`] on this core's fastest path, bit for bit the same: AVX-512 on x86 hosts that
+/// [`softmax_row`] on this core's fastest path, bit for bit the same: AVX-512 or AVX2 on x86 hosts that
 /// have it, the Helium assembly on Cortex-M55, the DSP row (or, for rows it declines, the byte
 /// table) on Cortex-M7.
 #[inline(always)]
@@ -401,11 +470,12 @@ pub fn softmax_row_by_table(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut 
     sum
 }
 
-// [`softmax_row`] compiled for AVX-512 where the CPU has it (`arch::x86::vnni`).
+// [`softmax_row`] in AVX-512 where the CPU has it (`arch::x86::vnni`), else in AVX2.
 #[inline(always)]
 fn x86_softmax_row(e: &ExpQ32, max: i32, scores: &[i32], weights: &mut [u8]) -> Option<u32> {
     #[cfg(target_arch = "x86_64")]
-    return crate::kernels::arch::x86::vnni::softmax_row(e, max, scores, weights);
+    return crate::kernels::arch::x86::vnni::softmax_row(e, max, scores, weights)
+        .or_else(|| crate::kernels::arch::x86::avx2::softmax_row(e, max, scores, weights));
     #[cfg(not(target_arch = "x86_64"))]
     {
         let _ = (e, max, scores, weights);

@@ -130,7 +130,8 @@ pub const PREPARED_GEMM: bool = cfg!(any(bino_dsp, bino_mve));
 
 /// One query block's attention over keys stored in `layout` (see
 /// [`attention::attend_block`]): the x86 VNNI scores on
-/// transposed keys where the keys were stored so, the block kernels of this core otherwise.
+/// transposed keys or the AVX2 ones on paired keys where the keys were stored so, the block
+/// kernels of this core otherwise.
 #[allow(clippy::too_many_arguments)]
 #[inline]
 pub fn attend_block(
@@ -145,8 +146,14 @@ pub fn attend_block(
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
     #[cfg(target_arch = "x86_64")]
-    if layout == KeyLayout::Transposed {
-        return attention::attend_block_keys_transposed(queries, keys, values_t, sums, p, scores, weights, out);
+    match layout {
+        KeyLayout::Transposed => {
+            return attention::attend_block_keys_transposed(queries, keys, values_t, sums, p, scores, weights, out)
+        }
+        KeyLayout::Paired => {
+            return attention::attend_block_keys_paired(queries, keys, values_t, sums, p, scores, weights, out)
+        }
+        KeyLayout::Rows => {}
     }
     let _ = layout;
     attention::attend_block(queries, keys, values_t, sums, p, scores, weights, out)

@@ -19,7 +19,7 @@ pub struct AttentionQ {
 pub const QUERY_BLOCK: usize = 4;
 
 /// How a head's keys are stored: as rows for `dispatch::attend_block` (every core), transposed for the
-/// x86 VNNI `attend_block_keys_transposed`.
+/// x86 VNNI `attend_block_keys_transposed`, in code pairs for the x86 AVX2 `attend_block_keys_paired`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum KeyLayout {
     /// Token by token, `HEAD_DIM` codes each (every core).
@@ -27,4 +27,17 @@ pub enum KeyLayout {
     /// Blocks of eight tokens transposed into groups of four codes, flipped to unsigned
     /// (`dispatch::store_key`; x86 hosts with AVX-512 VNNI, where `dispatch::key_layout` picks it).
     Transposed,
+    /// Blocks of sixteen tokens in code pairs: group `p` (32 bytes) holds codes `2p, 2p + 1` of
+    /// each token of the block in turn (`dispatch::store_key`; x86 hosts with AVX2 but not
+    /// AVX-512 VNNI, where `dispatch::key_layout` picks it).
+    Paired,
+}
+
+/// Tokens per block of [`KeyLayout::Paired`].
+pub const PAIR_BLOCK: usize = 16;
+
+/// Byte of code `d` of token `t` in a head's store of [`KeyLayout::Paired`].
+#[inline(always)]
+pub const fn paired_offset(t: usize, d: usize) -> usize {
+    t / PAIR_BLOCK * PAIR_BLOCK * crate::config::HEAD_DIM + d / 2 * 2 * PAIR_BLOCK + t % PAIR_BLOCK * 2 + d % 2
 }

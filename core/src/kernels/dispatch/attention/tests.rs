@@ -282,6 +282,36 @@ fn transposed_keys_score_as_the_rows() {
 }
 
 #[test]
+fn paired_keys_score_as_the_rows() {
+    let mut rng = Rng::new(65);
+    for n in [16usize, 48, 960] {
+        let mut keys = [0i8; 960 * HEAD_DIM];
+        rng.fill_i8(&mut keys[..n * HEAD_DIM]);
+        let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
+        queries.iter_mut().for_each(|q| rng.fill_i8(q));
+        if n == 960 {
+            keys.fill(-128);
+            queries[0] = [-128; HEAD_DIM];
+        }
+        let mut keys_p = [0i8; 960 * HEAD_DIM];
+        for (t, key) in keys[..n * HEAD_DIM].chunks_exact(HEAD_DIM).enumerate() {
+            store_key(KeyLayout::Paired, key, &mut keys_p[..n * HEAD_DIM], t);
+        }
+        let mut want = [0i32; QUERY_BLOCK * 960];
+        scores_block_reference(&queries, &keys[..n * HEAD_DIM], &mut want[..QUERY_BLOCK * n]);
+        for fast in [false, true] {
+            let mut got = [i32::MIN; QUERY_BLOCK * 960];
+            if fast {
+                scores_block_paired(&queries, &keys_p[..n * HEAD_DIM], n, &mut got[..QUERY_BLOCK * n]);
+            } else {
+                scores_block_paired_reference(&queries, &keys_p[..n * HEAD_DIM], n, &mut got[..QUERY_BLOCK * n]);
+            }
+            assert_eq!(got[..QUERY_BLOCK * n], want[..QUERY_BLOCK * n], "n={n} fast={fast}");
+        }
+    }
+}
+
+#[test]
 fn empty_and_short_inputs_do_not_panic() {
     let p = AttentionQ {
         to_log2_q8: Requant { mult: 1, shift: 1 },

@@ -9,6 +9,12 @@
 //! Each entry point returns `false` (computing nothing) for shapes it does not take; the
 //! caller then runs the portable kernel.
 
+mod scores;
+mod softmax;
+
+pub use scores::{keys_paired, scores4_paired};
+pub use softmax::softmax_row;
+
 use bytemuck::must_cast;
 use core::arch::x86_64::{
     __m128i, __m256i, _mm256_add_epi32, _mm256_blend_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
