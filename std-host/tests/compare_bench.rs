@@ -149,6 +149,8 @@ fn bench_runs_once_and_writes_sane_json() {
         s(blob),
         "--runs",
         "1",
+        "--threads",
+        "2",
         "--json",
         s(&json),
     ]);
@@ -169,10 +171,17 @@ fn bench_runs_once_and_writes_sane_json() {
         assert!(number(&v[engine]["gmac_per_s"], "GMAC/s") > 0.0);
     }
     assert!(number(&v["tract_over_int8"], "ratio") > 0.0);
+    // Every core at once: two bands a round, one round.
+    let all = &v["int8_all_cores"];
+    assert_eq!(all["threads"], 2);
+    assert_eq!(all["rounds"]["runs_s"].as_array().unwrap().len(), 1);
+    let round = number(&all["rounds"]["median_s"], "round");
+    assert!((number(&all["per_band_s"], "per band") - round / 2.0).abs() < 1e-9);
+    assert!(stdout.contains("int8, 2 threads at once"), "{stdout}");
 }
 
 #[test]
-fn compare_refuses_the_train_split_and_bench_a_thread_count() {
+fn compare_refuses_the_train_split_and_bench_zero_threads() {
     let run = bino(&["compare", "--split", "train"]);
     assert!(!run.status.success());
     let stderr = String::from_utf8_lossy(&run.stderr);
@@ -181,12 +190,12 @@ fn compare_refuses_the_train_split_and_bench_a_thread_count() {
         "{stderr}"
     );
 
-    // One thread is all there is: no flag to choose it (a usage error).
-    let run = bino(&["bench", "--threads", "4"]);
-    assert_eq!(run.status.code(), Some(2));
+    // No threads at all is refused, before anything is loaded or timed.
+    let run = bino(&["bench", "--threads", "0", "--blob", "/nonexistent/blob.bin"]);
+    assert!(!run.status.success());
     let stderr = String::from_utf8_lossy(&run.stderr);
     assert!(
-        stderr.contains("unexpected argument '--threads'") && !stderr.contains("panicked"),
+        stderr.contains("--threads must be at least 1") && !stderr.contains("panicked"),
         "{stderr}"
     );
 }

@@ -13,10 +13,13 @@
 //! drift of a shared machine reaches them all alike.
 //!
 //! Threads: this build of tract-onnx lacks the `multithread-mm` feature (no rayon), so its
-//! only executor is `Executor::SingleThread`; the int8 engine never spawns threads. Both
-//! therefore run on the calling thread, and `bino bench` has no thread count to choose. The
-//! report also counts the process's threads after the runs (Linux), as evidence.
+//! only executor is `Executor::SingleThread`; the int8 engine never spawns threads within a
+//! pass. The comparison therefore runs every engine on the calling thread (the report counts
+//! the process's threads after the runs, Linux, as evidence). With `threads > 1` the int8
+//! engine is also timed on every core at once, one band per thread ([`all_cores`]): the
+//! host's throughput, as `bino run` uses it.
 
+pub mod all_cores;
 pub mod ort;
 
 use std::path::PathBuf;
@@ -29,6 +32,7 @@ use bino_core::model::probe::NoProbe;
 use serde::Serialize;
 use tract_onnx::prelude::{tract_ndarray, Tensor};
 
+use crate::bench::all_cores::{AllCores, Round};
 use crate::bench::ort::{OrtServer, OrtSession};
 use crate::data::profile::Profile;
 use crate::data::synthetic;
@@ -52,6 +56,8 @@ pub struct BenchOptions {
     pub onnxruntime: bool,
     /// Keep the int8 engine on its AVX2 kernels where the CPU also has AVX-512 VNNI.
     pub no_vnni: bool,
+    /// Threads of the all-cores figure (one band each, at once); 1 leaves it out.
+    pub threads: usize,
 }
 
 /// Timed runs of one engine, in seconds.
@@ -81,7 +87,7 @@ impl Timing {
         self.runs.iter().copied().fold(f64::INFINITY, f64::min)
     }
 
-    fn json(&self, macs: u64) -> TimingJson<'_> {
+    pub(crate) fn json(&self, macs: u64) -> TimingJson<'_> {
         TimingJson {
             median_s: self.median(),
             min_s: self.min(),
@@ -93,7 +99,7 @@ impl Timing {
 
 // The JSON of a timing: the runs with what is derived from them.
 #[derive(Serialize)]
-struct TimingJson<'a> {
+pub(crate) struct TimingJson<'a> {
     median_s: f64,
     min_s: f64,
     gmac_per_s: f64,
@@ -149,6 +155,8 @@ pub struct BenchReport {
     pub int8: Timing,
     /// onnxruntime, when it was timed.
     pub onnxruntime: Option<OrtTimings>,
+    /// The int8 engine on several threads at once, when it was timed.
+    pub all_cores: Option<AllCores>,
 }
 
 /// onnxruntime's sessions, one thread each.
@@ -217,6 +225,16 @@ impl BenchReport {
                 timing.runs.len()
             ));
         }
+        if let Some(all) = &self.all_cores {
+            lines.push(format!(
+                "{:<26} median {:>9.2} ms a round of {} bands: {:.2} ms a band, {:.2} GMAC/s",
+                format!("int8, {} threads at once", all.threads),
+                all.rounds.median() * 1e3,
+                all.threads,
+                all.per_band() * 1e3,
+                all.gmac_per_s(self.macs)
+            ));
+        }
         lines.push(format!("tract / int8 (medians): {:.2}x", self.speedup()));
         if let Some(ratio) = self.ort_int8_speedup() {
             lines.push(format!("onnxruntime int8 / int8 (medians): {ratio:.2}x"));
@@ -249,6 +267,7 @@ impl BenchReport {
             onnxruntime_f32: self.onnxruntime.as_ref().map(|o| o.f32.json(self.macs)),
             onnxruntime_int8_dynamic: self.onnxruntime.as_ref().map(|o| o.int8_dynamic.json(self.macs)),
             onnxruntime_int8_over_int8: self.ort_int8_speedup(),
+            int8_all_cores: self.all_cores.as_ref().map(|a| a.json(self.macs)),
         };
         serde_json::to_string_pretty(&json).expect("plain structs serialise")
     }
@@ -279,6 +298,7 @@ struct BenchJson<'a> {
     onnxruntime_f32: Option<TimingJson<'a>>,
     onnxruntime_int8_dynamic: Option<TimingJson<'a>>,
     onnxruntime_int8_over_int8: Option<f64>,
+    int8_all_cores: Option<all_cores::AllCoresJson<'a>>,
 }
 
 fn yes_no(v: bool) -> &'static str {
@@ -351,7 +371,7 @@ fn time_rounds(runs: usize, engines: &mut [(&str, Engine<'_>)]) -> Result<Vec<Ti
     Ok(timings)
 }
 
-fn timed(run: impl FnOnce() -> Result<()>) -> Result<f64> {
+pub(crate) fn timed(run: impl FnOnce() -> Result<()>) -> Result<f64> {
     let started = Instant::now();
     run()?;
     Ok(started.elapsed().as_secs_f64())
@@ -360,6 +380,7 @@ fn timed(run: impl FnOnce() -> Result<()>) -> Result<f64> {
 /// Times both engines; `note` is told what is being timed as it starts.
 pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchReport> {
     ensure!(opts.runs >= 1, "--runs must be at least 1");
+    ensure!(opts.threads >= 1, "--threads must be at least 1");
     allow_vnni(!opts.no_vnni);
     let width = opts
         .profile
@@ -388,7 +409,8 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
     tract.run(vec![input.clone(), input.clone()])?;
     let band = GrayBand::new(&pixels, width, height).map_err(anyhow::Error::msg)?;
     let mut arena = vec![0u8; arena_bytes(height, width)];
-    let mut out = vec![0i8; (height / PATCH_H) * (width / PATCH_W) * DIM];
+    let out_len = (height / PATCH_H) * (width / PATCH_W) * DIM;
+    let mut out = vec![0i8; out_len];
     let mut ort = if opts.onnxruntime {
         note("onnxruntime: load, quantise, warm up");
         let env = TrainPython::locate("onnxruntime", "--no-onnxruntime")?;
@@ -396,6 +418,7 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
     } else {
         None
     };
+    let mut round = (opts.threads > 1).then(|| Round::new(encoder, opts.threads, arena_bytes(height, width), out_len));
     note("every engine: warm-up, then timed rounds");
     let mut engines: Vec<(&str, Engine<'_>)> = vec![
         (
@@ -430,8 +453,20 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
             Box::new(move || int8_server.borrow_mut().time(OrtSession::Int8Dynamic)),
         ));
     }
-    let mut timings = time_rounds(opts.runs, &mut engines)?.into_iter();
+    if let Some(round) = round.as_mut() {
+        engines.push(("int8, all cores", Box::new(move || round.run(band))));
+    }
+    let mut timings = time_rounds(opts.runs, &mut engines)?;
     drop(engines);
+    let all_cores = if opts.threads > 1 {
+        timings.pop().map(|rounds| AllCores {
+            threads: opts.threads,
+            rounds,
+        })
+    } else {
+        None
+    };
+    let mut timings = timings.into_iter();
     let (Some(tract_timing), Some(int8_timing)) = (timings.next(), timings.next()) else {
         bail!("bench: missing timings");
     };
@@ -460,6 +495,7 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
         tract: tract_timing,
         int8: int8_timing,
         onnxruntime,
+        all_cores,
     })
 }
 

@@ -1,4 +1,5 @@
-//! `bino bench`: tract-onnx (f32), onnxruntime and the int8 engine on one band, single-threaded.
+//! `bino bench`: tract-onnx (f32), onnxruntime and the int8 engine on one band, single-threaded,
+//! and the int8 engine on every core.
 
 use std::path::PathBuf;
 
@@ -16,8 +17,9 @@ use super::progress::Progress;
 /// (the descriptor pathway); one warm-up run each, then --runs rounds in which every engine
 /// runs once (onnxruntime: f32 and dynamic int8, in the project's Python environment). Every
 /// engine runs on one thread: this tract-onnx is built single-threaded, and so is the int8
-/// engine. Prints medians, minima, GMAC/s and the ratio. Build with --release: a debug build's
-/// timings mean little.
+/// engine's pass. Then the int8 engine on every core at once (--threads bands a round): the
+/// host's throughput. Prints medians, minima, GMAC/s and the ratio. Build with --release: a
+/// debug build's timings mean little.
 #[derive(Args)]
 pub struct BenchArgs {
     /// Float encoder (`python -m bino_train.export`); the default is the checkout's shipped one.
@@ -42,6 +44,10 @@ pub struct BenchArgs {
     /// The results are the same; this measures the AVX2 path.
     #[arg(long)]
     no_vnni: bool,
+    /// Threads of the all-cores figure: the int8 engine on that many bands at once (1: only
+    /// the one-thread comparison). The default is the number of cores.
+    #[arg(long, default_value_t = bino_host::bench::all_cores::default_threads())]
+    threads: usize,
     /// Also write the timings as JSON.
     #[arg(long)]
     json: Option<PathBuf>,
@@ -56,6 +62,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         runs: args.runs,
         onnxruntime: !args.no_onnxruntime,
         no_vnni: args.no_vnni,
+        threads: args.threads,
     };
     let progress = Progress::new(args.json.is_some());
     let report = bench(&opts, |what| progress.note(&format!("timing {what}")))?;
