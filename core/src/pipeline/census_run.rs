@@ -16,11 +16,11 @@ use super::api::{CensusRow, Options, Refine, RefineInput, Report, RowSource, Sin
 use super::census_stage::{self, CensusStage};
 use super::feeding::BandRows;
 use super::layout::band_pixel_rows;
-use super::refine_stage::{self, RefineIo, RefineStage, Scratch};
+use super::refine_stage::{RefineIo, Refinement, Scratch};
 use super::sizing::{census_arena_bytes, refine_parts, CENSUS_RING_ROWS as RING_ROWS};
 use crate::arena::split;
 use crate::band::BandPlan;
-use crate::config::{check_view_size, PATCH_H};
+use crate::config::check_view_size;
 use crate::model::head;
 use crate::Error;
 
@@ -77,32 +77,10 @@ pub fn run_census(
         opts.lr_max_diff_q8,
         RING_ROWS,
     )?;
-    let mut stage = match refine {
-        Some(r) => {
-            let ring = if plan.len() > 1 {
-                refine_stage::ring_rows(r.reach(), r.input.lag())
-            } else {
-                0
-            };
-            Some(RefineStage::new(
-                r.params,
-                r.equalise,
-                width,
-                height,
-                ring,
-                state_arena,
-            )?)
-        }
-        None => None,
-    };
+    let mut refinement = Refinement::new(refine, width, height, plan.len() > 1, state_arena)?;
     // Which cells the refinement fills: `census+lr` by its check, `census` none.
     let fill = matches!(refine, Some(r) if matches!(r.input, RefineInput::CensusLr));
-    let mut rows = BandRows {
-        source,
-        width,
-        first: 0,
-        loaded: 0,
-    };
+    let mut rows = BandRows::new(source, width);
     let mut report = Report {
         rows: token_rows,
         cols,
@@ -112,19 +90,11 @@ pub fn run_census(
         ..Report::default()
     };
     let mut scratch_used = 0;
-    for (i, band) in plan.iter().enumerate() {
-        if let (true, Some(stage)) = (i > 0, stage.as_mut()) {
-            // Rows the refinement still needs that the load drops go to its ring.
-            sink.stage(Stage::Refine);
-            stage.keep_before(&rows.view(left_px, right_px), band.start * PATCH_H)?;
-        }
-        rows.load(band, left_px, right_px, sink)?;
+    for band in plan.iter() {
+        rows.advance(band, left_px, right_px, Some(&mut refinement), sink)?;
         let mut io = RefineIo {
             view: rows.view(left_px, right_px),
-            scratch: match refine {
-                Some(r) => Scratch::new(&mut *scratch, width, height, &r.params, r.equalise)?,
-                None => Scratch::none(),
-            },
+            scratch: Scratch::of(refine, &mut *scratch, width, height)?,
         };
         for row in band.keep_from..band.keep_to {
             sink.stage(Stage::Sgm);
@@ -136,16 +106,16 @@ pub fn run_census(
                 disparity_q8,
                 consistent,
             });
-            if let Some(stage) = stage.as_mut() {
+            if let Some((_, stage)) = refinement.0.as_mut() {
                 sink.stage(Stage::Refine);
                 stage.push(row, disparity_q8, fill.then_some(consistent), &mut io, sink)?;
             }
         }
         scratch_used = scratch_used.max(io.scratch.used());
     }
-    if let Some(stage) = stage.as_ref() {
-        stage.done()?;
-        report.refine = stage.used() + scratch_used;
+    if refine.is_some() {
+        refinement.done()?;
+        report.refine = refinement.used() + scratch_used;
     }
     report.arena_used = report.pixels + census_len + state_len + scratch_used;
     Ok(report)

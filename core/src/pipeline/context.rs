@@ -42,10 +42,7 @@ impl Context<'_, '_> {
     /// The refinement's view of the band buffer and its row scratch, cut from `arena` (none
     /// without the refinement).
     pub(super) fn refine_io<'b>(&self, view: BandView<'b>, arena: &'b mut [u8]) -> Result<RefineIo<'b>, Error> {
-        let scratch = match self.refine {
-            Some(r) => Scratch::new(arena, self.width, self.height, &r.params, r.equalise)?,
-            None => Scratch::none(),
-        };
+        let scratch = Scratch::of(self.refine, arena, self.width, self.height)?;
         Ok(RefineIo { view, scratch })
     }
 

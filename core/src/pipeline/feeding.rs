@@ -1,8 +1,9 @@
-//! Band feeding: the band buffer filled from a [`RowSource`] as bands advance, and the token
-//! rows a band keeps cut from its descriptor maps.
+//! Band feeding: the band buffer filled from a [`RowSource`] as bands advance (the one step
+//! every band loop starts with, [`BandRows::advance`]), and the token rows a band keeps cut from
+//! its descriptor maps.
 
 use super::api::{RowSource, Sink, Stage};
-use super::refine_stage::BandView;
+use super::refine_stage::{BandView, Refinement};
 use crate::band::Band;
 use crate::config::{DIM, PATCH_H};
 use crate::Error;
@@ -17,7 +18,17 @@ pub(super) struct BandRows<'s, S> {
     pub(super) loaded: usize,
 }
 
-impl<S: RowSource> BandRows<'_, S> {
+impl<'s, S: RowSource> BandRows<'s, S> {
+    /// An empty buffer of rows `width` pixels wide, filled from `source`.
+    pub(super) fn new(source: &'s mut S, width: usize) -> Self {
+        Self {
+            source,
+            width,
+            first: 0,
+            loaded: 0,
+        }
+    }
+
     /// The rows the buffers `left` and `right` hold now.
     pub(super) fn view<'b>(&self, left: &'b [u8], right: &'b [u8]) -> BandView<'b> {
         BandView {
@@ -29,15 +40,25 @@ impl<S: RowSource> BandRows<'_, S> {
         }
     }
 
-    /// Makes the buffers hold `band`'s pixel rows: keeps the overlap with the previous band,
-    /// reads the rest.
-    pub(super) fn load(
+    /// The next band of a run into the buffers: after the first band, the refinement first keeps
+    /// the rows it still needs that the load drops ([`Refinement::keep_before`]).
+    pub(super) fn advance(
         &mut self,
         band: Band,
         left: &mut [u8],
         right: &mut [u8],
+        refinement: Option<&mut Refinement<'_>>,
         sink: &mut impl Sink,
     ) -> Result<(), Error> {
+        if let (true, Some(refinement)) = (self.loaded > 0, refinement) {
+            refinement.keep_before(&self.view(left, right), band.start * PATCH_H, sink)?;
+        }
+        self.load(band, left, right, sink)
+    }
+
+    /// Makes the buffers hold `band`'s pixel rows: keeps the overlap with the previous band,
+    /// reads the rest.
+    fn load(&mut self, band: Band, left: &mut [u8], right: &mut [u8], sink: &mut impl Sink) -> Result<(), Error> {
         sink.stage(Stage::Rows);
         let (start, end) = (band.start * PATCH_H, (band.start + band.rows) * PATCH_H);
         let w = self.width;

@@ -17,7 +17,7 @@ use super::context::Context;
 use super::feeding::BandRows;
 use super::head_check::{Feed, HeadRows, OnePassCheck, OnePassRows};
 use super::layout::aligned;
-use super::refine_stage;
+use super::refine_stage::{BandView, RefineIo, Refinement};
 use super::sizing::{native_arena_bytes, native_census_bytes, native_check_bytes, refine_parts};
 use crate::arena::split;
 use crate::band::{Band, BandPlan};
@@ -26,7 +26,6 @@ use crate::model::encoder::GrayBand;
 use crate::model::head::{self, HeadStream, HeadView, HeadWeights};
 use crate::model::ids::HeadKind;
 use crate::model::probe::NoProbe;
-use crate::pipeline::refine_stage::{BandView, RefineIo, RefineStage};
 use crate::Error;
 
 /// Runs the native pathway over every band of `plan`; `ctx.head` holds the native head's
@@ -47,10 +46,7 @@ pub(super) fn run(
     let stream_len = if streaming { head_len } else { 0 };
     let check_len = native_check_bytes(cols, ctx.head_lr());
     let census_len = native_census_bytes(width, ctx.opts, ctx.refine);
-    let state_len = aligned(match ctx.refine {
-        Some(r) => refine_parts(ctx.height, width, r).0,
-        None => 0,
-    });
+    let state_len = aligned(ctx.refine.map_or(0, |r| refine_parts(ctx.height, width, r).0));
     let too_small = Error::ArenaTooSmall {
         needed: native_arena_bytes(ctx.height, width, ctx.opts, ctx.refine),
         available: arena.len(),
@@ -74,12 +70,7 @@ pub(super) fn run(
     } else {
         None
     };
-    let mut rows = BandRows {
-        source,
-        width,
-        first: 0,
-        loaded: 0,
-    };
+    let mut rows = BandRows::new(source, width);
     let mut report = Report {
         rows: ctx.height / PATCH_H,
         cols,
@@ -89,47 +80,71 @@ pub(super) fn run(
     };
     let (mut after_tokens, mut scratch_used) = (0, 0);
     for (i, band) in plan.iter().enumerate() {
-        if i > 0 {
-            // Rows the refinement still needs that the load drops go to its ring.
-            readouts.keep_view_rows(&rows.view(left_px, right_px), band.start * PATCH_H, sink)?;
-        }
-        rows.load(band, left_px, right_px, sink)?;
+        rows.advance(band, left_px, right_px, Some(&mut readouts.refine), sink)?;
         let last = i + 1 == plan.len();
         let left = GrayBand::new(left_px, width, band_px)?;
         let right = GrayBand::new(right_px, width, band_px)?;
         sink.stage(Stage::EncodePair);
-        let (pass, len) = ctx.encoder.pair_tokens_in_place(left, right, scratch, &mut NoProbe)?;
-        report.encoder = report.encoder.max(pass.arena_used);
+        let (encoded, len) = ctx.encoder.pair_tokens_in_place(left, right, scratch, &mut NoProbe)?;
+        report.encoder = report.encoder.max(encoded.arena_used);
         let (tokens, rest) = split(scratch, len).ok_or(too_small)?;
         let tokens: &[i8] = bytemuck::cast_slice(tokens);
         sink.pair_band(band, tokens);
-        let own_len = match stream.as_mut() {
-            Some(stream) => {
-                let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
-                readouts.pass(stream, band, tokens, last, &mut io, sink)?;
-                scratch_used = scratch_used.max(io.scratch.used());
-                0
-            }
+        let pass = Pass {
+            band,
+            tokens,
+            view: rows.view(left_px, right_px),
+            last,
+        };
+        // One band: the head stream is made after the pass's tokens.
+        let (own_len, used) = match stream.as_mut() {
+            Some(stream) => (0, pass.run(ctx, &mut readouts, stream, rest, sink)?),
             None => {
-                // One band: the head stream after the pass's tokens.
                 let (arena, rest) = split(rest, head_len).ok_or(too_small)?;
                 let mut stream = HeadStream::with_candidates(weights, cols, nd, HeadView::Left, arena)?;
-                let mut io = ctx.refine_io(rows.view(left_px, right_px), rest)?;
-                readouts.pass(&mut stream, band, tokens, last, &mut io, sink)?;
-                scratch_used = scratch_used.max(io.scratch.used());
-                head_len
+                (head_len, pass.run(ctx, &mut readouts, &mut stream, rest, sink)?)
             }
         };
+        scratch_used = scratch_used.max(used);
         after_tokens = after_tokens.max(len + own_len);
     }
-    readouts.refine_done()?;
+    readouts.refine.done()?;
     report.streams = stream_len + readouts.check_used + readouts.census_used;
-    report.refine = readouts.refine_used() + scratch_used;
+    report.refine = readouts.refine.used() + scratch_used;
     report.head_kept = readouts.check.as_ref().map_or(0, |check| check.kept);
     report.fused_kept = readouts.census.as_ref().map_or(0, |census| census.kept);
     let fixed = report.pixels + stream_len + check_len + census_len + state_len;
     report.arena_used = fixed + report.encoder.max(after_tokens + scratch_used);
     Ok(report)
+}
+
+/// One band after its encoder pass: its pair tokens and pixel rows.
+struct Pass<'d> {
+    band: Band,
+    tokens: &'d [i8],
+    view: BandView<'d>,
+    /// The run's last band.
+    last: bool,
+}
+
+impl Pass<'_> {
+    /// The band's rows into the head `stream`, the refinement's row scratch cut from `scratch`,
+    /// and the stream's end after the last band. Returns the row scratch's bytes.
+    fn run(
+        &self,
+        ctx: &Context<'_, '_>,
+        readouts: &mut Readouts<'_, '_>,
+        stream: &mut HeadStream<'_, '_>,
+        scratch: &mut [u8],
+        sink: &mut impl Sink,
+    ) -> Result<usize, Error> {
+        let mut io = ctx.refine_io(self.view, scratch)?;
+        readouts.push_band(stream, self.band, self.tokens, &mut io, sink)?;
+        if self.last {
+            readouts.step(stream, None, &mut io, sink)?;
+        }
+        Ok(io.scratch.used())
+    }
 }
 
 /// What outlives a pass: the check's rows (with `head_lr`), the census stage (for the fused
@@ -141,7 +156,7 @@ struct Readouts<'a, 'w> {
     check_used: usize,
     census: Option<CensusStage<'a>>,
     census_used: usize,
-    refine: Option<(RefineInput, RefineStage<'a>)>,
+    refine: Refinement<'a>,
 }
 
 impl<'a, 'w> Readouts<'a, 'w> {
@@ -169,18 +184,7 @@ impl<'a, 'w> Readouts<'a, 'w> {
             }
             _ => (None, 0),
         };
-        let refine = match ctx.refine {
-            Some(r) => {
-                let ring = if streaming {
-                    refine_stage::ring_rows(r.reach(), r.input.lag())
-                } else {
-                    0
-                };
-                let stage = RefineStage::new(r.params, r.equalise, ctx.width, ctx.height, ring, state)?;
-                Some((r.input, stage))
-            }
-            None => None,
-        };
+        let refine = Refinement::new(ctx.refine, ctx.width, ctx.height, streaming, state)?;
         Ok(Self {
             cols,
             weights,
@@ -190,23 +194,6 @@ impl<'a, 'w> Readouts<'a, 'w> {
             census_used,
             refine,
         })
-    }
-
-    /// One pass's rows into the head `stream`, and its end after the last band's.
-    fn pass(
-        &mut self,
-        stream: &mut HeadStream<'_, '_>,
-        band: Band,
-        tokens: &[i8],
-        last: bool,
-        io: &mut RefineIo<'_>,
-        sink: &mut impl Sink,
-    ) -> Result<(), Error> {
-        self.push_band(stream, band, tokens, io, sink)?;
-        if last {
-            self.step(stream, None, io, sink)?;
-        }
-        Ok(())
     }
 
     /// Feeds the head `stream` the token rows `band` keeps (`tokens`: the band's pair tokens).
@@ -253,7 +240,7 @@ impl<'a, 'w> Readouts<'a, 'w> {
             Some(check) => {
                 // The refinement reads head+lr or the fused readout, or head (the check then
                 // only reports).
-                let input = match self.refine {
+                let input = match self.refine.0 {
                     Some((input @ (RefineInput::HeadLr | RefineInput::FusedCensusLr), _)) => input,
                     _ => RefineInput::Head,
                 };
@@ -262,7 +249,7 @@ impl<'a, 'w> Readouts<'a, 'w> {
                     weights: &self.weights,
                     check,
                     census: self.census.as_mut(),
-                    refine: Feed::of(&mut self.refine, io, input, Stage::Head),
+                    refine: Feed::of(&mut self.refine.0, io, input, Stage::Head),
                     checked: input != RefineInput::Head,
                 };
                 pair_step(stream, tokens, &mut rows)?;
@@ -271,29 +258,12 @@ impl<'a, 'w> Readouts<'a, 'w> {
                 let mut rows = HeadRows {
                     sink: &mut *sink,
                     check: None,
-                    refine: Feed::of(&mut self.refine, io, RefineInput::Head, Stage::Head),
+                    refine: Feed::of(&mut self.refine.0, io, RefineInput::Head, Stage::Head),
                 };
                 pair_step(stream, tokens, &mut rows)?;
             }
         }
-        self.refine.as_ref().map_or(Ok(()), |(_, stage)| stage.check())
-    }
-
-    /// Before a band load that drops the rows above `new_first`.
-    fn keep_view_rows(&mut self, view: &BandView<'_>, new_first: usize, sink: &mut impl Sink) -> Result<(), Error> {
-        let Some((_, stage)) = self.refine.as_mut() else {
-            return Ok(());
-        };
-        sink.stage(Stage::Refine);
-        stage.keep_before(view, new_first)
-    }
-
-    fn refine_used(&self) -> usize {
-        self.refine.as_ref().map_or(0, |(_, stage)| stage.used())
-    }
-
-    fn refine_done(&self) -> Result<(), Error> {
-        self.refine.as_ref().map_or(Ok(()), |(_, stage)| stage.done())
+        self.refine.check()
     }
 }
 

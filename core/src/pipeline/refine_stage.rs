@@ -27,7 +27,7 @@
 //! output row; with several bands it lives in the encoder's scratch (free between passes), with
 //! one band beside the readout streams (which share the encoder's scratch after both passes).
 
-use super::api::Sink;
+use super::api::{Refine, RefineInput, Sink, Stage};
 use super::layout::{stage_reach, sum, CUT_MARGIN};
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::config::{CELL_W, PATCH_H};
@@ -140,6 +140,15 @@ impl<'s> Scratch<'s> {
             out,
             used: carver.used(),
         })
+    }
+
+    /// The scratch of `refine` for a run of `width x height` views, cut from `arena`; none
+    /// without the refinement.
+    pub fn of(refine: Option<&Refine>, arena: &'s mut [u8], width: usize, height: usize) -> Result<Self, Error> {
+        match refine {
+            Some(r) => Self::new(arena, width, height, &r.params, r.equalise),
+            None => Ok(Self::none()),
+        }
     }
 
     /// No scratch (a run without the refinement).
@@ -423,6 +432,64 @@ impl<'a> RefineStage<'a> {
             self.next_y += 1;
         }
         Ok(())
+    }
+}
+
+/// A run's refinement, when it has one: the readout it reads and its stage, whose state lives
+/// across bands. What every band loop shares: the stage made for the run's band count, the rows
+/// it still needs kept before a load drops them, its arena use and its errors.
+pub(super) struct Refinement<'a>(pub(super) Option<(RefineInput, RefineStage<'a>)>);
+
+impl<'a> Refinement<'a> {
+    /// The stage of `refine` (none without it) for `height x width` views, its state cut from
+    /// `state`: with `several_bands` the ring of the rows that trail the band ([`ring_rows`]),
+    /// with one band none.
+    pub(super) fn new(
+        refine: Option<&Refine>,
+        width: usize,
+        height: usize,
+        several_bands: bool,
+        state: &'a mut [u8],
+    ) -> Result<Self, Error> {
+        let Some(r) = refine else {
+            return Ok(Self(None));
+        };
+        let ring = if several_bands {
+            ring_rows(r.reach(), r.input.lag())
+        } else {
+            0
+        };
+        let stage = RefineStage::new(r.params, r.equalise, width, height, ring, state)?;
+        Ok(Self(Some((r.input, stage))))
+    }
+
+    /// Before a band load that drops the rows above `new_first`.
+    pub(super) fn keep_before(
+        &mut self,
+        view: &BandView<'_>,
+        new_first: usize,
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
+        let Some((_, stage)) = self.0.as_mut() else {
+            return Ok(());
+        };
+        sink.stage(Stage::Refine);
+        stage.keep_before(view, new_first)
+    }
+
+    /// Arena bytes of its state (0 without it).
+    pub(super) fn used(&self) -> usize {
+        self.0.as_ref().map_or(0, |(_, stage)| stage.used())
+    }
+
+    /// The first error a head callback kept.
+    pub(super) fn check(&self) -> Result<(), Error> {
+        self.0.as_ref().map_or(Ok(()), |(_, stage)| stage.check())
+    }
+
+    /// After the last row: every pixel row was emitted and no error kept.
+    pub(super) fn done(&self) -> Result<(), Error> {
+        self.0.as_ref().map_or(Ok(()), |(_, stage)| stage.done())
     }
 }
 

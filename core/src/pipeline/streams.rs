@@ -8,7 +8,7 @@ use super::context::Context;
 use super::feeding::kept_row;
 use super::head_check::HEAD_CHECK_ROWS;
 use super::head_check::{head_step, CheckedRows, Feed, HeadCheck, HeadRows};
-use super::refine_stage::{self, BandView, RefineIo, RefineStage};
+use super::refine_stage::{BandView, RefineIo, Refinement};
 use super::sizing::{matching_bytes, refine_parts, stream_bytes};
 use crate::arena::Carver;
 use crate::band::Band;
@@ -50,8 +50,8 @@ pub(super) struct Streams<'a, 'w> {
     check: Option<(Option<HeadStream<'a, 'w>>, HeadCheck<'a>)>,
     /// With a `fuse-all+lr` refinement: the census SGM, its rows kept for the head's check.
     census: Option<CensusStage<'a>>,
-    /// With the refinement: the readout it reads and its state.
-    refine: Option<(RefineInput, RefineStage<'a>)>,
+    /// The refinement (when the run has one): the readout it reads and its state.
+    pub(super) refine: Refinement<'a>,
     pub(super) used: usize,
     pub(super) wta_kept: usize,
     pub(super) sgm_kept: usize,
@@ -85,26 +85,13 @@ impl<'a, 'w> Streams<'a, 'w> {
         } else {
             (None, 0)
         };
-        let refine = match ctx.refine {
-            Some(r) => {
-                let (state, _) = refine_parts(ctx.height, ctx.width, r);
-                let ring = if streaming {
-                    refine_stage::ring_rows(r.reach(), r.input.lag())
-                } else {
-                    0
-                };
-                let available = streams.saturating_add(refine_arena.len());
-                let arena = refine_arena.get_mut(..state).ok_or(Error::ArenaTooSmall {
-                    needed: streams.saturating_add(state),
-                    available,
-                })?;
-                Some((
-                    r.input,
-                    RefineStage::new(r.params, r.equalise, ctx.width, ctx.height, ring, arena)?,
-                ))
-            }
-            None => None,
-        };
+        let state = ctx.refine.map_or(0, |r| refine_parts(ctx.height, ctx.width, r).0);
+        let available = streams.saturating_add(refine_arena.len());
+        let state_arena = refine_arena.get_mut(..state).ok_or(Error::ArenaTooSmall {
+            needed: streams.saturating_add(state),
+            available,
+        })?;
+        let refine = Refinement::new(ctx.refine, ctx.width, ctx.height, streaming, state_arena)?;
         let volume_row = state_len(cols, max_cols);
         let guided = ctx.opts.penalties.guided();
         let matching = matching_bytes(cols, max_cols, guided);
@@ -211,35 +198,6 @@ impl<'a, 'w> Streams<'a, 'w> {
         })
     }
 
-    /// Arena bytes of the refinement's state (0 without it).
-    pub(super) fn refine_used(&self) -> usize {
-        self.refine.as_ref().map_or(0, |(_, stage)| stage.used())
-    }
-
-    /// Before a band load that drops the rows above `new_first`.
-    pub(super) fn keep_view_rows(
-        &mut self,
-        view: &BandView<'_>,
-        new_first: usize,
-        sink: &mut impl Sink,
-    ) -> Result<(), Error> {
-        let Some((_, stage)) = self.refine.as_mut() else {
-            return Ok(());
-        };
-        sink.stage(Stage::Refine);
-        stage.keep_before(view, new_first)
-    }
-
-    /// After the last row: the refinement emitted every pixel row and kept no error.
-    pub(super) fn refine_done(&self) -> Result<(), Error> {
-        self.refine.as_ref().map_or(Ok(()), |(_, stage)| stage.done())
-    }
-
-    /// Errors a head callback kept.
-    fn refine_check(&self) -> Result<(), Error> {
-        self.refine.as_ref().map_or(Ok(()), |(_, stage)| stage.check())
-    }
-
     /// Cells the head's left-right check kept (0 without it).
     pub(super) fn head_kept(&self) -> usize {
         self.check.as_ref().map_or(0, |(_, check)| check.kept)
@@ -329,7 +287,7 @@ impl<'a, 'w> Streams<'a, 'w> {
             wta_consistent: self.wta_mask,
             sgm_consistent: self.sgm_mask,
         });
-        if let Some((input, stage)) = self.refine.as_mut() {
+        if let Some((input, stage)) = self.refine.0.as_mut() {
             let matched = match *input {
                 RefineInput::Nolink => Some((&*self.wta, None)),
                 RefineInput::NolinkLr => Some((&*self.wta, Some(&*self.wta_mask))),
@@ -368,7 +326,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                 let mut rows = HeadRows {
                     sink: &mut *sink,
                     check: Some(&mut *check),
-                    refine: Feed::of(&mut self.refine, io, RefineInput::Head, Stage::Head),
+                    refine: Feed::of(&mut self.refine.0, io, RefineInput::Head, Stage::Head),
                 };
                 head_step(head, input, &mut rows)?;
                 if let Some(mirror) = mirror {
@@ -376,7 +334,7 @@ impl<'a, 'w> Streams<'a, 'w> {
                         sink: &mut *sink,
                         check,
                         census: self.census.as_mut(),
-                        refine: Feed::checked(&mut self.refine, io, Stage::Head),
+                        refine: Feed::checked(&mut self.refine.0, io, Stage::Head),
                     };
                     head_step(mirror, input, &mut rows)?;
                 }
@@ -385,12 +343,12 @@ impl<'a, 'w> Streams<'a, 'w> {
                 let mut rows = HeadRows {
                     sink: &mut *sink,
                     check: None,
-                    refine: Feed::of(&mut self.refine, io, RefineInput::Head, Stage::Head),
+                    refine: Feed::of(&mut self.refine.0, io, RefineInput::Head, Stage::Head),
                 };
                 head_step(head, input, &mut rows)?;
             }
         }
-        self.refine_check()
+        self.refine.check()
     }
 
     pub(super) fn finish(&mut self, io: &mut RefineIo<'_>, sink: &mut impl Sink) -> Result<(), Error> {
@@ -417,13 +375,13 @@ impl<'a, 'w> Streams<'a, 'w> {
             sink,
             check,
             census: self.census.as_mut(),
-            refine: Feed::checked(&mut self.refine, io, Stage::Head),
+            refine: Feed::checked(&mut self.refine.0, io, Stage::Head),
         };
         for row in band.keep_from..band.keep_to {
             let (l, r) = kept_row(band, row, self.cols, left, right)?;
             head.push_row(l, r, &mut rows)?;
         }
         head.finish(&mut rows)?;
-        self.refine_check()
+        self.refine.check()
     }
 }
