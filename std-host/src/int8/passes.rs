@@ -20,6 +20,23 @@ use bino_core::model::encoder::{arena_bytes, Encoder, EncoderPasses, GrayBand, R
 use bino_core::pipeline::{band_pixel_rows, Pathway};
 use bino_core::Error;
 
+/// Threads the host's pipeline runs use for the encoder's passes: [`set_threads`], else the
+/// cores the OS gives this process.
+pub fn threads() -> usize {
+    match THREADS.load(Ordering::Relaxed) {
+        0 => crate::bench::all_cores::default_threads(),
+        n => n,
+    }
+}
+
+/// Sets [`threads`] for this process (`bino run --threads`); 0 restores the default. One
+/// thread computes every pass when the pipeline reaches it, as the board does.
+pub fn set_threads(n: usize) {
+    THREADS.store(n, Ordering::Relaxed);
+}
+
+static THREADS: AtomicUsize = AtomicUsize::new(0);
+
 /// One encoder pass a run will ask for: the descriptors of one view, or the pair's tokens.
 #[derive(Debug, Clone, PartialEq, Eq)]
 enum Pass {
@@ -65,15 +82,22 @@ impl<'w> PassCache<'w> {
         let rows = band_pixel_rows(height);
         let plan = BandPlan::new(height / PATCH_H).map_err(anyhow::Error::msg)?;
         let band = |image: &[u8], start: usize| -> Vec<u8> {
-            image.get(start * width..(start + rows) * width).unwrap_or_default().to_vec()
+            image
+                .get(start * width..(start + rows) * width)
+                .unwrap_or_default()
+                .to_vec()
         };
         let mut jobs = Vec::new();
         for b in plan.iter() {
             let start = b.start * PATCH_H;
             match pathway {
                 Pathway::Export => {
-                    jobs.push(Pass::Describe { view: band(left, start) });
-                    jobs.push(Pass::Describe { view: band(right, start) });
+                    jobs.push(Pass::Describe {
+                        view: band(left, start),
+                    });
+                    jobs.push(Pass::Describe {
+                        view: band(right, start),
+                    });
                 }
                 Pathway::Native => jobs.push(Pass::Pair {
                     left: band(left, start),
@@ -83,7 +107,11 @@ impl<'w> PassCache<'w> {
         }
         jobs.dedup();
         let done = run_jobs(encoder, &jobs, width, rows, threads)?;
-        let passes = jobs.iter().zip(done).map(|(pass, out)| (key(pass, width, rows), out)).collect();
+        let passes = jobs
+            .iter()
+            .zip(done)
+            .map(|(pass, out)| (key(pass, width, rows), out))
+            .collect();
         Ok(Self {
             encoder,
             passes,
@@ -107,7 +135,13 @@ impl<'w> PassCache<'w> {
     }
 
     // The stored pass for `pass`, copied to the front of `arena`; `None` if there is none.
-    fn serve(&self, pass: &Pass, width: usize, height: usize, arena: &mut [u8]) -> Option<Result<(RunReport, usize), Error>> {
+    fn serve(
+        &self,
+        pass: &Pass,
+        width: usize,
+        height: usize,
+        arena: &mut [u8],
+    ) -> Option<Result<(RunReport, usize), Error>> {
         let (report, out) = self.passes.get(&key(pass, width, height))?;
         Some(match arena.get_mut(..out.len()) {
             Some(front) => {
@@ -160,6 +194,9 @@ impl EncoderPasses for PassCache<'_> {
     }
 }
 
+/// A computed pass: its report and output, or the encoder's error.
+type PassResult = Result<(RunReport, Vec<u8>), Error>;
+
 // Each job's report and output, in job order, the jobs shared out to `threads` threads (each
 // with its own arena) as they finish their last.
 fn run_jobs(
@@ -170,7 +207,7 @@ fn run_jobs(
     threads: usize,
 ) -> Result<Vec<(RunReport, Vec<u8>)>> {
     let next = AtomicUsize::new(0);
-    let results: Mutex<Vec<Option<Result<(RunReport, Vec<u8>), Error>>>> = Mutex::new(vec![None; jobs.len()]);
+    let results: Mutex<Vec<Option<PassResult>>> = Mutex::new(vec![None; jobs.len()]);
     let worker = || {
         let mut arena = vec![0u8; arena_bytes(rows, width)];
         loop {
@@ -198,7 +235,9 @@ fn run_jobs(
         }
         worker();
     });
-    let slots = results.into_inner().map_err(|_| anyhow!("an encoder thread panicked"))?;
+    let slots = results
+        .into_inner()
+        .map_err(|_| anyhow!("an encoder thread panicked"))?;
     slots
         .into_iter()
         .map(|slot| match slot {
