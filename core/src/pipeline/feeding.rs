@@ -39,13 +39,51 @@ impl<S: RowSource> BandRows<'_, S> {
         sink: &mut impl Sink,
     ) -> Result<(), Error> {
         sink.stage(Stage::Rows);
-        let (start, end) = (band.start * PATCH_H, (band.start + band.rows) * PATCH_H);
+        self.fill(band, (band.start + band.rows) * PATCH_H, left, right)
+    }
+
+    /// [`BandRows::load`] up to image row `until` (exclusive; at most the band's last row): a
+    /// caller that needs a band's rows a few at a time reads each when it needs it, so a camera
+    /// with a few line buffers keeps up. Enters [`Stage::Rows`] only when it reads or drops rows.
+    pub(super) fn load_until(
+        &mut self,
+        band: Band,
+        until: usize,
+        left: &mut [u8],
+        right: &mut [u8],
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
+        let end = until.min((band.start + band.rows) * PATCH_H);
+        if band.start * PATCH_H > self.first || self.loaded < end {
+            sink.stage(Stage::Rows);
+            self.fill(band, end, left, right)?;
+        }
+        Ok(())
+    }
+
+    /// Drops the rows above `band`, then reads rows until image row `end` (exclusive).
+    fn fill(&mut self, band: Band, end: usize, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
+        let start = band.start * PATCH_H;
         let w = self.width;
         if start > self.first {
             let drop = (start - self.first).min(self.loaded - self.first);
             let keep = self.loaded - self.first - drop;
             for view in [&mut *left, &mut *right] {
                 view.copy_within(drop * w..(drop + keep) * w, 0);
+            }
+            // Rows above the band that were never read (a caller that stopped short of the
+            // last band's end) are read into the first buffer row and dropped.
+            while self.loaded < start {
+                let found = left.len().min(right.len());
+                let (Some(l), Some(r)) = (left.get_mut(..w), right.get_mut(..w)) else {
+                    return Err(Error::BufferSize {
+                        what: "band buffer",
+                        expected: w,
+                        found,
+                    });
+                };
+                self.source.next_row(l, r)?;
+                self.loaded += 1;
             }
             self.first = start;
         }
