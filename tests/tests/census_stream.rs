@@ -194,3 +194,66 @@ impl bino_core::pipeline::RowSource for TallerThanItIs<'_, '_> {
         self.0.next_row(left, right)
     }
 }
+
+/// A source that counts the rows it delivered.
+struct Counting<'a, 'p> {
+    source: &'a mut SlicePair<'p>,
+    read: &'a std::cell::Cell<usize>,
+}
+
+impl bino_core::pipeline::RowSource for Counting<'_, '_> {
+    fn width(&self) -> usize {
+        self.source.width()
+    }
+    fn height(&self) -> usize {
+        self.source.height()
+    }
+    fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
+        self.read.set(self.read.get() + 1);
+        self.source.next_row(left, right)
+    }
+}
+
+/// Rows read when each census token row came out.
+struct ReadAt<'a> {
+    read: &'a std::cell::Cell<usize>,
+    at: Vec<usize>,
+}
+
+impl Sink for ReadAt<'_> {
+    fn census(&mut self, _row: &CensusRow<'_>) {
+        self.at.push(self.read.get());
+    }
+}
+
+/// The rows are read as the token rows need them, not a band at a time: before token row `t`
+/// the run has read its census window and the rows its refined pixel rows reach (`4 t + 10` with
+/// the shipped refinement), then four rows per token row: a camera with a few line buffers
+/// delivering rows no faster than they are worked on never overflows, whatever the frame's
+/// height.
+#[test]
+fn the_rows_are_read_as_the_token_rows_need_them() {
+    let s = scene(160, 120);
+    let opts = options(Pathway::Native);
+    let refine = Refine::of(RefineInput::CensusLr);
+    let reach = refine.reach();
+    let read = std::cell::Cell::new(0);
+    let mut pair = SlicePair::new(&s.left, &s.right, s.width, s.height).unwrap();
+    let mut source = Counting {
+        source: &mut pair,
+        read: &read,
+    };
+    let mut arena = vec![0u8; census_arena_bytes(s.height, s.width, &opts, Some(&refine))];
+    let mut sink = ReadAt {
+        read: &read,
+        at: Vec::new(),
+    };
+    run_census(&mut source, &opts, Some(&refine), &mut arena, &mut sink).unwrap();
+    assert_eq!(sink.at.len(), s.height / 4);
+    for (t, &n) in sink.at.iter().enumerate() {
+        assert_eq!(n, (4 * t + 2 + reach).min(s.height), "token row {t}");
+    }
+    assert_eq!(read.get(), s.height, "every row read once");
+    let burst = sink.at.windows(2).map(|w| w[1] - w[0]).max().unwrap();
+    assert_eq!(burst, 4, "rows read per token row after the first");
+}

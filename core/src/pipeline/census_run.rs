@@ -7,7 +7,9 @@
 //! plan ([`BandPlan`]), so every token row is computed once, from the band where it is furthest
 //! from a cut (its census window, two view rows beyond its own, lies inside that band), and the
 //! refinement reads its view rows from the buffer as on the matching readouts (no ring: the
-//! census rows trail nothing).
+//! census rows trail nothing). A band's rows are read as its token rows need them, four at a
+//! time ([`BandRows::load_until`]), not all at the band's start: a camera feeding the run
+//! through a few line buffers keeps up when it delivers rows no faster than they are worked on.
 //!
 //! Arena layout, in order: the two views' pixel band, the census stage (its SGM stream and one
 //! row), the refinement's state, then its row scratch.
@@ -16,11 +18,12 @@ use super::api::{CensusRow, Options, Refine, RefineInput, Report, RowSource, Sin
 use super::census_stage::{self, CensusStage};
 use super::feeding::BandRows;
 use super::layout::band_pixel_rows;
-use super::refine_stage::{RefineIo, Refinement, Scratch};
+use super::refine_stage::{RefineIoOf, Refinement, Scratch};
 use super::sizing::{census_arena_bytes, refine_parts, CENSUS_RING_ROWS as RING_ROWS};
 use crate::arena::split;
 use crate::band::BandPlan;
-use crate::config::check_view_size;
+use crate::census::{self, WINDOW_ROWS};
+use crate::config::{check_view_size, PATCH_H};
 use crate::model::head;
 use crate::Error;
 
@@ -78,6 +81,8 @@ pub fn run_census(
         RING_ROWS,
     )?;
     let mut refinement = Refinement::new(refine, width, height, plan.len() > 1, state_arena)?;
+    // View rows below a token row's pixel rows that the refinement reads (none without it).
+    let reach = refine.map_or(0, |r| r.reach());
     // Which cells the refinement fills: `census+lr` by its check, `census` none.
     let fill = matches!(refine, Some(r) if matches!(r.input, RefineInput::CensusLr));
     let mut rows = BandRows::new(source, width);
@@ -91,14 +96,16 @@ pub fn run_census(
     };
     let mut scratch_used = 0;
     for band in plan.iter() {
-        rows.advance(band, left_px, right_px, Some(&mut refinement), sink)?;
-        let mut io = RefineIo {
-            view: rows.view(left_px, right_px),
-            scratch: Scratch::of(refine, &mut *scratch, width, height)?,
-        };
+        rows.keep_for(band, left_px, right_px, Some(&mut refinement), sink)?;
+        // The refiner's census rows stay valid for the band (the scratch is not lent out).
+        let mut band_scratch = Scratch::of(refine, &mut *scratch, width, height)?;
         for row in band.keep_from..band.keep_to {
+            // The view rows this token row's census window and its refined pixel rows read,
+            // read only now: a camera's rows arrive while the rows above them are worked on.
+            rows.load_until(band, rows_needed(row, reach), left_px, right_px, sink)?;
+            let view = rows.view(left_px, right_px);
             sink.stage(Stage::Sgm);
-            census.compute(row, &io.view)?;
+            census.compute(row, &view)?;
             let (disparity_q8, consistent) = census.row(row)?;
             report.census_kept += consistent.iter().filter(|&&k| k != 0).count();
             sink.census(&CensusRow {
@@ -108,10 +115,16 @@ pub fn run_census(
             });
             if let Some((_, stage)) = refinement.0.as_mut() {
                 sink.stage(Stage::Refine);
-                stage.push(row, disparity_q8, fill.then_some(consistent), &mut io, sink)?;
+                let mut io = RefineIoOf {
+                    view,
+                    scratch: band_scratch,
+                };
+                let pushed = stage.push(row, disparity_q8, fill.then_some(consistent), &mut io, sink);
+                band_scratch = io.scratch;
+                pushed?;
             }
         }
-        scratch_used = scratch_used.max(io.scratch.used());
+        scratch_used = scratch_used.max(band_scratch.used());
     }
     if refine.is_some() {
         refinement.done()?;
@@ -119,4 +132,20 @@ pub fn run_census(
     }
     report.arena_used = report.pixels + census_len + state_len + scratch_used;
     Ok(report)
+}
+
+/// Image rows (from the top) that token row `row`'s census window and the pixel rows it
+/// completes ([`RefineStage::push`]: down to `4 row + 1`, each reading `reach` rows below) need.
+/// The last token row completes the image's last rows too; the band's end caps it there.
+const fn rows_needed(row: usize, reach: usize) -> usize {
+    let census = census::window_row(row, WINDOW_ROWS - 1, usize::MAX).saturating_add(1);
+    let refined = PATCH_H
+        .saturating_mul(row)
+        .saturating_add(PATCH_H / 2)
+        .saturating_add(reach);
+    if census > refined {
+        census
+    } else {
+        refined
+    }
 }

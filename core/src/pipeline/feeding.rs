@@ -50,23 +50,76 @@ impl<'s, S: RowSource> BandRows<'s, S> {
         refinement: Option<&mut Refinement<'_>>,
         sink: &mut impl Sink,
     ) -> Result<(), Error> {
+        self.keep_for(band, left, right, refinement, sink)?;
+        self.load(band, left, right, sink)
+    }
+
+    /// The first half of [`BandRows::advance`], for a caller that then reads `band`'s rows a
+    /// few at a time ([`BandRows::load_until`]): rows the refinement still needs that `band`'s
+    /// rows will replace go to its ring (none before the first band).
+    pub(super) fn keep_for(
+        &mut self,
+        band: Band,
+        left: &mut [u8],
+        right: &mut [u8],
+        refinement: Option<&mut Refinement<'_>>,
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
         if let (true, Some(refinement)) = (self.loaded > 0, refinement) {
             refinement.keep_before(&self.view(left, right), band.start * PATCH_H, sink)?;
         }
-        self.load(band, left, right, sink)
+        Ok(())
     }
 
     /// Makes the buffers hold `band`'s pixel rows: keeps the overlap with the previous band,
     /// reads the rest.
     fn load(&mut self, band: Band, left: &mut [u8], right: &mut [u8], sink: &mut impl Sink) -> Result<(), Error> {
         sink.stage(Stage::Rows);
-        let (start, end) = (band.start * PATCH_H, (band.start + band.rows) * PATCH_H);
+        self.fill(band, (band.start + band.rows) * PATCH_H, left, right)
+    }
+
+    /// [`BandRows::load`] up to image row `until` (exclusive; at most the band's last row): a
+    /// caller that needs a band's rows a few at a time reads each when it needs it, so a camera
+    /// with a few line buffers keeps up. Enters [`Stage::Rows`] only when it reads or drops rows.
+    pub(super) fn load_until(
+        &mut self,
+        band: Band,
+        until: usize,
+        left: &mut [u8],
+        right: &mut [u8],
+        sink: &mut impl Sink,
+    ) -> Result<(), Error> {
+        let end = until.min((band.start + band.rows) * PATCH_H);
+        if band.start * PATCH_H > self.first || self.loaded < end {
+            sink.stage(Stage::Rows);
+            self.fill(band, end, left, right)?;
+        }
+        Ok(())
+    }
+
+    /// Drops the rows above `band`, then reads rows until image row `end` (exclusive).
+    fn fill(&mut self, band: Band, end: usize, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
+        let start = band.start * PATCH_H;
         let w = self.width;
         if start > self.first {
             let drop = (start - self.first).min(self.loaded - self.first);
             let keep = self.loaded - self.first - drop;
             for view in [&mut *left, &mut *right] {
                 view.copy_within(drop * w..(drop + keep) * w, 0);
+            }
+            // Rows above the band that were never read (a caller that stopped short of the
+            // last band's end) are read into the first buffer row and dropped.
+            while self.loaded < start {
+                let found = left.len().min(right.len());
+                let (Some(l), Some(r)) = (left.get_mut(..w), right.get_mut(..w)) else {
+                    return Err(Error::BufferSize {
+                        what: "band buffer",
+                        expected: w,
+                        found,
+                    });
+                };
+                self.source.next_row(l, r)?;
+                self.loaded += 1;
             }
             self.first = start;
         }

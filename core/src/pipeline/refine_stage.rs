@@ -166,13 +166,18 @@ impl<'s> Scratch<'s> {
     }
 }
 
-/// What a call into the stage reads and writes besides its state.
-pub(super) struct RefineIo<'b> {
+/// What a call into the stage reads and writes besides its state: the band buffer's rows, held
+/// for `'v`, and the row scratch, for `'s` (the census run lends the buffer anew for each token
+/// row, as its rows arrive, and keeps the scratch, its census rows, for the band).
+pub(super) struct RefineIoOf<'v, 's> {
     /// The band buffer.
-    pub view: BandView<'b>,
+    pub view: BandView<'v>,
     /// The row scratch.
-    pub scratch: Scratch<'b>,
+    pub scratch: Scratch<'s>,
 }
+
+/// [`RefineIoOf`] with the buffer and the scratch lent for the same span (a band).
+pub(super) type RefineIo<'b> = RefineIoOf<'b, 'b>;
 
 /// The stage's state across bands.
 pub(super) struct RefineStage<'a> {
@@ -253,7 +258,7 @@ impl<'a> RefineStage<'a> {
         row: usize,
         disparity_q8: &[u16],
         mask: Option<&[u8]>,
-        io: &mut RefineIo<'_>,
+        io: &mut RefineIoOf<'_, '_>,
         sink: &mut impl Sink,
     ) -> Result<(), Error> {
         if row != self.received || row >= self.grid_rows {
@@ -294,7 +299,7 @@ impl<'a> RefineStage<'a> {
         row: usize,
         disparity_q8: &[u16],
         mask: Option<&[u8]>,
-        io: &mut RefineIo<'_>,
+        io: &mut RefineIoOf<'_, '_>,
         sink: &mut impl Sink,
     ) {
         if self.failed.is_none() {
@@ -383,7 +388,7 @@ impl<'a> RefineStage<'a> {
     }
 
     /// Emits pixel rows while their token rows and view rows are at hand.
-    fn emit(&mut self, io: &mut RefineIo<'_>, sink: &mut impl Sink) -> Result<(), Error> {
+    fn emit(&mut self, io: &mut RefineIoOf<'_, '_>, sink: &mut impl Sink) -> Result<(), Error> {
         let (reach, height) = (self.reach, self.height);
         let window = 2 * reach + 1;
         while self.next_y < height {
