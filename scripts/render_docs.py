@@ -68,7 +68,7 @@ from rendering.firmware import (
     training_summary,
     weights_files,
 )
-from rendering.speed import BENCH_RUNS, bench_table, speed_headline
+from rendering.speed import BENCH_RUNS, bench_table, run_timing, speed_headline
 
 RENDERERS: dict[str, Callable[[Sources], str]] = {
     "census-vs-learned": census_vs_learned,
@@ -93,6 +93,7 @@ RENDERERS: dict[str, Callable[[Sources], str]] = {
     "heldout-labeled": heldout_labeled,
     "reproduction": reproduction,
     "bench": bench_table,
+    "run-timing": run_timing,
     "fw-memory": fw_memory,
     "fw-stages": fw_stages,
     "fw-targets": fw_targets,

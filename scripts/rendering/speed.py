@@ -1,4 +1,4 @@
-"""Host speed tables: `bino bench` runs per CPU and ISA.
+"""Host speed tables: `bino bench` runs per ISA, `bino run` timings per thread count.
 """
 
 from __future__ import annotations
@@ -19,8 +19,23 @@ def bench_rows(b: Json) -> list[tuple[str, Json]]:
     return rows
 
 
-BENCH_RUNS = ("bench_w160", "bench_w160_avx2", "bench_w160_xeon", "bench_w160_xeon_avx2")
-"""`bino bench` runs, each CPU's VNNI run then its AVX2 one."""
+def all_cores_row(b: Json) -> list[str] | None:
+    """The int8 engine on every core at once, per band, as a bench table row."""
+    all_cores = b.get("int8_all_cores")
+    if all_cores is None:
+        return None
+    rounds = all_cores["rounds"]
+    per_band = 1 / all_cores["threads"]
+    return [
+        f"int8 engine, {all_cores['threads']} threads at once (per band)",
+        ms(rounds["median_s"] * per_band),
+        ms(rounds["min_s"] * per_band),
+        f"{all_cores['gmac_per_s']:.1f}",
+    ]
+
+
+BENCH_RUNS = ("bench_w160", "bench_w160_avx2")
+"""`bino bench` runs: the fastest kernels, then the same CPU held to its AVX2 kernels."""
 
 
 def median_min(timing: Json) -> str:
@@ -39,6 +54,7 @@ def speed_headline(src: Sources) -> str:
                 median_min(run["onnxruntime_int8_dynamic"]) if ort is not None else "-",
                 ms(run["tract_f32"]["median_s"]),
                 f"{ort:.2f}x" if ort is not None else "-",
+                (all_cores_row(run) or ["", "-"])[1],
                 f"{run['tract_over_int8']:.2f}x",
             ]
         )
@@ -48,6 +64,7 @@ def speed_headline(src: Sources) -> str:
         "onnxruntime int8, median (min)",
         "tract f32",
         "onnxruntime int8 / engine",
+        "engine on every core, per band",
         "tract / engine",
     ]
     return table(header, rows) + "\n\n" + footer(src)
@@ -60,6 +77,9 @@ def bench_table(src: Sources) -> str:
             [name, ms(t["median_s"]), ms(t["min_s"]), f"{t['gmac_per_s']:.1f}"]
             for name, t in bench_rows(run)
         ]
+        all_cores = all_cores_row(run)
+        if all_cores is not None:
+            rows.insert(1, all_cores)
         shipped = src.json(MANIFEST)["files"]["bino_int8.bin"]
         blob = (
             "the shipped blob"
@@ -72,3 +92,34 @@ def bench_table(src: Sources) -> str:
         )
         out.append(title + "\n\n" + table(["engine", "median", "min", "GMAC/s"], rows))
     return "\n\n".join(out) + "\n\n" + footer(src)
+
+
+RUN_TIMING = "run_timing_w320"
+"""`scripts/measure_host.sh run`: `bino run` on one pair, per readout, build and threads."""
+
+PATHWAY_READOUT = {
+    "census": "census+lr+ref (no encoder)",
+    "native": "native fuse-census+lr+ref",
+    "export": "export fuse-all+lr+ref",
+}
+
+
+def run_timing(src: Sources) -> str:
+    t = src.metrics(RUN_TIMING)
+    builds = list(dict.fromkeys((r["build"], r["threads"]) for r in t["runs"]))
+    header = ["readout"] + [
+        f"{build}, {threads} thread{'s' if threads > 1 else ''}" for build, threads in builds
+    ]
+    rows = []
+    for pathway, name in PATHWAY_READOUT.items():
+        cells = {(r["build"], r["threads"]): r for r in t["runs"] if r["readout_pathway"] == pathway}
+        row = [name]
+        for key in builds:
+            r = cells.get(key)
+            row.append(f"{r['median_s']:.3f} s (min {r['min_s']:.3f})" if r else "-")
+        rows.append(row)
+    title = (
+        f"`bino run` on {t['pair']} at {t['profile']}, median of the runs (hyperfine -N), "
+        f"{t['cpu']}, {t['cores']} cores, at commit {t['commit']}:"
+    )
+    return title + "\n\n" + table(header, rows) + "\n\n" + footer(src)
