@@ -7,14 +7,15 @@ use super::api::{Options, Refine, Sink, Stage};
 use super::arena_bytes_for;
 use super::refine_stage::{BandView, RefineIo, Scratch};
 use super::sizing::ReadoutShape;
-use crate::model::encoder::{EncoderPasses, GrayBand};
+use crate::model::encoder::{Encoder, GrayBand};
 use crate::model::head::HeadWeights;
+use crate::model::probe::NoProbe;
 use crate::Error;
 
 /// What the stages of one run share.
 pub(super) struct Context<'p, 'w> {
-    /// The encoder's passes: the blob's encoder, or passes a host computed ahead.
-    pub(super) encoder: &'p dyn EncoderPasses,
+    /// The blob's encoder.
+    pub(super) encoder: Encoder<'w>,
     pub(super) head: Option<HeadWeights<'w>>,
     pub(super) opts: &'p Options,
     pub(super) refine: Option<&'p Refine>,
@@ -56,16 +57,16 @@ impl Context<'_, '_> {
         scratch: &'s mut [u8],
         sink: &mut impl Sink,
     ) -> Result<(usize, &'s [i8], &'s mut [u8]), Error> {
-        let encoder = self.encoder;
+        let encoder = &self.encoder;
         sink.stage(Stage::EncodeLeft);
         let view = GrayBand::new(left_px, self.width, self.band_px)?;
-        let (left_report, len) = encoder.describe_in_place(view, scratch)?;
+        let (left_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
         let codes: &[i8] = bytemuck::cast_slice(scratch.get(..len).unwrap_or_default());
         Error::check_len("descriptor band", desc_left.len(), codes.len())?;
         desc_left.copy_from_slice(codes);
         sink.stage(Stage::EncodeRight);
         let view = GrayBand::new(right_px, self.width, self.band_px)?;
-        let (right_report, len) = encoder.describe_in_place(view, scratch)?;
+        let (right_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
         let (right, rest) = scratch.split_at_mut(len);
         let used = left_report.arena_used.max(right_report.arena_used);
         Ok((used, bytemuck::cast_slice(right), rest))

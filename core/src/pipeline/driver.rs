@@ -10,7 +10,7 @@ use super::{export, native};
 use crate::band::BandPlan;
 use crate::config::check_view_size;
 use crate::matching::check_candidates;
-use crate::model::encoder::{Encoder, EncoderPasses};
+use crate::model::encoder::Encoder;
 use crate::model::head::{self, HeadWeights};
 use crate::model::ids::HeadKind;
 use crate::Error;
@@ -61,7 +61,7 @@ impl<'w> Pipeline<'w> {
         arena: &mut [u8],
         sink: &mut impl Sink,
     ) -> Result<Report, Error> {
-        self.run_with(&self.encoder, source, opts, None, arena, sink)
+        self.run_with(source, opts, None, arena, sink)
     }
 
     /// [`Pipeline::run`] with the pixel refinement of `refine.input`'s token grid: pixel rows
@@ -82,23 +82,7 @@ impl<'w> Pipeline<'w> {
         arena: &mut [u8],
         sink: &mut impl Sink,
     ) -> Result<Report, Error> {
-        self.run_with(&self.encoder, source, opts, Some(refine), arena, sink)
-    }
-
-    /// [`Pipeline::run`] (`refine` `None`) or [`Pipeline::run_refined`] with the encoder's passes
-    /// taken from `passes` instead of computed by the blob's encoder when the run reaches them:
-    /// a host hands in passes it computed ahead on other cores. `passes` must give the bytes
-    /// the blob's encoder gives ([`EncoderPasses`]); the run is then the same bit for bit.
-    pub fn run_with_passes(
-        &self,
-        passes: &dyn EncoderPasses,
-        source: &mut impl RowSource,
-        opts: &Options,
-        refine: Option<&Refine>,
-        arena: &mut [u8],
-        sink: &mut impl Sink,
-    ) -> Result<Report, Error> {
-        self.run_with(passes, source, opts, refine, arena, sink)
+        self.run_with(source, opts, Some(refine), arena, sink)
     }
 
     /// The head weights of `pathway`, when the blob has them.
@@ -111,7 +95,6 @@ impl<'w> Pipeline<'w> {
 
     fn run_with(
         &self,
-        passes: &dyn EncoderPasses,
         source: &mut impl RowSource,
         opts: &Options,
         refine: Option<&Refine>,
@@ -124,10 +107,10 @@ impl<'w> Pipeline<'w> {
         }
         let (width, height) = (source.width(), source.height());
         let (token_rows, cols) = check_view_size(height, width)?;
-        if width > passes.max_width() {
+        if width > self.encoder.max_width() {
             return Err(Error::TooWide {
                 width,
-                max: passes.max_width(),
+                max: self.encoder.max_width(),
             });
         }
         let native = opts.pathway == Pathway::Native;
@@ -165,7 +148,7 @@ impl<'w> Pipeline<'w> {
         let plan = BandPlan::new(token_rows)?;
         let band_px = band_pixel_rows(height);
         let ctx = Context {
-            encoder: passes,
+            encoder: self.encoder,
             head,
             opts,
             refine,

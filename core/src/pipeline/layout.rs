@@ -28,7 +28,7 @@ pub(super) const fn sum(terms: &[usize]) -> usize {
 }
 
 /// Pixel rows of the band buffer for an image of `height` rows.
-pub const fn band_pixel_rows(height: usize) -> usize {
+pub(super) const fn band_pixel_rows(height: usize) -> usize {
     let token_rows = height / PATCH_H;
     let rows = if token_rows < BAND_TOKEN_ROWS {
         token_rows

@@ -25,6 +25,7 @@ use crate::config::{DIM, PATCH_H};
 use crate::model::encoder::GrayBand;
 use crate::model::head::{self, HeadStream, HeadView, HeadWeights};
 use crate::model::ids::HeadKind;
+use crate::model::probe::NoProbe;
 use crate::Error;
 
 /// Runs the native pathway over every band of `plan`; `ctx.head` holds the native head's
@@ -84,7 +85,7 @@ pub(super) fn run(
         let left = GrayBand::new(left_px, width, band_px)?;
         let right = GrayBand::new(right_px, width, band_px)?;
         sink.stage(Stage::EncodePair);
-        let (encoded, len) = ctx.encoder.pair_tokens_in_place(left, right, scratch)?;
+        let (encoded, len) = ctx.encoder.pair_tokens_in_place(left, right, scratch, &mut NoProbe)?;
         report.encoder = report.encoder.max(encoded.arena_used);
         let (tokens, rest) = split(scratch, len).ok_or(too_small)?;
         let tokens: &[i8] = bytemuck::cast_slice(tokens);

@@ -66,10 +66,6 @@ pub struct RunArgs {
     /// there (valid.png). inf is Middlebury's convention for unknown disparity.
     #[arg(long, value_enum, default_value = "keep")]
     invalid: bino_host::run::InvalidPixels,
-    /// Threads for the encoder's passes, a band each, computed ahead of the streaming
-    /// pipeline; the default is the number of cores. The output is the same for every count.
-    #[arg(long)]
-    threads: Option<usize>,
     /// Output folder.
     #[arg(long, default_value = "out/run")]
     out: PathBuf,
@@ -82,11 +78,6 @@ pub fn run(args: RunArgs) -> Result<()> {
         .refine
         .apply(chosen)
         .unwrap_or_else(|msg| super::usage_error("run", msg));
-    match args.threads {
-        Some(0) => super::usage_error("run", "--threads must be at least 1".to_string()),
-        Some(n) => bino_host::int8::passes::set_threads(n),
-        None => {}
-    }
     let opts = RunOptions {
         left: args.left,
         right: args.right,

@@ -4,7 +4,6 @@
 
 pub mod blob_writer;
 pub mod crop_maps;
-pub mod passes;
 pub mod pipeline_maps;
 
 use std::path::{Path, PathBuf};

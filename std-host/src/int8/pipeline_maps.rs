@@ -16,7 +16,6 @@ use bino_core::pipeline::{
 
 use crate::data::profile::View;
 use crate::eval::DisparityMap;
-use crate::int8::passes::{self, PassCache};
 use crate::int8::Int8Model;
 use crate::readout::refine::GrayViews;
 use crate::readout::{Method, MethodMaps, Readout};
@@ -104,37 +103,9 @@ pub fn run_pipeline_refined(
         maps: Default::default(),
         times: StageTimes::new(),
     };
-    // On several cores the encoder's passes run ahead, a band a thread; the pipeline then
-    // streams as on one thread, bit for bit (`passes`).
-    let threads = passes::threads();
-    let ahead = Instant::now();
-    let cache = if threads > 1 {
-        let encoder = model.encoder()?;
-        Some(PassCache::compute(
-            encoder,
-            opts.pathway,
-            &views.left,
-            &views.right,
-            w,
-            h,
-            threads,
-        )?)
-    } else {
-        None
-    };
-    if cache.is_some() {
-        let stage = match opts.pathway {
-            bino_core::pipeline::Pathway::Export => Stage::EncodeLeft,
-            bino_core::pipeline::Pathway::Native => Stage::EncodePair,
-        };
-        sink.times.times.push((stage, ahead.elapsed()));
-    }
-    let report = match &cache {
-        Some(cache) => pipeline.run_with_passes(cache, &mut source, opts, refine, &mut arena, &mut sink),
-        None => match refine {
-            Some(r) => pipeline.run_refined(&mut source, opts, r, &mut arena, &mut sink),
-            None => pipeline.run(&mut source, opts, &mut arena, &mut sink),
-        },
+    let report = match refine {
+        Some(r) => pipeline.run_refined(&mut source, opts, r, &mut arena, &mut sink),
+        None => pipeline.run(&mut source, opts, &mut arena, &mut sink),
     }
     .map_err(anyhow::Error::msg)?;
     ensure!(

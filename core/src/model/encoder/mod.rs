@@ -26,10 +26,7 @@ use crate::kernels::params::Offset;
 use crate::Error;
 
 mod attention;
-mod passes;
 mod residual;
-
-pub use passes::EncoderPasses;
 
 use attention::{AttentionPass, Grid};
 use residual::{mlp, prepare_with};
@@ -121,16 +118,6 @@ impl<'a> GrayBand<'a> {
     /// Height in pixels.
     pub fn height(&self) -> usize {
         self.height
-    }
-
-    /// The pixels, row-major, as given (unmirrored).
-    pub fn pixels(&self) -> &'a [u8] {
-        self.pixels
-    }
-
-    /// Whether the view is read right to left ([`GrayBand::mirrored`]).
-    pub fn is_mirrored(&self) -> bool {
-        self.mirrored
     }
 
     #[inline(always)]
