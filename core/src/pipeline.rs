@@ -60,8 +60,8 @@ mod streams;
 /// A head row as [`Sink::head`] receives it.
 pub use crate::model::head::HeadRow;
 pub use api::{
-    CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink,
-    SlicePair, Stage,
+    BandEncoder, CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report,
+    RowSource, Sink, SlicePair, Stage,
 };
 pub use census_run::run_census;
 pub use driver::Pipeline;
