@@ -4,8 +4,9 @@
 //!
 //! The disparity is the readout's pixel map exactly as `bino eval` scores it
 //! ([`crate::readout::MethodMaps::pixels`]) at the profile's size: refined (`+ref`) by default,
-//! by the core's pipeline as it streams (every readout but the unchecked fusions, which are
-//! refined on the whole map; tests pin the two equal), `--refine off` for the bilinear
+//! by the core's pipeline as it streams (every readout but the host-only ones, the unchecked
+//! fusions and the export pathway's fuse-census, which are refined on the whole map; tests pin
+//! the two equal), `--refine off` for the bilinear
 //! upsampling of the token grid; then resampled to the input's size in its pixels
 //! ([`answer::to_input_size`]). Dense unless `--invalid inf`: the pixels whose
 //! cell the method's own check rejects, or whose view has no texture, are marked in `valid.png`.
