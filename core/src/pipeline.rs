@@ -9,7 +9,10 @@
 //! - the shared head, when asked for ([`crate::model::head`]);
 //!
 //! and, with [`Pipeline::run_refined`], one readout's token rows go on to the pixel
-//! refinement ([`crate::refine`]), which emits pixel rows ([`Sink::refined`]).
+//! refinement ([`crate::refine`]), which emits pixel rows ([`Sink::refined`]). The encoder
+//! passes are the blob's encoder's, or with [`Pipeline::run_encoded`] a [`BandEncoder`] that
+//! answers with the same bytes (a host refining several readouts of one pair replays the first
+//! run's passes).
 //!
 //! Memory depends on the band and the width, never on the image height. Arena layout, in
 //! order: the two views' pixel band, the left descriptors of the band, then
@@ -42,6 +45,9 @@
 //! `context.rs`, what a run's stages share; `streams.rs` (the export pathway's readouts),
 //! `native.rs` (the native pathway) and `census_run.rs` (the encoder-free census readout,
 //! [`run_census`]); `export.rs`, the export pathway's band loop; `driver.rs`, [`Pipeline`].
+//! Every band loop is one loop for one band and several (`feeding::BandRows::advance` loads a
+//! band after the refinement kept the rows it still needs; `refine_stage::Refinement` is the
+//! refinement every loop carries).
 
 mod api;
 mod census_run;
@@ -60,8 +66,8 @@ mod streams;
 /// A head row as [`Sink::head`] receives it.
 pub use crate::model::head::HeadRow;
 pub use api::{
-    CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink,
-    SlicePair, Stage,
+    BandEncoder, CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report,
+    RowSource, Sink, SlicePair, Stage,
 };
 pub use census_run::run_census;
 pub use driver::Pipeline;

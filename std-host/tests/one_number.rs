@@ -1,14 +1,25 @@
-//! One readout, one number (issue 13): `bino run` writes a readout's pixel disparities exactly
-//! as `bino eval` scores them. On a multi-band eval pair (mb2005_Art at w160: 31 token rows,
-//! three bands), the EVAL.md epe of run's `disparity.pfm` equals eval's per-pair epe for the
-//! same readout and options: `run --readout R --refine off` is eval's `R`, `run --readout R`
-//! (refined by default) is eval's `R+ref`.
+//! One readout, one number (issue 13): `bino run`, `bino eval` and `bino sim` give a readout's
+//! pixel disparities the same way, through the core's streaming pipeline. On a multi-band eval
+//! pair (mb2005_Art at w160: 31 token rows, three bands), the EVAL.md epe of run's
+//! `disparity.pfm` equals eval's per-pair epe for the same readout and options
+//! (`run --readout R --refine off` is eval's `R`, `run --readout R` (refined by default) is
+//! eval's `R+ref`), and for a `+ref` readout the core streams, sim's refined rows are run's,
+//! bit for bit (their CRC-32). The readouts the core does not stream are host-only analysis in
+//! eval (`host_only`) and in run, refused by sim. The reference: the host's whole-map
+//! refinement of each streamed readout's grid equals the core's streamed rows on this pair.
 
 use std::path::{Path, PathBuf};
 
+use bino_core::crc32::Crc32;
+use bino_core::pipeline::Refine;
 use bino_host::data::pairs::read_index;
 use bino_host::data::profile::Profile;
-use bino_host::eval::{load_eval_item, score, DisparityMap};
+use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
+use bino_host::eval::{load_eval_item, score, DisparityMap, EvalItem};
+use bino_host::int8::pipeline_maps::{readout_options, run_census_stream, run_pipeline_refined, streamed_input};
+use bino_host::int8::Int8Model;
+use bino_host::readout::pathway::Pathway;
+use bino_host::readout::{Method, Readout};
 
 mod common;
 use common::{bino, repo, s, scratch_dir};
@@ -130,10 +141,82 @@ fn run_writes_what_eval_scores_with_the_guided_sgm() {
     assert_ne!(epe(&guided), epe(&plain));
 }
 
-/// Runs `bino eval` on mb2005_Art at `profile` for `readouts`, then `bino run` for each, and
-/// checks run's `disparity.pfm` scores eval's per-pair epe; returns eval's report.
-fn run_matches_eval(profile: Profile, readouts: &[&str], extra: &[&str]) -> serde_json::Value {
-    let profile_name = profile.to_string();
+/// The host-only readouts: eval marks them, run writes what eval scores (fused and refined on
+/// the whole map), sim refuses them.
+#[test]
+fn run_writes_what_eval_scores_for_the_host_only_readouts() {
+    let report = run_matches_eval(
+        Profile::W160,
+        &["fuse", "fuse+ref", "fuse-census+lr+ref", "sgm+ref"],
+        &[],
+    );
+    let row = |r: &str| &report["per_pair"][0]["readouts"][format!("int8_{r}")];
+    for host in ["fuse", "fuse+ref", "fuse-census+lr+ref"] {
+        assert_eq!(row(host)["host_only"], true, "{host}");
+        assert_eq!(report["mean"][format!("int8_{host}")]["host_only"], true, "{host}");
+    }
+    assert!(row("sgm+ref").get("host_only").is_none(), "the core streams sgm+ref");
+    for readout in ["fuse+ref", "fuse-census+lr+ref"] {
+        let sim = bino(&[
+            "sim",
+            "--readout",
+            readout,
+            "--out",
+            s(&scratch_dir("one-number-sim-refused")),
+        ]);
+        let stderr = String::from_utf8_lossy(&sim.stderr);
+        assert!(
+            !sim.status.success() && stderr.contains("bino run and bino eval only"),
+            "{readout}: {stderr}"
+        );
+    }
+}
+
+/// The reference: for every `+ref` readout the core streams, on both pathways, the host's
+/// whole-map refinement ([`bino_host::readout::MethodMaps::pixels`]) of the grid the core's
+/// run gathered equals the pixel rows the core refined as it streamed, across three bands.
+#[test]
+fn the_whole_map_refinement_equals_the_streamed_one_on_an_eval_pair() {
+    let item = eval_pair(Profile::W160);
+    let model = Int8Model::load(Path::new(DEFAULT_BLOB)).unwrap();
+    let width = item.left.width;
+    let mut checked = 0;
+    for pathway in [Pathway::Export, Pathway::Native] {
+        for readout in pathway.readouts() {
+            let Some(input) = streamed_input(readout, pathway).filter(|_| readout.refine) else {
+                continue;
+            };
+            let opts = readout_options(readout, pathway, 16, DEFAULT_PENALTIES, 1.0, width);
+            let maps = match readout.method {
+                Method::Census => run_census_stream(&item.left, &item.right, &opts, readout).unwrap(),
+                _ => {
+                    let refine = Refine::for_width(input, width);
+                    run_pipeline_refined(&model, &item.left, &item.right, &opts, Some(&refine), &mut |_, _| {}).unwrap()
+                }
+            };
+            let streamed = maps.refined.expect("the core refined the readout");
+            let whole_map = maps.methods.pixels(readout).unwrap();
+            let differ = streamed
+                .values
+                .iter()
+                .zip(&whole_map.values)
+                .filter(|(a, b)| a != b)
+                .count();
+            assert_eq!(
+                (differ, streamed.width, streamed.height),
+                (0, whole_map.width, whole_map.height),
+                "{pathway} {readout}: streamed against whole-map pixels"
+            );
+            checked += 1;
+        }
+    }
+    // export: nolink, sgm, head (each unchecked and +lr), fuse+lr, fuse-all+lr, census and
+    // census+lr; native: head, head+lr, census, census+lr, fuse-census+lr.
+    assert_eq!(checked, 15);
+}
+
+/// mb2005_Art at `profile`: a pair of several bands.
+fn eval_pair(profile: Profile) -> EvalItem {
     let data = repo().join("../shared/data");
     let record = read_index(&data)
         .unwrap()
@@ -142,6 +225,32 @@ fn run_matches_eval(profile: Profile, readouts: &[&str], extra: &[&str]) -> serd
         .expect("mb2005_Art in the eval split");
     let item = load_eval_item(&record, profile).unwrap();
     assert!(item.left.height / 4 > 12, "more than one band");
+    item
+}
+
+/// CRC-32 of a pixel map in Q8 px, little-endian, row by row (what `bino sim` prints for the
+/// refined rows it drew).
+fn q8_digest(map: &DisparityMap) -> u32 {
+    let mut crc = Crc32::new();
+    for &v in &map.values {
+        assert_eq!((v * 256.0).fract(), 0.0, "{v} is not a Q8 step");
+        crc.update(&((v * 256.0) as u16).to_le_bytes());
+    }
+    crc.finish()
+}
+
+/// Runs `bino eval` on mb2005_Art at `profile` for `readouts`, then `bino run` for each, and
+/// checks run's `disparity.pfm` scores eval's per-pair epe, and for a `+ref` readout the core
+/// streams that `bino sim` draws run's pixels (their digest); returns eval's report.
+fn run_matches_eval(profile: Profile, readouts: &[&str], extra: &[&str]) -> serde_json::Value {
+    let profile_name = profile.to_string();
+    let data = repo().join("../shared/data");
+    let record = read_index(&data)
+        .unwrap()
+        .into_iter()
+        .find(|r| r.pair_id == "mb2005_Art")
+        .expect("mb2005_Art in the eval split");
+    let item = eval_pair(profile);
 
     // A data folder holding only this pair (links to the shared files), for `bino eval`.
     let dir = scratch_dir(&format!("one-number-{profile_name}{}", extra.join("")));
@@ -243,6 +352,26 @@ fn run_matches_eval(profile: Profile, readouts: &[&str], extra: &[&str]) -> serd
             (run_epe - eval_epe).abs() < 1e-9,
             "{readout}: run {run_epe} vs eval {eval_epe}"
         );
+        let parsed: Readout = readout.parse().unwrap();
+        let pathway = match extra.windows(2).any(|w| w == ["--pathway", "native"]) {
+            true => Pathway::Native,
+            false => Pathway::Export,
+        };
+        if parsed.refine && streamed_input(parsed, pathway).is_some() {
+            // sim draws the refined rows as the core streams them: run's, bit for bit.
+            let sim_out = dir.join(format!("sim-{readout}"));
+            let mut args = vec!["sim", "--left", s(&left), "--right", s(&right), "--profile", &native];
+            args.extend(["--readout", readout, "--max-cols", &max_cols, "--out", s(&sim_out)]);
+            args.extend(extra);
+            let sim = bino(&args);
+            assert!(sim.status.success(), "{}", String::from_utf8_lossy(&sim.stderr));
+            let stdout = String::from_utf8_lossy(&sim.stdout);
+            let digest = format!("refined rows digest {:08x}", q8_digest(&written));
+            assert!(
+                stdout.contains(&digest),
+                "{readout}: sim against run's {digest}: {stdout}"
+            );
+        }
     }
     report
 }

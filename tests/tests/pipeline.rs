@@ -5,11 +5,12 @@
 use bino_core::band::Band;
 use bino_core::blob::{Blob, BlobError};
 use bino_core::lr::consistent_row;
+use bino_core::model::encoder::GrayBand;
 use bino_core::model::head::HeadRow;
 use bino_core::model::ids;
 use bino_core::pipeline::{
-    arena_bytes, arena_bytes_for, arena_bytes_head_lr, HeadChecked, MatchedRow, Options, Pathway, Pipeline, RowSource,
-    Sink, SlicePair, Stage,
+    arena_bytes, arena_bytes_for, arena_bytes_head_lr, BandEncoder, HeadChecked, MatchedRow, Options, Pathway,
+    Pipeline, RowSource, Sink, SlicePair, Stage,
 };
 use bino_core::sgm::Penalties;
 use bino_core::Error;
@@ -342,6 +343,85 @@ fn bad_inputs_are_errors() {
         SlicePair::new(&px, &px, 160, 47),
         Err(Error::BufferSize { .. })
     ));
+}
+
+/// A stand-in encoder that answers every pass with `len` bytes of zeros.
+struct WrongLength {
+    len: usize,
+}
+
+impl BandEncoder for WrongLength {
+    fn view_pass(&mut self, _view: GrayBand<'_>, arena: &mut [u8]) -> Result<(usize, usize), Error> {
+        arena.iter_mut().take(self.len).for_each(|b| *b = 0);
+        Ok((self.len.min(arena.len()), self.len))
+    }
+
+    fn pair_pass(
+        &mut self,
+        left: GrayBand<'_>,
+        _right: GrayBand<'_>,
+        arena: &mut [u8],
+    ) -> Result<(usize, usize), Error> {
+        self.view_pass(left, arena)
+    }
+}
+
+/// [`Pipeline::run_encoded`] with the blob's encoder is [`Pipeline::run`]; a stand-in whose
+/// passes have the wrong length (short, long, beyond the arena) is an error on either pathway,
+/// never a panic or a row read from the wrong bytes.
+#[test]
+fn a_stand_in_encoder_must_answer_as_the_encoder() {
+    let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
+    let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
+    let scene = synthetic::default_scene(160, 48);
+    let (left, right) = (&scene.left.pixels, &scene.right.pixels);
+    for pathway in [Pathway::Export, Pathway::Native] {
+        let opts = Options {
+            pathway,
+            head_lr: true,
+            ..options()
+        };
+        let mut arena = vec![0u8; arena_bytes_for(48, 160, &opts)];
+        let mut plain = Collect::default();
+        let report = pipeline
+            .run(
+                &mut SlicePair::new(left, right, 160, 48).unwrap(),
+                &opts,
+                &mut arena,
+                &mut plain,
+            )
+            .unwrap();
+        let mut encoder = model.encoder().unwrap();
+        let mut stood_in = Collect::default();
+        let mut source = SlicePair::new(left, right, 160, 48).unwrap();
+        let again = pipeline
+            .run_encoded(&mut source, &opts, None, &mut encoder, &mut arena, &mut stood_in)
+            .unwrap();
+        assert_eq!(
+            (again, &stood_in.head, &stood_in.head_mask),
+            (report, &plain.head, &plain.head_mask)
+        );
+        // One band's passes: 12 token rows of 40 cells, DIM codes each (twice that for a pair).
+        let right_len = 12 * 40 * bino_core::config::DIM;
+        for len in [
+            right_len - 1,
+            right_len + 1,
+            2 * right_len - 1,
+            2 * right_len + 1,
+            arena.len() + 1,
+        ] {
+            let mut source = SlicePair::new(left, right, 160, 48).unwrap();
+            let result = pipeline.run_encoded(
+                &mut source,
+                &opts,
+                None,
+                &mut WrongLength { len },
+                &mut arena,
+                &mut Collect::default(),
+            );
+            assert!(result.is_err(), "{pathway:?}: a pass of {len} bytes ran: {result:?}");
+        }
+    }
 }
 
 /// Each row's cells in reverse order: the descriptor map of the mirrored view.

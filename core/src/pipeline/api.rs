@@ -4,8 +4,10 @@
 
 use super::layout::{stage_reach, HEAD_LAG};
 use crate::band::Band;
+use crate::model::encoder::{Encoder, GrayBand};
 use crate::model::head::HeadRow;
 use crate::model::ids::HeadKind;
+use crate::model::probe::NoProbe;
 use crate::refine::RefineParams;
 use crate::sgm::Penalties;
 use crate::Error;
@@ -379,6 +381,39 @@ pub struct CensusRow<'r> {
     /// 1 where the cell passes the census check (left-right agreement and uniqueness), else 0
     /// (`census+lr` fills these cells).
     pub consistent: &'r [u8],
+}
+
+/// The encoder passes of a run, band by band, as the pipeline asks for them: the blob's int8
+/// encoder ([`Pipeline::run`]), or a stand-in answering with the bytes that encoder gives for
+/// the same band ([`Pipeline::run_encoded`]: a host refining several readouts of one pair
+/// encodes the pair once and replays its passes).
+pub trait BandEncoder {
+    /// One view's band descriptors (an export-pathway pass, as
+    /// [`Encoder::describe_in_place`]) at the front of `arena`: the arena's high-water and the
+    /// descriptors' length in bytes.
+    fn view_pass(&mut self, view: GrayBand<'_>, arena: &mut [u8]) -> Result<(usize, usize), Error>;
+
+    /// The band's pair tokens (the native pathway's pass, as [`Encoder::pair_tokens_in_place`])
+    /// at the front of `arena`: the arena's high-water and the tokens' length in bytes.
+    fn pair_pass(&mut self, left: GrayBand<'_>, right: GrayBand<'_>, arena: &mut [u8])
+        -> Result<(usize, usize), Error>;
+}
+
+impl BandEncoder for Encoder<'_> {
+    fn view_pass(&mut self, view: GrayBand<'_>, arena: &mut [u8]) -> Result<(usize, usize), Error> {
+        let (report, len) = self.describe_in_place(view, arena, &mut NoProbe)?;
+        Ok((report.arena_used, len))
+    }
+
+    fn pair_pass(
+        &mut self,
+        left: GrayBand<'_>,
+        right: GrayBand<'_>,
+        arena: &mut [u8],
+    ) -> Result<(usize, usize), Error> {
+        let (report, len) = self.pair_tokens_in_place(left, right, arena, &mut NoProbe)?;
+        Ok((report.arena_used, len))
+    }
 }
 
 /// Receives what the pipeline produces, in order.

@@ -1,21 +1,19 @@
-//! What the stages of one run share ([`Context`]): the encoder, the head's weights, the options
-//! and the view's size; its helpers cut the refinement's scratch and run the export pathway's
-//! two encoder passes.
+//! What the stages of one run share ([`Context`]): the head's weights, the options and the
+//! view's size; its helpers cut the refinement's scratch and run the export pathway's two
+//! encoder passes (the encoder is the run's [`BandEncoder`], not part of the context).
 
-use super::api::{Options, Refine, Sink, Stage};
+use super::api::{BandEncoder, Options, Refine, Sink, Stage};
 #[cfg(doc)]
 use super::arena_bytes_for;
 use super::refine_stage::{BandView, RefineIo, Scratch};
 use super::sizing::ReadoutShape;
-use crate::model::encoder::{Encoder, GrayBand};
+use crate::arena::split;
+use crate::model::encoder::GrayBand;
 use crate::model::head::HeadWeights;
-use crate::model::probe::NoProbe;
 use crate::Error;
 
 /// What the stages of one run share.
 pub(super) struct Context<'p, 'w> {
-    /// The blob's encoder.
-    pub(super) encoder: Encoder<'w>,
     pub(super) head: Option<HeadWeights<'w>>,
     pub(super) opts: &'p Options,
     pub(super) refine: Option<&'p Refine>,
@@ -46,29 +44,31 @@ impl Context<'_, '_> {
         Ok(RefineIo { view, scratch })
     }
 
-    /// Both encoder passes over the band in the pixel buffers: the left descriptors are copied
-    /// to `desc_left`, the right ones stay at the front of `scratch`. Returns the encoder's
-    /// high-water, the right descriptors and the rest of `scratch`.
+    /// Both passes of `encoder` over the band in the pixel buffers: the left descriptors are
+    /// copied to `desc_left`, the right ones stay at the front of `scratch`. Returns the
+    /// encoder's high-water, the right descriptors and the rest of `scratch`.
     pub(super) fn encode<'s>(
         &self,
+        encoder: &mut impl BandEncoder,
         left_px: &[u8],
         right_px: &[u8],
         desc_left: &mut [i8],
         scratch: &'s mut [u8],
         sink: &mut impl Sink,
     ) -> Result<(usize, &'s [i8], &'s mut [u8]), Error> {
-        let encoder = &self.encoder;
         sink.stage(Stage::EncodeLeft);
         let view = GrayBand::new(left_px, self.width, self.band_px)?;
-        let (left_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
+        let (left_used, len) = encoder.view_pass(view, scratch)?;
         let codes: &[i8] = bytemuck::cast_slice(scratch.get(..len).unwrap_or_default());
         Error::check_len("descriptor band", desc_left.len(), codes.len())?;
         desc_left.copy_from_slice(codes);
         sink.stage(Stage::EncodeRight);
         let view = GrayBand::new(right_px, self.width, self.band_px)?;
-        let (right_report, len) = encoder.describe_in_place(view, scratch, &mut NoProbe)?;
-        let (right, rest) = scratch.split_at_mut(len);
-        let used = left_report.arena_used.max(right_report.arena_used);
-        Ok((used, bytemuck::cast_slice(right), rest))
+        let (right_used, len) = encoder.view_pass(view, scratch)?;
+        // A stand-in encoder may answer with any length: the right band must be the left's.
+        Error::check_len("descriptor band", desc_left.len(), len)?;
+        let available = scratch.len();
+        let (right, rest) = split(scratch, len).ok_or(Error::ArenaTooSmall { needed: len, available })?;
+        Ok((left_used.max(right_used), bytemuck::cast_slice(right), rest))
     }
 }

@@ -2,7 +2,7 @@
 //! (`export.rs`), the native one (`native.rs`) or, for a census input, the encoder-free run
 //! (`census_run.rs`).
 
-use super::api::{Options, Pathway, Refine, RefineInput, Report, RowSource, Sink};
+use super::api::{BandEncoder, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink};
 use super::context::Context;
 use super::layout::band_pixel_rows;
 use super::sizing::arena_bytes_run;
@@ -61,7 +61,8 @@ impl<'w> Pipeline<'w> {
         arena: &mut [u8],
         sink: &mut impl Sink,
     ) -> Result<Report, Error> {
-        self.run_with(source, opts, None, arena, sink)
+        let mut encoder = self.encoder;
+        self.run_encoded(source, opts, None, &mut encoder, arena, sink)
     }
 
     /// [`Pipeline::run`] with the pixel refinement of `refine.input`'s token grid: pixel rows
@@ -82,7 +83,24 @@ impl<'w> Pipeline<'w> {
         arena: &mut [u8],
         sink: &mut impl Sink,
     ) -> Result<Report, Error> {
-        self.run_with(source, opts, Some(refine), arena, sink)
+        let mut encoder = self.encoder;
+        self.run_encoded(source, opts, Some(refine), &mut encoder, arena, sink)
+    }
+
+    /// [`Pipeline::run`] (`refine` none) or [`Pipeline::run_refined`] with each band's encoder
+    /// passes by `encoder`, which must answer as the blob's encoder would (a host replays the
+    /// passes of an earlier run of the same pair; a pass of the wrong length is an error). The
+    /// head's weights are the blob's.
+    pub fn run_encoded(
+        &self,
+        source: &mut impl RowSource,
+        opts: &Options,
+        refine: Option<&Refine>,
+        encoder: &mut impl BandEncoder,
+        arena: &mut [u8],
+        sink: &mut impl Sink,
+    ) -> Result<Report, Error> {
+        self.run_with(source, opts, refine, encoder, arena, sink)
     }
 
     /// The head weights of `pathway`, when the blob has them.
@@ -98,6 +116,7 @@ impl<'w> Pipeline<'w> {
         source: &mut impl RowSource,
         opts: &Options,
         refine: Option<&Refine>,
+        encoder: &mut impl BandEncoder,
         arena: &mut [u8],
         sink: &mut impl Sink,
     ) -> Result<Report, Error> {
@@ -148,7 +167,6 @@ impl<'w> Pipeline<'w> {
         let plan = BandPlan::new(token_rows)?;
         let band_px = band_pixel_rows(height);
         let ctx = Context {
-            encoder: self.encoder,
             head,
             opts,
             refine,
@@ -158,9 +176,9 @@ impl<'w> Pipeline<'w> {
             band_px,
         };
         if native {
-            return native::run(&ctx, source, &plan, arena, sink);
+            return native::run(&ctx, encoder, source, &plan, arena, sink);
         }
-        export::run(&ctx, source, &plan, arena, sink)
+        export::run(&ctx, encoder, source, &plan, arena, sink)
     }
 }
 

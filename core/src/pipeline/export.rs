@@ -10,7 +10,7 @@
 //!   to band), then the encoder's scratch, which between passes holds the right descriptors and
 //!   the refinement's row scratch.
 
-use super::api::{Report, RowSource, Sink};
+use super::api::{BandEncoder, Report, RowSource, Sink};
 use super::context::Context;
 use super::feeding::BandRows;
 use super::refine_stage::BandView;
@@ -20,10 +20,11 @@ use crate::band::{Band, BandPlan};
 use crate::config::{DIM, PATCH_H};
 use crate::Error;
 
-/// Runs the export pathway over every band of `plan`; the arena was checked against the run's
-/// size.
+/// Runs the export pathway over every band of `plan`, each band's passes by `encoder`; the
+/// arena was checked against the run's size.
 pub(super) fn run(
     ctx: &Context<'_, '_>,
+    encoder: &mut impl BandEncoder,
     source: &mut impl RowSource,
     plan: &BandPlan,
     arena: &mut [u8],
@@ -61,7 +62,7 @@ pub(super) fn run(
     for (i, band) in plan.iter().enumerate() {
         let last = i + 1 == plan.len();
         rows.advance(band, left_px, right_px, resident.as_mut().map(|s| &mut s.refine), sink)?;
-        let (encoder_used, right_desc, rest) = ctx.encode(left_px, right_px, desc_left, scratch, sink)?;
+        let (encoder_used, right_desc, rest) = ctx.encode(encoder, left_px, right_px, desc_left, scratch, sink)?;
         sink.band(band, desc_left, right_desc);
         report.encoder = report.encoder.max(encoder_used);
         let pass = Pass {

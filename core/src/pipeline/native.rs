@@ -11,7 +11,7 @@
 //!
 //! [`Encoder::pair_tokens_in_place`]: crate::model::encoder::Encoder::pair_tokens_in_place
 
-use super::api::{RefineInput, Report, RowSource, Sink, Stage};
+use super::api::{BandEncoder, RefineInput, Report, RowSource, Sink, Stage};
 use super::census_stage::{self, CensusStage};
 use super::context::Context;
 use super::feeding::BandRows;
@@ -25,13 +25,13 @@ use crate::config::{DIM, PATCH_H};
 use crate::model::encoder::GrayBand;
 use crate::model::head::{self, HeadStream, HeadView, HeadWeights};
 use crate::model::ids::HeadKind;
-use crate::model::probe::NoProbe;
 use crate::Error;
 
-/// Runs the native pathway over every band of `plan`; `ctx.head` holds the native head's
-/// weights and the arena was checked against [`arena_bytes`].
+/// Runs the native pathway over every band of `plan`, each band's pass by `encoder`; `ctx.head`
+/// holds the native head's weights and the arena was checked against [`arena_bytes`].
 pub(super) fn run(
     ctx: &Context<'_, '_>,
+    encoder: &mut impl BandEncoder,
     source: &mut impl RowSource,
     plan: &BandPlan,
     arena: &mut [u8],
@@ -85,8 +85,11 @@ pub(super) fn run(
         let left = GrayBand::new(left_px, width, band_px)?;
         let right = GrayBand::new(right_px, width, band_px)?;
         sink.stage(Stage::EncodePair);
-        let (encoded, len) = ctx.encoder.pair_tokens_in_place(left, right, scratch, &mut NoProbe)?;
-        report.encoder = report.encoder.max(encoded.arena_used);
+        let (encoder_used, len) = encoder.pair_pass(left, right, scratch)?;
+        // A stand-in encoder may answer with any length: the band's tokens are `2 x DIM` codes
+        // a cell.
+        Error::check_len("pair token band", (band_px / PATCH_H) * cols * 2 * DIM, len)?;
+        report.encoder = report.encoder.max(encoder_used);
         let (tokens, rest) = split(scratch, len).ok_or(too_small)?;
         let tokens: &[i8] = bytemuck::cast_slice(tokens);
         sink.pair_band(band, tokens);

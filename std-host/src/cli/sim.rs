@@ -111,5 +111,9 @@ pub fn run(args: SimArgs) -> Result<()> {
         opts.display,
         report.png.display()
     );
+    if let Some(digest) = report.refined_digest {
+        // The firmware logs the same CRC as `output=refined digest=...` for its readout.
+        println!("refined rows digest {digest:08x} (CRC-32 of the Q8 rows, as the firmware's refined output)");
+    }
     Ok(())
 }

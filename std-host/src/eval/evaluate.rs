@@ -14,9 +14,9 @@
 use std::time::Instant;
 
 use anyhow::{bail, ensure, Context, Result};
-use bino_core::pipeline::Options as PipelineOptions;
 
 use super::float_twins::{consistent, right_view, sgm};
+use super::int8_pair::{host_only, int8_pair};
 use super::sgbm::{GrayPair, SgbmRunner};
 use super::{
     density, load_eval_item, mean_metrics, score, score_sparse, similarity_volume, upsample_mask, wta_subtoken,
@@ -28,11 +28,10 @@ use crate::data::occlusion::{check_severities, occlude_item};
 use crate::data::pairs::{read_index, Split};
 use crate::float::head::FloatHead;
 use crate::float::reference::ReferenceEncoder;
-use crate::int8::pipeline_maps::{run_census_stream, run_pipeline};
 use crate::int8::{guide_map, to_u8, Int8Model};
 use crate::readout::pathway::Pathway;
 use crate::readout::refine::GrayViews;
-use crate::readout::{head_candidates, lr_tolerance_q8, Method, MethodMaps, Readout};
+use crate::readout::{head_candidates, MethodMaps, Readout};
 
 /// Runs the readouts over the split; `progress(done, total, pair)` after each pair.
 pub fn evaluate(opts: &EvalOptions, mut progress: impl FnMut(usize, usize, &PairEval)) -> Result<EvalReport> {
@@ -150,18 +149,24 @@ fn evaluate_set(
         let started = Instant::now();
         let mut scores = Vec::new();
         for &precision in &opts.precisions {
-            let maps = match precision {
-                Precision::Int8 => int8_maps(opts, model.context("int8 model")?, item)?,
+            let (maps, refined) = match precision {
+                Precision::Int8 => {
+                    let pair = int8_pair(opts, model.context("int8 model")?, item)?;
+                    (pair.maps, pair.refined)
+                }
                 Precision::F32 => {
                     let (encoder, head) = float.as_mut().context("float model")?;
-                    float_maps(opts, encoder, head.as_mut(), item)?
+                    (
+                        float_maps(opts, encoder, head.as_mut(), item)?,
+                        vec![None; opts.readouts.len()],
+                    )
                 }
             };
-            for &readout in &opts.readouts {
-                scores.push(
-                    score_readout(&maps, readout, &item.gt)
-                        .with_context(|| format!("pair {}: {} {}", item.pair_id, precision.name(), readout.name()))?,
-                );
+            for (&readout, core_pixels) in opts.readouts.iter().zip(&refined) {
+                let host_only = precision == Precision::Int8 && host_only(opts, readout);
+                let score = score_readout(&maps, readout, core_pixels.as_ref(), &item.gt)
+                    .with_context(|| format!("pair {}: {} {}", item.pair_id, precision.name(), readout.name()))?;
+                scores.push(ReadoutScore { host_only, ..score });
             }
         }
         let pair = PairEval {
@@ -190,11 +195,20 @@ fn evaluate_set(
     })
 }
 
-/// Scores `readout` of `maps` against `gt`: the metrics of its pixel disparity, and the
-/// method's left-right keep rate and the error on the pixels it keeps.
-fn score_readout(maps: &MethodMaps, readout: Readout, gt: &GroundTruthMap) -> Result<ReadoutScore> {
+/// Scores `readout` against `gt`: the metrics of its pixel disparity (`core_pixels`, the core's
+/// refined rows, when given, else from `maps`), and the method's left-right keep rate and the
+/// error on the pixels it keeps.
+fn score_readout(
+    maps: &MethodMaps,
+    readout: Readout,
+    core_pixels: Option<&DisparityMap>,
+    gt: &GroundTruthMap,
+) -> Result<ReadoutScore> {
     let grid = maps.grid(readout)?;
-    let pixels = maps.grid_pixels(&grid, readout)?;
+    let pixels = match core_pixels {
+        Some(pixels) => pixels.clone(),
+        None => maps.grid_pixels(&grid, readout)?,
+    };
     let metrics = score(&pixels, gt)?;
     let large = score(&pixels, &gt.large_disparity_subset())?;
     let (lr_keep, gt_lr_epe) = match grid.mask {
@@ -214,27 +228,8 @@ fn score_readout(maps: &MethodMaps, readout: Readout, gt: &GroundTruthMap) -> Re
         lr_keep,
         gt_lr_epe,
         large,
+        host_only: false,
     })
-}
-
-fn int8_maps(opts: &EvalOptions, model: &Int8Model, item: &EvalItem) -> Result<MethodMaps> {
-    let head = opts.readouts.iter().any(|r| r.uses_head());
-    let pipeline = PipelineOptions {
-        pathway: opts.pathway.core(),
-        max_cols: opts.max_cols,
-        penalties: opts.penalties,
-        lr_max_diff_q8: lr_tolerance_q8(opts.lr_max_diff),
-        head,
-        // The head's own check: for head+lr, and for head's LRkeep column.
-        head_lr: head,
-        head_candidates: head_candidates(item.left.width),
-    };
-    if opts.readouts.iter().all(|r| r.method == Method::Census) {
-        // Nothing here reads the encoder: the core's encoder-free census run gives the grid.
-        let unrefined = Readout::new(Method::Census, false);
-        return Ok(run_census_stream(&item.left, &item.right, &pipeline, unrefined)?.methods);
-    }
-    Ok(run_pipeline(model, &item.left, &item.right, &pipeline, &mut |_, _| {})?.methods)
 }
 
 fn float_maps(
@@ -383,6 +378,7 @@ fn mean_score(scores: &[ReadoutScore]) -> Result<ReadoutScore> {
         lr_keep: mean_of(|s| s.lr_keep),
         gt_lr_epe: mean_of(|s| s.gt_lr_epe),
         large,
+        host_only: scores.iter().any(|s| s.host_only),
     })
 }
 

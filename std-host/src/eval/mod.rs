@@ -13,6 +13,7 @@
 mod evaluate;
 pub mod float_twins;
 pub mod gt;
+mod int8_pair;
 mod json;
 pub mod metrics;
 pub mod nearest;

@@ -23,6 +23,12 @@ pub struct ReadoutScore {
     /// The same metrics on the large-disparity subset
     /// ([`crate::eval::GroundTruthMap::large_disparity_subset`]).
     pub large: Metrics,
+    /// An int8 readout the core's streaming pipeline does not stream (the unchecked fusions,
+    /// `fuse-census` on the export pathway): host-only analysis, fused and refined on whole
+    /// maps. The other int8 rows are the core's (`bino run`'s numbers); f32 rows are the float
+    /// reference.
+    #[serde(skip_serializing_if = "std::ops::Not::not")]
+    pub host_only: bool,
 }
 
 /// How the right view was degraded for a run over the set.
@@ -147,10 +153,11 @@ impl EvalReport {
         let opt = |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
         for ((p, r), s) in o.rows().iter().zip(&self.mean) {
             let m = s.metrics;
+            let host = if s.host_only { " (host)" } else { "" };
             let _ = writeln!(
                 t,
                 "{:<18} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10} {:>10.3} {:>11.2}",
-                format!("{} {}", p.name(), r.name()),
+                format!("{} {}{host}", p.name(), r.name()),
                 m.epe,
                 m.bad1tok,
                 m.bad2,
@@ -166,6 +173,13 @@ impl EvalReport {
                 t,
                 "{:<18} {:>8.3} {:>10.2} {:>8.2} {:>8.1} {:>8} {:>10} {:>10.3} {:>11.2}",
                 "StereoSGBM", m.epe, m.bad1tok, m.bad2, m.density, "-", "-", l.epe, l.bad1tok
+            );
+        }
+        if self.mean.iter().any(|s| s.host_only) {
+            let _ = writeln!(
+                t,
+                "(host): host-only analysis, an int8 readout the core's streaming pipeline does not stream, fused \
+                 and refined on whole maps; the other int8 rows are the core's, as bino run writes them"
             );
         }
         if !self.nuisances.is_empty() {

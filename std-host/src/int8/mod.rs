@@ -4,6 +4,7 @@
 
 pub mod blob_writer;
 pub mod crop_maps;
+pub mod pass_cache;
 pub mod pipeline_maps;
 
 use std::path::{Path, PathBuf};

@@ -1,7 +1,10 @@
 //! The core pipeline (`bino_core::pipeline`) on a host pair, its rows gathered into whole
-//! token-grid maps: what `bino run` and `bino eval` read their int8 readouts from. The census
-//! readouts run the core's encoder-free stream ([`run_census_stream`]): no blob, no encoder,
-//! their pixels refined in the core.
+//! token-grid maps and its refined pixel rows into a map: what `bino run` and `bino eval` read
+//! their int8 readouts from ([`PairRuns`]: `bino eval` runs a pair once per refined readout and
+//! encodes it once). The census readouts run the core's encoder-free stream
+//! ([`run_census_stream`]): no blob, no encoder, their pixels refined in the core. Which readouts
+//! the core streams, and with which options every command runs them: [`streamed_input`],
+//! [`readout_options`].
 
 use std::time::{Duration, Instant};
 
@@ -14,11 +17,15 @@ use bino_core::pipeline::{
     self, CensusRow, HeadChecked, MatchedRow, Options, Pipeline, Refine, RefineInput, Report, Sink, SlicePair, Stage,
 };
 
+use bino_core::sgm::Penalties;
+
+use super::pass_cache::PassCache;
 use crate::data::profile::View;
 use crate::eval::DisparityMap;
 use crate::int8::Int8Model;
+use crate::readout::pathway::Pathway;
 use crate::readout::refine::GrayViews;
-use crate::readout::{Method, MethodMaps, Readout};
+use crate::readout::{head_candidates, lr_tolerance_q8, Method, MethodMaps, Readout};
 
 /// Every method of one run as token-grid maps (patch columns), with their left-right masks.
 #[derive(Debug, Clone)]
@@ -36,9 +43,12 @@ pub struct PipelineMaps {
     pub refined: Option<DisparityMap>,
 }
 
-/// The core's refinement input for `readout` when the core's pipeline streams it (every
-/// readout but the unchecked fusions `fuse`, `fuse-census` and `fuse-all`).
-pub fn streamed_input(readout: Readout) -> Option<RefineInput> {
+/// The core's refinement input for `readout` when the core's pipeline streams it on
+/// `pathway`: every readout but the unchecked fusions (`fuse`, `fuse-census`, `fuse-all`) and
+/// `fuse-census+lr` on the export pathway (the core fuses the census with the native head only;
+/// the export pathway's census fusion is `fuse-all+lr`). The others are host-only analysis:
+/// fused and refined on whole maps.
+pub fn streamed_input(readout: Readout, pathway: Pathway) -> Option<RefineInput> {
     Some(match (readout.method, readout.lr) {
         (Method::Nolink, false) => RefineInput::Nolink,
         (Method::Nolink, true) => RefineInput::NolinkLr,
@@ -47,12 +57,39 @@ pub fn streamed_input(readout: Readout) -> Option<RefineInput> {
         (Method::Head, false) => RefineInput::Head,
         (Method::Head, true) => RefineInput::HeadLr,
         (Method::Fused, true) => RefineInput::FusedLr,
-        (Method::CensusFused, true) => RefineInput::FusedCensusLr,
+        (Method::CensusFused, true) if pathway == Pathway::Native => RefineInput::FusedCensusLr,
         (Method::FusedAll, true) => RefineInput::FusedAllLr,
         (Method::Census, false) => RefineInput::Census,
         (Method::Census, true) => RefineInput::CensusLr,
-        (Method::Fused | Method::CensusFused | Method::FusedAll, false) => return None,
+        (Method::CensusFused, true) | (Method::Fused | Method::CensusFused | Method::FusedAll, false) => return None,
     })
+}
+
+/// The core pipeline's options for a run of `readout` on `width`-pixel views, the same in
+/// `bino run`, `bino sim` and `bino eval`: the head (with its own left-right check) only when the
+/// readout reads it; the census check's tolerance one patch column
+/// ([`crate::readout::census::CENSUS_LR_MAX_DIFF_Q8`]) on every command.
+pub fn readout_options(
+    readout: Readout,
+    pathway: Pathway,
+    max_cols: usize,
+    penalties: Penalties,
+    lr_max_diff: f32,
+    width: usize,
+) -> Options {
+    let head = readout.uses_head();
+    Options {
+        pathway: pathway.core(),
+        max_cols,
+        penalties,
+        lr_max_diff_q8: match readout.method {
+            Method::Census => crate::readout::census::CENSUS_LR_MAX_DIFF_Q8,
+            _ => lr_tolerance_q8(lr_max_diff),
+        },
+        head,
+        head_lr: head,
+        head_candidates: head_candidates(width),
+    }
 }
 
 /// Runs the int8 pipeline on two views of the same size; `on_band(i, n)` as band `i` of `n`
@@ -78,88 +115,122 @@ pub fn run_pipeline_refined(
     refine: Option<&Refine>,
     on_band: &mut dyn FnMut(usize, usize),
 ) -> Result<PipelineMaps> {
-    ensure!(
-        (left.width, left.height) == (right.width, right.height),
-        "the views differ in size: {}x{} and {}x{}",
-        left.width,
-        left.height,
-        right.width,
-        right.height
-    );
-    let pipeline = Pipeline::new(model.blob()?).map_err(anyhow::Error::msg)?;
-    let (w, h) = (left.width, left.height);
-    let views = GrayViews::from_views(left, right)?;
-    let mut source = SlicePair::new(&views.left, &views.right, w, h).map_err(anyhow::Error::msg)?;
-    let arena_bytes = match refine {
-        Some(r) => pipeline::arena_bytes_refined(h, w, opts, r),
-        None => pipeline::arena_bytes_for(h, w, opts),
-    };
-    let mut arena = vec![0u8; arena_bytes];
-    let bands = BandPlan::new(h / PATCH_H).map_err(anyhow::Error::msg)?.len();
-    let mut sink = Collect {
-        bands,
-        bands_started: 0,
-        on_band,
-        maps: Default::default(),
-        times: StageTimes::new(),
-    };
-    let report = match refine {
-        Some(r) => pipeline.run_refined(&mut source, opts, r, &mut arena, &mut sink),
-        None => pipeline.run(&mut source, opts, &mut arena, &mut sink),
+    PairRuns::new(model, left, right)?.run(opts, refine, on_band)
+}
+
+/// One pair through the core's pipeline as often as its readouts need (`bino eval`: one run
+/// for every readout's grid, one per refined readout), each band encoded once: later runs
+/// replay the first run's encoder passes ([`PassCache`]).
+pub struct PairRuns<'m> {
+    pipeline: Pipeline<'m>,
+    passes: PassCache<'m>,
+    views: GrayViews,
+}
+
+impl<'m> PairRuns<'m> {
+    /// The pair of two views of the same size, for the pipeline of `model`.
+    pub fn new(model: &'m Int8Model, left: &View, right: &View) -> Result<Self> {
+        ensure!(
+            (left.width, left.height) == (right.width, right.height),
+            "the views differ in size: {}x{} and {}x{}",
+            left.width,
+            left.height,
+            right.width,
+            right.height
+        );
+        let blob = model.blob()?;
+        Ok(Self {
+            pipeline: Pipeline::new(blob).map_err(anyhow::Error::msg)?,
+            passes: PassCache::new(model.encoder()?),
+            views: GrayViews::from_views(left, right)?,
+        })
     }
-    .map_err(anyhow::Error::msg)?;
-    ensure!(
-        sink.maps.refined.len() == if refine.is_some() { w * h } else { 0 },
-        "the pipeline refined {} of {} pixels",
-        sink.maps.refined.len(),
-        w * h
-    );
-    sink.times.stage_done();
-    let (rows, cols) = (report.rows, report.cols);
-    let m = sink.maps;
-    let cells = rows * cols;
-    // The native pathway has no matching readouts.
-    let matched = opts.pathway == bino_core::pipeline::Pathway::Export;
-    let expected_matched = if matched { cells } else { 0 };
-    ensure!(
-        m.wta.len() == expected_matched
-            && m.sgm.len() == expected_matched
-            && (m.head.is_empty() || m.head.len() == cells)
-            && (m.head_mask.is_empty() || m.head_mask.len() == cells),
-        "the pipeline emitted {} WTA, {} SGM, {} head and {} head check cells for {rows}x{cols}",
-        m.wta.len(),
-        m.sgm.len(),
-        m.head.len(),
-        m.head_mask.len()
-    );
-    let map = |values: Vec<f32>| DisparityMap {
-        width: cols,
-        height: rows,
-        values,
-    };
-    let head_ran = !m.head.is_empty();
-    let check_ran = head_ran && opts.head_lr;
-    Ok(PipelineMaps {
-        methods: MethodMaps {
-            nolink: matched.then(|| map(m.wta)),
-            sgm: matched.then(|| map(m.sgm)),
-            head: head_ran.then(|| map(m.head)),
-            nolink_consistent: m.wta_mask,
-            sgm_consistent: m.sgm_mask,
-            head_consistent: check_ran.then_some(m.head_mask),
-            head_confidence: head_ran.then_some(m.head_confidence),
-            views,
-            census: Default::default(),
-        },
-        stage_times: sink.times.times,
-        report,
-        arena_bytes,
-        refined: refine.map(|_| DisparityMap {
-            width: w,
-            height: h,
-            values: q8(&m.refined).collect(),
-        }),
-    })
+
+    /// Encoder passes run and replayed so far.
+    pub fn passes(&self) -> (usize, usize) {
+        (self.passes.encoded, self.passes.replayed)
+    }
+
+    /// One run of the pipeline with `opts`, refining `refine.input`'s grid when given
+    /// ([`run_pipeline_refined`]).
+    pub fn run(
+        &mut self,
+        opts: &Options,
+        refine: Option<&Refine>,
+        on_band: &mut dyn FnMut(usize, usize),
+    ) -> Result<PipelineMaps> {
+        let views = &self.views;
+        let (w, h) = (views.width, views.height);
+        let mut source = SlicePair::new(&views.left, &views.right, w, h).map_err(anyhow::Error::msg)?;
+        let arena_bytes = match refine {
+            Some(r) => pipeline::arena_bytes_refined(h, w, opts, r),
+            None => pipeline::arena_bytes_for(h, w, opts),
+        };
+        let mut arena = vec![0u8; arena_bytes];
+        let bands = BandPlan::new(h / PATCH_H).map_err(anyhow::Error::msg)?.len();
+        let mut sink = Collect {
+            bands,
+            bands_started: 0,
+            on_band,
+            maps: Default::default(),
+            times: StageTimes::new(),
+        };
+        let report = (self.pipeline)
+            .run_encoded(&mut source, opts, refine, &mut self.passes, &mut arena, &mut sink)
+            .map_err(anyhow::Error::msg)?;
+        ensure!(
+            sink.maps.refined.len() == if refine.is_some() { w * h } else { 0 },
+            "the pipeline refined {} of {} pixels",
+            sink.maps.refined.len(),
+            w * h
+        );
+        sink.times.stage_done();
+        let (rows, cols) = (report.rows, report.cols);
+        let m = sink.maps;
+        let cells = rows * cols;
+        // The native pathway has no matching readouts.
+        let matched = opts.pathway == bino_core::pipeline::Pathway::Export;
+        let expected_matched = if matched { cells } else { 0 };
+        ensure!(
+            m.wta.len() == expected_matched
+                && m.sgm.len() == expected_matched
+                && (m.head.is_empty() || m.head.len() == cells)
+                && (m.head_mask.is_empty() || m.head_mask.len() == cells),
+            "the pipeline emitted {} WTA, {} SGM, {} head and {} head check cells for {rows}x{cols}",
+            m.wta.len(),
+            m.sgm.len(),
+            m.head.len(),
+            m.head_mask.len()
+        );
+        let map = |values: Vec<f32>| DisparityMap {
+            width: cols,
+            height: rows,
+            values,
+        };
+        let head_ran = !m.head.is_empty();
+        let check_ran = head_ran && opts.head_lr;
+        Ok(PipelineMaps {
+            methods: MethodMaps {
+                nolink: matched.then(|| map(m.wta)),
+                sgm: matched.then(|| map(m.sgm)),
+                head: head_ran.then(|| map(m.head)),
+                nolink_consistent: m.wta_mask,
+                sgm_consistent: m.sgm_mask,
+                head_consistent: check_ran.then_some(m.head_mask),
+                head_confidence: head_ran.then_some(m.head_confidence),
+                views: views.clone(),
+                census: Default::default(),
+            },
+            stage_times: sink.times.times,
+            report,
+            arena_bytes,
+            refined: refine.map(|_| DisparityMap {
+                width: w,
+                height: h,
+                values: q8(&m.refined).collect(),
+            }),
+        })
+    }
 }
 
 /// The core's encoder-free census run (`bino_core::pipeline::run_census`) on two views of the

@@ -4,8 +4,9 @@
 //!
 //! The disparity is the readout's pixel map exactly as `bino eval` scores it
 //! ([`crate::readout::MethodMaps::pixels`]) at the profile's size: refined (`+ref`) by default,
-//! by the core's pipeline as it streams (every readout but the unchecked fusions, which are
-//! refined on the whole map; tests pin the two equal), `--refine off` for the bilinear
+//! by the core's pipeline as it streams (every readout but the host-only ones, the unchecked
+//! fusions and the export pathway's fuse-census, which are refined on the whole map; tests pin
+//! the two equal), `--refine off` for the bilinear
 //! upsampling of the token grid; then resampled to the input's size in its pixels
 //! ([`answer::to_input_size`]). Dense unless `--invalid inf`: the pixels whose
 //! cell the method's own check rejects, or whose view has no texture, are marked in `valid.png`.
@@ -17,17 +18,16 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use anyhow::{Context, Result};
-use bino_core::pipeline::{Options as PipelineOptions, Refine as CoreRefine, Report as PipelineReport, Stage};
+use bino_core::pipeline::{Refine as CoreRefine, Report as PipelineReport, Stage};
 use bino_core::sgm::Penalties;
 
 use crate::data::profile::load_profiled_pair_sized;
 use crate::data::profile::Profile;
 use crate::eval::{upsample_mask, DisparityMap};
-use crate::int8::pipeline_maps::{run_census_stream, run_pipeline_refined, streamed_input};
+use crate::int8::pipeline_maps::{readout_options, run_census_stream, run_pipeline_refined, streamed_input};
 use crate::int8::Int8Model;
 use crate::io::colour::colourise;
 use crate::io::colour_bar::with_colour_bar;
-use crate::readout::lr_tolerance_q8;
 use crate::readout::pathway::Pathway;
 use crate::readout::{Method, Readout};
 pub use answer::InvalidPixels;
@@ -137,25 +137,23 @@ pub fn run_pair(opts: &RunOptions, mut progress: impl FnMut(&str)) -> Result<Run
         (false, Pathway::Native) => "int8 pipeline: rows -> encoder (L,R) -> native head, band by band",
     };
     let started = step(pipeline_step, &mut timings, &mut progress);
-    let head = opts.readout.uses_head();
-    let pipeline_opts = PipelineOptions {
-        pathway: opts.pathway.core(),
-        max_cols: opts.max_cols,
-        penalties: opts.penalties,
-        lr_max_diff_q8: lr_tolerance_q8(opts.lr_max_diff),
-        head,
-        // The head's own left-right check (valid.png, and the fill of head+lr).
-        head_lr: head,
-        head_candidates: crate::readout::head_candidates(left.width),
-    };
+    let pipeline_opts = readout_options(
+        opts.readout,
+        opts.pathway,
+        opts.max_cols,
+        opts.penalties,
+        opts.lr_max_diff,
+        left.width,
+    );
     let mut on_band = |i: usize, n: usize| {
         if n > 1 {
             progress(&format!("  band {i} of {n}"));
         }
     };
     // A `+ref` readout the core streams is refined in the pipeline, as the board refines it;
-    // the unchecked fusions, which it does not stream, on the whole map.
-    let refine = match (opts.readout.refine, streamed_input(opts.readout)) {
+    // the host-only ones (the unchecked fusions, the export pathway's fuse-census), on the
+    // whole map.
+    let refine = match (opts.readout.refine, streamed_input(opts.readout, opts.pathway)) {
         (true, Some(input)) => Some(CoreRefine::for_width(input, left.width)),
         _ => None,
     };

@@ -20,12 +20,12 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{bail, ensure, Result};
-use bino_core::pipeline::{self, Options as PipelineOptions, Pipeline, Refine, RefineInput, Report};
+use bino_core::pipeline::{self, Pipeline, Refine, RefineInput, Report};
 use bino_core::sgm::Penalties;
 
 use crate::data::profile::{load_profiled_pair, Profile, View};
 use crate::data::synthetic::default_scene;
-use crate::int8::pipeline_maps::streamed_input;
+use crate::int8::pipeline_maps::{readout_options, streamed_input};
 use crate::int8::{to_u8, Int8Model};
 use crate::io::image_io::GrayImage;
 use crate::readout::pathway::Pathway;
@@ -86,6 +86,9 @@ pub struct SimReport {
     pub arena_bytes: usize,
     /// Rows drawn on the display: token rows, or pixel rows for a `+ref` readout.
     pub rows_drawn: usize,
+    /// CRC-32 of the last frame's refined rows (Q8 px, little-endian, top to bottom) for a
+    /// `+ref` readout: the digest the firmware logs as its `refined` output.
+    pub refined_digest: Option<u32>,
     /// Where things sit on the display.
     pub layout: Layout,
     /// The status lines drawn.
@@ -113,7 +116,7 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     ensure!(opts.frames >= 1, "--frames must be at least 1");
     opts.pathway.check(opts.readout)?;
     // The pipeline must have the readout before any work starts.
-    let input = refine_input(opts.readout)?;
+    let input = refine_input(opts.readout, opts.pathway)?;
     crate::io::files::check_output_dir(&opts.out, "--out")?;
     progress("loading the pair and the blob");
     let (source, left, right) = load_pair(opts)?;
@@ -130,21 +133,15 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
     if let (true, Some(model)) = (opts.readout.uses_head(), model.as_ref()) {
         model.require_head(opts.pathway.core())?;
     }
-    let pipeline_opts = PipelineOptions {
-        pathway: opts.pathway.core(),
-        max_cols: opts.max_cols,
-        penalties: opts.penalties,
-        // The census check's tolerance is one column on every command (as `bino run`'s).
-        lr_max_diff_q8: match input.census_only() {
-            true => crate::readout::census::CENSUS_LR_MAX_DIFF_Q8,
-            false => crate::readout::lr_tolerance_q8(opts.lr_max_diff),
-        },
-        head: opts.readout.uses_head(),
-        // The head's own left-right check: the display darkens (or, for head+lr, fills) the
-        // cells it rejects, as for the other methods.
-        head_lr: opts.readout.uses_head(),
-        head_candidates: crate::readout::head_candidates(width),
-    };
+    // The options `bino run` and `bino eval` run the readout with.
+    let pipeline_opts = readout_options(
+        opts.readout,
+        opts.pathway,
+        opts.max_cols,
+        opts.penalties,
+        opts.lr_max_diff,
+        width,
+    );
     // A +ref readout: the pipeline's refinement stage streams pixel rows, drawn as they come.
     // The census SGM streams beside a refinement of its fusion only, so an unrefined census
     // fusion runs that refinement too and draws the fused token rows instead.
@@ -188,15 +185,15 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         .map_err(anyhow::Error::msg)?;
         sink.finish();
         frame_times.push(started.elapsed());
-        let (stage_times, rows_drawn) = (sink.stage_times(), sink.rows_drawn);
+        let (stage_times, rows_drawn, digest) = (sink.stage_times(), sink.rows_drawn, sink.refined_digest());
         ensure!(
             sensor.frame_done(),
             "the pipeline read {} of the sensor's {height} rows",
             sensor.rows_delivered()
         );
-        last = Some((fb, report, stage_times, rows_drawn, sensor.rows_delivered()));
+        last = Some((fb, report, stage_times, rows_drawn, digest, sensor.rows_delivered()));
     }
-    let Some((mut fb, report, stage_times, rows_drawn, rows_delivered)) = last else {
+    let Some((mut fb, report, stage_times, rows_drawn, refined_digest, rows_delivered)) = last else {
         unreachable!("at least one frame ran");
     };
     let mut sim = SimReport {
@@ -209,6 +206,7 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         pipeline: report,
         arena_bytes,
         rows_drawn,
+        refined_digest,
         layout,
         status: Vec::new(),
         png: opts.out.join("display.png"),
@@ -227,8 +225,8 @@ const UNCHECKED_FUSE_NOT_STREAMED: &str = "the board's streaming pipeline (bino_
 
 /// The core pipeline's refinement input for a readout: the same token grid `bino run` and
 /// `bino eval` refine (a readout the pipeline does not stream is an error).
-fn refine_input(readout: Readout) -> Result<RefineInput> {
-    match (streamed_input(readout), readout.method) {
+fn refine_input(readout: Readout, pathway: Pathway) -> Result<RefineInput> {
+    match (streamed_input(readout, pathway), readout.method) {
         (Some(input), _) => Ok(input),
         (None, Method::Fused) => bail!("--readout {readout}: {UNCHECKED_FUSE_NOT_STREAMED}"),
         (None, _) => bail!(

@@ -4,6 +4,7 @@
 use std::time::{Duration, Instant};
 
 use bino_core::config::HEAD_MAX_DISP;
+use bino_core::crc32::Crc32;
 use bino_core::matching::DISPARITY_FRAC_BITS;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{CensusRow, FusedRow, HeadChecked, MatchedRow, Sink, Stage};
@@ -29,6 +30,9 @@ pub struct DisplaySink<'f> {
     pending_heads: Vec<(usize, Vec<u16>)>,
     /// Rows drawn: token rows, or pixel rows for a `+ref` readout.
     pub rows_drawn: usize,
+    /// CRC-32 of a `+ref` readout's refined rows as they came (Q8 px, little-endian): the
+    /// firmware's `refined` digest.
+    refined_crc: Crc32,
     times: [Duration; Stage::ALL.len() + 1],
     current: Option<(usize, Instant)>,
 }
@@ -47,6 +51,7 @@ impl<'f> DisplaySink<'f> {
             max_disparity: candidates.saturating_sub(1).max(1) as f32,
             pending_heads: Vec::new(),
             rows_drawn: 0,
+            refined_crc: Crc32::new(),
             times: [Duration::ZERO; Stage::ALL.len() + 1],
             current: None,
         }
@@ -61,6 +66,11 @@ impl<'f> DisplaySink<'f> {
         });
         self.current = bucket.map(|b| (b, now));
         previous
+    }
+
+    /// The refined rows' digest (`refined_crc`), for a `+ref` readout.
+    pub fn refined_digest(&self) -> Option<u32> {
+        self.readout.refine.then(|| self.refined_crc.finish())
     }
 
     /// Stops the clock (after the run).
@@ -171,6 +181,9 @@ impl Sink for DisplaySink<'_> {
 
     fn refined(&mut self, row: usize, disparity_q8: &[u16]) {
         if self.readout.refine {
+            for d in disparity_q8 {
+                self.refined_crc.update(&d.to_le_bytes());
+            }
             self.draw_pixel_row(row, disparity_q8);
         }
     }

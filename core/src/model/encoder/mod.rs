@@ -115,6 +115,16 @@ impl<'a> GrayBand<'a> {
         self.width
     }
 
+    /// The pixels, row-major, as given (unmirrored).
+    pub fn pixels(&self) -> &'a [u8] {
+        self.pixels
+    }
+
+    /// Whether it reads each row right to left ([`GrayBand::mirrored`]).
+    pub fn is_mirrored(&self) -> bool {
+        self.mirrored
+    }
+
     /// Height in pixels.
     pub fn height(&self) -> usize {
         self.height

@@ -1,0 +1,177 @@
+//! One readout, one number, down to the firmware: on the firmware's embedded 48x160 band pair,
+//! the learned readout each pathway of the firmware runs (export: fuse-all+lr+ref, native, the
+//! board's preset: fuse-census+lr+ref) comes out of `bino run` (its `disparity.pfm`) and
+//! `bino sim` (its refined rows' digest) with the CRC-32 the firmware checks its own rows
+//! against: the digest `firmware-sim/build.rs` bakes in from a host run of the firmware's
+//! workload (`firmware-sim/src/workload.rs`), which the Cortex-M firmwares reproduced under QEMU
+//! (`firmware-sim/measured/*.json`). No QEMU here: the expected digest is computed on the host,
+//! as the firmware's build does.
+
+use std::path::{Path, PathBuf};
+
+#[path = "../../firmware-sim/src/workload.rs"]
+#[allow(dead_code)]
+mod workload;
+
+use bino_core::crc32::Crc32;
+use bino_core::pipeline::{Pathway, Refine, SlicePair};
+use bino_host::demo::{DEFAULT_BLOB, DEFAULT_PENALTIES};
+use bino_host::int8::pipeline_maps::{readout_options, streamed_input};
+use bino_host::readout::pathway::Pathway as HostPathway;
+use bino_host::readout::Readout;
+use bino_host::run::{run_pair, InvalidPixels, RunOptions};
+use bino_host::sim::display::DisplaySize;
+use bino_host::sim::{run_sim, SimOptions};
+use workload::{Hooks, Stage, OUTPUTS};
+
+const HEIGHT: usize = 48;
+const WIDTH: usize = 160;
+
+struct Quiet;
+
+impl Hooks for Quiet {
+    fn enter(&mut self, _: Stage) {}
+    fn pause(&mut self) {}
+    fn resume(&mut self, _: Stage) {}
+    fn finish(&mut self) {}
+}
+
+fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}
+
+/// The digest the firmware checks its refined rows against on `pathway`: `build.rs`'s host run
+/// of the workload.
+fn expected_refined_digest(pathway: Pathway, left: &[u8], right: &[u8]) -> u32 {
+    let blob = std::fs::read(repo().join("weights/bino_int8.bin")).unwrap();
+    let mut arena = vec![0u8; workload::arena_bytes(HEIGHT, WIDTH)];
+    let mut source = SlicePair::new(left, right, WIDTH, HEIGHT).unwrap();
+    let outcome = workload::run(&blob, pathway, &mut source, &mut arena, &mut Quiet).unwrap();
+    let refined = OUTPUTS.iter().position(|&n| n == "refined").unwrap();
+    outcome.digests[refined]
+}
+
+/// The refined digest a QEMU run of the firmware logged for `pathway` (`scripts/firmware.sh
+/// --profile --out firmware-sim/measured`).
+fn measured_refined_digest(core: &str, pathway: Pathway) -> u32 {
+    let path = repo().join(format!("firmware-sim/measured/{core}.json"));
+    let run: serde_json::Value = serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    assert_eq!(run["band"]["width"], WIDTH, "{}: the 48x160 band", path.display());
+    let output = (run["outputs"].as_array().unwrap().iter())
+        .find(|o| o["pathway"] == pathway.pathway() && o["name"] == "refined")
+        .unwrap_or_else(|| panic!("{}: no refined output of the {pathway:?} pathway", path.display()));
+    u32::from_str_radix(output["digest"].as_str().unwrap(), 16).unwrap()
+}
+
+/// CRC-32 of a pixel map in Q8 px, little-endian, row by row: the firmware's digest of its
+/// refined rows. Every value must be a whole Q8 step (the core's rows, written as floats).
+fn q8_digest(values: &[f32]) -> u32 {
+    let mut crc = Crc32::new();
+    for &v in values {
+        let q8 = v * 256.0;
+        assert!(
+            q8.fract() == 0.0 && (0.0..=65535.0).contains(&q8),
+            "{v} is not a Q8 step"
+        );
+        crc.update(&(q8 as u16).to_le_bytes());
+    }
+    crc.finish()
+}
+
+/// A binary PGM of `pixels` (`bino run` and `bino sim` read PGM).
+fn write_pgm(path: &Path, pixels: &[u8]) {
+    let mut bytes = format!("P5\n{WIDTH} {HEIGHT}\n255\n").into_bytes();
+    bytes.extend_from_slice(pixels);
+    std::fs::write(path, bytes).unwrap();
+}
+
+/// A fresh folder for one command's outputs (the commands refuse to write into a file).
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("bino-firmware-one-number-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    dir
+}
+
+#[test]
+fn run_and_sim_give_the_firmware_digest_of_its_readout_on_both_pathways() {
+    let assets = repo().join("firmware-sim/assets");
+    let left = std::fs::read(assets.join(format!("band_{HEIGHT}x{WIDTH}_left.gray"))).unwrap();
+    let right = std::fs::read(assets.join(format!("band_{HEIGHT}x{WIDTH}_right.gray"))).unwrap();
+    let views = scratch("views");
+    std::fs::create_dir_all(&views).unwrap();
+    let (left_path, right_path) = (views.join("left.pgm"), views.join("right.pgm"));
+    write_pgm(&left_path, &left);
+    write_pgm(&right_path, &right);
+
+    for pathway in [HostPathway::Export, HostPathway::Native] {
+        let core = pathway.core();
+        let readout: Readout = pathway.default_readout().refined(true);
+        // The commands run the readout with the firmware's options and refinement.
+        let (options, refine) = workload::preset(core);
+        let max_cols = options.max_cols;
+        let ours = readout_options(readout, pathway, max_cols, DEFAULT_PENALTIES, 1.0, WIDTH);
+        assert_eq!(ours, options, "{readout}: the commands' options are the firmware's");
+        let input = streamed_input(readout, pathway).expect("the firmware's readout streams");
+        assert_eq!(
+            Refine::for_width(input, WIDTH),
+            refine,
+            "{readout}: the firmware's refinement"
+        );
+
+        let expected = expected_refined_digest(core, &left, &right);
+        for qemu in ["m55", "m7"] {
+            assert_eq!(
+                measured_refined_digest(qemu, core),
+                expected,
+                "{qemu} {readout}: the firmware's measured digest against the host's (re-measure after changing the engine)"
+            );
+        }
+
+        let out = scratch(&format!("run-{}", pathway.name()));
+        let run = RunOptions {
+            left: left_path.clone(),
+            right: right_path.clone(),
+            profile: bino_host::data::profile::Profile::Native,
+            blob: PathBuf::from(DEFAULT_BLOB),
+            readout,
+            pathway,
+            max_cols,
+            penalties: DEFAULT_PENALTIES,
+            lr_max_diff: 1.0,
+            invalid: InvalidPixels::Keep,
+            out: out.clone(),
+        };
+        let report = run_pair(&run, |_| {}).unwrap();
+        assert_eq!(report.output, (WIDTH, HEIGHT));
+        let written = bino_host::io::pfm::load(&out.join("disparity.pfm"), "run's disparity").unwrap();
+        assert_eq!((written.width, written.height), (WIDTH, HEIGHT));
+        assert_eq!(
+            q8_digest(&written.values),
+            expected,
+            "{readout}: bino run's disparity.pfm against the firmware's digest"
+        );
+
+        let sim = SimOptions {
+            pair: Some((left_path.clone(), right_path.clone())),
+            profile: bino_host::data::profile::Profile::Native,
+            blob: PathBuf::from(DEFAULT_BLOB),
+            readout,
+            pathway,
+            max_cols,
+            penalties: DEFAULT_PENALTIES,
+            lr_max_diff: 1.0,
+            display: DisplaySize::QVGA,
+            frames: 1,
+            out: scratch(&format!("sim-{}", pathway.name())),
+        };
+        let report = run_sim(&sim, |_| {}).unwrap();
+        assert_eq!(
+            report.refined_digest,
+            Some(expected),
+            "{readout}: bino sim's refined rows against the firmware's digest"
+        );
+        let _ = std::fs::remove_dir_all(&out);
+        let _ = std::fs::remove_dir_all(&sim.out);
+    }
+    let _ = std::fs::remove_dir_all(&views);
+}
