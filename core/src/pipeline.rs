@@ -71,6 +71,7 @@ pub use api::{
 };
 pub use census_run::run_census;
 pub use driver::Pipeline;
+pub use layout::band_pixel_rows;
 pub use sizing::{
     arena_bytes, arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, census_arena_bytes, refine_bytes,
 };

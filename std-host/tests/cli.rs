@@ -634,15 +634,25 @@ fn help_lists_each_verb_on_one_short_public_line_developer_verbs_last() {
     }
 }
 
-/// A flag that could take one value only is gone: clap refuses it as a usage error (exit 2).
+/// `--threads 0` is refused with a one-line error naming the flag, before anything runs: `bino
+/// run` as a usage error (exit 2), before the images are read.
 #[test]
-fn bench_has_no_threads_flag() {
-    for value in ["1", "4"] {
-        let run = bino(&["bench", "--threads", value]);
-        assert_eq!(run.status.code(), Some(2), "bench --threads {value}");
-        let stderr = String::from_utf8_lossy(&run.stderr);
-        assert!(stderr.contains("unexpected argument '--threads'"), "{stderr}");
-    }
+fn zero_threads_are_refused() {
+    let run = bino(&[
+        "run",
+        "--left",
+        "/nonexistent/l.png",
+        "--right",
+        "/nonexistent/r.png",
+        "--threads",
+        "0",
+    ]);
+    assert_eq!(run.status.code(), Some(2), "run --threads 0");
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        stderr.contains("--threads must be at least 1") && !stderr.contains("nonexistent"),
+        "{stderr}"
+    );
 }
 
 /// The default blob is the checkout's, found from any working directory (here a scratch folder,

@@ -27,8 +27,9 @@ pub(super) const fn sum(terms: &[usize]) -> usize {
     total
 }
 
-/// Pixel rows of the band buffer for an image of `height` rows.
-pub(super) const fn band_pixel_rows(height: usize) -> usize {
+/// Pixel rows of the band buffer for an image of `height` rows: the height of every band the
+/// encoder sees (at most [`crate::config::BAND_ROWS`]).
+pub const fn band_pixel_rows(height: usize) -> usize {
     let token_rows = height / PATCH_H;
     let rows = if token_rows < BAND_TOKEN_ROWS {
         token_rows

@@ -44,8 +44,10 @@ pub struct BenchArgs {
     /// The results are the same; this measures the AVX2 path.
     #[arg(long)]
     no_vnni: bool,
-    /// Threads of the all-cores figure: the int8 engine on that many bands at once (1: only
-    /// the one-thread comparison). The default is the number of cores.
+    /// Threads of the all-cores figure (default: every core; 1 leaves it out).
+    ///
+    /// The int8 engine encodes that many bands at once, one a thread, after the one-thread
+    /// comparison.
     #[arg(long, default_value_t = bino_host::bench::all_cores::default_threads())]
     threads: usize,
     /// Also write the timings as JSON.

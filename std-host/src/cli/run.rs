@@ -66,6 +66,12 @@ pub struct RunArgs {
     /// there (valid.png). inf is Middlebury's convention for unknown disparity.
     #[arg(long, value_enum, default_value = "keep")]
     invalid: bino_host::run::InvalidPixels,
+    /// Threads for the encoder's passes (default: every core); the output is the same.
+    ///
+    /// Each thread encodes a band ahead of the streaming pipeline, which then replays the
+    /// passes: the output is bit for bit that of one thread.
+    #[arg(long)]
+    threads: Option<usize>,
     /// Output folder.
     #[arg(long, default_value = "out/run")]
     out: PathBuf,
@@ -78,6 +84,11 @@ pub fn run(args: RunArgs) -> Result<()> {
         .refine
         .apply(chosen)
         .unwrap_or_else(|msg| super::usage_error("run", msg));
+    match args.threads {
+        Some(0) => super::usage_error("run", "--threads must be at least 1".to_string()),
+        Some(n) => bino_host::int8::pass_cache::set_threads(n),
+        None => {}
+    }
     let opts = RunOptions {
         left: args.left,
         right: args.right,

@@ -3,10 +3,39 @@
 //! pass is replayed only for band pixels identical to the ones it was computed from, so each
 //! run gets the bytes the blob's encoder gives for that band (the encoder is deterministic:
 //! `tests/tests/determinism.rs`); the rest of the pipeline runs as it always does.
+//!
+//! On a host with several cores the record is filled ahead ([`PassCache::prefill`]): the
+//! passes of the core's band plan ([`BandPlan`], band buffers of [`band_pixel_rows`]) computed a
+//! band a thread, so the pipeline that follows spends its time on the cheap stages, with the
+//! same outputs as one thread's (`tests/tests/threads.rs`). A band the plan did not foresee is
+//! encoded when asked, so a wrong guess costs time, never a different answer.
 
-use bino_core::model::encoder::{Encoder, GrayBand};
-use bino_core::pipeline::BandEncoder;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::Mutex;
+
+use anyhow::{anyhow, Result};
+use bino_core::band::BandPlan;
+use bino_core::config::PATCH_H;
+use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
+use bino_core::pipeline::{band_pixel_rows, BandEncoder, Pathway};
 use bino_core::Error;
+
+/// Threads [`PassCache::prefill`] runs on for the host's pipeline runs (`bino run`, `bino eval`,
+/// `bino demo`): [`set_threads`], else the cores the OS gives this process.
+pub fn threads() -> usize {
+    match THREADS.load(Ordering::Relaxed) {
+        0 => crate::bench::all_cores::default_threads(),
+        n => n,
+    }
+}
+
+/// Sets [`threads`] for this process (`bino run --threads`); 0 restores the default. With one
+/// thread nothing is computed ahead: each pass runs when the pipeline reaches it, as on a board.
+pub fn set_threads(n: usize) {
+    THREADS.store(n, Ordering::Relaxed);
+}
+
+static THREADS: AtomicUsize = AtomicUsize::new(0);
 
 /// The blob's encoder, answering a band it has encoded before from its record.
 pub struct PassCache<'w> {
@@ -47,6 +76,55 @@ impl<'w> PassCache<'w> {
         }
     }
 
+    /// Records every pass a `pathway` run over the `width x height` views will ask for (two
+    /// descriptor passes a band on the export pathway, one pair pass on the native one) that
+    /// is not recorded yet, computed on up to `threads` threads at once, each with its own
+    /// arena. Counted in [`PassCache::encoded`].
+    #[allow(clippy::too_many_arguments)]
+    pub fn prefill(
+        &mut self,
+        pathway: Pathway,
+        left: &[u8],
+        right: &[u8],
+        width: usize,
+        height: usize,
+        threads: usize,
+    ) -> Result<()> {
+        let rows = band_pixel_rows(height);
+        let plan = BandPlan::new(height / PATCH_H).map_err(anyhow::Error::msg)?;
+        let band = |image: &[u8], start: usize| -> Vec<u8> {
+            image
+                .get(start * width..(start + rows) * width)
+                .unwrap_or_default()
+                .to_vec()
+        };
+        let mut keys: Vec<Key> = Vec::new();
+        for b in plan.iter() {
+            let start = b.start * PATCH_H;
+            let (l, r) = (band(left, start), band(right, start));
+            let wanted = match pathway {
+                Pathway::Export => vec![Key::view(l, width), Key::view(r, width)],
+                Pathway::Native => vec![Key::pair(l, r, width)],
+            };
+            for key in wanted {
+                let known = self.passes.iter().any(|p| p.key == key) || keys.contains(&key);
+                if !known {
+                    keys.push(key);
+                }
+            }
+        }
+        let done = encode_all(self.encoder, &keys, rows, threads)?;
+        for (key, (arena_used, output)) in keys.into_iter().zip(done) {
+            self.passes.push(Pass {
+                key,
+                arena_used,
+                output,
+            });
+            self.encoded += 1;
+        }
+        Ok(())
+    }
+
     /// The recorded pass of `input` when there is one, else `encode`'s, recorded.
     fn answer(
         &mut self,
@@ -74,6 +152,83 @@ impl<'w> PassCache<'w> {
         self.encoded += 1;
         Ok((arena_used, len))
     }
+}
+
+impl Key {
+    fn view(pixels: Vec<u8>, width: usize) -> Self {
+        Self {
+            input: pixels,
+            width,
+            pair: false,
+            mirrored: [false; 2],
+        }
+    }
+
+    fn pair(left: Vec<u8>, right: Vec<u8>, width: usize) -> Self {
+        Self {
+            input: [left, right].concat(),
+            width,
+            pair: true,
+            mirrored: [false; 2],
+        }
+    }
+
+    /// The pass this key names, on `encoder`, in `arena`: its high-water and output length.
+    fn encode(&self, mut encoder: Encoder<'_>, rows: usize, arena: &mut [u8]) -> Result<(usize, usize), Error> {
+        let half = self.input.len() / 2;
+        let (width, input) = (self.width, &self.input[..]);
+        match self.pair {
+            false => encoder.view_pass(GrayBand::new(input, width, rows)?, arena),
+            true => {
+                let left = GrayBand::new(&input[..half], width, rows)?;
+                let right = GrayBand::new(&input[half..], width, rows)?;
+                encoder.pair_pass(left, right, arena)
+            }
+        }
+    }
+}
+
+/// A pass computed ahead: its high-water and output, or the encoder's error.
+type Computed = Result<(usize, Vec<u8>), Error>;
+
+// Each key's pass, in key order, the keys shared out to `threads` threads (each with its own
+// arena) as they finish their last.
+fn encode_all(encoder: Encoder<'_>, keys: &[Key], rows: usize, threads: usize) -> Result<Vec<(usize, Vec<u8>)>> {
+    let width = keys.first().map_or(0, |k| k.width);
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<Option<Computed>>> = Mutex::new(vec![None; keys.len()]);
+    let worker = || {
+        let mut arena = vec![0u8; arena_bytes(rows, width)];
+        loop {
+            let i = next.fetch_add(1, Ordering::Relaxed);
+            let Some(key) = keys.get(i) else {
+                return;
+            };
+            let done = key
+                .encode(encoder, rows, &mut arena)
+                .map(|(used, len)| (used, arena[..len].to_vec()));
+            if let Ok(mut slots) = results.lock() {
+                slots[i] = Some(done);
+            }
+        }
+    };
+    std::thread::scope(|scope| {
+        for _ in 1..threads.clamp(1, keys.len().max(1)) {
+            scope.spawn(worker);
+        }
+        worker();
+    });
+    let slots = results
+        .into_inner()
+        .map_err(|_| anyhow!("an encoder thread panicked"))?;
+    slots
+        .into_iter()
+        .map(|slot| match slot {
+            Some(Ok(done)) => Ok(done),
+            Some(Err(e)) => Err(anyhow!("encoder pass: {e}")),
+            None => Err(anyhow!("an encoder pass was never run")),
+        })
+        .collect()
 }
 
 impl BandEncoder for PassCache<'_> {
