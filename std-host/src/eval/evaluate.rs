@@ -206,8 +206,8 @@ fn score_readout(
 ) -> Result<ReadoutScore> {
     let grid = maps.grid(readout)?;
     let pixels = match core_pixels {
-        Some(pixels) => pixels.clone(),
-        None => maps.grid_pixels(&grid, readout)?,
+        Some(pixels) => std::borrow::Cow::Borrowed(pixels),
+        None => std::borrow::Cow::Owned(maps.grid_pixels(&grid, readout)?),
     };
     let metrics = score(&pixels, gt)?;
     let large = score(&pixels, &gt.large_disparity_subset())?;
