@@ -4,7 +4,8 @@
 #   with the fastest kernels and again held to AVX2 (--no-vnni) ->
 #   train/checkpoints/metrics/bench_w160.json, bench_w160_avx2.json;
 # - `bino run` on a 432x381 eval pair at w320 (hyperfine, each readout's pathway), on one
-#   thread and on every core, and with BASELINE_BINO (an earlier build, optional) on one thread
+#   thread and on every core, with the fastest kernels and held to AVX2 (`--kernels avx2`), and
+#   with BASELINE_BINO (an earlier build, optional) on one thread
 #   -> train/checkpoints/metrics/run_timing_w320.json.
 # About 10 minutes on 2 cores. Run it on a quiet machine: other work skews every figure.
 #
@@ -55,12 +56,16 @@ if [[ " ${parts[*]} " == *" run "* ]]; then
       *) flags="--pathway $pathway" ;;
     esac
     base="run --left $pair/im2.ppm --right $pair/im6.ppm --profile w320 $flags"
-    names+=("$pathway|now|1")
-    cmds+=("$bino $base --threads 1 --out $out/$pathway-1")
-    names+=("$pathway|now|$threads")
-    cmds+=("$bino $base --threads $threads --out $out/$pathway-n")
+    for kernels in fastest avx2; do
+      # The census readout runs no encoder: its kernels do not matter.
+      [ "$pathway/$kernels" != census/avx2 ] || continue
+      for t in 1 "$threads"; do
+        names+=("$pathway|now|$t|$kernels")
+        cmds+=("$bino --kernels $kernels $base --threads $t --out $out/$pathway-$kernels-$t")
+      done
+    done
     if [ -n "${BASELINE_BINO:-}" ]; then
-      names+=("$pathway|${BASELINE_NAME:-baseline}|1")
+      names+=("$pathway|${BASELINE_NAME:-baseline}|1|fastest")
       cmds+=("$BASELINE_BINO $base --out $out/$pathway-base")
     fi
   done
@@ -73,9 +78,9 @@ cpu = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.start
 commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True).stdout.strip()
 runs = []
 for name, r in zip(names, results):
-    pathway, build, threads = name.split("|")
+    pathway, build, threads, kernels = name.split("|")
     runs.append({"readout_pathway": pathway, "build": commit if build == "now" else build,
-                 "threads": int(threads), "median_s": r["median"], "min_s": r["min"],
+                 "threads": int(threads), "kernels": kernels, "median_s": r["median"], "min_s": r["min"],
                  "mean_s": r["mean"], "times_s": r["times"]})
 out = {"tool": "scripts/measure_host.sh (hyperfine -N)", "pair": "mb2001_barn1 (432x381)",
        "profile": "w320", "cpu": cpu, "cores": int(subprocess.run(["nproc"], capture_output=True, text=True).stdout),

@@ -106,20 +106,29 @@ PATHWAY_READOUT = {
 
 def run_timing(src: Sources) -> str:
     t = src.metrics(RUN_TIMING)
-    builds = list(dict.fromkeys((r["build"], r["threads"]) for r in t["runs"]))
-    header = ["readout"] + [
-        f"{build}, {threads} thread{'s' if threads > 1 else ''}" for build, threads in builds
+    runs = t["runs"]
+    columns = list(dict.fromkeys((r["build"], r["threads"]) for r in runs))
+    header = ["readout", "kernels"] + [
+        f"{build}, {threads} thread{'s' if threads > 1 else ''}" for build, threads in columns
     ]
     rows = []
     for pathway, name in PATHWAY_READOUT.items():
-        cells = {(r["build"], r["threads"]): r for r in t["runs"] if r["readout_pathway"] == pathway}
-        row = [name]
-        for key in builds:
-            r = cells.get(key)
-            row.append(f"{r['median_s']:.3f} s (min {r['min_s']:.3f})" if r else "-")
-        rows.append(row)
+        for kernels in dict.fromkeys(r.get("kernels", "fastest") for r in runs):
+            cells = {
+                (r["build"], r["threads"]): r
+                for r in runs
+                if r["readout_pathway"] == pathway and r.get("kernels", "fastest") == kernels
+            }
+            if not cells:
+                continue
+            row = [name, "-" if pathway == "census" else kernels]
+            for key in columns:
+                r = cells.get(key)
+                row.append(f"{r['median_s']:.3f} s" if r else "")
+            rows.append(row)
     title = (
-        f"`bino run` on {t['pair']} at {t['profile']}, median of the runs (hyperfine -N), "
-        f"{t['cpu']}, {t['cores']} cores, at commit {t['commit']}:"
+        f"`bino run` on {t['pair']} at {t['profile']}, median of 10 runs (hyperfine -N), "
+        f"{t['cpu']}, {t['cores']} cores, at commit {t['commit']}; `--kernels avx2` holds the "
+        "engine to its AVX2 kernels (the census readout runs no encoder):"
     )
-    return title + "\n\n" + table(header, rows) + "\n\n" + footer(src)
+    return title + "\n\n" + table(header, rows, [False, False] + [True] * len(columns)) + "\n\n" + footer(src)

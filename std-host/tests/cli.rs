@@ -205,6 +205,50 @@ fn run_writes_disparity_pfm_and_mask() {
     assert!(png.height() > 60, "{}", png.height());
 }
 
+/// `--kernels` and `--threads` change the time, never the answer: the native pathway's PFM on a
+/// two-band pair is the same bytes with the fastest kernels on every core, with AVX2 on one
+/// thread and with the portable kernels.
+#[test]
+fn kernels_and_threads_give_the_same_answer() {
+    let dir = scratch("kernels");
+    let (left, right) = (dir.join("l.png"), dir.join("r.png"));
+    write_png(&left, 160, 72);
+    write_png(&right, 160, 72);
+    let mut answers = Vec::new();
+    for (i, flags) in [
+        ["--kernels", "fastest", "--threads", "2"],
+        ["--kernels", "avx2", "--threads", "1"],
+        ["--kernels", "portable", "--threads", "2"],
+    ]
+    .iter()
+    .enumerate()
+    {
+        let out = dir.join(format!("out{i}"));
+        let mut args = vec![
+            "run",
+            "--left",
+            s(&left),
+            "--right",
+            s(&right),
+            "--profile",
+            "native",
+            "--pathway",
+            "native",
+            "--out",
+            s(&out),
+        ];
+        args.extend_from_slice(flags);
+        let run = bino(&args);
+        assert!(
+            run.status.success(),
+            "{flags:?}: {}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        answers.push(std::fs::read(out.join("disparity.pfm")).unwrap());
+    }
+    assert!(answers[1] == answers[0] && answers[2] == answers[0], "the PFMs differ");
+}
+
 /// A flat identical pair has nothing to match: the answer says so (almost every pixel invalid,
 /// infinite with `--invalid inf`), and a tiny image upscaled to the profile gets a warning.
 #[test]

@@ -381,7 +381,9 @@ pub(crate) fn timed(run: impl FnOnce() -> Result<()>) -> Result<f64> {
 pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchReport> {
     ensure!(opts.runs >= 1, "--runs must be at least 1");
     ensure!(opts.threads >= 1, "--threads must be at least 1");
-    allow_vnni(!opts.no_vnni);
+    if opts.no_vnni {
+        allow_vnni(false);
+    }
     let width = opts
         .profile
         .width()

@@ -29,8 +29,25 @@ mod sim;
     after_help = "(developer): verbs for measuring the engine and making the weights (docs/cli.md)."
 )]
 pub struct Cli {
+    /// The fastest x86 kernels to use: fastest (the CPU's best), avx2 or portable.
+    ///
+    /// Every kernel set gives the same outputs bit for bit; this measures the slower ones on a
+    /// fast CPU.
+    #[arg(long, global = true, value_enum, default_value = "fastest")]
+    kernels: KernelCap,
     #[command(subcommand)]
     command: Command,
+}
+
+/// `--kernels`: the kernel sets a run may use at most.
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum KernelCap {
+    /// The fastest the CPU has (AVX-512 VNNI, else AVX2, else portable).
+    Fastest,
+    /// AVX2 at most.
+    Avx2,
+    /// The portable kernels only.
+    Portable,
 }
 
 // Each verb's help is its `<Verb>Args` doc comment: the first paragraph, one short sentence, is
@@ -54,6 +71,12 @@ enum Command {
 impl Cli {
     /// Runs the verb asked for.
     pub fn run(self) -> Result<()> {
+        use bino_core::kernels::dispatch::{limit, Isa};
+        limit(match self.kernels {
+            KernelCap::Fastest => Isa::Avx512Vnni,
+            KernelCap::Avx2 => Isa::Avx2,
+            KernelCap::Portable => Isa::Portable,
+        });
         match self.command {
             Command::Demo(args) => demo::run(args),
             Command::Run(args) => run::run(args),
