@@ -31,8 +31,7 @@ mod sim;
 pub struct Cli {
     /// The fastest x86 kernels to use: fastest (the CPU's best), avx2 or portable.
     ///
-    /// Every kernel set gives the same outputs bit for bit; this measures the slower ones on a
-    /// fast CPU.
+    /// Every set gives the same outputs bit for bit: this times the slower ones.
     #[arg(long, global = true, value_enum, default_value = "fastest")]
     kernels: KernelCap,
     #[command(subcommand)]
