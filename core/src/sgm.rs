@@ -292,7 +292,15 @@ pub(crate) fn refine_min(costs: &[u32]) -> u16 {
                 let num = (l - r) << DISPARITY_FRAC_BITS;
                 let den = 2 * denom;
                 let half_den = den / 2;
-                let q = if num >= 0 { num + half_den } else { num - half_den } / den;
+                let num = if num >= 0 { num + half_den } else { num - half_den };
+                // Below 2^22 (every aggregate of `u16` paths) both fit `i32`, whose division is
+                // one instruction on the Cortex-M cores: the same quotient.
+                const SMALL: i64 = 1 << 22;
+                let q = if l < SMALL && at < SMALL && r < SMALL {
+                    (num as i32 / den as i32) as i64
+                } else {
+                    num / den
+                };
                 q.clamp(-half, half)
             } else {
                 0
@@ -346,6 +354,32 @@ mod tests {
         assert_eq!(out[1][2] >> 8, 0, "{out:?}");
         // Without aggregation (a single path step from nothing) the outlier would win.
         assert_eq!(refine_min(&[60, 800, 0]) >> 8, 2);
+    }
+
+    #[test]
+    fn the_parabola_step_divides_as_in_i64_on_both_sides_of_its_fast_path() {
+        // The rule in i64, as documented on `refine_min`.
+        let rule = |c: [u32; 3]| -> i64 {
+            let (l, at, r) = (c[0] as i64, c[1] as i64, c[2] as i64);
+            let denom = l - 2 * at + r;
+            if denom <= 0 {
+                return 0;
+            }
+            let num = (l - r) << DISPARITY_FRAC_BITS;
+            let den = 2 * denom;
+            let q = if num >= 0 { num + den / 2 } else { num - den / 2 } / den;
+            q.clamp(-128, 128)
+        };
+        let mut rng = crate::testutil::Rng::new(23);
+        for i in 0..20_000 {
+            let max = if i % 2 == 0 { (1 << 22) - 1 } else { 1 << 30 };
+            let mut c = [0u32; 3].map(|_| rng.range(0, max) as u32);
+            // The middle one the first minimum, as refine_min steps only around that.
+            c[1] = c[1].min(c[0]).min(c[2]);
+            c[0] = c[0].max(c[1] + 1);
+            let want = (256 + rule(c)).clamp(0, u16::MAX as i64) as u16;
+            assert_eq!(refine_min(&c), want, "{c:?}");
+        }
     }
 
     #[test]

@@ -7,10 +7,11 @@
 //! - the census of a row's interior (every neighbour inside the row) as one pass over the row
 //!   per neighbour, which the compiler vectorises (MVE on the Cortex-M55); the `r` pixels at each
 //!   end take the reference's clamped path;
-//! - the box sums by column: `A(k)` is the sum over the box's columns of a column cost (the
-//!   Hamming distances of the `2b + 1` box rows at one column), and the next pixel, when its
-//!   candidates are the same disparities, shares all but one column with this one, so only
-//!   the new column's costs are computed. Integer sums in another order: exact.
+//! - the box sums by column, sliding: `A(k)` is the sum over the box's columns of a column cost
+//!   (the Hamming distances of the `2b + 1` box rows at one column), and a candidate disparity
+//!   the previous pixel had too (its centre candidate may differ: the sets overlap) shares all
+//!   but one column with it, so one column cost is computed and the sum moves by the new column
+//!   less the oldest. Integer sums in another order: exact.
 //!
 //! The views must stay the same image between calls (the pipeline's do); after the scratch
 //! was used for something else, or for another image, start again with [`RowRefiner::new`].
@@ -117,32 +118,19 @@ impl<'s> RowRefiner<'s> {
         let candidates = 2 * params.search + 1;
         let mut costs = [0u32; MAX_CANDIDATES];
         let mut valid = [false; MAX_CANDIDATES];
-        // columns[k][j]: column cost of candidate slot k at box column j (u = clamp(x + j - b)).
-        let mut columns = [[0u32; MAX_BOX]; MAX_CANDIDATES];
-        let mut cached_base: Option<i64> = None;
-        let last = width - 1;
+        // One sliding box per candidate disparity, in slot `d % candidates` (a pixel's candidates
+        // are consecutive, so their slots differ): a disparity the previous pixel had too costs
+        // one new column, whatever the previous pixel's centre candidate was.
+        let mut windows = [Window::EMPTY; MAX_CANDIDATES];
+        let boxes = Boxes {
+            left: box_l,
+            right: box_r,
+            radius: b,
+            last: width - 1,
+        };
         for (x, o) in out.iter_mut().enumerate() {
             let d0 = bilinear(x, y, tokens, cells);
             let base = ((d0 + 128) >> FRAC_BITS) as i64;
-            let reuse = cached_base == Some(base);
-            for (slot, cols) in columns.iter_mut().enumerate().take(candidates) {
-                let d = base + slot as i64 - search;
-                if d < 0 {
-                    continue;
-                }
-                let d = d as usize;
-                if reuse {
-                    cols.copy_within(1..box_rows, 0);
-                    let u = (x + b).min(last);
-                    cols[box_rows - 1] = column_cost(box_l, box_r, u, d);
-                } else {
-                    for (j, c) in cols.iter_mut().enumerate().take(box_rows) {
-                        let u = (x + j).saturating_sub(b).min(last);
-                        *c = column_cost(box_l, box_r, u, d);
-                    }
-                }
-            }
-            cached_base = Some(base);
             for (slot, (c, ok)) in costs.iter_mut().zip(valid.iter_mut()).take(candidates).enumerate() {
                 let d = base + slot as i64 - search;
                 *ok = d >= 0 && d <= x as i64;
@@ -150,7 +138,10 @@ impl<'s> RowRefiner<'s> {
                     *c = u32::MAX;
                     continue;
                 }
-                let hamming: u32 = columns[slot][..box_rows].iter().sum();
+                let hamming = match windows.get_mut(d as usize % candidates) {
+                    Some(window) => window.sum_at(&boxes, x, d as usize),
+                    None => 0,
+                };
                 let penalty = (d << FRAC_BITS).abs_diff(d0 as i64);
                 *c = (hamming << FRAC_BITS).saturating_add(params.lambda.saturating_mul(penalty as u32));
             }
@@ -164,6 +155,64 @@ impl<'s> RowRefiner<'s> {
             };
         }
         Ok(())
+    }
+}
+
+/// The census codes of one output row's box rows, and the box's shape.
+struct Boxes<'b> {
+    left: &'b [&'b [u32]],
+    right: &'b [&'b [u32]],
+    /// Box radius `b`.
+    radius: usize,
+    /// The row's last column.
+    last: usize,
+}
+
+/// The box sum `A` of one candidate disparity at one pixel: the column costs of its `2b + 1`
+/// columns (a ring, the leftmost at `at`) and their sum.
+#[derive(Clone, Copy)]
+struct Window {
+    /// Disparity and pixel the sums are for (`usize::MAX`: none yet).
+    d: usize,
+    x: usize,
+    at: usize,
+    sum: u32,
+    columns: [u32; MAX_BOX],
+}
+
+impl Window {
+    const EMPTY: Self = Self {
+        d: usize::MAX,
+        x: usize::MAX,
+        at: 0,
+        sum: 0,
+        columns: [0; MAX_BOX],
+    };
+
+    /// `A` of disparity `d` at pixel `x` (columns `clamp(x - b ..= x + b)`): slid by one column
+    /// from pixel `x - 1` when it holds that one's for `d`, else summed anew. Integer sums of the
+    /// same columns, so exact either way.
+    fn sum_at(&mut self, boxes: &Boxes<'_>, x: usize, d: usize) -> u32 {
+        let box_cols = 2 * boxes.radius + 1;
+        if self.d == d && self.x.wrapping_add(1) == x {
+            let u = (x + boxes.radius).min(boxes.last);
+            let new = column_cost(boxes.left, boxes.right, u, d);
+            if let Some(old) = self.columns.get_mut(self.at) {
+                self.sum = self.sum + new - *old;
+                *old = new;
+            }
+            self.at = if self.at + 1 == box_cols { 0 } else { self.at + 1 };
+        } else {
+            self.sum = 0;
+            for (j, c) in self.columns.iter_mut().enumerate().take(box_cols) {
+                let u = (x + j).saturating_sub(boxes.radius).min(boxes.last);
+                *c = column_cost(boxes.left, boxes.right, u, d);
+                self.sum += *c;
+            }
+            self.at = 0;
+        }
+        (self.d, self.x) = (d, x);
+        self.sum
     }
 }
 
