@@ -20,6 +20,7 @@ use super::{
     bilinear, census_row, check_row_inputs, subpixel_step, winner, RefineParams, TokenRows, ViewRows, FRAC_BITS,
     MAX_BOX_RADIUS, MAX_CANDIDATES, MAX_WINDOW_ROWS,
 };
+use crate::census::hamming;
 use crate::config::CELL_W;
 use crate::Error;
 
@@ -128,9 +129,27 @@ impl<'s> RowRefiner<'s> {
             radius: b,
             last: width - 1,
         };
+        // The previous pixel's valid disparities (none before the first).
+        let mut previous: Option<(usize, usize)> = None;
+        // New columns' costs of the disparities sliding at this pixel, from the lowest.
+        let mut fresh = [0u32; MAX_CANDIDATES];
         for (x, o) in out.iter_mut().enumerate() {
             let d0 = bilinear(x, y, tokens, cells);
             let base = ((d0 + 128) >> FRAC_BITS) as i64;
+            // Valid disparities `lo..=hi` (0 <= d <= x); those the previous pixel had too slide,
+            // their new column's costs computed together.
+            let lo = (base - search).max(0) as usize;
+            let hi = (base + search).min(x as i64);
+            let valid_now = (hi >= lo as i64).then_some((lo, hi.max(0) as usize));
+            let sliding = match (valid_now, previous) {
+                (Some((lo, hi)), Some((plo, phi))) if lo.max(plo) <= hi.min(phi) => Some((lo.max(plo), hi.min(phi))),
+                _ => None,
+            };
+            if let Some((slo, shi)) = sliding {
+                let new = fresh.get_mut(..shi - slo + 1).unwrap_or_default();
+                column_costs(box_l, box_r, (x + b).min(width - 1), slo, new);
+            }
+            previous = valid_now;
             for (slot, (c, ok)) in costs.iter_mut().zip(valid.iter_mut()).take(candidates).enumerate() {
                 let d = base + slot as i64 - search;
                 *ok = d >= 0 && d <= x as i64;
@@ -138,8 +157,12 @@ impl<'s> RowRefiner<'s> {
                     *c = u32::MAX;
                     continue;
                 }
+                let new = match sliding {
+                    Some((slo, shi)) if (slo as i64..=shi as i64).contains(&d) => fresh.get(d as usize - slo).copied(),
+                    _ => None,
+                };
                 let hamming = match windows.get_mut(d as usize % candidates) {
-                    Some(window) => window.sum_at(&boxes, x, d as usize),
+                    Some(window) => window.sum_at(&boxes, x, d as usize, new),
                     None => 0,
                 };
                 let penalty = (d << FRAC_BITS).abs_diff(d0 as i64);
@@ -190,29 +213,88 @@ impl Window {
     };
 
     /// `A` of disparity `d` at pixel `x` (columns `clamp(x - b ..= x + b)`): slid by one column
-    /// from pixel `x - 1` when it holds that one's for `d`, else summed anew. Integer sums of the
-    /// same columns, so exact either way.
-    fn sum_at(&mut self, boxes: &Boxes<'_>, x: usize, d: usize) -> u32 {
+    /// from pixel `x - 1` when it holds that one's for `d` (the new column's cost `new` when the
+    /// caller computed it), else summed anew. Integer sums of the same columns, so exact either
+    /// way.
+    fn sum_at(&mut self, boxes: &Boxes<'_>, x: usize, d: usize, new: Option<u32>) -> u32 {
         let box_cols = 2 * boxes.radius + 1;
         if self.d == d && self.x.wrapping_add(1) == x {
             let u = (x + boxes.radius).min(boxes.last);
-            let new = column_cost(boxes.left, boxes.right, u, d);
+            let new = new.unwrap_or_else(|| column_cost(boxes.left, boxes.right, u, d));
             if let Some(old) = self.columns.get_mut(self.at) {
                 self.sum = self.sum + new - *old;
                 *old = new;
             }
             self.at = if self.at + 1 == box_cols { 0 } else { self.at + 1 };
         } else {
-            self.sum = 0;
-            for (j, c) in self.columns.iter_mut().enumerate().take(box_cols) {
-                let u = (x + j).saturating_sub(boxes.radius).min(boxes.last);
-                *c = column_cost(boxes.left, boxes.right, u, d);
-                self.sum += *c;
-            }
+            let columns = self.columns.get_mut(..box_cols).unwrap_or_default();
+            window_columns(boxes, x, d, columns);
+            self.sum = columns.iter().sum();
             self.at = 0;
         }
         (self.d, self.x) = (d, x);
         self.sum
+    }
+}
+
+/// [`column_cost`] of disparity `d` at the box columns of pixel `x` (`clamp(x - b ..= x + b)`)
+/// into `out`: where no column or right column is clamped, each box row's codes against the
+/// right row's `d` to the left, lane by lane (the compiler vectorises it: Helium on the
+/// Cortex-M55); at the row's ends column by column.
+fn window_columns(boxes: &Boxes<'_>, x: usize, d: usize, out: &mut [u32]) {
+    let cols = out.len();
+    let interior = x
+        .checked_sub(boxes.radius)
+        .filter(|&u0| u0 >= d && u0 + cols - 1 <= boxes.last);
+    let Some(u0) = interior else {
+        for (j, c) in out.iter_mut().enumerate() {
+            let u = (x + j).saturating_sub(boxes.radius).min(boxes.last);
+            *c = column_cost(boxes.left, boxes.right, u, d);
+        }
+        return;
+    };
+    out.fill(0);
+    for (l, r) in boxes.left.iter().zip(boxes.right) {
+        let (Some(l), Some(r)) = (l.get(u0..u0 + cols), r.get(u0 - d..u0 - d + cols)) else {
+            continue;
+        };
+        for ((c, &a), &b) in out.iter_mut().zip(l).zip(r) {
+            *c += hamming(a, b);
+        }
+    }
+}
+
+/// [`column_cost`] of the disparities `d_lo..d_lo + out.len()` at column `u` into `out`, every
+/// one at most `u` (so no right column is clamped): each box row's left code at `u` against the
+/// consecutive right codes `u - d`, a loop the compiler vectorises (Helium on the Cortex-M55).
+fn column_costs(left: &[&[u32]], right: &[&[u32]], u: usize, d_lo: usize, out: &mut [u32]) {
+    let count = out.len();
+    // Right columns u - d_lo - count + 1 ..= u - d_lo: the highest disparity first.
+    let first = (u + 1).checked_sub(d_lo + count);
+    let mut reversed = [0u32; MAX_CANDIDATES];
+    let (Some(first), Some(acc)) = (first, reversed.get_mut(..count)) else {
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = column_cost(left, right, u, d_lo + k);
+        }
+        return;
+    };
+    for (l, r) in left.iter().zip(right) {
+        let code = l.get(u).copied().unwrap_or(0);
+        match r.get(first..first + count) {
+            Some(codes) => {
+                for (a, &c) in acc.iter_mut().zip(codes) {
+                    *a += hamming(code, c);
+                }
+            }
+            None => {
+                for (j, a) in acc.iter_mut().enumerate() {
+                    *a += hamming(code, r.get(first + j).copied().unwrap_or(0));
+                }
+            }
+        }
+    }
+    for (o, &a) in out.iter_mut().zip(acc.iter().rev()) {
+        *o = a;
     }
 }
 

@@ -93,10 +93,8 @@ fn box_row_checked(rows: &[&[u8]], radius: usize, out: &mut [u8], columns: &mut 
 }
 
 /// [`box_row`] on checked arguments with `columns`, at least `out.len()` entries, as the column
-/// sums' scratch: column sums first (`u16`: at most 5 x 255), then the horizontal window sliding
-/// over them, one column in and one out per pixel (the window of pixel `x` is columns
-/// `clamp(x - r ..= x + r)`: the one of `x - 1` less `clamp(x - 1 - r)`, plus `clamp(x + r)`;
-/// integer sums, exact).
+/// sums' scratch: column sums first (`u16`: at most 5 x 255), then the horizontal window over
+/// them ([`window_lanes`] where there is a vector unit, else [`window_sliding`]; the same bytes).
 fn box_row_with(rows: &[&[u8]], radius: usize, out: &mut [u8], columns: &mut [u16]) -> Result<(), Error> {
     let width = out.len();
     let Some(columns) = columns.get_mut(..width) else {
@@ -121,16 +119,94 @@ fn box_row_with(rows: &[&[u8]], radius: usize, out: &mut [u8], columns: &mut [u1
             *c += p as u16;
         }
     }
+    #[cfg(any(bino_mve, not(target_arch = "arm")))]
+    window_lanes(columns, radius, out);
+    #[cfg(all(target_arch = "arm", not(bino_mve)))]
+    window_sliding(columns, radius, out);
+    Ok(())
+}
+
+/// The horizontal window of [`box_row_with`] on a core without a vector unit: the window slides,
+/// one column in and one out per pixel (the window of pixel `x` is columns `clamp(x - r ..= x +
+/// r)`: the one of `x - 1` less `clamp(x - 1 - r)`, plus `clamp(x + r)`; integer sums, exact).
+#[cfg_attr(any(bino_mve, not(target_arch = "arm")), allow(dead_code))]
+fn window_sliding(columns: &[u16], radius: usize, out: &mut [u8]) {
     let taps = 2 * radius + 1;
     let n = (taps * taps) as u32;
-    let last = width - 1;
+    let last = out.len().saturating_sub(1);
     let column = |u: usize| columns.get(u.min(last)).copied().unwrap_or(0) as u32;
     let mut sum: u32 = (0..taps).map(|j| column(j.saturating_sub(radius))).sum();
     for (x, o) in out.iter_mut().enumerate() {
         *o = ((sum + n / 2) / n) as u8;
         sum = sum + column(x + 1 + radius) - column(x.saturating_sub(radius));
     }
-    Ok(())
+}
+
+/// The horizontal window of [`box_row_with`] on a core with a vector unit: the clamped ends
+/// pixel by pixel, the interior as shifted copies of the column sums added lane by lane (the
+/// compiler vectorises it: Helium on the Cortex-M55), divided by a multiply and a shift.
+#[cfg_attr(all(target_arch = "arm", not(bino_mve)), allow(dead_code))]
+fn window_lanes(columns: &[u16], radius: usize, out: &mut [u8]) {
+    let width = out.len();
+    let taps = 2 * radius + 1;
+    let n = (taps * taps) as u32;
+    let last = width.saturating_sub(1);
+    // Pixel x's window, clamped at the row's ends (and where the row is narrower than it).
+    let clamped = |x: usize| -> u8 {
+        let sum: u32 = (0..taps)
+            .map(|j| {
+                columns
+                    .get((x + j).saturating_sub(radius).min(last))
+                    .copied()
+                    .unwrap_or(0) as u32
+            })
+            .sum();
+        ((sum + n / 2) / n) as u8
+    };
+    let inner = width.saturating_sub(2 * radius);
+    if inner == 0 || radius == 0 {
+        for (x, o) in out.iter_mut().enumerate() {
+            *o = clamped(x);
+        }
+        return;
+    }
+    for x in (0..radius).chain(width - radius..width) {
+        if let Some(o) = out.get_mut(x) {
+            *o = clamped(x);
+        }
+    }
+    let out = out.get_mut(radius..width - radius).unwrap_or_default();
+    let shifted = |j: usize| columns.get(j..j + inner).unwrap_or_default();
+    match radius {
+        1 => {
+            let (a, b, c) = (shifted(0), shifted(1), shifted(2));
+            for (((o, &a), &b), &c) in out.iter_mut().zip(a).zip(b).zip(c) {
+                *o = div_rounded::<1>(a as u32 + b as u32 + c as u32);
+            }
+        }
+        2 => {
+            let (a, b, c, d, e) = (shifted(0), shifted(1), shifted(2), shifted(3), shifted(4));
+            for (((((o, &a), &b), &c), &d), &e) in out.iter_mut().zip(a).zip(b).zip(c).zip(d).zip(e) {
+                *o = div_rounded::<2>(a as u32 + b as u32 + c as u32 + d as u32 + e as u32);
+            }
+        }
+        // Beyond MAX_RADIUS (refused before): the clamped path throughout.
+        _ => {
+            for (i, o) in out.iter_mut().enumerate() {
+                *o = clamped(i + radius);
+            }
+        }
+    }
+}
+
+/// `(sum + n / 2) / n` for a window of `n = (2R + 1)^2` pixels (`R` 1 or 2), `sum` at most `n x
+/// 255`, as a multiply by `ceil(2^20 / n)` and a shift: exact over that range (tested
+/// exhaustively), and a vector unit has no division.
+#[inline(always)]
+fn div_rounded<const R: usize>(sum: u32) -> u8 {
+    let n = ((2 * R + 1) * (2 * R + 1)) as u32;
+    let magic = (1u32 << 20).div_ceil(n);
+    (((sum + n / 2) * magic) >> 20) as u8
 }
 
 /// Widest row [`box_row`] takes (the widest view a blob supports).
