@@ -15,6 +15,7 @@ use crate::config::{CELL_W, PATCH_H};
 use crate::lr::consistent_row;
 use crate::matching::check_candidates;
 use crate::refine::census_codes;
+use crate::refine::ring::hamming;
 use crate::sgm::{self, Penalties, SgmStream};
 use crate::Error;
 
@@ -309,20 +310,6 @@ fn cell_sum(four: &[u8]) -> u16 {
 
 /// Widest row [`add_distances`] takes its faster path on (its distances live on the stack).
 const FAST_ROW: usize = 640;
-
-/// The Hamming distance of two census codes: `(a ^ b).count_ones()`, spelt out so that a loop of
-/// it vectorises (the Cortex-M55's Helium has no population count; the compiler leaves
-/// `count_ones` scalar there, a dozen instructions per pixel).
-#[inline(always)]
-pub(crate) fn hamming(a: u32, b: u32) -> u32 {
-    let x = a ^ b;
-    let x = x - ((x >> 1) & 0x5555_5555);
-    let x = (x & 0x3333_3333) + ((x >> 2) & 0x3333_3333);
-    // Each byte now holds its own count (at most 8); the bytes' sum is at most 32.
-    let x = (x + (x >> 4)) & 0x0f0f_0f0f;
-    let x = x + (x >> 8);
-    (x + (x >> 16)) & 0x3f
-}
 
 /// [`add_distances`] pixel by pixel: the specification.
 fn add_distances_reference(left: &[u32], right: &[u32], n: usize, left_cost: &mut [u16], right_cost: &mut [u16]) {

@@ -20,7 +20,6 @@ use super::{
     bilinear, census_row, check_row_inputs, subpixel_step, winner, RefineParams, TokenRows, ViewRows, FRAC_BITS,
     MAX_BOX_RADIUS, MAX_CANDIDATES, MAX_WINDOW_ROWS,
 };
-use crate::census::hamming;
 use crate::config::CELL_W;
 use crate::Error;
 
@@ -296,6 +295,20 @@ fn column_costs(left: &[&[u32]], right: &[&[u32]], u: usize, d_lo: usize, out: &
     for (o, &a) in out.iter_mut().zip(acc.iter().rev()) {
         *o = a;
     }
+}
+
+/// The Hamming distance of two census codes: `(a ^ b).count_ones()`, spelt out so that a loop of
+/// it vectorises (the Cortex-M55's Helium has no population count; the compiler leaves
+/// `count_ones` scalar there, a dozen instructions per pixel).
+#[inline(always)]
+pub(crate) fn hamming(a: u32, b: u32) -> u32 {
+    let x = a ^ b;
+    let x = x - ((x >> 1) & 0x5555_5555);
+    let x = (x & 0x3333_3333) + ((x >> 2) & 0x3333_3333);
+    // Each byte now holds its own count (at most 8); the bytes' sum is at most 32.
+    let x = (x + (x >> 4)) & 0x0f0f_0f0f;
+    let x = x + (x >> 8);
+    (x + (x >> 16)) & 0x3f
 }
 
 /// Hamming distances of the box rows at column `u`, left code at `u` against right code at

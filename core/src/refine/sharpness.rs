@@ -31,6 +31,7 @@
 //! the comparisons run in `u64` (rule 4a's products of two sums in `u128`).
 
 use super::{refine_row, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows, MAX_WINDOW_ROWS};
+use crate::kernels::dispatch::VECTOR_LANES;
 use crate::Error;
 
 /// Rows above and below the output row whose sharpness decides it.
@@ -119,17 +120,17 @@ fn box_row_with(rows: &[&[u8]], radius: usize, out: &mut [u8], columns: &mut [u1
             *c += p as u16;
         }
     }
-    #[cfg(any(bino_mve, not(target_arch = "arm")))]
-    window_lanes(columns, radius, out);
-    #[cfg(all(target_arch = "arm", not(bino_mve)))]
-    window_sliding(columns, radius, out);
+    if VECTOR_LANES {
+        window_lanes(columns, radius, out);
+    } else {
+        window_sliding(columns, radius, out);
+    }
     Ok(())
 }
 
 /// The horizontal window of [`box_row_with`] on a core without a vector unit: the window slides,
 /// one column in and one out per pixel (the window of pixel `x` is columns `clamp(x - r ..= x +
 /// r)`: the one of `x - 1` less `clamp(x - 1 - r)`, plus `clamp(x + r)`; integer sums, exact).
-#[cfg_attr(any(bino_mve, not(target_arch = "arm")), allow(dead_code))]
 fn window_sliding(columns: &[u16], radius: usize, out: &mut [u8]) {
     let taps = 2 * radius + 1;
     let n = (taps * taps) as u32;
@@ -145,7 +146,6 @@ fn window_sliding(columns: &[u16], radius: usize, out: &mut [u8]) {
 /// The horizontal window of [`box_row_with`] on a core with a vector unit: the clamped ends
 /// pixel by pixel, the interior as shifted copies of the column sums added lane by lane (the
 /// compiler vectorises it: Helium on the Cortex-M55), divided by a multiply and a shift.
-#[cfg_attr(all(target_arch = "arm", not(bino_mve)), allow(dead_code))]
 fn window_lanes(columns: &[u16], radius: usize, out: &mut [u8]) {
     let width = out.len();
     let taps = 2 * radius + 1;
