@@ -37,11 +37,15 @@ pub const LINES: usize = 8;
 /// interrupt and the consumer's copies take per row (~1,060), so the queue never fills.
 pub const ROW_INTERVAL_INSNS: u32 = 4_000;
 
-/// Executed instructions between two sensor rows of the fast preset's whole frame: a sensor
-/// paced at about 2.5 frames of 120 rows per second at 400 MHz (IPC 1), slower than the census
-/// run works its rows on either core (it reads four rows per token row, each batch after the
-/// previous token row's work), so the line buffers never fill.
-pub const FRAME_ROW_INTERVAL_INSNS: u32 = 1_400_000;
+/// Executed instructions between two sensor rows of the fast preset's whole frame: a camera
+/// streaming 120-row frames at 4 per second into the Cortex-M55 at 400 MHz (480 rows/s, IPC 1),
+/// at 3 per second into the Cortex-M7 at 480 MHz (360 rows/s). The census run reads four rows per
+/// token row, each batch after the previous token row's work, so the line buffers hold the rows
+/// that arrive meanwhile; a run slower than its camera loses rows and fails.
+#[cfg(board = "an547")]
+pub const FRAME_ROW_INTERVAL_INSNS: u32 = 400_000_000 / (4 * 120);
+#[cfg(board = "an500")]
+pub const FRAME_ROW_INTERVAL_INSNS: u32 = 480_000_000 / (3 * 120);
 
 /// The board's SysTick clock (QEMU: the processor clock of the FPGA image).
 #[cfg(board = "an547")]

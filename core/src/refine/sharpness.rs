@@ -31,7 +31,6 @@
 //! the comparisons run in `u64` (rule 4a's products of two sums in `u128`).
 
 use super::{refine_row, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows, MAX_WINDOW_ROWS};
-use crate::kernels::dispatch::VECTOR_LANES;
 use crate::Error;
 
 /// Rows above and below the output row whose sharpness decides it.
@@ -95,7 +94,7 @@ fn box_row_checked(rows: &[&[u8]], radius: usize, out: &mut [u8], columns: &mut 
 
 /// [`box_row`] on checked arguments with `columns`, at least `out.len()` entries, as the column
 /// sums' scratch: column sums first (`u16`: at most 5 x 255), then the horizontal window over
-/// them ([`window_lanes`] where there is a vector unit, else [`window_sliding`]; the same bytes).
+/// them ([`window_lanes`]).
 fn box_row_with(rows: &[&[u8]], radius: usize, out: &mut [u8], columns: &mut [u16]) -> Result<(), Error> {
     let width = out.len();
     let Some(columns) = columns.get_mut(..width) else {
@@ -120,32 +119,14 @@ fn box_row_with(rows: &[&[u8]], radius: usize, out: &mut [u8], columns: &mut [u1
             *c += p as u16;
         }
     }
-    if VECTOR_LANES {
-        window_lanes(columns, radius, out);
-    } else {
-        window_sliding(columns, radius, out);
-    }
+    window_lanes(columns, radius, out);
     Ok(())
 }
 
-/// The horizontal window of [`box_row_with`] on a core without a vector unit: the window slides,
-/// one column in and one out per pixel (the window of pixel `x` is columns `clamp(x - r ..= x +
-/// r)`: the one of `x - 1` less `clamp(x - 1 - r)`, plus `clamp(x + r)`; integer sums, exact).
-fn window_sliding(columns: &[u16], radius: usize, out: &mut [u8]) {
-    let taps = 2 * radius + 1;
-    let n = (taps * taps) as u32;
-    let last = out.len().saturating_sub(1);
-    let column = |u: usize| columns.get(u.min(last)).copied().unwrap_or(0) as u32;
-    let mut sum: u32 = (0..taps).map(|j| column(j.saturating_sub(radius))).sum();
-    for (x, o) in out.iter_mut().enumerate() {
-        *o = ((sum + n / 2) / n) as u8;
-        sum = sum + column(x + 1 + radius) - column(x.saturating_sub(radius));
-    }
-}
-
-/// The horizontal window of [`box_row_with`] on a core with a vector unit: the clamped ends
-/// pixel by pixel, the interior as shifted copies of the column sums added lane by lane (the
-/// compiler vectorises it: Helium on the Cortex-M55), divided by a multiply and a shift.
+/// The horizontal window of [`box_row_with`]: the clamped ends pixel by pixel, the interior as
+/// shifted copies of the column sums added lane by lane (the compiler vectorises it: Helium on
+/// the Cortex-M55; fewer instructions than a sliding sum on the Cortex-M7 too), divided by a
+/// multiply and a shift.
 fn window_lanes(columns: &[u16], radius: usize, out: &mut [u8]) {
     let width = out.len();
     let taps = 2 * radius + 1;

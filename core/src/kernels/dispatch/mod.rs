@@ -33,11 +33,6 @@ pub use layernorm::{layernorm_rows, layernorm_rows_prepared, LayerNormQ, Prepare
 pub use matmul::{dot, matmul_i8};
 pub use rope::{rope_token, Angles, RopeLanes, QUARTER};
 
-/// Whether this build's core has a vector unit the compiler vectorises integer loops for (Helium
-/// on the Cortex-M55, SSE/AVX on x86-64): code with a lane-by-lane form and a scalar one that
-/// suits a core without (the two exact alike) picks by it.
-pub const VECTOR_LANES: bool = cfg!(any(bino_mve, not(target_arch = "arm")));
-
 /// The instruction set whose kernels run in this process.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Isa {

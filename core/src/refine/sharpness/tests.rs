@@ -53,26 +53,6 @@ fn box_rows_equal_the_window_mean_with_clamped_edges() {
 }
 
 #[test]
-fn both_horizontal_windows_give_the_same_bytes() {
-    let mut rng = Rng::new(9);
-    for width in [1, 2, 3, 4, 5, 6, 9, 24, 160] {
-        let mut columns = [0u16; 160];
-        for c in columns.iter_mut().take(width) {
-            *c = rng.range(0, 5 * 255) as u16;
-        }
-        for radius in 0..=MAX_RADIUS {
-            // Column sums of 2r + 1 rows: at most (2r + 1) x 255.
-            let cap = ((2 * radius + 1) * 255) as u16;
-            let columns = columns.map(|c| c.min(cap));
-            let (mut lanes, mut sliding) = ([0u8; 160], [0u8; 160]);
-            window_lanes(&columns[..width], radius, &mut lanes[..width]);
-            window_sliding(&columns[..width], radius, &mut sliding[..width]);
-            assert_eq!(lanes[..width], sliding[..width], "width {width} radius {radius}");
-        }
-    }
-}
-
-#[test]
 fn the_window_division_by_a_multiply_is_exact_over_its_range() {
     for sum in 0..=9 * 255 {
         assert_eq!(div_rounded::<1>(sum) as u32, (sum + 4) / 9, "{sum}");
