@@ -525,6 +525,9 @@ fn chart_labels_do_not_overlap() {
     }
     assert_eq!(chart::stage_label("native_encode_pair"), ["encode", "pair"]);
     assert_eq!(chart::stage_label("head"), ["head"]);
+    assert_eq!(chart::stage_label("census_refine"), ["refine"]);
+    let groups = chart::groups(&stages);
+    assert_eq!(groups.last().map(|g| g.0), Some("census frame"), "{groups:?}");
 }
 
 /// `frame_run` with the fast preset's whole 160x120 frame: its three stages and its section.
