@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Builds the firmware of both real boards (boards/: STM32H743, Alif Ensemble E7) in release
-# and prints each memory region's use next to its size. Nothing is flashed: the QEMU boards
-# (scripts/firmware.sh) stay the ones that run. A region that overflows fails the link; this
+# Builds the firmware of both real boards (boards/: STM32H743, Alif Ensemble E7) in release,
+# the learned preset's build and the fast preset's (feature `fast`: census+lr+ref on whole
+# 160x120 frames, no weights), and prints each memory region's use next to its size. Nothing
+# is flashed: the QEMU boards (scripts/firmware.sh) stay the ones that run. A region that overflows fails the link; this
 # script checks the sums again from the ELF's section table.
 #
 #   scripts/boards.sh [--no-lint] [--out DIR]
@@ -37,19 +38,27 @@ if [ "$lint" = 1 ]; then
   (cd boards && cargo test -p bino-board --locked -q)
 fi
 
-# board:target:the features of its other build (linted, not built)
-for board in stm32h7:thumbv7em-none-eabihf:test-band alif-e7:thumbv8m.main-none-eabihf:; do
-  IFS=: read -r dir target other <<<"$board"
+# board:target:the feature sets of its other builds (linted; those with `fast`, the fast
+# preset on whole frames, also built and their regions printed)
+for board in stm32h7:thumbv7em-none-eabihf:"test-band fast fast,test-band" alif-e7:thumbv8m.main-none-eabihf:fast; do
+  IFS=: read -r dir target others <<<"$board"
   echo "== boards/$dir ($target, release)"
   if [ "$lint" = 1 ]; then
     (cd "boards/$dir" && cargo clippy --locked --release -q -- -D warnings)
-    if [ -n "$other" ]; then
-      (cd "boards/$dir" && cargo clippy --locked --release -q --features "$other" -- -D warnings)
-    fi
+    for features in $others; do
+      (cd "boards/$dir" && cargo clippy --locked --release -q --features "$features" -- -D warnings)
+    done
   fi
   (cd "boards/$dir" && cargo build --locked --release -q)
   json=()
   [ -n "$out" ] && json=(--json "$out/board-$dir.json")
   python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \
     "${json[@]}" "$CARGO_TARGET_DIR/$target/release/bino-$dir"
+  for features in $others; do
+    case ",$features," in *,fast,*) ;; *) continue ;; esac
+    echo "== boards/$dir ($target, release, --features $features)"
+    (cd "boards/$dir" && cargo build --locked --release -q --features "$features")
+    python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \
+      "$CARGO_TARGET_DIR/$target/release/bino-$dir"
+  done
 done

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Builds the BINO firmware for both Cortex-M boards and runs each under QEMU: first the kernel
 # test firmware (src/bin/kernel-tests.rs: the assembly kernels against their references), then the band pair
-# through the int8 pipeline, bit-identical to the host (the firmware exits non-zero otherwise),
+# through the int8 pipeline on both pathways of the learned preset and a whole 160x120 frame
+# through the fast preset's census run (about a second more per core), bit-identical to the host
+# (the firmware exits non-zero otherwise),
 # with executed-instruction counts per stage, and per instruction class for the cycle model of
 # `bino budget` (firmware-sim/qemu-plugin/CYCLES.md), from the TCG plugin in firmware-sim/qemu-plugin/.
 #
@@ -10,7 +12,8 @@
 #
 #   --band full    one 48x160 band pair, the issue's target size (default; about 2 min of QEMU
 #                  for the M55 and 1 min for the M7 on a 2-core EPYC VM)
-#   --band small   a 48x32 band pair: the same code, bit-identity only, 20 s
+#   --band small   a 48x32 band pair (the census run on the same band): the same code,
+#                  bit-identity only, 20 s
 #   --out DIR      where the results go (default out/firmware)
 #   --profile      also a per-function instruction profile (<core>-profile.txt)
 #   --kernels      also the per-kernel table (<core>-kernels.md: executed instructions per MAC of
@@ -39,7 +42,7 @@ while [ $# -gt 0 ]; do
     --kernels-only) want_kernels=1; kernels_only=1; shift ;;
     --core) cores="$2"; shift 2 ;;
     --cmsis-nn) cmsis_nn="$(cd "$2" && pwd)"; want_kernels=1; shift 2 ;;
-    -h|--help) sed -n '2,27p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,30p' "$0"; exit 0 ;;
     *) echo "unknown argument $1" >&2; exit 2 ;;
   esac
 done

@@ -56,7 +56,9 @@ from rendering.common import (
 from rendering.firmware import (
     blob_size,
     board_headline,
+    board_frames,
     board_pathways,
+    board_presets,
     board_regions,
     fw_camera,
     fw_cycle_model,
@@ -89,6 +91,8 @@ RENDERERS: dict[str, Callable[[Sources], str]] = {
     "native-vs-export": native_vs_export,
     "native-float": native_float,
     "board-pathways": board_pathways,
+    "board-presets": board_presets,
+    "board-frames": board_frames,
     "native-checks": native_checks,
     "heldout-labeled": heldout_labeled,
     "reproduction": reproduction,

@@ -1,5 +1,5 @@
 //! Hands the linker the board's memory map and bakes in the summary a host run of the test
-//! band gives (`bino_board::bake`).
+//! band (with `fast`: the test frame) gives (`bino_board::bake`).
 
 use std::env;
 use std::fs;
@@ -21,10 +21,13 @@ fn bake(repo: &Path, out: &Path) {
         println!("cargo::rerun-if-changed={}", path.display());
         fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
     };
-    let blob = read("weights/bino_int8.bin");
-    let left = read("firmware-sim/assets/band_48x160_left.gray");
-    let right = read("firmware-sim/assets/band_48x160_right.gray");
-    let code = bino_board::bake::expected_rs(&blob, &left, &right)
-        .unwrap_or_else(|e| panic!("the host run of the test band failed: {e}"));
+    // The fast preset (feature `fast`): the whole test frame, no weights.
+    let fast = env::var_os("CARGO_FEATURE_FAST").is_some();
+    let rows = if fast { "frame_120x160" } else { "band_48x160" };
+    let blob = (!fast).then(|| read("weights/bino_int8.bin"));
+    let left = read(&format!("firmware-sim/assets/{rows}_left.gray"));
+    let right = read(&format!("firmware-sim/assets/{rows}_right.gray"));
+    let code = bino_board::bake::expected_rs(blob.as_deref(), &left, &right)
+        .unwrap_or_else(|e| panic!("the host run of the test rows failed: {e}"));
     fs::write(out.join("expected.rs"), code).unwrap();
 }

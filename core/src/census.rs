@@ -15,6 +15,7 @@ use crate::config::{CELL_W, PATCH_H};
 use crate::lr::consistent_row;
 use crate::matching::check_candidates;
 use crate::refine::census_codes;
+use crate::refine::ring::hamming;
 use crate::sgm::{self, Penalties, SgmStream};
 use crate::Error;
 
@@ -243,8 +244,75 @@ fn pixels_to_columns(q8_px: u16) -> u16 {
 /// Adds one pixel row's distances to both cost rows (`cols x n`, disparities fastest): left
 /// pixel `x` against right pixel `x - d`, each distance computed once and added to the left
 /// cell of `x` and the right cell of `x - d`; [`OUTSIDE_COST`] where the other pixel is outside
-/// the view (left pixels `x < d`, right pixels `x + d >= width`).
+/// the view (left pixels `x < d`, right pixels `x + d >= width`). [`add_distances_reference`]
+/// is the specification; rows up to [`FAST_ROW`] pixels take the faster path, which computes a
+/// disparity's distances along the row in one vectorisable loop, then sums each cell's four.
 fn add_distances(left: &[u32], right: &[u32], n: usize, left_cost: &mut [u16], right_cost: &mut [u16]) {
+    let width = left.len().min(right.len()) / CELL_W * CELL_W;
+    let mut distances = [0u8; FAST_ROW];
+    let (Some(h), Some(left), Some(right)) = (distances.get_mut(..width), left.get(..width), right.get(..width)) else {
+        return add_distances_reference(left, right, n, left_cost, right_cost);
+    };
+    let cols = width / CELL_W;
+    for d in 0..n {
+        // h[xr]: right pixel xr against left pixel xr + d, for the pairs inside the view.
+        let pairs = width.saturating_sub(d);
+        let h = h.get_mut(..pairs).unwrap_or_default();
+        let lefts = left.get(d..).unwrap_or_default();
+        for ((h, &l), &r) in h.iter_mut().zip(lefts).zip(right) {
+            *h = hamming(l, r) as u8;
+        }
+        let h = &*h;
+        // Pixel `k` of a cell of four: its distance, or the outside cost.
+        let at = |i: Option<usize>| i.and_then(|i| h.get(i)).map_or(OUTSIDE_COST, |&v| v as u16);
+        let add = |cost: Option<&mut u16>, sum: u16| {
+            if let Some(cost) = cost {
+                *cost = cost.saturating_add(sum);
+            }
+        };
+        // Right cell c holds right pixels 4c..4c+4, inside while below `pairs`; left cell c
+        // holds left pixels 4c..4c+4, matched to right pixels 4c - d.., inside from `d` on.
+        let (full_right, full_left) = ((pairs / CELL_W).min(cols), d.div_ceil(CELL_W).min(cols));
+        let costs = right_cost.get_mut(d..).unwrap_or_default().iter_mut().step_by(n);
+        for (four, cost) in h.chunks_exact(CELL_W).zip(costs) {
+            *cost = cost.saturating_add(cell_sum(four));
+        }
+        for c in full_right..cols {
+            let sum = (c * CELL_W..(c + 1) * CELL_W).map(|xr| at(Some(xr))).sum();
+            add(right_cost.get_mut(c * n + d), sum);
+        }
+        for c in 0..full_left {
+            let sum = (c * CELL_W..(c + 1) * CELL_W).map(|x| at(x.checked_sub(d))).sum();
+            add(left_cost.get_mut(c * n + d), sum);
+        }
+        let from = (full_left * CELL_W).saturating_sub(d);
+        let costs = left_cost
+            .get_mut(full_left * n + d..)
+            .unwrap_or_default()
+            .iter_mut()
+            .step_by(n);
+        for (four, cost) in h.get(from..).unwrap_or_default().chunks_exact(CELL_W).zip(costs) {
+            *cost = cost.saturating_add(cell_sum(four));
+        }
+    }
+}
+
+/// The sum of a cell's four distances (each at most 32) from one word: the bytes' sum lands in
+/// the top byte of the word times `0x0101_0101` (at most 128, so nothing carries past it).
+#[inline(always)]
+fn cell_sum(four: &[u8]) -> u16 {
+    let word = match four {
+        &[a, b, c, d] => u32::from_le_bytes([a, b, c, d]),
+        _ => return four.iter().map(|&v| v as u16).sum(),
+    };
+    (word.wrapping_mul(0x0101_0101) >> 24) as u16
+}
+
+/// Widest row [`add_distances`] takes its faster path on (its distances live on the stack).
+const FAST_ROW: usize = 640;
+
+/// [`add_distances`] pixel by pixel: the specification.
+fn add_distances_reference(left: &[u32], right: &[u32], n: usize, left_cost: &mut [u16], right_cost: &mut [u16]) {
     let width = left.len().min(right.len()) / CELL_W * CELL_W;
     let add = |costs: &mut [u16], x: usize, d: usize, cost: u16| {
         if let Some(c) = costs.get_mut(x / CELL_W * n + d) {
@@ -330,6 +398,52 @@ mod tests {
         assert_eq!(l[1], OUTSIDE_COST + 3 * 2, "x = 0 outside, x = 1..3 differ by two bits");
         assert_eq!(l[3 + 2], 4 * 2);
         assert_eq!(r[3 + 1], 3 * 2 + OUTSIDE_COST, "right x = 7 has no left x + 1");
+    }
+
+    #[test]
+    fn the_fast_distances_are_the_reference_ones() {
+        let mut rng = Rng::new(17);
+        for value in [0, 1, u32::MAX, 0x00ff_ffff, 0x8000_0001, 0x5555_5555] {
+            assert_eq!(hamming(value, 0), value.count_ones(), "{value:#x}");
+        }
+        for _ in 0..10_000 {
+            let (a, b) = (
+                rng.range(0, u32::MAX as i64) as u32,
+                rng.range(0, u32::MAX as i64) as u32,
+            );
+            assert_eq!(hamming(a, b), (a ^ b).count_ones(), "{a:#x} {b:#x}");
+        }
+        const MAX_W: usize = FAST_ROW + 8;
+        const MAX_N: usize = 20;
+        for (width, n) in [
+            (4, 1),
+            (8, 3),
+            (12, 16),
+            (16, 20),
+            (36, 9),
+            (48, 16),
+            (FAST_ROW, 20),
+            (MAX_W, 7),
+        ] {
+            let (mut l, mut r) = ([0u32; MAX_W], [0u32; MAX_W]);
+            for (a, b) in l.iter_mut().zip(r.iter_mut()).take(width) {
+                (*a, *b) = (rng.range(0, 1 << 24) as u32, rng.range(0, 1 << 24) as u32);
+            }
+            let cells = width / CELL_W * n;
+            let (mut fast_l, mut fast_r) = ([0u16; MAX_W / CELL_W * MAX_N], [0u16; MAX_W / CELL_W * MAX_N]);
+            // Some costs start near saturation, as the reference's saturating adds allow.
+            for (i, (a, b)) in fast_l.iter_mut().zip(fast_r.iter_mut()).take(cells).enumerate() {
+                let start = if i % 7 == 0 { u16::MAX - 30 } else { i as u16 };
+                (*a, *b) = (start, start);
+            }
+            let (mut want_l, mut want_r) = (fast_l, fast_r);
+            add_distances(&l[..width], &r[..width], n, &mut fast_l[..cells], &mut fast_r[..cells]);
+            add_distances_reference(&l[..width], &r[..width], n, &mut want_l[..cells], &mut want_r[..cells]);
+            for i in 0..cells {
+                assert_eq!(fast_l[i], want_l[i], "left width {width} n {n} cell {i}");
+                assert_eq!(fast_r[i], want_r[i], "right width {width} n {n} cell {i}");
+            }
+        }
     }
 
     #[test]

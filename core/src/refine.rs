@@ -523,7 +523,14 @@ fn subpixel_step(costs: &[u32], valid: &[bool], slot: usize) -> i64 {
     if denom <= 0 {
         return 0;
     }
-    // Rust's `/` truncates toward zero; |lo - hi| * 128 < 2^39.
+    // Rust's `/` truncates toward zero; |lo - hi| * 128 < 2^39. Costs below 2^24 (every one of
+    // the documented parameter ranges) keep both sides in `i32`, whose division is one
+    // instruction on the Cortex-M cores (`i64`'s is a library call): the same quotient.
+    const SMALL: i64 = 1 << 24;
+    if lo < SMALL && mid < SMALL && hi < SMALL {
+        let (num, den) = ((lo - hi) as i32 * 128, denom as i32);
+        return ((num / den) as i64).clamp(-128, 128);
+    }
     (((lo - hi) * 128) / denom).clamp(-128, 128)
 }
 

@@ -221,20 +221,46 @@ impl<'a> SgmStream<'a> {
 }
 
 /// One SGM path step: `L[k] = C[k] + min(P[k], P[k +- 1] + p1, min P + p2) - min P`.
+/// Over the shortest of the three rows; the end candidates have one neighbour, the others run
+/// in one loop without branches (the compiler vectorises it: Helium on the Cortex-M55).
 fn step(cost: &[u16], prev: &[u16], p1: u16, p2: u32, out: &mut [u16]) {
+    let d = cost.len().min(prev.len()).min(out.len());
+    let (Some(cost), Some(prev), Some(out)) = (cost.get(..d), prev.get(..d), out.get_mut(..d)) else {
+        return;
+    };
     let min_prev = prev.iter().copied().min().unwrap_or(0) as u32;
     let jump = min_prev + p2;
-    for (k, (o, &c)) in out.iter_mut().zip(cost).enumerate() {
-        let mut best = prev[k] as u32;
-        if k > 0 {
-            best = best.min(prev[k - 1] as u32 + p1 as u32);
+    let p1 = p1 as u32;
+    // best >= min_prev, so the subtraction cannot wrap; the sum stays below 2^16 as long as
+    // costs and p2 do (cost <= 2 * COST_ONE, p2 checked by the caller's choice).
+    let cell = |c: u16, best: u32| (c as u32 + best.min(jump) - min_prev).min(u16::MAX as u32) as u16;
+    let (Some(&m_first), Some(&m_last)) = (prev.first(), prev.last()) else {
+        return;
+    };
+    if d == 1 {
+        if let (Some(o), Some(&c)) = (out.first_mut(), cost.first()) {
+            *o = cell(c, m_first as u32);
         }
-        if let Some(&n) = prev.get(k + 1) {
-            best = best.min(n as u32 + p1 as u32);
-        }
-        // best >= min_prev, so the subtraction cannot wrap; the sum stays below 2^16 as long
-        // as costs and p2 do (cost <= 2 * COST_ONE, p2 checked by the caller's choice).
-        *o = (c as u32 + best.min(jump) - min_prev).min(u16::MAX as u32) as u16;
+        return;
+    }
+    // The ends: their one neighbour (each other's when there are two).
+    let (n_first, n_last) = (prev.get(1).copied().unwrap_or(0), prev.get(d - 2).copied().unwrap_or(0));
+    let (c_first, c_last) = (cost.first().copied().unwrap_or(0), cost.last().copied().unwrap_or(0));
+    if let Some(o) = out.first_mut() {
+        *o = cell(c_first, (m_first as u32).min(n_first as u32 + p1));
+    }
+    if let Some(o) = out.last_mut() {
+        *o = cell(c_last, (m_last as u32).min(n_last as u32 + p1));
+    }
+    let (Some(inner), Some(cost_inner)) = (out.get_mut(1..d - 1), cost.get(1..d - 1)) else {
+        return;
+    };
+    let (Some(left), Some(mid), Some(right)) = (prev.get(..d - 2), prev.get(1..d - 1), prev.get(2..)) else {
+        return;
+    };
+    let rows = inner.iter_mut().zip(cost_inner).zip(left).zip(mid).zip(right);
+    for ((((o, &c), &l), &m), &r) in rows {
+        *o = cell(c, (m as u32).min(l as u32 + p1).min(r as u32 + p1));
     }
 }
 
@@ -292,7 +318,15 @@ pub(crate) fn refine_min(costs: &[u32]) -> u16 {
                 let num = (l - r) << DISPARITY_FRAC_BITS;
                 let den = 2 * denom;
                 let half_den = den / 2;
-                let q = if num >= 0 { num + half_den } else { num - half_den } / den;
+                let num = if num >= 0 { num + half_den } else { num - half_den };
+                // Below 2^22 (every aggregate of `u16` paths) both fit `i32`, whose division is
+                // one instruction on the Cortex-M cores: the same quotient.
+                const SMALL: i64 = 1 << 22;
+                let q = if l < SMALL && at < SMALL && r < SMALL {
+                    (num as i32 / den as i32) as i64
+                } else {
+                    num / den
+                };
                 q.clamp(-half, half)
             } else {
                 0
@@ -349,6 +383,32 @@ mod tests {
     }
 
     #[test]
+    fn the_parabola_step_divides_as_in_i64_on_both_sides_of_its_fast_path() {
+        // The rule in i64, as documented on `refine_min`.
+        let rule = |c: [u32; 3]| -> i64 {
+            let (l, at, r) = (c[0] as i64, c[1] as i64, c[2] as i64);
+            let denom = l - 2 * at + r;
+            if denom <= 0 {
+                return 0;
+            }
+            let num = (l - r) << DISPARITY_FRAC_BITS;
+            let den = 2 * denom;
+            let q = if num >= 0 { num + den / 2 } else { num - den / 2 } / den;
+            q.clamp(-128, 128)
+        };
+        let mut rng = crate::testutil::Rng::new(23);
+        for i in 0..20_000 {
+            let max = if i % 2 == 0 { (1 << 22) - 1 } else { 1 << 30 };
+            let mut c = [0u32; 3].map(|_| rng.range(0, max) as u32);
+            // The middle one the first minimum, as refine_min steps only around that.
+            c[1] = c[1].min(c[0]).min(c[2]);
+            c[0] = c[0].max(c[1] + 1);
+            let want = (256 + rule(c)).clamp(0, u16::MAX as i64) as u16;
+            assert_eq!(refine_min(&c), want, "{c:?}");
+        }
+    }
+
+    #[test]
     fn step_follows_the_recurrence() {
         let prev = [10, 50, 300];
         let mut out = [0u16; 3];
@@ -356,6 +416,33 @@ mod tests {
         // k=0: min(10, 50+100, 10+400) - 10 = 0; k=1: min(50, 10+100, 300+100, 410) - 10 = 40;
         // k=2: min(300, 50+100, 410) - 10 = 140.
         assert_eq!(out, [5, 45, 145]);
+        // Against the recurrence candidate by candidate, at every length up to MAX_CANDIDATES,
+        // random costs up to the u16 saturation.
+        let mut rng = crate::testutil::Rng::new(31);
+        for d in 1..=MAX_CANDIDATES {
+            for _ in 0..20 {
+                let top = if rng.range(0, 1) == 0 { 2000 } else { u16::MAX as i64 };
+                let (mut cost, mut prev) = ([0u16; MAX_CANDIDATES], [0u16; MAX_CANDIDATES]);
+                for (c, p) in cost.iter_mut().zip(prev.iter_mut()).take(d) {
+                    (*c, *p) = (rng.range(0, top) as u16, rng.range(0, top) as u16);
+                }
+                let (p1, p2) = (rng.range(0, 300) as u16, rng.range(300, 3000) as u32);
+                let min_prev = prev[..d].iter().copied().min().unwrap() as u32;
+                let mut got = [0u16; MAX_CANDIDATES];
+                step(&cost[..d], &prev[..d], p1, p2, &mut got[..d]);
+                for k in 0..d {
+                    let mut best = prev[k] as u32;
+                    if k > 0 {
+                        best = best.min(prev[k - 1] as u32 + p1 as u32);
+                    }
+                    if k + 1 < d {
+                        best = best.min(prev[k + 1] as u32 + p1 as u32);
+                    }
+                    let want = (cost[k] as u32 + best.min(min_prev + p2) - min_prev).min(u16::MAX as u32) as u16;
+                    assert_eq!(got[k], want, "d {d} k {k}");
+                }
+            }
+        }
     }
 
     #[test]

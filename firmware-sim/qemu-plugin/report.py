@@ -161,8 +161,11 @@ def camera_rates(camera, stages, clock_hz):
     if not camera or not stages or not clock_hz:
         return None
     by_name = {s["name"]: s["instructions"] for s in stages}
-    # The export pathway's band pair (the native run's stages are named native_*).
-    band = sum(n for name, n in by_name.items() if name != "load" and not name.startswith("native_"))
+    # The export pathway's band pair (the native and census runs' stages are named native_*,
+    # census_*).
+    band = sum(
+        n for name, n in by_name.items() if name != "load" and not name.startswith(("native_", "census_"))
+    )
     rows_insns = by_name.get("rows", 0)
     work = band - rows_insns
     frame_rows = camera["frame_rows"]
@@ -191,6 +194,32 @@ def camera_rates(camera, stages, clock_hz):
             "works; continuous: a sensor that never pauses may run line_buffers rows ahead during the "
             "band's work; burst: the fastest in-frame row rate the rows stage drains"
         ),
+    }
+
+
+def census_run(lines, stages):
+    """The fast preset's whole-frame run (stages census_*): its frame, arena, stack, instructions
+    per frame and camera; None for a firmware without it."""
+    head = next((l for l in lines if "frame" in l and "arena_bytes" in l), None)
+    arena = next((l for l in lines if "arena_used" in l and l.get("pathway") == "census"), {})
+    camera = next((l for l in lines if "frame_rows" in l and l.get("pathway") == "census"), {})
+    own = [s for s in stages if s["name"].startswith("census_")]
+    if head is None or not own:
+        return None
+    height, width = (int(x) for x in str(head["frame"]).split("x"))
+    return {
+        "frame": {"height": height, "width": width},
+        "arena_bytes": head.get("arena_bytes"),
+        "arena_used": arena.get("arena_used"),
+        "arena_painted_high_water": arena.get("painted_high_water"),
+        "arena_breakdown": {k: arena.get(k) for k in ("pixels", "streams", "refine")},
+        "census_kept": arena.get("census_kept"),
+        "frame_instructions": sum(s["instructions"] for s in own),
+        "stack_peak": max(s["stack_peak"] for s in own),
+        "camera": {
+            k: camera.get(k)
+            for k in ("frame_rows", "line_buffers", "row_interval_insns", "delivered", "lost", "queue_high_water")
+        },
     }
 
 
@@ -256,7 +285,7 @@ def main():
     # One arena line per pathway run (export first; an older firmware's has no pathway field).
     arena = next((l for l in lines if "arena_used" in l and l.get("pathway", "export") == "export"), {})
     native_arena = next((l for l in lines if "arena_used" in l and l.get("pathway") == "native"), {})
-    camera = next((l for l in lines if "frame_rows" in l), {})
+    camera = next((l for l in lines if "frame_rows" in l and l.get("pathway", "export") == "export"), {})
     overflow = next((l for l in lines if "queued_rows_read" in l), {})
     result = next((l.get("result") for l in lines if "result" in l), "none")
     counts = parse_counts(args.counts)
@@ -352,6 +381,8 @@ def main():
             if native_arena
             else None
         ),
+        # The fast preset's whole frame (stages census_*); absent for an older firmware.
+        "census": census_run(lines, stages),
         "note": NOTE,
     }
     if classes:

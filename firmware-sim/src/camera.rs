@@ -1,7 +1,7 @@
 //! The camera path: rows from an interrupt, as a DCMI or a parallel/MIPI bridge delivers them.
 //!
-//! The SysTick interrupt plays the sensor and its DMA: every [`ROW_INTERVAL_INSNS`] it exposes
-//! the next row of the embedded band pair, copies it into a free slot of the left/right line
+//! The SysTick interrupt plays the sensor and its DMA: every row interval it exposes the next
+//! row of the embedded frame (the band pair, or the fast preset's whole frame), copies it into a free slot of the left/right line
 //! buffers (what the DMA would write) and pushes the row's index and slot into a
 //! `heapless::spsc::Queue` (producer: the interrupt). [`Camera`], the pipeline's `RowSource`,
 //! is the consumer: it pops an index, copies the line into the band buffer and frees the slot.
@@ -13,7 +13,9 @@
 //!
 //! Under QEMU with `-icount shift=0` (scripts/firmware.sh) one executed instruction is 1 ns of
 //! virtual time, so the row interval is set in instructions: the rate it stands for at the
-//! core's clock is an IPC-1 figure, like every time in the budget.
+//! core's clock is an IPC-1 figure, like every time in the budget. The interval paces the
+//! sensor only: the instructions the pipeline executes do not depend on it, as long as no row is
+//! lost (the firmware fails the run otherwise).
 
 use core::cell::RefCell;
 
@@ -25,7 +27,7 @@ use cortex_m::peripheral::SYST;
 use cortex_m_rt::exception;
 use heapless::spsc::{Consumer, Producer, Queue};
 
-use crate::expected::{HEIGHT, WIDTH};
+use crate::expected::WIDTH;
 
 /// Line buffers per view: how far the sensor may run ahead of the pipeline, in rows.
 pub const LINES: usize = 8;
@@ -35,15 +37,32 @@ pub const LINES: usize = 8;
 /// interrupt and the consumer's copies take per row (~1,060), so the queue never fills.
 pub const ROW_INTERVAL_INSNS: u32 = 4_000;
 
+/// Executed instructions between two sensor rows of the fast preset's whole frame: a camera
+/// streaming 120-row frames at 4 per second into the Cortex-M55 at 400 MHz (480 rows/s, IPC 1),
+/// at 3 per second into the Cortex-M7 at 480 MHz (360 rows/s). The census run reads four rows per
+/// token row, each batch after the previous token row's work, so the line buffers hold the rows
+/// that arrive meanwhile; a run slower than its camera loses rows and fails.
+#[cfg(board = "an547")]
+pub const FRAME_ROW_INTERVAL_INSNS: u32 = 400_000_000 / (4 * 120);
+#[cfg(board = "an500")]
+pub const FRAME_ROW_INTERVAL_INSNS: u32 = 480_000_000 / (3 * 120);
+
 /// The board's SysTick clock (QEMU: the processor clock of the FPGA image).
 #[cfg(board = "an547")]
 const SYSTICK_HZ: u32 = 32_000_000;
 #[cfg(board = "an500")]
 const SYSTICK_HZ: u32 = 25_000_000;
 
-/// SysTick reload for one row interval: QEMU's virtual nanoseconds (= instructions) to ticks.
-const RELOAD: u32 = (ROW_INTERVAL_INSNS as u64 * SYSTICK_HZ as u64 / 1_000_000_000) as u32;
-const _: () = assert!(RELOAD >= 16 && RELOAD < (1 << 24), "SysTick reload out of range");
+/// SysTick reload for a row interval of `insns`: QEMU's virtual nanoseconds (= instructions) to
+/// ticks.
+const fn reload(insns: u32) -> u32 {
+    (insns as u64 * SYSTICK_HZ as u64 / 1_000_000_000) as u32
+}
+const _: () = {
+    let (band, frame) = (reload(ROW_INTERVAL_INSNS), reload(FRAME_ROW_INTERVAL_INSNS));
+    assert!(band >= 16 && band < (1 << 24), "SysTick reload out of range");
+    assert!(frame >= 16 && frame < (1 << 24), "SysTick reload out of range");
+};
 
 /// A filled line: the image row it holds and the slot of the line buffers it is in.
 #[derive(Debug, Clone, Copy)]
@@ -145,14 +164,17 @@ pub struct Camera {
     started: bool,
     /// Next row the pipeline gets.
     next: usize,
+    /// Rows of the frame.
+    height: usize,
 }
 
 impl Camera {
-    /// Sets up the sensor on the frame `left`/`right` (`HEIGHT x WIDTH` each) with its timer
-    /// stopped; `None` if called twice (the queue is a singleton). Not inlined: its temporaries
-    /// stay out of the caller's frame, which the whole run keeps.
+    /// Sets up the sensor on the frame `left`/`right` (`rows x WIDTH` each), a row every
+    /// [`ROW_INTERVAL_INSNS`], with its timer stopped; `None` if called twice (the queue is a
+    /// singleton). Not inlined: its temporaries stay out of the caller's frame, which the whole
+    /// run keeps.
     #[inline(never)]
-    pub fn new(syst: SYST, left: &'static [u8], right: &'static [u8]) -> Option<Self> {
+    pub fn new(syst: SYST, left: &'static [u8], right: &'static [u8], rows: usize) -> Option<Self> {
         let queue: &'static mut Queue<Line, { LINES + 1 }> =
             cortex_m::singleton!(: Queue<Line, { LINES + 1 }> = Queue::new())?;
         let (producer, consumer) = queue.split();
@@ -161,7 +183,7 @@ impl Camera {
             producer,
             left,
             right,
-            rows: HEIGHT.min(left.len().min(right.len()) / WIDTH),
+            rows: rows.min(left.len().min(right.len()) / WIDTH),
             next: 0,
             filled: 0,
             lost: 0,
@@ -170,14 +192,31 @@ impl Camera {
         };
         sensor.syst.disable_counter();
         sensor.syst.set_clock_source(SystClkSource::Core);
-        sensor.syst.set_reload(RELOAD - 1);
+        sensor.syst.set_reload(reload(ROW_INTERVAL_INSNS) - 1);
         sensor.syst.clear_current();
+        let height = sensor.rows;
         interrupt::free(|cs| *SENSOR.borrow(cs).borrow_mut() = Some(sensor));
         Some(Self {
             consumer,
             started: false,
             next: 0,
+            height,
         })
+    }
+
+    /// Stops the sensor and points it at another frame, `left`/`right` (`rows x WIDTH` each), a
+    /// row every `interval_insns` instructions; the next request starts it (as [`Camera::rewind`]).
+    pub fn load(&mut self, left: &'static [u8], right: &'static [u8], rows: usize, interval_insns: u32) {
+        let rows = rows.min(left.len().min(right.len()) / WIDTH);
+        interrupt::free(|cs| {
+            if let Some(s) = SENSOR.borrow(cs).borrow_mut().as_mut() {
+                s.stop();
+                (s.left, s.right) = (left, right);
+                s.syst.set_reload(reload(interval_insns).max(16) - 1);
+            }
+        });
+        self.height = rows;
+        self.rewind(rows);
     }
 
     /// Starts the sensor (the first row comes one interval later).
@@ -194,14 +233,14 @@ impl Camera {
     }
 
     /// Stops the sensor and empties the line buffers: the next request starts a new frame of
-    /// `rows` rows (at most the band's), after which the sensor stops by itself.
+    /// `rows` rows (at most the frame's), after which the sensor stops by itself.
     pub fn rewind(&mut self, rows: usize) {
         interrupt::free(|cs| {
             if let Some(s) = SENSOR.borrow(cs).borrow_mut().as_mut() {
                 s.stop();
                 s.syst.clear_current();
                 (s.next, s.filled, s.lost, s.queue_high_water) = (0, 0, 0, 0);
-                s.rows = rows.min(HEIGHT.min(s.left.len().min(s.right.len()) / WIDTH));
+                s.rows = rows.min(s.left.len().min(s.right.len()) / WIDTH);
             }
             while self.consumer.dequeue().is_some() {}
         });
@@ -277,7 +316,7 @@ impl RowSource for Camera {
     }
 
     fn height(&self) -> usize {
-        HEIGHT
+        self.height
     }
 
     fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {

@@ -1,7 +1,9 @@
 //! BINO edge firmware for QEMU's Cortex-M55 (`mps3-an547`) and Cortex-M7 (`mps2-an500`) boards.
 //!
-//! Runs the embedded band pair through `bino_core::pipeline` from a static arena, its rows fed
-//! by the camera path (`camera.rs`: a SysTick interrupt plays the sensor and fills line buffers,
+//! Runs the embedded band pair through `bino_core::pipeline` on both pathways of the learned
+//! preset, then the embedded whole frame through the fast preset's census run
+//! (`pipeline::run_census`, in the front of the same arena: its own `census_arena_bytes`), from a
+//! static arena, their rows fed by the camera path (`camera.rs`: a SysTick interrupt plays the sensor and fills line buffers,
 //! a `heapless` queue hands them to the pipeline), logs each stage's arena use and stack peak,
 //! each output's digest, the camera's lost rows and the obstacle summary with `defmt` over
 //! semihosting, and exits 0 only if every digest equals the host's (baked in by `build.rs`), no
@@ -20,7 +22,7 @@ mod workload;
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of, addr_of_mut};
 
-use bino_core::pipeline::{self, Pathway, RowSource};
+use bino_core::pipeline::{self, RowSource};
 use bino_core::Error;
 use camera::Camera;
 // The critical-section implementation (single core) that defmt's logger needs.
@@ -28,7 +30,7 @@ use cortex_m as _;
 use cortex_m_rt::entry;
 use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
 use defmt_semihosting as _;
-use workload::{Hooks, Stage, OUTPUTS};
+use workload::{Hooks, Run, Stage, OUTPUTS};
 
 pub(crate) mod expected {
     include!(concat!(env!("OUT_DIR"), "/expected.rs"));
@@ -42,6 +44,12 @@ const BOARD: &str = "mps2-an500 (Cortex-M7)";
 
 /// Arena bytes, from the core's `const fn`.
 const ARENA_BYTES: usize = workload::arena_bytes(expected::HEIGHT, expected::WIDTH);
+/// The census run's arena (the front of the same one), from the core's `const fn`.
+const CENSUS_ARENA_BYTES: usize = workload::census_arena_bytes(expected::FRAME_HEIGHT, expected::WIDTH);
+const _: () = assert!(
+    CENSUS_ARENA_BYTES <= ARENA_BYTES,
+    "the census run's arena exceeds the static one"
+);
 /// Byte the arena is painted with before the run, so its high-water mark can be read back.
 const ARENA_PAINT: u8 = 0xA5;
 /// What cortex-m-rt's `paint-stack` writes over the stack before `main` (and this firmware
@@ -98,6 +106,9 @@ markers! {
     bino_mark_native_head = 107;
     bino_mark_native_refine = 108;
     bino_mark_native_encode_pair = 109;
+    bino_mark_census_rows = 201;
+    bino_mark_census_sgm = 205;
+    bino_mark_census_refine = 208;
     bino_mark_end = 0xFFFF;
 }
 
@@ -123,6 +134,10 @@ fn mark(stage: Stage) {
         Stage::Native(P::Head) => bino_mark_native_head(),
         Stage::Native(P::Refine) => bino_mark_native_refine(),
         Stage::Native(P::EncodePair) => bino_mark_native_encode_pair(),
+        Stage::Census(P::Rows) => bino_mark_census_rows(),
+        Stage::Census(P::Refine) => bino_mark_census_refine(),
+        // run_census enters no other stage; were it to, it would count as the SGM's.
+        Stage::Census(_) => bino_mark_census_sgm(),
     }
 }
 
@@ -235,7 +250,13 @@ fn main() -> ! {
         #[allow(clippy::empty_loop)]
         loop {}
     };
-    let Some(mut camera) = Camera::new(syst, &expected::LEFT, &expected::RIGHT) else {
+    defmt::println!(
+        "bino census frame={=usize}x{=usize} arena_bytes={=usize}",
+        expected::FRAME_HEIGHT,
+        expected::WIDTH,
+        CENSUS_ARENA_BYTES
+    );
+    let Some(mut camera) = Camera::new(syst, &expected::LEFT, &expected::RIGHT, expected::HEIGHT) else {
         defmt::println!("bino result=error error=camera-set-up-twice");
         exit(EXIT_FAILURE);
         #[allow(clippy::empty_loop)]
@@ -248,18 +269,31 @@ fn main() -> ! {
     // SAFETY: BLOB is immutable; reading its address through a volatile load keeps the
     // optimiser from folding the blob's contents into the code.
     let blob: &[u8] = unsafe { &*core::ptr::read_volatile(&addr_of!(BLOB.0)) };
-    let export = workload::run(blob, Pathway::Export, &mut camera, arena, &mut fw);
-    let export_rows_ok = report_camera(&camera);
+    let export = workload::run(blob, Run::Export, &mut camera, arena, &mut fw);
+    let export_rows_ok = report_camera(Run::Export, &camera);
     let export_painted = arena_high_water(arena);
     // The native run: the same band again from the camera, in the same arena, painted anew.
     arena.fill(ARENA_PAINT);
     camera.rewind(expected::HEIGHT);
-    let native = workload::run(blob, Pathway::Native, &mut camera, arena, &mut fw);
-    let native_rows_ok = report_camera(&camera);
+    let native = workload::run(blob, Run::Native, &mut camera, arena, &mut fw);
+    let native_rows_ok = report_camera(Run::Native, &camera);
     let native_painted = arena_high_water(arena);
-    let code = match (export, native) {
-        (Ok(export), Ok(native)) => {
-            let per_stage = workload::arena_per_stage(&export.report, &native.report);
+    // The fast preset: the whole frame from the camera, at a sensor's pace, in the front of the
+    // arena (only as much as its `const fn` says), painted anew.
+    let census_arena = arena.get_mut(..CENSUS_ARENA_BYTES).unwrap_or_default();
+    census_arena.fill(ARENA_PAINT);
+    camera.load(
+        &expected::FRAME_LEFT,
+        &expected::FRAME_RIGHT,
+        expected::FRAME_HEIGHT,
+        camera::FRAME_ROW_INTERVAL_INSNS,
+    );
+    let census = workload::run(blob, Run::Census, &mut camera, census_arena, &mut fw);
+    let census_rows_ok = report_camera(Run::Census, &camera);
+    let census_painted = arena_high_water(census_arena);
+    let code = match (export, native, census) {
+        (Ok(export), Ok(native), Ok(census)) => {
+            let per_stage = workload::arena_per_stage(&export.report, &native.report, &census.report);
             for (i, (&arena_in_use, &stack)) in per_stage.iter().zip(&fw.stack).enumerate() {
                 defmt::println!(
                     "bino stage={=str} arena_in_use={=usize} stack_peak={=usize}",
@@ -269,37 +303,45 @@ fn main() -> ! {
                 );
             }
             let export_ok = check_outcome(
-                Pathway::Export,
+                Run::Export,
                 &export,
                 &expected::DIGESTS,
                 expected::ARENA_USED,
                 export_painted,
             );
             let native_ok = check_outcome(
-                Pathway::Native,
+                Run::Native,
                 &native,
                 &expected::NATIVE_DIGESTS,
                 expected::NATIVE_ARENA_USED,
                 native_painted,
             );
-            let rows_ok = export_rows_ok && native_rows_ok;
+            let census_ok = check_outcome(
+                Run::Census,
+                &census,
+                &expected::CENSUS_DIGESTS,
+                expected::CENSUS_ARENA_USED,
+                census_painted,
+            );
+            let rows_ok = export_rows_ok && native_rows_ok && census_rows_ok;
             let overflow_ok = overflow_check(&mut camera);
-            let outputs = workload::outputs(Pathway::Export).len() + workload::outputs(Pathway::Native).len();
-            if export_ok && native_ok && rows_ok && overflow_ok {
+            let outputs: usize = Run::ALL.iter().map(|&r| workload::outputs(r).len()).sum();
+            if export_ok && native_ok && census_ok && rows_ok && overflow_ok {
                 defmt::println!("bino result=pass outputs={=usize}", outputs);
                 EXIT_SUCCESS
             } else {
                 defmt::println!(
-                    "bino result=fail export_ok={=bool} native_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
+                    "bino result=fail export_ok={=bool} native_ok={=bool} census_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
                     export_ok,
                     native_ok,
+                    census_ok,
                     rows_ok,
                     overflow_ok
                 );
                 EXIT_FAILURE
             }
         }
-        (Err(e), _) | (_, Err(e)) => {
+        (Err(e), _, _) | (_, Err(e), _) | (_, _, Err(e)) => {
             defmt::println!("bino result=error error={}", e);
             EXIT_FAILURE
         }
@@ -309,19 +351,19 @@ fn main() -> ! {
     loop {}
 }
 
-/// Logs `pathway`'s digests against the host's, its sectors and arena; `true` when every digest
+/// Logs `run`'s digests against the host's, its sectors and arena; `true` when every digest
 /// matches and the arena's high-water is the host's.
 #[inline(never)]
 fn check_outcome(
-    pathway: Pathway,
+    run: Run,
     outcome: &workload::Outcome,
     want: &[u32; OUTPUTS.len()],
     arena_used: usize,
     painted: usize,
 ) -> bool {
-    let name = pathway.pathway();
+    let name = run.name();
     let mut mismatches = 0;
-    for &slot in workload::outputs(pathway) {
+    for &slot in workload::outputs(run) {
         let (got, want) = (outcome.digests[slot], want[slot]);
         mismatches += usize::from(got != want);
         defmt::println!(
@@ -347,7 +389,7 @@ fn check_outcome(
     let r = &outcome.report;
     let arena_ok = r.arena_used == arena_used && painted <= r.arena_used;
     defmt::println!(
-        "bino pathway={=str} arena_used={=usize} expected={=usize} painted_high_water={=usize} pixels={=usize} descriptors={=usize} encoder={=usize} streams={=usize} refine={=usize} wta_kept={=usize} sgm_kept={=usize} head_kept={=usize}",
+        "bino pathway={=str} arena_used={=usize} expected={=usize} painted_high_water={=usize} pixels={=usize} descriptors={=usize} encoder={=usize} streams={=usize} refine={=usize} wta_kept={=usize} sgm_kept={=usize} head_kept={=usize} census_kept={=usize}",
         name,
         r.arena_used,
         arena_used,
@@ -359,26 +401,32 @@ fn check_outcome(
         r.refine,
         r.wta_kept,
         r.sgm_kept,
-        r.head_kept
+        r.head_kept,
+        r.census_kept
     );
     mismatches == 0 && arena_ok
 }
 
-/// Logs the camera path of the run (the inputs of the sustainable row rate that report.py
+/// Logs the camera path of `run` (the inputs of the sustainable row rate that report.py
 /// derives from the instruction counts); `true` when every row arrived and none was lost.
 #[inline(never)]
-fn report_camera(camera: &Camera) -> bool {
+fn report_camera(run: Run, camera: &Camera) -> bool {
     let stats = camera.stats();
+    let (rows, interval) = match run {
+        Run::Census => (expected::FRAME_HEIGHT, camera::FRAME_ROW_INTERVAL_INSNS),
+        Run::Export | Run::Native => (expected::HEIGHT, camera::ROW_INTERVAL_INSNS),
+    };
     defmt::println!(
-        "bino camera frame_rows={=usize} line_buffers={=usize} row_interval_insns={=u32} delivered={=usize} lost={=usize} queue_high_water={=usize}",
-        expected::HEIGHT,
+        "bino camera pathway={=str} frame_rows={=usize} line_buffers={=usize} row_interval_insns={=u32} delivered={=usize} lost={=usize} queue_high_water={=usize}",
+        run.name(),
+        rows,
         camera::LINES,
-        camera::ROW_INTERVAL_INSNS,
+        interval,
         stats.delivered,
         stats.lost,
         stats.queue_high_water
     );
-    stats.lost == 0 && stats.delivered == expected::HEIGHT
+    stats.lost == 0 && stats.delivered == rows
 }
 
 /// The camera's overflow path, checked on the target after the run (outside the stage

@@ -1,7 +1,8 @@
 //! The firmware's workload, shared word for word by the firmware and by `build.rs` (which runs it
 //! on the host to bake the expected digests in): one band pair through `bino_core::pipeline`
-//! on either pathway, with a CRC-32 digest of every output and the obstacle summary of the
-//! refined rows (`bino_core::depth`: nearest depth and bearing in [`SECTORS`] column sectors).
+//! on either pathway of the learned preset, and a whole frame through the fast preset's
+//! encoder-free census run, each with a CRC-32 digest of every output and the obstacle summary of
+//! the refined rows (`bino_core::depth`: nearest depth and bearing in [`SECTORS`] column sectors).
 //!
 //! - Native (the board's preset): one encoder pass on (L, R) and the native head on its pair
 //!   tokens, its left-right check read from the head's own logits (no second pass), the census
@@ -11,7 +12,11 @@
 //!   check, the census SGM, the shared head and its own left-right check (the head on the
 //!   mirrored pair, rerun on the head's arena), row by row, the head fused with the census and
 //!   that with the SGM by their checks, and the pixel refinement of the fused grid
-//!   (fuse-all+lr, `bino run`'s default).
+//!   (fuse-all+lr, `bino run --pathway export`'s default).
+//! - Census (the fast preset, [`CENSUS_REFINE`]): no blob, no encoder; the census SGM of the
+//!   pixels with its own left-right check and the pixel refinement of its grid (census+lr+ref,
+//!   `bino run`'s and `bino sim`'s default), rows read as its token rows need them
+//!   (`pipeline::run_census`), in [`census_arena_bytes`] whatever the frame's height.
 //!
 //! The rows come from any `RowSource`: `build.rs` hands over the embedded band as a
 //! `SlicePair`, the firmware the interrupt-fed camera (`camera.rs`); the digests must agree.
@@ -22,13 +27,13 @@ use bino_core::crc32::Crc32;
 use bino_core::depth::{DepthModel, DisparityUnit, SectorSummary};
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
-    self, FusedRow, HeadChecked, MatchedRow, Options, Pathway, Pipeline, Refine, Report, RowSource, Sink,
+    self, CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Pipeline, Refine, Report, RowSource, Sink,
 };
 use bino_core::Error;
 
 // The readouts, the refinement, the example board's calibration and the sector count: the
 // preset the board apps (`boards/`) run too.
-pub use bino_core::preset::{CALIBRATION, EXPORT_OPTIONS, EXPORT_REFINE, OPTIONS, REFINE, SECTORS};
+pub use bino_core::preset::{CALIBRATION, CENSUS_REFINE, EXPORT_OPTIONS, EXPORT_REFINE, OPTIONS, REFINE, SECTORS};
 
 /// Arena bytes for a `height x width` band pair on both pathways (one arena serves each run).
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
@@ -41,16 +46,50 @@ pub const fn arena_bytes(height: usize, width: usize) -> usize {
     }
 }
 
-/// The readout options and refinement of `pathway`'s run.
-pub const fn preset(pathway: Pathway) -> (Options, Refine) {
-    match pathway {
-        Pathway::Export => (EXPORT_OPTIONS, EXPORT_REFINE),
-        Pathway::Native => (OPTIONS, REFINE),
+/// Arena bytes of the fast preset's census run on a `height x width` frame: the same for every
+/// height from one band up.
+pub const fn census_arena_bytes(height: usize, width: usize) -> usize {
+    bino_core::preset::census_arena_bytes(height, width)
+}
+
+/// The firmware's runs, in order: the learned preset's band pair on each pathway, then the fast
+/// preset's whole frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Run {
+    /// The export pathway's band pair.
+    Export,
+    /// The native pathway's band pair (the board's learned preset).
+    Native,
+    /// The fast preset's frame: the census readout, no encoder.
+    Census,
+}
+
+impl Run {
+    /// Every run, in the firmware's order.
+    pub const ALL: [Run; 3] = [Run::Export, Run::Native, Run::Census];
+
+    /// `export`, `native` or `census`: the `pathway` of its log lines and JSON.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Run::Export => "export",
+            Run::Native => "native",
+            Run::Census => "census",
+        }
     }
 }
 
-/// The stages the firmware reports: blob loading (both runs), then each pathway's pipeline
-/// stages, the native run's named `native_<stage>`.
+/// The readout options and refinement of `run`.
+pub const fn preset(run: Run) -> (Options, Refine) {
+    match run {
+        Run::Export => (EXPORT_OPTIONS, EXPORT_REFINE),
+        Run::Native => (OPTIONS, REFINE),
+        Run::Census => (OPTIONS, CENSUS_REFINE),
+    }
+}
+
+/// The stages the firmware reports: blob loading (the learned runs), then each pathway's
+/// pipeline stages, the native run's named `native_<stage>`, then the census run's three
+/// (`census_rows`, `census_sgm`, `census_refine`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stage {
     /// Blob header, CRC over the whole blob, tensor table, weights.
@@ -59,20 +98,26 @@ pub enum Stage {
     Pipeline(pipeline::Stage),
     /// A stage of `bino_core::pipeline` on the native pathway.
     Native(pipeline::Stage),
+    /// A stage of the census run ([`CENSUS_STAGES`]).
+    Census(pipeline::Stage),
 }
 
 /// Pipeline stages per pathway.
 const PIPELINE_STAGES: usize = pipeline::Stage::ALL.len();
 
+/// The stages `pipeline::run_census` enters: rows, the census SGM, the refinement.
+pub const CENSUS_STAGES: [pipeline::Stage; 3] = [pipeline::Stage::Rows, pipeline::Stage::Sgm, pipeline::Stage::Refine];
+
 impl Stage {
     /// Number of stages.
-    pub const COUNT: usize = 1 + 2 * PIPELINE_STAGES;
+    pub const COUNT: usize = 1 + 2 * PIPELINE_STAGES + CENSUS_STAGES.len();
 
-    /// The stage `stage` of `pathway`'s run.
-    pub const fn of(pathway: Pathway, stage: pipeline::Stage) -> Stage {
-        match pathway {
-            Pathway::Export => Stage::Pipeline(stage),
-            Pathway::Native => Stage::Native(stage),
+    /// The stage `stage` of `run`.
+    pub const fn of(run: Run, stage: pipeline::Stage) -> Stage {
+        match run {
+            Run::Export => Stage::Pipeline(stage),
+            Run::Native => Stage::Native(stage),
+            Run::Census => Stage::Census(stage),
         }
     }
 
@@ -82,8 +127,10 @@ impl Stage {
             Stage::Load
         } else if i <= PIPELINE_STAGES {
             Stage::Pipeline(pipeline::Stage::ALL[i - 1])
+        } else if i <= 2 * PIPELINE_STAGES {
+            Stage::Native(pipeline::Stage::ALL[i - 1 - PIPELINE_STAGES])
         } else {
-            Stage::Native(pipeline::Stage::ALL[(i - 1 - PIPELINE_STAGES) % PIPELINE_STAGES])
+            Stage::Census(CENSUS_STAGES[(i - 1 - 2 * PIPELINE_STAGES) % CENSUS_STAGES.len()])
         }
     }
 
@@ -104,6 +151,12 @@ impl Stage {
                 P::Refine => "native_refine",
                 P::EncodePair => "native_encode_pair",
             },
+            Stage::Census(s) => match s {
+                P::Rows => "census_rows",
+                P::Refine => "census_refine",
+                // The census SGM; run_census enters no other stage.
+                _ => "census_sgm",
+            },
         }
     }
 
@@ -114,12 +167,17 @@ impl Stage {
             Stage::Load => 0,
             Stage::Pipeline(s) => 1 + position(s),
             Stage::Native(s) => 1 + PIPELINE_STAGES + position(s),
+            Stage::Census(s) => {
+                // run_census enters no other stage; were it to, it would count as the SGM's.
+                let at = CENSUS_STAGES.iter().position(|&x| x == s).unwrap_or(1);
+                1 + 2 * PIPELINE_STAGES + at
+            }
         }
     }
 }
 
-/// The outputs the firmware digests: one slot each, filled by the pathways that make it.
-pub const OUTPUTS: [&str; 11] = [
+/// The outputs the firmware digests: one slot each, filled by the runs that make it.
+pub const OUTPUTS: [&str; 12] = [
     "descriptors_left",
     "descriptors_right",
     "wta",
@@ -131,13 +189,15 @@ pub const OUTPUTS: [&str; 11] = [
     "sectors",
     "pair_tokens",
     "fused",
+    "census",
 ];
 
-/// The slots of [`OUTPUTS`] `pathway`'s run fills, in order.
-pub const fn outputs(pathway: Pathway) -> &'static [usize] {
-    match pathway {
-        Pathway::Export => &[0, 1, 2, 3, 4, 5, 6, 10, 7, 8],
-        Pathway::Native => &[9, 5, 6, 10, 7, 8],
+/// The slots of [`OUTPUTS`] `run` fills, in order.
+pub const fn outputs(run: Run) -> &'static [usize] {
+    match run {
+        Run::Export => &[0, 1, 2, 3, 4, 5, 6, 10, 7, 8],
+        Run::Native => &[9, 5, 6, 10, 7, 8],
+        Run::Census => &[11, 7, 8],
     }
 }
 
@@ -166,7 +226,7 @@ pub struct Outcome {
 
 struct Recorder<'h, H> {
     hooks: &'h mut H,
-    pathway: Pathway,
+    run: Run,
     current: Stage,
     crcs: [Crc32; OUTPUTS.len()],
     sectors: SectorSummary<SECTORS>,
@@ -185,7 +245,7 @@ impl<H: Hooks> Recorder<'_, H> {
 
 impl<H: Hooks> Sink for Recorder<'_, H> {
     fn stage(&mut self, stage: pipeline::Stage) {
-        self.current = Stage::of(self.pathway, stage);
+        self.current = Stage::of(self.run, stage);
         self.hooks.enter(self.current);
     }
 
@@ -237,6 +297,13 @@ impl<H: Hooks> Sink for Recorder<'_, H> {
         });
     }
 
+    fn census(&mut self, row: &CensusRow<'_>) {
+        self.digest(|c| {
+            update_u16(&mut c[11], row.disparity_q8);
+            c[11].update(row.consistent);
+        });
+    }
+
     fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {
         self.hooks.pause();
         update_u16(&mut self.crcs[7], disparity_q8);
@@ -247,29 +314,37 @@ impl<H: Hooks> Sink for Recorder<'_, H> {
     }
 }
 
-/// Runs every stage of `pathway` on the rows of `source` in `arena`.
+/// Runs every stage of `run` on the rows of `source` in `arena` (the census run reads no blob).
 pub fn run(
     blob: &[u8],
-    pathway: Pathway,
+    run: Run,
     source: &mut impl RowSource,
     arena: &mut [u8],
     hooks: &mut impl Hooks,
 ) -> Result<Outcome, Error> {
-    hooks.enter(Stage::Load);
-    let blob = Blob::parse(blob)?;
-    let pipeline = Pipeline::new(blob)?;
+    let first = match run {
+        Run::Census => Stage::Census(pipeline::Stage::Rows),
+        _ => Stage::Load,
+    };
+    hooks.enter(first);
     // Refined rows are Q8 pixels at the band's width.
     let depth = DepthModel::new(&CALIBRATION, source.width(), DisparityUnit::Pixels)?;
     let mut recorder = Recorder {
         hooks,
-        pathway,
-        current: Stage::Load,
+        run,
+        current: first,
         crcs: [Crc32::new(); OUTPUTS.len()],
         sectors: SectorSummary::new(&depth, source.width())?,
         depth_error: None,
     };
-    let (options, refine) = preset(pathway);
-    let report = pipeline.run_refined(source, &options, &refine, arena, &mut recorder);
+    let (options, refine) = preset(run);
+    let report = match run {
+        Run::Census => pipeline::run_census(source, &options, Some(&refine), arena, &mut recorder),
+        Run::Export | Run::Native => match Blob::parse(blob).map_err(Error::from).and_then(Pipeline::new) {
+            Ok(pipeline) => pipeline.run_refined(source, &options, &refine, arena, &mut recorder),
+            Err(e) => Err(e),
+        },
+    };
     recorder.hooks.finish();
     let report = report?;
     if let Some(e) = recorder.depth_error {
@@ -299,13 +374,14 @@ fn sectors_digest(summary: &SectorSummary<SECTORS>) -> u32 {
     crc.finish()
 }
 
-/// Arena bytes in use during each stage (index as [`Stage::index`]) of a one-band run, from the
-/// pipeline reports of both pathways. Export: the pixel band, plus the left descriptors and the
-/// encoder's scratch while encoding, plus both descriptor maps and the readout streams
-/// afterwards, and the refinement's buffers while it refines. Native: the pixel band and the
-/// head check's rows, plus the encoder's scratch while encoding; the whole high-water after
-/// (the head's stream and the refinement's row scratch follow the tokens in that scratch).
-pub fn arena_per_stage(r: &Report, native: &Report) -> [usize; Stage::COUNT] {
+/// Arena bytes in use during each stage (index as [`Stage::index`]), from the pipeline reports
+/// of the three runs. Export: the pixel band, plus the left descriptors and the encoder's scratch
+/// while encoding, plus both descriptor maps and the readout streams afterwards, and the
+/// refinement's buffers while it refines. Native: the pixel band and the head check's rows, plus
+/// the encoder's scratch while encoding; the whole high-water after (the head's stream and the
+/// refinement's row scratch follow the tokens in that scratch). Census: the pixel band, plus the
+/// census SGM's stream, plus the refinement's state and row scratch while it refines.
+pub fn arena_per_stage(r: &Report, native: &Report, census: &Report) -> [usize; Stage::COUNT] {
     let mut out = [0; Stage::COUNT];
     for (i, o) in out.iter_mut().enumerate() {
         *o = match Stage::at(i) {
@@ -319,6 +395,9 @@ pub fn arena_per_stage(r: &Report, native: &Report) -> [usize; Stage::COUNT] {
             ) => r.pixels + r.descriptors + r.encoder,
             Stage::Pipeline(pipeline::Stage::Refine) => r.pixels + 2 * r.descriptors + r.streams + r.refine,
             Stage::Pipeline(_) => r.pixels + 2 * r.descriptors + r.streams,
+            Stage::Census(pipeline::Stage::Rows) => census.pixels,
+            Stage::Census(pipeline::Stage::Refine) => census.arena_used,
+            Stage::Census(_) => census.pixels + census.streams,
         };
     }
     out

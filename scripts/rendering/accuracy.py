@@ -14,11 +14,11 @@ from .common import (
     READOUTS,
     Json,
     Sources,
-    census_instructions,
     ep_b1,
     f2,
     f3,
     footer,
+    fps3,
     mega,
     metrics_of,
     pct,
@@ -512,14 +512,23 @@ def census_vs_learned(src: Sources) -> str:
         parts = [f"{name} ({', '.join(w[census_better])})" for name, w in wins.items() if w[census_better]]
         return ", ".join(parts) if parts else "none of them"
 
-    m55 = src.core("m55")
-    census_ins, native_ins = census_instructions(m55), m55["native_band_pair_instructions"]
-    clock = m55["clock_mhz"] * 1e6
+    presets = src.budget()["presets"]["frames"]
+
+    def on_frame(preset: str) -> Json:
+        return next(
+            p
+            for p in presets
+            if p["core"] == "m55" and p["preset"] == preset and p["frame"] == {"width": 160, "height": 120}
+        )
+
+    fast, learned = on_frame("fast"), on_frame("learned")
     return (
         f"`{CENSUS}` has a lower epe than both learned readouts (`{EXPORT_DEFAULT}`, "
         f"`{NATIVE_DEFAULT}`) on {sets(True)}; a learned readout is more accurate on "
-        f"{sets(False)}. On the board's Cortex-M55 a 48x160 band pair costs {mega(census_ins)} "
-        f"instructions with the census ({census_ins / clock:.2f} s at 400 MHz, IPC 1) against "
-        f"{mega(native_ins)} ({native_ins / clock:.2f} s) for the learned native preset.\n\n"
-        + footer(src)
+        f"{sets(False)}. On the board's Cortex-M55 a 160x120 frame costs "
+        f"{mega(fast['instructions'])} instructions with the census, counted on the firmware's "
+        f"whole frame ({fps3(fast['frames_per_s_ipc1'])} frames/s at "
+        f"{fast['clock_mhz']:.0f} MHz, IPC 1), against {mega(learned['instructions'])} "
+        f"({fps3(learned['frames_per_s_ipc1'])} frames/s, scaled from its band pair) for the "
+        f"learned native preset.\n\n" + footer(src)
     )

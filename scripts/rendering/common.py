@@ -4,6 +4,8 @@ through, table formatting, and the readouts every accuracy table names.
 
 from __future__ import annotations
 
+import math
+
 import json
 import re
 from collections.abc import Iterable, Sequence
@@ -95,6 +97,11 @@ def signed(x: float, digits: int = 3) -> str:
 
 def n(x: float) -> str:
     return f"{round(x):,}"
+
+
+def fps3(x: float) -> str:
+    """Frames per second to three significant digits."""
+    return f"{x:.3g}" if x >= 1 else f"{x:.{max(0, 2 - math.floor(math.log10(x)))}f}"
 
 
 def mega(x: float) -> str:

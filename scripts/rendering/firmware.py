@@ -4,7 +4,6 @@ frames and the shipped files.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from pathlib import Path
 
@@ -19,6 +18,7 @@ from .common import (
     census_instructions,
     ep_b1,
     footer,
+    fps3,
     mega,
     metrics_of,
     n,
@@ -385,11 +385,6 @@ def board_regions(src: Sources) -> str:
     return text + "\n\nBuilt from: " + "; ".join(notes) + ".\n\n" + footer(src)
 
 
-def fps3(x: float) -> str:
-    """Frames per second to three significant digits."""
-    return f"{x:.3g}" if x >= 1 else f"{x:.{max(0, 2 - math.floor(math.log10(x)))}f}"
-
-
 def fw_frames(src: Sources) -> str:
     b = src.budget()
     rows = []
@@ -421,6 +416,90 @@ def fw_frames(src: Sources) -> str:
     ]
     right = [False, True, False, False, True, True, True, True, True]
     return table(header, rows, right) + "\n\n" + footer(src)
+
+
+PRESET_SOURCES = {
+    "measured_frame": "measured on the frame",
+    "scaled_frame": "scaled from the measured frame",
+    "scaled_band_pair": "scaled from the band pair",
+}
+
+
+def board_presets(src: Sources) -> str:
+    """The board's two presets per frame and core (`bino budget`'s presets): the fast one
+    (`census+lr+ref`, no encoder) counted on the firmware's whole frame, the learned one (the
+    native pathway) scaled from its band pair; frames per second at IPC 1 and under the cycle
+    model, the exact arena and the stack peak."""
+    b = src.budget()
+    rows = []
+    for p in b["presets"]["frames"]:
+        f = p["frame"]
+        modelled = p.get("modelled_frames_per_s")
+        rows.append(
+            [
+                f"{f['width']}x{f['height']}",
+                f"{core_label(src.core(p['core'])).split(' (')[0]} at {p['clock_mhz']:.0f} MHz",
+                f"{p['preset']}: `{p['readout']}`",
+                mega(p["instructions"]),
+                PRESET_SOURCES[p["source"]],
+                fps3(p["frames_per_s_ipc1"]),
+                fps3(modelled) if modelled else "-",
+                f"{n(p['arena_bytes'])} B",
+                f"{n(p['stack_peak_bytes'])} B",
+            ]
+        )
+    header = [
+        "frame (W x H)",
+        "core",
+        "preset",
+        "instructions per frame",
+        "from",
+        "fps at IPC 1",
+        "fps, cycle model",
+        "arena (exact)",
+        "stack peak",
+    ]
+    right = [False, False, False, True, False, True, True, True, True]
+    return table(header, rows, right) + "\n\n" + footer(src)
+
+
+def board_frames(src: Sources) -> str:
+    """The README's board table: per core, both presets on a 160x120 frame (the fast one counted
+    on the firmware's frame, the learned one scaled from its band pair), frames per second at IPC
+    1 and under the cycle model, the exact arena, the weights each needs in flash (the fast one
+    none) and whether the firmware's outputs were bit-identical to the host's."""
+    b = src.budget()
+    rows = []
+    for p in b["presets"]["frames"]:
+        f = p["frame"]
+        if (f["width"], f["height"]) != (160, 120):
+            continue
+        c = src.core(p["core"])
+        modelled = p.get("modelled_frames_per_s")
+        how = "counted" if p["source"] == "measured_frame" else "scaled"
+        rows.append(
+            [
+                f"{core_label(c)} at {p['clock_mhz']:.0f} MHz",
+                f"{p['preset']}: `{p['readout']}`",
+                f"{mega(p['instructions'])} ({how})",
+                fps3(p["frames_per_s_ipc1"]),
+                fps3(modelled) if modelled else "-",
+                f"{n(p['arena_bytes'])} B",
+                "none" if p["preset"] == "fast" else f"{n(c['weights_flash_bytes'])} B",
+                "yes" if c["outputs_bit_identical"] else "**no**",
+            ]
+        )
+    header = [
+        "core (QEMU)",
+        "preset",
+        "instructions per 160x120 frame",
+        "fps at IPC 1",
+        "fps, cycle model",
+        "arena",
+        "weights flash",
+        "bit-identical to the host",
+    ]
+    return table(header, rows) + "\n\n" + footer(src)
 
 
 def fw_frame_check(src: Sources) -> str:

@@ -45,15 +45,21 @@ fn budget_reports_the_committed_runs() {
         let run = measured(core);
         let got = &report["cores"][i];
         assert_eq!(got["core"], *core);
-        // The export band pair is every stage the plugin counted except blob loading at boot and
-        // the native run's stages; the native band pair is those.
+        // The export band pair is every stage the plugin counted except blob loading at boot, the
+        // native run's stages and the census frame's; the native band pair is the native ones.
         let stages = run["stages"].as_array().unwrap();
-        let sum = |native: bool| -> u64 {
+        let of = |prefix: &str| -> u64 {
             stages
                 .iter()
-                .filter(|s| s["name"] != "load" && s["name"].as_str().unwrap().starts_with("native_") == native)
+                .filter(|s| s["name"].as_str().unwrap().starts_with(prefix))
                 .map(|s| s["instructions"].as_u64().unwrap())
                 .sum()
+        };
+        let sum = |native: bool| -> u64 {
+            match native {
+                true => of("native_"),
+                false => of("") - of("native_") - of("census_") - of("load"),
+            }
         };
         let band_pair = sum(false);
         assert_eq!(got["band_pair_instructions"], band_pair);
@@ -70,6 +76,27 @@ fn budget_reports_the_committed_runs() {
         assert_eq!(got["weights_flash_bytes"], run["elf_sections"][".weights"]["size"]);
         assert_eq!(got["arena_high_water_bytes"], run["arena_used"]);
         assert_eq!(got["outputs_bit_identical"], true, "{core}: the committed run passed");
+        // The fast preset's 160x120 frame: its census_* stages as counted, at the core's clock.
+        let fast = report["presets"]["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["core"] == *core && p["preset"] == "fast" && p["source"] == "measured_frame")
+            .unwrap_or_else(|| panic!("{core}: no measured fast frame"));
+        assert_eq!(
+            fast["frame"],
+            serde_json::json!({"height": 120, "width": 160}),
+            "{core}"
+        );
+        assert_eq!(fast["instructions"], of("census_"), "{core}");
+        assert_eq!(fast["instructions"], run["census"]["frame_instructions"], "{core}");
+        assert_eq!(fast["arena_bytes"], run["census"]["arena_bytes"], "{core}");
+        let fps = fast["frames_per_s_ipc1"].as_f64().unwrap();
+        let mhz = if *core == "m55" { 400.0 } else { 480.0 };
+        assert!(
+            (fps - mhz * 1e6 / of("census_") as f64).abs() < 1e-3,
+            "{core}: {fps} fps"
+        );
         assert!(
             stdout.contains(&bino_host::budget::grouped(band_pair)),
             "{core}: {stdout}"
@@ -112,7 +139,8 @@ fn budget_reports_the_committed_runs() {
             let ms = s["modelled_ms"].as_f64().unwrap();
             assert!((ms - cycles / (mhz * 1e3)).abs() < 1e-9, "{core} {}", r["name"]);
             // The model's band pair is the export pathway's.
-            if r["name"] != "load" && !r["name"].as_str().unwrap().starts_with("native_") {
+            let name = r["name"].as_str().unwrap();
+            if name != "load" && !name.starts_with("native_") && !name.starts_with("census_") {
                 band_pair += cycles;
             }
         }
@@ -134,8 +162,14 @@ fn budget_reports_the_committed_runs() {
 
     let targets = report["targets"].as_array().unwrap();
     // Weights, arena, then per core its band-pair instructions, the native band pair's share
-    // and its refinement's share.
-    assert_eq!(targets.len(), 10);
+    // and its refinement's share, the fast preset's frame rate on the M55, and the export
+    // ceilings.
+    assert_eq!(targets.len(), 11);
+    let fast = targets
+        .iter()
+        .find(|t| t["target"].as_str().unwrap().contains("fast preset"))
+        .unwrap_or_else(|| panic!("no fast preset target in {targets:?}"));
+    assert_eq!(fast["met"], true, "{fast}");
     for core in ["Cortex-M55", "Cortex-M7"] {
         let refinement = targets
             .iter()

@@ -1,5 +1,5 @@
-//! The firmware's embedded test bands (`firmware-sim/assets/band_<H>x<W>_{left,right}.gray`, raw
-//! row-major gray bytes) are the built-in procedural scene (`bino_host::data::synthetic::default_scene`,
+//! The firmware's embedded test bands and frame (`firmware-sim/assets/{band,frame}_<H>x<W>_{left,right}.gray`,
+//! raw row-major gray bytes) are the built-in procedural scene (`bino_host::data::synthetic::default_scene`,
 //! the scene `bino demo --width W --height H` shows), not arbitrary blobs.
 //! Regenerate them with `cargo test -p bino-host --test firmware_band -- --ignored`.
 
@@ -7,24 +7,25 @@ use std::path::{Path, PathBuf};
 
 use bino_host::data::synthetic::default_scene;
 
-/// The band sizes the firmware embeds (height, width): 48x160 (the budget and CI run), 48x32
-/// (`scripts/firmware.sh --band small`, a quick check).
-const BANDS: [(usize, usize); 2] = [(48, 160), (48, 32)];
+/// The pairs the firmware embeds (kind, height, width): the 48x160 band (the budget and CI run),
+/// the 48x32 band (`scripts/firmware.sh --band small`, a quick check) and the 160x120 frame of the
+/// fast preset's whole-frame run.
+const BANDS: [(&str, usize, usize); 3] = [("band", 48, 160), ("band", 48, 32), ("frame", 120, 160)];
 
 fn assets() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware-sim/assets")
 }
 
-fn path(height: usize, width: usize, view: &str) -> PathBuf {
-    assets().join(format!("band_{height}x{width}_{view}.gray"))
+fn path(kind: &str, height: usize, width: usize, view: &str) -> PathBuf {
+    assets().join(format!("{kind}_{height}x{width}_{view}.gray"))
 }
 
 #[test]
 fn committed_bands_are_the_demo_scene() {
-    for (height, width) in BANDS {
+    for (kind, height, width) in BANDS {
         let scene = default_scene(width, height);
         for (view, image) in [("left", &scene.left), ("right", &scene.right)] {
-            let file = path(height, width, view);
+            let file = path(kind, height, width, view);
             let bytes = std::fs::read(&file).unwrap_or_else(|e| panic!("{}: {e}", file.display()));
             assert_eq!(bytes.len(), width * height, "{}", file.display());
             let first_diff = bytes.iter().zip(&image.pixels).position(|(a, b)| a != b);
@@ -49,9 +50,9 @@ fn committed_bands_are_the_demo_scene() {
 #[test]
 #[ignore = "writes firmware-sim/assets; run on purpose to regenerate the bands"]
 fn write_firmware_bands() {
-    for (height, width) in BANDS {
+    for (kind, height, width) in BANDS {
         let scene = default_scene(width, height);
-        std::fs::write(path(height, width, "left"), &scene.left.pixels).unwrap();
-        std::fs::write(path(height, width, "right"), &scene.right.pixels).unwrap();
+        std::fs::write(path(kind, height, width, "left"), &scene.left.pixels).unwrap();
+        std::fs::write(path(kind, height, width, "right"), &scene.right.pixels).unwrap();
     }
 }

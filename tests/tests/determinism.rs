@@ -1,13 +1,14 @@
 //! Determinism (issue 12): the firmware's own workload (`firmware-sim/src/workload.rs`, the
-//! shipped blob, the embedded 48x160 band pair), on both pathways, gives bit-identical outputs
-//! run after run and on several threads at once on the host, and the same digests the
-//! Cortex-M55 and Cortex-M7 firmwares computed under QEMU (`firmware-sim/measured/*.json`,
-//! written by `scripts/firmware.sh --profile --out firmware-sim/measured`). The refined rows'
-//! digest is also recomputed from the specification: the whole-map refinement the preset names
+//! shipped blob, the embedded 48x160 band pair on both pathways of the learned preset, the
+//! embedded 160x120 frame through the fast preset's census run) gives bit-identical outputs run
+//! after run and on several threads at once on the host, and the same digests the Cortex-M55
+//! and Cortex-M7 firmwares computed under QEMU (`firmware-sim/measured/*.json`, written by
+//! `scripts/firmware.sh --profile --out firmware-sim/measured`). The refined rows' digest is
+//! also recomputed from the specification: the whole-map refinement the preset names
 //! (`refine::sharpness::refine_map_equalised`, or `refine::refine_map` without equalisation) on
-//! the whole token map of a plain pipeline run the preset reads: the head and SGM fused by their
-//! checks (`lr::fuse_row` through the host's `readout::fuse_grid`, export pathway) or the
-//! head+lr map (native), filled.
+//! the whole token map the preset reads: the head and SGM fused by their checks (`lr::fuse_row`
+//! through the host's `readout::fuse_grid`, export pathway), the head fused with the census SGM
+//! (native), or the census SGM alone (the fast preset), filled.
 
 use std::path::{Path, PathBuf};
 
@@ -20,12 +21,12 @@ use bino_core::census;
 use bino_core::crc32::Crc32;
 use bino_core::lr::fill_rejected;
 use bino_core::model::head::HeadRow;
-use bino_core::pipeline::{HeadChecked, MatchedRow, Pathway, Pipeline, RefineInput, Sink, SlicePair};
+use bino_core::pipeline::{HeadChecked, MatchedRow, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{keep_rejected_map, refine_map, scratch_len};
 use bino_host::readout::fuse_grid;
 use bino_tests::census_whole_map;
-use workload::{Hooks, Stage, OUTPUTS};
+use workload::{Hooks, Run, Stage, OUTPUTS};
 
 struct Quiet;
 
@@ -40,12 +41,47 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
-/// The workload's digests on the committed band, in a fresh arena each time.
-fn digests(blob: &[u8], pathway: Pathway, left: &[u8], right: &[u8]) -> [u32; OUTPUTS.len()] {
-    let (height, width) = (48, 160);
-    let mut arena = vec![0xA5u8; workload::arena_bytes(height, width)];
-    let mut source = SlicePair::new(left, right, width, height).unwrap();
-    workload::run(blob, pathway, &mut source, &mut arena, &mut Quiet)
+/// A committed pair the firmware embeds.
+struct Pair {
+    height: usize,
+    width: usize,
+    left: Vec<u8>,
+    right: Vec<u8>,
+}
+
+impl Pair {
+    /// `firmware-sim/assets/<kind>_<H>x<W>_{left,right}.gray`.
+    fn read(kind: &str, height: usize, width: usize) -> Self {
+        let assets = repo().join("firmware-sim/assets");
+        let view = |v: &str| std::fs::read(assets.join(format!("{kind}_{height}x{width}_{v}.gray"))).unwrap();
+        Self {
+            height,
+            width,
+            left: view("left"),
+            right: view("right"),
+        }
+    }
+
+    /// What `run` reads: the 48x160 band for the learned preset, the 160x120 frame for the fast.
+    fn of(run: Run) -> Self {
+        match run {
+            Run::Export | Run::Native => Self::read("band", 48, 160),
+            Run::Census => Self::read("frame", 120, 160),
+        }
+    }
+}
+
+/// The workload's digests of `run` on its committed pair, in a fresh arena of exactly the
+/// firmware's size each time.
+fn digests(blob: &[u8], run: Run, pair: &Pair) -> [u32; OUTPUTS.len()] {
+    let (height, width) = (pair.height, pair.width);
+    let bytes = match run {
+        Run::Census => workload::census_arena_bytes(height, width),
+        Run::Export | Run::Native => workload::arena_bytes(height, width),
+    };
+    let mut arena = vec![0xA5u8; bytes];
+    let mut source = SlicePair::new(&pair.left, &pair.right, width, height).unwrap();
+    workload::run(blob, run, &mut source, &mut arena, &mut Quiet)
         .unwrap()
         .digests
 }
@@ -97,21 +133,27 @@ impl Sink for HeadMaps {
     }
 }
 
-/// CRC-32 of the preset's whole-map refinement on the filled grid of `pathway`'s run (fuse-all+lr
-/// on the export pathway: the head fused with the census SGM computed over the whole map, that
-/// with the SGM; fuse-census+lr on the native one: the head fused with the census SGM; rejected
-/// cells kept at the bilinear step) without the refinement stage, rows top to bottom, values
-/// little-endian: what the workload's `refined` digest must be.
-fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8], right: &[u8]) -> u32 {
-    let (height, width) = (48, 160);
-    let (options, refine) = workload::preset(pathway);
-    let want = match pathway {
-        Pathway::Export => RefineInput::FusedAllLr,
-        Pathway::Native => RefineInput::FusedCensusLr,
+/// CRC-32 of the preset's whole-map refinement on the filled grid of `run` (fuse-all+lr on the
+/// export pathway: the head fused with the census SGM computed over the whole map, that with
+/// the SGM; fuse-census+lr on the native one: the head fused with the census SGM; census+lr for
+/// the fast preset: the census SGM alone; rejected cells kept at the bilinear step) without the
+/// refinement stage, rows top to bottom, values little-endian: what the workload's `refined`
+/// digest must be.
+fn refined_digest_from_the_whole_map(blob: &[u8], run: Run, pair: &Pair) -> u32 {
+    let (height, width, left, right) = (pair.height, pair.width, &pair.left[..], &pair.right[..]);
+    let (options, refine) = workload::preset(run);
+    let want = match run {
+        Run::Export => RefineInput::FusedAllLr,
+        Run::Native => RefineInput::FusedCensusLr,
+        Run::Census => RefineInput::CensusLr,
     };
     assert_eq!(refine.input, want);
-    let pipeline = Pipeline::new(Blob::parse(blob).unwrap()).unwrap();
     let cols = width / 4;
+    let (census, census_mask) = census_whole_map(left, right, width, height, options.head_candidates);
+    if run == Run::Census {
+        return refined_crc(pair, census, &census_mask, &refine);
+    }
+    let pipeline = Pipeline::new(Blob::parse(blob).unwrap()).unwrap();
     let cells = height / 4 * cols;
     let mut maps = HeadMaps {
         cols,
@@ -125,17 +167,24 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
     let mut source = SlicePair::new(left, right, width, height).unwrap();
     pipeline.run(&mut source, &options, &mut arena, &mut maps).unwrap();
     let head = (&maps.head[..], &maps.mask[..]);
-    let (census, census_mask) = census_whole_map(left, right, width, height, options.head_candidates);
     let with_census = (&census[..], &census_mask[..]);
     let (first, first_mask) = fuse_grid(head, &maps.confidence, with_census, cols, census::FUSE_HEAD_WEIGHT).unwrap();
-    let (mut grid, mask) = match pathway {
-        Pathway::Export => {
+    let (grid, mask) = match run {
+        Run::Export => {
             let sgm = (&maps.sgm[..], &maps.sgm_mask[..]);
             let first = (&first[..], &first_mask[..]);
             fuse_grid(first, &maps.confidence, sgm, cols, census::FUSE_ALL_FIRST_WEIGHT).unwrap()
         }
-        Pathway::Native => (first, first_mask),
+        Run::Native | Run::Census => (first, first_mask),
     };
+    refined_crc(pair, grid, &mask, &refine)
+}
+
+/// CRC-32 of the whole-map refinement of `grid` (its rejected cells filled, then kept at the
+/// bilinear step) on `pair`.
+fn refined_crc(pair: &Pair, mut grid: Vec<u16>, mask: &[u8], refine: &bino_core::pipeline::Refine) -> u32 {
+    let (width, height, left, right) = (pair.width, pair.height, &pair.left[..], &pair.right[..]);
+    let cols = width / 4;
     for (row, m) in grid.chunks_exact_mut(cols).zip(mask.chunks_exact(cols)) {
         fill_rejected(row, m).unwrap();
     }
@@ -147,7 +196,7 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
         refine_map
     };
     whole(left, right, width, &grid, &refine.params, &mut scratch, &mut refined).unwrap();
-    keep_rejected_map(width, &grid, &mask, &mut refined).unwrap();
+    keep_rejected_map(width, &grid, mask, &mut refined).unwrap();
     let mut crc = Crc32::new();
     for v in refined {
         crc.update(&v.to_le_bytes());
@@ -158,32 +207,23 @@ fn refined_digest_from_the_whole_map(blob: &[u8], pathway: Pathway, left: &[u8],
 #[test]
 fn outputs_are_bit_identical_across_runs_threads_and_targets() {
     let blob = std::fs::read(repo().join("weights/bino_int8.bin")).unwrap();
-    let assets = repo().join("firmware-sim/assets");
-    let left = std::fs::read(assets.join("band_48x160_left.gray")).unwrap();
-    let right = std::fs::read(assets.join("band_48x160_right.gray")).unwrap();
-
     let refined = OUTPUTS.iter().position(|&n| n == "refined").unwrap();
     let mut host = Vec::new();
-    for pathway in [Pathway::Export, Pathway::Native] {
-        let first = digests(&blob, pathway, &left, &right);
+    for run in Run::ALL {
+        let pair = Pair::of(run);
+        let first = digests(&blob, run, &pair);
         assert_eq!(
             first[refined],
-            refined_digest_from_the_whole_map(&blob, pathway, &left, &right),
-            "{pathway:?}: the streamed refinement against the whole map's"
+            refined_digest_from_the_whole_map(&blob, run, &pair),
+            "{run:?}: the streamed refinement against the whole map's"
         );
-        assert_eq!(
-            digests(&blob, pathway, &left, &right),
-            first,
-            "{pathway:?}: a second run on the host"
-        );
+        assert_eq!(digests(&blob, run, &pair), first, "{run:?}: a second run on the host");
         let threads: Vec<[u32; OUTPUTS.len()]> = std::thread::scope(|scope| {
-            let handles: Vec<_> = (0..3)
-                .map(|_| scope.spawn(|| digests(&blob, pathway, &left, &right)))
-                .collect();
+            let handles: Vec<_> = (0..3).map(|_| scope.spawn(|| digests(&blob, run, &pair))).collect();
             handles.into_iter().map(|h| h.join().unwrap()).collect()
         });
         for (i, d) in threads.iter().enumerate() {
-            assert_eq!(d, &first, "{pathway:?}: thread {i} of three running at once");
+            assert_eq!(d, &first, "{run:?}: thread {i} of three running at once");
         }
         // x86 hosts: the AVX2 kernels and the portable ones (chosen at run time) give what the
         // AVX-512 VNNI ones do (where the CPU has them; else those runs take what it has).
@@ -193,26 +233,26 @@ fn outputs_are_bit_identical_across_runs_threads_and_targets() {
             let fastest = active();
             for cap in [Isa::Avx2, Isa::Portable] {
                 let ran = limit(cap);
-                let capped = digests(&blob, pathway, &left, &right);
+                let capped = digests(&blob, run, &pair);
                 assert_eq!(
                     capped,
                     first,
-                    "{pathway:?}: {} kernels against {}",
+                    "{run:?}: {} kernels against {}",
                     ran.name(),
                     fastest.name()
                 );
             }
             limit(fastest);
         }
-        for &slot in workload::outputs(pathway) {
-            host.push((pathway.pathway().to_string(), OUTPUTS[slot].to_string(), first[slot]));
+        for &slot in workload::outputs(run) {
+            host.push((run.name().to_string(), OUTPUTS[slot].to_string(), first[slot]));
         }
     }
     for core in ["m55", "m7"] {
         let recorded = firmware_digests(core);
         let names: Vec<(&str, &str)> = recorded.iter().map(|(p, n, _)| (p.as_str(), n.as_str())).collect();
         let want: Vec<(&str, &str)> = host.iter().map(|(p, n, _)| (p.as_str(), n.as_str())).collect();
-        assert_eq!(names, want, "{core}: the workload's outputs, both pathways");
+        assert_eq!(names, want, "{core}: the workload's outputs, every run");
         for ((pathway, name, digest), (_, _, host)) in recorded.iter().zip(&host) {
             assert_eq!(
                 digest, host,

@@ -7,6 +7,9 @@
 //! QEMU firmware's embedded 48x160 test band, a real `RowSource`: the board runs it over and
 //! over, prints the sector summary and the cycles of every stage over defmt-RTT, and reports
 //! whether it reproduced the host's result bit for bit.
+//!
+//! With the `fast` feature it runs the fast preset (`census+lr+ref`, no encoder, no weights
+//! linked) on the QEMU firmware's whole 160x120 test frame instead, in the preset's own arena.
 #![no_std]
 #![no_main]
 
@@ -14,8 +17,8 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 
 use bino_board::clock;
-use bino_board::options::{ARENA_BYTES, BAND_HEIGHT, BAND_WIDTH};
-use bino_board::run::load;
+use bino_board::options::BAND_WIDTH;
+use bino_board::run::Preset;
 use cortex_m_rt::{entry, exception};
 use defmt_rtt as _;
 
@@ -30,19 +33,58 @@ const CORE_HZ: u32 = 400_000_000;
 #[repr(C, align(32))]
 struct Aligned<T>(T);
 
-const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8.bin").len();
+#[cfg(not(feature = "fast"))]
+mod preset {
+    //! The learned preset: its weights and its test band.
 
-/// The int8 weight blob, in MRAM (`.weights`, see `memory.x`).
-#[link_section = ".weights"]
-#[used]
-static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8.bin"));
+    use super::Aligned;
+    use bino_board::run::{load, Preset};
+    use bino_core::Error;
 
-static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_left.gray");
-static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_right.gray");
+    pub use bino_board::options::{ARENA_BYTES as ARENA_LEN, BAND_HEIGHT as ROWS};
+
+    pub const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8.bin").len();
+
+    /// The int8 weight blob, in MRAM (`.weights`, see `memory.x`).
+    #[link_section = ".weights"]
+    #[used]
+    static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8.bin"));
+
+    pub static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_left.gray");
+    pub static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_right.gray");
+
+    /// The learned preset on the blob's engine (checked once, here).
+    pub fn load_preset() -> Result<Preset<'static>, Error> {
+        // black_box: the blob's bytes must be read from MRAM, never folded into the code.
+        load(core::hint::black_box(&BLOB.0)).map(Preset::Learned)
+    }
+}
+
+#[cfg(feature = "fast")]
+mod preset {
+    //! The fast preset: no weights, the whole test frame.
+
+    use bino_board::run::Preset;
+    use bino_core::Error;
+
+    pub use bino_board::options::{FAST_ARENA_BYTES as ARENA_LEN, FRAME_HEIGHT as ROWS};
+
+    pub const BLOB_LEN: usize = 0;
+
+    pub static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_left.gray");
+    pub static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_right.gray");
+
+    /// The fast preset.
+    pub fn load_preset() -> Result<Preset<'static>, Error> {
+        Ok(Preset::Fast)
+    }
+}
+
+use preset::{ARENA_LEN, ROWS};
 
 /// The pipeline's arena: SRAM0, not zeroed at reset.
 #[link_section = ".sram0.arena"]
-static mut ARENA: MaybeUninit<Aligned<[u8; ARENA_BYTES]>> = MaybeUninit::uninit();
+static mut ARENA: MaybeUninit<Aligned<[u8; ARENA_LEN]>> = MaybeUninit::uninit();
 
 #[entry]
 fn main() -> ! {
@@ -55,31 +97,31 @@ fn main() -> ! {
     // every byte initialised.
     let arena = unsafe {
         let arena = addr_of_mut!(ARENA).cast::<u8>();
-        core::ptr::write_bytes(arena, 0, ARENA_BYTES);
-        core::slice::from_raw_parts_mut(arena, ARENA_BYTES)
+        core::ptr::write_bytes(arena, 0, ARENA_LEN);
+        core::slice::from_raw_parts_mut(arena, ARENA_LEN)
     };
-    // black_box: the blob's bytes must be read from MRAM, never folded into the code.
-    let blob: &[u8] = core::hint::black_box(&BLOB.0);
+    let loaded: Result<Preset<'static>, _> = preset::load_preset();
     defmt::println!(
-        "bino board=alif-e7 core=cortex-m55-hp core_hz={=u32} band={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
+        "bino board=alif-e7 core=cortex-m55-hp core_hz={=u32} rows={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
         CORE_HZ,
-        BAND_HEIGHT,
+        ROWS,
         BAND_WIDTH,
-        ARENA_BYTES,
-        BLOB_LEN,
+        ARENA_LEN,
+        preset::BLOB_LEN,
         has_cycles
     );
     defmt::println!("bino source=test-band");
-    match load(blob) {
-        // The band again and again: each run prints its summary and cycles, so the log can be
-        // read whenever the probe attaches.
-        Ok(pipeline) => {
+    match loaded {
+        // The band (or frame) again and again: each run prints its summary and cycles, so the
+        // log can be read whenever the probe attaches.
+        Ok(preset) => {
+            defmt::println!("bino preset={=str}", preset.name());
             for frame in 0u32.. {
                 bino_board::check::test_band(
-                    &pipeline,
+                    &preset,
                     frame,
-                    LEFT,
-                    RIGHT,
+                    preset::LEFT,
+                    preset::RIGHT,
                     arena,
                     expected::REFINED_CRC,
                     &expected::SECTORS,

@@ -1,20 +1,20 @@
-//! The test-band check both boards can run: the QEMU firmware's embedded band through the
-//! pipeline, its summary printed, and compared with the host's (baked in by the board's
-//! `build.rs` through [`crate::bake`]).
+//! The test-band check both boards can run: the QEMU firmware's embedded band (the learned
+//! preset) or frame (the fast preset) through the pipeline, its summary printed, and compared
+//! with the host's (baked in by the board's `build.rs` through [`crate::bake`]).
 
-use bino_core::pipeline::{Pipeline, SlicePair};
+use bino_core::pipeline::SlicePair;
 
 use crate::clock::DwtClock;
-use crate::options::{BAND_HEIGHT, BAND_WIDTH};
-use crate::run::run_band;
+use crate::options::BAND_WIDTH;
+use crate::run::Preset;
 use crate::summary::{Sector, Summary, SECTORS};
 
-/// Runs the band `left`/`right` in `arena` as frame `frame`, prints its summary and
-/// `bino result=pass` when the refined rows' CRC and the sectors equal the host's (`fail`
-/// otherwise, `error` on an engine error). Returns whether it passed.
+/// Runs `preset` on the band or frame `left`/`right` in `arena` as frame `frame`, prints its
+/// summary and `bino result=pass` when the refined rows' CRC and the sectors equal the host's
+/// (`fail` otherwise, `error` on an engine error). Returns whether it passed.
 #[allow(clippy::too_many_arguments)]
 pub fn test_band(
-    pipeline: &Pipeline<'_>,
+    preset: &Preset<'_>,
     frame: u32,
     left: &[u8],
     right: &[u8],
@@ -23,9 +23,11 @@ pub fn test_band(
     expected: &[Sector; SECTORS],
     core_hz: u32,
 ) -> bool {
-    let result = SlicePair::new(left, right, BAND_WIDTH, BAND_HEIGHT).and_then(|mut rows| {
+    let result = SlicePair::new(left, right, BAND_WIDTH, preset.height()).and_then(|mut rows| {
         let mut summary = Summary::new(BAND_WIDTH, DwtClock)?;
-        run_band(pipeline, &mut rows, arena, &mut summary).map(|report| (summary, report))
+        preset
+            .run(&mut rows, arena, &mut summary)
+            .map(|report| (summary, report))
     });
     match result {
         Ok((summary, report)) => {

@@ -1,14 +1,15 @@
-//! The board's report of one band pair, gathered as the pipeline streams (a
-//! [`Sink`]): the refined pixel disparity of the preset's fuse-census+lr readout summarised per vertical
-//! sector (median and near disparity, and the nearest depth in mm through
-//! `bino_core::depth` with the preset's example calibration, what an obstacle check reads), the share of cells the
-//! head's left-right check confirms per sector, a CRC-32 of the refined rows (to compare with
-//! a host run of the same band), and the cycles each pipeline stage took.
+//! The board's report of one band pair or frame, gathered as the pipeline streams (a
+//! [`Sink`]): the refined pixel disparity of the preset's readout (fuse-census+lr, or the fast
+//! preset's census+lr) summarised per vertical sector (median and near disparity, and the nearest
+//! depth in mm through `bino_core::depth` with the preset's example calibration, what an obstacle
+//! check reads), the share of cells the readout's left-right check (the head's, or the census
+//! SGM's) confirms per sector, a CRC-32 of the refined rows (to compare with a host run of the
+//! same rows), and the cycles each pipeline stage took.
 
 use bino_core::config::CELL_W;
 use bino_core::crc32::Crc32;
 use bino_core::depth::{DepthModel, DisparityUnit, SectorSummary};
-use bino_core::pipeline::{HeadChecked, MatchedRow, Sink, Stage};
+use bino_core::pipeline::{CensusRow, HeadChecked, MatchedRow, Sink, Stage};
 use bino_core::preset::CALIBRATION;
 use bino_core::Error;
 
@@ -43,7 +44,8 @@ pub struct Sector {
     pub median_px: u16,
     /// 90th percentile refined disparity, whole pixels: the near side of the sector.
     pub near_px: u16,
-    /// Cells of the sector the head's left-right check confirms, per mille.
+    /// Cells of the sector the readout's left-right check confirms (the head's; the census
+    /// SGM's on the fast preset), per mille.
     pub consistent_permille: u16,
     /// Nearest depth of the sector's refined pixels, mm (`bino_core::depth` with the preset's
     /// calibration); 0 where no pixel has a depth.
@@ -125,6 +127,16 @@ impl<C: Clock> Summary<C> {
         core::array::from_fn(|i| (Stage::ALL[i], self.stage_cycles[i]))
     }
 
+    /// Counts a token row's left-right mask into its sectors.
+    fn count_checked(&mut self, consistent: &[u8]) {
+        let cols = consistent.len();
+        for (c, &ok) in consistent.iter().enumerate() {
+            let s = self.sector_of(c, cols);
+            self.cells[s] += 1;
+            self.consistent[s] += u32::from(ok != 0);
+        }
+    }
+
     fn sector_of(&self, index: usize, of: usize) -> usize {
         (index * SECTORS / of.max(1)).min(SECTORS - 1)
     }
@@ -165,12 +177,11 @@ impl<C: Clock> Sink for Summary<C> {
     fn matched(&mut self, _row: &MatchedRow<'_>) {}
 
     fn head_checked(&mut self, row: &HeadChecked<'_>) {
-        let cols = row.consistent.len();
-        for (c, &ok) in row.consistent.iter().enumerate() {
-            let s = self.sector_of(c, cols);
-            self.cells[s] += 1;
-            self.consistent[s] += u32::from(ok != 0);
-        }
+        self.count_checked(row.consistent);
+    }
+
+    fn census(&mut self, row: &CensusRow<'_>) {
+        self.count_checked(row.consistent);
     }
 
     fn refined(&mut self, _row: usize, disparity_q8: &[u16]) {

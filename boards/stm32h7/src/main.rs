@@ -3,12 +3,17 @@
 //! stack in DTCM.
 //!
 //! Frames come from the DCMI (embassy-stm32's driver, 8-bit parallel, snapshot mode with DMA):
-//! one frame is one band of [`BAND_HEIGHT`] lines of `2 x BAND_WIDTH` gray pixels, the rectified
+//! one frame is one band of `BAND_HEIGHT` lines of `2 x BAND_WIDTH` gray pixels, the rectified
 //! left row then the right row (a side-by-side stereo module). The frame lands in a buffer in
 //! the AXI SRAM, the pipeline reads it line by line ([`SideBySide`]), and the board prints
 //! each band pair's sector summary and the cycles of every stage over defmt-RTT. With the
 //! `test-band` feature the board runs the QEMU firmware's embedded test band instead, over and
 //! over, and reports whether it reproduced the host's result bit for bit.
+//!
+//! With the `fast` feature the board runs the fast preset (`census+lr+ref`, no encoder, no
+//! weights in flash) on whole frames of `bino_board::options::FRAME_HEIGHT` lines (160x120), in
+//! its own `FAST_ARENA_BYTES` arena; with `fast` and `test-band`, on the QEMU firmware's embedded
+//! frame.
 #![no_std]
 #![no_main]
 
@@ -16,8 +21,12 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 
 use bino_board::clock;
-use bino_board::options::{ARENA_BYTES, BAND_HEIGHT, BAND_WIDTH};
-use bino_board::run::load;
+use bino_board::options::BAND_WIDTH;
+#[cfg(not(feature = "fast"))]
+use bino_board::options::{ARENA_BYTES, BAND_HEIGHT};
+#[cfg(feature = "fast")]
+use bino_board::options::{FAST_ARENA_BYTES, FRAME_HEIGHT};
+use bino_board::run::Preset;
 use cortex_m_rt::{entry, exception};
 use defmt_rtt as _;
 use embassy_stm32::Config;
@@ -28,16 +37,58 @@ const CORE_HZ: u32 = 480_000_000;
 #[repr(C, align(32))]
 struct Aligned<T>(T);
 
-const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8.bin").len();
+/// Lines one run reads: a band of the learned preset, or the fast preset's whole frame.
+#[cfg(not(feature = "fast"))]
+const ROWS: usize = BAND_HEIGHT;
+#[cfg(feature = "fast")]
+const ROWS: usize = FRAME_HEIGHT;
 
-/// The int8 weight blob, in internal flash (`.weights`, see `memory.x`).
-#[link_section = ".weights"]
-#[used]
-static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8.bin"));
+/// The preset's arena, bytes.
+#[cfg(not(feature = "fast"))]
+const ARENA_LEN: usize = ARENA_BYTES;
+#[cfg(feature = "fast")]
+const ARENA_LEN: usize = FAST_ARENA_BYTES;
+
+#[cfg(not(feature = "fast"))]
+mod weights {
+    //! The learned preset's weights.
+
+    use super::Aligned;
+    use bino_board::run::{load, Preset};
+    use bino_core::Error;
+
+    pub const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8.bin").len();
+
+    /// The int8 weight blob, in internal flash (`.weights`, see `memory.x`).
+    #[link_section = ".weights"]
+    #[used]
+    static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8.bin"));
+
+    /// The learned preset on the blob's engine (checked once, here).
+    pub fn preset() -> Result<Preset<'static>, Error> {
+        // black_box: the blob's bytes must be read from flash, never folded into the code.
+        load(core::hint::black_box(&BLOB.0)).map(Preset::Learned)
+    }
+}
+
+#[cfg(feature = "fast")]
+mod weights {
+    //! The fast preset reads no weights: none are linked.
+
+    use bino_board::run::Preset;
+    use bino_core::Error;
+
+    pub const BLOB_LEN: usize = 0;
+
+    /// The fast preset.
+    pub fn preset() -> Result<Preset<'static>, Error> {
+        Ok(Preset::Fast)
+    }
+}
 
 /// The pipeline's arena: AXI SRAM, not zeroed at reset.
 #[link_section = ".axisram.arena"]
-static mut ARENA: MaybeUninit<Aligned<[u8; ARENA_BYTES]>> = MaybeUninit::uninit();
+static mut ARENA: MaybeUninit<Aligned<[u8; ARENA_LEN]>> = MaybeUninit::uninit();
 
 #[entry]
 fn main() -> ! {
@@ -52,25 +103,24 @@ fn main() -> ! {
     // every byte initialised.
     let arena = unsafe {
         let arena = addr_of_mut!(ARENA).cast::<u8>();
-        core::ptr::write_bytes(arena, 0, ARENA_BYTES);
-        core::slice::from_raw_parts_mut(arena, ARENA_BYTES)
+        core::ptr::write_bytes(arena, 0, ARENA_LEN);
+        core::slice::from_raw_parts_mut(arena, ARENA_LEN)
     };
-    // black_box: the blob's bytes must be read from flash, never folded into the code.
-    let blob: &[u8] = core::hint::black_box(&BLOB.0);
-    defmt::println!(
-        "bino board=stm32h743 core=cortex-m7 core_hz={=u32} band={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
-        CORE_HZ,
-        BAND_HEIGHT,
-        BAND_WIDTH,
-        ARENA_BYTES,
-        BLOB_LEN,
-        has_cycles
-    );
-    let pipeline = match load(blob) {
+    let preset = match weights::preset() {
         Ok(p) => p,
         Err(e) => halt(defmt::Display2Format(&e)),
     };
-    source::run(p, &mut cp.SCB, &pipeline, arena)
+    defmt::println!(
+        "bino board=stm32h743 core=cortex-m7 core_hz={=u32} preset={=str} rows={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
+        CORE_HZ,
+        preset.name(),
+        ROWS,
+        BAND_WIDTH,
+        ARENA_LEN,
+        weights::BLOB_LEN,
+        has_cycles
+    );
+    source::run(p, &mut cp.SCB, &preset, arena)
 }
 
 #[cfg(not(feature = "test-band"))]
@@ -79,10 +129,8 @@ mod source {
 
     use super::*;
     use bino_board::clock::DwtClock;
-    use bino_board::run::run_band;
     use bino_board::side_by_side::SideBySide;
     use bino_board::summary::Summary;
-    use bino_core::pipeline::Pipeline;
     use cortex_m::peripheral::SCB;
     use embassy_stm32::dcmi::{self, Dcmi};
     use embassy_stm32::{bind_interrupts, dma, peripherals, Peripherals};
@@ -92,14 +140,14 @@ mod source {
         DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
     });
 
-    /// Words of one frame: BAND_HEIGHT lines of 2 x BAND_WIDTH bytes.
-    const FRAME_WORDS: usize = BAND_HEIGHT * 2 * BAND_WIDTH / 4;
+    /// Words of one frame: ROWS lines of 2 x BAND_WIDTH bytes.
+    const FRAME_WORDS: usize = ROWS * 2 * BAND_WIDTH / 4;
 
     /// The DCMI's DMA target: AXI SRAM (the DMA does not reach DTCM), cache-line aligned.
     #[link_section = ".axisram.frame"]
     static mut FRAME: MaybeUninit<Aligned<[u32; FRAME_WORDS]>> = MaybeUninit::uninit();
 
-    pub fn run(p: Peripherals, scb: &mut SCB, pipeline: &Pipeline<'_>, arena: &mut [u8]) -> ! {
+    pub fn run(p: Peripherals, scb: &mut SCB, preset: &Preset<'_>, arena: &mut [u8]) -> ! {
         // Pins of the DCMI's 8-bit bus (the embassy STM32H7 DCMI example's): D0 PC6, D1 PC7,
         // D2 PE0, D3 PE1, D4 PE4, D5 PD3, D6 PE5, D7 PE6, VSYNC PB7, HSYNC PA4, PIXCLK PA6.
         let mut dcmi = Dcmi::new_8bit(
@@ -145,9 +193,9 @@ mod source {
                 continue;
             }
             let bytes: &[u8] = bytemuck::cast_slice(frame);
-            let result = SideBySide::new(bytes, BAND_WIDTH, BAND_HEIGHT).and_then(|mut rows| {
+            let result = SideBySide::new(bytes, BAND_WIDTH, ROWS).and_then(|mut rows| {
                 let mut summary = Summary::new(BAND_WIDTH, DwtClock)?;
-                run_band(pipeline, &mut rows, arena, &mut summary).map(|r| (summary, r))
+                preset.run(&mut rows, arena, &mut summary).map(|r| (summary, r))
             });
             match result {
                 Ok((summary, report)) => bino_board::log::print(n, &summary, &report, CORE_HZ),
@@ -160,10 +208,10 @@ mod source {
 
 #[cfg(feature = "test-band")]
 mod source {
-    //! The embedded test band, once, checked against the host.
+    //! The embedded test band (the fast preset: frame), again and again, checked against the
+    //! host.
 
     use super::*;
-    use bino_core::pipeline::Pipeline;
     use cortex_m::peripheral::SCB;
     use embassy_stm32::Peripherals;
 
@@ -171,15 +219,21 @@ mod source {
         include!(concat!(env!("OUT_DIR"), "/expected.rs"));
     }
 
+    #[cfg(not(feature = "fast"))]
     static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_left.gray");
+    #[cfg(not(feature = "fast"))]
     static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_right.gray");
+    #[cfg(feature = "fast")]
+    static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_left.gray");
+    #[cfg(feature = "fast")]
+    static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_right.gray");
 
-    pub fn run(_p: Peripherals, _scb: &mut SCB, pipeline: &Pipeline<'_>, arena: &mut [u8]) -> ! {
+    pub fn run(_p: Peripherals, _scb: &mut SCB, preset: &Preset<'_>, arena: &mut [u8]) -> ! {
         defmt::println!("bino source=test-band");
         // The band again and again: each run prints its summary and cycles.
         for frame in 0u32.. {
             bino_board::check::test_band(
-                pipeline,
+                preset,
                 frame,
                 LEFT,
                 RIGHT,

@@ -7,10 +7,11 @@
 //! - the census of a row's interior (every neighbour inside the row) as one pass over the row
 //!   per neighbour, which the compiler vectorises (MVE on the Cortex-M55); the `r` pixels at each
 //!   end take the reference's clamped path;
-//! - the box sums by column: `A(k)` is the sum over the box's columns of a column cost (the
-//!   Hamming distances of the `2b + 1` box rows at one column), and the next pixel, when its
-//!   candidates are the same disparities, shares all but one column with this one, so only
-//!   the new column's costs are computed. Integer sums in another order: exact.
+//! - the box sums by column, sliding: `A(k)` is the sum over the box's columns of a column cost
+//!   (the Hamming distances of the `2b + 1` box rows at one column), and a candidate disparity
+//!   the previous pixel had too (its centre candidate may differ: the sets overlap) shares all
+//!   but one column with it, so one column cost is computed and the sum moves by the new column
+//!   less the oldest. Integer sums in another order: exact.
 //!
 //! The views must stay the same image between calls (the pipeline's do); after the scratch
 //! was used for something else, or for another image, start again with [`RowRefiner::new`].
@@ -117,32 +118,37 @@ impl<'s> RowRefiner<'s> {
         let candidates = 2 * params.search + 1;
         let mut costs = [0u32; MAX_CANDIDATES];
         let mut valid = [false; MAX_CANDIDATES];
-        // columns[k][j]: column cost of candidate slot k at box column j (u = clamp(x + j - b)).
-        let mut columns = [[0u32; MAX_BOX]; MAX_CANDIDATES];
-        let mut cached_base: Option<i64> = None;
-        let last = width - 1;
+        // One sliding box per candidate disparity, in slot `d % candidates` (a pixel's candidates
+        // are consecutive, so their slots differ): a disparity the previous pixel had too costs
+        // one new column, whatever the previous pixel's centre candidate was.
+        let mut windows = [Window::EMPTY; MAX_CANDIDATES];
+        let boxes = Boxes {
+            left: box_l,
+            right: box_r,
+            radius: b,
+            last: width - 1,
+        };
+        // The previous pixel's valid disparities (none before the first).
+        let mut previous: Option<(usize, usize)> = None;
+        // New columns' costs of the disparities sliding at this pixel, from the lowest.
+        let mut fresh = [0u32; MAX_CANDIDATES];
         for (x, o) in out.iter_mut().enumerate() {
             let d0 = bilinear(x, y, tokens, cells);
             let base = ((d0 + 128) >> FRAC_BITS) as i64;
-            let reuse = cached_base == Some(base);
-            for (slot, cols) in columns.iter_mut().enumerate().take(candidates) {
-                let d = base + slot as i64 - search;
-                if d < 0 {
-                    continue;
-                }
-                let d = d as usize;
-                if reuse {
-                    cols.copy_within(1..box_rows, 0);
-                    let u = (x + b).min(last);
-                    cols[box_rows - 1] = column_cost(box_l, box_r, u, d);
-                } else {
-                    for (j, c) in cols.iter_mut().enumerate().take(box_rows) {
-                        let u = (x + j).saturating_sub(b).min(last);
-                        *c = column_cost(box_l, box_r, u, d);
-                    }
-                }
+            // Valid disparities `lo..=hi` (0 <= d <= x); those the previous pixel had too slide,
+            // their new column's costs computed together.
+            let lo = (base - search).max(0) as usize;
+            let hi = (base + search).min(x as i64);
+            let valid_now = (hi >= lo as i64).then_some((lo, hi.max(0) as usize));
+            let sliding = match (valid_now, previous) {
+                (Some((lo, hi)), Some((plo, phi))) if lo.max(plo) <= hi.min(phi) => Some((lo.max(plo), hi.min(phi))),
+                _ => None,
+            };
+            if let Some((slo, shi)) = sliding {
+                let new = fresh.get_mut(..shi - slo + 1).unwrap_or_default();
+                column_costs(box_l, box_r, (x + b).min(width - 1), slo, new);
             }
-            cached_base = Some(base);
+            previous = valid_now;
             for (slot, (c, ok)) in costs.iter_mut().zip(valid.iter_mut()).take(candidates).enumerate() {
                 let d = base + slot as i64 - search;
                 *ok = d >= 0 && d <= x as i64;
@@ -150,7 +156,14 @@ impl<'s> RowRefiner<'s> {
                     *c = u32::MAX;
                     continue;
                 }
-                let hamming: u32 = columns[slot][..box_rows].iter().sum();
+                let new = match sliding {
+                    Some((slo, shi)) if (slo as i64..=shi as i64).contains(&d) => fresh.get(d as usize - slo).copied(),
+                    _ => None,
+                };
+                let hamming = match windows.get_mut(d as usize % candidates) {
+                    Some(window) => window.sum_at(&boxes, x, d as usize, new),
+                    None => 0,
+                };
                 let penalty = (d << FRAC_BITS).abs_diff(d0 as i64);
                 *c = (hamming << FRAC_BITS).saturating_add(params.lambda.saturating_mul(penalty as u32));
             }
@@ -165,6 +178,137 @@ impl<'s> RowRefiner<'s> {
         }
         Ok(())
     }
+}
+
+/// The census codes of one output row's box rows, and the box's shape.
+struct Boxes<'b> {
+    left: &'b [&'b [u32]],
+    right: &'b [&'b [u32]],
+    /// Box radius `b`.
+    radius: usize,
+    /// The row's last column.
+    last: usize,
+}
+
+/// The box sum `A` of one candidate disparity at one pixel: the column costs of its `2b + 1`
+/// columns (a ring, the leftmost at `at`) and their sum.
+#[derive(Clone, Copy)]
+struct Window {
+    /// Disparity and pixel the sums are for (`usize::MAX`: none yet).
+    d: usize,
+    x: usize,
+    at: usize,
+    sum: u32,
+    columns: [u32; MAX_BOX],
+}
+
+impl Window {
+    const EMPTY: Self = Self {
+        d: usize::MAX,
+        x: usize::MAX,
+        at: 0,
+        sum: 0,
+        columns: [0; MAX_BOX],
+    };
+
+    /// `A` of disparity `d` at pixel `x` (columns `clamp(x - b ..= x + b)`): slid by one column
+    /// from pixel `x - 1` when it holds that one's for `d` (the new column's cost `new` when the
+    /// caller computed it), else summed anew. Integer sums of the same columns, so exact either
+    /// way.
+    fn sum_at(&mut self, boxes: &Boxes<'_>, x: usize, d: usize, new: Option<u32>) -> u32 {
+        let box_cols = 2 * boxes.radius + 1;
+        if self.d == d && self.x.wrapping_add(1) == x {
+            let u = (x + boxes.radius).min(boxes.last);
+            let new = new.unwrap_or_else(|| column_cost(boxes.left, boxes.right, u, d));
+            if let Some(old) = self.columns.get_mut(self.at) {
+                self.sum = self.sum + new - *old;
+                *old = new;
+            }
+            self.at = if self.at + 1 == box_cols { 0 } else { self.at + 1 };
+        } else {
+            let columns = self.columns.get_mut(..box_cols).unwrap_or_default();
+            window_columns(boxes, x, d, columns);
+            self.sum = columns.iter().sum();
+            self.at = 0;
+        }
+        (self.d, self.x) = (d, x);
+        self.sum
+    }
+}
+
+/// [`column_cost`] of disparity `d` at the box columns of pixel `x` (`clamp(x - b ..= x + b)`)
+/// into `out`: where no column or right column is clamped, each box row's codes against the
+/// right row's `d` to the left, lane by lane (the compiler vectorises it: Helium on the
+/// Cortex-M55); at the row's ends column by column.
+fn window_columns(boxes: &Boxes<'_>, x: usize, d: usize, out: &mut [u32]) {
+    let cols = out.len();
+    let interior = x
+        .checked_sub(boxes.radius)
+        .filter(|&u0| u0 >= d && u0 + cols - 1 <= boxes.last);
+    let Some(u0) = interior else {
+        for (j, c) in out.iter_mut().enumerate() {
+            let u = (x + j).saturating_sub(boxes.radius).min(boxes.last);
+            *c = column_cost(boxes.left, boxes.right, u, d);
+        }
+        return;
+    };
+    out.fill(0);
+    for (l, r) in boxes.left.iter().zip(boxes.right) {
+        let (Some(l), Some(r)) = (l.get(u0..u0 + cols), r.get(u0 - d..u0 - d + cols)) else {
+            continue;
+        };
+        for ((c, &a), &b) in out.iter_mut().zip(l).zip(r) {
+            *c += hamming(a, b);
+        }
+    }
+}
+
+/// [`column_cost`] of the disparities `d_lo..d_lo + out.len()` at column `u` into `out`, every
+/// one at most `u` (so no right column is clamped): each box row's left code at `u` against the
+/// consecutive right codes `u - d`, a loop the compiler vectorises (Helium on the Cortex-M55).
+fn column_costs(left: &[&[u32]], right: &[&[u32]], u: usize, d_lo: usize, out: &mut [u32]) {
+    let count = out.len();
+    // Right columns u - d_lo - count + 1 ..= u - d_lo: the highest disparity first.
+    let first = (u + 1).checked_sub(d_lo + count);
+    let mut reversed = [0u32; MAX_CANDIDATES];
+    let (Some(first), Some(acc)) = (first, reversed.get_mut(..count)) else {
+        for (k, o) in out.iter_mut().enumerate() {
+            *o = column_cost(left, right, u, d_lo + k);
+        }
+        return;
+    };
+    for (l, r) in left.iter().zip(right) {
+        let code = l.get(u).copied().unwrap_or(0);
+        match r.get(first..first + count) {
+            Some(codes) => {
+                for (a, &c) in acc.iter_mut().zip(codes) {
+                    *a += hamming(code, c);
+                }
+            }
+            None => {
+                for (j, a) in acc.iter_mut().enumerate() {
+                    *a += hamming(code, r.get(first + j).copied().unwrap_or(0));
+                }
+            }
+        }
+    }
+    for (o, &a) in out.iter_mut().zip(acc.iter().rev()) {
+        *o = a;
+    }
+}
+
+/// The Hamming distance of two census codes: `(a ^ b).count_ones()`, spelt out so that a loop of
+/// it vectorises (the Cortex-M55's Helium has no population count; the compiler leaves
+/// `count_ones` scalar there, a dozen instructions per pixel).
+#[inline(always)]
+pub(crate) fn hamming(a: u32, b: u32) -> u32 {
+    let x = a ^ b;
+    let x = x - ((x >> 1) & 0x5555_5555);
+    let x = (x & 0x3333_3333) + ((x >> 2) & 0x3333_3333);
+    // Each byte now holds its own count (at most 8); the bytes' sum is at most 32.
+    let x = (x + (x >> 4)) & 0x0f0f_0f0f;
+    let x = x + (x >> 8);
+    (x + (x >> 16)) & 0x3f
 }
 
 /// Hamming distances of the box rows at column `u`, left code at `u` against right code at

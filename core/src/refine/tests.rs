@@ -442,6 +442,32 @@ fn ties_and_the_parabola_follow_the_rules() {
     assert_eq!(subpixel_step(&[10, 4, 7], &[false, true, true], 1), 0);
     assert_eq!(subpixel_step(&[4, 4, 4], &[true; 3], 1), 0);
     assert_eq!(subpixel_step(&[u32::MAX - 1, 0, 0], &[true; 3], 1), 128);
+    // The i32 division (costs below 2^24) gives the rule's i64 quotient: random costs on both
+    // sides of 2^24, and the extremes just below it.
+    let rule = |c: [u32; 3]| {
+        let (lo, mid, hi) = (c[0] as i64, c[1] as i64, c[2] as i64);
+        let denom = lo - 2 * mid + hi;
+        if denom <= 0 {
+            0
+        } else {
+            (((lo - hi) * 128) / denom).clamp(-128, 128)
+        }
+    };
+    let mut rng = Rng::new(5);
+    let top = (1i64 << 24) - 1;
+    for i in 0..20_000 {
+        let max = if i % 2 == 0 { top } else { 1 << 26 };
+        let c = [0; 3].map(|_: u32| rng.range(0, max) as u32);
+        assert_eq!(subpixel_step(&c, &[true; 3], 1), rule(c), "{c:?}");
+    }
+    for c in [
+        [top as u32, 0, 1],
+        [0, 0, top as u32],
+        [top as u32, 1, 0],
+        [top as u32, 0, top as u32],
+    ] {
+        assert_eq!(subpixel_step(&c, &[true; 3], 1), rule(c), "{c:?}");
+    }
 }
 
 #[test]

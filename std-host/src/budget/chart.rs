@@ -14,7 +14,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::{grouped, CoreRun, NATIVE_PREFIX, TARGETS};
+use super::{grouped, CoreRun, CENSUS_PREFIX, NATIVE_PREFIX, TARGETS};
 
 /// Chart size in pixels.
 pub const SIZE: (u32, u32) = (960, 600);
@@ -142,10 +142,13 @@ const ROW_STEP: i32 = 14;
 #[cfg(test)]
 pub(super) const LABEL_GAP: i32 = 4;
 
-/// A stage's label: its name without the `native_` prefix (the pathway caption under it says
-/// so), split into two lines at its first `_`.
+/// A stage's label: its name without the `native_` or `census_` prefix (the caption under it
+/// says so), split into two lines at its first `_`.
 pub(super) fn stage_label(name: &str) -> Vec<String> {
-    let short = name.strip_prefix(NATIVE_PREFIX).unwrap_or(name);
+    let short = name
+        .strip_prefix(NATIVE_PREFIX)
+        .or_else(|| name.strip_prefix(CENSUS_PREFIX))
+        .unwrap_or(name);
     match short.split_once('_') {
         Some((a, b)) => vec![a.to_string(), b.to_string()],
         None => vec![short.to_string()],
@@ -153,13 +156,15 @@ pub(super) fn stage_label(name: &str) -> Vec<String> {
 }
 
 /// The pathway captions under the stage names: (caption, first stage, one past the last), for
-/// each run of consecutive stages of one group (boot, export, native).
+/// each run of consecutive stages of one group (boot, export, native, the fast preset's frame).
 pub(super) fn groups(stages: &[String]) -> Vec<(&'static str, usize, usize)> {
     let group = |name: &str| {
         if name == "load" {
             "boot"
         } else if name.starts_with(NATIVE_PREFIX) {
             "native pathway"
+        } else if name.starts_with(CENSUS_PREFIX) {
+            "census frame"
         } else {
             "export pathway"
         }

@@ -30,7 +30,7 @@ use bino_core::config::{check_view_size, PATCH_H};
 use bino_core::preset::{arena_bytes, export_arena_bytes, OPTIONS};
 use serde::Serialize;
 
-use super::{clock, Clock, CoreRun, NATIVE_PREFIX};
+use super::{clock, Clock, CoreRun, CENSUS_PREFIX, NATIVE_PREFIX};
 use crate::bench::encoder_macs;
 
 /// A frame (or band) size in pixels.
@@ -185,9 +185,11 @@ impl Pathway {
     /// Both, export first.
     pub const ALL: [Pathway; 2] = [Pathway::Export, Pathway::Native];
 
-    /// Whether stage `name` belongs to this pathway (`load` to neither).
+    /// Whether stage `name` belongs to this pathway (`load` and the census run's to neither).
     pub fn has(self, name: &str) -> bool {
-        name != "load" && name.starts_with(NATIVE_PREFIX) == (self == Pathway::Native)
+        name != "load"
+            && !name.starts_with(CENSUS_PREFIX)
+            && name.starts_with(NATIVE_PREFIX) == (self == Pathway::Native)
     }
 
     /// `export` or `native`.

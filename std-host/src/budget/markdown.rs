@@ -4,6 +4,7 @@
 use std::fmt::Write as _;
 
 use super::frame::{FramesReport, Pathway, Scaling, RULE};
+use super::presets::{PresetsReport, Source, NOTE as PRESETS_NOTE};
 use super::{clock, cycles, verdicts, CoreRun, TARGETS};
 
 /// `1234567` as `1,234,567`.
@@ -299,6 +300,40 @@ pub fn frames_markdown(runs: &[CoreRun], frames: &FramesReport) -> String {
         Pathway::Export.name(),
         Pathway::Native.name(),
     );
+    md
+}
+
+/// The presets section: per frame, core and preset the instructions per frame, where they come
+/// from, the frame rate at IPC 1 and under the cycle model, the arena and the stack peak.
+pub fn presets_markdown(presets: &PresetsReport) -> String {
+    let mut md = String::from("\n### Presets per frame\n\n");
+    let _ = writeln!(md, "{PRESETS_NOTE}.\n");
+    let _ = writeln!(
+        md,
+        "| frame (W x H) | core | preset | readout | instructions per frame | from | IPC 1 fps | modelled fps | arena | stack peak |\n\
+         |---|---|---|---|---:|---|---:|---:|---:|---:|"
+    );
+    for p in &presets.frames {
+        let from = match p.source {
+            Source::MeasuredFrame => "measured frame",
+            Source::ScaledFrame => "scaled from the measured frame",
+            Source::ScaledBandPair => "scaled from the band pair",
+        };
+        let _ = writeln!(
+            md,
+            "| {} | {} at {} MHz | {} | `{}` | {} | {from} | {} | {} | {} B | {} B |",
+            p.frame,
+            p.core.to_uppercase(),
+            p.clock_mhz,
+            p.preset.name(),
+            p.readout,
+            grouped(p.instructions),
+            fps(p.frames_per_s_ipc1),
+            p.modelled_frames_per_s.map_or("-".to_string(), fps),
+            grouped(p.arena_bytes),
+            grouped(p.stack_peak_bytes),
+        );
+    }
     md
 }
 

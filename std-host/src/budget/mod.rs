@@ -21,15 +21,19 @@ pub mod cycles;
 mod elf;
 pub mod frame;
 mod markdown;
+pub mod presets;
 mod report;
 mod runs;
 mod verdict;
 
 pub use elf::elf_sections;
 pub use frame::{Frame, FrameOptions, FramesReport};
-pub use markdown::{frames_markdown, grouped, markdown};
+pub use markdown::{frames_markdown, grouped, markdown, presets_markdown};
+pub use presets::{PresetFrame, PresetsReport};
 pub use report::{Band, BudgetReport, CoreBudget, CoreCycles, StageBudget, SCHEMA};
-pub use runs::{load_runs, CoreRun, SectionSource, Sections, StageRun, NATIVE_PREFIX};
+pub use runs::{
+    load_runs, BandJson, CensusRun, CoreRun, SectionSource, Sections, StageRun, CENSUS_PREFIX, NATIVE_PREFIX,
+};
 pub use verdict::{verdicts, Verdict};
 
 /// The targets.
@@ -52,6 +56,10 @@ pub const TARGETS: Targets = Targets {
     m55_instructions: 800_000_000,
     m7_seconds: 8.0,
 };
+
+/// The fast preset's target: at least this many frames per second of this frame on the M55 at
+/// its clock, IPC 1 (4 fps of 160x120: at most 100M instructions per frame at 400 MHz).
+pub const FAST_PRESET_TARGET: (Frame, f64) = (Frame::new(120, 160), 4.0);
 
 /// Executed instructions per export band pair each core's kernels were tuned against.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -108,10 +116,10 @@ pub fn clock(core: &str) -> Clock {
 
 /// The report as JSON, with the default frames and no second band width.
 pub fn to_json(runs: &[CoreRun]) -> Result<BudgetReport> {
-    Ok(BudgetReport::new(
-        runs,
-        FramesReport::new(runs, &[], &FrameOptions::default())?,
-    ))
+    let opts = FrameOptions::default();
+    let frames = FramesReport::new(runs, &[], &opts)?;
+    let presets = PresetsReport::new(runs, &frames, &opts.frames)?;
+    Ok(BudgetReport::new(runs, frames, presets))
 }
 
 /// Options of `bino budget`.
@@ -143,9 +151,10 @@ pub fn run_budget(opts: &BudgetOptions) -> Result<String> {
         Vec::new()
     };
     let frames = FramesReport::new(&runs, &second, &opts.frames)?;
-    let md = markdown(&runs) + &frames_markdown(&runs, &frames);
+    let presets = PresetsReport::new(&runs, &frames, &opts.frames.frames)?;
+    let md = markdown(&runs) + &presets_markdown(&presets) + &frames_markdown(&runs, &frames);
     if let Some(path) = &opts.json {
-        let report = BudgetReport::new(&runs, frames);
+        let report = BudgetReport::new(&runs, frames, presets);
         let text = serde_json::to_string_pretty(&report)? + "\n";
         write_file(path, text.as_bytes())?;
     }

@@ -7,9 +7,10 @@ use std::collections::BTreeMap;
 use serde::Serialize;
 
 use super::frame::FramesReport;
+use super::presets::PresetsReport;
 use super::{clock, cycles, verdicts, CoreRun, SectionSource, Verdict};
 
-/// Schema name and version of the file. Fields are only ever added (`frames` is the latest), so
+/// Schema name and version of the file. Fields are only ever added (`presets` is the latest), so
 /// readers of version 1 read every report.
 pub const SCHEMA: &str = "bino-budget/1";
 
@@ -23,6 +24,9 @@ pub struct BudgetReport {
     pub frames: FramesReport,
     /// What the instruction counts and times are (and are not).
     pub note: &'static str,
+    /// The board's presets per frame and core: the fast one from its measured frame, the
+    /// learned one scaled from its band pair.
+    pub presets: PresetsReport,
     /// [`SCHEMA`].
     pub schema: &'static str,
     /// The targets judged on the runs.
@@ -140,10 +144,11 @@ pub struct StageBudget {
 
 impl BudgetReport {
     /// The report of `runs` with its frames section.
-    pub fn new(runs: &[CoreRun], frames: FramesReport) -> Self {
+    pub fn new(runs: &[CoreRun], frames: FramesReport, presets: PresetsReport) -> Self {
         Self {
             cores: runs.iter().map(CoreBudget::new).collect(),
             frames,
+            presets,
             note: "instructions are executed instructions counted under QEMU, not cycles; estimated_ms assumes \
                    the stated clock and instructions per cycle",
             schema: SCHEMA,

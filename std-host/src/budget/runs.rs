@@ -146,6 +146,24 @@ pub struct CoreRun {
     pub startup_instructions: u64,
     /// Instructions outside the stages (digests, stack scans, logging).
     pub outside_instructions: u64,
+    /// The fast preset's whole-frame run (stages `census_*`), when the firmware ran it.
+    pub census: Option<CensusRun>,
+}
+
+/// The fast preset's whole-frame run of a firmware (`census` in its JSON): the encoder-free
+/// `census+lr+ref` readout (`pipeline::run_census`) on a whole frame, rows from the camera.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+pub struct CensusRun {
+    /// The frame, pixels.
+    pub frame: BandJson,
+    /// Its static arena (`preset::census_arena_bytes`), bytes.
+    pub arena_bytes: u64,
+    /// Arena high-water reported by the pipeline, bytes.
+    pub arena_used: u64,
+    /// Executed instructions of the frame: its `census_*` stages.
+    pub frame_instructions: u64,
+    /// Deepest stack use of its stages, bytes.
+    pub stack_peak: u64,
 }
 
 // What the budget reads of a `bino-firmware-run/1` file (`firmware-sim/qemu-plugin/report.py`
@@ -169,12 +187,17 @@ struct RunJson {
     stages: Vec<StageRun>,
     startup_instructions: u64,
     outside_instructions: u64,
+    #[serde(default)]
+    census: Option<CensusRun>,
 }
 
-#[derive(Deserialize)]
-struct BandJson {
-    height: u64,
-    width: u64,
+/// A band or frame size, pixels.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+pub struct BandJson {
+    /// Rows.
+    pub height: u64,
+    /// Columns.
+    pub width: u64,
 }
 
 #[derive(Deserialize)]
@@ -186,12 +209,16 @@ struct SectionJson {
 const BOOT_STAGES: [&str; 1] = ["load"];
 
 /// Prefix of the native pathway run's stages (`native_encode_pair`, `native_head`, ...); the
-/// others (but `load`) are the export pathway's.
+/// others (but `load` and the census run's) are the export pathway's.
 pub const NATIVE_PREFIX: &str = "native_";
 
+/// Prefix of the fast preset's whole-frame run's stages (`census_rows`, `census_sgm`,
+/// `census_refine`).
+pub const CENSUS_PREFIX: &str = "census_";
+
 /// Whether stage `name` is part of the export pathway's band pair.
-fn export_band_stage(name: &str) -> bool {
-    !BOOT_STAGES.contains(&name) && !name.starts_with(NATIVE_PREFIX)
+pub fn export_band_stage(name: &str) -> bool {
+    !BOOT_STAGES.contains(&name) && !name.starts_with(NATIVE_PREFIX) && !name.starts_with(CENSUS_PREFIX)
 }
 
 impl CoreRun {
@@ -243,7 +270,13 @@ impl CoreRun {
             stages: run.stages,
             startup_instructions: run.startup_instructions,
             outside_instructions: run.outside_instructions,
+            census: run.census,
         })
+    }
+
+    /// The census run's stages (`census_*`), in run order.
+    pub fn census_stages(&self) -> impl Iterator<Item = &StageRun> {
+        self.stages.iter().filter(|s| s.name.starts_with(CENSUS_PREFIX))
     }
 
     /// Executed instructions of one band pair on the export pathway: every stage but blob

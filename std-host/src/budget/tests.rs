@@ -343,6 +343,11 @@ fn the_chart_draws_bars_and_text() {
 
 /// A synthetic run at 48x160: the frame rule is exact arithmetic on it.
 fn frame_run() -> CoreRun {
+    CoreRun::parse(&frame_run_json()).unwrap()
+}
+
+/// `frame_run`'s JSON.
+fn frame_run_json() -> String {
     let mut v: Value = serde_json::from_str(&run_json("m55", 1_000_000_000)).unwrap();
     let stages = v["stages"].as_array_mut().unwrap();
     for (name, n) in [
@@ -352,7 +357,7 @@ fn frame_run() -> CoreRun {
     ] {
         stages.push(json!({"name": name, "instructions": n, "arena_in_use": 1, "stack_peak": 1}));
     }
-    CoreRun::parse(&v.to_string()).unwrap()
+    v.to_string()
 }
 
 #[test]
@@ -520,4 +525,79 @@ fn chart_labels_do_not_overlap() {
     }
     assert_eq!(chart::stage_label("native_encode_pair"), ["encode", "pair"]);
     assert_eq!(chart::stage_label("head"), ["head"]);
+    assert_eq!(chart::stage_label("census_refine"), ["refine"]);
+    let groups = chart::groups(&stages);
+    assert_eq!(groups.last().map(|g| g.0), Some("census frame"), "{groups:?}");
+}
+
+/// `frame_run` with the fast preset's whole 160x120 frame: its three stages and its section.
+fn run_with_census(sgm: u64) -> CoreRun {
+    let mut v: Value = serde_json::from_str(&frame_run_json()).unwrap();
+    let stages = v["stages"].as_array_mut().unwrap();
+    for (name, n, stack) in [
+        ("census_rows", 100_000u64, 900u64),
+        ("census_sgm", sgm, 6000),
+        ("census_refine", 50_000_000, 11_000),
+    ] {
+        stages.push(json!({"name": name, "instructions": n, "arena_in_use": 1, "stack_peak": stack}));
+    }
+    v["census"] = json!({"frame": {"height": 120, "width": 160}, "arena_bytes": 70177, "arena_used": 70176,
+                         "frame_instructions": 100_000 + sgm + 50_000_000, "stack_peak": 11_000});
+    CoreRun::parse(&v.to_string()).unwrap()
+}
+
+#[test]
+fn the_fast_preset_is_its_measured_frame_beside_the_learned_one() {
+    use presets::{Preset, Source};
+    let run = run_with_census(30_000_000);
+    // The census run is neither pathway's band pair.
+    assert_eq!(run.band_pair_instructions(), frame_run().band_pair_instructions());
+    assert!(!frame::Pathway::Export.has("census_sgm") && !frame::Pathway::Native.has("census_sgm"));
+    let opts = FrameOptions::default();
+    let runs = std::slice::from_ref(&run);
+    let frames = FramesReport::new(runs, &[], &opts).unwrap();
+    let presets = PresetsReport::new(runs, &frames, &opts.frames).unwrap();
+    let find = |preset, w| {
+        presets
+            .frames
+            .iter()
+            .find(|p| p.preset == preset && p.frame.width == w)
+            .unwrap()
+    };
+    let fast = find(Preset::Fast, 160);
+    assert_eq!((fast.instructions, fast.source), (80_100_000, Source::MeasuredFrame));
+    assert_eq!(fast.arena_bytes, bino_core::preset::census_arena_bytes(120, 160) as u64);
+    assert_eq!((fast.stack_peak_bytes, fast.frames_per_s_ipc1), (11_000, 4.993758));
+    // 320x240: 60 token rows of 80 cells against 30 of 40, four times the work.
+    let big = find(Preset::Fast, 320);
+    assert_eq!((big.instructions, big.source), (320_400_000, Source::ScaledFrame));
+    assert_eq!(big.arena_bytes, bino_core::preset::census_arena_bytes(240, 320) as u64);
+    let learned = find(Preset::Learned, 160);
+    let native = frames
+        .estimates
+        .iter()
+        .find(|e| e.pathway == frame::Pathway::Native && e.frame.width == 160)
+        .unwrap();
+    assert_eq!(
+        (learned.instructions, learned.source),
+        (native.instructions, Source::ScaledBandPair)
+    );
+    assert_eq!(learned.arena_bytes, bino_core::preset::arena_bytes(120, 160) as u64);
+    let md = presets_markdown(&presets);
+    assert!(
+        md.contains("| 160x120 | M55 at 400 MHz | fast | `census+lr+ref` | 80,100,000 | measured frame | 4.99 |"),
+        "{md}"
+    );
+    // The target: at most 100M instructions per 160x120 frame at 400 MHz.
+    let judged = |sgm| {
+        let v = verdicts(&[run_with_census(sgm)]);
+        v.into_iter().find(|v| v.target.contains("fast preset")).unwrap()
+    };
+    assert!(judged(30_000_000).met && !judged(60_000_000).met);
+    assert!(judged(60_000_000)
+        .measured
+        .contains("110.1M instructions per frame, measured"));
+    let json = serde_json::to_value(to_json(runs).unwrap()).unwrap();
+    assert_eq!(json["presets"]["frames"][0]["preset"], "fast");
+    assert_eq!(json["presets"]["frames"][0]["source"], "measured_frame");
 }

@@ -111,6 +111,19 @@ pub fn verdicts(runs: &[CoreRun]) -> Vec<Verdict> {
             });
         }
     }
+    if let Some((met, measured)) = super::presets::fast_target(runs) {
+        let (frame, fps) = super::FAST_PRESET_TARGET;
+        out.push(Verdict {
+            target: format!(
+                "Cortex-M55 fast preset (census+lr+ref) >= {fps} frames per second at {}x{}, {} MHz, IPC 1",
+                frame.width,
+                frame.height,
+                clock("m55").mhz
+            ),
+            measured,
+            met,
+        });
+    }
     // The export pathway's ceilings, which its kernels were tuned against: judged apart, since
     // the board runs the native pathway.
     for r in runs {

@@ -28,24 +28,37 @@ fn box_image(v: &[u8], w: usize, h: usize, k: usize) -> [u8; 24 * 20] {
 
 #[test]
 fn box_rows_equal_the_window_mean_with_clamped_edges() {
-    let (w, h) = (24, 20);
-    let mut rng = Rng::new(5);
-    let mut image = [0u8; 24 * 20];
-    for p in image.iter_mut() {
-        *p = (rng.next_u64() >> 24) as u8;
-    }
-    for k in 0..=MAX_RADIUS {
-        let want = box_image(&image, w, h, k);
-        for y in 0..h {
-            let mut rows: [&[u8]; 2 * MAX_RADIUS + 1] = [&[]; 2 * MAX_RADIUS + 1];
-            for (i, r) in rows.iter_mut().enumerate().take(2 * k + 1) {
-                let v = (y + i).saturating_sub(k).min(h - 1);
-                *r = &image[v * w..(v + 1) * w];
-            }
-            let mut out = [0u8; 24];
-            box_row(&rows[..2 * k + 1], k, &mut out).unwrap();
-            assert_eq!(out[..], want[y * w..(y + 1) * w], "radius {k}, row {y}");
+    // Rows narrower than the window too (every column clamped at both ends).
+    for w in [24, 1, 2, 3, 5] {
+        let h = 20;
+        let mut rng = Rng::new(5 + w as u64);
+        let mut image = [0u8; 24 * 20];
+        for p in image.iter_mut() {
+            *p = (rng.next_u64() >> 24) as u8;
         }
+        for k in 0..=MAX_RADIUS {
+            let want = box_image(&image, w, h, k);
+            for y in 0..h {
+                let mut rows: [&[u8]; 2 * MAX_RADIUS + 1] = [&[]; 2 * MAX_RADIUS + 1];
+                for (i, r) in rows.iter_mut().enumerate().take(2 * k + 1) {
+                    let v = (y + i).saturating_sub(k).min(h - 1);
+                    *r = &image[v * w..(v + 1) * w];
+                }
+                let mut out = [0u8; 24];
+                box_row(&rows[..2 * k + 1], k, &mut out[..w]).unwrap();
+                assert_eq!(out[..w], want[y * w..(y + 1) * w], "width {w}, radius {k}, row {y}");
+            }
+        }
+    }
+}
+
+#[test]
+fn the_window_division_by_a_multiply_is_exact_over_its_range() {
+    for sum in 0..=9 * 255 {
+        assert_eq!(div_rounded::<1>(sum) as u32, (sum + 4) / 9, "{sum}");
+    }
+    for sum in 0..=25 * 255 {
+        assert_eq!(div_rounded::<2>(sum) as u32, (sum + 12) / 25, "{sum}");
     }
 }
 
