@@ -40,13 +40,21 @@ fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
 }
 
+/// The firmware's band-pair run of `pathway`.
+fn run_of(pathway: Pathway) -> workload::Run {
+    match pathway {
+        Pathway::Export => workload::Run::Export,
+        Pathway::Native => workload::Run::Native,
+    }
+}
+
 /// The digest the firmware checks its refined rows against on `pathway`: `build.rs`'s host run
 /// of the workload.
 fn expected_refined_digest(pathway: Pathway, left: &[u8], right: &[u8]) -> u32 {
     let blob = std::fs::read(repo().join("weights/bino_int8.bin")).unwrap();
     let mut arena = vec![0u8; workload::arena_bytes(HEIGHT, WIDTH)];
     let mut source = SlicePair::new(left, right, WIDTH, HEIGHT).unwrap();
-    let outcome = workload::run(&blob, pathway, &mut source, &mut arena, &mut Quiet).unwrap();
+    let outcome = workload::run(&blob, run_of(pathway), &mut source, &mut arena, &mut Quiet).unwrap();
     let refined = OUTPUTS.iter().position(|&n| n == "refined").unwrap();
     outcome.digests[refined]
 }
@@ -107,7 +115,7 @@ fn run_and_sim_give_the_firmware_digest_of_its_readout_on_both_pathways() {
         let core = pathway.core();
         let readout: Readout = pathway.default_readout().refined(true);
         // The commands run the readout with the firmware's options and refinement.
-        let (options, refine) = workload::preset(core);
+        let (options, refine) = workload::preset(run_of(core));
         let max_cols = options.max_cols;
         let ours = readout_options(readout, pathway, max_cols, DEFAULT_PENALTIES, 1.0, WIDTH);
         assert_eq!(ours, options, "{readout}: the commands' options are the firmware's");
