@@ -31,8 +31,10 @@ cargo build --release -p bino-host --bin bino
 bino="$CARGO_TARGET_DIR/release/bino"
 
 if [[ " ${parts[*]} " == *" bench "* ]]; then
-  "$bino" bench --runs 20 --json "$metrics/bench_w160.json"
-  "$bino" bench --runs 20 --no-vnni --json "$metrics/bench_w160_avx2.json"
+  # Paths relative to the checkout, as the JSON records them.
+  weights=(--onnx weights/bino_encoder.onnx --blob weights/bino_int8.bin)
+  "$bino" bench "${weights[@]}" --runs 20 --json "$metrics/bench_w160.json"
+  "$bino" bench "${weights[@]}" --runs 20 --no-vnni --json "$metrics/bench_w160_avx2.json"
 fi
 
 if [[ " ${parts[*]} " == *" run "* ]]; then
