@@ -92,19 +92,21 @@ impl<'w> PassCache<'w> {
     ) -> Result<()> {
         let rows = band_pixel_rows(height);
         let plan = BandPlan::new(height / PATCH_H).map_err(anyhow::Error::msg)?;
-        let band = |image: &[u8], start: usize| -> Vec<u8> {
-            image
-                .get(start * width..(start + rows) * width)
-                .unwrap_or_default()
-                .to_vec()
-        };
         let mut keys: Vec<Key> = Vec::new();
         for b in plan.iter() {
             let start = b.start * PATCH_H;
-            let (l, r) = (band(left, start), band(right, start));
+            let rows_of = start * width..(start + rows) * width;
+            let (l, r) = (
+                band_view(left.get(rows_of.clone()).unwrap_or_default(), width, rows, false),
+                band_view(right.get(rows_of).unwrap_or_default(), width, rows, false),
+            );
+            // A band the views do not hold is left to the run (encoded when asked, or refused).
+            let (Ok(l), Ok(r)) = (l, r) else {
+                continue;
+            };
             let wanted = match pathway {
-                Pathway::Export => vec![Key::view(l, width), Key::view(r, width)],
-                Pathway::Native => vec![Key::pair(l, r, width)],
+                Pathway::Export => vec![Key::of_view(&l), Key::of_view(&r)],
+                Pathway::Native => vec![Key::of_pair(&l, &r)],
             };
             for key in wanted {
                 let known = self.passes.iter().any(|p| p.key == key) || keys.contains(&key);
@@ -115,14 +117,19 @@ impl<'w> PassCache<'w> {
         }
         let done = encode_all(self.encoder, &keys, rows, threads)?;
         for (key, (arena_used, output)) in keys.into_iter().zip(done) {
-            self.passes.push(Pass {
-                key,
-                arena_used,
-                output,
-            });
-            self.encoded += 1;
+            self.record(key, arena_used, output);
         }
         Ok(())
+    }
+
+    /// Keeps a pass the encoder ran.
+    fn record(&mut self, key: Key, arena_used: usize, output: Vec<u8>) {
+        self.passes.push(Pass {
+            key,
+            arena_used,
+            output,
+        });
+        self.encoded += 1;
     }
 
     /// The recorded pass of `input` when there is one, else `encode`'s, recorded.
@@ -144,48 +151,52 @@ impl<'w> PassCache<'w> {
         }
         let (arena_used, len) = encode(self.encoder, arena)?;
         let output = arena.get(..len).unwrap_or_default().to_vec();
-        self.passes.push(Pass {
-            key,
-            arena_used,
-            output,
-        });
-        self.encoded += 1;
+        self.record(key, arena_used, output);
         Ok((arena_used, len))
     }
 }
 
 impl Key {
-    fn view(pixels: Vec<u8>, width: usize) -> Self {
+    /// What a view pass over `view` reads.
+    fn of_view(view: &GrayBand<'_>) -> Self {
         Self {
-            input: pixels,
-            width,
+            input: view.pixels().to_vec(),
+            width: view.width(),
             pair: false,
-            mirrored: [false; 2],
+            mirrored: [view.is_mirrored(), false],
         }
     }
 
-    fn pair(left: Vec<u8>, right: Vec<u8>, width: usize) -> Self {
+    /// What a pair pass over `left` and `right` reads.
+    fn of_pair(left: &GrayBand<'_>, right: &GrayBand<'_>) -> Self {
         Self {
-            input: [left, right].concat(),
-            width,
+            input: [left.pixels(), right.pixels()].concat(),
+            width: left.width(),
             pair: true,
-            mirrored: [false; 2],
+            mirrored: [left.is_mirrored(), right.is_mirrored()],
         }
     }
 
     /// The pass this key names, on `encoder`, in `arena`: its high-water and output length.
     fn encode(&self, mut encoder: Encoder<'_>, rows: usize, arena: &mut [u8]) -> Result<(usize, usize), Error> {
-        let half = self.input.len() / 2;
+        let half = if self.pair {
+            self.input.len() / 2
+        } else {
+            self.input.len()
+        };
         let (width, input) = (self.width, &self.input[..]);
+        let left = band_view(&input[..half], width, rows, self.mirrored[0])?;
         match self.pair {
-            false => encoder.view_pass(GrayBand::new(input, width, rows)?, arena),
-            true => {
-                let left = GrayBand::new(&input[..half], width, rows)?;
-                let right = GrayBand::new(&input[half..], width, rows)?;
-                encoder.pair_pass(left, right, arena)
-            }
+            false => encoder.view_pass(left, arena),
+            true => encoder.pair_pass(left, band_view(&input[half..], width, rows, self.mirrored[1])?, arena),
         }
     }
+}
+
+/// `pixels` as a `width x rows` band, read right to left when `mirrored`.
+fn band_view(pixels: &[u8], width: usize, rows: usize, mirrored: bool) -> Result<GrayBand<'_>, Error> {
+    let band = GrayBand::new(pixels, width, rows)?;
+    Ok(if mirrored { band.mirrored() } else { band })
 }
 
 /// A pass computed ahead: its high-water and output, or the encoder's error.
@@ -233,13 +244,9 @@ fn encode_all(encoder: Encoder<'_>, keys: &[Key], rows: usize, threads: usize) -
 
 impl BandEncoder for PassCache<'_> {
     fn view_pass(&mut self, view: GrayBand<'_>, arena: &mut [u8]) -> Result<(usize, usize), Error> {
-        let key = Key {
-            input: view.pixels().to_vec(),
-            width: view.width(),
-            pair: false,
-            mirrored: [view.is_mirrored(), false],
-        };
-        self.answer(key, arena, |mut encoder, arena| encoder.view_pass(view, arena))
+        self.answer(Key::of_view(&view), arena, |mut encoder, arena| {
+            encoder.view_pass(view, arena)
+        })
     }
 
     fn pair_pass(
@@ -248,13 +255,9 @@ impl BandEncoder for PassCache<'_> {
         right: GrayBand<'_>,
         arena: &mut [u8],
     ) -> Result<(usize, usize), Error> {
-        let key = Key {
-            input: [left.pixels(), right.pixels()].concat(),
-            width: left.width(),
-            pair: true,
-            mirrored: [left.is_mirrored(), right.is_mirrored()],
-        };
-        self.answer(key, arena, |mut encoder, arena| encoder.pair_pass(left, right, arena))
+        self.answer(Key::of_pair(&left, &right), arena, |mut encoder, arena| {
+            encoder.pair_pass(left, right, arena)
+        })
     }
 }
 

@@ -103,10 +103,13 @@ pub fn attend_block(
     )
 }
 
-/// [`attend_block`] on keys stored in [`KeyLayout::Transposed`] (x86 hosts with AVX-512 VNNI).
+/// [`attend_block`] on keys stored in `layout`: [`KeyLayout::Transposed`] (x86 hosts with
+/// AVX-512 VNNI) or [`KeyLayout::Paired`] (x86 hosts with AVX2); [`KeyLayout::Rows`] is
+/// [`attend_block`] itself.
 #[cfg(target_arch = "x86_64")]
 #[allow(clippy::too_many_arguments)]
-pub fn attend_block_keys_transposed(
+pub fn attend_block_keys(
+    layout: KeyLayout,
     queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
     keys: &[i8],
     values_t: &[i8],
@@ -116,10 +119,12 @@ pub fn attend_block_keys_transposed(
     weights: &mut [u8],
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
+    // Each layout's scores inlined into the block (a function pointer would not be).
     crate::kernels::arch::vectorised(
         #[inline(always)]
-        || {
-            attend_block_with(
+        || match layout {
+            KeyLayout::Rows => attend_block_with(scores_block, queries, keys, values_t, sums, p, scores, weights, out),
+            KeyLayout::Transposed => attend_block_with(
                 scores_block_transposed,
                 queries,
                 keys,
@@ -129,28 +134,8 @@ pub fn attend_block_keys_transposed(
                 scores,
                 weights,
                 out,
-            );
-        },
-    )
-}
-
-/// [`attend_block`] on keys stored in [`KeyLayout::Paired`] (x86 hosts with AVX2).
-#[cfg(target_arch = "x86_64")]
-#[allow(clippy::too_many_arguments)]
-pub fn attend_block_keys_paired(
-    queries: &[[i8; HEAD_DIM]; QUERY_BLOCK],
-    keys: &[i8],
-    values_t: &[i8],
-    sums: &[i32; HEAD_DIM],
-    p: &AttentionQ,
-    scores: &mut [i32],
-    weights: &mut [u8],
-    out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
-) {
-    crate::kernels::arch::vectorised(
-        #[inline(always)]
-        || {
-            attend_block_with(
+            ),
+            KeyLayout::Paired => attend_block_with(
                 scores_block_paired,
                 queries,
                 keys,
@@ -160,7 +145,7 @@ pub fn attend_block_keys_paired(
                 scores,
                 weights,
                 out,
-            );
+            ),
         },
     )
 }

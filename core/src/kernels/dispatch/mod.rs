@@ -146,14 +146,8 @@ pub fn attend_block(
     out: &mut [[i8; HEAD_DIM]; QUERY_BLOCK],
 ) {
     #[cfg(target_arch = "x86_64")]
-    match layout {
-        KeyLayout::Transposed => {
-            return attention::attend_block_keys_transposed(queries, keys, values_t, sums, p, scores, weights, out)
-        }
-        KeyLayout::Paired => {
-            return attention::attend_block_keys_paired(queries, keys, values_t, sums, p, scores, weights, out)
-        }
-        KeyLayout::Rows => {}
+    if layout != KeyLayout::Rows {
+        return attention::attend_block_keys(layout, queries, keys, values_t, sums, p, scores, weights, out);
     }
     let _ = layout;
     attention::attend_block(queries, keys, values_t, sums, p, scores, weights, out)

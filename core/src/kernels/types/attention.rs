@@ -19,7 +19,7 @@ pub struct AttentionQ {
 pub const QUERY_BLOCK: usize = 4;
 
 /// How a head's keys are stored: as rows for `dispatch::attend_block` (every core), transposed for the
-/// x86 VNNI `attend_block_keys_transposed`, in code pairs for the x86 AVX2 `attend_block_keys_paired`.
+/// x86 VNNI kernels and in code pairs for the x86 AVX2 ones (`dispatch::attend_block_keys`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum KeyLayout {
     /// Token by token, `HEAD_DIM` codes each (every core).

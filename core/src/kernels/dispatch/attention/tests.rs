@@ -247,10 +247,21 @@ fn diffuse_attention_keeps_its_mass() {
     assert_eq!(out, [75; HEAD_DIM]);
 }
 
-#[test]
-fn transposed_keys_score_as_the_rows() {
-    let mut rng = Rng::new(64);
-    for n in [8usize, 16, 120, 960] {
+/// A block scorer of keys stored in some layout: `(queries, keys, n, scores)`.
+type LayoutScores = fn(&[[i8; HEAD_DIM]; QUERY_BLOCK], &[i8], usize, &mut [i32]);
+
+/// Keys stored in `layout` score as the rows do, by this core's kernel (`fast`) and by the
+/// portable reading of the layout (`reference`), for `n` keys each (the last all -128, with a
+/// query of -128: the largest products).
+fn layout_scores_as_the_rows(
+    layout: KeyLayout,
+    seed: u64,
+    sizes: &[usize],
+    fast: LayoutScores,
+    reference: LayoutScores,
+) {
+    let mut rng = Rng::new(seed);
+    for &n in sizes {
         let mut keys = [0i8; 960 * HEAD_DIM];
         rng.fill_i8(&mut keys[..n * HEAD_DIM]);
         let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
@@ -259,56 +270,50 @@ fn transposed_keys_score_as_the_rows() {
             keys.fill(-128);
             queries[0] = [-128; HEAD_DIM];
         }
-        let mut keys_t = [0i8; 960 * HEAD_DIM];
+        let mut stored = [0i8; 960 * HEAD_DIM];
         for (t, key) in keys[..n * HEAD_DIM].chunks_exact(HEAD_DIM).enumerate() {
-            store_key(KeyLayout::Transposed, key, &mut keys_t[..n * HEAD_DIM], t);
+            store_key(layout, key, &mut stored[..n * HEAD_DIM], t);
         }
         let mut want = [0i32; QUERY_BLOCK * 960];
         scores_block_reference(&queries, &keys[..n * HEAD_DIM], &mut want[..QUERY_BLOCK * n]);
-        for fast in [false, true] {
+        for (name, scorer) in [("fast", fast), ("reference", reference)] {
             let mut got = [i32::MIN; QUERY_BLOCK * 960];
-            if fast {
-                scores_block_transposed(&queries, &keys_t[..n * HEAD_DIM], n, &mut got[..QUERY_BLOCK * n]);
-            } else {
-                scores_block_transposed_reference(&queries, &keys_t[..n * HEAD_DIM], n, &mut got[..QUERY_BLOCK * n]);
-            }
-            assert_eq!(got[..QUERY_BLOCK * n], want[..QUERY_BLOCK * n], "n={n} fast={fast}");
+            scorer(&queries, &stored[..n * HEAD_DIM], n, &mut got[..QUERY_BLOCK * n]);
+            assert_eq!(
+                got[..QUERY_BLOCK * n],
+                want[..QUERY_BLOCK * n],
+                "{layout:?} n={n} {name}"
+            );
         }
-        // The rows layout stores the key as it is.
-        let mut rows = [0i8; 2 * HEAD_DIM];
-        store_key(KeyLayout::Rows, &keys[..HEAD_DIM], &mut rows, 1);
-        assert_eq!(rows[HEAD_DIM..], keys[..HEAD_DIM]);
     }
 }
 
 #[test]
+fn transposed_keys_score_as_the_rows() {
+    let sizes = [8, 16, 120, 960];
+    layout_scores_as_the_rows(
+        KeyLayout::Transposed,
+        64,
+        &sizes,
+        scores_block_transposed,
+        scores_block_transposed_reference,
+    );
+    // The rows layout stores the key as it is.
+    let keys: [i8; HEAD_DIM] = core::array::from_fn(|i| i as i8 - 16);
+    let mut rows = [0i8; 2 * HEAD_DIM];
+    store_key(KeyLayout::Rows, &keys, &mut rows, 1);
+    assert_eq!(rows[HEAD_DIM..], keys);
+}
+
+#[test]
 fn paired_keys_score_as_the_rows() {
-    let mut rng = Rng::new(65);
-    for n in [16usize, 48, 960] {
-        let mut keys = [0i8; 960 * HEAD_DIM];
-        rng.fill_i8(&mut keys[..n * HEAD_DIM]);
-        let mut queries = [[0i8; HEAD_DIM]; QUERY_BLOCK];
-        queries.iter_mut().for_each(|q| rng.fill_i8(q));
-        if n == 960 {
-            keys.fill(-128);
-            queries[0] = [-128; HEAD_DIM];
-        }
-        let mut keys_p = [0i8; 960 * HEAD_DIM];
-        for (t, key) in keys[..n * HEAD_DIM].chunks_exact(HEAD_DIM).enumerate() {
-            store_key(KeyLayout::Paired, key, &mut keys_p[..n * HEAD_DIM], t);
-        }
-        let mut want = [0i32; QUERY_BLOCK * 960];
-        scores_block_reference(&queries, &keys[..n * HEAD_DIM], &mut want[..QUERY_BLOCK * n]);
-        for fast in [false, true] {
-            let mut got = [i32::MIN; QUERY_BLOCK * 960];
-            if fast {
-                scores_block_paired(&queries, &keys_p[..n * HEAD_DIM], n, &mut got[..QUERY_BLOCK * n]);
-            } else {
-                scores_block_paired_reference(&queries, &keys_p[..n * HEAD_DIM], n, &mut got[..QUERY_BLOCK * n]);
-            }
-            assert_eq!(got[..QUERY_BLOCK * n], want[..QUERY_BLOCK * n], "n={n} fast={fast}");
-        }
-    }
+    layout_scores_as_the_rows(
+        KeyLayout::Paired,
+        65,
+        &[16, 48, 960],
+        scores_block_paired,
+        scores_block_paired_reference,
+    );
 }
 
 #[test]
