@@ -30,6 +30,20 @@ pub struct Band {
     pub keep_to: usize,
 }
 
+impl Band {
+    /// The band's token rows within `reach` rows of those it keeps (clipped to the band): what
+    /// a readout that reads `reach` rows above and below each of its rows takes from this band
+    /// alone, as the native pathway's head does (`model::head::ROW_REACH`).
+    pub fn around_kept(&self, reach: usize) -> core::ops::Range<usize> {
+        let first = self.keep_from.saturating_sub(reach).max(self.start);
+        let end = self
+            .keep_to
+            .saturating_add(reach)
+            .min(self.start.saturating_add(self.rows));
+        first..end.max(first)
+    }
+}
+
 /// The bands covering an image of `token_rows` token rows.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct BandPlan {
@@ -128,6 +142,26 @@ mod tests {
             }
             assert_eq!(next, rows);
         }
+        Ok(())
+    }
+
+    #[test]
+    fn the_rows_around_the_kept_ones_stay_inside_the_band() -> Result<(), Error> {
+        for rows in 1..80 {
+            for band in BandPlan::new(rows)?.iter() {
+                for reach in [0, 1, 6, 100] {
+                    let around = band.around_kept(reach);
+                    assert!(band.start <= around.start && around.end <= band.start + band.rows);
+                    assert!(around.start <= band.keep_from && band.keep_to <= around.end);
+                    assert_eq!(around.start, band.keep_from.saturating_sub(reach).max(band.start));
+                }
+                assert_eq!(band.around_kept(0), band.keep_from..band.keep_to);
+            }
+        }
+        // The second band of a 96-row image (token rows 6..18, keeping 9..15) reads 6..18.
+        let band = BandPlan::new(24)?.get(1).ok_or(Error::EmptyImage)?;
+        assert_eq!(band.around_kept(6), 6..18);
+        assert_eq!(band.around_kept(2), 7..17);
         Ok(())
     }
 

@@ -10,6 +10,7 @@
 //! [`data::pairs`], `bino reference` runs [`float::reference`]).
 #![deny(missing_docs)]
 
+pub mod band_maps;
 pub mod data;
 pub mod float;
 pub mod int8;

@@ -543,8 +543,8 @@ impl Sink for Native {
 
 /// The native pathway: one encoder pass per band on (L, R), the native head streamed over the
 /// pair tokens and, with its check, the right view read from the head's own logits; every
-/// output equals the host's whole-map steps (`pair_token_codes`, `native_head` and its logit
-/// diagonal), for one band and several, in an arena smaller than the export pathway's.
+/// output equals the host's whole-map steps (`pair_token_bands`, `native_head_banded` and its
+/// logit diagonal), for one band and several, in an arena smaller than the export pathway's.
 #[test]
 fn the_native_pathway_streams_like_the_whole_map_steps() {
     let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
@@ -589,9 +589,10 @@ fn the_native_pathway_streams_like_the_whole_map_steps() {
                 )
                 .unwrap();
             assert!(report.arena_used <= needed, "{what}: {report:?}");
-            let (rows, cols, tokens) = model
-                .pair_token_codes(&view(l, width, height), &view(r, width, height))
+            let (cols, bands) = model
+                .pair_token_bands(&view(l, width, height), &view(r, width, height))
                 .unwrap();
+            let (rows, tokens) = (bands.rows, bands.assemble());
             assert!(out.tokens == tokens, "{what}: pair tokens differ");
             // One encoder pass per band, with or without the check.
             let passes = out.collect.stages.iter().filter(|&&s| s == Stage::EncodePair).count();
@@ -602,8 +603,16 @@ fn the_native_pathway_streams_like_the_whole_map_steps() {
                 .iter()
                 .all(|s| !matches!(s, Stage::EncodeLeft | Stage::EncodeRight | Stage::Match | Stage::Sgm)));
             assert_eq!(out.collect.head_rows, (0..rows).collect::<Vec<_>>(), "{what}");
-            let head = model.native_head(&tokens, rows, cols).unwrap();
+            // Each band's head on its own rows around those it keeps.
+            let head = model
+                .native_head_banded(&bands, cols, bino_core::config::HEAD_MAX_DISP)
+                .unwrap();
             assert_eq!(q8(&out.collect.head), head.disparity, "{what}: head");
+            if report.bands > 1 {
+                // Not the head over the stitched map: the bands' own rows differ in the overlaps.
+                let stitched = model.native_head(&tokens, rows, cols).unwrap();
+                assert_ne!(stitched.disparity, head.disparity, "{what}");
+            }
             if !head_lr {
                 assert!(out.collect.checked_rows.is_empty());
                 continue;

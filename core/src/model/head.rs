@@ -41,6 +41,31 @@ use super::ids::HeadKind;
 /// Fraction bits of the disparity and confidence outputs.
 pub const OUT_FRAC_BITS: u32 = 8;
 
+/// Token rows above and below an output row that it reads (one per convolution): a stream fed
+/// the rows `r - ROW_REACH ..= r + ROW_REACH` of a map gives row `r` exactly as a stream over
+/// the whole map does, save where the map's own edges pad it.
+pub const ROW_REACH: usize = super::ids::HEAD_CONVS;
+
+/// A [`HeadSink`] that passes on only the rows of `keep`, numbered in the map: for a stream
+/// started at map row `first` (its rows count from 0 there).
+pub struct KeptRows<'s, S: HeadSink> {
+    /// Where the rows go.
+    pub inner: &'s mut S,
+    /// The map row the stream's row 0 is.
+    pub first: usize,
+    /// The map rows passed on.
+    pub keep: core::ops::Range<usize>,
+}
+
+impl<S: HeadSink> HeadSink for KeptRows<'_, S> {
+    fn row(&mut self, row: HeadRow<'_>) {
+        let row_in_map = self.first.saturating_add(row.row);
+        if self.keep.contains(&row_in_map) {
+            self.inner.row(HeadRow { row: row_in_map, ..row });
+        }
+    }
+}
+
 /// One output row of the head.
 #[derive(Debug, Clone, Copy)]
 pub struct HeadRow<'r> {

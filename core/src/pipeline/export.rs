@@ -38,7 +38,7 @@ pub(super) fn run(
     let (desc_left, scratch) = rest.split_at_mut(desc_len);
     let desc_left: &mut [i8] = bytemuck::cast_slice_mut(desc_left);
     let several = plan.len() > 1;
-    let state_len = refine.map_or(0, |r| refine_parts(height, width, r).0);
+    let state_len = refine.map_or(0, |r| refine_parts(height, width, r, true).0);
     // The readout streams and the refinement's state: with several bands they carry state from
     // band to band, so they sit before the encoder's scratch; with one band they are made after
     // the right descriptors, in the scratch both passes are done with.

@@ -43,33 +43,19 @@ pub(super) fn run(
     let pixel_len = band_px * width;
     let nd = ctx.opts.head_candidates;
     let head_len = aligned(head::arena_bytes_with(HeadKind::Native, cols, nd));
-    let stream_len = if streaming { head_len } else { 0 };
     let check_len = native_check_bytes(cols, ctx.head_lr());
     let census_len = native_census_bytes(width, ctx.opts, ctx.refine);
-    let state_len = aligned(ctx.refine.map_or(0, |r| refine_parts(ctx.height, width, r).0));
+    let state_len = aligned(ctx.refine.map_or(0, |r| refine_parts(ctx.height, width, r, false).0));
     let too_small = Error::ArenaTooSmall {
         needed: native_arena_bytes(ctx.height, width, ctx.opts, ctx.refine),
         available: arena.len(),
     };
     let (pixels, rest) = split(arena, 2 * pixel_len).ok_or(too_small)?;
     let (left_px, right_px) = pixels.split_at_mut(pixel_len);
-    let (stream_arena, rest) = split(rest, stream_len).ok_or(too_small)?;
     let (check_arena, rest) = split(rest, check_len).ok_or(too_small)?;
     let (census_arena, rest) = split(rest, census_len).ok_or(too_small)?;
     let (state_arena, scratch) = split(rest, state_len).ok_or(too_small)?;
     let mut readouts = Readouts::new(ctx, weights, check_arena, census_arena, state_arena, streaming)?;
-    // Several bands: the stream for the whole run, outside the encoder's scratch.
-    let mut stream = if streaming {
-        Some(HeadStream::with_candidates(
-            weights,
-            cols,
-            nd,
-            HeadView::Left,
-            stream_arena,
-        )?)
-    } else {
-        None
-    };
     let mut rows = BandRows::new(source, width);
     let mut report = Report {
         rows: ctx.height / PATCH_H,
@@ -79,9 +65,8 @@ pub(super) fn run(
         ..Report::default()
     };
     let (mut after_tokens, mut scratch_used) = (0, 0);
-    for (i, band) in plan.iter().enumerate() {
+    for band in plan.iter() {
         rows.advance(band, left_px, right_px, Some(&mut readouts.refine), sink)?;
-        let last = i + 1 == plan.len();
         let left = GrayBand::new(left_px, width, band_px)?;
         let right = GrayBand::new(right_px, width, band_px)?;
         sink.stage(Stage::EncodePair);
@@ -93,30 +78,25 @@ pub(super) fn run(
         let (tokens, rest) = split(scratch, len).ok_or(too_small)?;
         let tokens: &[i8] = bytemuck::cast_slice(tokens);
         sink.pair_band(band, tokens);
+        // Each band's head stream starts afresh after the band's tokens, so nothing of the
+        // head outlives the band and the arena does not grow with the image's height.
+        let (arena, rest) = split(rest, head_len).ok_or(too_small)?;
+        let mut stream = HeadStream::with_candidates(weights, cols, nd, HeadView::Left, arena)?;
         let pass = Pass {
             band,
             tokens,
             view: rows.view(left_px, right_px),
-            last,
         };
-        // One band: the head stream is made after the pass's tokens.
-        let (own_len, used) = match stream.as_mut() {
-            Some(stream) => (0, pass.run(ctx, &mut readouts, stream, rest, sink)?),
-            None => {
-                let (arena, rest) = split(rest, head_len).ok_or(too_small)?;
-                let mut stream = HeadStream::with_candidates(weights, cols, nd, HeadView::Left, arena)?;
-                (head_len, pass.run(ctx, &mut readouts, &mut stream, rest, sink)?)
-            }
-        };
+        let used = pass.run(ctx, &mut readouts, &mut stream, rest, sink)?;
         scratch_used = scratch_used.max(used);
-        after_tokens = after_tokens.max(len + own_len);
+        after_tokens = after_tokens.max(len + head_len);
     }
     readouts.refine.done()?;
-    report.streams = stream_len + readouts.check_used + readouts.census_used;
+    report.streams = readouts.check_used + readouts.census_used;
     report.refine = readouts.refine.used() + scratch_used;
     report.head_kept = readouts.check.as_ref().map_or(0, |check| check.kept);
     report.fused_kept = readouts.census.as_ref().map_or(0, |census| census.kept);
-    let fixed = report.pixels + stream_len + check_len + census_len + state_len;
+    let fixed = report.pixels + check_len + census_len + state_len;
     report.arena_used = fixed + report.encoder.max(after_tokens + scratch_used);
     Ok(report)
 }
@@ -126,13 +106,11 @@ struct Pass<'d> {
     band: Band,
     tokens: &'d [i8],
     view: BandView<'d>,
-    /// The run's last band.
-    last: bool,
 }
 
 impl Pass<'_> {
-    /// The band's rows into the head `stream`, the refinement's row scratch cut from `scratch`,
-    /// and the stream's end after the last band. Returns the row scratch's bytes.
+    /// The band's rows through a fresh head `stream` to its end, the refinement's row scratch
+    /// cut from `scratch`. Returns the row scratch's bytes.
     fn run(
         &self,
         ctx: &Context<'_, '_>,
@@ -143,9 +121,6 @@ impl Pass<'_> {
     ) -> Result<usize, Error> {
         let mut io = ctx.refine_io(self.view, scratch)?;
         readouts.push_band(stream, self.band, self.tokens, &mut io, sink)?;
-        if self.last {
-            readouts.step(stream, None, &mut io, sink)?;
-        }
         Ok(io.scratch.used())
     }
 }
@@ -187,7 +162,7 @@ impl<'a, 'w> Readouts<'a, 'w> {
             }
             _ => (None, 0),
         };
-        let refine = Refinement::new(ctx.refine, ctx.width, ctx.height, streaming, state)?;
+        let refine = Refinement::new(ctx.refine, ctx.width, ctx.height, streaming, false, state)?;
         Ok(Self {
             cols,
             weights,
@@ -199,7 +174,8 @@ impl<'a, 'w> Readouts<'a, 'w> {
         })
     }
 
-    /// Feeds the head `stream` the token rows `band` keeps (`tokens`: the band's pair tokens).
+    /// Feeds a fresh head `stream` the band's rows around those it keeps
+    /// ([`Band::around_kept`] by [`head::ROW_REACH`]) and ends it; the kept rows' outputs go on.
     fn push_band(
         &mut self,
         stream: &mut HeadStream<'_, '_>,
@@ -209,24 +185,29 @@ impl<'a, 'w> Readouts<'a, 'w> {
         sink: &mut impl Sink,
     ) -> Result<(), Error> {
         let row_len = self.cols * 2 * DIM;
-        for row in band.keep_from..band.keep_to {
+        let input = band.around_kept(head::ROW_REACH);
+        let window = Window {
+            first: input.start,
+            keep: band.keep_from..band.keep_to,
+        };
+        for row in input {
             let at = (row - band.start) * row_len;
             let Some(tokens) = tokens.get(at..at + row_len) else {
                 return Err(Error::BufferSize {
                     what: "pair token band",
-                    expected: (band.keep_to - band.start) * row_len,
+                    expected: band.rows * row_len,
                     found: tokens.len(),
                 });
             };
-            if let Some(census) = self.census.as_mut() {
+            if let Some(census) = self.census.as_mut().filter(|_| window.keep.contains(&row)) {
                 // The census row now, while the band holds its view rows; fused when the
                 // head's checked row comes out.
                 sink.stage(Stage::Sgm);
                 census.compute(row, &io.view)?;
             }
-            self.step(stream, Some(tokens), io, sink)?;
+            self.step(stream, Some(tokens), &window, io, sink)?;
         }
-        Ok(())
+        self.step(stream, None, &window, io, sink)
     }
 
     /// One row (or, `None`, the end) into the head `stream`; its output rows go to the sink,
@@ -235,6 +216,7 @@ impl<'a, 'w> Readouts<'a, 'w> {
         &mut self,
         stream: &mut HeadStream<'_, '_>,
         tokens: Option<&[i8]>,
+        window: &Window,
         io: &mut RefineIo<'_>,
         sink: &mut impl Sink,
     ) -> Result<(), Error> {
@@ -255,7 +237,7 @@ impl<'a, 'w> Readouts<'a, 'w> {
                     refine: Feed::of(&mut self.refine.0, io, input, Stage::Head),
                     checked: input != RefineInput::Head,
                 };
-                pair_step(stream, tokens, &mut rows)?;
+                pair_step(stream, tokens, window, &mut rows)?;
             }
             None => {
                 let mut rows = HeadRows {
@@ -263,21 +245,34 @@ impl<'a, 'w> Readouts<'a, 'w> {
                     check: None,
                     refine: Feed::of(&mut self.refine.0, io, RefineInput::Head, Stage::Head),
                 };
-                pair_step(stream, tokens, &mut rows)?;
+                pair_step(stream, tokens, window, &mut rows)?;
             }
         }
         self.refine.check()
     }
 }
 
-/// One step of a native head stream: the next pair token row, or (`None`) the end.
+/// A band's head stream in the image: the token row its row 0 is, and the rows it passes on.
+struct Window {
+    first: usize,
+    keep: core::ops::Range<usize>,
+}
+
+/// One step of a native head stream: the next pair token row, or (`None`) the end; only the
+/// rows the `window` keeps go on to `rows`, numbered in the image.
 fn pair_step(
     stream: &mut HeadStream<'_, '_>,
     tokens: Option<&[i8]>,
+    window: &Window,
     rows: &mut impl head::HeadSink,
 ) -> Result<(), Error> {
+    let mut kept = head::KeptRows {
+        inner: rows,
+        first: window.first,
+        keep: window.keep.clone(),
+    };
     match tokens {
-        Some(tokens) => stream.push_pair_row(tokens, rows),
-        None => stream.finish(rows),
+        Some(tokens) => stream.push_pair_row(tokens, &mut kept),
+        None => stream.finish(&mut kept),
     }
 }

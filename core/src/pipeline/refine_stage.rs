@@ -447,23 +447,22 @@ pub(super) struct Refinement<'a>(pub(super) Option<(RefineInput, RefineStage<'a>
 
 impl<'a> Refinement<'a> {
     /// The stage of `refine` (none without it) for `height x width` views, its state cut from
-    /// `state`: with `several_bands` the ring of the rows that trail the band ([`ring_rows`]),
-    /// with one band none.
+    /// `state`: with `several_bands` the ring of the rows its readout needs after the next
+    /// band's load ([`ring_rows`]; `trails`: whether the readout's rows trail the band by its
+    /// lag), with one band none.
     pub(super) fn new(
         refine: Option<&Refine>,
         width: usize,
         height: usize,
         several_bands: bool,
+        trails: bool,
         state: &'a mut [u8],
     ) -> Result<Self, Error> {
         let Some(r) = refine else {
             return Ok(Self(None));
         };
-        let ring = if several_bands {
-            ring_rows(r.reach(), r.input.lag())
-        } else {
-            0
-        };
+        let lag = if trails { r.input.lag() } else { 0 };
+        let ring = if several_bands { ring_rows(r.reach(), lag) } else { 0 };
         let stage = RefineStage::new(r.params, r.equalise, width, height, ring, state)?;
         Ok(Self(Some((r.input, stage))))
     }

@@ -170,28 +170,37 @@ pub const fn census_arena_bytes(height: usize, width: usize, opts: &Options, ref
     let pixels = band_pixel_rows(height).saturating_mul(width).saturating_mul(2);
     let census = census_stage::bytes(width, opts.head_candidates, CENSUS_RING_ROWS);
     let (state, scratch) = match refine {
-        Some(r) => refine_parts(height, width, r),
+        Some(r) => refine_parts(height, width, r, false),
         None => (0, 0),
     };
     sum(&[pixels, census, state, scratch])
 }
 
-/// Bytes of the refinement's buffers in a run of a `height x width` pair: its state kept
-/// across bands (two token rows; with several bands and a head input a ring of view rows) and
-/// its row scratch (census codes and the output row). 14,085 at 48x160 with the defaults (the
-/// equalisation's 13 smoothed rows included; 12,005 without); 22,405 for a taller image at width
-/// 160 refining a head readout (the 26-row view ring).
-pub const fn refine_bytes(height: usize, width: usize, refine: &Refine) -> usize {
-    let (state, scratch) = refine_parts(height, width, refine);
+/// Bytes of the refinement's buffers in a run of a `height x width` pair on `pathway`: its
+/// state kept across bands (two token rows; with several bands a ring of view rows where the
+/// readout's rows trail the band, [`trails_band`]) and its row scratch (census codes and the
+/// output row). 14,085 at 48x160 with the defaults (the equalisation's 13 smoothed rows
+/// included; 12,005 without); 22,405 for a taller image at width 160 refining the export
+/// pathway's head readout (the 26-row view ring).
+pub const fn refine_bytes(height: usize, width: usize, pathway: Pathway, refine: &Refine) -> usize {
+    let (state, scratch) = refine_parts(height, width, refine, trails_band(pathway));
     state.saturating_add(scratch)
 }
 
-/// The refinement's (state, row scratch) bytes.
-pub(super) const fn refine_parts(height: usize, width: usize, refine: &Refine) -> (usize, usize) {
+/// Whether a pathway's refined rows trail the band that made them into the next one: the
+/// export pathway's head streams run across bands ([`RefineInput::lag`]); the native head
+/// ends with each band, and the census and matching readouts never trail.
+pub(super) const fn trails_band(pathway: Pathway) -> bool {
+    matches!(pathway, Pathway::Export)
+}
+
+/// The refinement's (state, row scratch) bytes; `trails`: whether its readout's rows trail
+/// the band ([`trails_band`]).
+pub(super) const fn refine_parts(height: usize, width: usize, refine: &Refine, trails: bool) -> (usize, usize) {
     let ring = if height <= band_pixel_rows(height) {
         0
     } else {
-        refine_stage::ring_rows(refine.reach(), refine.input.lag())
+        refine_stage::ring_rows(refine.reach(), if trails { refine.input.lag() } else { 0 })
     };
     (
         refine_stage::state_bytes(width, ring),
@@ -212,7 +221,7 @@ const fn arena_bytes_of(
     let descriptors = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(DIM);
     let encoder = encoder::arena_bytes(band_rows, width);
     let (state, scratch) = match refine {
-        Some(r) => refine_parts(height, width, r),
+        Some(r) => refine_parts(height, width, r, true),
         None => (0, 0),
     };
     if height <= band_rows {
@@ -243,9 +252,10 @@ pub(super) const fn native_check_bytes(cols: usize, head_lr: bool) -> usize {
 
 /// Arena bytes of a native run of a `height x width` pair (saturating, like every sizing helper).
 ///
-/// One band (images up to 48 rows): the head stream lives in the encoder's scratch after the
-/// pass's tokens, so only the check's rows and the refinement's state sit outside it. Several
-/// bands: the head stream carries state from band to band and sits outside the scratch.
+/// Each band's head stream lives in the encoder's scratch after the pass's tokens and ends
+/// with the band, so only the check's rows, the census stage and the refinement's state sit
+/// outside it: the size depends on the band and the width, and on the height only through the
+/// refinement's ring (one band or several).
 pub(super) const fn native_arena_bytes(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
     let band_rows = band_pixel_rows(height);
     let cols = width / CELL_W;
@@ -254,17 +264,13 @@ pub(super) const fn native_arena_bytes(height: usize, width: usize, opts: &Optio
     let encoder = encoder::arena_bytes(band_rows, width);
     let head = aligned(head::arena_bytes_with(HeadKind::Native, cols, opts.head_candidates));
     let (state, scratch) = match refine {
-        Some(r) => refine_parts(height, width, r),
+        Some(r) => refine_parts(height, width, r, false),
         None => (0, 0),
     };
     let state = aligned(state);
     let check = native_check_bytes(cols, opts.head_lr).saturating_add(native_census_bytes(width, opts, refine));
-    if height <= band_rows {
-        let after = sum(&[tokens, head, scratch]);
-        sum(&[pixels, check, state, max(encoder, after)])
-    } else {
-        sum(&[pixels, head, check, state, max(encoder, tokens.saturating_add(scratch))])
-    }
+    let after = sum(&[tokens, head, scratch]);
+    sum(&[pixels, check, state, max(encoder, after)])
 }
 
 /// Arena bytes of the census stage, rounded up to [`REGION_ALIGN`]: only when the refinement

@@ -85,13 +85,13 @@ impl<'a, 'w> Streams<'a, 'w> {
         } else {
             (None, 0)
         };
-        let state = ctx.refine.map_or(0, |r| refine_parts(ctx.height, ctx.width, r).0);
+        let state = ctx.refine.map_or(0, |r| refine_parts(ctx.height, ctx.width, r, true).0);
         let available = streams.saturating_add(refine_arena.len());
         let state_arena = refine_arena.get_mut(..state).ok_or(Error::ArenaTooSmall {
             needed: streams.saturating_add(state),
             available,
         })?;
-        let refine = Refinement::new(ctx.refine, ctx.width, ctx.height, streaming, state_arena)?;
+        let refine = Refinement::new(ctx.refine, ctx.width, ctx.height, streaming, true, state_arena)?;
         let volume_row = state_len(cols, max_cols);
         let guided = ctx.opts.penalties.guided();
         let matching = matching_bytes(cols, max_cols, guided);

@@ -153,14 +153,19 @@ impl Comparer {
         let Some(float_head) = self.native_head.as_mut() else {
             return Ok(None);
         };
-        let (rows, cols, codes) = self.int8.pair_token_codes(&item.left, &item.right)?;
-        let int8_tokens: Vec<f32> = codes.iter().map(|&c| c as f32 * self.descriptor_scale).collect();
-        let float_tokens = self.reference.tokens(&item.left, &item.right)?;
+        let (cols, int8_bands) = self.int8.pair_token_bands(&item.left, &item.right)?;
+        let int8_tokens: Vec<f32> = int8_bands
+            .assemble()
+            .iter()
+            .map(|&c| c as f32 * self.descriptor_scale)
+            .collect();
+        let float_bands = self.reference.token_bands(&item.left, &item.right)?;
+        let float_tokens = float_bands.assemble();
         let pair_token_cosine = mean_token_cosine(&int8_tokens, &float_tokens.data, DIM).context("pair tokens")?;
+        // Each band's head on its own rows, as the core's native pathway runs it.
         let nd = head_candidates(item.left.width);
-        let int8 = self.int8.native_head_with_candidates(&codes, (rows, cols), nd)?;
-        let (even, odd) = float_tokens.phase_maps();
-        let float = float_head.forward(&even, &odd, nd)?;
+        let int8 = self.int8.native_head_banded(&int8_bands, cols, nd)?;
+        let float = float_head.forward_banded(&float_bands, nd)?;
         Ok(Some(NativeComparison {
             pair_token_cosine,
             head: head_comparison(&int8, &float, views, item)?,

@@ -293,7 +293,8 @@ fn float_maps(
     })
 }
 
-/// The native pathway in float: the native head on the phase maps of one pass on (L, R); its
+/// The native pathway in float: the native head on the phase maps of one pass on (L, R), each
+/// band's on its own ([`FloatHead::forward_banded`]); its
 /// check reads the right view from the same logits' diagonal
 /// ([`crate::compare::head::FloatHeadOutput::right_view`]).
 fn float_native_maps(
@@ -302,17 +303,18 @@ fn float_native_maps(
     head: &mut FloatHead,
     item: &EvalItem,
 ) -> Result<MethodMaps> {
-    let (even, odd) = encoder
-        .tokens(&item.left, &item.right)
-        .context("native pass on (L, R)")?
-        .phase_maps();
-    let out = head.forward(&even, &odd, head_candidates(item.left.width))?;
+    let tokens = encoder
+        .token_bands(&item.left, &item.right)
+        .context("native pass on (L, R)")?;
+    // Each band's head on its own rows, as the core's native pathway runs it.
+    let out = head.forward_banded(&tokens, head_candidates(item.left.width))?;
+    let (rows, cols) = (tokens.rows.rows, tokens.cols / 2);
     let map = |values: Vec<f32>| DisparityMap {
-        width: even.cols,
-        height: even.rows,
+        width: cols,
+        height: rows,
         values,
     };
-    let head_right = map(out.right_view(even.rows, even.cols));
+    let head_right = map(out.right_view(rows, cols));
     let head_confidence = Some(out.confidence_q8());
     let head_left = map(out.disparity);
     let mask = consistent(&head_left, &head_right, opts.lr_max_diff);

@@ -10,10 +10,36 @@
 use anyhow::{ensure, Result};
 use bino_core::model::ids::HeadKind;
 
+use crate::band_maps::{per_band, ROW_REACH};
 use crate::compare::head::FloatHeadOutput;
 use crate::float::head::{FloatConv3d, FloatHead};
-use crate::float::reference::FeatureMap;
+use crate::float::reference::{FeatureMap, TokenBands};
 use crate::float::weights::FloatLinear;
+
+/// Per-cell logits `(cells, candidates)` from candidate-major `(candidates, cells)`: with
+/// cells row-major, each token row's logits lie together, so rows can be cut and stitched.
+fn cell_major(candidate_major: &[f32], candidates: usize) -> Vec<f32> {
+    let cells = candidate_major.len() / candidates.max(1);
+    let mut out = vec![0.0f32; cells * candidates];
+    for (k, plane) in candidate_major.chunks_exact(cells.max(1)).enumerate() {
+        for (cell, &l) in plane.iter().enumerate() {
+            out[cell * candidates + k] = l;
+        }
+    }
+    out
+}
+
+/// Candidate-major logits from per-cell ones ([`cell_major`]'s inverse).
+fn candidate_major(cell_major: &[f32], candidates: usize) -> Vec<f32> {
+    let cells = cell_major.len() / candidates.max(1);
+    let mut out = vec![0.0f32; cells * candidates];
+    for (cell, logits) in cell_major.chunks_exact(candidates.max(1)).enumerate() {
+        for (k, &l) in logits.iter().enumerate() {
+            out[k * cells + cell] = l;
+        }
+    }
+    out
+}
 
 /// Subtracted from the logits of candidates outside the right view (`MASKED_LOGIT` of
 /// `train/bino_train/head.py`).
@@ -63,6 +89,31 @@ impl FloatHead {
             }
         }
         Ok(FloatHeadOutput { logits, disparity })
+    }
+
+    /// The native head as the core's native pathway runs it: on each band's own rows within
+    /// [`ROW_REACH`] of those it keeps, the kept rows stitched into one output (one band: the
+    /// head on the whole grid).
+    pub fn forward_banded(&self, tokens: &TokenBands, candidates: usize) -> Result<FloatHeadOutput> {
+        let (fused_cols, dim) = (tokens.cols, tokens.dim);
+        let cols = fused_cols / 2;
+        let planes = per_band(&tokens.rows, ROW_REACH, &[cols, candidates * cols], |values, rows| {
+            let grid = FeatureMap {
+                rows,
+                cols: fused_cols,
+                dim,
+                data: values.to_vec(),
+            };
+            let (even, odd) = grid.phase_maps();
+            let out = self.forward(&even, &odd, candidates)?;
+            Ok(vec![out.disparity, cell_major(&out.logits, candidates)])
+        })?;
+        let [disparity, logits] = <[Vec<f32>; 2]>::try_from(planes)
+            .map_err(|p| anyhow::anyhow!("the banded head gave {} planes", p.len()))?;
+        Ok(FloatHeadOutput {
+            logits: candidate_major(&logits, candidates),
+            disparity,
+        })
     }
 
     /// (f_L, f_R), `rows * cols * proj` each: the shared projection of each LayerNorm-ed view

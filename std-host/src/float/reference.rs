@@ -11,8 +11,32 @@ use bino_core::band::BandPlan;
 use bino_core::config::{check_view_size, IN_CHANS, PATCH_H};
 use tract_onnx::prelude::*;
 
+use crate::band_maps::BandedRows;
 use crate::data::profile::View;
 use crate::float::onnx::OnnxModel;
+
+/// A pair's fused token grids as the bands computed them ([`ReferenceEncoder::token_bands`]).
+#[derive(Debug, Clone, PartialEq)]
+pub struct TokenBands {
+    /// Fused columns.
+    pub cols: usize,
+    /// Channels per token.
+    pub dim: usize,
+    /// Every band's rows, `cols x dim` values a row.
+    pub rows: BandedRows<f32>,
+}
+
+impl TokenBands {
+    /// The whole grid, each row from the band that keeps it.
+    pub fn assemble(&self) -> FeatureMap {
+        FeatureMap {
+            rows: self.rows.rows,
+            cols: self.cols,
+            dim: self.dim,
+            data: self.rows.assemble(),
+        }
+    }
+}
 
 /// A token grid or descriptor map: `rows x cols x dim`, row-major (`dim` is 128 for the
 /// paper's encoder; smaller test configurations have fewer channels).
@@ -111,8 +135,14 @@ impl ReferenceEncoder {
         self.model.path()
     }
 
-    /// The de-positioned fused token grid of a pair: (H/4) x (W/2) x dim.
+    /// The de-positioned fused token grid of a pair: (H/4) x (W/2) x dim, each row from the
+    /// band that keeps it.
     pub fn tokens(&mut self, left: &View, right: &View) -> Result<FeatureMap> {
+        Ok(self.token_bands(left, right)?.assemble())
+    }
+
+    /// [`ReferenceEncoder::tokens`] as the bands computed them, overlaps included.
+    pub fn token_bands(&mut self, left: &View, right: &View) -> Result<TokenBands> {
         ensure!(
             (left.width, left.height) == (right.width, right.height),
             "left view is {}x{} but right view is {}x{}",
@@ -124,26 +154,27 @@ impl ReferenceEncoder {
         let (token_rows, patch_cols) = check_view_size(left.height, left.width).map_err(anyhow::Error::msg)?;
         let fused_cols = 2 * patch_cols;
         let plan = BandPlan::new(token_rows).map_err(anyhow::Error::msg)?;
-        let (mut data, mut dim) = (Vec::new(), 0);
+        let (mut bands, mut dim) = (Vec::with_capacity(plan.len()), 0);
         for band in plan.iter() {
             let rows = band.start * PATCH_H..(band.start + band.rows) * PATCH_H;
             let l = band_tensor(left, rows.clone());
             let r = band_tensor(right, rows);
             let (band_dim, out) = self.run_band(band.rows * PATCH_H, left.width, l, r)?;
-            if data.is_empty() {
-                dim = band_dim;
-                data = vec![0.0f32; token_rows * fused_cols * dim];
-            }
-            let row_len = fused_cols * dim;
-            let from = (band.keep_from - band.start) * row_len;
-            let to = (band.keep_to - band.start) * row_len;
-            data[band.keep_from * row_len..band.keep_to * row_len].copy_from_slice(&out[from..to]);
+            ensure!(
+                dim == 0 || band_dim == dim,
+                "bands differ in channels: {dim} and {band_dim}"
+            );
+            dim = band_dim;
+            bands.push((band, out));
         }
-        Ok(FeatureMap {
-            rows: token_rows,
+        Ok(TokenBands {
             cols: fused_cols,
             dim,
-            data,
+            rows: BandedRows {
+                rows: token_rows,
+                row_len: fused_cols * dim,
+                bands,
+            },
         })
     }
 

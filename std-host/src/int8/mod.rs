@@ -4,6 +4,7 @@
 
 pub mod blob_writer;
 pub mod crop_maps;
+mod heads;
 pub mod pass_cache;
 pub mod pipeline_maps;
 
@@ -12,18 +13,18 @@ use std::path::{Path, PathBuf};
 use anyhow::{ensure, Context, Result};
 use bino_core::band::BandPlan;
 use bino_core::blob::Blob;
-use bino_core::config::{check_view_size, CELL_W, DIM, HEAD_MAX_DISP, PATCH_H};
+use bino_core::config::{check_view_size, CELL_W, DIM, PATCH_H};
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
-use bino_core::model::head::{
-    arena_bytes_with, right_view_row, HeadRow, HeadSink, HeadStream, HeadView, HeadWeights, OUT_FRAC_BITS,
-};
-use bino_core::model::ids::{self, kind, HeadKind};
+use bino_core::model::ids::{self, kind};
 use bino_core::model::probe::{NoProbe, Probe, Stage};
 use bino_core::{matching, sgm};
 
+use crate::band_maps::BandedRows;
 use crate::data::profile::View;
 use crate::eval::DisparityMap;
 use crate::float::reference::FeatureMap;
+
+pub use heads::HeadMaps;
 
 /// A weight blob read from a file, with its encoder validated.
 pub struct Int8Model {
@@ -109,8 +110,17 @@ impl Int8Model {
     }
 
     /// The native pathway's input codes of a pair (`H/4 x W/4 x [even, odd] x DIM`: the
-    /// de-positioned fused token grid in descriptor codes, `Encoder::pair_tokens`), band by band.
+    /// de-positioned fused token grid in descriptor codes, `Encoder::pair_tokens`), band by band,
+    /// each row from the band that keeps it.
     pub fn pair_token_codes(&self, left: &View, right: &View) -> Result<(usize, usize, Vec<i8>)> {
+        let (cols, bands) = self.pair_token_bands(left, right)?;
+        Ok((bands.rows, cols, bands.assemble()))
+    }
+
+    /// [`Int8Model::pair_token_codes`] as the bands computed them, overlaps included: (patch
+    /// columns, every band's rows). The native head reads each band on its own
+    /// ([`Int8Model::native_head_banded`]).
+    pub fn pair_token_bands(&self, left: &View, right: &View) -> Result<(usize, BandedRows<i8>)> {
         ensure!(
             (left.width, left.height) == (right.width, right.height),
             "views differ in size: {}x{} and {}x{}",
@@ -121,7 +131,7 @@ impl Int8Model {
         );
         let encoder = self.encoder()?;
         let (left_px, right_px) = (to_u8(&left.pixels), to_u8(&right.pixels));
-        self.banded(left, 2, |band, arena, band_out| {
+        self.band_outputs(left, 2, |band, arena, band_out| {
             encoder
                 .pair_tokens(
                     band.gray(&left_px)?,
@@ -151,7 +161,16 @@ impl Int8Model {
     /// Runs `encode` on every band of `view`'s size (it gets the band's rows, the band arena
     /// and the band's output of `per_cell x DIM` codes per patch column) and keeps each output
     /// row from the band the plan assigns it to: (token rows, patch columns, codes).
-    fn banded<F>(&self, view: &View, per_cell: usize, mut encode: F) -> Result<(usize, usize, Vec<i8>)>
+    fn banded<F>(&self, view: &View, per_cell: usize, encode: F) -> Result<(usize, usize, Vec<i8>)>
+    where
+        F: FnMut(BandRows, &mut [u8], &mut [i8]) -> Result<()>,
+    {
+        let (cols, bands) = self.band_outputs(view, per_cell, encode)?;
+        Ok((bands.rows, cols, bands.assemble()))
+    }
+
+    /// [`Int8Model::banded`]'s band outputs, each whole: (patch columns, the bands' rows).
+    fn band_outputs<F>(&self, view: &View, per_cell: usize, mut encode: F) -> Result<(usize, BandedRows<i8>)>
     where
         F: FnMut(BandRows, &mut [u8], &mut [i8]) -> Result<()>,
     {
@@ -166,22 +185,19 @@ impl Int8Model {
         let plan = BandPlan::new(rows).map_err(anyhow::Error::msg)?;
         let mut arena = vec![0u8; arena_bytes(bino_core::config::BAND_ROWS, view.width)];
         let row_len = cols * per_cell * DIM;
-        let mut out = vec![0i8; rows * row_len];
-        let mut band_out = Vec::new();
         let width = view.width;
+        let mut bands = Vec::with_capacity(plan.len());
         for band in plan.iter() {
             let rows_of_band = BandRows {
                 first: band.start * PATCH_H,
                 height: band.rows * PATCH_H,
                 width,
             };
-            band_out.resize(band.rows * row_len, 0);
+            let mut band_out = vec![0i8; band.rows * row_len];
             encode(rows_of_band, &mut arena, &mut band_out)?;
-            let from = (band.keep_from - band.start) * row_len;
-            let to = (band.keep_to - band.start) * row_len;
-            out[band.keep_from * row_len..band.keep_to * row_len].copy_from_slice(&band_out[from..to]);
+            bands.push((band, band_out));
         }
-        Ok((rows, cols, out))
+        Ok((cols, BandedRows { rows, row_len, bands }))
     }
 
     /// Dequantised descriptor map of a view, comparable with the float reference's.
@@ -213,229 +229,6 @@ impl BandRows {
             .context("band outside the view")?;
         GrayBand::new(rows, self.width, self.height).map_err(anyhow::Error::msg)
     }
-}
-
-/// The int8 head's outputs over a whole descriptor map.
-#[derive(Debug, Clone, PartialEq)]
-pub struct HeadMaps {
-    /// Token rows.
-    pub rows: usize,
-    /// Patch columns.
-    pub cols: usize,
-    /// Soft-argmin disparity per cell, in patch columns.
-    pub disparity: Vec<f32>,
-    /// Largest candidate probability per cell.
-    pub confidence: Vec<f32>,
-    /// Real logits (`rows x cols x candidates`); candidates outside the right view are
-    /// `-inf`.
-    pub logits: Vec<f32>,
-    /// The right view's disparity per cell (patch columns) read from the logits' diagonal
-    /// (`bino_core::model::head::right_view_row`): the native pathway's one-pass check.
-    pub right_view: Vec<f32>,
-}
-
-impl Int8Model {
-    /// The head's own left-right check on whole descriptor maps (`rows x cols x DIM` codes):
-    /// the head on the mirrored pair (each row's cells reversed, views swapped) gives the right
-    /// view, and `bino_core::lr::consistent_row` compares it with `left_head` (the head's
-    /// left-view output), row by row — what the core pipeline's `head_lr` streams. True = kept.
-    pub fn head_check(
-        &self,
-        left: &[i8],
-        right: &[i8],
-        left_head: &HeadMaps,
-        lr_max_diff_q8: u16,
-    ) -> Result<Vec<bool>> {
-        let (rows, cols) = (left_head.rows, left_head.cols);
-        let mirror = |map: &[i8]| -> Vec<i8> {
-            map.chunks_exact(cols * DIM)
-                .flat_map(|row| row.chunks_exact(DIM).rev().flatten().copied().collect::<Vec<_>>())
-                .collect()
-        };
-        let mirrored = self.head(&mirror(right), &mirror(left), rows, cols)?;
-        let q8 = |d: f32| (d * (1u32 << bino_core::matching::DISPARITY_FRAC_BITS) as f32).round() as u16;
-        let mut kept = Vec::with_capacity(rows * cols);
-        let mut mask = vec![0u8; cols];
-        for (l, r) in left_head
-            .disparity
-            .chunks_exact(cols)
-            .zip(mirrored.disparity.chunks_exact(cols))
-        {
-            let l: Vec<u16> = l.iter().map(|&d| q8(d)).collect();
-            let r: Vec<u16> = r.iter().rev().map(|&d| q8(d)).collect();
-            bino_core::lr::consistent_row(&l, &r, lr_max_diff_q8, &mut mask).map_err(anyhow::Error::msg)?;
-            kept.extend(mask.iter().map(|&m| m != 0));
-        }
-        Ok(kept)
-    }
-}
-
-struct CollectRows<'m, 'w> {
-    out: &'m mut HeadMaps,
-    logit_scale: f32,
-    weights: HeadWeights<'w>,
-    right: Vec<u16>,
-}
-
-impl HeadSink for CollectRows<'_, '_> {
-    fn row(&mut self, row: HeadRow<'_>) {
-        let q8 = (1u32 << OUT_FRAC_BITS) as f32;
-        self.right.resize(row.disparity_q8.len(), 0);
-        // The row and the buffer are both `cols` wide: the only error is unreachable; a row
-        // that failed would leave `right_view` short, which the whole-map check reports.
-        if right_view_row(&self.weights, &row, &mut self.right).is_ok() {
-            self.out.right_view.extend(self.right.iter().map(|&d| d as f32 / q8));
-        }
-        self.out
-            .disparity
-            .extend(row.disparity_q8.iter().map(|&d| d as f32 / q8));
-        self.out
-            .confidence
-            .extend(row.confidence_q8.iter().map(|&c| c as f32 / q8));
-        let scale = self.logit_scale;
-        self.out.logits.extend(row.logits.iter().map(|&l| {
-            if l == i32::MIN {
-                f32::NEG_INFINITY
-            } else {
-                l as f32 * scale
-            }
-        }));
-    }
-}
-
-impl Int8Model {
-    /// Whether the blob holds the shared head.
-    pub fn has_head(&self) -> bool {
-        self.has_head_of(HeadKind::Export)
-    }
-
-    /// Whether the blob holds `head` (the native pathway's head: `--native-head` at quantisation).
-    pub fn has_head_of(&self, head: HeadKind) -> bool {
-        self.blob()
-            .ok()
-            .and_then(|b| HeadWeights::for_kind(b, head).ok())
-            .is_some()
-    }
-
-    /// An error naming the blob and how to add `head` when the blob does not carry it (what a
-    /// command checks before it runs a head readout).
-    pub fn require_head(&self, head: HeadKind) -> Result<()> {
-        self.head_weights(head).map(|_| ())
-    }
-
-    /// The blob's `head` weights, or an error naming the blob and how to add that head.
-    fn head_weights(&self, head: HeadKind) -> Result<(HeadWeights<'_>, f32)> {
-        let blob = self.blob()?;
-        let flag = match head {
-            HeadKind::Export => "--head",
-            HeadKind::Native => "--native-head",
-        };
-        let weights = HeadWeights::for_kind(blob, head)
-            .map_err(|e| anyhow::anyhow!("{e}"))
-            .with_context(|| {
-                format!(
-                    "{} holds no usable {} pathway head (quantise with {flag})",
-                    self.path.display(),
-                    head.pathway()
-                )
-            })?;
-        let logit_scale = meta_f32(&blob, ids::id(kind::META_HEAD_LOGIT_SCALE, head.index()), 1)?[0];
-        Ok((weights, logit_scale))
-    }
-
-    /// The int8 native head over a pair token code map (`rows x cols x [even, odd] x DIM`,
-    /// [`Int8Model::pair_token_codes`]), streamed row by row.
-    pub fn native_head(&self, tokens: &[i8], rows: usize, cols: usize) -> Result<HeadMaps> {
-        self.native_head_with_candidates(tokens, (rows, cols), HEAD_MAX_DISP)
-    }
-
-    /// [`Int8Model::native_head`] over `candidates` disparities.
-    pub fn native_head_with_candidates(
-        &self,
-        tokens: &[i8],
-        (rows, cols): (usize, usize),
-        candidates: usize,
-    ) -> Result<HeadMaps> {
-        ensure!(
-            tokens.len() == rows * cols * 2 * DIM,
-            "pair token map holds {} codes, expected {rows} x {cols} x 2 x {DIM}",
-            tokens.len()
-        );
-        let (weights, logit_scale) = self.head_weights(HeadKind::Native)?;
-        run_head(weights, logit_scale, (rows, cols, candidates), |stream, sink| {
-            for row in tokens.chunks_exact(cols * 2 * DIM) {
-                stream.push_pair_row(row, sink)?;
-            }
-            Ok(())
-        })
-    }
-
-    /// The int8 head over two descriptor code maps (`rows x cols x DIM` each), streamed row by
-    /// row, over the trained [`HEAD_MAX_DISP`] candidates.
-    pub fn head(&self, left: &[i8], right: &[i8], rows: usize, cols: usize) -> Result<HeadMaps> {
-        self.head_with_candidates(left, right, (rows, cols), HEAD_MAX_DISP)
-    }
-
-    /// [`Int8Model::head`] over `candidates` disparities (`HeadStream::with_candidates`).
-    pub fn head_with_candidates(
-        &self,
-        left: &[i8],
-        right: &[i8],
-        (rows, cols): (usize, usize),
-        candidates: usize,
-    ) -> Result<HeadMaps> {
-        ensure!(
-            left.len() == rows * cols * DIM && right.len() == left.len(),
-            "descriptor maps differ in size"
-        );
-        let (weights, logit_scale) = self.head_weights(HeadKind::Export)?;
-        run_head(weights, logit_scale, (rows, cols, candidates), |stream, sink| {
-            for (l, r) in left.chunks_exact(cols * DIM).zip(right.chunks_exact(cols * DIM)) {
-                stream.push_row(l, r, sink)?;
-            }
-            Ok(())
-        })
-    }
-}
-
-/// A head stream over `cols` patch columns and `candidates` disparities fed by `feed`, then
-/// finished: the whole maps.
-fn run_head<F>(
-    weights: HeadWeights<'_>,
-    logit_scale: f32,
-    (rows, cols, candidates): (usize, usize, usize),
-    feed: F,
-) -> Result<HeadMaps>
-where
-    F: FnOnce(&mut HeadStream<'_, '_>, &mut CollectRows<'_, '_>) -> Result<(), bino_core::Error>,
-{
-    let mut arena = vec![0u8; arena_bytes_with(weights.kind(), cols, candidates)];
-    let mut stream = HeadStream::with_candidates(weights, cols, candidates, HeadView::Left, &mut arena)
-        .map_err(anyhow::Error::msg)?;
-    let mut maps = HeadMaps {
-        rows,
-        cols,
-        disparity: Vec::new(),
-        confidence: Vec::new(),
-        logits: Vec::new(),
-        right_view: Vec::new(),
-    };
-    let mut sink = CollectRows {
-        out: &mut maps,
-        logit_scale,
-        weights,
-        right: Vec::new(),
-    };
-    feed(&mut stream, &mut sink).map_err(anyhow::Error::msg)?;
-    stream.finish(&mut sink).map_err(anyhow::Error::msg)?;
-    ensure!(
-        maps.disparity.len() == rows * cols && maps.right_view.len() == rows * cols,
-        "head emitted {} cells ({} right-view cells) of {}",
-        maps.disparity.len(),
-        maps.right_view.len(),
-        rows * cols
-    );
-    Ok(maps)
 }
 
 /// The pair token layout (`[cell][even, odd][dim]`) from two phase maps of `dim`-value cells.
