@@ -161,10 +161,12 @@ def camera_rates(camera, stages, clock_hz):
     if not camera or not stages or not clock_hz:
         return None
     by_name = {s["name"]: s["instructions"] for s in stages}
-    # The export pathway's band pair (the native and census runs' stages are named native_*,
-    # census_*).
+    # The export pathway's band pair (the native, census and learned frame runs' stages are
+    # named native_*, census_*, frame_*).
     band = sum(
-        n for name, n in by_name.items() if name != "load" and not name.startswith(("native_", "census_"))
+        n
+        for name, n in by_name.items()
+        if name != "load" and not name.startswith(("native_", "census_", "frame_"))
     )
     rows_insns = by_name.get("rows", 0)
     work = band - rows_insns
@@ -215,6 +217,33 @@ def census_run(lines, stages):
         "arena_breakdown": {k: arena.get(k) for k in ("pixels", "streams", "refine")},
         "census_kept": arena.get("census_kept"),
         "frame_instructions": sum(s["instructions"] for s in own),
+        "stack_peak": max(s["stack_peak"] for s in own),
+        "camera": {
+            k: camera.get(k)
+            for k in ("frame_rows", "line_buffers", "row_interval_insns", "delivered", "lost", "queue_high_water")
+        },
+    }
+
+
+def frame_run(lines, stages):
+    """The learned preset's whole-frame run (stages frame_*): its frame, arena, stack,
+    instructions per frame and per stage, and camera; None for a firmware without it."""
+    head = next((l for l in lines if "learned_frame" in l), None)
+    arena = next((l for l in lines if "arena_used" in l and l.get("pathway") == "frame"), {})
+    camera = next((l for l in lines if "frame_rows" in l and l.get("pathway") == "frame"), {})
+    own = [s for s in stages if s["name"].startswith("frame_")]
+    if head is None or not own:
+        return None
+    height, width = (int(x) for x in str(head["learned_frame"]).split("x"))
+    return {
+        "frame": {"height": height, "width": width},
+        "arena_bytes": head.get("learned_arena_bytes"),
+        "arena_used": arena.get("arena_used"),
+        "arena_painted_high_water": arena.get("painted_high_water"),
+        "arena_breakdown": {k: arena.get(k) for k in ("pixels", "encoder", "streams", "refine")},
+        "head_kept": arena.get("head_kept"),
+        "frame_instructions": sum(s["instructions"] for s in own),
+        "stages": {s["name"]: s["instructions"] for s in own},
         "stack_peak": max(s["stack_peak"] for s in own),
         "camera": {
             k: camera.get(k)
@@ -383,6 +412,8 @@ def main():
         ),
         # The fast preset's whole frame (stages census_*); absent for an older firmware.
         "census": census_run(lines, stages),
+        # The learned preset's whole frame (stages frame_*); absent for an older firmware.
+        "frame": frame_run(lines, stages),
         "note": NOTE,
     }
     if classes:

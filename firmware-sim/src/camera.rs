@@ -47,6 +47,16 @@ pub const FRAME_ROW_INTERVAL_INSNS: u32 = 400_000_000 / (4 * 120);
 #[cfg(board = "an500")]
 pub const FRAME_ROW_INTERVAL_INSNS: u32 = 480_000_000 / (3 * 120);
 
+/// Executed instructions between two sensor rows of the learned preset's whole frame: slow
+/// enough that the line buffers never overflow while a band is encoded (each band after the
+/// first reads about 24 new rows, then encodes and reads out for about 0.7G instructions on
+/// the Cortex-M55 and 4.2G on the Cortex-M7). A camera feeding the learned preset needs a
+/// snapshot or frame buffer; the core waits (WFI, not counted) until its rows are there.
+#[cfg(board = "an547")]
+pub const LEARNED_FRAME_ROW_INTERVAL_INSNS: u32 = 100_000_000;
+#[cfg(board = "an500")]
+pub const LEARNED_FRAME_ROW_INTERVAL_INSNS: u32 = 600_000_000;
+
 /// The board's SysTick clock (QEMU: the processor clock of the FPGA image).
 #[cfg(board = "an547")]
 const SYSTICK_HZ: u32 = 32_000_000;
@@ -60,8 +70,10 @@ const fn reload(insns: u32) -> u32 {
 }
 const _: () = {
     let (band, frame) = (reload(ROW_INTERVAL_INSNS), reload(FRAME_ROW_INTERVAL_INSNS));
+    let learned = reload(LEARNED_FRAME_ROW_INTERVAL_INSNS);
     assert!(band >= 16 && band < (1 << 24), "SysTick reload out of range");
     assert!(frame >= 16 && frame < (1 << 24), "SysTick reload out of range");
+    assert!(learned >= 16 && learned < (1 << 24), "SysTick reload out of range");
 };
 
 /// A filled line: the image row it holds and the slot of the line buffers it is in.

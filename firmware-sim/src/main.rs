@@ -50,6 +50,13 @@ const _: () = assert!(
     CENSUS_ARENA_BYTES <= ARENA_BYTES,
     "the census run's arena exceeds the static one"
 );
+/// The learned preset's frame run's arena (the front of the same one): the band's within the
+/// refinement's two ring rows, whatever the frame's height.
+const FRAME_ARENA_BYTES: usize = workload::frame_arena_bytes(expected::FRAME_HEIGHT, expected::WIDTH);
+const _: () = assert!(
+    FRAME_ARENA_BYTES <= ARENA_BYTES,
+    "the learned frame's arena exceeds the static one"
+);
 /// Byte the arena is painted with before the run, so its high-water mark can be read back.
 const ARENA_PAINT: u8 = 0xA5;
 /// What cortex-m-rt's `paint-stack` writes over the stack before `main` (and this firmware
@@ -109,6 +116,15 @@ markers! {
     bino_mark_census_rows = 201;
     bino_mark_census_sgm = 205;
     bino_mark_census_refine = 208;
+    bino_mark_frame_rows = 301;
+    bino_mark_frame_encode_left = 302;
+    bino_mark_frame_encode_right = 303;
+    bino_mark_frame_match = 304;
+    bino_mark_frame_sgm = 305;
+    bino_mark_frame_left_right = 306;
+    bino_mark_frame_head = 307;
+    bino_mark_frame_refine = 308;
+    bino_mark_frame_encode_pair = 309;
     bino_mark_end = 0xFFFF;
 }
 
@@ -138,6 +154,15 @@ fn mark(stage: Stage) {
         Stage::Census(P::Refine) => bino_mark_census_refine(),
         // run_census enters no other stage; were it to, it would count as the SGM's.
         Stage::Census(_) => bino_mark_census_sgm(),
+        Stage::Frame(P::Rows) => bino_mark_frame_rows(),
+        Stage::Frame(P::EncodeLeft) => bino_mark_frame_encode_left(),
+        Stage::Frame(P::EncodeRight) => bino_mark_frame_encode_right(),
+        Stage::Frame(P::Match) => bino_mark_frame_match(),
+        Stage::Frame(P::Sgm) => bino_mark_frame_sgm(),
+        Stage::Frame(P::LeftRight) => bino_mark_frame_left_right(),
+        Stage::Frame(P::Head) => bino_mark_frame_head(),
+        Stage::Frame(P::Refine) => bino_mark_frame_refine(),
+        Stage::Frame(P::EncodePair) => bino_mark_frame_encode_pair(),
     }
 }
 
@@ -256,6 +281,12 @@ fn main() -> ! {
         expected::WIDTH,
         CENSUS_ARENA_BYTES
     );
+    defmt::println!(
+        "bino learned_frame={=usize}x{=usize} learned_arena_bytes={=usize}",
+        expected::FRAME_HEIGHT,
+        expected::WIDTH,
+        FRAME_ARENA_BYTES
+    );
     let Some(mut camera) = Camera::new(syst, &expected::LEFT, &expected::RIGHT, expected::HEIGHT) else {
         defmt::println!("bino result=error error=camera-set-up-twice");
         exit(EXIT_FAILURE);
@@ -291,9 +322,21 @@ fn main() -> ! {
     let census = workload::run(blob, Run::Census, &mut camera, census_arena, &mut fw);
     let census_rows_ok = report_camera(Run::Census, &camera);
     let census_painted = arena_high_water(census_arena);
-    let code = match (export, native, census) {
-        (Ok(export), Ok(native), Ok(census)) => {
-            let per_stage = workload::arena_per_stage(&export.report, &native.report, &census.report);
+    // The learned preset on the same frame, band after band, from a camera slow enough for it.
+    let frame_arena = arena.get_mut(..FRAME_ARENA_BYTES).unwrap_or_default();
+    frame_arena.fill(ARENA_PAINT);
+    camera.load(
+        &expected::FRAME_LEFT,
+        &expected::FRAME_RIGHT,
+        expected::FRAME_HEIGHT,
+        camera::LEARNED_FRAME_ROW_INTERVAL_INSNS,
+    );
+    let frame = workload::run(blob, Run::Frame, &mut camera, frame_arena, &mut fw);
+    let frame_rows_ok = report_camera(Run::Frame, &camera);
+    let frame_painted = arena_high_water(frame_arena);
+    let code = match (export, native, census, frame) {
+        (Ok(export), Ok(native), Ok(census), Ok(frame)) => {
+            let per_stage = workload::arena_per_stage(&export.report, &native.report, &census.report, &frame.report);
             for (i, (&arena_in_use, &stack)) in per_stage.iter().zip(&fw.stack).enumerate() {
                 defmt::println!(
                     "bino stage={=str} arena_in_use={=usize} stack_peak={=usize}",
@@ -323,25 +366,33 @@ fn main() -> ! {
                 expected::CENSUS_ARENA_USED,
                 census_painted,
             );
-            let rows_ok = export_rows_ok && native_rows_ok && census_rows_ok;
+            let frame_ok = check_outcome(
+                Run::Frame,
+                &frame,
+                &expected::FRAME_DIGESTS,
+                expected::FRAME_ARENA_USED,
+                frame_painted,
+            );
+            let rows_ok = export_rows_ok && native_rows_ok && census_rows_ok && frame_rows_ok;
             let overflow_ok = overflow_check(&mut camera);
             let outputs: usize = Run::ALL.iter().map(|&r| workload::outputs(r).len()).sum();
-            if export_ok && native_ok && census_ok && rows_ok && overflow_ok {
+            if export_ok && native_ok && census_ok && frame_ok && rows_ok && overflow_ok {
                 defmt::println!("bino result=pass outputs={=usize}", outputs);
                 EXIT_SUCCESS
             } else {
                 defmt::println!(
-                    "bino result=fail export_ok={=bool} native_ok={=bool} census_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
+                    "bino result=fail export_ok={=bool} native_ok={=bool} census_ok={=bool} frame_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
                     export_ok,
                     native_ok,
                     census_ok,
+                    frame_ok,
                     rows_ok,
                     overflow_ok
                 );
                 EXIT_FAILURE
             }
         }
-        (Err(e), _, _) | (_, Err(e), _) | (_, _, Err(e)) => {
+        (Err(e), _, _, _) | (_, Err(e), _, _) | (_, _, Err(e), _) | (_, _, _, Err(e)) => {
             defmt::println!("bino result=error error={}", e);
             EXIT_FAILURE
         }
@@ -414,6 +465,7 @@ fn report_camera(run: Run, camera: &Camera) -> bool {
     let stats = camera.stats();
     let (rows, interval) = match run {
         Run::Census => (expected::FRAME_HEIGHT, camera::FRAME_ROW_INTERVAL_INSNS),
+        Run::Frame => (expected::FRAME_HEIGHT, camera::LEARNED_FRAME_ROW_INTERVAL_INSNS),
         Run::Export | Run::Native => (expected::HEIGHT, camera::ROW_INTERVAL_INSNS),
     };
     defmt::println!(

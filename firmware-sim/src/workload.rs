@@ -17,6 +17,9 @@
 //!   pixels with its own left-right check and the pixel refinement of its grid (census+lr+ref,
 //!   `bino run`'s and `bino sim`'s default), rows read as its token rows need them
 //!   (`pipeline::run_census`), in [`census_arena_bytes`] whatever the frame's height.
+//! - Frame (the learned preset on the whole frame): the native run on the fast preset's frame,
+//!   band after band (`bino_core::band::BandPlan`), each band's head on its own rows, in
+//!   [`frame_arena_bytes`].
 //!
 //! The rows come from any `RowSource`: `build.rs` hands over the embedded band as a
 //! `SlicePair`, the firmware the interrupt-fed camera (`camera.rs`); the digests must agree.
@@ -46,6 +49,11 @@ pub const fn arena_bytes(height: usize, width: usize) -> usize {
     }
 }
 
+/// Arena bytes of the learned preset's native run on a `height x width` frame.
+pub const fn frame_arena_bytes(height: usize, width: usize) -> usize {
+    bino_core::preset::arena_bytes(height, width)
+}
+
 /// Arena bytes of the fast preset's census run on a `height x width` frame: the same for every
 /// height from one band up.
 pub const fn census_arena_bytes(height: usize, width: usize) -> usize {
@@ -53,7 +61,7 @@ pub const fn census_arena_bytes(height: usize, width: usize) -> usize {
 }
 
 /// The firmware's runs, in order: the learned preset's band pair on each pathway, then the fast
-/// preset's whole frame.
+/// preset's whole frame, then the learned preset's.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Run {
     /// The export pathway's band pair.
@@ -62,18 +70,21 @@ pub enum Run {
     Native,
     /// The fast preset's frame: the census readout, no encoder.
     Census,
+    /// The learned preset's frame: the native pathway, band after band.
+    Frame,
 }
 
 impl Run {
     /// Every run, in the firmware's order.
-    pub const ALL: [Run; 3] = [Run::Export, Run::Native, Run::Census];
+    pub const ALL: [Run; 4] = [Run::Export, Run::Native, Run::Census, Run::Frame];
 
-    /// `export`, `native` or `census`: the `pathway` of its log lines and JSON.
+    /// `export`, `native`, `census` or `frame`: the `pathway` of its log lines and JSON.
     pub const fn name(self) -> &'static str {
         match self {
             Run::Export => "export",
             Run::Native => "native",
             Run::Census => "census",
+            Run::Frame => "frame",
         }
     }
 }
@@ -82,14 +93,14 @@ impl Run {
 pub const fn preset(run: Run) -> (Options, Refine) {
     match run {
         Run::Export => (EXPORT_OPTIONS, EXPORT_REFINE),
-        Run::Native => (OPTIONS, REFINE),
+        Run::Native | Run::Frame => (OPTIONS, REFINE),
         Run::Census => (OPTIONS, CENSUS_REFINE),
     }
 }
 
 /// The stages the firmware reports: blob loading (the learned runs), then each pathway's
 /// pipeline stages, the native run's named `native_<stage>`, then the census run's three
-/// (`census_rows`, `census_sgm`, `census_refine`).
+/// (`census_rows`, `census_sgm`, `census_refine`), then the learned frame's (`frame_<stage>`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stage {
     /// Blob header, CRC over the whole blob, tensor table, weights.
@@ -100,6 +111,8 @@ pub enum Stage {
     Native(pipeline::Stage),
     /// A stage of the census run ([`CENSUS_STAGES`]).
     Census(pipeline::Stage),
+    /// A stage of `bino_core::pipeline` in the learned preset's frame.
+    Frame(pipeline::Stage),
 }
 
 /// Pipeline stages per pathway.
@@ -110,7 +123,7 @@ pub const CENSUS_STAGES: [pipeline::Stage; 3] = [pipeline::Stage::Rows, pipeline
 
 impl Stage {
     /// Number of stages.
-    pub const COUNT: usize = 1 + 2 * PIPELINE_STAGES + CENSUS_STAGES.len();
+    pub const COUNT: usize = 1 + 3 * PIPELINE_STAGES + CENSUS_STAGES.len();
 
     /// The stage `stage` of `run`.
     pub const fn of(run: Run, stage: pipeline::Stage) -> Stage {
@@ -118,6 +131,7 @@ impl Stage {
             Run::Export => Stage::Pipeline(stage),
             Run::Native => Stage::Native(stage),
             Run::Census => Stage::Census(stage),
+            Run::Frame => Stage::Frame(stage),
         }
     }
 
@@ -129,8 +143,11 @@ impl Stage {
             Stage::Pipeline(pipeline::Stage::ALL[i - 1])
         } else if i <= 2 * PIPELINE_STAGES {
             Stage::Native(pipeline::Stage::ALL[i - 1 - PIPELINE_STAGES])
+        } else if i <= 2 * PIPELINE_STAGES + CENSUS_STAGES.len() {
+            Stage::Census(CENSUS_STAGES[i - 1 - 2 * PIPELINE_STAGES])
         } else {
-            Stage::Census(CENSUS_STAGES[(i - 1 - 2 * PIPELINE_STAGES) % CENSUS_STAGES.len()])
+            let at = i - 1 - 2 * PIPELINE_STAGES - CENSUS_STAGES.len();
+            Stage::Frame(pipeline::Stage::ALL[at % PIPELINE_STAGES])
         }
     }
 
@@ -157,6 +174,17 @@ impl Stage {
                 // The census SGM; run_census enters no other stage.
                 _ => "census_sgm",
             },
+            Stage::Frame(s) => match s {
+                P::Rows => "frame_rows",
+                P::EncodeLeft => "frame_encode_left",
+                P::EncodeRight => "frame_encode_right",
+                P::Match => "frame_match",
+                P::Sgm => "frame_sgm",
+                P::LeftRight => "frame_left_right",
+                P::Head => "frame_head",
+                P::Refine => "frame_refine",
+                P::EncodePair => "frame_encode_pair",
+            },
         }
     }
 
@@ -172,6 +200,7 @@ impl Stage {
                 let at = CENSUS_STAGES.iter().position(|&x| x == s).unwrap_or(1);
                 1 + 2 * PIPELINE_STAGES + at
             }
+            Stage::Frame(s) => 1 + 2 * PIPELINE_STAGES + CENSUS_STAGES.len() + position(s),
         }
     }
 }
@@ -196,7 +225,7 @@ pub const OUTPUTS: [&str; 12] = [
 pub const fn outputs(run: Run) -> &'static [usize] {
     match run {
         Run::Export => &[0, 1, 2, 3, 4, 5, 6, 10, 7, 8],
-        Run::Native => &[9, 5, 6, 10, 7, 8],
+        Run::Native | Run::Frame => &[9, 5, 6, 10, 7, 8],
         Run::Census => &[11, 7, 8],
     }
 }
@@ -340,10 +369,12 @@ pub fn run(
     let (options, refine) = preset(run);
     let report = match run {
         Run::Census => pipeline::run_census(source, &options, Some(&refine), arena, &mut recorder),
-        Run::Export | Run::Native => match Blob::parse(blob).map_err(Error::from).and_then(Pipeline::new) {
-            Ok(pipeline) => pipeline.run_refined(source, &options, &refine, arena, &mut recorder),
-            Err(e) => Err(e),
-        },
+        Run::Export | Run::Native | Run::Frame => {
+            match Blob::parse(blob).map_err(Error::from).and_then(Pipeline::new) {
+                Ok(pipeline) => pipeline.run_refined(source, &options, &refine, arena, &mut recorder),
+                Err(e) => Err(e),
+            }
+        }
     };
     recorder.hooks.finish();
     let report = report?;
@@ -375,13 +406,14 @@ fn sectors_digest(summary: &SectorSummary<SECTORS>) -> u32 {
 }
 
 /// Arena bytes in use during each stage (index as [`Stage::index`]), from the pipeline reports
-/// of the three runs. Export: the pixel band, plus the left descriptors and the encoder's scratch
+/// of the four runs. Export: the pixel band, plus the left descriptors and the encoder's scratch
 /// while encoding, plus both descriptor maps and the readout streams afterwards, and the
 /// refinement's buffers while it refines. Native: the pixel band and the head check's rows, plus
 /// the encoder's scratch while encoding; the whole high-water after (the head's stream and the
 /// refinement's row scratch follow the tokens in that scratch). Census: the pixel band, plus the
-/// census SGM's stream, plus the refinement's state and row scratch while it refines.
-pub fn arena_per_stage(r: &Report, native: &Report, census: &Report) -> [usize; Stage::COUNT] {
+/// census SGM's stream, plus the refinement's state and row scratch while it refines. Frame: as
+/// native.
+pub fn arena_per_stage(r: &Report, native: &Report, census: &Report, frame: &Report) -> [usize; Stage::COUNT] {
     let mut out = [0; Stage::COUNT];
     for (i, o) in out.iter_mut().enumerate() {
         *o = match Stage::at(i) {
@@ -389,6 +421,9 @@ pub fn arena_per_stage(r: &Report, native: &Report, census: &Report) -> [usize; 
             Stage::Native(pipeline::Stage::Rows) => native.pixels,
             Stage::Native(pipeline::Stage::EncodePair) => native.pixels + native.streams + native.encoder,
             Stage::Native(_) => native.arena_used,
+            Stage::Frame(pipeline::Stage::Rows) => frame.pixels,
+            Stage::Frame(pipeline::Stage::EncodePair) => frame.pixels + frame.streams + frame.encoder,
+            Stage::Frame(_) => frame.arena_used,
             Stage::Pipeline(pipeline::Stage::Rows) => r.pixels,
             Stage::Pipeline(
                 pipeline::Stage::EncodeLeft | pipeline::Stage::EncodeRight | pipeline::Stage::EncodePair,

@@ -522,6 +522,10 @@ def census_vs_learned(src: Sources) -> str:
         )
 
     fast, learned = on_frame("fast"), on_frame("learned")
+
+    def how(p: Json) -> str:
+        return "counted on the same frame" if p["source"] == "measured_frame" else "scaled from its band pair"
+
     return (
         f"`{CENSUS}` has a lower epe than both learned readouts (`{EXPORT_DEFAULT}`, "
         f"`{NATIVE_DEFAULT}`) on {sets(True)}; a learned readout is more accurate on "
@@ -529,6 +533,6 @@ def census_vs_learned(src: Sources) -> str:
         f"{mega(fast['instructions'])} instructions with the census, counted on the firmware's "
         f"whole frame ({fps3(fast['frames_per_s_ipc1'])} frames/s at "
         f"{fast['clock_mhz']:.0f} MHz, IPC 1), against {mega(learned['instructions'])} "
-        f"({fps3(learned['frames_per_s_ipc1'])} frames/s, scaled from its band pair) for the "
+        f"({fps3(learned['frames_per_s_ipc1'])} frames/s, {how(learned)}) for the "
         f"learned native preset.\n\n" + footer(src)
     )

@@ -427,9 +427,9 @@ PRESET_SOURCES = {
 
 def board_presets(src: Sources) -> str:
     """The board's two presets per frame and core (`bino budget`'s presets): the fast one
-    (`census+lr+ref`, no encoder) counted on the firmware's whole frame, the learned one (the
-    native pathway) scaled from its band pair; frames per second at IPC 1 and under the cycle
-    model, the exact arena and the stack peak."""
+    (`census+lr+ref`, no encoder) and the learned one (the native pathway), each counted on the
+    firmware's whole frame or scaled (its source says how); frames per second at IPC 1 and under
+    the cycle model, the exact arena and the stack peak."""
     b = src.budget()
     rows = []
     for p in b["presets"]["frames"]:
@@ -464,10 +464,10 @@ def board_presets(src: Sources) -> str:
 
 
 def board_frames(src: Sources) -> str:
-    """The README's board table: per core, both presets on a 160x120 frame (the fast one counted
-    on the firmware's frame, the learned one scaled from its band pair), frames per second at IPC
-    1 and under the cycle model, the exact arena, the weights each needs in flash (the fast one
-    none) and whether the firmware's outputs were bit-identical to the host's."""
+    """The README's board table: per core, both presets on a 160x120 frame (counted on the
+    firmware's frame, or scaled: each says which), frames per second at IPC 1 and under the
+    cycle model, the exact arena, the weights each needs in flash (the fast one none) and whether
+    the firmware's outputs were bit-identical to the host's."""
     b = src.budget()
     rows = []
     for p in b["presets"]["frames"]:

@@ -62,11 +62,12 @@ impl Pair {
         }
     }
 
-    /// What `run` reads: the 48x160 band for the learned preset, the 160x120 frame for the fast.
+    /// What `run` reads: the 48x160 band for the learned preset's band pair, the 160x120 frame
+    /// for the fast preset and the learned frame.
     fn of(run: Run) -> Self {
         match run {
             Run::Export | Run::Native => Self::read("band", 48, 160),
-            Run::Census => Self::read("frame", 120, 160),
+            Run::Census | Run::Frame => Self::read("frame", 120, 160),
         }
     }
 }
@@ -77,6 +78,7 @@ fn digests(blob: &[u8], run: Run, pair: &Pair) -> [u32; OUTPUTS.len()] {
     let (height, width) = (pair.height, pair.width);
     let bytes = match run {
         Run::Census => workload::census_arena_bytes(height, width),
+        Run::Frame => workload::frame_arena_bytes(height, width),
         Run::Export | Run::Native => workload::arena_bytes(height, width),
     };
     let mut arena = vec![0xA5u8; bytes];
@@ -144,7 +146,7 @@ fn refined_digest_from_the_whole_map(blob: &[u8], run: Run, pair: &Pair) -> u32 
     let (options, refine) = workload::preset(run);
     let want = match run {
         Run::Export => RefineInput::FusedAllLr,
-        Run::Native => RefineInput::FusedCensusLr,
+        Run::Native | Run::Frame => RefineInput::FusedCensusLr,
         Run::Census => RefineInput::CensusLr,
     };
     assert_eq!(refine.input, want);
@@ -175,7 +177,7 @@ fn refined_digest_from_the_whole_map(blob: &[u8], run: Run, pair: &Pair) -> u32 
             let first = (&first[..], &first_mask[..]);
             fuse_grid(first, &maps.confidence, sgm, cols, census::FUSE_ALL_FIRST_WEIGHT).unwrap()
         }
-        Run::Native | Run::Census => (first, first_mask),
+        Run::Native | Run::Frame | Run::Census => (first, first_mask),
     };
     refined_crc(pair, grid, &mask, &refine)
 }

@@ -14,7 +14,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::{grouped, CoreRun, CENSUS_PREFIX, NATIVE_PREFIX, TARGETS};
+use super::{grouped, CoreRun, CENSUS_PREFIX, FRAME_PREFIX, NATIVE_PREFIX, TARGETS};
 
 /// Chart size in pixels.
 pub const SIZE: (u32, u32) = (960, 600);
@@ -49,16 +49,23 @@ pub fn draw(runs: &[CoreRun]) -> Result<image::RgbImage> {
         root.fill(&WHITE).map_err(plot_error)?;
         let (top, bottom) = root.split_vertically(h / 2);
         let first = &runs[0];
-        let stages: Vec<String> = first.stages.iter().map(|s| s.name.clone()).collect();
+        // The learned frame's stages are the native band pair's again, four bands' worth: the
+        // presets table has them.
+        let charted: Vec<_> = first
+            .stages
+            .iter()
+            .filter(|s| !s.name.starts_with(FRAME_PREFIX))
+            .collect();
+        let stages: Vec<String> = charted.iter().map(|s| s.name.clone()).collect();
 
         let memory = [
             Series {
                 name: "arena in use".to_string(),
-                values: first.stages.iter().map(|s| s.arena_in_use as f64 / 1024.0).collect(),
+                values: charted.iter().map(|s| s.arena_in_use as f64 / 1024.0).collect(),
             },
             Series {
                 name: format!("stack peak ({})", first.core.to_uppercase()),
-                values: first.stages.iter().map(|s| s.stack_peak as f64 / 1024.0).collect(),
+                values: charted.iter().map(|s| s.stack_peak as f64 / 1024.0).collect(),
             },
         ];
         let title = format!(

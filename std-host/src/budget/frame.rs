@@ -11,9 +11,11 @@
 //!   columns) over the measured band's; the attention term grows with the square of the width;
 //! - `match`: token rows x the (cell, candidate) pairs a row compares (each cell against the
 //!   `min(column + 1, 16)` right cells inside the view) over the band's;
+//! - `native_head`: per band, the token rows its head reads (those it keeps and six around
+//!   them, [`bino_core::band::Band::around_kept`]: each band's head starts afresh) x cells;
 //! - every other stage (`rows`, `sgm`, `left_right`, `head`, `refine` and the native twins):
-//!   token rows x cells per row (W / 4) over the band's; the head's candidates (12) are the
-//!   preset's, fixed, so its work per cell does not grow with the width;
+//!   token rows x cells per row (W / 4) over the band's; the heads' candidates (12) are the
+//!   preset's, fixed, so their work per cell does not grow with the width;
 //! - `load` (the blob's check) runs once per boot: not part of a frame.
 //!
 //! Modelled cycles scale by the same ratio as the instructions. The firmware's arena for a
@@ -27,10 +29,11 @@ use std::str::FromStr;
 use anyhow::{anyhow, bail, Result};
 use bino_core::band::BandPlan;
 use bino_core::config::{check_view_size, PATCH_H};
+use bino_core::model::head::ROW_REACH;
 use bino_core::preset::{arena_bytes, export_arena_bytes, OPTIONS};
 use serde::Serialize;
 
-use super::{clock, Clock, CoreRun, CENSUS_PREFIX, NATIVE_PREFIX};
+use super::{clock, frame_run_stage, Clock, CoreRun, NATIVE_PREFIX};
 use crate::bench::encoder_macs;
 
 /// A frame (or band) size in pixels.
@@ -108,6 +111,8 @@ pub enum Scaling {
     Pairs,
     /// Per token row, its cells.
     Cells,
+    /// Per band, the token rows the native head reads, their cells.
+    HeadRows,
 }
 
 impl Scaling {
@@ -117,6 +122,7 @@ impl Scaling {
             "load" => Scaling::Boot,
             "encode_left" | "encode_right" | "encode_pair" => Scaling::Encoder,
             "match" => Scaling::Pairs,
+            "head" if name.starts_with(NATIVE_PREFIX) => Scaling::HeadRows,
             _ => Scaling::Cells,
         }
     }
@@ -134,6 +140,10 @@ impl Scaling {
             ),
             Scaling::Pairs => ((token_rows * pairs(cols, OPTIONS.max_cols)) as f64, token_rows as f64),
             Scaling::Cells => ((token_rows * cols) as f64, token_rows as f64),
+            Scaling::HeadRows => {
+                let rows: usize = plan.iter().map(|band| band.around_kept(ROW_REACH).len()).sum();
+                ((rows * cols) as f64, rows as f64)
+            }
         })
     }
 
@@ -185,11 +195,10 @@ impl Pathway {
     /// Both, export first.
     pub const ALL: [Pathway; 2] = [Pathway::Export, Pathway::Native];
 
-    /// Whether stage `name` belongs to this pathway (`load` and the census run's to neither).
+    /// Whether stage `name` belongs to this pathway's band pair (`load` and the whole-frame
+    /// runs' to neither).
     pub fn has(self, name: &str) -> bool {
-        name != "load"
-            && !name.starts_with(CENSUS_PREFIX)
-            && name.starts_with(NATIVE_PREFIX) == (self == Pathway::Native)
+        name != "load" && !frame_run_stage(name) && name.starts_with(NATIVE_PREFIX) == (self == Pathway::Native)
     }
 
     /// `export` or `native`.
@@ -462,9 +471,10 @@ fn round6(x: f64) -> f64 {
 /// The scaling rule in one sentence, for the reports.
 pub const RULE: &str = "each stage of the band pair scaled by its work: encoder passes by the sum over \
     the frame's bands of encoder MACs (embedding, per-token linear layers, attention 2 N^2 DIM per block) of \
-    the band's tokens; match by token rows x (cell, candidate) pairs inside the view; every other stage (rows, \
-    sgm, left_right, head, refine and the native twins) by token rows x cells per row (the head's 12 \
-    candidates are fixed); load is once per boot and left out; modelled cycles scale as the instructions";
+    the band's tokens; match by token rows x (cell, candidate) pairs inside the view; native_head by the token \
+    rows each band's head reads (those it keeps and 6 around them) x cells; every other stage (rows, sgm, \
+    left_right, head, refine and the native twins) by token rows x cells per row (the heads' 12 candidates are \
+    fixed); load is once per boot and left out; modelled cycles scale as the instructions";
 
 /// What the frames section reports: which frames and at what clock.
 #[derive(Debug, Clone, PartialEq)]

@@ -32,7 +32,8 @@ pub use markdown::{frames_markdown, grouped, markdown, presets_markdown};
 pub use presets::{PresetFrame, PresetsReport};
 pub use report::{Band, BudgetReport, CoreBudget, CoreCycles, StageBudget, SCHEMA};
 pub use runs::{
-    load_runs, BandJson, CensusRun, CoreRun, SectionSource, Sections, StageRun, CENSUS_PREFIX, NATIVE_PREFIX,
+    frame_run_stage, load_runs, BandJson, CoreRun, FrameRun, SectionSource, Sections, StageRun, CENSUS_PREFIX,
+    FRAME_PREFIX, NATIVE_PREFIX,
 };
 pub use verdict::{verdicts, Verdict};
 

@@ -1,12 +1,14 @@
 //! The board's two presets per frame and core: the fast one (`census+lr+ref`, the encoder-free
-//! census readout, `pipeline::run_census`) from the whole frame the firmware measured, and the
-//! learned one (the native pathway's `fuse-census+lr+ref`) from its band pair scaled to the frame
-//! ([`super::frame`]); each with its frame rate at IPC 1 and under the cycle model, its exact
-//! arena (the preset's `const fn`) and its stack peak.
+//! census readout, `pipeline::run_census`) and the learned one (the native pathway's
+//! `fuse-census+lr+ref`), each from the whole frame the firmware measured; each with its frame
+//! rate at IPC 1 and under the cycle model, its exact arena (the preset's `const fn`) and its
+//! stack peak.
 //!
-//! The fast preset's frame of the measured size is counted, not scaled; another size is its
-//! stages scaled by token rows x cells (its work per pixel does not grow with the frame: the
-//! search range and the refinement's window are the preset's, fixed) and says so.
+//! A frame of the measured size is counted, not scaled. Another size is, for the fast preset,
+//! its stages scaled by token rows x cells (its work per pixel does not grow with the frame:
+//! the search range and the refinement's window are the preset's, fixed); for the learned one,
+//! its band pair scaled to the frame ([`super::frame`]: the encoder's attention grows with the
+//! width); each says so.
 
 use anyhow::Result;
 use bino_core::preset::{arena_bytes as learned_arena_bytes, census_arena_bytes};
@@ -99,9 +101,10 @@ pub struct PresetsReport {
 /// The section's note.
 pub const NOTE: &str = "fast: census+lr+ref (pipeline::run_census, no encoder, no weights), counted on the \
     firmware's whole frame (rows from the camera), other sizes scaled from it by token rows x cells; learned: \
-    the native pathway's fuse-census+lr+ref, its band pair scaled to the frame (frames.rule); arena: the \
-    preset's const fn for the frame (preset::census_arena_bytes, preset::arena_bytes); stack: the peak of \
-    the preset's run; fps at the stated clock, IPC 1, and under the cycle model";
+    the native pathway's fuse-census+lr+ref, counted on the firmware's whole frame, other sizes its band pair \
+    scaled to the frame (frames.rule); arena: the preset's const fn for the frame (preset::census_arena_bytes, \
+    preset::arena_bytes); stack: the peak of the preset's run; fps at the stated clock, IPC 1, and under the \
+    cycle model";
 
 impl PresetsReport {
     /// Both presets on every frame of `frames` (the learned preset's figures are its native
@@ -116,6 +119,10 @@ impl PresetsReport {
                 };
                 if let Some(fast) = fast(run, frame, c)? {
                     out.push(fast);
+                }
+                if let Some(measured) = measured_learned(run, frame, c) {
+                    out.push(measured);
+                    continue;
                 }
                 let learned = frames
                     .estimates
@@ -134,9 +141,14 @@ impl PresetsReport {
 
     /// The fast preset's frame of `core` measured at `frame`, if the run measured that size.
     pub fn measured_fast(&self, core: &str, frame: Frame) -> Option<&PresetFrame> {
-        self.frames.iter().find(|p| {
-            p.core == core && p.frame == frame && p.preset == Preset::Fast && p.source == Source::MeasuredFrame
-        })
+        self.measured(core, frame, Preset::Fast)
+    }
+
+    /// `preset`'s frame of `core` measured at `frame`, if the run measured that size.
+    pub fn measured(&self, core: &str, frame: Frame, preset: Preset) -> Option<&PresetFrame> {
+        self.frames
+            .iter()
+            .find(|p| p.core == core && p.frame == frame && p.preset == preset && p.source == Source::MeasuredFrame)
     }
 }
 
@@ -174,6 +186,33 @@ fn fast(run: &CoreRun, frame: Frame, c: Clock) -> Result<Option<PresetFrame>> {
         },
         stack_peak_bytes: census.stack_peak,
     }))
+}
+
+/// The learned preset counted on the run's learned frame, when it measured `frame`.
+fn measured_learned(run: &CoreRun, frame: Frame, c: Clock) -> Option<PresetFrame> {
+    let learned = run.frame.as_ref()?;
+    let measured = Frame::new(learned.frame.height as usize, learned.frame.width as usize);
+    if measured != frame {
+        return None;
+    }
+    let stages: Vec<_> = run.frame_stages().collect();
+    let instructions: u64 = stages.iter().map(|s| s.instructions).sum();
+    let modelled: Option<f64> = stages.iter().map(|s| s.modelled_cycles(&run.core)).sum();
+    let seconds = round6(c.ms(instructions) / 1e3);
+    Some(PresetFrame {
+        arena_bytes: learned_arena_bytes(frame.height, frame.width) as u64,
+        clock_mhz: c.mhz,
+        core: run.core.clone(),
+        frame,
+        frames_per_s_ipc1: round6(1.0 / seconds),
+        instructions,
+        modelled_frames_per_s: modelled.map(|n| round6(1.0 / (c.cycles_ms(n) / 1e3))),
+        preset: Preset::Learned,
+        readout: Preset::Learned.readout(),
+        seconds_ipc1: seconds,
+        source: Source::MeasuredFrame,
+        stack_peak_bytes: learned.stack_peak,
+    })
 }
 
 /// The learned preset from its native frame estimate.

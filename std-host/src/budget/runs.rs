@@ -147,20 +147,23 @@ pub struct CoreRun {
     /// Instructions outside the stages (digests, stack scans, logging).
     pub outside_instructions: u64,
     /// The fast preset's whole-frame run (stages `census_*`), when the firmware ran it.
-    pub census: Option<CensusRun>,
+    pub census: Option<FrameRun>,
+    /// The learned preset's whole-frame run (stages `frame_*`), when the firmware ran it.
+    pub frame: Option<FrameRun>,
 }
 
-/// The fast preset's whole-frame run of a firmware (`census` in its JSON): the encoder-free
-/// `census+lr+ref` readout (`pipeline::run_census`) on a whole frame, rows from the camera.
+/// A whole-frame run of a firmware, rows from the camera: the fast preset's (`census` in its
+/// JSON: the encoder-free `census+lr+ref`, `pipeline::run_census`) or the learned preset's
+/// (`frame`: the native pathway's `fuse-census+lr+ref`, band after band).
 #[derive(Debug, Clone, PartialEq, Deserialize)]
-pub struct CensusRun {
+pub struct FrameRun {
     /// The frame, pixels.
     pub frame: BandJson,
-    /// Its static arena (`preset::census_arena_bytes`), bytes.
+    /// Its static arena (`preset::census_arena_bytes`, `preset::arena_bytes`), bytes.
     pub arena_bytes: u64,
     /// Arena high-water reported by the pipeline, bytes.
     pub arena_used: u64,
-    /// Executed instructions of the frame: its `census_*` stages.
+    /// Executed instructions of the frame: its `census_*` or `frame_*` stages.
     pub frame_instructions: u64,
     /// Deepest stack use of its stages, bytes.
     pub stack_peak: u64,
@@ -188,7 +191,9 @@ struct RunJson {
     startup_instructions: u64,
     outside_instructions: u64,
     #[serde(default)]
-    census: Option<CensusRun>,
+    census: Option<FrameRun>,
+    #[serde(default)]
+    frame: Option<FrameRun>,
 }
 
 /// A band or frame size, pixels.
@@ -216,9 +221,18 @@ pub const NATIVE_PREFIX: &str = "native_";
 /// `census_refine`).
 pub const CENSUS_PREFIX: &str = "census_";
 
+/// Prefix of the learned preset's whole-frame run's stages (`frame_encode_pair`,
+/// `frame_head`, ...).
+pub const FRAME_PREFIX: &str = "frame_";
+
+/// Whether stage `name` belongs to a whole-frame run (the fast or the learned preset's).
+pub fn frame_run_stage(name: &str) -> bool {
+    name.starts_with(CENSUS_PREFIX) || name.starts_with(FRAME_PREFIX)
+}
+
 /// Whether stage `name` is part of the export pathway's band pair.
 pub fn export_band_stage(name: &str) -> bool {
-    !BOOT_STAGES.contains(&name) && !name.starts_with(NATIVE_PREFIX) && !name.starts_with(CENSUS_PREFIX)
+    !BOOT_STAGES.contains(&name) && !name.starts_with(NATIVE_PREFIX) && !frame_run_stage(name)
 }
 
 impl CoreRun {
@@ -271,12 +285,18 @@ impl CoreRun {
             startup_instructions: run.startup_instructions,
             outside_instructions: run.outside_instructions,
             census: run.census,
+            frame: run.frame,
         })
     }
 
     /// The census run's stages (`census_*`), in run order.
     pub fn census_stages(&self) -> impl Iterator<Item = &StageRun> {
         self.stages.iter().filter(|s| s.name.starts_with(CENSUS_PREFIX))
+    }
+
+    /// The learned frame run's stages (`frame_*`), in run order.
+    pub fn frame_stages(&self) -> impl Iterator<Item = &StageRun> {
+        self.stages.iter().filter(|s| s.name.starts_with(FRAME_PREFIX))
     }
 
     /// Executed instructions of one band pair on the export pathway: every stage but blob

@@ -399,7 +399,11 @@ fn frames_scale_each_stage_by_its_work() {
     assert_eq!((pairs(40, 16), pairs(80, 16), pairs(8, 16)), (520, 1160, 36));
     assert!((got["match"] - 520_000.0 * 5.0 * 1160.0 / 520.0).abs() < 1e-6);
     let native = by_name(Pathway::Native, f);
-    assert_eq!(native["native_head"], 4e6 * 10.0);
+    // Each band's native head reads its own 12 rows (those it keeps and 6 around them): 7 x 12
+    // rows of 80 cells against 12 of 40.
+    assert_eq!(Scaling::of("native_head"), Scaling::HeadRows);
+    assert_eq!(Scaling::of("head"), Scaling::Cells);
+    assert_eq!(native["native_head"], 4e6 * 2.0 * (7.0 * 12.0) / 12.0);
     assert!((native["native_encode_pair"] - 2.0 * want).abs() < 1e-3);
     assert_eq!(Scaling::of("load"), Scaling::Boot);
     assert_eq!(Scaling::of("native_encode_pair"), Scaling::Encoder);
@@ -496,7 +500,10 @@ fn the_scaling_check_compares_a_run_with_its_second_width() {
 fn chart_labels_do_not_overlap() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware-sim/measured");
     let runs = load_runs(&dir).unwrap();
-    let stages: Vec<String> = runs[0].stages.iter().map(|s| s.name.clone()).collect();
+    let stages: Vec<String> = (runs[0].stages.iter())
+        .filter(|s| !s.name.starts_with(FRAME_PREFIX))
+        .map(|s| s.name.clone())
+        .collect();
     assert!(stages.len() >= 13, "{stages:?}");
     // The plot spans the chart less its margins (10 px) and the y labels (60 px).
     let span = (70, chart::SIZE.0 as i32 - 10);
@@ -600,4 +607,53 @@ fn the_fast_preset_is_its_measured_frame_beside_the_learned_one() {
     let json = serde_json::to_value(to_json(runs).unwrap()).unwrap();
     assert_eq!(json["presets"]["frames"][0]["preset"], "fast");
     assert_eq!(json["presets"]["frames"][0]["source"], "measured_frame");
+}
+
+#[test]
+fn the_learned_preset_is_its_measured_frame_where_the_firmware_ran_one() {
+    use presets::{Preset, Source};
+    let mut v: Value = serde_json::from_str(&frame_run_json()).unwrap();
+    let stages = v["stages"].as_array_mut().unwrap();
+    for (name, n, stack) in [
+        ("frame_rows", 400_000, 6_000),
+        ("frame_encode_pair", 2_000_000_000, 24_000),
+        ("frame_head", 300_000_000, 17_000),
+        ("frame_sgm", 40_000_000, 7_000),
+        ("frame_refine", 60_000_000, 15_000),
+    ] {
+        stages.push(json!({"name": name, "instructions": n, "arena_in_use": 1, "stack_peak": stack}));
+    }
+    v["frame"] = json!({"frame": {"height": 120, "width": 160}, "arena_bytes": 467_238, "arena_used": 467_000,
+                        "frame_instructions": 2_400_400_000u64, "stack_peak": 24_000});
+    let run = CoreRun::parse(&v.to_string()).unwrap();
+    // The frame's stages are neither pathway's band pair.
+    let plain = frame_run();
+    assert_eq!(run.band_pair_instructions(), plain.band_pair_instructions());
+    assert_eq!(run.native_band_pair_instructions(), plain.native_band_pair_instructions());
+    assert!(!frame::Pathway::Export.has("frame_head") && !frame::Pathway::Native.has("frame_head"));
+    let opts = FrameOptions::default();
+    let runs = std::slice::from_ref(&run);
+    let frames = FramesReport::new(runs, &[], &opts).unwrap();
+    let presets = PresetsReport::new(runs, &frames, &opts.frames).unwrap();
+    let learned = |w| {
+        presets
+            .frames
+            .iter()
+            .find(|p| p.preset == Preset::Learned && p.frame.width == w)
+            .unwrap()
+    };
+    // Counted at the measured size: its stages, its stack, the preset's arena.
+    let at = learned(160);
+    assert_eq!((at.instructions, at.source), (2_400_400_000, Source::MeasuredFrame));
+    assert_eq!(at.stack_peak_bytes, 24_000);
+    assert_eq!(at.arena_bytes, bino_core::preset::arena_bytes(120, 160) as u64);
+    assert_eq!(at.frames_per_s_ipc1, 0.166639);
+    assert!(presets.measured(&run.core, at.frame, Preset::Learned).is_some());
+    // Elsewhere the band pair scaled, as before.
+    assert_eq!(learned(320).source, Source::ScaledBandPair);
+    let md = presets_markdown(&presets);
+    assert!(
+        md.contains("| 160x120 | M55 at 400 MHz | learned | `fuse-census+lr+ref` | 2,400,400,000 | measured frame |"),
+        "{md}"
+    );
 }
