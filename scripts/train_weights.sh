@@ -142,6 +142,9 @@ step "int8 blob"
 cargo run -q --release --locked -p bino-host --bin bino -- quantize \
   --onnx "$weights/bino_encoder.onnx" --head "$weights/bino_head.onnx" \
   --native-head "$weights/bino_native_head.onnx" --calib "$data" --out "$weights/bino_int8.bin" --force
+# The board's learned preset: the same blob without the shared head.
+cargo run -q --release --locked -p bino-host --bin bino -- quantize --only native \
+  --from "$weights/bino_int8.bin" --out "$weights/bino_int8_native.bin" --force
 cargo run -q --release --locked -p bino-host --bin bino -- compare --data "$data" --split eval \
   --profile w160 --onnx "$weights/bino_encoder.onnx" --blob "$weights/bino_int8.bin" \
   --head "$weights/bino_head.onnx" --json "$metrics/int8_compare_w160.json"

@@ -485,7 +485,7 @@ def board_frames(src: Sources) -> str:
                 fps3(p["frames_per_s_ipc1"]),
                 fps3(modelled) if modelled else "-",
                 f"{n(p['arena_bytes'])} B",
-                "none" if p["preset"] == "fast" else f"{n(c['weights_flash_bytes'])} B",
+                f"{n(p['weights_bytes'])} B" if p.get("weights_bytes") else "none",
                 "yes" if c["outputs_bit_identical"] else "**no**",
             ]
         )

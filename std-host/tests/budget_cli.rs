@@ -58,7 +58,7 @@ fn budget_reports_the_committed_runs() {
         let sum = |native: bool| -> u64 {
             match native {
                 true => of("native_"),
-                false => of("") - of("native_") - of("census_") - of("load"),
+                false => of("") - of("native_") - of("census_") - of("frame_") - of("load"),
             }
         };
         let band_pair = sum(false);
@@ -97,6 +97,17 @@ fn budget_reports_the_committed_runs() {
             (fps - mhz * 1e6 / of("census_") as f64).abs() < 1e-3,
             "{core}: {fps} fps"
         );
+        // The learned preset's 160x120 frame: its frame_* stages as counted, in its arena.
+        let learned = report["presets"]["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|p| p["core"] == *core && p["preset"] == "learned" && p["frame"]["width"] == 160)
+            .unwrap_or_else(|| panic!("{core}: no learned 160x120 frame"));
+        assert_eq!(learned["source"], "measured_frame", "{core}");
+        assert_eq!(learned["instructions"], of("frame_"), "{core}");
+        assert_eq!(learned["instructions"], run["frame"]["frame_instructions"], "{core}");
+        assert_eq!(learned["arena_bytes"], run["frame"]["arena_bytes"], "{core}");
         assert!(
             stdout.contains(&bino_host::budget::grouped(band_pair)),
             "{core}: {stdout}"
@@ -140,7 +151,8 @@ fn budget_reports_the_committed_runs() {
             assert!((ms - cycles / (mhz * 1e3)).abs() < 1e-9, "{core} {}", r["name"]);
             // The model's band pair is the export pathway's.
             let name = r["name"].as_str().unwrap();
-            if name != "load" && !name.starts_with("native_") && !name.starts_with("census_") {
+            let other_run = ["native_", "census_", "frame_"].iter().any(|p| name.starts_with(p));
+            if name != "load" && !other_run {
                 band_pair += cycles;
             }
         }
@@ -161,10 +173,15 @@ fn budget_reports_the_committed_runs() {
     assert_eq!(report["cores"][1]["cycle_model"]["class_counts"]["mve"], 0);
 
     let targets = report["targets"].as_array().unwrap();
-    // Weights, arena, then per core its band-pair instructions, the native band pair's share
-    // and its refinement's share, the fast preset's frame rate on the M55, and the export
-    // ceilings.
-    assert_eq!(targets.len(), 11);
+    // Weights (the firmware's, both heads; the learned preset's, the native head only), arena,
+    // then per core its band-pair instructions, the native band pair's share and its
+    // refinement's share, the fast preset's frame rate on the M55, and the export ceilings.
+    assert_eq!(targets.len(), 12);
+    let learned_weights = targets
+        .iter()
+        .find(|t| t["target"].as_str().unwrap().contains("learned preset"))
+        .unwrap_or_else(|| panic!("no learned preset weights target in {targets:?}"));
+    assert_eq!(learned_weights["met"], true, "{learned_weights}");
     let fast = targets
         .iter()
         .find(|t| t["target"].as_str().unwrap().contains("fast preset"))

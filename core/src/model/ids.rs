@@ -220,6 +220,35 @@ impl HeadKind {
     }
 }
 
+/// The head a tensor belongs to, `None` for the encoder's (and the blob's configuration): what
+/// a blob for one pathway can leave out of the other's.
+pub const fn head_of(id: TensorId) -> Option<HeadKind> {
+    let index = id.index() as usize;
+    match id.kind() {
+        kind::LINEAR_WEIGHT | kind::LINEAR_BIAS | kind::LINEAR_MULT | kind::LINEAR_SHIFT => {
+            if index >= HEAD_LINEAR_BASE && index < HEAD_LINEAR_BASE + 1 + HEAD_CONVS {
+                Some(HeadKind::Export)
+            } else if index >= NATIVE_LINEAR_BASE && index < NATIVE_LINEAR_BASE + 2 + HEAD_CONVS {
+                Some(HeadKind::Native)
+            } else {
+                None
+            }
+        }
+        kind::LAYERNORM if index == HEAD_LAYERNORM => Some(HeadKind::Export),
+        kind::LAYERNORM if index == NATIVE_LAYERNORM => Some(HeadKind::Native),
+        kind::HEAD_CORRELATION
+        | kind::HEAD_CARRY
+        | kind::HEAD_ZERO
+        | kind::HEAD_SOFTMAX
+        | kind::META_HEAD_LOGIT_SCALE => match index {
+            0 => Some(HeadKind::Export),
+            1 => Some(HeadKind::Native),
+            _ => None,
+        },
+        _ => None,
+    }
+}
+
 /// Residual format after embedding.
 pub const fn residual_after_embed() -> usize {
     0
@@ -250,6 +279,47 @@ pub const fn id(kind: u16, index: usize) -> TensorId {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn every_head_tensor_belongs_to_its_head_and_the_encoders_to_none() {
+        use super::*;
+        for head in [HeadKind::Export, HeadKind::Native] {
+            let convs = (0..HEAD_CONVS).map(|i| head.conv(i));
+            let projections = match head {
+                HeadKind::Export => [Some(Linear::HeadProj), None],
+                HeadKind::Native => [Some(Linear::NativeProjLeft), Some(Linear::NativeProjRight)],
+            };
+            for layer in convs.chain(projections.into_iter().flatten()) {
+                for k in [
+                    kind::LINEAR_WEIGHT,
+                    kind::LINEAR_BIAS,
+                    kind::LINEAR_MULT,
+                    kind::LINEAR_SHIFT,
+                ] {
+                    assert_eq!(head_of(layer.id(k)), Some(head), "{layer:?}");
+                }
+            }
+            assert_eq!(head_of(id(kind::LAYERNORM, head.layernorm())), Some(head));
+            for k in [
+                kind::HEAD_CORRELATION,
+                kind::HEAD_CARRY,
+                kind::HEAD_ZERO,
+                kind::HEAD_SOFTMAX,
+            ] {
+                assert_eq!(head_of(id(k, head.index())), Some(head));
+            }
+            assert_eq!(head_of(id(kind::META_HEAD_LOGIT_SCALE, head.index())), Some(head));
+        }
+        for b in 0..DEPTH {
+            for layer in [Linear::Qkv(b), Linear::Proj(b), Linear::Fc1(b), Linear::Fc2(b)] {
+                assert_eq!(head_of(layer.id(kind::LINEAR_WEIGHT)), None);
+            }
+            assert_eq!(head_of(id(kind::LAYERNORM, layernorm_index(b, true))), None);
+        }
+        assert_eq!(head_of(Linear::Embed.id(kind::LINEAR_BIAS)), None);
+        assert_eq!(head_of(id(kind::CONFIG, 0)), None);
+        assert_eq!(head_of(id(kind::HEAD_ZERO, 2)), None);
+    }
+
     use super::*;
     use crate::config::HEAD_MIDDLE_LAYERS;
 

@@ -16,6 +16,7 @@ use serde::Serialize;
 
 use super::frame::{FrameBudget, FramesReport, Pathway, Scaling};
 use super::{clock, Clock, CoreRun, Frame, FAST_PRESET_TARGET};
+use crate::io::checkout;
 
 /// One of the board's presets.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -87,6 +88,9 @@ pub struct PresetFrame {
     /// Deepest stack use of the preset's run on this core, bytes (measured on its run: the
     /// stack does not grow with the frame).
     pub stack_peak_bytes: u64,
+    /// Weights the preset needs in flash, bytes: none for the fast one; the blob of the
+    /// encoder and the native head ([`learned_weights_bytes`]) for the learned one.
+    pub weights_bytes: u64,
 }
 
 /// The presets section of the report.
@@ -185,7 +189,14 @@ fn fast(run: &CoreRun, frame: Frame, c: Clock) -> Result<Option<PresetFrame>> {
             Source::ScaledFrame
         },
         stack_peak_bytes: census.stack_peak,
+        weights_bytes: 0,
     }))
+}
+
+/// The learned preset's weights in flash: the checkout's native-only blob
+/// (`weights/bino_int8_native.bin`, `bino quantize --only native`), else the run's whole blob.
+pub fn learned_weights_bytes(run: &CoreRun) -> u64 {
+    std::fs::metadata(checkout::path(checkout::NATIVE_BLOB)).map_or(run.sections.weights, |m| m.len())
 }
 
 /// The learned preset counted on the run's learned frame, when it measured `frame`.
@@ -212,6 +223,7 @@ fn measured_learned(run: &CoreRun, frame: Frame, c: Clock) -> Option<PresetFrame
         seconds_ipc1: seconds,
         source: Source::MeasuredFrame,
         stack_peak_bytes: learned.stack_peak,
+        weights_bytes: learned_weights_bytes(run),
     })
 }
 
@@ -237,6 +249,7 @@ fn learned_frame(run: &CoreRun, e: &FrameBudget) -> PresetFrame {
         seconds_ipc1: e.seconds_ipc1,
         source: Source::ScaledBandPair,
         stack_peak_bytes: stack,
+        weights_bytes: learned_weights_bytes(run),
     }
 }
 

@@ -1,14 +1,17 @@
 //! `bino quantize`: the float ONNX models into the int8 weight blob.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 use anyhow::Result;
+use bino_core::model::ids::HeadKind;
 use bino_host::data::profile::Profile;
+use bino_host::int8::blob_writer::without_head;
 use bino_host::int8::Int8Model;
 use bino_host::io::checkout;
 use bino_host::quantize::{quantize, QuantizeOptions};
+use bino_host::readout::pathway::Pathway;
 use clap::Args;
 
 use super::progress::Progress;
@@ -61,6 +64,41 @@ pub struct QuantizeArgs {
     /// Replace an existing --out blob (the shipped one included).
     #[arg(long)]
     force: bool,
+    /// Instead of quantising, copy the encoder and only this pathway's head from --from,
+    /// byte for byte: the blob of a board that runs one pathway (the native one needs no
+    /// shared head).
+    #[arg(long, value_enum, requires = "from")]
+    only: Option<Pathway>,
+    /// The blob --only copies from.
+    #[arg(long, requires = "only")]
+    from: Option<PathBuf>,
+}
+
+/// `--only`: `from`'s encoder and `pathway`'s head into `out`.
+fn only_pathway(pathway: Pathway, from: &Path, out: &Path) -> Result<()> {
+    let model = Int8Model::load(from)?;
+    let other = match pathway {
+        Pathway::Export => HeadKind::Native,
+        Pathway::Native => HeadKind::Export,
+    };
+    let kept = match pathway {
+        Pathway::Export => HeadKind::Export,
+        Pathway::Native => HeadKind::Native,
+    };
+    model.require_head(kept)?;
+    let blob = without_head(&model.blob()?, other)?;
+    // The blob must load in the engine, with the pathway's head, before it is written.
+    Int8Model::from_bytes(blob.clone(), &out.display().to_string())?.require_head(kept)?;
+    bino_host::io::files::write_atomic(out, |file| Ok(file.write_all(&blob)?))?;
+    println!(
+        "{}: {} bytes, the encoder and the {} head of {} ({} bytes)",
+        out.display(),
+        blob.len(),
+        kept.pathway(),
+        from.display(),
+        model.bytes().len()
+    );
+    Ok(())
 }
 
 /// Runs the verb.
@@ -87,6 +125,9 @@ pub fn run(args: QuantizeArgs) -> Result<()> {
                 out.display()
             ),
         );
+    }
+    if let (Some(pathway), Some(from)) = (args.only, args.from) {
+        return only_pathway(pathway, &from, &out);
     }
     let started = Instant::now();
     let progress = Progress::new(false);

@@ -1,11 +1,12 @@
 //! Writes weight blobs in the container format that `bino_core::blob::Blob` reads
 //! (`docs/blob-format.md`). Generic: ids and contents are the caller's.
 
-use anyhow::{ensure, Result};
+use anyhow::{anyhow, ensure, Result};
 use bino_core::blob::{
-    Dtype, TensorId, CRC_BYTES, FORMAT_VERSION, HEADER_BYTES, MAGIC, TABLE_ENTRY_BYTES, TENSOR_ALIGN,
+    Blob, Dtype, TensorId, CRC_BYTES, FORMAT_VERSION, HEADER_BYTES, MAGIC, TABLE_ENTRY_BYTES, TENSOR_ALIGN,
 };
 use bino_core::crc32::crc32;
+use bino_core::model::ids::{self, HeadKind};
 
 #[cfg(test)]
 mod tests;
@@ -141,6 +142,21 @@ impl BlobWriter {
         blob.extend_from_slice(&crc.to_le_bytes());
         blob
     }
+}
+
+/// `blob` without `head`'s tensors ([`bino_core::model::ids::head_of`]): every other tensor
+/// copied byte for byte, in order. A board that runs one pathway links only its head (the
+/// native pathway needs no shared head).
+pub fn without_head(blob: &Blob<'_>, head: HeadKind) -> Result<Vec<u8>> {
+    let mut out = BlobWriter::new();
+    for info in blob.tensors() {
+        if ids::head_of(info.id) == Some(head) {
+            continue;
+        }
+        let (dtype, bytes) = blob.raw(info.id).map_err(|e| anyhow!("tensor {}: {e}", info.id))?;
+        out.add_raw(info.id, dtype, info.elements, bytes.to_vec())?;
+    }
+    Ok(out.finish())
 }
 
 impl Default for BlobWriter {

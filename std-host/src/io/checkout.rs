@@ -10,6 +10,9 @@ use std::path::{Component, Path, PathBuf};
 
 /// The shipped int8 weight blob.
 pub const BLOB: &str = "weights/bino_int8.bin";
+/// The board's learned preset's blob: the shipped blob's encoder and native head only
+/// (`bino quantize --only native`).
+pub const NATIVE_BLOB: &str = "weights/bino_int8_native.bin";
 /// The shipped float encoder (ONNX).
 pub const ENCODER_ONNX: &str = "weights/bino_encoder.onnx";
 /// The shipped float shared head (ONNX).
