@@ -1,15 +1,18 @@
 #!/usr/bin/env bash
 # Builds the firmware of both real boards (boards/: STM32H743, Alif Ensemble E7) in release,
-# the learned preset's build and the fast preset's (feature `fast`: census+lr+ref on whole
-# 160x120 frames, no weights), and prints each memory region's use next to its size. Nothing
-# is flashed: the QEMU boards (scripts/firmware.sh) stay the ones that run. A region that overflows fails the link; this
-# script checks the sums again from the ELF's section table.
+# every build each has: the learned preset's and the fast preset's (feature `fast`:
+# census+lr+ref, no weights), each on whole 160x120 frames, and on the H743 each also on the
+# embedded test frame (feature `test-frame`), and prints each build's memory regions' use next
+# to their size. Nothing is flashed: the QEMU boards (scripts/firmware.sh) stay the ones that
+# run. A region that overflows fails the link; this script checks the sums again from the ELF's
+# section table.
 #
 #   scripts/boards.sh [--no-lint] [--out DIR]
 #
 #   --no-lint   skip rustfmt, clippy and the host tests of boards/common
-#   --out DIR   also write each board's region use as DIR/board-<board>.json (the committed
-#               ones: --out firmware-sim/measured; docs/boards.md renders its table from them)
+#   --out DIR   also write each board's region use (its default build: the learned preset) as
+#               DIR/board-<board>.json (the committed ones: --out firmware-sim/measured;
+#               docs/boards.md renders its table from them)
 set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BINO_ROOT"
@@ -38,9 +41,8 @@ if [ "$lint" = 1 ]; then
   (cd boards && cargo test -p bino-board --locked -q)
 fi
 
-# board:target:the feature sets of its other builds (linted; those with `fast`, the fast
-# preset on whole frames, also built and their regions printed)
-for board in stm32h7:thumbv7em-none-eabihf:"test-band fast fast,test-band" alif-e7:thumbv8m.main-none-eabihf:fast; do
+# board:target:the feature sets of its other builds (each linted, built, its regions printed)
+for board in stm32h7:thumbv7em-none-eabihf:"test-frame fast fast,test-frame" alif-e7:thumbv8m.main-none-eabihf:fast; do
   IFS=: read -r dir target others <<<"$board"
   echo "== boards/$dir ($target, release)"
   if [ "$lint" = 1 ]; then
@@ -55,7 +57,6 @@ for board in stm32h7:thumbv7em-none-eabihf:"test-band fast fast,test-band" alif-
   python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \
     "${json[@]}" "$CARGO_TARGET_DIR/$target/release/bino-$dir"
   for features in $others; do
-    case ",$features," in *,fast,*) ;; *) continue ;; esac
     echo "== boards/$dir ($target, release, --features $features)"
     (cd "boards/$dir" && cargo build --locked --release -q --features "$features")
     python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \

@@ -1,5 +1,6 @@
-//! Hands the linker the board's memory map and, for the `test-band` build, bakes in the
-//! summary a host run of the test band (with `fast`: the test frame) gives (`bino_board::bake`).
+//! Hands the linker the board's memory map and, for the `test-frame` build, bakes in the
+//! summary a host run of the 160x120 test frame gives, in the build's preset
+//! (`bino_board::bake`).
 
 use std::env;
 use std::fs;
@@ -11,25 +12,24 @@ fn main() {
     fs::copy(root.join("memory.x"), out.join("memory.x")).unwrap_or_else(|e| panic!("memory.x: {e}"));
     println!("cargo::rustc-link-search={}", out.display());
     println!("cargo::rerun-if-changed=memory.x");
-    if env::var_os("CARGO_FEATURE_TEST_BAND").is_some() {
+    if env::var_os("CARGO_FEATURE_TEST_FRAME").is_some() {
         bake(&root.join("../.."), &out);
     }
 }
 
-/// Writes `OUT_DIR/expected.rs` from a host run of the test band.
+/// Writes `OUT_DIR/expected.rs` from a host run of the test frame.
 fn bake(repo: &Path, out: &Path) {
     let read = |rel: &str| {
         let path = repo.join(rel);
         println!("cargo::rerun-if-changed={}", path.display());
         fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
     };
-    // The fast preset (feature `fast`): the whole test frame, no weights.
+    // The learned preset reads the blob; the fast preset (feature `fast`) no weights.
     let fast = env::var_os("CARGO_FEATURE_FAST").is_some();
-    let rows = if fast { "frame_120x160" } else { "band_48x160" };
     let blob = (!fast).then(|| read("weights/bino_int8.bin"));
-    let left = read(&format!("firmware-sim/assets/{rows}_left.gray"));
-    let right = read(&format!("firmware-sim/assets/{rows}_right.gray"));
+    let left = read("firmware-sim/assets/frame_120x160_left.gray");
+    let right = read("firmware-sim/assets/frame_120x160_right.gray");
     let code = bino_board::bake::expected_rs(blob.as_deref(), &left, &right)
-        .unwrap_or_else(|e| panic!("the host run of the test rows failed: {e}"));
+        .unwrap_or_else(|e| panic!("the host run of the test frame failed: {e}"));
     fs::write(out.join("expected.rs"), code).unwrap();
 }

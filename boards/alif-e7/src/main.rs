@@ -4,12 +4,13 @@
 //! We found no HAL or PAC for the Ensemble family on crates.io (2026-12-01; see the README,
 //! "Real boards"), so this is `cortex-m-rt` and the core's own peripherals only (caches, DWT,
 //! SysTick); the camera interfaces (CPI, MIPI CSI-2) are not driven. The rows come from the
-//! QEMU firmware's embedded 48x160 test band, a real `RowSource`: the board runs it over and
-//! over, prints the sector summary and the cycles of every stage over defmt-RTT, and reports
-//! whether it reproduced the host's result bit for bit.
+//! QEMU firmware's embedded 160x120 test frame, a real `RowSource`: the board runs the learned
+//! preset on the whole frame, band after band, over and over, prints the sector summary and the
+//! cycles of every stage over defmt-RTT, and reports whether it reproduced the host's result bit
+//! for bit.
 //!
 //! With the `fast` feature it runs the fast preset (`census+lr+ref`, no encoder, no weights
-//! linked) on the QEMU firmware's whole 160x120 test frame instead, in the preset's own arena.
+//! linked) on the same frame instead, in the preset's own arena.
 #![no_std]
 #![no_main]
 
@@ -17,7 +18,7 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 
 use bino_board::clock;
-use bino_board::options::BAND_WIDTH;
+use bino_board::options::{FRAME_HEIGHT, FRAME_WIDTH};
 use bino_board::run::Preset;
 use cortex_m_rt::{entry, exception};
 use defmt_rtt as _;
@@ -35,13 +36,13 @@ struct Aligned<T>(T);
 
 #[cfg(not(feature = "fast"))]
 mod preset {
-    //! The learned preset: its weights and its test band.
+    //! The learned preset: its weights.
 
     use super::Aligned;
     use bino_board::run::{load, Preset};
     use bino_core::Error;
 
-    pub use bino_board::options::{ARENA_BYTES as ARENA_LEN, BAND_HEIGHT as ROWS};
+    pub use bino_board::options::ARENA_BYTES as ARENA_LEN;
 
     pub const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8.bin").len();
 
@@ -49,9 +50,6 @@ mod preset {
     #[link_section = ".weights"]
     #[used]
     static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8.bin"));
-
-    pub static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_left.gray");
-    pub static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_right.gray");
 
     /// The learned preset on the blob's engine (checked once, here).
     pub fn load_preset() -> Result<Preset<'static>, Error> {
@@ -62,17 +60,14 @@ mod preset {
 
 #[cfg(feature = "fast")]
 mod preset {
-    //! The fast preset: no weights, the whole test frame.
+    //! The fast preset: no weights.
 
     use bino_board::run::Preset;
     use bino_core::Error;
 
-    pub use bino_board::options::{FAST_ARENA_BYTES as ARENA_LEN, FRAME_HEIGHT as ROWS};
+    pub use bino_board::options::FAST_ARENA_BYTES as ARENA_LEN;
 
     pub const BLOB_LEN: usize = 0;
-
-    pub static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_left.gray");
-    pub static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_right.gray");
 
     /// The fast preset.
     pub fn load_preset() -> Result<Preset<'static>, Error> {
@@ -80,7 +75,11 @@ mod preset {
     }
 }
 
-use preset::{ARENA_LEN, ROWS};
+use preset::ARENA_LEN;
+
+/// The embedded test frame, both presets'.
+static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_left.gray");
+static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_right.gray");
 
 /// The pipeline's arena: SRAM0, not zeroed at reset.
 #[link_section = ".sram0.arena"]
@@ -102,26 +101,26 @@ fn main() -> ! {
     };
     let loaded: Result<Preset<'static>, _> = preset::load_preset();
     defmt::println!(
-        "bino board=alif-e7 core=cortex-m55-hp core_hz={=u32} rows={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
+        "bino board=alif-e7 core=cortex-m55-hp core_hz={=u32} frame={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
         CORE_HZ,
-        ROWS,
-        BAND_WIDTH,
+        FRAME_WIDTH,
+        FRAME_HEIGHT,
         ARENA_LEN,
         preset::BLOB_LEN,
         has_cycles
     );
-    defmt::println!("bino source=test-band");
+    defmt::println!("bino source=test-frame");
     match loaded {
-        // The band (or frame) again and again: each run prints its summary and cycles, so the
+        // The frame again and again: each run prints its summary and cycles, so the
         // log can be read whenever the probe attaches.
         Ok(preset) => {
             defmt::println!("bino preset={=str}", preset.name());
             for frame in 0u32.. {
-                bino_board::check::test_band(
+                bino_board::check::test_frame(
                     &preset,
                     frame,
-                    preset::LEFT,
-                    preset::RIGHT,
+                    LEFT,
+                    RIGHT,
                     arena,
                     expected::REFINED_CRC,
                     &expected::SECTORS,

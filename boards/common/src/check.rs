@@ -1,19 +1,19 @@
-//! The test-band check both boards can run: the QEMU firmware's embedded band (the learned
-//! preset) or frame (the fast preset) through the pipeline, its summary printed, and compared
-//! with the host's (baked in by the board's `build.rs` through [`crate::bake`]).
+//! The test-frame check both boards can run: the QEMU firmware's embedded 160x120 test frame
+//! through the preset, its summary printed, and compared with the host's (baked in by the
+//! board's `build.rs` through [`crate::bake`]).
 
 use bino_core::pipeline::SlicePair;
 
 use crate::clock::DwtClock;
-use crate::options::BAND_WIDTH;
+use crate::options::{FRAME_HEIGHT, FRAME_WIDTH};
 use crate::run::Preset;
 use crate::summary::{Sector, Summary, SECTORS};
 
-/// Runs `preset` on the band or frame `left`/`right` in `arena` as frame `frame`, prints its
+/// Runs `preset` on the test frame `left`/`right` in `arena` as frame `frame`, prints its
 /// summary and `bino result=pass` when the refined rows' CRC and the sectors equal the host's
 /// (`fail` otherwise, `error` on an engine error). Returns whether it passed.
 #[allow(clippy::too_many_arguments)]
-pub fn test_band(
+pub fn test_frame(
     preset: &Preset<'_>,
     frame: u32,
     left: &[u8],
@@ -23,8 +23,8 @@ pub fn test_band(
     expected: &[Sector; SECTORS],
     core_hz: u32,
 ) -> bool {
-    let result = SlicePair::new(left, right, BAND_WIDTH, preset.height()).and_then(|mut rows| {
-        let mut summary = Summary::new(BAND_WIDTH, DwtClock)?;
+    let result = SlicePair::new(left, right, FRAME_WIDTH, FRAME_HEIGHT).and_then(|mut rows| {
+        let mut summary = Summary::new(FRAME_WIDTH, DwtClock)?;
         preset
             .run(&mut rows, arena, &mut summary)
             .map(|report| (summary, report))

@@ -4,7 +4,7 @@
 //! disparity that the boards print.
 //!
 //! `no_std`, no `alloc`, like `bino-core`; the host tests run it on the shipped blob and the
-//! firmware's test band.
+//! firmware's test frame.
 #![no_std]
 #![deny(missing_docs)]
 

@@ -1,5 +1,5 @@
-//! The boards' report over defmt (RTT on the boards): one line for the band pair, one per
-//! pipeline stage with its cycles.
+//! The boards' report over defmt (RTT on the boards): one line for the frame's summary, one
+//! per pipeline stage with its cycles, one for the whole frame's.
 
 use bino_core::pipeline::Report;
 
@@ -35,7 +35,7 @@ pub fn print<C: Clock>(frame: u32, summary: &Summary<C>, report: &Report, core_h
         );
     }
     defmt::println!(
-        "bino frame={=u32} band_pair_cycles={=u64} ms={=u64} core_hz={=u32}",
+        "bino frame={=u32} frame_cycles={=u64} ms={=u64} core_hz={=u32}",
         frame,
         total,
         millis(total, core_hz),

@@ -1,11 +1,11 @@
-//! One band pair (the learned preset) or one whole frame (the fast preset) through the pipeline
-//! into a [`Summary`].
+//! One whole frame through the pipeline into a [`Summary`]: the learned preset, band after band
+//! of the frame, or the fast preset.
 
 use bino_core::blob::Blob;
 use bino_core::pipeline::{self, Pipeline, Report, RowSource};
 use bino_core::Error;
 
-use crate::options::{ARENA_BYTES, BAND_HEIGHT, CENSUS_REFINE, FAST_ARENA_BYTES, FRAME_HEIGHT, OPTIONS, REFINE};
+use crate::options::{ARENA_BYTES, CENSUS_REFINE, FAST_ARENA_BYTES, OPTIONS, REFINE};
 use crate::summary::{Clock, Summary};
 
 /// The engine of a weight blob: header, CRC over the whole blob and tensor table checked once,
@@ -14,10 +14,11 @@ pub fn load(blob: &[u8]) -> Result<Pipeline<'_>, Error> {
     Pipeline::new(Blob::parse(blob)?)
 }
 
-/// Runs the band pair `source` delivers through every readout of [`OPTIONS`] and the
-/// refinement [`REFINE`] in `arena` ([`crate::options::arena_bytes`] bytes at least), into
-/// `summary`, which it finishes.
-pub fn run_band<C: Clock>(
+/// Runs the whole frame `source` delivers through every readout of [`OPTIONS`] and the
+/// refinement [`REFINE`] (the learned preset: the QEMU firmware's frame run), band after band,
+/// each band's head started afresh in the encoder's scratch, in `arena` ([`ARENA_BYTES`] bytes
+/// at least for a 160x120 frame), into `summary`, which it finishes.
+pub fn run_learned<C: Clock>(
     pipeline: &Pipeline<'_>,
     source: &mut impl RowSource,
     arena: &mut [u8],
@@ -32,7 +33,7 @@ pub fn run_band<C: Clock>(
 /// readout refined to pixels ([`CENSUS_REFINE`], `pipeline::run_census`: no weights), in
 /// `arena` ([`FAST_ARENA_BYTES`] bytes at least, for any height), into `summary`, which it
 /// finishes. Reads the rows as its token rows need them, so a camera's line buffers keep up.
-pub fn run_frame<C: Clock>(
+pub fn run_fast<C: Clock>(
     source: &mut impl RowSource,
     arena: &mut [u8],
     summary: &mut Summary<C>,
@@ -42,27 +43,20 @@ pub fn run_frame<C: Clock>(
     report
 }
 
-/// What a board runs on each frame from its camera.
+/// What a board runs on each frame from its camera
+/// ([`FRAME_HEIGHT`](crate::options::FRAME_HEIGHT) rows).
 // The engine's tables make the learned variant large; no heap to box it in, and a board builds
 // one preset once, at boot.
 #[allow(clippy::large_enum_variant)]
 pub enum Preset<'b> {
-    /// The learned preset on one band of [`BAND_HEIGHT`] rows (the blob's engine).
+    /// The learned preset (the blob's engine).
     Learned(Pipeline<'b>),
-    /// The fast preset on a whole frame of [`FRAME_HEIGHT`] rows, no weights.
+    /// The fast preset, no weights.
     Fast,
 }
 
 impl Preset<'_> {
-    /// Rows of what one run reads: one band, or one whole frame.
-    pub fn height(&self) -> usize {
-        match self {
-            Preset::Learned(_) => BAND_HEIGHT,
-            Preset::Fast => FRAME_HEIGHT,
-        }
-    }
-
-    /// The arena it needs, bytes.
+    /// The arena it needs for a 160x120 frame, bytes.
     pub fn arena_bytes(&self) -> usize {
         match self {
             Preset::Learned(_) => ARENA_BYTES,
@@ -78,7 +72,7 @@ impl Preset<'_> {
         }
     }
 
-    /// One run ([`run_band`] or [`run_frame`]) on the rows `source` delivers.
+    /// One run ([`run_learned`] or [`run_fast`]) on the frame `source` delivers.
     pub fn run<C: Clock>(
         &self,
         source: &mut impl RowSource,
@@ -86,8 +80,8 @@ impl Preset<'_> {
         summary: &mut Summary<C>,
     ) -> Result<Report, Error> {
         match self {
-            Preset::Learned(pipeline) => run_band(pipeline, source, arena, summary),
-            Preset::Fast => run_frame(source, arena, summary),
+            Preset::Learned(pipeline) => run_learned(pipeline, source, arena, summary),
+            Preset::Fast => run_fast(source, arena, summary),
         }
     }
 }

@@ -1,4 +1,4 @@
-//! The board's report of one band pair or frame, gathered as the pipeline streams (a
+//! The board's report of one frame, gathered as the pipeline streams (a
 //! [`Sink`]): the refined pixel disparity of the preset's readout (fuse-census+lr, or the fast
 //! preset's census+lr) summarised per vertical sector (median and near disparity, and the nearest
 //! depth in mm through `bino_core::depth` with the preset's example calibration, what an obstacle

@@ -3,17 +3,16 @@
 //! stack in DTCM.
 //!
 //! Frames come from the DCMI (embassy-stm32's driver, 8-bit parallel, snapshot mode with DMA):
-//! one frame is one band of `BAND_HEIGHT` lines of `2 x BAND_WIDTH` gray pixels, the rectified
-//! left row then the right row (a side-by-side stereo module). The frame lands in a buffer in
-//! the AXI SRAM, the pipeline reads it line by line ([`SideBySide`]), and the board prints
-//! each band pair's sector summary and the cycles of every stage over defmt-RTT. With the
-//! `test-band` feature the board runs the QEMU firmware's embedded test band instead, over and
-//! over, and reports whether it reproduced the host's result bit for bit.
+//! one frame is `FRAME_HEIGHT` (120) lines of `2 x FRAME_WIDTH` gray pixels, the rectified left
+//! row then the right row (a side-by-side stereo module). The frame lands in a buffer in the AXI
+//! SRAM beside the arena, the pipeline reads it line by line ([`SideBySide`]), band after band of
+//! the learned preset, and the board prints each frame's sector summary and the cycles of every
+//! stage over defmt-RTT. With the `test-frame` feature the board runs the QEMU firmware's
+//! embedded 160x120 test frame instead, over and over, and reports whether it reproduced the
+//! host's result bit for bit.
 //!
 //! With the `fast` feature the board runs the fast preset (`census+lr+ref`, no encoder, no
-//! weights in flash) on whole frames of `bino_board::options::FRAME_HEIGHT` lines (160x120), in
-//! its own `FAST_ARENA_BYTES` arena; with `fast` and `test-band`, on the QEMU firmware's embedded
-//! frame.
+//! weights in flash) on the same frames, in its own `FAST_ARENA_BYTES` arena.
 #![no_std]
 #![no_main]
 
@@ -21,11 +20,11 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 
 use bino_board::clock;
-use bino_board::options::BAND_WIDTH;
 #[cfg(not(feature = "fast"))]
-use bino_board::options::{ARENA_BYTES, BAND_HEIGHT};
+use bino_board::options::ARENA_BYTES;
 #[cfg(feature = "fast")]
-use bino_board::options::{FAST_ARENA_BYTES, FRAME_HEIGHT};
+use bino_board::options::FAST_ARENA_BYTES;
+use bino_board::options::{FRAME_HEIGHT, FRAME_WIDTH};
 use bino_board::run::Preset;
 use cortex_m_rt::{entry, exception};
 use defmt_rtt as _;
@@ -37,13 +36,7 @@ const CORE_HZ: u32 = 480_000_000;
 #[repr(C, align(32))]
 struct Aligned<T>(T);
 
-/// Lines one run reads: a band of the learned preset, or the fast preset's whole frame.
-#[cfg(not(feature = "fast"))]
-const ROWS: usize = BAND_HEIGHT;
-#[cfg(feature = "fast")]
-const ROWS: usize = FRAME_HEIGHT;
-
-/// The preset's arena, bytes.
+/// The preset's arena for a whole frame, bytes.
 #[cfg(not(feature = "fast"))]
 const ARENA_LEN: usize = ARENA_BYTES;
 #[cfg(feature = "fast")]
@@ -111,11 +104,11 @@ fn main() -> ! {
         Err(e) => halt(defmt::Display2Format(&e)),
     };
     defmt::println!(
-        "bino board=stm32h743 core=cortex-m7 core_hz={=u32} preset={=str} rows={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
+        "bino board=stm32h743 core=cortex-m7 core_hz={=u32} preset={=str} frame={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
         CORE_HZ,
         preset.name(),
-        ROWS,
-        BAND_WIDTH,
+        FRAME_WIDTH,
+        FRAME_HEIGHT,
         ARENA_LEN,
         weights::BLOB_LEN,
         has_cycles
@@ -123,7 +116,7 @@ fn main() -> ! {
     source::run(p, &mut cp.SCB, &preset, arena)
 }
 
-#[cfg(not(feature = "test-band"))]
+#[cfg(not(feature = "test-frame"))]
 mod source {
     //! Camera frames from the DCMI, forever.
 
@@ -140,8 +133,8 @@ mod source {
         DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
     });
 
-    /// Words of one frame: ROWS lines of 2 x BAND_WIDTH bytes.
-    const FRAME_WORDS: usize = ROWS * 2 * BAND_WIDTH / 4;
+    /// Words of one frame: FRAME_HEIGHT lines of 2 x FRAME_WIDTH bytes.
+    const FRAME_WORDS: usize = FRAME_HEIGHT * 2 * FRAME_WIDTH / 4;
 
     /// The DCMI's DMA target: AXI SRAM (the DMA does not reach DTCM), cache-line aligned.
     #[link_section = ".axisram.frame"]
@@ -193,8 +186,8 @@ mod source {
                 continue;
             }
             let bytes: &[u8] = bytemuck::cast_slice(frame);
-            let result = SideBySide::new(bytes, BAND_WIDTH, ROWS).and_then(|mut rows| {
-                let mut summary = Summary::new(BAND_WIDTH, DwtClock)?;
+            let result = SideBySide::new(bytes, FRAME_WIDTH, FRAME_HEIGHT).and_then(|mut rows| {
+                let mut summary = Summary::new(FRAME_WIDTH, DwtClock)?;
                 preset.run(&mut rows, arena, &mut summary).map(|r| (summary, r))
             });
             match result {
@@ -206,10 +199,9 @@ mod source {
     }
 }
 
-#[cfg(feature = "test-band")]
+#[cfg(feature = "test-frame")]
 mod source {
-    //! The embedded test band (the fast preset: frame), again and again, checked against the
-    //! host.
+    //! The embedded 160x120 test frame, again and again, checked against the host.
 
     use super::*;
     use cortex_m::peripheral::SCB;
@@ -219,20 +211,14 @@ mod source {
         include!(concat!(env!("OUT_DIR"), "/expected.rs"));
     }
 
-    #[cfg(not(feature = "fast"))]
-    static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_left.gray");
-    #[cfg(not(feature = "fast"))]
-    static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/band_48x160_right.gray");
-    #[cfg(feature = "fast")]
     static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_left.gray");
-    #[cfg(feature = "fast")]
     static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_right.gray");
 
     pub fn run(_p: Peripherals, _scb: &mut SCB, preset: &Preset<'_>, arena: &mut [u8]) -> ! {
-        defmt::println!("bino source=test-band");
-        // The band again and again: each run prints its summary and cycles.
+        defmt::println!("bino source=test-frame");
+        // The frame again and again: each run prints its summary and cycles.
         for frame in 0u32.. {
-            bino_board::check::test_band(
+            bino_board::check::test_frame(
                 preset,
                 frame,
                 LEFT,

@@ -1,0 +1,45 @@
+//! The fast preset on a real frame: the QEMU firmware's 160x120 test frame through the board's
+//! code on the host (the census readout refined to pixels, no weights), its summary checked
+//! against the refined rows themselves, side by side as the DCMI captures it, again in the same
+//! arena, and its refined rows' CRC-32 the one both QEMU firmwares recorded for their census run.
+
+mod common;
+
+use bino_board::options::{CENSUS_REFINE, FAST_ARENA_BYTES, FRAME_HEIGHT, FRAME_WIDTH, OPTIONS};
+use bino_board::run::Preset;
+use bino_board::side_by_side::SideBySide;
+use bino_board::summary::{NoClock, Summary};
+use bino_core::pipeline::{self, SlicePair};
+use common::{firmware_refined, side_by_side, test_frame, Tee};
+
+#[test]
+fn the_fast_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
+    let (left, right) = test_frame();
+    let mut arena = vec![0u8; FAST_ARENA_BYTES];
+
+    let mut tee = Tee::new();
+    let mut source = SlicePair::new(&left, &right, FRAME_WIDTH, FRAME_HEIGHT).unwrap();
+    let report = pipeline::run_census(&mut source, &OPTIONS, Some(&CENSUS_REFINE), &mut arena, &mut tee).unwrap();
+    assert!(report.arena_used <= FAST_ARENA_BYTES && report.bands > 1, "{report:?}");
+    let views = tee.checked_summary();
+    for core in ["m55", "m7"] {
+        assert_eq!(
+            views.refined_crc(),
+            firmware_refined(core, "census"),
+            "{core}: the board's fast preset against the QEMU firmware's census run"
+        );
+    }
+
+    // Side by side, as the DCMI captures it, through the preset the board runs, twice in the
+    // same arena.
+    let preset = Preset::Fast;
+    assert_eq!(preset.arena_bytes(), FAST_ARENA_BYTES);
+    let frame = side_by_side(&left, &right);
+    for _ in 0..2 {
+        let mut camera = Summary::new(FRAME_WIDTH, NoClock).unwrap();
+        let mut source = SideBySide::new(&frame, FRAME_WIDTH, FRAME_HEIGHT).unwrap();
+        preset.run(&mut source, &mut arena, &mut camera).unwrap();
+        assert_eq!(camera.refined_crc(), views.refined_crc());
+        assert_eq!(camera.sectors(), views.sectors());
+    }
+}
