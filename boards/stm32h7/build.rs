@@ -26,7 +26,7 @@ fn bake(repo: &Path, out: &Path) {
     };
     // The learned preset reads the blob; the fast preset (feature `fast`) no weights.
     let fast = env::var_os("CARGO_FEATURE_FAST").is_some();
-    let blob = (!fast).then(|| read("weights/bino_int8.bin"));
+    let blob = (!fast).then(|| read("weights/bino_int8_native.bin"));
     let left = read("firmware-sim/assets/frame_120x160_left.gray");
     let right = read("firmware-sim/assets/frame_120x160_right.gray");
     let code = bino_board::bake::expected_rs(blob.as_deref(), &left, &right)

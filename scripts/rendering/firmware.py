@@ -339,21 +339,14 @@ def training_summary(src: Sources) -> str:
 
 
 def blob_size(src: Sources) -> str:
-    b = src.size("weights/bino_int8.bin")
-    return (
-        table(
-            ["shipped int8 blob", "bytes", "MiB"],
-            [
-                [
-                    "`weights/bino_int8.bin` (encoder, shared and native head)",
-                    n(b),
-                    f"{b / 2**20:.2f}",
-                ]
-            ],
-        )
-        + "\n\n"
-        + footer(src)
-    )
+    rows = []
+    for path, what in [
+        ("weights/bino_int8.bin", "encoder, shared and native head: the QEMU firmware's, both pathways"),
+        ("weights/bino_int8_native.bin", "encoder and native head: the boards' learned preset"),
+    ]:
+        b = src.size(path)
+        rows.append([f"`{path}` ({what})", n(b), f"{b / 2**20:.2f}"])
+    return table(["shipped int8 blob", "bytes", "MiB"], rows) + "\n\n" + footer(src)
 
 
 BOARDS = {"stm32h7": "STM32H743", "alif-e7": "Alif E7"}

@@ -44,12 +44,12 @@ mod preset {
 
     pub use bino_board::options::ARENA_BYTES as ARENA_LEN;
 
-    pub const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8.bin").len();
+    pub const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8_native.bin").len();
 
     /// The int8 weight blob, in MRAM (`.weights`, see `memory.x`).
     #[link_section = ".weights"]
     #[used]
-    static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8.bin"));
+    static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8_native.bin"));
 
     /// The learned preset on the blob's engine (checked once, here).
     pub fn load_preset() -> Result<Preset<'static>, Error> {

@@ -15,7 +15,7 @@ use common::{firmware_refined, side_by_side, test_frame, Tee};
 
 #[test]
 fn the_learned_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
-    let blob = common::read("weights/bino_int8.bin");
+    let blob = common::read("weights/bino_int8_native.bin");
     let (left, right) = test_frame();
     let pipeline = load(&blob).unwrap();
     let mut arena = vec![0u8; ARENA_BYTES];
@@ -84,7 +84,7 @@ impl<S: RowSource> RowSource for Cut<S> {
 
 #[test]
 fn a_bad_frame_is_one_error_line_and_the_next_frame_starts_clean() {
-    let blob = common::read("weights/bino_int8.bin");
+    let blob = common::read("weights/bino_int8_native.bin");
     let (left, right) = test_frame();
     let frame = side_by_side(&left, &right);
     let preset = Preset::Learned(load(&blob).unwrap());

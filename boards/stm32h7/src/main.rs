@@ -50,12 +50,12 @@ mod weights {
     use bino_board::run::{load, Preset};
     use bino_core::Error;
 
-    pub const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8.bin").len();
+    pub const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8_native.bin").len();
 
     /// The int8 weight blob, in internal flash (`.weights`, see `memory.x`).
     #[link_section = ".weights"]
     #[used]
-    static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8.bin"));
+    static BLOB: Aligned<[u8; BLOB_LEN]> = Aligned(*include_bytes!("../../../weights/bino_int8_native.bin"));
 
     /// The learned preset on the blob's engine (checked once, here).
     pub fn preset() -> Result<Preset<'static>, Error> {
