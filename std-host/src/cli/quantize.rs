@@ -64,9 +64,9 @@ pub struct QuantizeArgs {
     /// Replace an existing --out blob (the shipped one included).
     #[arg(long)]
     force: bool,
-    /// Instead of quantising, copy the encoder and only this pathway's head from --from,
-    /// byte for byte: the blob of a board that runs one pathway (the native one needs no
-    /// shared head).
+    /// Copy --from's encoder and only this pathway's head, byte for byte (no calibration).
+    ///
+    /// The blob of a board that runs one pathway: the native one needs no shared head.
     #[arg(long, value_enum, requires = "from")]
     only: Option<Pathway>,
     /// The blob --only copies from.
