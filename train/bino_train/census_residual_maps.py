@@ -9,7 +9,9 @@ left; the pixel refinement `census_companion.refined`) and stacks, per pixel:
   disparities round(anchor) + k, k = -`WINDOW` .. `WINDOW`: the raw census Hamming distance of
   the pixel (/ 24), the refinement's 9x9 box sums of it (/ 81 x 24) and the cell's aggregated SGM
   cost (minus the cell's lowest, over the cell's mean minus its lowest); the anchor's fraction;
-- the census's flags per cell (kept, left-right, unique) and its uniqueness margin;
+- the census's flags per cell (kept, left-right, unique), its uniqueness margin and its
+  runner-up (its best candidate more than one column from the winner, `CensusCells.runner_up`:
+  `census_rerank`'s oracle found much of what the winner misses there) minus the anchor;
 - the left view, the right view warped by the anchor (`photometric.warp_right`) and their
   absolute difference;
 - with the native head's logits (the encoder variant): its softmax over its candidates and its
@@ -41,7 +43,8 @@ MAX_HAMMING = 24.0
 """5x5 census: 24 bits."""
 ANCHORS = ("ref", "up")
 HEAD_DELTA_PX = 8.0
-"""The head's disparity minus the anchor is fed in units of this many px, clipped to +-4."""
+"""The head's and the runner-up's disparity minus the anchor are fed in units of this many px,
+clipped to +-4."""
 
 
 def channel_names(anchor: str, head_candidates: int = 0) -> list[str]:
@@ -49,7 +52,8 @@ def channel_names(anchor: str, head_candidates: int = 0) -> list[str]:
     names = ["anchor/n", "ref/n", "(ref-up)/4", "frac"]
     for kind in ("ham", "box", "agg"):
         names += [f"{kind}{k:+d}" for k in OFFSETS]
-    names += ["kept", "lr", "unique", "margin", "left", "warped", "|left-warped|"]
+    names += ["kept", "lr", "unique", "margin", "(runner-anchor)/8"]
+    names += ["left", "warped", "|left-warped|"]
     if head_candidates:
         names += [f"head_p{i}" for i in range(head_candidates)]
         names += ["(head-anchor)/8", "head_kept"]
@@ -148,6 +152,8 @@ def census_maps(
     chans += [np.minimum(sample_volume(agg, centre + k), 4.0) for k in OFFSETS]
     for cell_map in (cc.kept, cc.lr, cc.unique, cc.margin):
         chans.append(np.asarray(cells_to_pixels(cell_map, h, w), dtype=np.float64))
+    runner = np.asarray(cells_to_pixels(cc.runner_up * CELL, h, w), dtype=np.float64)
+    chans.append(np.clip((runner - base) / HEAD_DELTA_PX, -4.0, 4.0))
     lf = left.astype(np.float32) / np.float32(255.0)
     rf = right.astype(np.float32) / np.float32(255.0)
     warped, _ = warp_right(torch.from_numpy(rf)[None], torch.from_numpy(base).float()[None])

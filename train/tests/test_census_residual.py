@@ -75,6 +75,9 @@ def test_costs_are_sampled_at_the_anchors_disparities() -> None:
     for k in OFFSETS:
         sampled = raw[ys, xs, np.clip(centre + k, 0, N + 7)] / MAX_HAMMING
         assert np.allclose(maps.features[names.index(f"ham{k:+d}")], sampled, atol=1e-6)
+    runner = maps.census.runner_up[ys // CELL, xs // CELL] * CELL
+    expected = np.clip((runner - maps.anchor) / HEAD_DELTA_PX, -4, 4)
+    assert np.allclose(maps.features[names.index("(runner-anchor)/8")], expected, atol=1e-5)
     # Where the anchor is right, its own disparity costs least: box sums and aggregate.
     inside = (np.abs(maps.anchor - DISP) < 0.25) & (xs >= 2 * DISP)
     assert inside.mean() > 0.5
