@@ -178,8 +178,8 @@ pub const fn census_arena_bytes(height: usize, width: usize, opts: &Options, ref
 
 /// Bytes of the refinement's buffers in a run of a `height x width` pair on `pathway`: its
 /// state kept across bands (two token rows; with several bands a ring of view rows where the
-/// readout's rows trail the band, [`trails_band`]) and its row scratch (census codes and the
-/// output row). 14,085 at 48x160 with the defaults (the equalisation's 13 smoothed rows
+/// readout's rows trail the band: the export pathway's head readouts) and its row scratch
+/// (census codes and the output row). 14,085 at 48x160 with the defaults (the equalisation's 13 smoothed rows
 /// included; 12,005 without); 22,405 for a taller image at width 160 refining the export
 /// pathway's head readout (the 26-row view ring).
 pub const fn refine_bytes(height: usize, width: usize, pathway: Pathway, refine: &Refine) -> usize {
