@@ -148,3 +148,8 @@ pub fn refine_whole_map(
     }
     expected
 }
+
+/// The repository's root (the folder holding `tests/`).
+pub fn repo() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
+}

@@ -10,11 +10,7 @@
 //! through the host's `readout::fuse_grid`, export pathway), the head fused with the census SGM
 //! (native), or the census SGM alone (the fast preset), filled.
 
-use std::path::{Path, PathBuf};
-
-#[path = "../../firmware-sim/src/workload.rs"]
-#[allow(dead_code)]
-mod workload;
+mod firmware;
 
 use bino_core::blob::Blob;
 use bino_core::census;
@@ -26,20 +22,9 @@ use bino_core::refine::sharpness::refine_map_equalised;
 use bino_core::refine::{keep_rejected_map, refine_map, scratch_len};
 use bino_host::readout::fuse_grid;
 use bino_tests::census_whole_map;
-use workload::{Hooks, Run, Stage, OUTPUTS};
-
-struct Quiet;
-
-impl Hooks for Quiet {
-    fn enter(&mut self, _: Stage) {}
-    fn pause(&mut self) {}
-    fn resume(&mut self, _: Stage) {}
-    fn finish(&mut self) {}
-}
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
+use bino_tests::repo;
+use firmware::workload::{self, Run, OUTPUTS};
+use firmware::Quiet;
 
 /// A committed pair the firmware embeds.
 struct Pair {

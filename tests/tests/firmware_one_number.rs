@@ -9,9 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-#[path = "../../firmware-sim/src/workload.rs"]
-#[allow(dead_code)]
-mod workload;
+mod firmware;
 
 use bino_core::crc32::Crc32;
 use bino_core::pipeline::{Pathway, Refine, SlicePair};
@@ -22,23 +20,12 @@ use bino_host::readout::Readout;
 use bino_host::run::{run_pair, InvalidPixels, RunOptions};
 use bino_host::sim::display::DisplaySize;
 use bino_host::sim::{run_sim, SimOptions};
-use workload::{Hooks, Stage, OUTPUTS};
+use bino_tests::repo;
+use firmware::workload::{self, OUTPUTS};
+use firmware::Quiet;
 
 const HEIGHT: usize = 48;
 const WIDTH: usize = 160;
-
-struct Quiet;
-
-impl Hooks for Quiet {
-    fn enter(&mut self, _: Stage) {}
-    fn pause(&mut self) {}
-    fn resume(&mut self, _: Stage) {}
-    fn finish(&mut self) {}
-}
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
 
 /// The firmware's band-pair run of `pathway`.
 fn run_of(pathway: Pathway) -> workload::Run {

@@ -3,30 +3,15 @@
 //! target. The learned preset's whole frame (the QEMU firmware's `frame` run) gives the same
 //! digests with it as with the whole blob, and a run that needs the shared head is refused.
 
-use std::path::{Path, PathBuf};
-
-#[path = "../../firmware-sim/src/workload.rs"]
-#[allow(dead_code)]
-mod workload;
+mod firmware;
 
 use bino_core::blob::Blob;
 use bino_core::model::ids::{head_of, HeadKind};
 use bino_core::pipeline::SlicePair;
 use bino_host::int8::blob_writer::without_head;
-use workload::{Hooks, Run, Stage};
-
-struct Quiet;
-
-impl Hooks for Quiet {
-    fn enter(&mut self, _: Stage) {}
-    fn pause(&mut self) {}
-    fn resume(&mut self, _: Stage) {}
-    fn finish(&mut self) {}
-}
-
-fn repo() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("..")
-}
+use bino_tests::repo;
+use firmware::workload::{self, Run};
+use firmware::Quiet;
 
 fn read(relative: &str) -> Vec<u8> {
     let path = repo().join(relative);

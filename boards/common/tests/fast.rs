@@ -7,10 +7,8 @@ mod common;
 
 use bino_board::options::{CENSUS_REFINE, FAST_ARENA_BYTES, FRAME_HEIGHT, FRAME_WIDTH, OPTIONS};
 use bino_board::run::Preset;
-use bino_board::side_by_side::SideBySide;
-use bino_board::summary::{NoClock, Summary};
 use bino_core::pipeline::{self, SlicePair};
-use common::{firmware_refined, side_by_side, test_frame, Tee};
+use common::{firmware_refined, run_side_by_side_twice, test_frame, Tee};
 
 #[test]
 fn the_fast_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
@@ -34,12 +32,5 @@ fn the_fast_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
     // same arena.
     let preset = Preset::Fast;
     assert_eq!(preset.arena_bytes(), FAST_ARENA_BYTES);
-    let frame = side_by_side(&left, &right);
-    for _ in 0..2 {
-        let mut camera = Summary::new(FRAME_WIDTH, NoClock).unwrap();
-        let mut source = SideBySide::new(&frame, FRAME_WIDTH, FRAME_HEIGHT).unwrap();
-        preset.run(&mut source, &mut arena, &mut camera).unwrap();
-        assert_eq!(camera.refined_crc(), views.refined_crc());
-        assert_eq!(camera.sectors(), views.sectors());
-    }
+    run_side_by_side_twice(&preset, &mut arena, (&left, &right), &views);
 }

@@ -11,7 +11,7 @@ use bino_board::side_by_side::SideBySide;
 use bino_board::summary::{NoClock, Summary};
 use bino_core::pipeline::{RowSource, SlicePair};
 use bino_core::Error;
-use common::{firmware_refined, side_by_side, test_frame, Tee};
+use common::{firmware_refined, run_side_by_side_twice, side_by_side, test_frame, Tee};
 
 #[test]
 fn the_learned_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
@@ -40,14 +40,7 @@ fn the_learned_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
     // same arena: a frame starts clean whatever the last one left there.
     let preset = Preset::Learned(pipeline);
     assert_eq!(preset.arena_bytes(), ARENA_BYTES);
-    let frame = side_by_side(&left, &right);
-    for _ in 0..2 {
-        let mut camera = Summary::new(FRAME_WIDTH, NoClock).unwrap();
-        let mut source = SideBySide::new(&frame, FRAME_WIDTH, FRAME_HEIGHT).unwrap();
-        preset.run(&mut source, &mut arena, &mut camera).unwrap();
-        assert_eq!(camera.refined_crc(), views.refined_crc());
-        assert_eq!(camera.sectors(), views.sectors());
-    }
+    run_side_by_side_twice(&preset, &mut arena, (&left, &right), &views);
     println!(
         "test frame, learned: {:?} refined_crc={:08x} arena_used={}",
         views.sectors(),

@@ -3,6 +3,8 @@
 //! those rows, and the QEMU firmware's recorded digests.
 
 use bino_board::options::{FRAME_HEIGHT, FRAME_WIDTH};
+use bino_board::run::Preset;
+use bino_board::side_by_side::SideBySide;
 use bino_board::summary::{NoClock, Summary, SECTORS};
 use bino_core::crc32::Crc32;
 use bino_core::pipeline::{CensusRow, HeadChecked, MatchedRow, Sink};
@@ -27,6 +29,25 @@ pub fn side_by_side(left: &[u8], right: &[u8]) -> Vec<u8> {
         .zip(right.chunks(FRAME_WIDTH))
         .flat_map(|(l, r)| l.iter().chain(r).copied())
         .collect()
+}
+
+/// Runs `preset` on the views side by side, as the DCMI captures them, twice in the same
+/// `arena`: each run's summary must be `views`' (a frame starts clean whatever the last one
+/// left there).
+pub fn run_side_by_side_twice(
+    preset: &Preset<'_>,
+    arena: &mut [u8],
+    (left, right): (&[u8], &[u8]),
+    views: &Summary<NoClock>,
+) {
+    let frame = side_by_side(left, right);
+    for _ in 0..2 {
+        let mut camera = Summary::new(FRAME_WIDTH, NoClock).unwrap();
+        let mut source = SideBySide::new(&frame, FRAME_WIDTH, FRAME_HEIGHT).unwrap();
+        preset.run(&mut source, arena, &mut camera).unwrap();
+        assert_eq!(camera.refined_crc(), views.refined_crc());
+        assert_eq!(camera.sectors(), views.sectors());
+    }
 }
 
 /// Forwards to a summary and keeps every refined row and the readout's left-right masks (the
