@@ -21,14 +21,14 @@ use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::dispatch::matmul_requant_i8_prepared;
 use crate::kernels::dispatch::ChannelRequant;
-use crate::kernels::dispatch::{key_layout, QUERY_BLOCK};
+use crate::kernels::dispatch::QUERY_BLOCK;
 use crate::kernels::params::Offset;
 use crate::Error;
 
 mod attention;
 mod residual;
 
-use attention::{AttentionPass, Grid};
+use attention::{key_layout_of, AttentionPass, Grid};
 use residual::{mlp, prepare_with};
 
 /// Tokens processed together by the matrix multiplies (a multiple of the kernel's 4 rows).
@@ -379,7 +379,8 @@ impl<'w> Encoder<'w> {
                 grid,
                 input: &input,
                 output: &middle,
-                keys: key_layout(grid.tokens()),
+                keys: key_layout_of(self.weights.span(), grid),
+                span: self.weights.span(),
             };
             attention.keys_values(x, normed, acc, keys, values, scores);
             attention.queries_attend(x, normed, acc, queries, attended, keys, values, scores, softmax, hidden)?;
