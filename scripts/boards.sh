@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Builds the firmware of both real boards (boards/: STM32H743, Alif Ensemble E7) in release,
 # every build each has: the learned preset's and the fast preset's (feature `fast`:
-# census+lr+ref, no weights), each on whole 160x120 frames, and on the H743 each also on the
-# embedded test frame (feature `test-frame`), and prints each build's memory regions' use next
-# to their size. Nothing is flashed: the QEMU boards (scripts/firmware.sh) stay the ones that
+# census+lr+ref, no weights), each on whole frames of the board's size (H743 160x120, E7
+# 320x240: bino_board::options), and on the H743 each also on the embedded test frame
+# (feature `test-frame`; the E7 always runs its test frame), and prints each build's memory
+# regions' use next to their size. Nothing is flashed: the QEMU boards (scripts/firmware.sh) stay the ones that
 # run. A region that overflows fails the link; this script checks the sums again from the ELF's
 # section table.
 #

@@ -55,6 +55,7 @@ from rendering.common import (
 )
 from rendering.firmware import (
     blob_size,
+    board_e7_frame,
     board_headline,
     board_frames,
     board_pathways,
@@ -75,6 +76,7 @@ from rendering.speed import BENCH_RUNS, bench_table, run_timing, speed_headline
 RENDERERS: dict[str, Callable[[Sources], str]] = {
     "census-vs-learned": census_vs_learned,
     "board-regions": board_regions,
+    "board-e7-frame": board_e7_frame,
     "accuracy-headline": accuracy_headline,
     "board-headline": board_headline,
     "speed-headline": speed_headline,

@@ -1,10 +1,12 @@
 //! Hands the linker the board's memory map and, for the `test-frame` build, bakes in the
-//! summary a host run of the 160x120 test frame gives, in the build's preset
+//! summary a host run of its 160x120 test frame gives, in the build's preset
 //! (`bino_board::bake`).
 
 use std::env;
 use std::fs;
 use std::path::{Path, PathBuf};
+
+use bino_board::bake;
 
 fn main() {
     let root = PathBuf::from(env::var("CARGO_MANIFEST_DIR").unwrap());
@@ -27,9 +29,10 @@ fn bake(repo: &Path, out: &Path) {
     // The learned preset reads the blob; the fast preset (feature `fast`) no weights.
     let fast = env::var_os("CARGO_FEATURE_FAST").is_some();
     let blob = (!fast).then(|| read("weights/bino_int8_native.bin"));
-    let left = read("firmware-sim/assets/frame_120x160_left.gray");
-    let right = read("firmware-sim/assets/frame_120x160_right.gray");
-    let code = bino_board::bake::expected_rs(blob.as_deref(), &left, &right)
+    let frame = bino_board::options::STM32H7;
+    let left = read(&bake::test_frame_path(frame, "left"));
+    let right = read(&bake::test_frame_path(frame, "right"));
+    let code = bake::expected_rs(blob.as_deref(), frame, &left, &right)
         .unwrap_or_else(|e| panic!("the host run of the test frame failed: {e}"));
     fs::write(out.join("expected.rs"), code).unwrap();
 }

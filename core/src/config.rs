@@ -50,6 +50,24 @@ pub const HEAD_MAX_DISP: usize = 12;
 /// The most disparity candidates a head stream searches (the row matchers' limit too).
 pub const HEAD_CANDIDATES_LIMIT: usize = 64;
 
+/// Disparity candidates of the heads for views `width` px wide, in patch columns: the
+/// StereoSGBM reference's search range at that width (EVAL.md: `numDisparities` 32 px per
+/// 160 px of width, 64 px = 16 columns at w320), never fewer than the [`HEAD_MAX_DISP`] = 12
+/// they were trained with and at most [`HEAD_CANDIDATES_LIMIT`]. The host's commands and the
+/// board presets at a width ([`crate::preset::options_for_width`]) use it, so a readout has one
+/// definition per width.
+pub const fn head_candidates(width: usize) -> usize {
+    let sgbm_px = 16 * width.saturating_mul(2).div_ceil(160);
+    let candidates = sgbm_px / CELL_W;
+    if candidates < HEAD_MAX_DISP {
+        HEAD_MAX_DISP
+    } else if candidates > HEAD_CANDIDATES_LIMIT {
+        HEAD_CANDIDATES_LIMIT
+    } else {
+        candidates
+    }
+}
+
 /// Token-grid size of a `height` x `width` view: (token rows, patch columns, fused columns).
 pub const fn token_grid(height: usize, width: usize) -> (usize, usize, usize) {
     (height / PATCH_H, width / CELL_W, 2 * (width / CELL_W))

@@ -27,8 +27,17 @@
 //! use bino_core::preset::census_arena_bytes;
 //! assert_eq!(census_arena_bytes(120, 160), census_arena_bytes(480, 160));
 //! assert!(census_arena_bytes(120, 160) * 6 < arena_bytes(48, 160));
+//! // On wider views the head searches further and the refinement wider, as the host's
+//! // commands do at that width; at 160 px they are the presets above.
+//! use bino_core::preset::{census_refine_for_width, options_for_width, refine_for_width, CENSUS_REFINE};
+//! assert_eq!(options_for_width(160), OPTIONS);
+//! assert_eq!(refine_for_width(160), REFINE);
+//! assert_eq!(census_refine_for_width(160), CENSUS_REFINE);
+//! assert_eq!(options_for_width(320).head_candidates, 16);
+//! assert!(refine_for_width(320).params.search > REFINE.params.search);
 //! ```
 
+use crate::config::head_candidates;
 use crate::pipeline::{self, Options, Pathway, Refine};
 
 /// The board's readout options: the native pathway, the head (its trained 12 candidates: a
@@ -80,6 +89,45 @@ pub const CENSUS_REFINE: Refine = Refine::of(pipeline::RefineInput::CensusLr);
 /// every height above one band.
 pub const fn census_arena_bytes(height: usize, width: usize) -> usize {
     pipeline::census_arena_bytes(height, width, &OPTIONS, Some(&CENSUS_REFINE))
+}
+
+/// [`OPTIONS`] on views `width` px wide: the head (and the census SGM of either preset)
+/// searching [`head_candidates`] of that width, the host's commands' rule (`bino run
+/// --profile native` on views that wide); [`OPTIONS`] itself up to 240 px.
+pub const fn options_for_width(width: usize) -> Options {
+    Options {
+        head_candidates: head_candidates(width),
+        ..OPTIONS
+    }
+}
+
+/// [`REFINE`] on views `width` px wide: its search radius following the width
+/// ([`Refine::for_width`], the host's commands' rule); [`REFINE`] itself below 200 px.
+pub const fn refine_for_width(width: usize) -> Refine {
+    Refine::for_width(REFINE.input, width)
+}
+
+/// [`CENSUS_REFINE`] on views `width` px wide, as [`refine_for_width`].
+pub const fn census_refine_for_width(width: usize) -> Refine {
+    Refine::for_width(CENSUS_REFINE.input, width)
+}
+
+/// Arena bytes the learned preset needs on a whole `height x width` frame with the options and
+/// the refinement of that width ([`options_for_width`], [`refine_for_width`]); [`arena_bytes`]
+/// below 200 px.
+pub const fn arena_bytes_for_width(height: usize, width: usize) -> usize {
+    pipeline::arena_bytes_refined(height, width, &options_for_width(width), &refine_for_width(width))
+}
+
+/// Arena bytes the fast preset needs on a `height x width` frame with the options and the
+/// refinement of that width; [`census_arena_bytes`] below 200 px.
+pub const fn census_arena_bytes_for_width(height: usize, width: usize) -> usize {
+    pipeline::census_arena_bytes(
+        height,
+        width,
+        &options_for_width(width),
+        Some(&census_refine_for_width(width)),
+    )
 }
 
 /// Column sectors of the obstacle summary.

@@ -378,6 +378,29 @@ def board_regions(src: Sources) -> str:
     return text + "\n\nBuilt from: " + "; ".join(notes) + ".\n\n" + footer(src)
 
 
+def board_e7_frame(src: Sources) -> str:
+    """Both presets on the Alif E7's 320x240 test frame as `bino run --profile native` runs them
+    (the board's host test holds the board's code to the same digest and arena)."""
+    h = src.json(f"{MEASURED}/host-frame-320x240.json")
+    f = h["frame"]
+    rows = [
+        [
+            f"{f['width']}x{f['height']}",
+            r["preset"],
+            f"`{r['readout']}`",
+            f"`{r['command']}`",
+            f"`{r['refined']}`",
+            f"{n(r['arena_bytes'])} B",
+            f"{n(r['arena_used'])} B",
+        ]
+        for r in h["runs"]
+    ]
+    header = ["frame", "preset", "readout", "command", "refined CRC-32", "arena (exact)"]
+    header.append("arena used")
+    right = [False] * 5 + [True, True]
+    return table(header, rows, right) + "\n\n" + footer(src)
+
+
 def fw_frames(src: Sources) -> str:
     b = src.budget()
     rows = []

@@ -6,12 +6,8 @@
 //! (`firmware-sim/measured/{m55,m7}.json`, pathway `census`). `bino sim` draws what `bino run`
 //! writes (`tests/sim.rs`), so the three agree.
 
-use std::path::Path;
-
-use bino_core::crc32::Crc32;
-
 mod common;
-use common::{bino, repo, s, scratch_dir};
+use common::{bino, q8_crc, repo, s, scratch_dir};
 
 const FRAME: (usize, usize) = (160, 120);
 
@@ -37,23 +33,6 @@ fn firmware_refined(core: &str) -> u32 {
         path.display()
     );
     u32::from_str_radix(digest["digest"].as_str().unwrap(), 16).unwrap()
-}
-
-/// CRC-32 of a `disparity.pfm` in Q8 pixels, rows top to bottom, as the firmware digests its
-/// refined rows (`u16` little-endian).
-fn q8_crc(pfm: &Path) -> u32 {
-    let map = bino_host::io::pfm::load(pfm, "run's disparity").unwrap();
-    assert_eq!((map.width, map.height), FRAME);
-    let mut crc = Crc32::new();
-    for (i, &v) in map.values.iter().enumerate() {
-        let q8 = v * 256.0;
-        assert!(
-            q8.fract() == 0.0 && (0.0..=u16::MAX as f32).contains(&q8),
-            "pixel {i}: {v} is no Q8 value"
-        );
-        crc.update(&(q8 as u16).to_le_bytes());
-    }
-    crc.finish()
 }
 
 #[test]
@@ -83,7 +62,7 @@ fn run_writes_the_pixels_the_firmware_refines_on_its_frame() {
     let stdout = String::from_utf8_lossy(&run.stdout);
     assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
     assert!(stdout.contains("census"), "run's default readout: {stdout}");
-    let written = q8_crc(&out.join("disparity.pfm"));
+    let written = q8_crc(&out.join("disparity.pfm"), FRAME);
     for core in ["m55", "m7"] {
         let firmware = firmware_refined(core);
         assert_eq!(

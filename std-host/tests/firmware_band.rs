@@ -1,4 +1,4 @@
-//! The firmware's embedded test bands and frame (`firmware-sim/assets/{band,frame}_<H>x<W>_{left,right}.gray`,
+//! The firmware's and the boards' embedded test bands and frames (`firmware-sim/assets/{band,frame}_<H>x<W>_{left,right}.gray`,
 //! raw row-major gray bytes) are the built-in procedural scene (`bino_host::data::synthetic::default_scene`,
 //! the scene `bino demo --width W --height H` shows), not arbitrary blobs.
 //! Regenerate them with `cargo test -p bino-host --test firmware_band -- --ignored`.
@@ -7,10 +7,15 @@ use std::path::{Path, PathBuf};
 
 use bino_host::data::synthetic::default_scene;
 
-/// The pairs the firmware embeds (kind, height, width): the 48x160 band (the budget and CI run),
-/// the 48x32 band (`scripts/firmware.sh --band small`, a quick check) and the 160x120 frame of the
-/// fast preset's whole-frame run.
-const BANDS: [(&str, usize, usize); 3] = [("band", 48, 160), ("band", 48, 32), ("frame", 120, 160)];
+/// The pairs the firmware and the boards embed (kind, height, width): the 48x160 band (the budget
+/// and CI run), the 48x32 band (`scripts/firmware.sh --band small`, a quick check), the 160x120
+/// frame of both presets' whole-frame runs and the 320x240 frame the Alif E7 board runs.
+const BANDS: [(&str, usize, usize); 4] = [
+    ("band", 48, 160),
+    ("band", 48, 32),
+    ("frame", 120, 160),
+    ("frame", 240, 320),
+];
 
 fn assets() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware-sim/assets")

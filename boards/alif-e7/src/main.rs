@@ -4,10 +4,11 @@
 //! We found no HAL or PAC for the Ensemble family on crates.io (2026-12-01; see the README,
 //! "Real boards"), so this is `cortex-m-rt` and the core's own peripherals only (caches, DWT,
 //! SysTick); the camera interfaces (CPI, MIPI CSI-2) are not driven. The rows come from the
-//! QEMU firmware's embedded 160x120 test frame, a real `RowSource`: the board runs the learned
-//! preset on the whole frame, band after band, over and over, prints the sector summary and the
-//! cycles of every stage over defmt-RTT, and reports whether it reproduced the host's result bit
-//! for bit.
+//! embedded 320x240 test frame (`bino_board::options::ALIF_E7`), copied at boot side by side
+//! into a frame buffer in SRAM0 beside the arena, where a camera's DMA would write its frame,
+//! and read from there line by line (`SideBySide`): the board runs the learned preset on the
+//! whole frame, band after band, over and over, prints the sector summary and the cycles of
+//! every stage over defmt-RTT, and reports whether it reproduced the host's result bit for bit.
 //!
 //! With the `fast` feature it runs the fast preset (`census+lr+ref`, no encoder, no weights
 //! linked) on the same frame instead, in the preset's own arena.
@@ -18,14 +19,18 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 
 use bino_board::clock;
-use bino_board::options::{FRAME_HEIGHT, FRAME_WIDTH};
+use bino_board::options::{Frame, ALIF_E7};
 use bino_board::run::Preset;
+use bino_board::side_by_side::{interleave, SideBySide};
 use cortex_m_rt::{entry, exception};
 use defmt_rtt as _;
 
 mod expected {
     include!(concat!(env!("OUT_DIR"), "/expected.rs"));
 }
+
+/// The board's frame: 320x240.
+const FRAME: Frame = ALIF_E7;
 
 /// The HP core's nominal clock (its maximum); only the printed milliseconds assume it, the
 /// cycles are counted.
@@ -42,7 +47,8 @@ mod preset {
     use bino_board::run::{load, Preset};
     use bino_core::Error;
 
-    pub use bino_board::options::ARENA_BYTES as ARENA_LEN;
+    /// The learned preset's arena for the whole frame, bytes.
+    pub const ARENA_LEN: usize = super::FRAME.arena_bytes();
 
     pub const BLOB_LEN: usize = include_bytes!("../../../weights/bino_int8_native.bin").len();
 
@@ -65,7 +71,8 @@ mod preset {
     use bino_board::run::Preset;
     use bino_core::Error;
 
-    pub use bino_board::options::FAST_ARENA_BYTES as ARENA_LEN;
+    /// The fast preset's arena for the whole frame, bytes.
+    pub const ARENA_LEN: usize = super::FRAME.fast_arena_bytes();
 
     pub const BLOB_LEN: usize = 0;
 
@@ -77,13 +84,22 @@ mod preset {
 
 use preset::ARENA_LEN;
 
-/// The embedded test frame, both presets'.
-static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_left.gray");
-static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_right.gray");
+/// The embedded test frame of the board's size, both presets' (in MRAM).
+const LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_240x320_left.gray");
+const RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_240x320_right.gray");
+const _: () = assert!(LEFT.len() == FRAME.pixels() && RIGHT.len() == FRAME.pixels());
+
+/// Bytes of the side-by-side frame: both views.
+const FRAME_LEN: usize = 2 * FRAME.pixels();
 
 /// The pipeline's arena: SRAM0, not zeroed at reset.
 #[link_section = ".sram0.arena"]
 static mut ARENA: MaybeUninit<Aligned<[u8; ARENA_LEN]>> = MaybeUninit::uninit();
+
+/// The frame buffer: SRAM0, where a camera's DMA would write the side-by-side frame; not zeroed
+/// at reset.
+#[link_section = ".sram0.frame"]
+static mut FRAME_BUFFER: MaybeUninit<Aligned<[u8; FRAME_LEN]>> = MaybeUninit::uninit();
 
 #[entry]
 fn main() -> ! {
@@ -99,28 +115,36 @@ fn main() -> ! {
         core::ptr::write_bytes(arena, 0, ARENA_LEN);
         core::slice::from_raw_parts_mut(arena, ARENA_LEN)
     };
-    let loaded: Result<Preset<'static>, _> = preset::load_preset();
+    // SAFETY: as for ARENA: the only reference to FRAME_BUFFER, every byte written first.
+    let frame = unsafe {
+        let frame = addr_of_mut!(FRAME_BUFFER).cast::<u8>();
+        core::ptr::write_bytes(frame, 0, FRAME_LEN);
+        core::slice::from_raw_parts_mut(frame, FRAME_LEN)
+    };
+    // The test frame laid out as a camera lays out a side-by-side frame, then the preset.
+    let loaded: Result<Preset<'static>, _> =
+        interleave(LEFT, RIGHT, FRAME.width, frame).and_then(|()| preset::load_preset());
+    let frame: &[u8] = frame;
     defmt::println!(
         "bino board=alif-e7 core=cortex-m55-hp core_hz={=u32} frame={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
         CORE_HZ,
-        FRAME_WIDTH,
-        FRAME_HEIGHT,
+        FRAME.width,
+        FRAME.height,
         ARENA_LEN,
         preset::BLOB_LEN,
         has_cycles
     );
-    defmt::println!("bino source=test-frame");
+    defmt::println!("bino source=test-frame frame_bytes={=usize}", FRAME_LEN);
     match loaded {
         // The frame again and again: each run prints its summary and cycles, so the
         // log can be read whenever the probe attaches.
         Ok(preset) => {
             defmt::println!("bino preset={=str}", preset.name());
-            for frame in 0u32.. {
+            for n in 0u32.. {
                 bino_board::check::test_frame(
                     &preset,
-                    frame,
-                    LEFT,
-                    RIGHT,
+                    n,
+                    SideBySide::new(frame, FRAME.width, FRAME.height),
                     arena,
                     expected::REFINED_CRC,
                     &expected::SECTORS,

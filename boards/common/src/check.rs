@@ -1,30 +1,30 @@
-//! The test-frame check both boards can run: the QEMU firmware's embedded 160x120 test frame
-//! through the preset, its summary printed, and compared with the host's (baked in by the
-//! board's `build.rs` through [`crate::bake`]).
+//! The test-frame check both boards can run: the embedded test frame of the board's size (the
+//! built-in scene, `firmware-sim/assets/frame_<H>x<W>_*.gray`) through the preset, its summary
+//! printed, and compared with the host's (baked in by the board's `build.rs` through
+//! [`crate::bake`]).
 
-use bino_core::pipeline::SlicePair;
+use bino_core::pipeline::RowSource;
+use bino_core::Error;
 
 use crate::clock::DwtClock;
-use crate::options::{FRAME_HEIGHT, FRAME_WIDTH};
 use crate::run::Preset;
 use crate::summary::{Sector, Summary, SECTORS};
 
-/// Runs `preset` on the test frame `left`/`right` in `arena` as frame `frame`, prints its
+/// Runs `preset` on the test frame `rows` delivers in `arena` as frame `frame`, prints its
 /// summary and `bino result=pass` when the refined rows' CRC and the sectors equal the host's
-/// (`fail` otherwise, `error` on an engine error). Returns whether it passed.
-#[allow(clippy::too_many_arguments)]
+/// (`fail` otherwise, `error` on an engine error or a source that could not be made). Returns
+/// whether it passed.
 pub fn test_frame(
     preset: &Preset<'_>,
     frame: u32,
-    left: &[u8],
-    right: &[u8],
+    rows: Result<impl RowSource, Error>,
     arena: &mut [u8],
     expected_crc: u32,
     expected: &[Sector; SECTORS],
     core_hz: u32,
 ) -> bool {
-    let result = SlicePair::new(left, right, FRAME_WIDTH, FRAME_HEIGHT).and_then(|mut rows| {
-        let mut summary = Summary::new(FRAME_WIDTH, DwtClock)?;
+    let result = rows.and_then(|mut rows| {
+        let mut summary = Summary::new(rows.width(), DwtClock)?;
         preset
             .run(&mut rows, arena, &mut summary)
             .map(|report| (summary, report))

@@ -34,6 +34,28 @@ impl<'a> SideBySide<'a> {
     }
 }
 
+/// Writes the views `left` and `right` (`width` pixels a row, the same size) side by side into
+/// `frame`, line by line, as a camera interface lays out a stereo module's frame: what
+/// [`SideBySide`] reads. [`Error::BufferSize`] when the views differ in size, are not whole rows
+/// or `frame` does not hold both exactly.
+pub fn interleave(left: &[u8], right: &[u8], width: usize, frame: &mut [u8]) -> Result<(), Error> {
+    let sizes_agree = width > 0 && left.len() == right.len() && left.len().is_multiple_of(width);
+    if !sizes_agree || frame.len() != 2 * left.len() {
+        return Err(Error::BufferSize {
+            what: "side-by-side frame",
+            expected: left.len().saturating_mul(2),
+            found: frame.len(),
+        });
+    }
+    let lines = frame.chunks_exact_mut(2 * width);
+    for ((line, l), r) in lines.zip(left.chunks_exact(width)).zip(right.chunks_exact(width)) {
+        let (out_l, out_r) = line.split_at_mut(width);
+        out_l.copy_from_slice(l);
+        out_r.copy_from_slice(r);
+    }
+    Ok(())
+}
+
 impl RowSource for SideBySide<'_> {
     fn width(&self) -> usize {
         self.width
@@ -85,6 +107,26 @@ mod tests {
             src.next_row(&mut l, &mut r),
             Err(Error::EndOfRows { row: 2, height: 2 })
         ));
+    }
+
+    #[test]
+    fn interleaves_views_into_the_lines_it_splits() {
+        let (left, right) = ([1, 2, 3, 4, 5, 6], [11, 12, 13, 14, 15, 16]);
+        let mut frame = [0u8; 12];
+        interleave(&left, &right, 3, &mut frame).unwrap();
+        assert_eq!(frame, [1, 2, 3, 11, 12, 13, 4, 5, 6, 14, 15, 16]);
+        // Views of different sizes, rows cut short, or a frame of another size: refused.
+        for (l, r, width, len) in [
+            (&left[..], &right[..3], 3, 12),
+            (&left[..], &right[..], 4, 12),
+            (&left[..], &right[..], 3, 10),
+        ] {
+            let mut frame = [0u8; 12];
+            assert!(matches!(
+                interleave(l, r, width, &mut frame[..len]),
+                Err(Error::BufferSize { .. })
+            ));
+        }
     }
 
     #[test]

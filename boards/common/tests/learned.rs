@@ -1,32 +1,36 @@
-//! The learned preset on a real frame: the shipped blob and the QEMU firmware's 160x120 test
-//! frame through the board's code on the host, band after band, its summary checked against the
-//! refined rows themselves, side by side as the DCMI captures it, again in the same arena, and
-//! its refined rows' CRC-32 the one both QEMU firmwares recorded for their learned frame run.
+//! The learned preset on a real frame: the shipped blob and the STM32H743's 160x120 test frame
+//! (the QEMU firmware's) through the board's code on the host, band after band, its summary
+//! checked against the refined rows themselves, side by side as the DCMI captures it, again in
+//! the same arena, and its refined rows' CRC-32 the one both QEMU firmwares recorded for their
+//! learned frame run; a bad frame is one error and the next frame starts clean.
 
 mod common;
 
-use bino_board::options::{ARENA_BYTES, FRAME_HEIGHT, FRAME_WIDTH, OPTIONS, REFINE};
+use bino_board::options::{OPTIONS, REFINE, STM32H7};
 use bino_board::run::{load, Preset};
-use bino_board::side_by_side::SideBySide;
-use bino_board::summary::{NoClock, Summary};
-use bino_core::pipeline::{RowSource, SlicePair};
-use bino_core::Error;
-use common::{firmware_refined, run_side_by_side_twice, side_by_side, test_frame, Tee};
+use bino_core::pipeline::SlicePair;
+use common::{bad_frames_then_a_clean_one, firmware_refined, run_side_by_side_twice, test_frame, Tee};
 
 #[test]
 fn the_learned_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
     let blob = common::read("weights/bino_int8_native.bin");
-    let (left, right) = test_frame();
+    let frame = STM32H7;
+    let (left, right) = test_frame(frame);
     let pipeline = load(&blob).unwrap();
-    let mut arena = vec![0u8; ARENA_BYTES];
+    // At 160 px the frame's options are the presets the QEMU firmware runs.
+    assert_eq!((frame.options(), frame.refine()), (OPTIONS, REFINE));
+    let mut arena = vec![0u8; frame.arena_bytes()];
 
-    let mut tee = Tee::new();
-    let mut source = SlicePair::new(&left, &right, FRAME_WIDTH, FRAME_HEIGHT).unwrap();
+    let mut tee = Tee::new(frame);
+    let mut source = SlicePair::new(&left, &right, frame.width, frame.height).unwrap();
     let report = pipeline
         .run_refined(&mut source, &OPTIONS, &REFINE, &mut arena, &mut tee)
         .unwrap();
     // A whole frame in the arena of its const fn: several bands, none of them growing it.
-    assert!(report.arena_used <= ARENA_BYTES && report.bands > 1, "{report:?}");
+    assert!(
+        report.arena_used <= frame.arena_bytes() && report.bands > 1,
+        "{report:?}"
+    );
     let views = tee.checked_summary();
     for core in ["m55", "m7"] {
         assert_eq!(
@@ -39,8 +43,8 @@ fn the_learned_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
     // Side by side, as the DCMI captures it, through the preset the board runs, twice in the
     // same arena: a frame starts clean whatever the last one left there.
     let preset = Preset::Learned(pipeline);
-    assert_eq!(preset.arena_bytes(), ARENA_BYTES);
-    run_side_by_side_twice(&preset, &mut arena, (&left, &right), &views);
+    assert_eq!(preset.arena_bytes(frame), frame.arena_bytes());
+    run_side_by_side_twice(&preset, frame, &mut arena, (&left, &right), &views);
     println!(
         "test frame, learned: {:?} refined_crc={:08x} arena_used={}",
         views.sectors(),
@@ -49,62 +53,14 @@ fn the_learned_preset_summarises_the_test_frame_as_the_firmware_refines_it() {
     );
 }
 
-/// A camera that stops sending after `rows` lines of the frame (a capture cut short).
-struct Cut<S> {
-    inner: S,
-    rows: usize,
-    sent: usize,
-}
-
-impl<S: RowSource> RowSource for Cut<S> {
-    fn width(&self) -> usize {
-        self.inner.width()
-    }
-    fn height(&self) -> usize {
-        self.inner.height()
-    }
-    fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
-        if self.sent == self.rows {
-            return Err(Error::EndOfRows {
-                row: self.sent,
-                height: self.rows,
-            });
-        }
-        self.sent += 1;
-        self.inner.next_row(left, right)
-    }
-}
-
 #[test]
 fn a_bad_frame_is_one_error_line_and_the_next_frame_starts_clean() {
     let blob = common::read("weights/bino_int8_native.bin");
-    let (left, right) = test_frame();
-    let frame = side_by_side(&left, &right);
+    let frame = STM32H7;
+    let (left, right) = test_frame(frame);
     let preset = Preset::Learned(load(&blob).unwrap());
-    let mut arena = vec![0u8; ARENA_BYTES];
-
-    // A frame of the wrong size never reaches the pipeline.
-    let short = SideBySide::new(&frame[..frame.len() - 2 * FRAME_WIDTH], FRAME_WIDTH, FRAME_HEIGHT);
-    let e = short.expect_err("a frame one line short");
-    assert!(
-        e.to_string().contains("side-by-side frame") && !e.to_string().contains('\n'),
-        "{e}"
-    );
-
-    // A capture cut off in the frame's second band: an error mid-run, the arena left dirty.
-    let mut summary = Summary::new(FRAME_WIDTH, NoClock).unwrap();
-    let mut cut = Cut {
-        inner: SideBySide::new(&frame, FRAME_WIDTH, FRAME_HEIGHT).unwrap(),
-        rows: 70,
-        sent: 0,
-    };
-    let e = preset.run(&mut cut, &mut arena, &mut summary).expect_err("a cut frame");
-    assert!(!e.to_string().contains('\n'), "{e}");
-    assert!(summary.refined_rows() < FRAME_HEIGHT);
-
-    // The next whole frame in the same arena: the host's result, bit for bit.
-    let mut summary = Summary::new(FRAME_WIDTH, NoClock).unwrap();
-    let mut source = SideBySide::new(&frame, FRAME_WIDTH, FRAME_HEIGHT).unwrap();
-    preset.run(&mut source, &mut arena, &mut summary).unwrap();
-    assert_eq!(summary.refined_crc(), firmware_refined("m7", "frame"));
+    let mut arena = vec![0u8; frame.arena_bytes()];
+    // Cut off in the frame's second band.
+    let expected = firmware_refined("m7", "frame");
+    bad_frames_then_a_clean_one(&preset, frame, &mut arena, (&left, &right), 70, expected);
 }

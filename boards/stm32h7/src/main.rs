@@ -3,7 +3,7 @@
 //! stack in DTCM.
 //!
 //! Frames come from the DCMI (embassy-stm32's driver, 8-bit parallel, snapshot mode with DMA):
-//! one frame is `FRAME_HEIGHT` (120) lines of `2 x FRAME_WIDTH` gray pixels, the rectified left
+//! one frame is `FRAME.height` (120) lines of `2 x FRAME.width` gray pixels, the rectified left
 //! row then the right row (a side-by-side stereo module). The frame lands in a buffer in the AXI
 //! SRAM beside the arena, the pipeline reads it line by line ([`SideBySide`]), band after band of
 //! the learned preset, and the board prints each frame's sector summary and the cycles of every
@@ -12,7 +12,7 @@
 //! host's result bit for bit.
 //!
 //! With the `fast` feature the board runs the fast preset (`census+lr+ref`, no encoder, no
-//! weights in flash) on the same frames, in its own `FAST_ARENA_BYTES` arena.
+//! weights in flash) on the same frames, in its own `FRAME.fast_arena_bytes()` arena.
 #![no_std]
 #![no_main]
 
@@ -20,15 +20,14 @@ use core::mem::MaybeUninit;
 use core::ptr::addr_of_mut;
 
 use bino_board::clock;
-#[cfg(not(feature = "fast"))]
-use bino_board::options::ARENA_BYTES;
-#[cfg(feature = "fast")]
-use bino_board::options::FAST_ARENA_BYTES;
-use bino_board::options::{FRAME_HEIGHT, FRAME_WIDTH};
+use bino_board::options::{Frame, STM32H7};
 use bino_board::run::Preset;
 use cortex_m_rt::{entry, exception};
 use defmt_rtt as _;
 use embassy_stm32::Config;
+
+/// The board's frame: 160x120.
+const FRAME: Frame = STM32H7;
 
 /// The core clock the RCC is set to.
 const CORE_HZ: u32 = 480_000_000;
@@ -38,9 +37,9 @@ struct Aligned<T>(T);
 
 /// The preset's arena for a whole frame, bytes.
 #[cfg(not(feature = "fast"))]
-const ARENA_LEN: usize = ARENA_BYTES;
+const ARENA_LEN: usize = FRAME.arena_bytes();
 #[cfg(feature = "fast")]
-const ARENA_LEN: usize = FAST_ARENA_BYTES;
+const ARENA_LEN: usize = FRAME.fast_arena_bytes();
 
 #[cfg(not(feature = "fast"))]
 mod weights {
@@ -107,8 +106,8 @@ fn main() -> ! {
         "bino board=stm32h743 core=cortex-m7 core_hz={=u32} preset={=str} frame={=usize}x{=usize} arena_bytes={=usize} blob_bytes={=usize} cycle_counter={=bool}",
         CORE_HZ,
         preset.name(),
-        FRAME_WIDTH,
-        FRAME_HEIGHT,
+        FRAME.width,
+        FRAME.height,
         ARENA_LEN,
         weights::BLOB_LEN,
         has_cycles
@@ -133,12 +132,12 @@ mod source {
         DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
     });
 
-    /// Words of one frame: FRAME_HEIGHT lines of 2 x FRAME_WIDTH bytes.
-    const FRAME_WORDS: usize = FRAME_HEIGHT * 2 * FRAME_WIDTH / 4;
+    /// Words of one frame: FRAME.height lines of 2 x FRAME.width bytes.
+    const FRAME_WORDS: usize = 2 * FRAME.pixels() / 4;
 
     /// The DCMI's DMA target: AXI SRAM (the DMA does not reach DTCM), cache-line aligned.
     #[link_section = ".axisram.frame"]
-    static mut FRAME: MaybeUninit<Aligned<[u32; FRAME_WORDS]>> = MaybeUninit::uninit();
+    static mut FRAME_BUFFER: MaybeUninit<Aligned<[u32; FRAME_WORDS]>> = MaybeUninit::uninit();
 
     pub fn run(p: Peripherals, scb: &mut SCB, preset: &Preset<'_>, arena: &mut [u8]) -> ! {
         // Pins of the DCMI's 8-bit bus (the embassy STM32H7 DCMI example's): D0 PC6, D1 PC7,
@@ -160,9 +159,9 @@ mod source {
             p.PA6,
             dcmi::Config::default(),
         );
-        // SAFETY: FRAME is only referenced here, once; zeroing it makes it initialised.
+        // SAFETY: FRAME_BUFFER is only referenced here, once; zeroing it makes it initialised.
         let frame = unsafe {
-            let f = addr_of_mut!(FRAME).cast::<u32>();
+            let f = addr_of_mut!(FRAME_BUFFER).cast::<u32>();
             core::ptr::write_bytes(f, 0, FRAME_WORDS);
             core::slice::from_raw_parts_mut(f, FRAME_WORDS)
         };
@@ -186,8 +185,8 @@ mod source {
                 continue;
             }
             let bytes: &[u8] = bytemuck::cast_slice(frame);
-            let result = SideBySide::new(bytes, FRAME_WIDTH, FRAME_HEIGHT).and_then(|mut rows| {
-                let mut summary = Summary::new(FRAME_WIDTH, DwtClock)?;
+            let result = SideBySide::new(bytes, FRAME.width, FRAME.height).and_then(|mut rows| {
+                let mut summary = Summary::new(FRAME.width, DwtClock)?;
                 preset.run(&mut rows, arena, &mut summary).map(|r| (summary, r))
             });
             match result {
@@ -204,6 +203,7 @@ mod source {
     //! The embedded 160x120 test frame, again and again, checked against the host.
 
     use super::*;
+    use bino_core::pipeline::SlicePair;
     use cortex_m::peripheral::SCB;
     use embassy_stm32::Peripherals;
 
@@ -211,8 +211,9 @@ mod source {
         include!(concat!(env!("OUT_DIR"), "/expected.rs"));
     }
 
-    static LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_left.gray");
-    static RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_right.gray");
+    const LEFT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_left.gray");
+    const RIGHT: &[u8] = include_bytes!("../../../firmware-sim/assets/frame_120x160_right.gray");
+    const _: () = assert!(LEFT.len() == FRAME.pixels() && RIGHT.len() == FRAME.pixels());
 
     pub fn run(_p: Peripherals, _scb: &mut SCB, preset: &Preset<'_>, arena: &mut [u8]) -> ! {
         defmt::println!("bino source=test-frame");
@@ -221,8 +222,7 @@ mod source {
             bino_board::check::test_frame(
                 preset,
                 frame,
-                LEFT,
-                RIGHT,
+                SlicePair::new(LEFT, RIGHT, FRAME.width, FRAME.height),
                 arena,
                 expected::REFINED_CRC,
                 &expected::SECTORS,

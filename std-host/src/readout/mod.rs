@@ -33,7 +33,6 @@ use std::fmt;
 use std::str::FromStr;
 
 use anyhow::{bail, Result};
-use bino_core::config::{CELL_W, HEAD_CANDIDATES_LIMIT, HEAD_MAX_DISP};
 
 use crate::eval::DisparityMap;
 
@@ -214,16 +213,13 @@ pub fn lr_tolerance_q8(columns: f32) -> u16 {
     (columns.max(0.0) * 256.0).round().min(u16::MAX as f32) as u16
 }
 
-/// Disparity candidates of the heads for views `width` px wide, in patch columns: the
-/// StereoSGBM reference's search range at that width (EVAL.md: `numDisparities` 32 px per
-/// 160 px of width, 64 px = 16 columns at w320), never fewer than the
-/// [`HEAD_MAX_DISP`] = 12 they were trained with (44 px: a w160 view's disparities stay below
-/// 28 px on the eval split, while 8 % of the w320 ground truth lies above 40 px). Every command
-/// and precision uses it, so a readout has one definition per width.
-pub fn head_candidates(width: usize) -> usize {
-    let sgbm_px = 16 * (2 * width).div_ceil(160);
-    (sgbm_px / CELL_W).clamp(HEAD_MAX_DISP, HEAD_CANDIDATES_LIMIT)
-}
+/// Disparity candidates of the heads for views `width` px wide, in patch columns: the core's
+/// rule (the StereoSGBM reference's search range at that width, never fewer than the
+/// [`HEAD_MAX_DISP`](bino_core::config::HEAD_MAX_DISP) = 12 they were trained with: a w160
+/// view's disparities stay below 28 px on the eval split, while 8 % of the w320 ground truth
+/// lies above 40 px), which the board presets follow at their width too. Every command and
+/// precision uses it, so a readout has one definition per width.
+pub use bino_core::config::head_candidates;
 
 #[cfg(test)]
 mod tests;

@@ -30,6 +30,23 @@ pub fn bino_in(dir: &Path, args: &[&str]) -> Output {
         .unwrap()
 }
 
+/// CRC-32 of a `disparity.pfm` of `size` (width, height) in Q8 pixels, rows top to bottom, as
+/// the firmware and the boards digest their refined rows (`u16` little-endian).
+pub fn q8_crc(pfm: &Path, size: (usize, usize)) -> u32 {
+    let map = bino_host::io::pfm::load(pfm, "run's disparity").unwrap();
+    assert_eq!((map.width, map.height), size);
+    let mut crc = bino_core::crc32::Crc32::new();
+    for (i, &v) in map.values.iter().enumerate() {
+        let q8 = v * 256.0;
+        assert!(
+            q8.fract() == 0.0 && (0.0..=u16::MAX as f32).contains(&q8),
+            "pixel {i}: {v} is no Q8 value"
+        );
+        crc.update(&(q8 as u16).to_le_bytes());
+    }
+    crc.finish()
+}
+
 /// A path as a command-line argument.
 pub fn s(p: &Path) -> &str {
     p.to_str().unwrap()
