@@ -200,7 +200,9 @@ def encoder_macs(cfg: EncoderConfig, height: int = 48, width: int = 160) -> int:
     d = cfg.dim
     embed = tokens * cfg.in_chans * cfg.patch_h * cfg.patch_w * d
     reach = rows if cfg.attention_rows is None else cfg.attention_rows
-    pairs = sum(cols * cols * (min(r + reach, rows - 1) - max(r - reach, 0) + 1) for r in range(rows))
+    pairs = sum(
+        cols * cols * (min(r + reach, rows - 1) - max(r - reach, 0) + 1) for r in range(rows)
+    )
     attention = tokens * 3 * d * d + 2 * pairs * d + tokens * d * d
     mlp = 2 * tokens * d * cfg.mlp_hidden
     return embed + cfg.depth * (attention + mlp)

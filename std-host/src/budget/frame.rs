@@ -35,6 +35,10 @@ use serde::Serialize;
 
 use super::{clock, frame_run_stage, Clock, CoreRun, NATIVE_PREFIX};
 use crate::bench::encoder_macs;
+use crate::io::checkout;
+use bino_core::blob::Blob;
+use bino_core::model::encoder::Encoder;
+use bino_core::model::weights::AttentionSpan;
 
 /// A frame (or band) size in pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -99,6 +103,19 @@ impl Frame {
     }
 }
 
+/// Which keys the shipped encoder's queries read (`weights/bino_int8.bin`, the blob the
+/// firmware runs), for [`encoder_macs`]; band attention where the blob cannot be read.
+pub(crate) fn shipped_span() -> AttentionSpan {
+    static SPAN: std::sync::OnceLock<AttentionSpan> = std::sync::OnceLock::new();
+    *SPAN.get_or_init(|| {
+        let bytes = std::fs::read(checkout::path(checkout::BLOB)).unwrap_or_default();
+        Blob::parse(&bytes)
+            .ok()
+            .and_then(|blob| Encoder::new(blob).ok())
+            .map_or(AttentionSpan::Band, |encoder| encoder.weights().span())
+    })
+}
+
 /// How a stage's work grows with the frame (see the module's doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -135,7 +152,7 @@ impl Scaling {
         Ok(match self {
             Scaling::Boot => (0.0, 0.0),
             Scaling::Encoder => (
-                plan.iter().map(|band| encoder_macs(band.rows * 2 * cols) as f64).sum(),
+                plan.iter().map(|band| encoder_macs(band.rows, 2 * cols, shipped_span()) as f64).sum(),
                 plan.len() as f64,
             ),
             Scaling::Pairs => ((token_rows * pairs(cols, OPTIONS.max_cols)) as f64, token_rows as f64),

@@ -2,7 +2,8 @@
 //!
 //! Memory (all from the caller's arena): the residual stream, keys and values of the band
 //! (`3 x tokens x DIM` bytes), one score and one softmax weight per token, and scratch for
-//! [`TOKEN_BLOCK`] tokens at a time. Attention runs one query at a time over all keys, the MLP
+//! [`TOKEN_BLOCK`] tokens at a time. Attention runs one query at a time over the keys of its
+//! window (the band, or its own token row: [`AttentionSpan`](crate::model::weights::AttentionSpan)), the MLP
 //! hidden layer exists only for one token block: there is no `N x N` or `N x MLP_HIDDEN` buffer.
 //!
 //! Each block runs in three passes over token blocks:
