@@ -79,11 +79,23 @@ pub const fn scratch_u32_len(width: usize, disparities: usize) -> usize {
     (2 * width).saturating_add(cells.saturating_mul(2))
 }
 
-/// `u16` scratch of the same stream: both cost rows, both SGM states (vertical and diagonal),
-/// and the right view's disparity row.
+/// `u16` scratch of the same stream: both SGM states (vertical and diagonal,
+/// [`state_u16_len`]), then both cost rows and the right view's disparity row
+/// ([`row_u16_len`]).
 pub const fn scratch_u16_len(width: usize, disparities: usize) -> usize {
-    let cells = sgm::state_len(width / CELL_W, disparities);
-    cells.saturating_mul(6).saturating_add(width / CELL_W)
+    state_u16_len(width, disparities).saturating_add(row_u16_len(width, disparities))
+}
+
+/// `u16` values the stream carries from row to row: both views' SGM states (vertical and
+/// diagonal aggregates).
+pub const fn state_u16_len(width: usize, disparities: usize) -> usize {
+    sgm::state_len(width / CELL_W, disparities).saturating_mul(4)
+}
+
+/// `u16` scratch of one row: both cost rows and the right view's disparity row.
+pub const fn row_u16_len(width: usize, disparities: usize) -> usize {
+    let cols = width / CELL_W;
+    sgm::state_len(cols, disparities).saturating_mul(2).saturating_add(cols)
 }
 
 /// Bytes of [`scratch_u32_len`] and [`scratch_u16_len`] together.
@@ -99,10 +111,10 @@ pub struct CensusSgm<'a> {
     disparities: usize,
     max_diff_q8: u16,
     uniqueness: u8,
-    codes: &'a mut [u32],
-    left_cost: &'a mut [u16],
-    right_cost: &'a mut [u16],
-    right_row: &'a mut [u16],
+    /// A row's scratch, when the stream owns it ([`CensusSgm::new`]; empty for
+    /// [`CensusSgm::state_only`]): [`scratch_u32_len`] and [`row_u16_len`] values.
+    scratch_u32: &'a mut [u32],
+    scratch_u16: &'a mut [u16],
     left_sgm: SgmStream<'a>,
     right_sgm: SgmStream<'a>,
 }
@@ -141,26 +153,60 @@ impl<'a> CensusSgm<'a> {
             scratch_u16_len(width, disparities),
             scratch_u16.len(),
         )?;
+        let (state, scratch_u16) = scratch_u16.split_at_mut(state_u16_len(width, disparities));
+        Self::state_only(width, disparities, penalties, max_diff_q8, state)?.with_scratch(scratch_u32, scratch_u16)
+    }
+
+    /// The stream with a row's scratch of its own for [`CensusSgm::push_row`]:
+    /// [`scratch_u32_len`] and [`row_u16_len`] values.
+    pub fn with_scratch(self, scratch_u32: &'a mut [u32], scratch_u16: &'a mut [u16]) -> Result<Self, Error> {
+        let (w, n) = (self.width, self.disparities);
+        Error::check_len("census SGM u32 scratch", scratch_u32_len(w, n), scratch_u32.len())?;
+        Error::check_len("census SGM u16 scratch", row_u16_len(w, n), scratch_u16.len())?;
+        Ok(Self {
+            scratch_u32,
+            scratch_u16,
+            ..self
+        })
+    }
+
+    /// A stream without a row's scratch of its own: each row brings it
+    /// ([`CensusSgm::push_row_in`]), so what the stream carries from row to row (`state`,
+    /// [`state_u16_len`] values) can live apart from the scratch, which the caller may reuse
+    /// between rows. Otherwise as [`CensusSgm::new`].
+    pub fn state_only(
+        width: usize,
+        disparities: usize,
+        penalties: Penalties,
+        max_diff_q8: u16,
+        state: &'a mut [u16],
+    ) -> Result<Self, Error> {
+        let cols = width / CELL_W;
+        if cols == 0 {
+            return Err(Error::EmptyImage);
+        }
+        if !width.is_multiple_of(CELL_W) {
+            return Err(Error::NotMultiple {
+                what: "width",
+                value: width,
+                multiple: CELL_W,
+            });
+        }
+        check_candidates(disparities)?;
+        Error::check_len("census SGM state", state_u16_len(width, disparities), state.len())?;
         let cells = cols * disparities;
-        let (codes, sums) = scratch_u32.split_at_mut(2 * width);
-        let (left_sum, right_sum) = sums.split_at_mut(cells);
-        let (left_cost, rest) = scratch_u16.split_at_mut(cells);
-        let (right_cost, rest) = rest.split_at_mut(cells);
-        let (left_vertical, rest) = rest.split_at_mut(cells);
+        let (left_vertical, rest) = state.split_at_mut(cells);
         let (left_diagonal, rest) = rest.split_at_mut(cells);
-        let (right_vertical, rest) = rest.split_at_mut(cells);
-        let (right_diagonal, right_row) = rest.split_at_mut(cells);
-        let left_sgm = SgmStream::new(cols, disparities, penalties, left_vertical, left_diagonal, left_sum)?;
-        let right_sgm = SgmStream::new(cols, disparities, penalties, right_vertical, right_diagonal, right_sum)?;
+        let (right_vertical, right_diagonal) = rest.split_at_mut(cells);
+        let left_sgm = SgmStream::state_only(cols, disparities, penalties, left_vertical, left_diagonal)?;
+        let right_sgm = SgmStream::state_only(cols, disparities, penalties, right_vertical, right_diagonal)?;
         Ok(Self {
             width,
             disparities,
             max_diff_q8,
             uniqueness: DEFAULT_UNIQUENESS,
-            codes,
-            left_cost,
-            right_cost,
-            right_row,
+            scratch_u32: &mut [],
+            scratch_u16: &mut [],
             left_sgm,
             right_sgm,
         })
@@ -184,6 +230,25 @@ impl<'a> CensusSgm<'a> {
         disparity: &mut [u16],
         kept: &mut [u8],
     ) -> Result<usize, Error> {
+        let (scratch_u32, scratch_u16) = (
+            core::mem::take(&mut self.scratch_u32),
+            core::mem::take(&mut self.scratch_u16),
+        );
+        let pushed = self.push_row_in(left, right, (&mut *scratch_u32, &mut *scratch_u16), disparity, kept);
+        (self.scratch_u32, self.scratch_u16) = (scratch_u32, scratch_u16);
+        pushed
+    }
+
+    /// [`CensusSgm::push_row`] with the row's scratch brought along: [`scratch_u32_len`] and
+    /// [`row_u16_len`] values (their contents do not matter).
+    pub fn push_row_in(
+        &mut self,
+        left: &[&[u8]],
+        right: &[&[u8]],
+        (scratch_u32, scratch_u16): (&mut [u32], &mut [u16]),
+        disparity: &mut [u16],
+        kept: &mut [u8],
+    ) -> Result<usize, Error> {
         let (w, n) = (self.width, self.disparities);
         for window in [left, right] {
             Error::check_len("census SGM window", WINDOW_ROWS, window.len())?;
@@ -191,23 +256,30 @@ impl<'a> CensusSgm<'a> {
                 Error::check_len("census SGM pixel row", w, row.len())?;
             }
         }
-        self.left_cost.fill(0);
-        self.right_cost.fill(0);
+        Error::check_len("census SGM u32 scratch", scratch_u32_len(w, n), scratch_u32.len())?;
+        Error::check_len("census SGM u16 scratch", row_u16_len(w, n), scratch_u16.len())?;
+        let cells = (w / CELL_W) * n;
+        let (codes, sums) = scratch_u32.split_at_mut(2 * w);
+        let (left_sum, right_sum) = sums.split_at_mut(cells);
+        let (left_cost, rest) = scratch_u16.split_at_mut(cells);
+        let (right_cost, right_row) = rest.split_at_mut(cells);
+        left_cost.fill(0);
+        right_cost.fill(0);
         for i in 0..PATCH_H {
             let rows = i..i + 2 * CENSUS_RADIUS + 1;
-            let (codes_left, codes_right) = self.codes.split_at_mut(w);
+            let (codes_left, codes_right) = codes.split_at_mut(w);
             census_codes(left.get(rows.clone()).unwrap_or_default(), CENSUS_RADIUS, codes_left);
             census_codes(right.get(rows).unwrap_or_default(), CENSUS_RADIUS, codes_right);
-            add_distances(codes_left, codes_right, n, self.left_cost, self.right_cost);
+            add_distances(codes_left, codes_right, n, left_cost, right_cost);
         }
-        self.left_sgm.push_row(self.left_cost, disparity)?;
-        self.right_sgm.push_row(self.right_cost, self.right_row)?;
-        for d in disparity.iter_mut().chain(self.right_row.iter_mut()) {
+        self.left_sgm.push_row_in(left_cost, left_sum, disparity)?;
+        self.right_sgm.push_row_in(right_cost, right_sum, right_row)?;
+        for d in disparity.iter_mut().chain(right_row.iter_mut()) {
             *d = pixels_to_columns(*d);
         }
-        consistent_row(disparity, self.right_row, self.max_diff_q8, kept)?;
+        consistent_row(disparity, right_row, self.max_diff_q8, kept)?;
         let ratio = self.uniqueness;
-        let sums = self.left_sgm.sums();
+        let sums = &*left_sum;
         let mut count = 0;
         for (cell, k) in sums.chunks_exact(n.max(1)).zip(kept.iter_mut()) {
             *k &= unique(cell, ratio) as u8;
@@ -385,6 +457,38 @@ mod tests {
                 assert_eq!(k[c], 1, "row {t} cell {c}");
             }
         }
+    }
+
+    /// A stream whose rows bring their scratch gives what one with its own scratch does,
+    /// whatever the scratch held; scratch of the wrong length is an error.
+    #[test]
+    fn rows_bringing_their_scratch_give_the_same_rows() {
+        let (left, right) = shifted_pair(5);
+        let (mut s32, mut s16) = ([0u32; scratch_u32_len(W, N)], [0u16; scratch_u16_len(W, N)]);
+        let mut own = CensusSgm::new(W, N, DEFAULT_PENALTIES, 256, &mut s32, &mut s16).unwrap();
+        let mut state = [0u16; state_u16_len(W, N)];
+        let mut apart = CensusSgm::state_only(W, N, DEFAULT_PENALTIES, 256, &mut state).unwrap();
+        let (mut r32, mut r16) = ([u32::MAX; scratch_u32_len(W, N)], [3u16; row_u16_len(W, N)]);
+        for t in 0..H / 4 {
+            let (mut d, mut k) = ([0u16; W / 4], [0u8; W / 4]);
+            let kept = own
+                .push_row(&window(&left, t), &window(&right, t), &mut d, &mut k)
+                .unwrap();
+            let (mut d2, mut k2) = ([0u16; W / 4], [0u8; W / 4]);
+            let scratch = (&mut r32[..], &mut r16[..]);
+            let kept2 = (apart.push_row_in(&window(&left, t), &window(&right, t), scratch, &mut d2, &mut k2)).unwrap();
+            assert_eq!((d, k, kept), (d2, k2, kept2), "row {t}");
+            r32.fill(9);
+        }
+        let short = (&mut r32[1..], &mut r16[..]);
+        let (mut d, mut k) = ([0u16; W / 4], [0u8; W / 4]);
+        assert!(apart
+            .push_row_in(&window(&left, 0), &window(&right, 0), short, &mut d, &mut k)
+            .is_err());
+        assert!(apart
+            .push_row(&window(&left, 0), &window(&right, 0), &mut d, &mut k)
+            .is_err());
+        assert!(CensusSgm::state_only(W, N, DEFAULT_PENALTIES, 256, &mut state[1..]).is_err());
     }
 
     #[test]

@@ -60,6 +60,7 @@ mod head_check;
 mod layout;
 mod native;
 mod refine_stage;
+mod row_buffers;
 mod sizing;
 mod streams;
 

@@ -23,6 +23,11 @@
 //! // The 48x160 band pair of the budget.
 //! assert_eq!(arena_bytes(48, 160), 466_598);
 //! assert_eq!(export_arena_bytes(48, 160), 486_918);
+//! // A whole frame: each band's heads start afresh in the encoder's scratch, so only what
+//! // carries from band to band adds to the band's, whatever the height.
+//! assert_eq!(export_arena_bytes(120, 160), 513_382);
+//! assert_eq!(export_arena_bytes(120, 160), export_arena_bytes(480, 160));
+//! assert!(export_arena_bytes(120, 160) <= 512 * 1024);
 //! // The fast preset: a 160x120 frame in a fraction of one learned band's arena.
 //! use bino_core::preset::census_arena_bytes;
 //! assert_eq!(census_arena_bytes(120, 160), census_arena_bytes(480, 160));

@@ -92,6 +92,21 @@ impl<'a> SgmStream<'a> {
         diagonal: &'a mut [u16],
         sum: &'a mut [u32],
     ) -> Result<Self, Error> {
+        let stream = Self::state_only(cols, candidates, penalties, vertical, diagonal)?;
+        Error::check_len("SGM row sum", state_len(cols, candidates), sum.len())?;
+        Ok(Self { sum, ..stream })
+    }
+
+    /// A stream without a row sum of its own: each row brings one ([`SgmStream::push_row_in`]),
+    /// so what it carries from row to row (the vertical and diagonal aggregates) can live apart
+    /// from a row's scratch, which the caller may reuse for other work between rows.
+    pub fn state_only(
+        cols: usize,
+        candidates: usize,
+        penalties: Penalties,
+        vertical: &'a mut [u16],
+        diagonal: &'a mut [u16],
+    ) -> Result<Self, Error> {
         if cols == 0 {
             return Err(Error::EmptyImage);
         }
@@ -103,14 +118,13 @@ impl<'a> SgmStream<'a> {
         ] {
             Error::check_len(what, len, found)?;
         }
-        Error::check_len("SGM row sum", len, sum.len())?;
         Ok(Self {
             cols,
             candidates,
             penalties,
             vertical,
             diagonal,
-            sum,
+            sum: &mut [],
             prev_guide: None,
             rows_seen: 0,
         })
@@ -125,7 +139,8 @@ impl<'a> SgmStream<'a> {
     }
 
     /// The last row's summed aggregates (`cols x candidates`, candidates fastest): what its
-    /// disparities were read from (a uniqueness test reads them too).
+    /// disparities were read from (a uniqueness test reads them too); empty for a
+    /// [`SgmStream::state_only`] stream, whose rows bring their sums.
     pub fn sums(&self) -> &[u32] {
         self.sum
     }
@@ -133,13 +148,37 @@ impl<'a> SgmStream<'a> {
     /// Aggregates one row of costs (`cols x candidates`, candidates fastest) and writes each
     /// cell's disparity in Q8 patch columns to `out`, with `p2` everywhere.
     pub fn push_row(&mut self, cost: &[u16], out: &mut [u16]) -> Result<(), Error> {
-        self.push(cost, None, out)
+        self.push_own(cost, None, out)
+    }
+
+    /// [`SgmStream::push_row`] summing into `sum` (`cols x candidates`, left holding the row's
+    /// summed aggregates) instead of the stream's own.
+    pub fn push_row_in(&mut self, cost: &[u16], sum: &mut [u32], out: &mut [u16]) -> Result<(), Error> {
+        self.push(cost, None, sum, out)
+    }
+
+    /// [`SgmStream::push_row_guided`] summing into `sum`, as [`SgmStream::push_row_in`].
+    pub fn push_row_guided_in(
+        &mut self,
+        cost: &[u16],
+        guide: &[u8],
+        sum: &mut [u32],
+        out: &mut [u16],
+    ) -> Result<(), Error> {
+        self.check_guide(guide)?;
+        self.push(cost, Some(guide), sum, out)
     }
 
     /// [`SgmStream::push_row`] with `guide`, each cell's mean grey level (`cols` bytes): the
     /// jump penalty between two cells is [`Penalties::jump`] of theirs. Needs
     /// [`SgmStream::with_guide`].
     pub fn push_row_guided(&mut self, cost: &[u16], guide: &[u8], out: &mut [u16]) -> Result<(), Error> {
+        self.check_guide(guide)?;
+        self.push_own(cost, Some(guide), out)
+    }
+
+    /// A guide row of the right length, and the state to keep it.
+    fn check_guide(&self, guide: &[u8]) -> Result<(), Error> {
         Error::check_len("SGM guide row", self.cols, guide.len())?;
         if self.prev_guide.is_none() {
             return Err(Error::BufferSize {
@@ -148,13 +187,22 @@ impl<'a> SgmStream<'a> {
                 found: 0,
             });
         }
-        self.push(cost, Some(guide), out)
+        Ok(())
     }
 
-    fn push(&mut self, cost: &[u16], guide: Option<&[u8]>, out: &mut [u16]) -> Result<(), Error> {
+    /// A row summed into the stream's own sum.
+    fn push_own(&mut self, cost: &[u16], guide: Option<&[u8]>, out: &mut [u16]) -> Result<(), Error> {
+        let sum = core::mem::take(&mut self.sum);
+        let pushed = self.push(cost, guide, sum, out);
+        self.sum = sum;
+        pushed
+    }
+
+    fn push(&mut self, cost: &[u16], guide: Option<&[u8]>, sum: &mut [u32], out: &mut [u16]) -> Result<(), Error> {
         let (cols, d) = (self.cols, self.candidates);
         Error::check_len("SGM cost row", cols * d, cost.len())?;
         Error::check_len("disparity row", cols, out.len())?;
+        Error::check_len("SGM row sum", cols * d, sum.len())?;
         let pen = self.penalties;
         // The jump penalty between cell `p` of this row and cell `q` of `other` (this row's
         // guide or the previous one); `p2` without a guide.
@@ -163,7 +211,7 @@ impl<'a> SgmStream<'a> {
             _ => pen.p2 as u32,
         };
         let first = self.rows_seen == 0;
-        self.sum.iter_mut().for_each(|s| *s = 0);
+        sum.iter_mut().for_each(|s| *s = 0);
         let mut running = [0u16; MAX_CANDIDATES];
         let mut next = [0u16; MAX_CANDIDATES];
         // Left to right, then right to left.
@@ -178,7 +226,7 @@ impl<'a> SgmStream<'a> {
                     step(c, &running[..d], pen.p1, jump(p, from, guide), &mut next[..d]);
                 }
                 running[..d].copy_from_slice(&next[..d]);
-                add(&mut self.sum[p * d..(p + 1) * d], &next[..d]);
+                add(&mut sum[p * d..(p + 1) * d], &next[..d]);
             }
         }
         let prev_guide = self.prev_guide.as_deref();
@@ -199,7 +247,7 @@ impl<'a> SgmStream<'a> {
                 );
             }
             self.vertical[cell.clone()].copy_from_slice(&next[..d]);
-            add(&mut self.sum[cell.clone()], &next[..d]);
+            add(&mut sum[cell.clone()], &next[..d]);
             if first || p == 0 {
                 next[..d].copy_from_slice(c);
             } else {
@@ -207,10 +255,10 @@ impl<'a> SgmStream<'a> {
                 step(c, from, pen.p1, jump(p, p - 1, prev_guide), &mut next[..d]);
             }
             self.diagonal[cell.clone()].copy_from_slice(&next[..d]);
-            add(&mut self.sum[cell], &next[..d]);
+            add(&mut sum[cell], &next[..d]);
         }
         for (p, o) in out.iter_mut().enumerate() {
-            *o = refine_min(&self.sum[p * d..(p + 1) * d]);
+            *o = refine_min(&sum[p * d..(p + 1) * d]);
         }
         if let (Some(g), Some(prev)) = (guide, self.prev_guide.as_deref_mut()) {
             prev.copy_from_slice(g);
@@ -353,6 +401,31 @@ mod tests {
         for (row, o) in rows.iter().zip(out.iter_mut()) {
             sgm.push_row(row, o).unwrap();
         }
+    }
+
+    /// A stream whose rows bring their sums gives what one with its own sum does, whatever
+    /// the sum held before, and a sum of the wrong length is an error.
+    #[test]
+    fn rows_bringing_their_sums_aggregate_the_same() {
+        let rows: [[u16; 12]; 3] = [
+            [900, 0, 900, 0, 900, 900, 700, 20, 0, 900, 10, 900],
+            [0, 900, 900, 900, 0, 30, 900, 900, 0, 5, 0, 900],
+            [40, 0, 900, 900, 0, 900, 0, 600, 900, 900, 10, 0],
+        ];
+        let mut own = [[0u16; 4]; 3];
+        run(&rows, &mut own);
+        let (mut v, mut g) = ([0u16; 12], [0u16; 12]);
+        let mut sgm = SgmStream::state_only(4, 3, PEN, &mut v, &mut g).unwrap();
+        assert!(sgm.sums().is_empty());
+        let mut sum = [u32::MAX; 12];
+        for (row, expected) in rows.iter().zip(own) {
+            let mut out = [0u16; 4];
+            sgm.push_row_in(row, &mut sum, &mut out).unwrap();
+            assert_eq!(out, expected);
+            sum = [7; 12];
+        }
+        assert!(sgm.push_row_in(&rows[0], &mut [0u32; 11], &mut [0u16; 4]).is_err());
+        assert!(sgm.push_row(&rows[0], &mut [0u16; 4]).is_err(), "no sum of its own");
     }
 
     #[test]

@@ -58,7 +58,7 @@ pub struct Run {
     pub native: bool,
     /// Run the head (implied on the native pathway).
     pub head: bool,
-    /// With the head: its left-right check (a second, mirrored head stream).
+    /// With the head: its left-right check (the head rerun on the mirrored pair).
     pub head_lr: bool,
     /// The head's disparity candidates (valid: 1 to 64).
     pub head_candidates: u8,

@@ -1,7 +1,7 @@
 //! Maps as the bands compute them: each band's own token rows, its overlaps included, so a
-//! readout can read every band on its own as the core's native pathway does (its head reads
-//! the rows within [`ROW_REACH`] of those a band keeps, [`Band::around_kept`]), and the kept
-//! rows assembled into one map as the band plan assigns them.
+//! readout can read every band on its own as the core's pathways do (either head reads the
+//! rows within [`ROW_REACH`] of those a band keeps, [`Band::around_kept`]), and the kept rows
+//! assembled into one map as the band plan assigns them.
 
 use std::ops::Range;
 
@@ -37,6 +37,45 @@ impl<T: Copy + Default> BandedRows<T> {
             let rows = band.around_kept(reach);
             (*band, rows.clone(), self.rows_of(band, rows, values))
         })
+    }
+
+    /// Each row of this map followed by the same row of `other`, a map cut into the same bands:
+    /// one map for a readout that reads both per band (the export head's two descriptor maps).
+    pub fn beside(&self, other: &Self) -> Result<Self> {
+        ensure!(
+            self.rows == other.rows && self.bands.len() == other.bands.len(),
+            "the maps are cut into different bands"
+        );
+        let bands = (self.bands.iter().zip(&other.bands))
+            .map(|((band, a), (other_band, b))| {
+                ensure!(band == other_band, "the maps are cut into different bands");
+                Ok((
+                    *band,
+                    (a.chunks_exact(self.row_len).zip(b.chunks_exact(other.row_len)))
+                        .flat_map(|(a, b)| a.iter().chain(b).copied())
+                        .collect(),
+                ))
+            })
+            .collect::<Result<_>>()?;
+        Ok(Self {
+            rows: self.rows,
+            row_len: self.row_len + other.row_len,
+            bands,
+        })
+    }
+
+    /// The map of the horizontally mirrored view: each row's cells (`cell` values each) in
+    /// reverse order, in every band.
+    pub fn mirrored(&self, cell: usize) -> Self {
+        let bands = (self.bands.iter())
+            .map(|(band, values)| {
+                let mirrored = (values.chunks_exact(self.row_len))
+                    .flat_map(|row| row.chunks_exact(cell).rev().flatten().copied())
+                    .collect();
+                (*band, mirrored)
+            })
+            .collect();
+        Self { bands, ..self.clone() }
     }
 
     /// Map rows `rows` (inside `band`) of the band's values.
@@ -129,6 +168,18 @@ mod tests {
         assert_eq!(seen, [(0, 0, 12), (1, 6, 12), (2, 12, 12), (3, 18, 12)]);
         assert_eq!(out[0], map.assemble().chunks_exact(2).map(|r| r[0]).collect::<Vec<_>>());
         assert_eq!(out[1], map.assemble());
+        // Two maps side by side, band by band; mirrored, each row's cells reversed.
+        let both = map.beside(&labelled(30, 1)).unwrap();
+        assert_eq!(both.row_len, 3);
+        assert_eq!(&both.bands[1].1[..3], &[1006, 1006, 1006]);
+        assert!(map.beside(&labelled(36, 1)).is_err());
+        let cells = BandedRows {
+            rows: 1,
+            row_len: 6,
+            bands: vec![(map.bands[0].0, vec![1, 2, 3, 4, 5, 6])],
+        };
+        assert_eq!(cells.mirrored(2).bands[0].1, [5, 6, 3, 4, 1, 2]);
+        assert_eq!(cells.mirrored(2).mirrored(2), cells);
         // A plane of the wrong length is an error, not a shifted map.
         assert!(per_band(&map, 0, &[1], |_, rows| Ok(vec![vec![0u32; rows + 1]])).is_err());
     }

@@ -9,6 +9,7 @@ use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::{ensure, Context, Result};
+use bino_core::config::HEAD_MAX_DISP;
 use bino_core::model::ids::HeadKind;
 
 use bino_core::pipeline::{self, Options as PipelineOptions, Pathway, Refine, RefineInput};
@@ -106,12 +107,13 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
     let scene = default_scene(opts.width, opts.height);
     let left = Profile::Native.apply(&scene.left)?;
     let right = Profile::Native.apply(&scene.right)?;
-    let (rows, cols, codes_left) = steps.run("encoding the left view (int8)", || {
-        model.descriptor_codes(&left).context("left view")
+    let (cols, bands_left) = steps.run("encoding the left view (int8)", || {
+        model.descriptor_bands(&left).context("left view")
     })?;
-    let (_, _, codes_right) = steps.run("encoding the right view (int8)", || {
-        model.descriptor_codes(&right).context("right view")
+    let (_, bands_right) = steps.run("encoding the right view (int8)", || {
+        model.descriptor_bands(&right).context("right view")
     })?;
+    let (rows, codes_left, codes_right) = (bands_left.rows, bands_left.assemble(), bands_right.assemble());
 
     let truth = ground_truth(&scene);
     let mut readouts = Vec::new();
@@ -138,7 +140,8 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
     })?);
     if model.has_head() {
         let maps = steps.run("shared head (int8, streamed row by row)", || {
-            model.head(&codes_left, &codes_right, rows, cols)
+            // Each band's head on its own rows, as the core's export pathway runs it.
+            model.head_banded(&bands_left, &bands_right, cols, HEAD_MAX_DISP)
         })?;
         let tokens = DisparityMap {
             width: cols,
@@ -147,7 +150,7 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         };
         readouts.push(scored("head", &tokens, &truth)?);
         let (filled, kept) = steps.run("head+lr: the head on the mirrored pair, left-right fill", || {
-            let kept = model.head_check(&codes_left, &codes_right, &maps, DEMO_LR_MAX_DIFF_Q8)?;
+            let kept = model.head_check(&bands_left, &bands_right, &maps, HEAD_MAX_DISP, DEMO_LR_MAX_DIFF_Q8)?;
             Ok((crate::readout::fill_rejected(&tokens, &kept), kept))
         })?;
         readouts.push(scored("head+lr", &filled, &truth)?);

@@ -12,7 +12,7 @@ const LAYERS: &[&[&str]] = &[
     &["api"],
     &["refine_stage"],
     &["census_stage", "feeding"],
-    &["head_check"],
+    &["head_check", "row_buffers"],
     &["sizing"],
     &["context"],
     &["streams", "native", "census_run"],

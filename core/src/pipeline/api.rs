@@ -2,7 +2,7 @@
 //! uses ([`Options`], [`Refine`]), where its output goes ([`Sink`]) and what it reports
 //! ([`Report`]).
 
-use super::layout::{stage_reach, HEAD_LAG};
+use super::layout::stage_reach;
 use crate::band::Band;
 use crate::model::encoder::{Encoder, GrayBand};
 use crate::model::head::HeadRow;
@@ -162,9 +162,10 @@ pub struct Options {
     /// Run the shared head too.
     pub head: bool,
     /// With `head`: the head's own left-right check ([`Sink::head_checked`]). On the export
-    /// pathway the head runs on the mirrored pair as well, a second head stream, so the arena
-    /// is [`arena_bytes_head_lr`]; on the native pathway the right view is read from the
-    /// left head's logits (two rows of arena). Ignored without `head`.
+    /// pathway each band's head reruns on the mirrored pair, on the same stream, so the arena
+    /// is [`arena_bytes_head_lr`] (the left rows the check keeps); on the native pathway the
+    /// right view is read from the left head's logits (two rows of arena). Ignored without
+    /// `head`.
     pub head_lr: bool,
     /// Disparity candidates of the head (either pathway), in patch columns (1 to
     /// [`HEAD_CANDIDATES_LIMIT`](crate::config::HEAD_CANDIDATES_LIMIT)):
@@ -249,7 +250,7 @@ impl RefineInput {
         matches!(self, RefineInput::Census | RefineInput::CensusLr)
     }
 
-    /// Whether it reads the head (its rows then trail the band by one token row per head convolution).
+    /// Whether it reads the head.
     pub const fn uses_head(self) -> bool {
         matches!(
             self,
@@ -267,15 +268,6 @@ impl RefineInput {
             self,
             RefineInput::HeadLr | RefineInput::FusedLr | RefineInput::FusedCensusLr | RefineInput::FusedAllLr
         )
-    }
-
-    /// Token rows its rows trail the band's kept rows by.
-    pub(super) const fn lag(self) -> usize {
-        if self.uses_head() {
-            HEAD_LAG
-        } else {
-            0
-        }
     }
 }
 
@@ -475,8 +467,9 @@ pub struct Report {
     /// reused once the passes are over. On the export pathway over one band it then holds the
     /// right descriptors, the streams and the refinement, so
     /// `arena_used = pixels + descriptors + max(encoder, descriptors + streams + refine)`; over
-    /// several bands the streams and the refinement's state sit beside the scratch and only the
-    /// refinement's row scratch reuses it. The native pathway keeps no descriptor band
+    /// several bands what carries from band to band (the SGMs' state, the head's check, the
+    /// refinement's state) sits beside the scratch, and each band's head stream, row buffers
+    /// and refinement row scratch reuse it. The native pathway keeps no descriptor band
     /// (`descriptors` = 0) and its streams follow the pair tokens in the encoder's scratch.
     pub arena_used: usize,
     /// Region: the pixel band of both views (held throughout).

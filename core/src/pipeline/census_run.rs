@@ -61,7 +61,7 @@ pub fn run_census(
     let pixel_len = band_px * width;
     let census_len = census_stage::bytes(width, opts.head_candidates, RING_ROWS);
     let (state_len, _) = match refine {
-        Some(r) => refine_parts(height, width, r, false),
+        Some(r) => refine_parts(height, width, r),
         None => (0, 0),
     };
     let too_small = Error::ArenaTooSmall {
@@ -76,11 +76,11 @@ pub fn run_census(
         census_arena,
         width,
         height,
-        opts.head_candidates,
-        opts.lr_max_diff_q8,
+        (opts.head_candidates, opts.lr_max_diff_q8),
         RING_ROWS,
+        true,
     )?;
-    let mut refinement = Refinement::new(refine, width, height, plan.len() > 1, false, state_arena)?;
+    let mut refinement = Refinement::new(refine, width, height, plan.len() > 1, state_arena)?;
     // View rows below a token row's pixel rows that the refinement reads (none without it).
     let reach = refine.map_or(0, |r| r.reach());
     // Which cells the refinement fills: `census+lr` by its check, `census` none.

@@ -28,16 +28,18 @@ pub(super) const RING_ROWS: usize = HEAD_LAG + 1;
 const _: () = assert!(PATCH_H * CUT_MARGIN >= CENSUS_RADIUS);
 
 /// Arena bytes of the stage for views `width` px wide, a head of `candidates` and a ring of
-/// `ring` rows: the census SGM's stream, the ring of rows and masks, and the fused row and its
-/// mask.
+/// `ring` rows, with its own row scratch: [`resident_bytes`] and [`row_bytes`].
 pub(super) const fn bytes(width: usize, candidates: usize, ring: usize) -> usize {
+    resident_bytes(width, candidates, ring).saturating_add(row_bytes(width, candidates))
+}
+
+/// Arena bytes of what the stage carries from row to row: the census SGM's state, the ring of
+/// rows and masks, and the fused row and its mask.
+pub(super) const fn resident_bytes(width: usize, candidates: usize, ring: usize) -> usize {
     let cols = width / CELL_W;
     let n = census::disparities(candidates);
     sum(&[
-        census::scratch_u32_len(width, n)
-            .saturating_mul(4)
-            .saturating_add(ALIGN_SLACK),
-        census::scratch_u16_len(width, n)
+        census::state_u16_len(width, n)
             .saturating_mul(2)
             .saturating_add(ALIGN_SLACK),
         cols.saturating_mul(ring).saturating_mul(2).saturating_add(ALIGN_SLACK),
@@ -45,6 +47,36 @@ pub(super) const fn bytes(width: usize, candidates: usize, ring: usize) -> usize
         cols.saturating_mul(2).saturating_add(ALIGN_SLACK),
         cols,
     ])
+}
+
+/// Arena bytes of one row's scratch of the census SGM ([`census::scratch_u32_len`],
+/// [`census::row_u16_len`]): what a stage without its own scratch is brought each row
+/// ([`CensusStage::compute_in`]).
+pub(super) const fn row_bytes(width: usize, candidates: usize) -> usize {
+    let n = census::disparities(candidates);
+    sum(&[
+        census::scratch_u32_len(width, n)
+            .saturating_mul(4)
+            .saturating_add(ALIGN_SLACK),
+        census::row_u16_len(width, n).saturating_mul(2),
+    ])
+}
+
+/// One row's scratch of the census SGM, cut from an arena of [`row_bytes`].
+pub(super) struct RowScratch<'s> {
+    u32s: &'s mut [u32],
+    u16s: &'s mut [u16],
+}
+
+impl<'s> RowScratch<'s> {
+    /// The scratch for views `width` px wide and a head of `candidates`, cut by `carver`.
+    pub(super) fn carve(carver: &mut Carver<'s>, width: usize, candidates: usize) -> Result<Self, Error> {
+        let n = census::disparities(candidates);
+        Ok(Self {
+            u32s: carver.u32s(census::scratch_u32_len(width, n))?,
+            u16s: carver.u16s(census::row_u16_len(width, n))?,
+        })
+    }
 }
 
 /// The stage: the census SGM, its rows kept for the head, the fused row.
@@ -67,27 +99,39 @@ pub(super) struct CensusStage<'a> {
 
 impl<'a> CensusStage<'a> {
     /// The stage for `height x width` views, a head of `candidates` and a ring of `ring` rows
-    /// (at least one), cut from the front of `arena` ([`bytes`]); its check keeps cells within
-    /// `lr_max_diff_q8`. Returns it and the bytes it took.
+    /// (at least one), cut from the front of `arena` ([`bytes`]), its own row scratch
+    /// included (with `own_scratch`; without, [`resident_bytes`] and each row brings its
+    /// scratch, [`CensusStage::compute_in`]); its check keeps cells within `lr_max_diff_q8`.
+    /// Returns it and the bytes it took.
     pub(super) fn carve(
         arena: &'a mut [u8],
         width: usize,
         height: usize,
-        candidates: usize,
-        lr_max_diff_q8: u16,
+        (candidates, lr_max_diff_q8): (usize, u16),
         ring: usize,
+        own_scratch: bool,
     ) -> Result<(Self, usize), Error> {
         let cols = width / CELL_W;
         let n = census::disparities(candidates);
         let ring = ring.max(1);
-        let mut carver = Carver::new(arena, bytes(width, candidates, ring))?;
-        let s32 = carver.u32s(census::scratch_u32_len(width, n))?;
-        let s16 = carver.u16s(census::scratch_u16_len(width, n))?;
+        let needed = match own_scratch {
+            true => bytes(width, candidates, ring),
+            false => resident_bytes(width, candidates, ring),
+        };
+        let mut carver = Carver::new(arena, needed)?;
+        let state = carver.u16s(census::state_u16_len(width, n))?;
         let rows = carver.u16s(cols.saturating_mul(ring))?;
-        let masks = carver.u8s(cols.saturating_mul(ring))?;
         let out = carver.u16s(cols)?;
+        let masks = carver.u8s(cols.saturating_mul(ring))?;
         let out_mask = carver.u8s(cols)?;
-        let sgm = CensusSgm::new(width, n, census::DEFAULT_PENALTIES, lr_max_diff_q8, s32, s16)?;
+        let penalties = census::DEFAULT_PENALTIES;
+        let sgm = match own_scratch {
+            true => {
+                let RowScratch { u32s, u16s } = RowScratch::carve(&mut carver, width, candidates)?;
+                CensusSgm::state_only(width, n, penalties, lr_max_diff_q8, state)?.with_scratch(u32s, u16s)?
+            }
+            false => CensusSgm::state_only(width, n, penalties, lr_max_diff_q8, state)?,
+        };
         let stage = Self {
             sgm,
             cols,
@@ -109,8 +153,28 @@ impl<'a> CensusStage<'a> {
         at..at + self.cols
     }
 
-    /// Computes token row `row` (the next one) from the band buffer `view`.
+    /// Computes token row `row` (the next one) from the band buffer `view`, in the stage's own
+    /// row scratch.
     pub(super) fn compute(&mut self, row: usize, view: &BandView<'_>) -> Result<(), Error> {
+        self.compute_with(row, view, None)
+    }
+
+    /// [`CensusStage::compute`] in the row scratch `scratch` (a stage carved without its own).
+    pub(super) fn compute_in(
+        &mut self,
+        row: usize,
+        view: &BandView<'_>,
+        scratch: &mut RowScratch<'_>,
+    ) -> Result<(), Error> {
+        self.compute_with(row, view, Some(scratch))
+    }
+
+    fn compute_with(
+        &mut self,
+        row: usize,
+        view: &BandView<'_>,
+        scratch: Option<&mut RowScratch<'_>>,
+    ) -> Result<(), Error> {
         if row != self.next {
             return Err(Error::OutOfRange {
                 what: "census token row",
@@ -138,7 +202,10 @@ impl<'a> CensusStage<'a> {
         let (Some(disparity), Some(kept)) = (self.rows.get_mut(slot.clone()), self.masks.get_mut(slot)) else {
             return Err(ring_error);
         };
-        self.sgm.push_row(&left, &right, disparity, kept)?;
+        match scratch {
+            Some(s) => (self.sgm).push_row_in(&left, &right, (&mut *s.u32s, &mut *s.u16s), disparity, kept)?,
+            None => self.sgm.push_row(&left, &right, disparity, kept)?,
+        };
         self.next += 1;
         Ok(())
     }

@@ -6,19 +6,18 @@
 
 use super::api::{FusedRow, HeadChecked, RefineInput, Sink, Stage};
 use super::census_stage::CensusStage;
-use super::layout::{max, sum};
+use super::layout::sum;
 use super::refine_stage::{RefineIo, RefineStage};
 use crate::arena::Carver;
 use crate::config::BAND_TOKEN_ROWS;
 use crate::lr::{consistent_row, fuse_row, CheckedRow};
-use crate::model::head::{right_view_row, HeadRow, HeadSink, HeadStream, HeadWeights};
-use crate::model::ids::HEAD_CONVS;
+use crate::model::head::{right_view_row, HeadRow, HeadSink, HeadWeights};
 use crate::Error;
 
-/// Rows of left head disparities kept for the check: a whole band (one band: the mirrored
-/// head runs after the left one, on the same arena), or more than the mirrored head trails
-/// the left one by when both stream side by side (several bands: one row per convolution).
-pub(super) const HEAD_CHECK_ROWS: usize = max(BAND_TOKEN_ROWS, HEAD_CONVS + 1);
+/// Rows of left head disparities kept for the check (export pathway): the rows a band keeps,
+/// at most a whole band. The mirrored head reruns the band after the left one, on the same
+/// stream, so every kept row waits for it.
+pub(super) const HEAD_CHECK_ROWS: usize = BAND_TOKEN_ROWS;
 
 /// Arena bytes of the fused readout's state beside a [`HeadCheck`] of `rows` rows: as many rows
 /// of the left head's confidence and of SGM disparities (u16, aligned each) and the SGM's masks,
@@ -126,7 +125,8 @@ pub(super) struct HeadCheck<'a> {
     pub(super) rows: usize,
     pub(super) lr_max_diff_q8: u16,
     /// `rows` rows of left disparities, row `r` in slot `r % rows` (export pathway,
-    /// [`HEAD_CHECK_ROWS`]; one band: every row of it, so the mirrored head can run afterwards).
+    /// [`HEAD_CHECK_ROWS`]: every row a band keeps, so the mirrored head can rerun the band
+    /// afterwards).
     pub(super) left_rows: &'a mut [u16],
     pub(super) mask: &'a mut [u8],
     pub(super) kept: usize,
@@ -415,17 +415,5 @@ impl<K: Sink> HeadSink for OnePassRows<'_, '_, '_, '_, K> {
                 (_, true, false) => {}
             }
         }
-    }
-}
-
-/// One step of a head stream: the next descriptor row, or (`None`) the end of the input.
-pub(super) fn head_step(
-    stream: &mut HeadStream<'_, '_>,
-    input: Option<(&[i8], &[i8])>,
-    rows: &mut impl HeadSink,
-) -> Result<(), Error> {
-    match input {
-        Some((left, right)) => stream.push_row(left, right, rows),
-        None => stream.finish(rows),
     }
 }

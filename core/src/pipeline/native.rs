@@ -45,7 +45,7 @@ pub(super) fn run(
     let head_len = aligned(head::arena_bytes_with(HeadKind::Native, cols, nd));
     let check_len = native_check_bytes(cols, ctx.head_lr());
     let census_len = native_census_bytes(width, ctx.opts, ctx.refine);
-    let state_len = aligned(ctx.refine.map_or(0, |r| refine_parts(ctx.height, width, r, false).0));
+    let state_len = aligned(ctx.refine.map_or(0, |r| refine_parts(ctx.height, width, r).0));
     let too_small = Error::ArenaTooSmall {
         needed: native_arena_bytes(ctx.height, width, ctx.opts, ctx.refine),
         available: arena.len(),
@@ -157,12 +157,13 @@ impl<'a, 'w> Readouts<'a, 'w> {
             Some(r) if r.input == RefineInput::FusedCensusLr => {
                 let nd = ctx.opts.head_candidates;
                 let lr = ctx.opts.lr_max_diff_q8;
-                let (stage, used) = CensusStage::carve(census, ctx.width, ctx.height, nd, lr, census_stage::RING_ROWS)?;
+                let (stage, used) =
+                    CensusStage::carve(census, ctx.width, ctx.height, (nd, lr), census_stage::RING_ROWS, true)?;
                 (Some(stage), used)
             }
             _ => (None, 0),
         };
-        let refine = Refinement::new(ctx.refine, ctx.width, ctx.height, streaming, false, state)?;
+        let refine = Refinement::new(ctx.refine, ctx.width, ctx.height, streaming, state)?;
         Ok(Self {
             cols,
             weights,

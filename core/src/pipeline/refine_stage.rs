@@ -15,11 +15,12 @@
 //! From the pipeline's own band buffer whenever they are still there: the matching readouts
 //! (nolink, sgm) emit token row `t` while the band holding it is in the buffer, and the rows
 //! `t` needs lie at least [`CUT_MARGIN`] token rows inside that band (the band plan cuts in the
-//! middle of each overlap), so they never need a copy. The head's rows trail its input by
-//! [`HEAD_LAG`] token rows: some arrive after the next band was loaded over the rows they
-//! need. Before each band load the stage copies the rows it still needs and the load would
-//! drop into a small ring ([`ring_rows`]: 22 rows of each view for the head with the default
-//! reach, none for the matching readouts or one band).
+//! middle of each overlap), so they never need a copy. The heads' rows leave with the band too:
+//! on either pathway each band's head runs on the band's own rows and ends with it. Only a
+//! reach beyond the margin (the sharpness equalisation's 8 rows) needs rows a band load drops:
+//! before each load the stage copies them into a small ring ([`ring_rows`] with no lag: 2 rows
+//! of each view at reach 8, none up to reach 6 or for one band). The stage also takes rows
+//! that trail the band by a lag (its tests), the ring growing by 4 view rows a token row.
 //!
 //! # Memory
 //! State kept across bands ([`state_bytes`]): two token rows, their masks and the ring. Scratch used only
@@ -448,21 +449,19 @@ pub(super) struct Refinement<'a>(pub(super) Option<(RefineInput, RefineStage<'a>
 impl<'a> Refinement<'a> {
     /// The stage of `refine` (none without it) for `height x width` views, its state cut from
     /// `state`: with `several_bands` the ring of the rows its readout needs after the next
-    /// band's load ([`ring_rows`]; `trails`: whether the readout's rows trail the band by its
-    /// lag), with one band none.
+    /// band's load ([`ring_rows`]: every readout's rows leave with the band that made them),
+    /// with one band none.
     pub(super) fn new(
         refine: Option<&Refine>,
         width: usize,
         height: usize,
         several_bands: bool,
-        trails: bool,
         state: &'a mut [u8],
     ) -> Result<Self, Error> {
         let Some(r) = refine else {
             return Ok(Self(None));
         };
-        let lag = if trails { r.input.lag() } else { 0 };
-        let ring = if several_bands { ring_rows(r.reach(), lag) } else { 0 };
+        let ring = if several_bands { ring_rows(r.reach(), 0) } else { 0 };
         let stage = RefineStage::new(r.params, r.equalise, width, height, ring, state)?;
         Ok(Self(Some((r.input, stage))))
     }

@@ -5,8 +5,8 @@
 use super::api::{Options, Pathway, Refine, RefineInput};
 use super::head_check::{check_rows_bytes, fusion_bytes, HEAD_CHECK_ROWS};
 use super::layout::{aligned, band_pixel_rows, max, sum};
+use super::row_buffers::row_bytes;
 use super::{census_stage, refine_stage};
-use crate::arena::ALIGN_SLACK;
 use crate::config::{CELL_W, DIM, PATCH_H};
 use crate::model::encoder;
 use crate::model::head;
@@ -15,35 +15,23 @@ use crate::sgm::state_len;
 #[cfg(doc)]
 use {super::head_check::HeadCheck, super::Pipeline, crate::sgm::Penalties, crate::Error};
 
-/// Arena bytes of the matching, SGM and left-right state for `cols` patch columns
-/// (saturating, like every sizing helper here).
-pub(super) const fn matching_bytes(cols: usize, max_cols: usize, guided: bool) -> usize {
-    let volume_row = state_len(cols, max_cols);
-    let words = cols.saturating_mul(4).saturating_add(ALIGN_SLACK); // one u32 row
-    let halves = volume_row.saturating_mul(2).saturating_add(1); // one u16 cost row
-    let sums = volume_row.saturating_mul(4).saturating_add(ALIGN_SLACK); // one u32 cost row
-    let disparity = cols.saturating_mul(2).saturating_add(1); // one u16 disparity row
+/// Arena bytes of the state the matching readouts carry from row to row for `cols` patch
+/// columns: both views' SGM aggregates (vertical and diagonal) and, guided, their previous
+/// rows' guides (saturating, like every sizing helper here). A row's own buffers are
+/// [`row_bytes`].
+pub(super) const fn matching_state_bytes(cols: usize, max_cols: usize, guided: bool) -> usize {
+    let halves = state_len(cols, max_cols).saturating_mul(2).saturating_add(1); // one u16 row
     sum(&[
-        words.saturating_mul(2),                                         // inverse norms, left and right
-        halves.saturating_mul(2),                                        // cost rows, left and right view
-        halves.saturating_mul(2).saturating_add(sums).saturating_mul(2), // two SGM streams
-        disparity.saturating_mul(4),                                     // WTA and SGM rows, both views
-        cols.saturating_mul(2),                                          // left-right masks
-        if guided { cols.saturating_mul(4) } else { 0 },                 // SGM guides: rows and previous rows
+        halves.saturating_mul(4),                        // two SGM streams' aggregates
+        if guided { cols.saturating_mul(2) } else { 0 }, // their previous rows' guides
     ])
 }
 
-/// Arena bytes of the head's left-right check: the left rows kept, one mask row, the fused
-/// readout's state ([`fusion_bytes`]), and for several bands (`streaming`) the mirrored head's
-/// own stream.
-const fn head_check_bytes(cols: usize, candidates: usize, streaming: bool) -> usize {
-    let mirror = if streaming {
-        head::arena_bytes_with(HeadKind::Export, cols, candidates)
-    } else {
-        0
-    };
+/// Arena bytes of the head's left-right check: the left rows kept, one mask row and the fused
+/// readout's state ([`fusion_bytes`]), for a band's kept rows. The mirrored head reruns each
+/// band on the left head's stream ([`band_head_bytes`]).
+const fn head_check_bytes(cols: usize) -> usize {
     sum(&[
-        mirror,
         check_rows_bytes(cols, HEAD_CHECK_ROWS),
         fusion_bytes(cols, HEAD_CHECK_ROWS),
     ])
@@ -94,26 +82,42 @@ const fn uses_census(refine: Option<&Refine>) -> bool {
     )
 }
 
-/// Arena bytes of the readout streams (with the head, and its check when `head.lr`; the check
-/// needs a second head stream only when `streaming` several bands; the census stage when
-/// `head.census`, its ring as long as the check's).
-pub(super) const fn stream_bytes(cols: usize, max_cols: usize, head: ReadoutShape, streaming: bool) -> usize {
-    let check = if head.lr {
-        head_check_bytes(cols, head.candidates, streaming)
-    } else {
-        0
-    };
+/// Arena bytes of the export pathway's resident readouts, what carries from row to row and
+/// band to band: the SGMs' state, the census stage's when `head.census` (its ring as long as
+/// the check's) and the head's check when `head.lr`; bounded by the width, never the height.
+/// A row's buffers ([`row_bytes`]) and the head ([`band_head_bytes`]) are each band's.
+pub(super) const fn resident_bytes(cols: usize, max_cols: usize, head: ReadoutShape) -> usize {
+    let check = if head.lr { head_check_bytes(cols) } else { 0 };
     let census = if head.census {
-        census_stage::bytes(cols.saturating_mul(CELL_W), head.candidates, HEAD_CHECK_ROWS)
+        census_stage::resident_bytes(cols.saturating_mul(CELL_W), head.candidates, HEAD_CHECK_ROWS)
     } else {
         0
     };
-    let stream = head::arena_bytes_with(HeadKind::Export, cols, head.candidates);
-    sum(&[matching_bytes(cols, max_cols, head.guided), stream, check, census])
+    sum(&[matching_state_bytes(cols, max_cols, head.guided), check, census])
+}
+
+/// Arena bytes of a band's row buffers of the export pathway's readouts ([`row_bytes`] with
+/// the census stage's row scratch when `head.census`).
+pub(super) const fn readout_row_bytes(cols: usize, max_cols: usize, head: ReadoutShape) -> usize {
+    let census = if head.census {
+        Some((cols.saturating_mul(CELL_W), head.candidates))
+    } else {
+        None
+    };
+    row_bytes(cols, max_cols, head.guided, census)
+}
+
+/// Arena bytes of a band's export head stream (rounded up to [`REGION_ALIGN`]): started afresh
+/// on each band's rows in the encoder's scratch after the band's right descriptors, it ends
+/// with the band, the mirrored head of the check rerunning the band on it.
+pub(super) const fn band_head_bytes(cols: usize, candidates: usize) -> usize {
+    aligned(head::arena_bytes_with(HeadKind::Export, cols, candidates))
 }
 
 /// Arena bytes the pipeline needs for a `height x width` pair with `max_cols` candidates
-/// (the head included). Firmware sizes its static arena with it.
+/// (the head included). Firmware sizes its static arena with it. It depends on the band and
+/// the width: one band's for images up to 48 rows, and for every taller one the same, a
+/// little more (what carries from band to band beside the encoder's scratch).
 ///
 /// Saturates at `usize::MAX` where the size does not fit a `usize` (absurd widths or candidate
 /// counts): no arena is that large, so [`Pipeline::run`] rejects such a run as
@@ -123,23 +127,24 @@ pub const fn arena_bytes(height: usize, width: usize, max_cols: usize) -> usize 
     arena_bytes_of(height, width, max_cols, ReadoutShape::trained(false), None)
 }
 
-/// [`arena_bytes`] with the head's left-right check ([`Options::head_lr`]): a second head
-/// stream.
+/// [`arena_bytes`] with the head's left-right check ([`Options::head_lr`]): the left rows
+/// it keeps and the fused readout's (the mirrored head reruns each band on the head's stream).
 pub const fn arena_bytes_head_lr(height: usize, width: usize, max_cols: usize) -> usize {
     arena_bytes_of(height, width, max_cols, ReadoutShape::trained(true), None)
 }
 
 /// The arena bytes a run with `opts` needs: on the export pathway [`arena_bytes`] or
-/// [`arena_bytes_head_lr`]; on the native one the pixel band, the native head (two with its
-/// check) and the encoder's scratch, which holds the band's pair tokens after each pass.
+/// [`arena_bytes_head_lr`]; on the native one the pixel band, the check's rows and the
+/// encoder's scratch, which holds the band's pair tokens and its head after each pass.
 pub const fn arena_bytes_for(height: usize, width: usize, opts: &Options) -> usize {
     arena_bytes_run(height, width, opts, None)
 }
 
 /// The arena bytes [`Pipeline::run_refined`] needs with `opts` and `refine`. For one band
 /// (images up to 48 rows) it equals [`arena_bytes_for`] wherever the refinement fits in the
-/// encoder's scratch beside the streams, as at 48x160; with several bands it adds
-/// [`refine_bytes`].
+/// encoder's scratch beside the streams, as at 48x160; with several bands it adds the
+/// refinement's state ([`refine_bytes`] less the row scratch, which the encoder's scratch
+/// holds).
 pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, refine: &Refine) -> usize {
     arena_bytes_run(height, width, opts, Some(refine))
 }
@@ -170,37 +175,29 @@ pub const fn census_arena_bytes(height: usize, width: usize, opts: &Options, ref
     let pixels = band_pixel_rows(height).saturating_mul(width).saturating_mul(2);
     let census = census_stage::bytes(width, opts.head_candidates, CENSUS_RING_ROWS);
     let (state, scratch) = match refine {
-        Some(r) => refine_parts(height, width, r, false),
+        Some(r) => refine_parts(height, width, r),
         None => (0, 0),
     };
     sum(&[pixels, census, state, scratch])
 }
 
-/// Bytes of the refinement's buffers in a run of a `height x width` pair on `pathway`: its
-/// state kept across bands (two token rows; with several bands a ring of view rows where the
-/// readout's rows trail the band: the export pathway's head readouts) and its row scratch
-/// (census codes and the output row). 14,085 at 48x160 with the defaults (the equalisation's 13 smoothed rows
-/// included; 12,005 without); 22,405 for a taller image at width 160 refining the export
-/// pathway's head readout (the 26-row view ring).
-pub const fn refine_bytes(height: usize, width: usize, pathway: Pathway, refine: &Refine) -> usize {
-    let (state, scratch) = refine_parts(height, width, refine, trails_band(pathway));
+/// Bytes of the refinement's buffers in a run of a `height x width` pair, on either pathway:
+/// its state kept across bands (two token rows; with several bands and a reach beyond the
+/// band plan's margin a ring of view rows) and its row scratch (census codes and the output
+/// row). 14,165 at 48x160 with the defaults (the equalisation's 13 smoothed rows included;
+/// 12,085 without); 14,805 for a taller image at width 160 (the equalised reach's 2-row view
+/// ring). Every readout's rows leave with the band that made them, the heads' included.
+pub const fn refine_bytes(height: usize, width: usize, refine: &Refine) -> usize {
+    let (state, scratch) = refine_parts(height, width, refine);
     state.saturating_add(scratch)
 }
 
-/// Whether a pathway's refined rows trail the band that made them into the next one: the
-/// export pathway's head streams run across bands ([`RefineInput::lag`]); the native head
-/// ends with each band, and the census and matching readouts never trail.
-pub(super) const fn trails_band(pathway: Pathway) -> bool {
-    matches!(pathway, Pathway::Export)
-}
-
-/// The refinement's (state, row scratch) bytes; `trails`: whether its readout's rows trail
-/// the band ([`trails_band`]).
-pub(super) const fn refine_parts(height: usize, width: usize, refine: &Refine, trails: bool) -> (usize, usize) {
+/// The refinement's (state, row scratch) bytes.
+pub(super) const fn refine_parts(height: usize, width: usize, refine: &Refine) -> (usize, usize) {
     let ring = if height <= band_pixel_rows(height) {
         0
     } else {
-        refine_stage::ring_rows(refine.reach(), if trails { refine.input.lag() } else { 0 })
+        refine_stage::ring_rows(refine.reach(), 0)
     };
     (
         refine_stage::state_bytes(width, ring),
@@ -221,23 +218,24 @@ const fn arena_bytes_of(
     let descriptors = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(DIM);
     let encoder = encoder::arena_bytes(band_rows, width);
     let (state, scratch) = match refine {
-        Some(r) => refine_parts(height, width, r, true),
+        Some(r) => refine_parts(height, width, r),
         None => (0, 0),
     };
+    let resident = resident_region(cols, max_cols, head, state);
+    let rows = readout_row_bytes(cols, max_cols, head);
+    let band = sum(&[descriptors, band_head_bytes(cols, head.candidates), rows, scratch]);
     if height <= band_rows {
-        let streams = stream_bytes(cols, max_cols, head, false);
-        let after = sum(&[descriptors, streams, state, scratch]);
-        sum(&[pixels, descriptors, max(encoder, after)])
+        sum(&[pixels, descriptors, max(encoder, band.saturating_add(resident))])
     } else {
-        let streams = stream_bytes(cols, max_cols, head, true);
-        sum(&[
-            pixels,
-            descriptors,
-            streams,
-            state,
-            max(encoder, descriptors.saturating_add(scratch)),
-        ])
+        sum(&[pixels, descriptors, resident, max(encoder, band)])
     }
+}
+
+/// Arena bytes of the export pathway's resident region: [`resident_bytes`] and the
+/// refinement's `state` after them, rounded up to [`REGION_ALIGN`] so that what follows (the
+/// encoder's scratch, or with one band the head stream) starts aligned.
+pub(super) const fn resident_region(cols: usize, max_cols: usize, head: ReadoutShape, state: usize) -> usize {
+    aligned(resident_bytes(cols, max_cols, head).saturating_add(state))
 }
 
 /// Arena bytes of the check's right-view row and mask row (0 without the check), rounded up
@@ -264,7 +262,7 @@ pub(super) const fn native_arena_bytes(height: usize, width: usize, opts: &Optio
     let encoder = encoder::arena_bytes(band_rows, width);
     let head = aligned(head::arena_bytes_with(HeadKind::Native, cols, opts.head_candidates));
     let (state, scratch) = match refine {
-        Some(r) => refine_parts(height, width, r, false),
+        Some(r) => refine_parts(height, width, r),
         None => (0, 0),
     };
     let state = aligned(state);
@@ -283,5 +281,42 @@ pub(super) const fn native_census_bytes(width: usize, opts: &Options, refine: Op
             census_stage::RING_ROWS,
         )),
         _ => 0,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::MAX_HEIGHT;
+    use crate::preset::{EXPORT_OPTIONS, EXPORT_REFINE};
+
+    /// The export pathway's arena depends on the width, not the height: one band's, and for
+    /// every taller image that plus what carries from band to band beside the encoder's scratch
+    /// (the SGMs' state, the head's check, the census stage's state and rows, the refinement's
+    /// state), each band's head and row buffers inside it; at 160 px within the 512 KiB target.
+    #[test]
+    fn the_export_arena_does_not_grow_with_the_height() {
+        for input in [RefineInput::FusedAllLr, RefineInput::HeadLr, RefineInput::SgmLr] {
+            let refine = Refine { input, ..EXPORT_REFINE };
+            let size = |h: usize, w: usize| arena_bytes_run(h, w, &EXPORT_OPTIONS, Some(&refine));
+            for width in [32, 160, 320] {
+                let (band, frame) = (size(48, width), size(52, width));
+                let cols = width / CELL_W;
+                let shape = ReadoutShape::of(&EXPORT_OPTIONS, Some(&refine));
+                let state = refine_parts(52, width, &refine).0;
+                let resident = resident_region(cols, EXPORT_OPTIONS.max_cols, shape, state);
+                assert_eq!(frame, band + resident, "{} at {width}", input.name());
+                for height in (52..=MAX_HEIGHT).step_by(4) {
+                    assert_eq!(size(height, width), frame, "{} {width}x{height}", input.name());
+                }
+            }
+            assert!(size(120, 160) <= 512 * 1024, "{}: {}", input.name(), size(120, 160));
+        }
+        // The default readout's 160 px frame: the band's and 26,464 B (the census stage 16.9 KB,
+        // both SGMs' aggregates 5.1 KB, the check 3.5 KB, the refinement's state 0.9 KB).
+        assert_eq!(
+            arena_bytes_run(120, 160, &EXPORT_OPTIONS, Some(&EXPORT_REFINE)),
+            486_918 + 26_464
+        );
     }
 }

@@ -11,9 +11,10 @@
 //!   columns) over the measured band's; the attention term grows with the square of the width;
 //! - `match`: token rows x the (cell, candidate) pairs a row compares (each cell against the
 //!   `min(column + 1, 16)` right cells inside the view) over the band's;
-//! - `native_head`: per band, the token rows its head reads (those it keeps and six around
-//!   them, [`bino_core::band::Band::around_kept`]: each band's head starts afresh) x cells;
-//! - every other stage (`rows`, `sgm`, `left_right`, `head`, `refine` and the native twins):
+//! - the heads (`head`, `native_head`): per band, the token rows its head reads (those it keeps
+//!   and six around them, [`bino_core::band::Band::around_kept`]: each band's head starts
+//!   afresh, on either pathway) x cells;
+//! - every other stage (`rows`, `sgm`, `left_right`, `refine` and the native twins):
 //!   token rows x cells per row (W / 4) over the band's; the heads' candidates (12) are the
 //!   preset's, fixed, so their work per cell does not grow with the width;
 //! - `load` (the blob's check) runs once per boot: not part of a frame.
@@ -128,7 +129,7 @@ pub enum Scaling {
     Pairs,
     /// Per token row, its cells.
     Cells,
-    /// Per band, the token rows the native head reads, their cells.
+    /// Per band, the token rows its head reads, their cells.
     HeadRows,
 }
 
@@ -139,7 +140,7 @@ impl Scaling {
             "load" => Scaling::Boot,
             "encode_left" | "encode_right" | "encode_pair" => Scaling::Encoder,
             "match" => Scaling::Pairs,
-            "head" if name.starts_with(NATIVE_PREFIX) => Scaling::HeadRows,
+            "head" => Scaling::HeadRows,
             _ => Scaling::Cells,
         }
     }
@@ -488,9 +489,9 @@ fn round6(x: f64) -> f64 {
 /// The scaling rule in one sentence, for the reports.
 pub const RULE: &str = "each stage of the band pair scaled by its work: encoder passes by the sum over \
     the frame's bands of encoder MACs (embedding, per-token linear layers, attention 2 N^2 DIM per block) of \
-    the band's tokens; match by token rows x (cell, candidate) pairs inside the view; native_head by the token \
-    rows each band's head reads (those it keeps and 6 around them) x cells; every other stage (rows, sgm, \
-    left_right, head, refine and the native twins) by token rows x cells per row (the heads' 12 candidates are \
+    the band's tokens; match by token rows x (cell, candidate) pairs inside the view; the heads (head, native_head) \
+    by the token rows each band's head reads (those it keeps and 6 around them) x cells; every other stage (rows, \
+    sgm, left_right, refine and the native twins) by token rows x cells per row (the heads' 12 candidates are \
     fixed); load is once per boot and left out; modelled cycles scale as the instructions";
 
 /// What the frames section reports: which frames and at what clock.

@@ -188,11 +188,10 @@ pub fn frames_markdown(runs: &[CoreRun], frames: &FramesReport) -> String {
          firmware's for a frame of that size, exact: `preset::export_arena_bytes(h, w)` (export) and \
          `preset::arena_bytes(h, w)` (native, the board's preset). \"fitted\" adds to each stage a constant per \
          run (per band for the encoder, per token row for the others) fitted through both measured \
-         band widths: exact at both, an estimate elsewhere. On the native pathway each band's head \
-         lives in the encoder's scratch, so a frame's arena is the band pair's but for the \
-         refinement's ring; on the export pathway the readouts' state carries from band to band \
-         beside the encoder's scratch, so a frame's arena is larger than the band pair's, whatever \
-         its height; in bold: above the {} KiB arena target.\n",
+         band widths: exact at both, an estimate elsewhere. On either pathway each band's head \
+         lives in the encoder's scratch, so a frame's arena is the band pair's and what carries \
+         from band to band (the refinement's ring; on the export pathway the SGMs' state and the \
+         head's check), whatever its height; in bold: above the {} KiB arena target.\n",
         band.0,
         band.1,
         TARGETS.arena_bytes / 1024

@@ -384,9 +384,10 @@ fn frames_scale_each_stage_by_its_work() {
     let f = Frame::new(240, 320);
     assert_eq!(f.plan().unwrap().len(), 7);
     let got = by_name(Pathway::Export, f);
-    // A per-cell stage is exactly linear: (80 / 40) x (60 / 12) = 10 times.
-    assert_eq!(got["head"], 100.0 * 10.0);
+    // A per-cell stage is exactly linear: (80 / 40) x (60 / 12) = 10 times; the head reads
+    // each band's 12 rows: (80 / 40) x (7 x 12 / 12) = 14 times.
     assert_eq!(got["refine"], 60e6 * 10.0);
+    assert_eq!(got["head"], 100.0 * 14.0);
     // The encoder follows encoder_macs per band: 12 x 160 tokens against 12 x 80.
     let span = frame::shipped_span();
     let want = 1e9 * 7.0 * encoder_macs(12, 160, span) as f64 / encoder_macs(12, 80, span) as f64;
@@ -403,10 +404,11 @@ fn frames_scale_each_stage_by_its_work() {
     assert_eq!((pairs(40, 16), pairs(80, 16), pairs(8, 16)), (520, 1160, 36));
     assert!((got["match"] - 520_000.0 * 5.0 * 1160.0 / 520.0).abs() < 1e-6);
     let native = by_name(Pathway::Native, f);
-    // Each band's native head reads its own 12 rows (those it keeps and 6 around them): 7 x 12
-    // rows of 80 cells against 12 of 40.
+    // Each band's head reads its own 12 rows (those it keeps and 6 around them), on either
+    // pathway: 7 x 12 rows of 80 cells against 12 of 40.
     assert_eq!(Scaling::of("native_head"), Scaling::HeadRows);
-    assert_eq!(Scaling::of("head"), Scaling::Cells);
+    assert_eq!(Scaling::of("head"), Scaling::HeadRows);
+    assert_eq!(Scaling::of("sgm"), Scaling::Cells);
     assert_eq!(native["native_head"], 4e6 * 2.0 * (7.0 * 12.0) / 12.0);
     assert!((native["native_encode_pair"] - 2.0 * want).abs() < 1e-3);
     assert_eq!(Scaling::of("load"), Scaling::Boot);
@@ -494,7 +496,10 @@ fn the_scaling_check_compares_a_run_with_its_second_width() {
     assert!(frames.estimates.iter().all(|e| e.fitted_instructions.is_some()));
     let md = frames_markdown(std::slice::from_ref(&run), &frames);
     assert!(md.contains("the 48x160 band pair scaled to 48x32"), "{md}");
-    assert!(md.contains("| head | rows x cells | 20 | 100 | -80.0 % |"), "{md}");
+    assert!(
+        md.contains("| head | head rows per band x cells | 20 | 100 | -80.0 % |"),
+        "{md}"
+    );
 }
 
 /// The chart's stage names and pathway captions, as laid out for the committed runs' stages,

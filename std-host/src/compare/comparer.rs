@@ -13,10 +13,11 @@ use bino_core::model::probe::Stage;
 use super::stages::{self, mean_token_cosine, EmbedSource, FloatStages, STAGE_COUNT};
 use super::wta::{top2_gap_median, wta_agreement, wta_flip_loss};
 use super::{head, Comparison, HeadComparison, NativeComparison, PairComparison};
+use crate::band_maps::BandedRows;
 use crate::data::profile::View;
 use crate::eval::{score, similarity_volume, upsample_disparity, wta_subtoken, DisparityMap, EvalItem, Metrics};
 use crate::float::head::FloatHead;
-use crate::float::reference::{FeatureMap, ReferenceEncoder};
+use crate::float::reference::{FeatureMap, ReferenceEncoder, TokenBands};
 use crate::int8::{dequantise_residual, to_u8, HeadMaps, Int8Model, StageRecorder};
 use crate::readout::head_candidates;
 use crate::readout::refine::{refine_pixels, GrayViews};
@@ -41,7 +42,9 @@ struct ViewComparison {
     descriptor_cosine: f64,
     float: FeatureMap,
     int8: FeatureMap,
-    codes: Vec<i8>,
+    /// The maps as the bands computed them, what the export head reads band by band.
+    float_bands: TokenBands,
+    int8_bands: BandedRows<i8>,
 }
 
 impl Comparer {
@@ -137,12 +140,10 @@ impl Comparer {
         let Some(float_head) = self.float_head.as_mut() else {
             return Ok(None);
         };
-        let (rows, cols) = (left.int8.rows, left.int8.cols);
+        // Each band's head on its own rows, as the core's export pathway runs it.
         let nd = head_candidates(item.left.width);
-        let int8 = self
-            .int8
-            .head_with_candidates(&left.codes, &right.codes, (rows, cols), nd)?;
-        let float = float_head.forward(&left.float, &right.float, nd)?;
+        let int8 = (self.int8).head_banded(&left.int8_bands, &right.int8_bands, left.int8.cols, nd)?;
+        let float = float_head.forward_pair_banded(&left.float_bands, &right.float_bands, nd)?;
         head_comparison(&int8, &float, views, item).map(Some)
     }
 
@@ -174,14 +175,16 @@ impl Comparer {
 
     fn compare_view(&mut self, view: &View) -> Result<ViewComparison> {
         let mut recorder = StageRecorder::default();
-        let (rows, cols, codes) = self.int8.descriptor_codes_probed(view, &mut recorder)?;
+        let (cols, int8_bands) = self.int8.descriptor_bands_probed(view, &mut recorder)?;
+        let (rows, codes) = (int8_bands.rows, int8_bands.assemble());
         let int8 = FeatureMap {
             rows,
             cols,
             dim: DIM,
             data: codes.iter().map(|&c| c as f32 * self.descriptor_scale).collect(),
         };
-        let float = self.reference.descriptors(view)?;
+        let float_bands = self.reference.descriptor_bands(view)?;
+        let float = float_bands.assemble();
         let descriptor_cosine = mean_token_cosine(&int8.data, &float.data, DIM).context("descriptor maps")?;
 
         let plan = BandPlan::new(rows).map_err(anyhow::Error::msg)?;
@@ -213,7 +216,8 @@ impl Comparer {
             descriptor_cosine,
             float,
             int8,
-            codes,
+            float_bands,
+            int8_bands,
         })
     }
 }

@@ -241,8 +241,9 @@ fn float_maps(
     if opts.pathway == Pathway::Native {
         return float_native_maps(opts, encoder, head.context("the native pathway needs its head")?, item);
     }
-    let left = encoder.descriptors(&item.left).context("left view")?;
-    let right = encoder.descriptors(&item.right).context("right view")?;
+    let left_bands = encoder.descriptor_bands(&item.left).context("left view")?;
+    let right_bands = encoder.descriptor_bands(&item.right).context("right view")?;
+    let (left, right) = (left_bands.assemble(), right_bands.assemble());
     let volume = similarity_volume(&left, &right, opts.max_cols)?;
     let volume_right = right_view(&volume);
     let wta = wta_subtoken(&volume);
@@ -269,11 +270,13 @@ fn float_maps(
                 values,
             };
             let nd = head_candidates(item.left.width);
-            let out = h.forward(&left, &right, nd)?;
+            // Each band's head on its own rows, as the core's export pathway runs it.
+            let out = h.forward_pair_banded(&left_bands, &right_bands, nd)?;
             let confidence = out.confidence_q8();
             let head_left = map(out.disparity);
             // The right view: the head on the mirrored pair, mirrored back.
-            let head_right = mirror(&map(h.forward(&right.mirrored(), &left.mirrored(), nd)?.disparity));
+            let mirrored = h.forward_pair_banded(&right_bands.mirrored(), &left_bands.mirrored(), nd)?;
+            let head_right = mirror(&map(mirrored.disparity));
             let mask = consistent(&head_left, &head_right, opts.lr_max_diff);
             (Some(head_left), Some(mask), Some(confidence))
         }

@@ -10,7 +10,7 @@
 use anyhow::{ensure, Result};
 use bino_core::model::ids::HeadKind;
 
-use crate::band_maps::{per_band, ROW_REACH};
+use crate::band_maps::{per_band, BandedRows, ROW_REACH};
 use crate::compare::head::FloatHeadOutput;
 use crate::float::head::{FloatConv3d, FloatHead};
 use crate::float::reference::{FeatureMap, TokenBands};
@@ -96,16 +96,59 @@ impl FloatHead {
     /// head on the whole grid).
     pub fn forward_banded(&self, tokens: &TokenBands, candidates: usize) -> Result<FloatHeadOutput> {
         let (fused_cols, dim) = (tokens.cols, tokens.dim);
-        let cols = fused_cols / 2;
-        let planes = per_band(&tokens.rows, ROW_REACH, &[cols, candidates * cols], |values, rows| {
+        self.banded(&tokens.rows, fused_cols / 2, candidates, |values, rows| {
             let grid = FeatureMap {
                 rows,
                 cols: fused_cols,
                 dim,
                 data: values.to_vec(),
             };
-            let (even, odd) = grid.phase_maps();
-            let out = self.forward(&even, &odd, candidates)?;
+            grid.phase_maps()
+        })
+    }
+
+    /// The export head as the core's export pathway runs it: on each band's own rows of both
+    /// descriptor maps ([`crate::float::reference::ReferenceEncoder::descriptor_bands`]) within
+    /// [`ROW_REACH`] of those it keeps, the kept rows stitched into one output (one band: the
+    /// head on the whole maps).
+    pub fn forward_pair_banded(
+        &self,
+        first: &TokenBands,
+        second: &TokenBands,
+        candidates: usize,
+    ) -> Result<FloatHeadOutput> {
+        let (cols, dim) = (first.cols, first.dim);
+        ensure!(
+            (second.cols, second.dim) == (cols, dim),
+            "the head's input maps differ in shape"
+        );
+        let row_len = cols * dim;
+        self.banded(&first.rows.beside(&second.rows)?, cols, candidates, |values, rows| {
+            let (a, b): (Vec<&[f32]>, Vec<&[f32]>) =
+                values.chunks_exact(2 * row_len).map(|r| r.split_at(row_len)).unzip();
+            let map = |data: Vec<&[f32]>| FeatureMap {
+                rows,
+                cols,
+                dim,
+                data: data.concat(),
+            };
+            (map(a), map(b))
+        })
+    }
+
+    /// The head on each band's rows within [`ROW_REACH`] of those it keeps, its two input maps
+    /// of `cols` columns made from a band's rows by `inputs(values, rows)`; the kept rows
+    /// stitched into one output.
+    fn banded(
+        &self,
+        rows: &BandedRows<f32>,
+        cols: usize,
+        candidates: usize,
+        inputs: impl Fn(&[f32], usize) -> (FeatureMap, FeatureMap),
+    ) -> Result<FloatHeadOutput> {
+        let planes = per_band(rows, ROW_REACH, &[cols, candidates * cols], |values, rows| {
+            let (first, second) = inputs(values, rows);
+            let out = self.forward(&first, &second, candidates)?;
             Ok(vec![out.disparity, cell_major(&out.logits, candidates)])
         })?;
         let [disparity, logits] = <[Vec<f32>; 2]>::try_from(planes)

@@ -15,10 +15,12 @@ use crate::band_maps::BandedRows;
 use crate::data::profile::View;
 use crate::float::onnx::OnnxModel;
 
-/// A pair's fused token grids as the bands computed them ([`ReferenceEncoder::token_bands`]).
+/// A feature grid as the bands computed them: a pair's fused token grid
+/// ([`ReferenceEncoder::token_bands`]) or a view's descriptor map
+/// ([`ReferenceEncoder::descriptor_bands`]).
 #[derive(Debug, Clone, PartialEq)]
 pub struct TokenBands {
-    /// Fused columns.
+    /// Fused columns (token grid) or patch columns (descriptor map).
     pub cols: usize,
     /// Channels per token.
     pub dim: usize,
@@ -34,6 +36,40 @@ impl TokenBands {
             cols: self.cols,
             dim: self.dim,
             data: self.rows.assemble(),
+        }
+    }
+
+    /// Each band's [`FeatureMap::phase_average`]: the descriptor map of a token grid computed
+    /// on (I, I), band by band.
+    pub fn phase_average(&self) -> TokenBands {
+        let bands = (self.rows.bands.iter())
+            .map(|(band, values)| {
+                let grid = FeatureMap {
+                    rows: band.rows,
+                    cols: self.cols,
+                    dim: self.dim,
+                    data: values.clone(),
+                };
+                (*band, grid.phase_average().data)
+            })
+            .collect();
+        let cols = self.cols / 2;
+        TokenBands {
+            cols,
+            dim: self.dim,
+            rows: BandedRows {
+                rows: self.rows.rows,
+                row_len: cols * self.dim,
+                bands,
+            },
+        }
+    }
+
+    /// Each band's [`FeatureMap::mirrored`]: the grid of the horizontally mirrored view.
+    pub fn mirrored(&self) -> TokenBands {
+        TokenBands {
+            rows: self.rows.mirrored(self.dim),
+            ..self.clone()
         }
     }
 }
@@ -178,9 +214,16 @@ impl ReferenceEncoder {
         })
     }
 
-    /// The descriptor map of one view: the encoder on (I, I), phase-averaged; (H/4) x (W/4) x dim.
+    /// The descriptor map of one view: the encoder on (I, I), phase-averaged; (H/4) x (W/4) x
+    /// dim, each row from the band that keeps it.
     pub fn descriptors(&mut self, view: &View) -> Result<FeatureMap> {
-        Ok(self.tokens(view, view)?.phase_average())
+        Ok(self.descriptor_bands(view)?.assemble())
+    }
+
+    /// [`ReferenceEncoder::descriptors`] as the bands computed them, overlaps included: what
+    /// the export head reads band by band ([`crate::float::head::FloatHead::forward_pair_banded`]).
+    pub fn descriptor_bands(&mut self, view: &View) -> Result<TokenBands> {
+        Ok(self.token_bands(view, view)?.phase_average())
     }
 
     // Runs one band; returns the channel count and the (rows, fused cols, dim) values.

@@ -1,6 +1,6 @@
 //! The int8 heads on the host: the shared head over two descriptor maps, the native head over
-//! a pair token map (whole, or band by band as the core's native pathway runs it), and the
-//! head's own left-right check, each streamed row by row through `bino_core`'s head.
+//! a pair token map (each whole, or band by band as the core's pathways run them), and the
+//! shared head's own left-right check, each streamed row by row through `bino_core`'s head.
 
 use anyhow::{ensure, Context, Result};
 use bino_core::config::{DIM, HEAD_MAX_DISP};
@@ -32,24 +32,22 @@ pub struct HeadMaps {
 }
 
 impl Int8Model {
-    /// The head's own left-right check on whole descriptor maps (`rows x cols x DIM` codes):
-    /// the head on the mirrored pair (each row's cells reversed, views swapped) gives the right
-    /// view, and `bino_core::lr::consistent_row` compares it with `left_head` (the head's
-    /// left-view output), row by row — what the core pipeline's `head_lr` streams. True = kept.
+    /// The head's own left-right check as the core's export pathway runs it, on descriptor
+    /// maps as the bands computed them ([`Int8Model::descriptor_bands`]): the head on the
+    /// mirrored pair (each row's cells reversed, views swapped), each band on its own
+    /// ([`Int8Model::head_banded`]), gives the right view, and `bino_core::lr::consistent_row`
+    /// compares it with `left_head` (the head's left-view output), row by row. True = kept.
     pub fn head_check(
         &self,
-        left: &[i8],
-        right: &[i8],
+        left: &BandedRows<i8>,
+        right: &BandedRows<i8>,
         left_head: &HeadMaps,
+        candidates: usize,
         lr_max_diff_q8: u16,
     ) -> Result<Vec<bool>> {
         let (rows, cols) = (left_head.rows, left_head.cols);
-        let mirror = |map: &[i8]| -> Vec<i8> {
-            map.chunks_exact(cols * DIM)
-                .flat_map(|row| row.chunks_exact(DIM).rev().flatten().copied().collect::<Vec<_>>())
-                .collect()
-        };
-        let mirrored = self.head(&mirror(right), &mirror(left), rows, cols)?;
+        let mirrored = self.head_banded(&right.mirrored(DIM), &left.mirrored(DIM), cols, candidates)?;
+        ensure!(mirrored.rows == rows, "the maps and the left head differ in rows");
         let q8 = |d: f32| (d * (1u32 << bino_core::matching::DISPARITY_FRAC_BITS) as f32).round() as u16;
         let mut kept = Vec::with_capacity(rows * cols);
         let mut mask = vec![0u8; cols];
@@ -65,6 +63,44 @@ impl Int8Model {
         }
         Ok(kept)
     }
+
+    /// The int8 shared head as the core's export pathway runs it: on each band's own
+    /// descriptor rows within [`ROW_REACH`] of those it keeps ([`Int8Model::descriptor_bands`]
+    /// of both views), each band's kept rows stitched into one map. One band:
+    /// [`Int8Model::head_with_candidates`].
+    pub fn head_banded(
+        &self,
+        left: &BandedRows<i8>,
+        right: &BandedRows<i8>,
+        cols: usize,
+        candidates: usize,
+    ) -> Result<HeadMaps> {
+        let row_len = cols * DIM;
+        let lens = [cols, cols, cols * candidates, cols];
+        let planes = per_band(&left.beside(right)?, ROW_REACH, &lens, |values, rows| {
+            let (l, r): (Vec<&[i8]>, Vec<&[i8]>) = values
+                .chunks_exact(2 * row_len)
+                .map(|row| row.split_at(row_len))
+                .unzip();
+            let maps = self.head_with_candidates(&l.concat(), &r.concat(), (rows, cols), candidates)?;
+            Ok(vec![maps.disparity, maps.confidence, maps.logits, maps.right_view])
+        })?;
+        maps_of_planes(planes, left.rows, cols)
+    }
+}
+
+/// [`HeadMaps`] from the planes of a banded head (disparity, confidence, logits, right view).
+fn maps_of_planes(planes: Vec<Vec<f32>>, rows: usize, cols: usize) -> Result<HeadMaps> {
+    let [disparity, confidence, logits, right_view] =
+        <[Vec<f32>; 4]>::try_from(planes).map_err(|p| anyhow::anyhow!("the banded head gave {} planes", p.len()))?;
+    Ok(HeadMaps {
+        rows,
+        cols,
+        disparity,
+        confidence,
+        logits,
+        right_view,
+    })
 }
 
 struct CollectRows<'m, 'w> {
@@ -155,16 +191,7 @@ impl Int8Model {
             let maps = self.native_head_with_candidates(values, (rows, cols), candidates)?;
             Ok(vec![maps.disparity, maps.confidence, maps.logits, maps.right_view])
         })?;
-        let [disparity, confidence, logits, right_view] = <[Vec<f32>; 4]>::try_from(planes)
-            .map_err(|p| anyhow::anyhow!("the banded head gave {} planes", p.len()))?;
-        Ok(HeadMaps {
-            rows: tokens.rows,
-            cols,
-            disparity,
-            confidence,
-            logits,
-            right_view,
-        })
+        maps_of_planes(planes, tokens.rows, cols)
     }
 
     /// [`Int8Model::native_head`] over `candidates` disparities.

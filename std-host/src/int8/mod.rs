@@ -98,15 +98,27 @@ impl Int8Model {
 
     /// [`Int8Model::descriptor_codes`], with every band's stages shown to `probe`.
     pub fn descriptor_codes_probed(&self, view: &View, probe: &mut impl Probe) -> Result<(usize, usize, Vec<i8>)> {
+        let (cols, bands) = self.descriptor_bands_probed(view, probe)?;
+        Ok((bands.rows, cols, bands.assemble()))
+    }
+
+    /// [`Int8Model::descriptor_codes`] as the bands computed them, overlaps included: (patch
+    /// columns, every band's rows). The export head reads each band on its own
+    /// ([`Int8Model::head_banded`]).
+    pub fn descriptor_bands(&self, view: &View) -> Result<(usize, BandedRows<i8>)> {
+        self.descriptor_bands_probed(view, &mut NoProbe)
+    }
+
+    /// [`Int8Model::descriptor_bands`], with every band's stages shown to `probe`.
+    pub fn descriptor_bands_probed(&self, view: &View, probe: &mut impl Probe) -> Result<(usize, BandedRows<i8>)> {
         let encoder = self.encoder()?;
         let pixels = to_u8(&view.pixels);
-        let (rows, cols, out) = self.banded(view, 1, |band, arena, band_out| {
+        self.band_outputs(view, 1, |band, arena, band_out| {
             encoder
                 .describe(band.gray(&pixels)?, arena, band_out, probe)
                 .map_err(anyhow::Error::msg)?;
             Ok(())
-        })?;
-        Ok((rows, cols, out))
+        })
     }
 
     /// The native pathway's input codes of a pair (`H/4 x W/4 x [even, odd] x DIM`: the
@@ -159,17 +171,8 @@ impl Int8Model {
     }
 
     /// Runs `encode` on every band of `view`'s size (it gets the band's rows, the band arena
-    /// and the band's output of `per_cell x DIM` codes per patch column) and keeps each output
-    /// row from the band the plan assigns it to: (token rows, patch columns, codes).
-    fn banded<F>(&self, view: &View, per_cell: usize, encode: F) -> Result<(usize, usize, Vec<i8>)>
-    where
-        F: FnMut(BandRows, &mut [u8], &mut [i8]) -> Result<()>,
-    {
-        let (cols, bands) = self.band_outputs(view, per_cell, encode)?;
-        Ok((bands.rows, cols, bands.assemble()))
-    }
-
-    /// [`Int8Model::banded`]'s band outputs, each whole: (patch columns, the bands' rows).
+    /// and the band's output of `per_cell x DIM` codes per patch column): (patch columns, every
+    /// band's output rows, each band whole).
     fn band_outputs<F>(&self, view: &View, per_cell: usize, mut encode: F) -> Result<(usize, BandedRows<i8>)>
     where
         F: FnMut(BandRows, &mut [u8], &mut [i8]) -> Result<()>,
