@@ -73,7 +73,11 @@ fn a_token_row_reads_only_its_own_pixel_rows() {
     left2[rows.clone()].copy_from_slice(&pixels(3, rows.len()));
     right2[rows.clone()].copy_from_slice(&pixels(4, rows.len()));
     let after = tokens(&encoder, &left2, &right2, HEIGHT);
-    for (row, (a, b)) in before.chunks_exact(ROW_BYTES).zip(after.chunks_exact(ROW_BYTES)).enumerate() {
+    for (row, (a, b)) in before
+        .chunks_exact(ROW_BYTES)
+        .zip(after.chunks_exact(ROW_BYTES))
+        .enumerate()
+    {
         assert_eq!(a == b, row != 5, "token row {row}");
     }
 }

@@ -26,10 +26,10 @@ use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{bail, ensure, Context, Result};
-use bino_core::model::weights::AttentionSpan;
 use bino_core::config::{BAND_ROWS, DEPTH, DIM, MLP_HIDDEN, PATCH_H, PATCH_W};
 use bino_core::model::encoder::{arena_bytes, GrayBand};
 use bino_core::model::probe::NoProbe;
+use bino_core::model::weights::AttentionSpan;
 use serde::Serialize;
 use tract_onnx::prelude::{tract_ndarray, Tensor};
 

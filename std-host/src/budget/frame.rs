@@ -153,7 +153,9 @@ impl Scaling {
         Ok(match self {
             Scaling::Boot => (0.0, 0.0),
             Scaling::Encoder => (
-                plan.iter().map(|band| encoder_macs(band.rows, 2 * cols, shipped_span()) as f64).sum(),
+                plan.iter()
+                    .map(|band| encoder_macs(band.rows, 2 * cols, shipped_span()) as f64)
+                    .sum(),
                 plan.len() as f64,
             ),
             Scaling::Pairs => ((token_rows * pairs(cols, OPTIONS.max_cols)) as f64, token_rows as f64),
@@ -488,7 +490,7 @@ fn round6(x: f64) -> f64 {
 
 /// The scaling rule in one sentence, for the reports.
 pub const RULE: &str = "each stage of the band pair scaled by its work: encoder passes by the sum over \
-    the frame's bands of encoder MACs (embedding, per-token linear layers, attention 2 N^2 DIM per block) of \
+    the frame's bands of encoder MACs (embedding, per-token linear layers, attention 2 x DIM per query and key it reads, per block: the keys of its token row with the shipped encoder) of \
     the band's tokens; match by token rows x (cell, candidate) pairs inside the view; the heads (head, native_head) \
     by the token rows each band's head reads (those it keeps and 6 around them) x cells; every other stage (rows, \
     sgm, left_right, refine and the native twins) by token rows x cells per row (the heads' 12 candidates are \

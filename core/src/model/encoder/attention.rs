@@ -271,7 +271,10 @@ impl AttentionPass<'_, '_> {
                 for (head, ((k_head, p), sums)) in kv.enumerate() {
                     let part = head * HEAD_DIM..(head + 1) * HEAD_DIM;
                     let (k_window, v_window) = (window.keys(k_head), window.values(self.span, values, tokens, head));
-                    let query_tokens = queries.get(run_tokens.clone()).unwrap_or_default().chunks(QUERY_BLOCK * DIM);
+                    let query_tokens = queries
+                        .get(run_tokens.clone())
+                        .unwrap_or_default()
+                        .chunks(QUERY_BLOCK * DIM);
                     let out_tokens = attended
                         .get_mut(run_tokens.clone())
                         .unwrap_or_default()
