@@ -109,10 +109,6 @@ impl AttentionPass<'_, '_> {
     /// `[row][head][HEAD_DIM][column]` (each row's values a head's whole window).
     /// `scratch` (the attention scores' room, idle in this pass) keeps the values' prepared
     /// requantisation.
-    // Never inlined on Cortex-M7: its per-pass parameter arrays would otherwise stay in the
-    // encoder's frame while pass 2 runs, past the 32 KiB stack budget; inlined elsewhere, where
-    // LLVM shares the frames better (measured: `firmware-sim/measured/<core>.log`).
-    #[cfg_attr(bino_dsp, inline(never))]
     #[allow(clippy::too_many_arguments)]
     pub(super) fn keys_values(
         &self,

@@ -22,7 +22,7 @@ use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::dispatch::matmul_requant_i8_prepared;
 use crate::kernels::dispatch::ChannelRequant;
-use crate::kernels::dispatch::QUERY_BLOCK;
+use crate::kernels::dispatch::{out_of_line, QUERY_BLOCK};
 use crate::kernels::params::Offset;
 use crate::Error;
 
@@ -383,10 +383,11 @@ impl<'w> Encoder<'w> {
                 keys: key_layout_of(self.weights.span(), grid),
                 span: self.weights.span(),
             };
-            attention.keys_values(x, normed, acc, keys, values, scores);
+            // Passes 1 and 3 in frames of their own where the core's stack budget needs it.
+            out_of_line(|| attention.keys_values(x, normed, acc, keys, values, scores));
             attention.queries_attend(x, normed, acc, queries, attended, keys, values, scores, softmax, hidden)?;
             probe.observe(Stage::Attention(b), rows, fused_cols, x);
-            mlp(&w, &middle, &output, x, normed, hidden, acc, scores);
+            out_of_line(|| mlp(&w, &middle, &output, x, normed, hidden, acc, scores));
             probe.observe(Stage::Block(b), rows, fused_cols, x);
         }
         Ok((

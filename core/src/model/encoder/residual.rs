@@ -90,7 +90,6 @@ pub(super) fn project_add(
 /// Pass 3: the MLP of every token block (hidden layer only for one block at a time); `scratch`
 /// (the attention scores' room, idle in this pass) keeps fc1's prepared requantisation.
 #[allow(clippy::too_many_arguments)]
-#[cfg_attr(bino_dsp, inline(never))] // as `AttentionPass::keys_values`
 pub(super) fn mlp(
     w: &BlockWeights<'_>,
     input: &ResidualFormat<'_>,
