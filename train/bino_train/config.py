@@ -25,6 +25,8 @@ class EncoderConfig:
     """Image rows the encoder sees at once; taller images go by overlapping bands."""
     rope_base: float = 100.0
     ln_eps: float = 1e-5
+    attention_rows: int | None = None
+    """Each token attends to the token rows within this many of its own (None: the whole band)."""
 
     def __post_init__(self) -> None:
         if self.dim % self.heads != 0:
@@ -35,6 +37,8 @@ class EncoderConfig:
             raise ValueError(f"fused patch width {self.patch_w} must be even")
         if self.band_rows % self.patch_h != 0:
             raise ValueError(f"band rows {self.band_rows} not a multiple of {self.patch_h}")
+        if self.attention_rows is not None and self.attention_rows < 0:
+            raise ValueError(f"attention rows {self.attention_rows} must be at least 0")
 
     @property
     def head_dim(self) -> int:

@@ -16,6 +16,7 @@ metadata and may not be written into `weights/`.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -138,7 +139,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument(
         "--state-dict", type=Path, help="also save {config, encoder} (PyTorch) to this file"
     )
+    parser.add_argument(
+        "--attention-rows",
+        type=int,
+        help="hold attention to this many token rows either side (0: each row within itself; "
+        "the engine runs 0 or, without this option, the whole band)",
+    )
     args = parser.parse_args(argv)
+    if args.attention_rows is not None and args.attention_rows < 0:
+        parser.error(f"--attention-rows {args.attention_rows} must be at least 0")
 
     if args.checkpoint is not None:
         if not args.checkpoint.is_file():
@@ -149,6 +158,8 @@ def main(argv: list[str] | None = None) -> None:
         _refuse_random_into_weights(args.out)
         encoder = random_encoder(args.random_init_seed)
         provenance = f"random-init seed {args.random_init_seed} (tests only, not trained)"
+    if args.attention_rows is not None:
+        encoder.cfg = dataclasses.replace(encoder.cfg, attention_rows=args.attention_rows)
     export_onnx(encoder, args.out, intermediates=args.intermediates, provenance=provenance)
     print(f"wrote {args.out} ({parameter_count(encoder):,} parameters; {provenance})")
     if args.state_dict is not None:

@@ -68,14 +68,14 @@ class Attention(nn.Module):
         self.qkv = nn.Linear(cfg.dim, 3 * cfg.dim)
         self.proj = nn.Linear(cfg.dim, cfg.dim)
 
-    def forward(self, x: Tensor, cos: Tensor, sin: Tensor) -> Tensor:
+    def forward(self, x: Tensor, cos: Tensor, sin: Tensor, mask: Tensor | None = None) -> Tensor:
         b, n, d = x.shape
         qkv = self.qkv(x).reshape(b, n, 3, self.heads, self.head_dim).permute(2, 0, 3, 1, 4)
         q, k, v = qkv[0], qkv[1], qkv[2]
         q = apply_rope(q, cos, sin)
         k = apply_rope(k, cos, sin)
         # Fused kernel: softmax(q k^T / sqrt(head_dim)) v, ~4x faster on CPU than the explicit form.
-        out = F.scaled_dot_product_attention(q, k, v)
+        out = F.scaled_dot_product_attention(q, k, v, attn_mask=mask)
         return self.proj(out.transpose(1, 2).reshape(b, n, d))
 
 
@@ -90,8 +90,8 @@ class Block(nn.Module):
         self.fc1 = nn.Linear(cfg.dim, cfg.mlp_hidden)
         self.fc2 = nn.Linear(cfg.mlp_hidden, cfg.dim)
 
-    def forward(self, x: Tensor, cos: Tensor, sin: Tensor) -> Tensor:
-        x = x + self.attn(self.norm1(x), cos, sin)
+    def forward(self, x: Tensor, cos: Tensor, sin: Tensor, mask: Tensor | None = None) -> Tensor:
+        x = x + self.attn(self.norm1(x), cos, sin, mask)
         return x + self.fc2(F.gelu(self.fc1(self.norm2(x))))
 
 
@@ -146,8 +146,9 @@ class BinoEncoder(nn.Module):
         cos, sin = rope_tables(r, p, self.cfg.head_dim, self.cfg.rope_base)
         stages = [x]
         h = x.reshape(b, hp * wf, d)
+        mask = row_window_mask(hp, wf, self.cfg.attention_rows, x.device)
         for block in self.blocks:
-            h = block(h, cos, sin)
+            h = block(h, cos, sin, mask)
             stages.append(h.reshape(b, hp, wf, d))
         stages.append(stages[-1] - row_embed)
         return stages
@@ -166,6 +167,16 @@ class BinoEncoder(nn.Module):
         return phase_maps(self.forward(left, right))
 
 
+def row_window_mask(rows: int, cols: int, reach: int | None, device: torch.device) -> Tensor | None:
+    """Which keys each query may read when attention is held to `reach` token rows either side
+    (True: allowed); None for attention over the whole band. Tokens are row-major, so each
+    query's keys are one contiguous run: the engine needs only a start and a length per row."""
+    if reach is None:
+        return None
+    row = torch.arange(rows, device=device).unsqueeze(1).expand(rows, cols).reshape(-1)
+    return (row[:, None] - row[None, :]).abs() <= reach
+
+
 def phase_average(tokens: Tensor) -> Tensor:
     """Average the two phase tokens (c = 2p, 2p + 1) of each patch column."""
     return 0.5 * (tokens[:, :, 0::2] + tokens[:, :, 1::2])
@@ -182,11 +193,17 @@ def phase_maps(tokens: Tensor) -> tuple[Tensor, Tensor]:
 def encoder_macs(cfg: EncoderConfig, height: int = 48, width: int = 160) -> int:
     """Multiply-accumulates of one encoder pass on a height x width pair: the patch embedding,
     and per block the qkv, attention scores, attention-weighted values, output projection and
-    the MLP (norms, softmax, GELU and RoPE are elementwise, not counted)."""
-    tokens = (height // cfg.patch_h) * (2 * width // cfg.patch_w)
+    the MLP (norms, softmax, GELU and RoPE are elementwise, not counted). With
+    `cfg.attention_rows`, each query reads only the keys of the token rows within reach."""
+    rows, cols = height // cfg.patch_h, 2 * width // cfg.patch_w
+    tokens = rows * cols
     d = cfg.dim
     embed = tokens * cfg.in_chans * cfg.patch_h * cfg.patch_w * d
-    attention = tokens * 3 * d * d + 2 * tokens * tokens * d + tokens * d * d
+    reach = rows if cfg.attention_rows is None else cfg.attention_rows
+    pairs = sum(
+        cols * cols * (min(r + reach, rows - 1) - max(r - reach, 0) + 1) for r in range(rows)
+    )
+    attention = tokens * 3 * d * d + 2 * pairs * d + tokens * d * d
     mlp = 2 * tokens * d * cfg.mlp_hidden
     return embed + cfg.depth * (attention + mlp)
 

@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
+import onnx
 import onnxruntime as ort
 import pytest
 import torch
@@ -55,3 +57,32 @@ def test_onnx_with_intermediates_matches_torch_at_dynamic_sizes(
 def test_random_init_is_refused_into_weights(tmp_path: Path) -> None:
     with pytest.raises(SystemExit, match="refusing"):
         main(["--random-init-seed", "0", "--out", str(tmp_path / "weights" / "x.onnx")])
+
+
+@pytest.mark.parametrize("height,width", [(48, 80), (32, 44)])
+def test_row_attention_exports_its_mask_at_dynamic_sizes(
+    tmp_path: Path, height: int, width: int
+) -> None:
+    """`--attention-rows 0`: the graph holds each token row to itself at every band size,
+    and stamps the reach into `bino.config` for the quantiser."""
+    path = tmp_path / "enc.onnx"
+    main(["--random-init-seed", "3", "--attention-rows", "0", "--out", str(path)])
+    encoder = random_encoder(3)
+    encoder.cfg = dataclasses.replace(encoder.cfg, attention_rows=0)
+    session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
+    rng = np.random.default_rng(1)
+    left = rng.random((1, 3, height, width), dtype=np.float32)
+    right = rng.random((1, 3, height, width), dtype=np.float32)
+    (got,) = session.run(None, {"left": left, "right": right})
+    with torch.no_grad():
+        want = encoder(torch.from_numpy(left), torch.from_numpy(right)).numpy()
+    assert np.abs(got - want).max() < 1e-4
+    config = {p.key: p.value for p in onnx.load(str(path)).metadata_props}["bino.config"]
+    assert "'attention_rows': 0" in config
+
+
+def test_negative_attention_rows_are_refused_by_the_exporter(tmp_path: Path) -> None:
+    with pytest.raises(SystemExit):
+        main(
+            ["--random-init-seed", "0", "--attention-rows", "-1", "--out", str(tmp_path / "x.onnx")]
+        )

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -9,11 +11,13 @@ from bino_train.config import EncoderConfig
 from bino_train.model import (
     BinoEncoder,
     apply_rope,
+    encoder_macs,
     interleave,
     parameter_count,
     phase_average,
     rope_positions,
     rope_tables,
+    row_window_mask,
 )
 
 CFG = EncoderConfig()
@@ -115,3 +119,41 @@ def test_encoder_rejects_bad_sizes() -> None:
         model.check_input(torch.zeros(1, 3, 48, 18), torch.zeros(1, 3, 48, 18))
     with pytest.raises(ValueError, match="differ"):
         model.check_input(torch.zeros(1, 3, 48, 16), torch.zeros(1, 3, 48, 20))
+
+
+def test_row_attention_keeps_each_token_row_to_its_own_pixel_rows() -> None:
+    """With attention_rows=0 a token row reads only its own four pixel rows (and its row
+    embedding); with attention over the band, redrawing one row changes every row."""
+    torch.manual_seed(0)
+    band = BinoEncoder(CFG).eval()
+    row = BinoEncoder(dataclasses.replace(CFG, attention_rows=0)).eval()
+    row.load_state_dict(band.state_dict())
+    left, right = torch.rand(1, 3, 16, 32), torch.rand(1, 3, 16, 32)
+    left2 = left.clone()
+    left2[..., 8:12, :] = torch.rand(1, 3, 4, 32)
+    with torch.no_grad():
+        changed_row = (row(left, right) - row(left2, right)).abs().amax(dim=(0, 2, 3))
+        changed_band = (band(left, right) - band(left2, right)).abs().amax(dim=(0, 2, 3))
+    assert changed_row[2] > 0
+    assert torch.all(changed_row[[0, 1, 3]] == 0)
+    assert torch.all(changed_band > 0)
+
+
+def test_row_window_mask_allows_the_rows_within_reach() -> None:
+    mask = row_window_mask(3, 2, 1, torch.device("cpu"))
+    assert mask is not None and mask.shape == (6, 6)
+    rows = torch.tensor([0, 0, 1, 1, 2, 2])
+    assert torch.equal(mask, (rows[:, None] - rows[None, :]).abs() <= 1)
+    assert row_window_mask(3, 2, None, torch.device("cpu")) is None
+
+
+def test_row_attention_costs_a_twelfth_of_the_bands_attention_products() -> None:
+    rows = dataclasses.replace(CFG, attention_rows=0)
+    d, tokens, cols = CFG.dim, 12 * 80, 80
+    saved = 7 * 2 * d * (tokens * tokens - tokens * cols)
+    assert encoder_macs(CFG) - encoder_macs(rows) == saved
+
+
+def test_negative_attention_rows_are_refused() -> None:
+    with pytest.raises(ValueError, match="attention rows"):
+        EncoderConfig(attention_rows=-1)

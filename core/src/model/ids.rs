@@ -39,6 +39,9 @@ pub mod kind {
     pub const ROPE_ROWS: u16 = 33;
     /// `i16[max patch columns x 2 QUARTER]`: RoPE cosines then sines (Q14) per patch column.
     pub const ROPE_COLS: u16 = 34;
+    /// `u16[1]`: token rows either side of its own that a query attends to; absent: every
+    /// row of the band. The engine runs 0 (each token row attends within itself).
+    pub const ATTENTION_ROWS: u16 = 35;
     /// `i32[DIM]`: descriptor multipliers (final residual format to Q8 descriptor codes).
     pub const DESC_MULT: u16 = 40;
     /// `u8[DIM]`: descriptor shifts.

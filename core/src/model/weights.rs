@@ -1,7 +1,7 @@
 //! Typed, validated views of the encoder's tensors in a blob (zero-copy: they borrow it).
 
 use super::ids::{self, kind, ConfigField, Linear, CONFIG_LEN, RESIDUAL_FORMATS};
-use crate::blob::{Blob, Le, TensorId};
+use crate::blob::{Blob, BlobError, Le, TensorId};
 use crate::config::{BAND_TOKEN_ROWS, DEPTH, DIM, HEADS, HEAD_GROUPS, HEAD_HIDDEN, HEAD_MAX_DISP};
 use crate::config::{HEAD_MIDDLE_LAYERS, HEAD_PROJ_DIM, MLP_HIDDEN, PATCH_H, PATCH_W};
 use crate::fixed::{Requant, MAX_SHIFT};
@@ -117,11 +117,38 @@ pub struct BlockWeights<'w> {
     pub carry_mlp: Carry<'w>,
 }
 
+/// Which keys an encoder query attends to (the blob's [`kind::ATTENTION_ROWS`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AttentionSpan {
+    /// Every token of the band (blobs without [`kind::ATTENTION_ROWS`]).
+    Band,
+    /// The tokens of its own token row: a query's keys and values are one row of the band,
+    /// so attention costs grow with the band's width only, not with its height.
+    Row,
+}
+
+impl AttentionSpan {
+    /// The span a blob's [`kind::ATTENTION_ROWS`] entry names (`None`: the entry is absent).
+    fn of_rows(rows: Option<u16>) -> Result<Self, Error> {
+        match rows {
+            None => Ok(Self::Band),
+            Some(0) => Ok(Self::Row),
+            Some(found) => Err(Error::ConfigMismatch {
+                field: "attention_rows",
+                expected: 0,
+                found: found as usize,
+            }),
+        }
+    }
+}
+
 /// The encoder's weights in a blob, validated once by [`EncoderWeights::new`].
 #[derive(Clone, Copy)]
 pub struct EncoderWeights<'w> {
     blob: Blob<'w>,
     max_patch_cols: usize,
+    span: AttentionSpan,
 }
 
 impl<'w> EncoderWeights<'w> {
@@ -159,7 +186,17 @@ impl<'w> EncoderWeights<'w> {
                 found: 0,
             });
         }
-        let weights = Self { blob, max_patch_cols };
+        let rows = match blob.u16s(ids::id(kind::ATTENTION_ROWS, 0), 1) {
+            Ok(rows) => Some(rows.get(0).unwrap_or(0)),
+            Err(BlobError::MissingTensor { .. }) => None,
+            Err(e) => return Err(e.into()),
+        };
+        let span = AttentionSpan::of_rows(rows)?;
+        let weights = Self {
+            blob,
+            max_patch_cols,
+            span,
+        };
         weights.embed()?;
         for s in 0..RESIDUAL_FORMATS {
             weights.residual(s)?;
@@ -175,6 +212,11 @@ impl<'w> EncoderWeights<'w> {
     /// The blob these views borrow.
     pub fn blob(&self) -> &Blob<'w> {
         &self.blob
+    }
+
+    /// Which keys a query attends to.
+    pub fn span(&self) -> AttentionSpan {
+        self.span
     }
 
     /// Widest input the weights cover (the RoPE column table), in patch columns.

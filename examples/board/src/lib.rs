@@ -33,12 +33,12 @@ pub const OUTPUTS: [&str; 6] = ["pair_tokens", "head", "head_left_right", "fused
 /// The firmware's digests of the shipped 48x160 test band (`firmware-sim/assets/`) on both
 /// Cortex-M cores and on the host (`firmware-sim/measured/m55.json`, `m7.json`).
 pub const EXPECTED: Digests = Digests([
-    0x0671_5462, // pair_tokens
-    0x6c08_208a, // head
-    0xfa75_38c0, // head_left_right
-    0xc2c4_9888, // fused
-    0xdd7b_6fae, // refined
-    0x4a07_76c0, // sectors
+    0x1137_7f50, // pair_tokens
+    0x19bf_6399, // head
+    0xfdc0_eb86, // head_left_right
+    0xfc43_bace, // fused
+    0x2f8e_5855, // refined
+    0x5d8a_21ae, // sectors
 ]);
 
 /// CRC-32 (IEEE) of each of [`OUTPUTS`].

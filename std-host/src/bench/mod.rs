@@ -29,6 +29,7 @@ use anyhow::{bail, ensure, Context, Result};
 use bino_core::config::{BAND_ROWS, DEPTH, DIM, MLP_HIDDEN, PATCH_H, PATCH_W};
 use bino_core::model::encoder::{arena_bytes, GrayBand};
 use bino_core::model::probe::NoProbe;
+use bino_core::model::weights::AttentionSpan;
 use serde::Serialize;
 use tract_onnx::prelude::{tract_ndarray, Tensor};
 
@@ -106,15 +107,20 @@ pub(crate) struct TimingJson<'a> {
     runs_s: &'a [f64],
 }
 
-/// Multiply-accumulates of one encoder pass over a band of `tokens` tokens: the embedding
-/// (16 inputs per token), per block qkv, proj, fc1 and fc2 per token, and attention
-/// (scores and weighted sum, `2 N^2 DIM`).
-pub fn encoder_macs(tokens: usize) -> u64 {
-    let n = tokens as u64;
+/// Multiply-accumulates of one encoder pass over a band of `rows` token rows of `fused_cols`
+/// tokens: the embedding (16 inputs per token), per block qkv, proj, fc1 and fc2 per token, and
+/// attention (scores and weighted sum, `2 x DIM` per query and key it reads: every token of the
+/// band, or of its own row, per `span`).
+pub fn encoder_macs(rows: usize, fused_cols: usize, span: AttentionSpan) -> u64 {
+    let n = (rows * fused_cols) as u64;
     let (dim, hidden) = (DIM as u64, MLP_HIDDEN as u64);
     let embed = n * (PATCH_H * PATCH_W) as u64 * dim;
     let per_token = dim * 3 * dim + dim * dim + 2 * dim * hidden;
-    let attention = 2 * n * n * dim;
+    let keys = match span {
+        AttentionSpan::Band => n,
+        AttentionSpan::Row => fused_cols as u64,
+    };
+    let attention = 2 * n * keys * dim;
     embed + DEPTH as u64 * (n * per_token + attention)
 }
 
@@ -487,7 +493,7 @@ pub fn bench(opts: &BenchOptions, mut note: impl FnMut(&str)) -> Result<BenchRep
         width,
         height,
         tokens,
-        macs: encoder_macs(tokens),
+        macs: encoder_macs(height / PATCH_H, 2 * (width / PATCH_W), encoder.weights().span()),
         cpu: cpu_model(),
         built_with_avx2: cfg!(target_feature = "avx2"),
         cpu_has_avx2: cpu_has_avx2(),
@@ -510,8 +516,11 @@ mod tests {
         // 960 tokens: embed 960*16*128, per block 960*(49152+16384+122880) + 2*960^2*128.
         let n = 960u64;
         let expected = n * 16 * 128 + 7 * (n * (128 * 384 + 128 * 128 + 128 * 480 * 2) + 2 * n * n * 128);
-        assert_eq!(encoder_macs(960), expected);
+        assert_eq!(encoder_macs(12, 80, AttentionSpan::Band), expected);
         assert_eq!(expected, 2_919_628_800);
+        // Attention within each token row: every query reads its row's 80 keys, not 960.
+        let saved = 7 * 2 * n * (960 - 80) * 128;
+        assert_eq!(encoder_macs(12, 80, AttentionSpan::Row), expected - saved);
     }
 
     #[test]

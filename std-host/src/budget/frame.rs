@@ -36,6 +36,10 @@ use serde::Serialize;
 
 use super::{clock, frame_run_stage, Clock, CoreRun, NATIVE_PREFIX};
 use crate::bench::encoder_macs;
+use crate::io::checkout;
+use bino_core::blob::Blob;
+use bino_core::model::encoder::Encoder;
+use bino_core::model::weights::AttentionSpan;
 
 /// A frame (or band) size in pixels.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
@@ -100,6 +104,19 @@ impl Frame {
     }
 }
 
+/// Which keys the shipped encoder's queries read (`weights/bino_int8.bin`, the blob the
+/// firmware runs), for [`encoder_macs`]; band attention where the blob cannot be read.
+pub(crate) fn shipped_span() -> AttentionSpan {
+    static SPAN: std::sync::OnceLock<AttentionSpan> = std::sync::OnceLock::new();
+    *SPAN.get_or_init(|| {
+        let bytes = std::fs::read(checkout::path(checkout::BLOB)).unwrap_or_default();
+        Blob::parse(&bytes)
+            .ok()
+            .and_then(|blob| Encoder::new(blob).ok())
+            .map_or(AttentionSpan::Band, |encoder| encoder.weights().span())
+    })
+}
+
 /// How a stage's work grows with the frame (see the module's doc).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
@@ -136,7 +153,9 @@ impl Scaling {
         Ok(match self {
             Scaling::Boot => (0.0, 0.0),
             Scaling::Encoder => (
-                plan.iter().map(|band| encoder_macs(band.rows * 2 * cols) as f64).sum(),
+                plan.iter()
+                    .map(|band| encoder_macs(band.rows, 2 * cols, shipped_span()) as f64)
+                    .sum(),
                 plan.len() as f64,
             ),
             Scaling::Pairs => ((token_rows * pairs(cols, OPTIONS.max_cols)) as f64, token_rows as f64),
@@ -471,7 +490,7 @@ fn round6(x: f64) -> f64 {
 
 /// The scaling rule in one sentence, for the reports.
 pub const RULE: &str = "each stage of the band pair scaled by its work: encoder passes by the sum over \
-    the frame's bands of encoder MACs (embedding, per-token linear layers, attention 2 N^2 DIM per block) of \
+    the frame's bands of encoder MACs (embedding, per-token linear layers, attention 2 x DIM per query and key it reads, per block: the keys of its token row with the shipped encoder) of \
     the band's tokens; match by token rows x (cell, candidate) pairs inside the view; the heads (head, native_head) \
     by the token rows each band's head reads (those it keeps and 6 around them) x cells; every other stage (rows, \
     sgm, left_right, refine and the native twins) by token rows x cells per row (the heads' 12 candidates are \

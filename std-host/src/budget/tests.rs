@@ -389,7 +389,8 @@ fn frames_scale_each_stage_by_its_work() {
     assert_eq!(got["refine"], 60e6 * 10.0);
     assert_eq!(got["head"], 100.0 * 14.0);
     // The encoder follows encoder_macs per band: 12 x 160 tokens against 12 x 80.
-    let want = 1e9 * 7.0 * encoder_macs(12 * 160) as f64 / encoder_macs(12 * 80) as f64;
+    let span = frame::shipped_span();
+    let want = 1e9 * 7.0 * encoder_macs(12, 160, span) as f64 / encoder_macs(12, 80, span) as f64;
     assert!(
         (got["encode_left"] - want).abs() < 1e-3,
         "{} vs {want}",

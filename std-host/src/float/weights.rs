@@ -107,6 +107,9 @@ pub struct FloatEncoder {
     pub blocks: Vec<FloatBlock>,
     /// RoPE frequency base, from the `bino.config` metadata the exporter stamps.
     pub rope_base: f32,
+    /// Token rows either side of its own that a query attends to (`attention_rows` in
+    /// `bino.config`); `None`: the whole band.
+    pub attention_rows: Option<u16>,
 }
 
 impl FloatEncoder {
@@ -119,7 +122,7 @@ impl FloatEncoder {
 
     /// Reads the encoder from an indexed ONNX graph.
     pub fn from_params(params: &OnnxParams) -> Result<Self> {
-        let rope_base = check_config(params)?;
+        let (rope_base, attention_rows) = check_config(params)?;
         let conv = "/patch_embed/Conv";
         let patch_weight = params.node_tensor(conv, 1, &[DIM, IN_CHANS, PATCH_H, PATCH_W], "patch embedding weight")?;
         let patch_bias = params.node_tensor(conv, 2, &[DIM], "patch embedding bias")?;
@@ -137,6 +140,7 @@ impl FloatEncoder {
             row_embed,
             blocks,
             rope_base,
+            attention_rows,
         })
     }
 }
@@ -175,8 +179,9 @@ fn read_block(params: &OnnxParams, b: usize) -> Result<FloatBlock> {
 }
 
 // The head count is not visible in the weights' shapes and the RoPE base is folded into
-// constants: both come from the `bino.config` metadata `export.py` stamps. Returns the base.
-fn check_config(params: &OnnxParams) -> Result<f32> {
+// constants: both come from the `bino.config` metadata `export.py` stamps, as does the
+// attention's reach (a mask in the graph). Returns the base and the reach.
+fn check_config(params: &OnnxParams) -> Result<(f32, Option<u16>)> {
     let config = params.metadata_numbers("bino.config")?.with_context(|| {
         format!(
             "ONNX model {} has no `bino.config` metadata (written by `python -m bino_train.export`)",
@@ -201,7 +206,18 @@ fn check_config(params: &OnnxParams) -> Result<f32> {
         .get("rope_base")
         .with_context(|| format!("`bino.config` of ONNX model {} has no rope_base", params.source()))?;
     ensure!(base > 1.0, "ONNX model {} has RoPE base {base}", params.source());
-    Ok(base as f32)
+    let attention_rows = match config.get("attention_rows") {
+        None => None,
+        Some(&rows) => {
+            ensure!(
+                rows == 0.0,
+                "ONNX model {} attends {rows} token rows either side; the engine runs 0 or the whole band",
+                params.source()
+            );
+            Some(0)
+        }
+    };
+    Ok((base as f32, attention_rows))
 }
 
 #[cfg(test)]

@@ -54,6 +54,9 @@ pub fn write_encoder(
         *c = v as u16;
     }
     w.add_u16(ids::id(kind::CONFIG, 0), &config)?;
+    if let Some(rows) = float.attention_rows {
+        w.add_u16(ids::id(kind::ATTENTION_ROWS, 0), &[rows])?;
+    }
     write_embedding(float, f, w)?;
     for (s, format) in f.residual.iter().enumerate() {
         w.add_i32(ids::id(kind::RESIDUAL_ZERO, s), &format.zero)?;

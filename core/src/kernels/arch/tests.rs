@@ -209,7 +209,8 @@ fn dsp_softmax_into_the_widened_rows_matches_the_specification() {
         let Some(e) = ExpQ32::new(Requant { mult, shift }) else {
             continue;
         };
-        let n = 8 * rng.range(16, 32) as usize;
+        // Rows of 8 to 256 keys: the band's, and a token row's (attention within the row).
+        let n = 8 * rng.range(1, 32) as usize;
         let mut scores = [0i32; 4 * 256];
         // Attention's range, and every fifth block the extremes of i32 (gaps past 2^31,
         // which the kernel saturates).
@@ -246,7 +247,7 @@ fn dsp_softmax_into_the_widened_rows_matches_the_specification() {
         match dsp::softmax_weighted_sums(
             &e,
             &mut scores[..4 * n],
-            &mut scratch[..4 * n],
+            &mut scratch[..4 * n.max(4 * HEAD_DIM)],
             &values_t[..HEAD_DIM * n],
         ) {
             Some((total, acc)) => {
@@ -264,7 +265,7 @@ fn dsp_softmax_into_the_widened_rows_matches_the_specification() {
     })
     .unwrap();
     assert!(dsp::softmax_weighted_sums(&e, &mut [0; 16], &mut [0; 16], &[0; HEAD_DIM * 4]).is_none());
-    // And rows too short to hold the sums in the softmax bytes (fewer than 128 keys).
+    // And softmax bytes too short to hold the sums (fewer than 128 words).
     assert!(dsp::softmax_weighted_sums(&e, &mut [0; 4 * 120], &mut [0; 4 * 120], &[0; HEAD_DIM * 120]).is_none());
 }
 

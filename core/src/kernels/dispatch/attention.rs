@@ -1,4 +1,4 @@
-//! One query row of one attention head against all keys of the band: scores, integer
+//! One query row of one attention head against the keys of its window: scores, integer
 //! softmax, weighted sum of values. Memory is one score and one weight per key: attention is
 //! never materialised as an N x N matrix.
 //!
@@ -217,19 +217,23 @@ fn attend_block_with(
         return;
     }
     // One row of n scores and one of n weights per query.
-    let (Some(scores), Some(weights)) = (scores.get_mut(..QUERY_BLOCK * n), weights.get_mut(..QUERY_BLOCK * n)) else {
+    let Some(scores) = scores.get_mut(..QUERY_BLOCK * n) else {
         return;
     };
     block_scores(queries, keys, n, scores);
     let fast = ExpQ32::new(p.to_log2_q8);
     let values_n = values_t.get(..HEAD_DIM * n).unwrap_or(&[]);
-    // Cortex-M7: the softmax written straight into the GEMM tile's widened rows.
+    // Cortex-M7: the softmax written straight into the GEMM tile's widened rows; its sums in
+    // the whole of the weights' room, which short rows (attention within a token row) need.
     if let Some((total, acc)) = fast.and_then(|e| arch::softmax_weighted_sums(&e, scores, weights, values_n)) {
         for ((out_q, acc_q), &t) in out.iter_mut().zip(acc).zip(&total) {
             normalise(acc_q, t, p, out_q);
         }
         return;
     }
+    let Some(weights) = weights.get_mut(..QUERY_BLOCK * n) else {
+        return;
+    };
     let mut acc = [[0i32; HEAD_DIM]; QUERY_BLOCK];
     let mut score_rows = scores.chunks_exact(n);
     let mut weight_rows = weights.chunks_exact_mut(n);

@@ -110,6 +110,16 @@ pub fn scatter_channels(token: &[i8], store: &mut [i8], tokens: usize, t: usize)
     }
 }
 
+/// Runs `f` in a frame of its own on Cortex-M7 (`bino_dsp`), inlined elsewhere: there the
+/// encoder's per-pass parameter arrays would otherwise share the encoder's frame with pass 2 and
+/// pass its 32 KiB stack budget, while on Cortex-M55 LLVM shares the frames better inlined
+/// (the stack peaks in `firmware-sim/measured/<core>.log`).
+#[cfg_attr(bino_dsp, inline(never))]
+#[cfg_attr(not(bino_dsp), inline(always))]
+pub fn out_of_line<R>(f: impl FnOnce() -> R) -> R {
+    f()
+}
+
 /// `n` as the loops see it: on Cortex-M7 (`bino_dsp`, no vector unit) the constant, so that
 /// unrolled two-row products address by constant offsets; elsewhere an opaque run-time value
 /// (the same `n`), so that LLVM emits one tail-predicated 16-lane `vmladav.s8` loop per dot

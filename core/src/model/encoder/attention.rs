@@ -1,16 +1,17 @@
 //! The attention pass of an encoder block: the band's grid, keys and values of every token
-//! stored per head (values transposed), then each token block's queries attending over them.
+//! stored per head (values transposed), then each token block's queries attending over them:
+//! over the whole band, or over their own token row ([`AttentionSpan`]).
 
 use crate::config::{DIM, HEADS, HEAD_DIM};
 use crate::kernels::dispatch::matmul_i8;
 use crate::kernels::dispatch::matmul_requant_i8_prepared;
 use crate::kernels::dispatch::ChannelRequant;
 use crate::kernels::dispatch::PreparedLayerNorm;
-use crate::kernels::dispatch::{attend_block, scatter_channels, store_key};
+use crate::kernels::dispatch::{attend_block, key_layout, scatter_channels, store_key};
 use crate::kernels::dispatch::{rope_token, RopeLanes};
 use crate::kernels::dispatch::{value_sums, KeyLayout, QUERY_BLOCK};
 use crate::kernels::params::Uniform;
-use crate::model::weights::{AngleCache, BlockWeights, ResidualFormat, RopeTables};
+use crate::model::weights::{AngleCache, AttentionSpan, BlockWeights, ResidualFormat, RopeTables};
 use crate::Error;
 
 use super::residual::{decode_channels, normalise_block, prepare, project_add, ResidualParams};
@@ -34,6 +35,61 @@ impl Grid {
     }
 }
 
+/// The keys a query attends to: one run of tokens, `first..first + len`, since tokens are
+/// stored row by row.
+#[derive(Clone, Copy, PartialEq, Eq)]
+struct Window {
+    first: usize,
+    len: usize,
+}
+
+impl Window {
+    /// The window of token `t`.
+    fn of(span: AttentionSpan, grid: Grid, t: usize) -> Self {
+        match span {
+            AttentionSpan::Band => Self {
+                first: 0,
+                len: grid.tokens(),
+            },
+            AttentionSpan::Row => Self {
+                first: t - t % grid.fused_cols.max(1),
+                len: grid.fused_cols,
+            },
+        }
+    }
+
+    /// Tokens from `t` on (`t` in the window) that share it.
+    fn remaining(&self, t: usize) -> usize {
+        (self.first + self.len).saturating_sub(t)
+    }
+
+    /// A head's keys in the window (`head_keys`: the head's store, `HEAD_DIM` bytes a token in
+    /// every layout; a row starts on a layout block, see [`key_layout_of`]).
+    fn keys<'k>(&self, head_keys: &'k [i8]) -> &'k [i8] {
+        head_keys
+            .get(self.first * HEAD_DIM..(self.first + self.len) * HEAD_DIM)
+            .unwrap_or_default()
+    }
+
+    /// A head's values in the window, `HEAD_DIM x len` (see [`AttentionPass::keys_values`]).
+    fn values<'v>(&self, span: AttentionSpan, values: &'v [i8], tokens: usize, head: usize) -> &'v [i8] {
+        let start = match span {
+            AttentionSpan::Band => head * tokens * HEAD_DIM,
+            AttentionSpan::Row => self.first * DIM + head * self.len * HEAD_DIM,
+        };
+        values.get(start..start + self.len * HEAD_DIM).unwrap_or_default()
+    }
+}
+
+/// How the keys of a band are stored: a layout's blocks of tokens must not straddle the
+/// windows, so with row attention the row's length decides.
+pub(super) fn key_layout_of(span: AttentionSpan, grid: Grid) -> KeyLayout {
+    match span {
+        AttentionSpan::Band => key_layout(grid.tokens()),
+        AttentionSpan::Row => key_layout(grid.fused_cols),
+    }
+}
+
 /// The attention half of one block.
 pub(super) struct AttentionPass<'p, 'w> {
     pub(super) w: &'p BlockWeights<'w>,
@@ -41,13 +97,16 @@ pub(super) struct AttentionPass<'p, 'w> {
     pub(super) grid: Grid,
     pub(super) input: &'p ResidualFormat<'w>,
     pub(super) output: &'p ResidualFormat<'w>,
-    /// How the keys are stored between the two passes.
+    /// How the keys are stored between the two passes ([`key_layout_of`]).
     pub(super) keys: KeyLayout,
+    /// Which keys a query attends to.
+    pub(super) span: AttentionSpan,
 }
 
 impl AttentionPass<'_, '_> {
     /// Pass 1: keys (rotated) of every token stored `[head][token][HEAD_DIM]`, values
-    /// channel-major `[head][HEAD_DIM][token]`.
+    /// channel-major `[head][HEAD_DIM][token]`, or with row attention per token row
+    /// `[row][head][HEAD_DIM][column]` (each row's values a head's whole window).
     /// `scratch` (the attention scores' room, idle in this pass) keeps the values' prepared
     /// requantisation.
     #[allow(clippy::too_many_arguments)]
@@ -116,12 +175,21 @@ impl AttentionPass<'_, '_> {
                     rope_token(k_acc, &key_rq, &row_angles, &col_angles, &mut rotated);
                 }
                 scatter_heads(self.keys, &rotated, keys, tokens, t);
-                scatter_channels(value, values, tokens, t);
+                match self.span {
+                    AttentionSpan::Band => scatter_channels(value, values, tokens, t),
+                    AttentionSpan::Row => {
+                        let cols = self.grid.fused_cols;
+                        if let Some(row_values) = values.get_mut(row * cols * DIM..(row + 1) * cols * DIM) {
+                            scatter_channels(value, row_values, cols, col);
+                        }
+                    }
+                }
             }
         }
     }
 
-    /// Pass 2: queries, attention over all keys, output projection, residual add.
+    /// Pass 2: queries, attention over the keys of each query's window, output projection,
+    /// residual add.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn queries_attend(
         &self,
@@ -148,12 +216,12 @@ impl AttentionPass<'_, '_> {
         let mut query_lanes = RopeLanes::new(&query_rq);
         let proj = &self.w.proj;
         let residual = ResidualParams::new(&self.w.carry_attention.from_format(self.input), proj, &self.output.zero);
-        let head_len = self.grid.tokens() * HEAD_DIM;
+        let tokens = self.grid.tokens();
+        let head_len = tokens * HEAD_DIM;
         let mut angles = AngleCache::new(self.rope);
+        // Each head's value sums over the current window, made when the window changes.
         let mut sums = [[0i32; HEAD_DIM]; HEADS];
-        for (s, v_head) in sums.iter_mut().zip(values.chunks_exact(head_len)) {
-            *s = value_sums(v_head, self.grid.tokens());
-        }
+        let mut sums_of: Option<Window> = None;
         // The MLP's hidden buffer is idle in this pass: it keeps the LayerNorm's parameters;
         // the accumulators past a token block's (the keys and values' room) the residual add's.
         let ln_bytes = 4 * PreparedLayerNorm::storage_words(DIM);
@@ -181,38 +249,58 @@ impl AttentionPass<'_, '_> {
                     rope_token(q_acc, &query_rq, &row_angles, &col_angles, query);
                 }
             }
-            let kv = keys.chunks_exact(head_len).zip(values.chunks_exact(head_len));
-            for (head, (((k_head, v_head), p), sums)) in kv.zip(self.w.attention.iter()).zip(&sums).enumerate() {
-                let part = head * HEAD_DIM..(head + 1) * HEAD_DIM;
-                let query_tokens = queries.get(..count * DIM).unwrap_or_default().chunks(QUERY_BLOCK * DIM);
-                let out_tokens = attended
-                    .get_mut(..count * DIM)
-                    .unwrap_or_default()
-                    .chunks_mut(QUERY_BLOCK * DIM);
-                for (q_tokens, o_tokens) in query_tokens.zip(out_tokens) {
-                    // Every query slot rewritten (past the block's last token: zeros), and the
-                    // outputs all written by `attend_block`: no arrays zeroed per block.
-                    for (i, q) in q_block.iter_mut().enumerate() {
-                        match q_tokens.get(i * DIM..).and_then(|t| t.get(part.clone())) {
-                            Some(src) => q.copy_from_slice(src),
-                            None => *q = [0; HEAD_DIM],
+            // The block's queries in runs that share a window (the whole block with band
+            // attention; the block's part of each token row with row attention).
+            let first = block * TOKEN_BLOCK;
+            let mut i = 0;
+            while i < count {
+                let window = Window::of(self.span, self.grid, first + i);
+                let run = window.remaining(first + i).clamp(1, count - i);
+                if sums_of != Some(window) {
+                    for (head, s) in sums.iter_mut().enumerate() {
+                        *s = value_sums(window.values(self.span, values, tokens, head), window.len);
+                    }
+                    sums_of = Some(window);
+                }
+                let run_tokens = i * DIM..(i + run) * DIM;
+                let kv = keys.chunks_exact(head_len).zip(self.w.attention.iter()).zip(&sums);
+                for (head, ((k_head, p), sums)) in kv.enumerate() {
+                    let part = head * HEAD_DIM..(head + 1) * HEAD_DIM;
+                    let (k_window, v_window) = (window.keys(k_head), window.values(self.span, values, tokens, head));
+                    let query_tokens = queries
+                        .get(run_tokens.clone())
+                        .unwrap_or_default()
+                        .chunks(QUERY_BLOCK * DIM);
+                    let out_tokens = attended
+                        .get_mut(run_tokens.clone())
+                        .unwrap_or_default()
+                        .chunks_mut(QUERY_BLOCK * DIM);
+                    for (q_tokens, o_tokens) in query_tokens.zip(out_tokens) {
+                        // Every query slot rewritten (past the run's last token: zeros), and
+                        // the outputs all written by `attend_block`: no arrays zeroed per block.
+                        for (i, q) in q_block.iter_mut().enumerate() {
+                            match q_tokens.get(i * DIM..).and_then(|t| t.get(part.clone())) {
+                                Some(src) => q.copy_from_slice(src),
+                                None => *q = [0; HEAD_DIM],
+                            }
+                        }
+                        attend_block(
+                            self.keys,
+                            &q_block,
+                            k_window,
+                            v_window,
+                            sums,
+                            p,
+                            scores,
+                            softmax,
+                            &mut out_block,
+                        );
+                        for (o, token) in out_block.iter().zip(o_tokens.chunks_exact_mut(DIM)) {
+                            token[part.clone()].copy_from_slice(o);
                         }
                     }
-                    attend_block(
-                        self.keys,
-                        &q_block,
-                        k_head,
-                        v_head,
-                        sums,
-                        p,
-                        scores,
-                        softmax,
-                        &mut out_block,
-                    );
-                    for (o, token) in out_block.iter().zip(o_tokens.chunks_exact_mut(DIM)) {
-                        token[part.clone()].copy_from_slice(o);
-                    }
                 }
+                i += run;
             }
             project_add(
                 proj,

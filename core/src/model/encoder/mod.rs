@@ -2,7 +2,8 @@
 //!
 //! Memory (all from the caller's arena): the residual stream, keys and values of the band
 //! (`3 x tokens x DIM` bytes), one score and one softmax weight per token, and scratch for
-//! [`TOKEN_BLOCK`] tokens at a time. Attention runs one query at a time over all keys, the MLP
+//! [`TOKEN_BLOCK`] tokens at a time. Attention runs one query at a time over the keys of its
+//! window (the band, or its own token row: [`AttentionSpan`](crate::model::weights::AttentionSpan)), the MLP
 //! hidden layer exists only for one token block: there is no `N x N` or `N x MLP_HIDDEN` buffer.
 //!
 //! Each block runs in three passes over token blocks:
@@ -21,14 +22,14 @@ use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::dispatch::matmul_requant_i8_prepared;
 use crate::kernels::dispatch::ChannelRequant;
-use crate::kernels::dispatch::{key_layout, QUERY_BLOCK};
+use crate::kernels::dispatch::{out_of_line, QUERY_BLOCK};
 use crate::kernels::params::Offset;
 use crate::Error;
 
 mod attention;
 mod residual;
 
-use attention::{AttentionPass, Grid};
+use attention::{key_layout_of, AttentionPass, Grid};
 use residual::{mlp, prepare_with};
 
 /// Tokens processed together by the matrix multiplies (a multiple of the kernel's 4 rows).
@@ -379,12 +380,14 @@ impl<'w> Encoder<'w> {
                 grid,
                 input: &input,
                 output: &middle,
-                keys: key_layout(grid.tokens()),
+                keys: key_layout_of(self.weights.span(), grid),
+                span: self.weights.span(),
             };
-            attention.keys_values(x, normed, acc, keys, values, scores);
+            // Passes 1 and 3 in frames of their own where the core's stack budget needs it.
+            out_of_line(|| attention.keys_values(x, normed, acc, keys, values, scores));
             attention.queries_attend(x, normed, acc, queries, attended, keys, values, scores, softmax, hidden)?;
             probe.observe(Stage::Attention(b), rows, fused_cols, x);
-            mlp(&w, &middle, &output, x, normed, hidden, acc, scores);
+            out_of_line(|| mlp(&w, &middle, &output, x, normed, hidden, acc, scores));
             probe.observe(Stage::Block(b), rows, fused_cols, x);
         }
         Ok((

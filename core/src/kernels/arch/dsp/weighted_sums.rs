@@ -218,13 +218,15 @@ struct WeightRow {
 ///
 /// The softmax writes each row's weights (unsigned, at most 255) straight into the tile's
 /// widened 16-bit layout, so the weighted sums need neither a widening pass nor the offset of
-/// int8 weights: rows 2 and 3 first into `scratch` (the block's softmax bytes, `n` words),
-/// then rows 0 and 1 into the upper half of `scores` (rows 2 and 3, read by then), rows 2 and
-/// 3 copied beside them, and the four-row block kernel against the value channels.
+/// int8 weights: rows 2 and 3 first into `scratch` (the softmax bytes, `n` words), then rows
+/// 0 and 1 into the upper half of `scores` (rows 2 and 3, read by then), rows 2 and 3 copied
+/// beside them, and the four-row block kernel against the value channels; the sums then go to
+/// `scratch` (`4 x HEAD_DIM` words), so it holds at least `max(n, 128)` words.
 ///
-/// `None` (nothing written) unless `n` is a multiple of 8 and at least 128, the lengths match, `values_t` and
-/// `scratch` are word-aligned and the parameters allow [`softmax_row`](super::softmax_row)'s
-/// shortcuts (with the right shift of the index from the row's own maximum).
+/// `None` (nothing written) unless `n` is a multiple of 8, the lengths match, `values_t` and
+/// `scratch` are word-aligned, `scratch` is long enough and the parameters allow
+/// [`softmax_row`](super::softmax_row)'s shortcuts (with the right shift of the index from the
+/// row's own maximum).
 #[cfg(any(bino_dsp, test))]
 pub(crate) fn softmax_weighted_sums<'s>(
     e: &ExpQ32,
@@ -233,14 +235,15 @@ pub(crate) fn softmax_weighted_sums<'s>(
     values_t: &[i8],
 ) -> Option<([u32; ROWS], &'s [[i32; HEAD_DIM]; ROWS])> {
     let n = scores.len() / ROWS;
-    if n < ROWS * HEAD_DIM || !n.is_multiple_of(8) || scores.len() != ROWS * n || values_t.len() != HEAD_DIM * n {
+    if n == 0 || !n.is_multiple_of(8) || scores.len() != ROWS * n || values_t.len() != HEAD_DIM * n {
         return None;
     }
     if !(values_t.as_ptr() as usize).is_multiple_of(4) {
         return None;
     }
     let (mult, round, post) = weight_params(e)?;
-    let temp: &mut [u32] = bytemuck::try_cast_slice_mut(scratch.get_mut(..4 * n)?).ok()?;
+    // Rows 2 and 3's weights (`n` words), later the sums (`ROWS x HEAD_DIM` words).
+    let temp: &mut [u32] = bytemuck::try_cast_slice_mut(scratch.get_mut(..4 * n.max(ROWS * HEAD_DIM))?).ok()?;
     let (low, high) = scores.split_at_mut(2 * n);
     let mut total = [0u32; ROWS];
     let row = |scores: &[i32]| WeightRow {
@@ -259,7 +262,7 @@ pub(crate) fn softmax_weighted_sums<'s>(
     for (group, rows23) in x.chunks_exact_mut(2 * ROWS).zip(temp.chunks_exact(4)) {
         group[4..].copy_from_slice(rows23);
     }
-    // The sums go to the softmax bytes, free again (`n >= 128` words: checked), so that no
+    // The sums go to the softmax bytes, free again (at least 128 words: checked), so that no
     // zeroed array is needed for them.
     let sums: &mut [i32] = bytemuck::cast_slice_mut(temp);
     let (sums, _) = sums.as_chunks_mut::<HEAD_DIM>();
