@@ -131,29 +131,14 @@ impl<'a> CensusSgm<'a> {
         scratch_u32: &'a mut [u32],
         scratch_u16: &'a mut [u16],
     ) -> Result<Self, Error> {
-        let cols = width / CELL_W;
-        if cols == 0 {
-            return Err(Error::EmptyImage);
-        }
-        if !width.is_multiple_of(CELL_W) {
-            return Err(Error::NotMultiple {
-                what: "width",
-                value: width,
-                multiple: CELL_W,
-            });
-        }
-        check_candidates(disparities)?;
-        Error::check_len(
-            "census SGM u32 scratch",
-            scratch_u32_len(width, disparities),
-            scratch_u32.len(),
-        )?;
+        // The shape and the parts' lengths are checked by `state_only` and `with_scratch`; the
+        // whole u16 scratch here, before it is split.
         Error::check_len(
             "census SGM u16 scratch",
             scratch_u16_len(width, disparities),
             scratch_u16.len(),
         )?;
-        let (state, scratch_u16) = scratch_u16.split_at_mut(state_u16_len(width, disparities));
+        let (state, scratch_u16) = scratch_u16.split_at_mut(state_u16_len(width, disparities).min(scratch_u16.len()));
         Self::state_only(width, disparities, penalties, max_diff_q8, state)?.with_scratch(scratch_u32, scratch_u16)
     }
 
