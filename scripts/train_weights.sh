@@ -125,7 +125,7 @@ py -m bino_train.head --checkpoint "$gt_head/last.pt" --out "$weights/bino_head.
   --state-dict "$weights/bino_head.pt"
 py -m bino_train.head --checkpoint "$shipped_native_head/last.pt" --out "$weights/bino_native_head.onnx" --logits \
   --state-dict "$weights/bino_native_head.pt"
-py -m bino_train.export --checkpoint "$encoder" --attention-rows 0 --out "$weights/bino_encoder.onnx" \
+py -m bino_train.export --checkpoint "$encoder" --attention-rows 0 --row-embedding 6 --out "$weights/bino_encoder.onnx" \
   --state-dict "$weights/bino_encoder.pt"
 
 step "measurements (train/runs/metrics.json)"

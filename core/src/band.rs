@@ -118,6 +118,20 @@ impl BandPlan {
         })
     }
 
+    /// The first token row band `index` must encode when each band keeps the token rows it
+    /// shares with the band before ([`Encoder::rows_independent`] weights): the end of the
+    /// previous band, or the band's start for the first band (and past the end, `None`).
+    ///
+    /// [`Encoder::rows_independent`]: crate::model::encoder::Encoder::rows_independent
+    pub fn fresh_from(&self, index: usize) -> Option<usize> {
+        let band = self.get(index)?;
+        let fresh = match index.checked_sub(1).and_then(|i| self.get(i)) {
+            Some(before) => (before.start + before.rows).clamp(band.start, band.start + band.rows),
+            None => band.start,
+        };
+        Some(fresh)
+    }
+
     /// The bands, top to bottom.
     pub fn iter(&self) -> impl Iterator<Item = Band> + '_ {
         (0..self.count).filter_map(move |i| self.get(i))
@@ -162,6 +176,27 @@ mod tests {
         let band = BandPlan::new(24)?.get(1).ok_or(Error::EmptyImage)?;
         assert_eq!(band.around_kept(6), 6..18);
         assert_eq!(band.around_kept(2), 7..17);
+        Ok(())
+    }
+
+    #[test]
+    fn shared_rows_leave_every_token_row_encoded_exactly_once() -> Result<(), Error> {
+        for rows in 1..200 {
+            let plan = BandPlan::new(rows)?;
+            let mut next = 0;
+            for (i, band) in plan.iter().enumerate() {
+                let fresh = plan.fresh_from(i).ok_or(Error::EmptyImage)?;
+                assert_eq!(fresh, next, "rows {rows}: band {i} starts its pass at {fresh}");
+                assert!(band.start <= fresh && fresh < band.start + band.rows);
+                next = band.start + band.rows;
+            }
+            assert_eq!(next, rows);
+            assert_eq!(plan.fresh_from(plan.len()), None);
+        }
+        // A 120-row frame: four bands of 12 token rows, 30 encoded instead of 48.
+        let plan = BandPlan::new(30)?;
+        let fresh: heapless_free::Starts = (0..plan.len()).filter_map(|i| plan.fresh_from(i)).collect();
+        assert_eq!(fresh.0[..fresh.1], [0, 12, 18, 24]);
         Ok(())
     }
 

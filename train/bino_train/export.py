@@ -26,7 +26,7 @@ import torch
 from torch import Tensor, nn
 
 from .config import EncoderConfig
-from .model import BinoEncoder, parameter_count, stage_names
+from .model import BinoEncoder, parameter_count, stage_names, uniform_row_embedding
 from .synthetic import shifted_pair, to_view_tensor
 
 OPSET = 17
@@ -145,6 +145,13 @@ def main(argv: list[str] | None = None) -> None:
         help="hold attention to this many token rows either side (0: each row within itself; "
         "the engine runs 0 or, without this option, the whole band)",
     )
+    parser.add_argument(
+        "--row-embedding",
+        type=int,
+        metavar="INDEX",
+        help="give every token row the row embedding of this row (with --attention-rows 0 a "
+        "frame's bands then share their overlap rows, each computed once)",
+    )
     args = parser.parse_args(argv)
     if args.attention_rows is not None and args.attention_rows < 0:
         parser.error(f"--attention-rows {args.attention_rows} must be at least 0")
@@ -160,6 +167,11 @@ def main(argv: list[str] | None = None) -> None:
         provenance = f"random-init seed {args.random_init_seed} (tests only, not trained)"
     if args.attention_rows is not None:
         encoder.cfg = dataclasses.replace(encoder.cfg, attention_rows=args.attention_rows)
+    if args.row_embedding is not None:
+        rows = encoder.cfg.token_rows
+        if not 0 <= args.row_embedding < rows:
+            parser.error(f"--row-embedding {args.row_embedding} must be in 0..{rows - 1}")
+        uniform_row_embedding(encoder, args.row_embedding)
     export_onnx(encoder, args.out, intermediates=args.intermediates, provenance=provenance)
     print(f"wrote {args.out} ({parameter_count(encoder):,} parameters; {provenance})")
     if args.state_dict is not None:

@@ -167,6 +167,17 @@ class BinoEncoder(nn.Module):
         return phase_maps(self.forward(left, right))
 
 
+def uniform_row_embedding(encoder: BinoEncoder, index: int) -> None:
+    """Give every token row the row embedding of row `index`, in place. With attention held to
+    each token row (`attention_rows` 0) a token row then depends on its own pixel rows only, not
+    on where its band starts: a frame's overlapping bands compute each token row once."""
+    rows = encoder.row_embed.shape[0]
+    if not 0 <= index < rows:
+        raise ValueError(f"row embedding index {index} is outside 0..{rows - 1}")
+    with torch.no_grad():
+        encoder.row_embed.copy_(encoder.row_embed[index : index + 1].clone().expand(rows, -1))
+
+
 def row_window_mask(rows: int, cols: int, reach: int | None, device: torch.device) -> Tensor | None:
     """Which keys each query may read when attention is held to `reach` token rows either side
     (True: allowed); None for attention over the whole band. Tokens are row-major, so each

@@ -141,6 +141,17 @@ impl AttentionSpan {
             }),
         }
     }
+
+    /// The token row whose RoPE row angles rotate queries and keys of token row `row`. Within
+    /// one token row the row rotation of a query and of its keys cancels, so [`AttentionSpan::Row`]
+    /// rotates every row by row 0's angles: a token row's result then does not depend on where
+    /// its band starts (integer rounding would otherwise differ from row to row).
+    pub fn rope_row(self, row: usize) -> usize {
+        match self {
+            Self::Band => row,
+            Self::Row => 0,
+        }
+    }
 }
 
 /// The encoder's weights in a blob, validated once by [`EncoderWeights::new`].
@@ -217,6 +228,19 @@ impl<'w> EncoderWeights<'w> {
     /// Which keys a query attends to.
     pub fn span(&self) -> AttentionSpan {
         self.span
+    }
+
+    /// Whether a token row's outputs depend on its own pixel rows only, not on its place in the
+    /// band: attention within each token row ([`AttentionSpan::Row`]) and one row embedding for
+    /// every token row (the embedding's bias rows and the descriptors' row offsets all equal, as
+    /// `bino_train.export --row-embedding` makes them). Overlapping bands then share their
+    /// common token rows, each computed once.
+    pub fn rows_independent(&self) -> bool {
+        let same_rows =
+            |table: Le<'_, i32>| (1..BAND_TOKEN_ROWS).all(|r| (0..DIM).all(|c| table.at(r * DIM + c) == table.at(c)));
+        self.span == AttentionSpan::Row
+            && self.embed().is_ok_and(|e| same_rows(e.bias))
+            && self.descriptor().is_ok_and(|(_, offsets)| same_rows(offsets))
     }
 
     /// Widest input the weights cover (the RoPE column table), in patch columns.

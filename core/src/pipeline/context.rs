@@ -5,9 +5,11 @@
 use super::api::{BandEncoder, Options, Refine, Sink, Stage};
 #[cfg(doc)]
 use super::arena_bytes_for;
+use super::feeding::Fresh;
 use super::refine_stage::{BandView, RefineIo, Scratch};
 use super::sizing::ReadoutShape;
 use crate::arena::split;
+use crate::config::{DIM, PATCH_H};
 use crate::model::encoder::GrayBand;
 use crate::model::head::HeadWeights;
 use crate::Error;
@@ -21,6 +23,9 @@ pub(super) struct Context<'p, 'w> {
     pub(super) width: usize,
     pub(super) height: usize,
     pub(super) band_px: usize,
+    /// Whether overlapping bands share their common token rows
+    /// ([`Encoder::rows_independent`](crate::model::encoder::Encoder::rows_independent)).
+    pub(super) shared_rows: bool,
 }
 
 impl Context<'_, '_> {
@@ -45,30 +50,45 @@ impl Context<'_, '_> {
     }
 
     /// Both passes of `encoder` over the band in the pixel buffers: the left descriptors are
-    /// copied to `desc_left`, the right ones stay at the front of `scratch`. Returns the
+    /// copied to `desc_left`, the right ones stay at the front of `scratch`. The band's first
+    /// `fresh.kept` token rows are the band before's (in `desc_left` and at the front of
+    /// `scratch`): they are moved to the front and only the rest is encoded. Returns the
     /// encoder's high-water, the right descriptors and the rest of `scratch`.
     pub(super) fn encode<'s>(
         &self,
         encoder: &mut impl BandEncoder,
-        left_px: &[u8],
-        right_px: &[u8],
+        (left_px, right_px): (&[u8], &[u8]),
+        fresh: Fresh,
         desc_left: &mut [i8],
         scratch: &'s mut [u8],
         sink: &mut impl Sink,
     ) -> Result<(usize, &'s [i8], &'s mut [u8]), Error> {
-        sink.stage(Stage::EncodeLeft);
-        let view = GrayBand::new(left_px, self.width, self.band_px)?;
-        let (left_used, len) = encoder.view_pass(view, scratch)?;
-        let codes: &[i8] = bytemuck::cast_slice(scratch.get(..len).unwrap_or_default());
-        Error::check_len("descriptor band", desc_left.len(), codes.len())?;
-        desc_left.copy_from_slice(codes);
-        sink.stage(Stage::EncodeRight);
-        let view = GrayBand::new(right_px, self.width, self.band_px)?;
-        let (right_used, len) = encoder.view_pass(view, scratch)?;
-        // A stand-in encoder may answer with any length: the right band must be the left's.
-        Error::check_len("descriptor band", desc_left.len(), len)?;
+        let row_len = self.cols * DIM;
+        fresh.keep(desc_left, row_len, "descriptor band")?;
+        fresh.keep(scratch, row_len, "descriptor band")?;
+        let kept_len = fresh.kept * row_len;
+        let fresh_px = self.band_px - fresh.kept * PATCH_H;
+        let fresh_len = desc_left.len().saturating_sub(kept_len);
         let available = scratch.len();
-        let (right, rest) = split(scratch, len).ok_or(Error::ArenaTooSmall { needed: len, available })?;
-        Ok((left_used.max(right_used), bytemuck::cast_slice(right), rest))
+        let (_, work) = split(scratch, kept_len).ok_or(Error::ArenaTooSmall {
+            needed: kept_len,
+            available,
+        })?;
+        sink.stage(Stage::EncodeLeft);
+        let view = GrayBand::new(fresh.pixels(left_px, self.width), self.width, fresh_px)?;
+        let (left_used, len) = encoder.view_pass(view, work)?;
+        let codes: &[i8] = bytemuck::cast_slice(work.get(..len).unwrap_or_default());
+        Error::check_len("descriptor band", fresh_len, codes.len())?;
+        desc_left.get_mut(kept_len..).unwrap_or_default().copy_from_slice(codes);
+        sink.stage(Stage::EncodeRight);
+        let view = GrayBand::new(fresh.pixels(right_px, self.width), self.width, fresh_px)?;
+        let (right_used, len) = encoder.view_pass(view, work)?;
+        // A stand-in encoder may answer with any length: the right band must be the left's.
+        Error::check_len("descriptor band", fresh_len, len)?;
+        let (right, rest) = split(scratch, kept_len + len).ok_or(Error::ArenaTooSmall {
+            needed: kept_len + len,
+            available,
+        })?;
+        Ok((kept_len + left_used.max(right_used), bytemuck::cast_slice(right), rest))
     }
 }

@@ -174,6 +174,7 @@ impl<'w> Pipeline<'w> {
             width,
             height,
             band_px,
+            shared_rows: self.encoder.rows_independent(),
         };
         if native {
             return native::run(&ctx, encoder, source, &plan, arena, sink);

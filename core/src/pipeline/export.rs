@@ -17,7 +17,7 @@
 
 use super::api::{BandEncoder, Report, RowSource, Sink};
 use super::context::Context;
-use super::feeding::BandRows;
+use super::feeding::{BandRows, Fresh};
 use super::refine_stage::BandView;
 use super::sizing::{arena_bytes_run, band_head_bytes, refine_parts, resident_region};
 use super::streams::Streams;
@@ -75,7 +75,9 @@ pub(super) fn run(
     let mut band_used = 0;
     for (i, band) in plan.iter().enumerate() {
         rows.advance(band, left_px, right_px, resident.as_mut().map(|s| &mut s.refine), sink)?;
-        let (encoder_used, right_desc, rest) = ctx.encode(encoder, left_px, right_px, desc_left, scratch, sink)?;
+        let fresh = Fresh::of(plan, i, ctx.shared_rows);
+        let (encoder_used, right_desc, rest) =
+            ctx.encode(encoder, (left_px, right_px), fresh, desc_left, scratch, sink)?;
         sink.band(band, desc_left, right_desc);
         report.encoder = report.encoder.max(encoder_used);
         let pass = Pass {

@@ -1,10 +1,10 @@
 //! Band feeding: the band buffer filled from a [`RowSource`] as bands advance (the one step
-//! every band loop starts with, [`BandRows::advance`]), and the token rows a band keeps cut from
-//! its descriptor maps.
+//! every band loop starts with, [`BandRows::advance`]), the token rows a band keeps cut from
+//! its descriptor maps, and the rows a band takes from the band before ([`Fresh`]).
 
 use super::api::{RowSource, Sink, Stage};
 use super::refine_stage::{BandView, Refinement};
-use crate::band::Band;
+use crate::band::{Band, BandPlan};
 use crate::config::{DIM, PATCH_H};
 use crate::Error;
 
@@ -156,5 +156,60 @@ pub(super) fn kept_row<'d>(
             expected: (band.keep_to - band.start) * row_len,
             found: left.len().min(right.len()),
         }),
+    }
+}
+
+/// Which token rows a band's encoder pass computes. With weights whose token rows do not depend
+/// on their place in the band ([`Encoder::rows_independent`]) a band keeps the rows it shares
+/// with the band before, already encoded, and encodes the rest: a frame's encoder work is then
+/// one pass per token row, overlaps paid once.
+///
+/// [`Encoder::rows_independent`]: crate::model::encoder::Encoder::rows_independent
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) struct Fresh {
+    /// The band's first token rows, taken from the band before.
+    pub(super) kept: usize,
+    /// Token rows from the start of the band before to this band's start.
+    pub(super) shift: usize,
+}
+
+impl Fresh {
+    /// Band `index` of `plan`; `shared`: whether bands share rows (else nothing is kept).
+    pub(super) fn of(plan: &BandPlan, index: usize, shared: bool) -> Self {
+        let (Some(band), Some(before)) = (plan.get(index), index.checked_sub(1).and_then(|i| plan.get(i))) else {
+            return Self { kept: 0, shift: 0 };
+        };
+        let fresh = plan.fresh_from(index).unwrap_or(band.start);
+        match shared {
+            true => Self {
+                kept: fresh - band.start,
+                shift: band.start - before.start,
+            },
+            false => Self { kept: 0, shift: 0 },
+        }
+    }
+
+    /// Moves the kept rows of the band before's map (rows of `row_len` values from the front of
+    /// `map`) to the front, where this band's map starts.
+    pub(super) fn keep<T: Copy>(&self, map: &mut [T], row_len: usize, what: &'static str) -> Result<(), Error> {
+        if self.kept == 0 {
+            return Ok(());
+        }
+        let from = self.shift * row_len;
+        let len = self.kept * row_len;
+        if from + len > map.len() {
+            return Err(Error::BufferSize {
+                what,
+                expected: from + len,
+                found: map.len(),
+            });
+        }
+        map.copy_within(from..from + len, 0);
+        Ok(())
+    }
+
+    /// The band's pixel rows from its first fresh token row on.
+    pub(super) fn pixels<'p>(&self, band: &'p [u8], width: usize) -> &'p [u8] {
+        band.get(self.kept * PATCH_H * width..).unwrap_or_default()
     }
 }

@@ -7,14 +7,16 @@
 //! check's rows; the refinement's state; then the encoder's scratch, which after each pass
 //! holds the band's pair tokens at its front, with one band the head stream after them, then
 //! the refinement's row scratch. Each band is finished — its pass, every head row it makes
-//! computable — before the next is loaded.
+//! computable — before the next is loaded. With weights whose token rows do not depend on
+//! their place in the band, a band's pass computes only the rows the band before did not
+//! ([`Fresh`]): the shared rows stay at the scratch's front.
 //!
 //! [`Encoder::pair_tokens_in_place`]: crate::model::encoder::Encoder::pair_tokens_in_place
 
 use super::api::{BandEncoder, RefineInput, Report, RowSource, Sink, Stage};
 use super::census_stage::{self, CensusStage};
 use super::context::Context;
-use super::feeding::BandRows;
+use super::feeding::{BandRows, Fresh};
 use super::head_check::{Feed, HeadRows, OnePassCheck, OnePassRows};
 use super::layout::aligned;
 use super::refine_stage::{BandView, RefineIo, Refinement};
@@ -65,17 +67,24 @@ pub(super) fn run(
         ..Report::default()
     };
     let (mut after_tokens, mut scratch_used) = (0, 0);
-    for band in plan.iter() {
+    let row_len = cols * 2 * DIM;
+    for (i, band) in plan.iter().enumerate() {
         rows.advance(band, left_px, right_px, Some(&mut readouts.refine), sink)?;
-        let left = GrayBand::new(left_px, width, band_px)?;
-        let right = GrayBand::new(right_px, width, band_px)?;
+        // The rows this band shares with the band before stay at the scratch's front, where
+        // that band's tokens are; the pass computes the rest after them.
+        let fresh = Fresh::of(plan, i, ctx.shared_rows);
+        fresh.keep(scratch, row_len, "pair token band")?;
+        let fresh_px = band_px - fresh.kept * PATCH_H;
+        let left = GrayBand::new(fresh.pixels(left_px, width), width, fresh_px)?;
+        let right = GrayBand::new(fresh.pixels(right_px, width), width, fresh_px)?;
+        let kept_len = fresh.kept * row_len;
         sink.stage(Stage::EncodePair);
-        let (encoder_used, len) = encoder.pair_pass(left, right, scratch)?;
+        let (encoder_used, len) = encoder.pair_pass(left, right, scratch.get_mut(kept_len..).unwrap_or_default())?;
         // A stand-in encoder may answer with any length: the band's tokens are `2 x DIM` codes
         // a cell.
-        Error::check_len("pair token band", (band_px / PATCH_H) * cols * 2 * DIM, len)?;
-        report.encoder = report.encoder.max(encoder_used);
-        let (tokens, rest) = split(scratch, len).ok_or(too_small)?;
+        Error::check_len("pair token band", (fresh_px / PATCH_H) * row_len, len)?;
+        report.encoder = report.encoder.max(kept_len + encoder_used);
+        let (tokens, rest) = split(scratch, kept_len + len).ok_or(too_small)?;
         let tokens: &[i8] = bytemuck::cast_slice(tokens);
         sink.pair_band(band, tokens);
         // Each band's head stream starts afresh after the band's tokens, so nothing of the

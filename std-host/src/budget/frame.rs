@@ -1,13 +1,15 @@
 //! Whole frames from one measured band pair: what a `W x H` frame costs per core and pathway,
 //! each stage measured on the `48 x W0` band pair scaled by its work.
 //!
-//! The pipeline cuts a frame into overlapping 48-row bands ([`BandPlan`]). Every band is
-//! encoded whole, overlap included, while the other stages see each row of the frame once: the
-//! rows stage reads every pixel row once, and a band feeds the readouts only the token rows it
-//! keeps. So a stage measured on the band pair scales by its work ([`Scaling`]):
+//! The pipeline cuts a frame into overlapping 48-row bands ([`BandPlan`]). With the shipped
+//! blob a band encodes only the token rows the band before did not (its token rows do not
+//! depend on their place in the band), so every token row is encoded once; a blob without that
+//! property encodes every band whole. The other stages see each row of the frame once: the rows
+//! stage reads every pixel row once, and a band feeds the readouts only the token rows it keeps.
+//! So a stage measured on the band pair scales by its work ([`Scaling`]):
 //!
 //! - encoder passes (`encode_left`, `encode_right`, `native_encode_pair`): the sum over the
-//!   frame's bands of [`encoder_macs`] of the band's tokens (token rows x 2 W / 4 fused
+//!   frame's bands of [`encoder_macs`] of the token rows the band encodes (x 2 W / 4 fused
 //!   columns) over the measured band's; the attention term grows with the square of the width;
 //! - `match`: token rows x the (cell, candidate) pairs a row compares (each cell against the
 //!   `min(column + 1, 16)` right cells inside the view) over the band's;
@@ -104,17 +106,38 @@ impl Frame {
     }
 }
 
-/// Which keys the shipped encoder's queries read (`weights/bino_int8.bin`, the blob the
-/// firmware runs), for [`encoder_macs`]; band attention where the blob cannot be read.
-pub(crate) fn shipped_span() -> AttentionSpan {
-    static SPAN: std::sync::OnceLock<AttentionSpan> = std::sync::OnceLock::new();
-    *SPAN.get_or_init(|| {
+/// The shipped encoder (`weights/bino_int8.bin`, the blob the firmware runs): which keys its
+/// queries read, for [`encoder_macs`], and whether a frame's bands share their common token
+/// rows (`Encoder::rows_independent`); band attention, nothing shared, where the blob cannot be
+/// read.
+fn shipped() -> (AttentionSpan, bool) {
+    static SHIPPED: std::sync::OnceLock<(AttentionSpan, bool)> = std::sync::OnceLock::new();
+    *SHIPPED.get_or_init(|| {
         let bytes = std::fs::read(checkout::path(checkout::BLOB)).unwrap_or_default();
         Blob::parse(&bytes)
             .ok()
             .and_then(|blob| Encoder::new(blob).ok())
-            .map_or(AttentionSpan::Band, |encoder| encoder.weights().span())
+            .map_or((AttentionSpan::Band, false), |encoder| {
+                (encoder.weights().span(), encoder.rows_independent())
+            })
     })
+}
+
+/// Which keys the shipped encoder's queries read ([`shipped`]).
+pub(crate) fn shipped_span() -> AttentionSpan {
+    shipped().0
+}
+
+/// The token rows each band of `plan` encodes: the whole band, or with the shipped blob's
+/// shared rows only those the band before did not ([`BandPlan::fresh_from`]).
+pub(crate) fn encoded_rows(plan: &BandPlan) -> impl Iterator<Item = usize> + '_ {
+    let shared = shipped().1;
+    plan.iter()
+        .enumerate()
+        .map(move |(i, band)| match (shared, plan.fresh_from(i)) {
+            (true, Some(fresh)) => band.start + band.rows - fresh,
+            _ => band.rows,
+        })
 }
 
 /// How a stage's work grows with the frame (see the module's doc).
@@ -153,8 +176,8 @@ impl Scaling {
         Ok(match self {
             Scaling::Boot => (0.0, 0.0),
             Scaling::Encoder => (
-                plan.iter()
-                    .map(|band| encoder_macs(band.rows, 2 * cols, shipped_span()) as f64)
+                encoded_rows(&plan)
+                    .map(|rows| encoder_macs(rows, 2 * cols, shipped_span()) as f64)
                     .sum(),
                 plan.len() as f64,
             ),

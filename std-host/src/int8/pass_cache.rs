@@ -93,12 +93,20 @@ impl<'w> PassCache<'w> {
         let rows = band_pixel_rows(height);
         let plan = BandPlan::new(height / PATCH_H).map_err(anyhow::Error::msg)?;
         let mut keys: Vec<Key> = Vec::new();
-        for b in plan.iter() {
-            let start = b.start * PATCH_H;
-            let rows_of = start * width..(start + rows) * width;
+        let shared = self.encoder.rows_independent();
+        for (i, b) in plan.iter().enumerate() {
+            // With shared rows the pipeline encodes a band from its first row the band before
+            // did not (`BandPlan::fresh_from`).
+            let fresh = match (shared, plan.fresh_from(i)) {
+                (true, Some(fresh)) => fresh,
+                _ => b.start,
+            };
+            let start = fresh * PATCH_H;
+            let pass_rows = rows - (fresh - b.start) * PATCH_H;
+            let rows_of = start * width..(start + pass_rows) * width;
             let (l, r) = (
-                band_view(left.get(rows_of.clone()).unwrap_or_default(), width, rows, false),
-                band_view(right.get(rows_of).unwrap_or_default(), width, rows, false),
+                band_view(left.get(rows_of.clone()).unwrap_or_default(), width, pass_rows, false),
+                band_view(right.get(rows_of).unwrap_or_default(), width, pass_rows, false),
             );
             // A band the views do not hold is left to the run (encoded when asked, or refused).
             let (Ok(l), Ok(r)) = (l, r) else {
@@ -178,12 +186,14 @@ impl Key {
     }
 
     /// The pass this key names, on `encoder`, in `arena`: its high-water and output length.
-    fn encode(&self, mut encoder: Encoder<'_>, rows: usize, arena: &mut [u8]) -> Result<(usize, usize), Error> {
+    fn encode(&self, mut encoder: Encoder<'_>, arena: &mut [u8]) -> Result<(usize, usize), Error> {
         let half = if self.pair {
             self.input.len() / 2
         } else {
             self.input.len()
         };
+        // Passes of bands that share rows are shorter than the band.
+        let rows = half / self.width.max(1);
         let (width, input) = (self.width, &self.input[..]);
         let left = band_view(&input[..half], width, rows, self.mirrored[0])?;
         match self.pair {
@@ -216,7 +226,7 @@ fn encode_all(encoder: Encoder<'_>, keys: &[Key], rows: usize, threads: usize) -
                 return;
             };
             let done = key
-                .encode(encoder, rows, &mut arena)
+                .encode(encoder, &mut arena)
                 .map(|(used, len)| (used, arena[..len].to_vec()));
             if let Ok(mut slots) = results.lock() {
                 slots[i] = Some(done);

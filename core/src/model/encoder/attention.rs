@@ -167,7 +167,7 @@ impl AttentionPass<'_, '_> {
             for (i, (k_acc, value)) in k_acc.chunks_exact(DIM).zip(v_out.chunks_exact(DIM)).enumerate() {
                 let t = block * TOKEN_BLOCK + i;
                 let (row, col) = self.grid.position(t);
-                let (row_angles, col_angles) = angles.angles(row, col / 2);
+                let (row_angles, col_angles) = angles.angles(self.span.rope_row(row), col / 2);
                 if !key_lanes
                     .as_mut()
                     .is_some_and(|l| l.token(k_acc, &row_angles, &col_angles, &mut rotated))
@@ -241,7 +241,7 @@ impl AttentionPass<'_, '_> {
                 .enumerate()
             {
                 let (row, col) = self.grid.position(block * TOKEN_BLOCK + i);
-                let (row_angles, col_angles) = angles.angles(row, col / 2);
+                let (row_angles, col_angles) = angles.angles(self.span.rope_row(row), col / 2);
                 if !query_lanes
                     .as_mut()
                     .is_some_and(|l| l.token(q_acc, &row_angles, &col_angles, query))

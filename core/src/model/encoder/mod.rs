@@ -233,6 +233,13 @@ impl<'w> Encoder<'w> {
         &self.weights
     }
 
+    /// Whether overlapping bands may share their common token rows
+    /// ([`EncoderWeights::rows_independent`]): a pass over a band's lower rows alone gives those
+    /// rows exactly as a pass over the whole band does.
+    pub fn rows_independent(&self) -> bool {
+        self.weights.rows_independent()
+    }
+
     /// Widest band the weights support, in pixels.
     pub fn max_width(&self) -> usize {
         self.weights.max_patch_cols() * CELL_W
