@@ -33,12 +33,12 @@ pub const OUTPUTS: [&str; 6] = ["pair_tokens", "head", "head_left_right", "fused
 /// The firmware's digests of the shipped 48x160 test band (`firmware-sim/assets/`) on both
 /// Cortex-M cores and on the host (`firmware-sim/measured/m55.json`, `m7.json`).
 pub const EXPECTED: Digests = Digests([
-    0x1137_7f50, // pair_tokens
-    0x19bf_6399, // head
-    0xfdc0_eb86, // head_left_right
-    0xfc43_bace, // fused
-    0x2f8e_5855, // refined
-    0x5d8a_21ae, // sectors
+    0x30bb_9bf5, // pair_tokens
+    0xf61f_b858, // head
+    0x0b64_a21d, // head_left_right
+    0x236d_f604, // fused
+    0x53cc_34d5, // refined
+    0x0763_59eb, // sectors
 ]);
 
 /// CRC-32 (IEEE) of each of [`OUTPUTS`].

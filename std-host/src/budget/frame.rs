@@ -514,7 +514,8 @@ fn round6(x: f64) -> f64 {
 /// The scaling rule in one sentence, for the reports.
 pub const RULE: &str = "each stage of the band pair scaled by its work: encoder passes by the sum over \
     the frame's bands of encoder MACs (embedding, per-token linear layers, attention 2 x DIM per query and key it reads, per block: the keys of its token row with the shipped encoder) of \
-    the band's tokens; match by token rows x (cell, candidate) pairs inside the view; the heads (head, native_head) \
+    the token rows each band encodes (with the shipped blob's shared rows, only those the band before did not: \
+    every token row once); match by token rows x (cell, candidate) pairs inside the view; the heads (head, native_head) \
     by the token rows each band's head reads (those it keeps and 6 around them) x cells; every other stage (rows, \
     sgm, left_right, refine and the native twins) by token rows x cells per row (the heads' 12 candidates are \
     fixed); load is once per boot and left out; modelled cycles scale as the instructions";
