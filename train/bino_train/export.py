@@ -70,9 +70,12 @@ def export_onnx(
     cfg = encoder.cfg
     example = torch.zeros(1, cfg.in_chans, cfg.band_rows, width)
     names = output_names(cfg, intermediates)
-    dynamic = {"left": {2: "height", 3: "width"}, "right": {2: "height", 3: "width"}}
+    # The batch is dynamic too: under row attention a band's token rows can run as a batch of
+    # one-row bands (`ort_bench`), the products the int8 engine computes.
+    view_axes = {0: "batch", 2: "height", 3: "width"}
+    dynamic = {"left": view_axes, "right": view_axes}
     for name in names:
-        dynamic[name] = {1: "token_rows", 2: "fused_cols"}
+        dynamic[name] = {0: "batch", 1: "token_rows", 2: "fused_cols"}
     out.parent.mkdir(parents=True, exist_ok=True)
     with torch.no_grad():
         torch.onnx.export(

@@ -9,7 +9,11 @@ right) get it as float pixels p / 255, as tract does. Two sessions, each on one 
 (`intra_op_num_threads = inter_op_num_threads = 1`, sequential execution): the float graph,
 and its dynamic int8 quantisation (`quantize_dynamic`, int8 weights, activations quantised at
 run time), the usual way to run a float ONNX model in int8 on a CPU. Each gets one warm-up run
-and then `--runs` timed runs of `session.run`; the JSON holds every run in seconds.
+and then `--runs` timed runs of `session.run`; the JSON holds every run in seconds. A graph
+that attends within each token row (`bino.config` attention_rows 0) runs the band's token rows
+as a batch of one-row bands: the attention products the int8 engine computes, not the band's
+masked all-pairs scores (the outputs are the same for the shipped encoder, whose every token row
+has one row embedding).
 
 `--serve` is how `bino bench` interleaves these runs with its own (so every engine sees the
 same drift of a shared machine): after both warm-ups it prints `ready`, then answers each
@@ -28,6 +32,7 @@ from typing import Any, TextIO
 
 import cv2
 import numpy as np
+import onnx as onnx_lib
 import onnxruntime as ort
 from numpy.typing import NDArray
 from onnxruntime.quantization import QuantType, quantize_dynamic
@@ -40,6 +45,24 @@ def read_band(path: Path) -> NDArray[np.float32]:
         raise SystemExit(f"error: cannot read {path} as an 8-bit gray image")
     pixels = np.asarray(gray, dtype=np.float32) / np.float32(255.0)
     return np.ascontiguousarray(np.broadcast_to(pixels, (1, 3, *pixels.shape)))
+
+
+def attends_within_rows(onnx: Path) -> bool:
+    """Whether the graph holds attention to each token row (`bino.config`'s attention_rows 0)."""
+    props = {p.key: p.value for p in onnx_lib.load(str(onnx)).metadata_props}
+    return "'attention_rows': 0" in props.get("bino.config", "")
+
+
+def rows_as_batch(band: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The (1, 3, H, W) band as a batch of its H / 4 token rows, (H / 4, 3, 4, W): under row
+    attention each row attends within itself, so the batch computes the attention products
+    the int8 engine does, where the band's graph computes every row's scores against the
+    whole band and masks all but its own row's."""
+    _, ch, h, w = band.shape
+    if h % 4:
+        raise SystemExit(f"error: band height {h} is not a multiple of 4")
+    rows = band.reshape(ch, h // 4, 4, w).transpose(1, 0, 2, 3)
+    return np.ascontiguousarray(rows)
 
 
 def one_thread_session(model: Path) -> ort.InferenceSession:
@@ -76,9 +99,16 @@ def sessions(onnx: Path) -> dict[str, ort.InferenceSession]:
         return {"f32": one_thread_session(onnx), "int8": one_thread_session(quantised)}
 
 
+def bench_input(onnx: Path, band_path: Path) -> NDArray[np.float32]:
+    """The band as the sessions run it: its token rows as a batch where the graph attends
+    within each row (`rows_as_batch`), else the band."""
+    band = read_band(band_path)
+    return rows_as_batch(band) if attends_within_rows(onnx) else band
+
+
 def serve(onnx: Path, band_path: Path, requests: TextIO, replies: TextIO) -> None:
     """Answer each request line (`f32` / `int8`) with one timed run in seconds."""
-    band = read_band(band_path)
+    band = bench_input(onnx, band_path)
     by_name = sessions(onnx)
     for session in by_name.values():
         time_session(session, band, 0)
@@ -97,15 +127,16 @@ def serve(onnx: Path, band_path: Path, requests: TextIO, replies: TextIO) -> Non
 def bench(onnx: Path, band_path: Path, runs: int) -> dict[str, Any]:
     if runs < 1:
         raise SystemExit("error: --runs must be at least 1")
-    band = read_band(band_path)
+    band = bench_input(onnx, band_path)
     by_name = sessions(onnx)
     float_runs = time_session(by_name["f32"], band, runs)
     int8_runs = time_session(by_name["int8"], band, runs)
     return {
         "onnxruntime": ort.__version__,
         "threads": 1,
-        "height": int(band.shape[2]),
+        "height": int(band.shape[0] * band.shape[2]),
         "width": int(band.shape[3]),
+        "rows_as_batch": bool(band.shape[0] > 1),
         "f32": {"runs_s": float_runs},
         "int8_dynamic": {"runs_s": int8_runs},
     }

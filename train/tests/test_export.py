@@ -81,6 +81,17 @@ def test_row_attention_exports_its_mask_at_dynamic_sizes(
     assert "'attention_rows': 0" in config
 
 
+def test_row_embedding_option_gives_every_row_one_embedding(tmp_path: Path) -> None:
+    state = tmp_path / "enc.pt"
+    args = ["--random-init-seed", "4", "--attention-rows", "0", "--out", str(tmp_path / "e.onnx")]
+    main([*args, "--row-embedding", "5", "--state-dict", str(state)])
+    rows = torch.load(state, weights_only=False)["encoder"]["row_embed"]
+    assert torch.equal(rows, rows[5:6].expand_as(rows))
+    assert not torch.equal(rows, random_encoder(4).row_embed.detach())
+    with pytest.raises(SystemExit):
+        main([*args, "--row-embedding", "12"])
+
+
 def test_negative_attention_rows_are_refused_by_the_exporter(tmp_path: Path) -> None:
     with pytest.raises(SystemExit):
         main(

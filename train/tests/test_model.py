@@ -18,6 +18,7 @@ from bino_train.model import (
     rope_positions,
     rope_tables,
     row_window_mask,
+    uniform_row_embedding,
 )
 
 CFG = EncoderConfig()
@@ -137,6 +138,24 @@ def test_row_attention_keeps_each_token_row_to_its_own_pixel_rows() -> None:
     assert changed_row[2] > 0
     assert torch.all(changed_row[[0, 1, 3]] == 0)
     assert torch.all(changed_band > 0)
+
+
+def test_one_row_embedding_makes_a_token_row_independent_of_its_place() -> None:
+    """Row attention and one row embedding for every row: a token row's output is the same
+    whether its band starts at it or above it (what lets a frame's bands share rows); with the
+    trained per-row embeddings it is not."""
+    torch.manual_seed(1)
+    model = BinoEncoder(dataclasses.replace(CFG, attention_rows=0)).eval()
+    left, right = torch.rand(1, 3, 24, 32), torch.rand(1, 3, 24, 32)
+    with torch.no_grad():
+        per_row = (model(left, right)[:, 2:], model(left[..., 8:, :], right[..., 8:, :]))
+        uniform_row_embedding(model, 6)
+        shared = (model(left, right)[:, 2:], model(left[..., 8:, :], right[..., 8:, :]))
+    assert (per_row[0] - per_row[1]).abs().max() > 1e-3
+    assert (shared[0] - shared[1]).abs().max() < 1e-5
+    assert torch.equal(model.row_embed[0], model.row_embed[11])
+    with pytest.raises(ValueError, match="outside"):
+        uniform_row_embedding(model, 12)
 
 
 def test_row_window_mask_allows_the_rows_within_reach() -> None:

@@ -10,7 +10,14 @@ import cv2
 import numpy as np
 import pytest
 
-from bino_train.ort_bench import main, read_band, serve, sessions
+from bino_train.ort_bench import (
+    attends_within_rows,
+    main,
+    read_band,
+    rows_as_batch,
+    serve,
+    sessions,
+)
 
 ENCODER = Path(__file__).resolve().parents[2] / "weights" / "bino_encoder.onnx"
 
@@ -64,3 +71,20 @@ def test_runs_are_written_as_json(band: Path, tmp_path: Path) -> None:
 def test_an_unreadable_band_is_named(tmp_path: Path) -> None:
     with pytest.raises(SystemExit, match="cannot read .*missing.pgm"):
         read_band(tmp_path / "missing.pgm")
+
+
+def test_the_shipped_graph_runs_its_token_rows_as_a_batch_with_the_bands_outputs(
+    band: Path,
+) -> None:
+    """Row attention and one row embedding: the band's token rows as a batch of one-row bands
+    give the band's tokens, row for row."""
+    assert attends_within_rows(ENCODER)
+    pixels = read_band(band)
+    rows = rows_as_batch(pixels)
+    assert rows.shape == (12, 3, 4, 80)
+    assert np.array_equal(rows[5, 1], pixels[0, 1, 20:24])
+    session = sessions(ENCODER)["f32"]
+    (whole,) = session.run(None, {"left": pixels, "right": pixels})
+    (batched,) = session.run(None, {"left": rows, "right": rows})
+    assert batched.shape == (12, 1, 40, 128)
+    assert np.abs(batched[:, 0] - whole[0]).max() < 1e-4
