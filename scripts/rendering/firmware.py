@@ -180,8 +180,9 @@ def fw_stages(src: Sources) -> str:
     for name in names:
         row = [STAGE_NOTES.get(name, name), n(stages["m55"][name]["arena_in_use_bytes"])]
         for k in CORES:
-            s = stages[k][name]
-            row += [n(s["instructions"]), f"{s['estimated_ms']:,.1f}"]
+            # A stage only one core ran (the E7 frame's: the M55's) is a dash on the other.
+            s = stages[k].get(name)
+            row += [n(s["instructions"]), f"{s['estimated_ms']:,.1f}"] if s else ["-", "-"]
         rows.append(row)
 
     def total(label: str, key: str, arena: str) -> list[str]:

@@ -335,6 +335,49 @@ pub fn presets_markdown(presets: &PresetsReport) -> String {
             grouped(p.stack_peak_bytes),
         );
     }
+    md.push_str(&which_measured(presets));
+    md
+}
+
+/// One sentence per kind of source: which cores and frames were counted on a whole frame, and
+/// which were scaled because their core measured no frame of that size (a preset named where
+/// the other one's came otherwise).
+fn which_measured(presets: &PresetsReport) -> String {
+    let pairs = |measured: bool| {
+        let mut out: Vec<String> = Vec::new();
+        let is = |p: &super::PresetFrame| (p.source == Source::MeasuredFrame) == measured;
+        for p in presets.frames.iter().filter(|p| is(p)) {
+            let same = |q: &&super::PresetFrame| q.core == p.core && q.frame == p.frame;
+            let all = presets.frames.iter().filter(same).all(is);
+            let pair = match all {
+                true => format!("{} {}", p.core.to_uppercase(), p.frame),
+                false => format!("{} {} ({})", p.core.to_uppercase(), p.frame, p.preset.name()),
+            };
+            if !out.contains(&pair) {
+                out.push(pair);
+            }
+        }
+        out
+    };
+    let (measured, scaled) = (pairs(true), pairs(false));
+    let mut md = String::new();
+    if !measured.is_empty() {
+        let _ = write!(
+            md,
+            "\nCounted on a whole frame the firmware ran (\"measured frame\"): {}.",
+            measured.join(", ")
+        );
+    }
+    if !scaled.is_empty() {
+        let _ = write!(
+            md,
+            " Scaled, as no frame of that size was measured on that core: {} (the fast preset from its \
+             measured frame by token rows x cells, keeping that frame's options; the learned one from \
+             its band pair).",
+            scaled.join(", ")
+        );
+    }
+    md.push('\n');
     md
 }
 
