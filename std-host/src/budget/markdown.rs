@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 
 use super::frame::{FramesReport, Pathway, Scaling, RULE};
 use super::presets::{PresetsReport, Source, NOTE as PRESETS_NOTE};
-use super::{clock, cycles, verdicts, CoreRun, TARGETS};
+use super::{clock, cycles, e7_frame_stage, verdicts, CoreRun, TARGETS};
 
 /// `1234567` as `1,234,567`.
 pub fn grouped(n: u64) -> String {
@@ -135,6 +135,13 @@ pub fn markdown(runs: &[CoreRun]) -> String {
         );
     }
     md.push('\n');
+    if runs.iter().any(|r| r.stages.iter().any(|s| e7_frame_stage(&s.name))) {
+        md.push_str(
+            "\nThe `census320_*` and `frame320_*` stages are both presets on the Alif E7's whole \
+             320x240 frame with the options of that width (`scripts/firmware.sh --frame320`; a core \
+             without them did not run it), in an arena of their own outside the static one.\n",
+        );
+    }
     let _ = writeln!(
         md,
         "\nInstructions are executed instructions counted by a QEMU TCG plugin, not cycles. The \

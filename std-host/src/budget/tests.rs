@@ -512,11 +512,14 @@ fn the_scaling_check_compares_a_run_with_its_second_width() {
 fn chart_labels_do_not_overlap() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware-sim/measured");
     let runs = load_runs(&dir).unwrap();
-    let stages: Vec<String> = (runs[0].stages.iter())
-        .filter(|s| !s.name.starts_with(FRAME_PREFIX))
+    let stages: Vec<String> = (chart::charted_stages(&runs[0]).iter())
         .map(|s| s.name.clone())
         .collect();
     assert!(stages.len() >= 13, "{stages:?}");
+    assert!(
+        !stages.iter().any(|s| s.contains("320") || s.starts_with(FRAME_PREFIX)),
+        "{stages:?}"
+    );
     // The plot spans the chart less its margins (10 px) and the y labels (60 px).
     let span = (70, chart::SIZE.0 as i32 - 10);
     let font = |t: &str| chart::text_width(t);
@@ -796,6 +799,11 @@ fn the_e7_frame_is_counted_on_the_core_that_ran_it_and_scaled_on_the_other() {
         "{table}"
     );
     assert!(table.contains("frame320_encode_pair | 965,808 B | 25,000 B | 4,000,000,000 | 10000.0 | - | - | - |"));
+    assert!(
+        table.contains("an arena of their own outside the static one"),
+        "{table}"
+    );
+    assert!(!markdown(&[frame_run()]).contains("census320_"));
     let json = serde_json::to_value(BudgetReport::new(&runs, frames, presets)).unwrap();
     let e7: Vec<&Value> = (json["presets"]["frames"].as_array().unwrap().iter())
         .filter(|p| p["frame"]["width"] == 320)
