@@ -70,9 +70,9 @@ pub const LEARNED_FRAME_ROW_INTERVAL_INSNS: u32 = 600_000_000;
 pub const FRAME320_ROW_INTERVAL_INSNS: u32 = 400_000_000 / 120;
 
 /// Executed instructions between two sensor rows of the learned preset on the E7's frame: each
-/// band after the first reads about 24 new rows, then encodes and reads out for about 1.5G
-/// instructions, while 8 line buffers hold what arrives meanwhile (the SysTick reload's 24 bits
-/// allow at most ~524M at the board's 32 MHz).
+/// of its 7 bands after the first reads about 24 new rows, then encodes and reads out for about
+/// a seventh of the frame's instructions, while 8 line buffers hold what arrives meanwhile
+/// (the SysTick reload's 24 bits allow at most ~524M at the board's 32 MHz).
 #[cfg(feature = "frame320")]
 pub const LEARNED_FRAME320_ROW_INTERVAL_INSNS: u32 = 500_000_000;
 

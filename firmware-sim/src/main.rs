@@ -33,7 +33,7 @@ use camera::Camera;
 // The critical-section implementation (single core) that defmt's logger needs.
 use cortex_m as _;
 use cortex_m_rt::entry;
-use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
+use cortex_m_semihosting::debug::{exit, ExitStatus, EXIT_FAILURE, EXIT_SUCCESS};
 use defmt_semihosting as _;
 use markers::{bino_mark_end, mark};
 use workload::{Hooks, Run, Stage, OUTPUTS};
@@ -311,7 +311,7 @@ fn main() -> ! {
             Some(Ok(o)) => *report = Some(o.report),
             Some(Err(e)) => {
                 defmt::println!("bino result=error pathway={=str} error={}", run.name(), e);
-                exit(EXIT_FAILURE);
+                exit_with(EXIT_FAILURE);
             }
             None => {}
         }
@@ -362,15 +362,18 @@ fn main() -> ! {
         );
         EXIT_FAILURE
     };
-    exit(code);
-    #[allow(clippy::empty_loop)]
-    loop {}
+    exit_with(code)
 }
 
 /// Logs the error and exits non-zero.
 fn fail(error: &str) -> ! {
     defmt::println!("bino result=error error={=str}", error);
-    exit(EXIT_FAILURE);
+    exit_with(EXIT_FAILURE)
+}
+
+/// Ends the QEMU run with `code` (semihosting); never returns.
+fn exit_with(code: ExitStatus) -> ! {
+    exit(code);
     #[allow(clippy::empty_loop)]
     loop {}
 }
@@ -505,7 +508,5 @@ fn overflow_check(camera: &mut Camera) -> bool {
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     defmt::println!("bino result=panic {}", defmt::Display2Format(info));
-    exit(EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
+    exit_with(EXIT_FAILURE)
 }
