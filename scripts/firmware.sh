@@ -22,7 +22,7 @@
 #   --frame320     the Cortex-M55 also runs both presets on the Alif E7's whole 320x240 frame
 #                  with the options of that width (feature frame320: stages census320_* and
 #                  frame320_*, refined digests checked against measured/host-frame-320x240.json;
-#                  5.8G instructions, about 3 min more QEMU time); the M7 skips it. The
+#                  5.8G instructions, 3 to 5 min more QEMU time); the M7 skips it. The
 #                  measurement (firmware-sim/measured) uses it, CI does not
 #   --cmsis-nn DIR with --kernels: also builds CMSIS-NN from the checkout DIR (github
 #                  ARM-software/CMSIS-NN; never committed) into a bench on the same shapes
