@@ -164,7 +164,9 @@ def camera_rates(camera, stages, clock_hz):
     by_name = {s["name"]: s["instructions"] for s in stages}
     # The export pathway's band pair (the native run's and the whole frames' stages are named
     # native_*, census_*, frame_*, census320_*, frame320_*).
-    band = sum(n for name, n in by_name.items() if name != "load" and not name.startswith(OTHER_RUN_PREFIXES))
+    band = sum(
+        n for name, n in by_name.items() if name != "load" and not name.startswith(OTHER_RUN_PREFIXES)
+    )
     rows_insns = by_name.get("rows", 0)
     work = band - rows_insns
     frame_rows = camera["frame_rows"]
@@ -224,14 +226,17 @@ def whole_frame_run(lines, stages, name):
         return None
     height, width = (int(x) for x in str(head[frame_key]).split("x"))
     learned = name.startswith("frame")
-    parts = ("pixels", "encoder", "streams", "refine") if learned else ("pixels", "streams", "refine")
+    parts = ("pixels", "streams", "refine")
+    if learned:
+        parts = ("pixels", "encoder", "streams", "refine")
+    kept = "head_kept" if learned else "census_kept"
     run = {
         "frame": {"height": height, "width": width},
         "arena_bytes": head.get(arena_key),
         "arena_used": arena.get("arena_used"),
         "arena_painted_high_water": arena.get("painted_high_water"),
         "arena_breakdown": {k: arena.get(k) for k in parts},
-        ("head_kept" if learned else "census_kept"): arena.get("head_kept" if learned else "census_kept"),
+        kept: arena.get(kept),
         "frame_instructions": sum(s["instructions"] for s in own),
     }
     if learned:
@@ -241,7 +246,9 @@ def whole_frame_run(lines, stages, name):
         k: camera.get(k)
         for k in ("frame_rows", "line_buffers", "row_interval_insns", "delivered", "lost", "queue_high_water")
     }
-    bino_run = next((l for l in lines if "bino_run_refined" in l and l.get("pathway") == name), None)
+    bino_run = next(
+        (l for l in lines if "bino_run_refined" in l and l.get("pathway") == name), None
+    )
     if bino_run is not None:
         run["bino_run"] = {
             "refined": bino_run["refined"],
