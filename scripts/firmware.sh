@@ -2,13 +2,13 @@
 # Builds the BINO firmware for both Cortex-M boards and runs each under QEMU: first the kernel
 # test firmware (src/bin/kernel-tests.rs: the assembly kernels against their references), then the band pair
 # through the int8 pipeline on both pathways of the learned preset and a whole 160x120 frame
-# through the fast preset's census run (about a second more per core), bit-identical to the host
+# through both presets (with --frame320 the M55 also the Alif E7's 320x240 frame), bit-identical to the host
 # (the firmware exits non-zero otherwise),
 # with executed-instruction counts per stage, and per instruction class for the cycle model of
 # `bino budget` (firmware-sim/qemu-plugin/CYCLES.md), from the TCG plugin in firmware-sim/qemu-plugin/.
 #
 #   scripts/firmware.sh [--band full|small] [--out DIR] [--profile] [--kernels|--kernels-only]
-#                       [--cmsis-nn DIR] [--core m55|m7]
+#                       [--cmsis-nn DIR] [--core m55|m7] [--frame320]
 #
 #   --band full    one 48x160 band pair, the issue's target size (default; about 2 min of QEMU
 #                  for the M55 and 1 min for the M7 on a 2-core EPYC VM)
@@ -19,6 +19,11 @@
 #   --kernels      also the per-kernel table (<core>-kernels.md: executed instructions per MAC of
 #                  the encoder's GEMMs, assembly kernel against the portable reference, from the
 #                  kernel test firmware's markers); --kernels-only skips the band pair
+#   --frame320     the Cortex-M55 also runs both presets on the Alif E7's whole 320x240 frame
+#                  with the options of that width (feature frame320: stages census320_* and
+#                  frame320_*, refined digests checked against measured/host-frame-320x240.json;
+#                  5.8G instructions, 3 to 5 min more QEMU time); the M7 skips it. The
+#                  measurement (firmware-sim/measured) uses it, CI does not
 #   --cmsis-nn DIR with --kernels: also builds CMSIS-NN from the checkout DIR (github
 #                  ARM-software/CMSIS-NN; never committed) into a bench on the same shapes
 #                  (firmware-sim/cmsis-nn/, Debian's gcc-arm-none-eabi -O3), counts it in the
@@ -32,7 +37,7 @@ set -euo pipefail
 source "$(dirname "${BASH_SOURCE[0]}")/env.sh"
 cd "$BINO_ROOT"
 
-band=full out="out/firmware" want_profile=0 want_kernels=0 kernels_only=0 cores="m55 m7" cmsis_nn=""
+band=full out="out/firmware" want_profile=0 want_kernels=0 kernels_only=0 cores="m55 m7" cmsis_nn="" frame320=0
 while [ $# -gt 0 ]; do
   case "$1" in
     --band) band="$2"; shift 2 ;;
@@ -41,8 +46,9 @@ while [ $# -gt 0 ]; do
     --kernels) want_kernels=1; shift ;;
     --kernels-only) want_kernels=1; kernels_only=1; shift ;;
     --core) cores="$2"; shift 2 ;;
+    --frame320) frame320=1; shift ;;
     --cmsis-nn) cmsis_nn="$(cd "$2" && pwd)"; want_kernels=1; shift 2 ;;
-    -h|--help) sed -n '2,30p' "$0"; exit 0 ;;
+    -h|--help) sed -n '2,34p' "$0"; exit 0 ;;
     *) echo "unknown argument $1" >&2; exit 2 ;;
   esac
 done
@@ -99,6 +105,9 @@ cc -O1 -Wall -Wextra -Werror -o "$plugin_dir/classify_test" firmware-sim/qemu-pl
 for target in $THUMB_TARGETS; do
   (cd firmware-sim && cargo clippy --locked --release --target "$target" "${features[@]}" -- -D warnings)
 done
+# The E7 frame's code (the Cortex-M55's), linted whether or not this run measures it.
+(cd firmware-sim && cargo clippy --locked --release --target thumbv8m.main-none-eabihf "${features[@]}" \
+  --features frame320 -- -D warnings)
 
 qemu_version="$(qemu-system-arm --version | head -1)"
 status=0
@@ -108,8 +117,12 @@ for core in $cores; do
     m7) target=thumbv7em-none-eabihf machine=mps2-an500 cpu=cortex-m7 ;;
     *) echo "unknown core $core" >&2; exit 2 ;;
   esac
-  echo "== firmware: $core ($machine, $band band)"
-  (cd firmware-sim && cargo build --locked --release --target "$target" "${features[@]}")
+  core_features=("${features[@]}")
+  if [ "$frame320" = 1 ] && [ "$core" = m55 ]; then
+    core_features+=(--features frame320)
+  fi
+  echo "== firmware: $core ($machine, $band band${core_features[*]:+, ${core_features[*]}})"
+  (cd firmware-sim && cargo build --locked --release --target "$target" "${core_features[@]}")
   # The kernel test firmware first: every assembly kernel against its reference, bit for bit.
   # It ends with the encoder's GEMMs between markers, counted by the plugin (for --kernels).
   kelf="$CARGO_TARGET_DIR/$target/release/kernel-tests"

@@ -33,7 +33,7 @@
 
 QEMU_PLUGIN_EXPORT int qemu_plugin_version = 1;
 
-#define MAX_MARKS 32
+#define MAX_MARKS 64 /* stage markers, the E7 frame's included, and "end" */
 
 struct mark {
     char name[64];

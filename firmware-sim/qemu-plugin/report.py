@@ -47,9 +47,10 @@ def parse_log(path):
             if at >= 0:
                 raw = dict(KV.findall(line[at + 5 :]))
                 fields = {k: number(v) for k, v in raw.items()}
-                if "digest" in raw:
-                    # Hex digests stay text: one of decimal digits only (14204876) is no number.
-                    fields.update(digest=raw["digest"], expected=raw.get("expected"))
+                # Hex digests stay text: one of decimal digits only (14204876) is no number.
+                for key in ("digest", "expected", "refined", "bino_run_refined"):
+                    if key in raw:
+                        fields[key] = raw[key]
                 lines.append(fields)
     return lines
 
@@ -161,12 +162,10 @@ def camera_rates(camera, stages, clock_hz):
     if not camera or not stages or not clock_hz:
         return None
     by_name = {s["name"]: s["instructions"] for s in stages}
-    # The export pathway's band pair (the native, census and learned frame runs' stages are
-    # named native_*, census_*, frame_*).
+    # The export pathway's band pair (the native run's and the whole frames' stages are named
+    # native_*, census_*, frame_*, census320_*, frame320_*).
     band = sum(
-        n
-        for name, n in by_name.items()
-        if name != "load" and not name.startswith(("native_", "census_", "frame_"))
+        n for name, n in by_name.items() if name != "load" and not name.startswith(OTHER_RUN_PREFIXES)
     )
     rows_insns = by_name.get("rows", 0)
     work = band - rows_insns
@@ -199,57 +198,65 @@ def camera_rates(camera, stages, clock_hz):
     }
 
 
-def census_run(lines, stages):
-    """The fast preset's whole-frame run (stages census_*): its frame, arena, stack, instructions
-    per frame and camera; None for a firmware without it."""
-    head = next((l for l in lines if "frame" in l and "arena_bytes" in l), None)
-    arena = next((l for l in lines if "arena_used" in l and l.get("pathway") == "census"), {})
-    camera = next((l for l in lines if "frame_rows" in l and l.get("pathway") == "census"), {})
-    own = [s for s in stages if s["name"].startswith("census_")]
-    if head is None or not own:
-        return None
-    height, width = (int(x) for x in str(head["frame"]).split("x"))
-    return {
-        "frame": {"height": height, "width": width},
-        "arena_bytes": head.get("arena_bytes"),
-        "arena_used": arena.get("arena_used"),
-        "arena_painted_high_water": arena.get("painted_high_water"),
-        "arena_breakdown": {k: arena.get(k) for k in ("pixels", "streams", "refine")},
-        "census_kept": arena.get("census_kept"),
-        "frame_instructions": sum(s["instructions"] for s in own),
-        "stack_peak": max(s["stack_peak"] for s in own),
-        "camera": {
-            k: camera.get(k)
-            for k in ("frame_rows", "line_buffers", "row_interval_insns", "delivered", "lost", "queue_high_water")
-        },
-    }
+# Each whole-frame run's header line: (its frame's key, its arena's key). The census run's is
+# "bino census frame=HxW arena_bytes=N", the learned frame's "bino learned_frame=HxW
+# learned_arena_bytes=N", the E7 frame's (Cortex-M55, --frame320) one line for both.
+FRAME_HEADS = {
+    "census": ("frame", "arena_bytes"),
+    "frame": ("learned_frame", "learned_arena_bytes"),
+    "census320": ("e7_frame", "census320_arena_bytes"),
+    "frame320": ("e7_frame", "frame320_arena_bytes"),
+}
+# The stages of the runs that are not the band pair's: native_*, then the whole frames'.
+OTHER_RUN_PREFIXES = ("native_",) + tuple(f"{name}_" for name in FRAME_HEADS)
 
 
-def frame_run(lines, stages):
-    """The learned preset's whole-frame run (stages frame_*): its frame, arena, stack,
-    instructions per frame and per stage, and camera; None for a firmware without it."""
-    head = next((l for l in lines if "learned_frame" in l), None)
-    arena = next((l for l in lines if "arena_used" in l and l.get("pathway") == "frame"), {})
-    camera = next((l for l in lines if "frame_rows" in l and l.get("pathway") == "frame"), {})
-    own = [s for s in stages if s["name"].startswith("frame_")]
-    if head is None or not own:
+def whole_frame_run(lines, stages, name):
+    """A whole-frame run (stages <name>_*): the fast preset's (census, census320: its frame,
+    arena, census rows kept) or the learned preset's (frame, frame320: also its instructions per
+    stage and head rows kept), with its stack, instructions per frame and camera; for the E7
+    frame's runs also `bino run`'s refined digest of the frame and whether the run's matched it.
+    None for a firmware without it."""
+    frame_key, arena_key = FRAME_HEADS[name]
+    head = next((l for l in lines if frame_key in l and arena_key in l), None)
+    arena = next((l for l in lines if "arena_used" in l and l.get("pathway") == name), {})
+    camera = next((l for l in lines if "frame_rows" in l and l.get("pathway") == name), {})
+    own = [s for s in stages if s["name"].startswith(name + "_")]
+    if head is None or not own or not any(s["instructions"] for s in own):
         return None
-    height, width = (int(x) for x in str(head["learned_frame"]).split("x"))
-    return {
+    height, width = (int(x) for x in str(head[frame_key]).split("x"))
+    learned = name.startswith("frame")
+    parts = ("pixels", "streams", "refine")
+    if learned:
+        parts = ("pixels", "encoder", "streams", "refine")
+    kept = "head_kept" if learned else "census_kept"
+    run = {
         "frame": {"height": height, "width": width},
-        "arena_bytes": head.get("learned_arena_bytes"),
+        "arena_bytes": head.get(arena_key),
         "arena_used": arena.get("arena_used"),
         "arena_painted_high_water": arena.get("painted_high_water"),
-        "arena_breakdown": {k: arena.get(k) for k in ("pixels", "encoder", "streams", "refine")},
-        "head_kept": arena.get("head_kept"),
+        "arena_breakdown": {k: arena.get(k) for k in parts},
+        kept: arena.get(kept),
         "frame_instructions": sum(s["instructions"] for s in own),
-        "stages": {s["name"]: s["instructions"] for s in own},
-        "stack_peak": max(s["stack_peak"] for s in own),
-        "camera": {
-            k: camera.get(k)
-            for k in ("frame_rows", "line_buffers", "row_interval_insns", "delivered", "lost", "queue_high_water")
-        },
     }
+    if learned:
+        run["stages"] = {s["name"]: s["instructions"] for s in own}
+    run["stack_peak"] = max(s["stack_peak"] for s in own)
+    run["camera"] = {
+        k: camera.get(k)
+        for k in ("frame_rows", "line_buffers", "row_interval_insns", "delivered", "lost", "queue_high_water")
+    }
+    bino_run = next(
+        (l for l in lines if "bino_run_refined" in l and l.get("pathway") == name), None
+    )
+    if bino_run is not None:
+        run["bino_run"] = {
+            "refined": bino_run["refined"],
+            "bino_run_refined": bino_run["bino_run_refined"],
+            "match": bino_run["bino_run_match"],
+            "recorded_in": "firmware-sim/measured/host-frame-320x240.json",
+        }
+    return run
 
 
 def sha256_file(path):
@@ -411,9 +418,13 @@ def main():
             else None
         ),
         # The fast preset's whole frame (stages census_*); absent for an older firmware.
-        "census": census_run(lines, stages),
+        "census": whole_frame_run(lines, stages, "census"),
         # The learned preset's whole frame (stages frame_*); absent for an older firmware.
-        "frame": frame_run(lines, stages),
+        "frame": whole_frame_run(lines, stages, "frame"),
+        # Both on the Alif E7's 320x240 frame (stages census320_*, frame320_*: the Cortex-M55
+        # with scripts/firmware.sh --frame320); null where the firmware did not run them.
+        "census320": whole_frame_run(lines, stages, "census320"),
+        "frame320": whole_frame_run(lines, stages, "frame320"),
         "note": NOTE,
     }
     if classes:

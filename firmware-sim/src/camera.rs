@@ -1,7 +1,7 @@
 //! The camera path: rows from an interrupt, as a DCMI or a parallel/MIPI bridge delivers them.
 //!
 //! The SysTick interrupt plays the sensor and its DMA: every row interval it exposes the next
-//! row of the embedded frame (the band pair, or the fast preset's whole frame), copies it into a free slot of the left/right line
+//! row of the embedded frame (the band pair, or a whole frame), copies it into a free slot of the left/right line
 //! buffers (what the DMA would write) and pushes the row's index and slot into a
 //! `heapless::spsc::Queue` (producer: the interrupt). [`Camera`], the pipeline's `RowSource`,
 //! is the consumer: it pops an index, copies the line into the band buffer and frees the slot.
@@ -32,6 +32,12 @@ use crate::expected::WIDTH;
 /// Line buffers per view: how far the sensor may run ahead of the pipeline, in rows.
 pub const LINES: usize = 8;
 
+/// Bytes of the line buffers for rows `width` pixels wide: [`LINES`] slots of a row of each
+/// view, `[slot][view][pixel]`.
+pub const fn line_bytes(width: usize) -> usize {
+    LINES * 2 * width
+}
+
 /// Executed instructions between two sensor rows (virtual time under `-icount shift=0`):
 /// 100,000 rows/s at 400 MHz and one instruction per cycle, about four times what the
 /// interrupt and the consumer's copies take per row (~1,060), so the queue never fills.
@@ -57,6 +63,19 @@ pub const LEARNED_FRAME_ROW_INTERVAL_INSNS: u32 = 100_000_000;
 #[cfg(board = "an500")]
 pub const LEARNED_FRAME_ROW_INTERVAL_INSNS: u32 = 600_000_000;
 
+/// Executed instructions between two sensor rows of the fast preset on the E7's 240-row frame
+/// (the Cortex-M55 only): a camera streaming it at one frame every two seconds at 400 MHz
+/// (120 rows/s, IPC 1), slower than the run so that no row is lost.
+#[cfg(feature = "frame320")]
+pub const FRAME320_ROW_INTERVAL_INSNS: u32 = 400_000_000 / 120;
+
+/// Executed instructions between two sensor rows of the learned preset on the E7's frame: each
+/// of its 7 bands after the first reads about 24 new rows, then encodes and reads out for about
+/// a seventh of the frame's instructions, while 8 line buffers hold what arrives meanwhile
+/// (the SysTick reload's 24 bits allow at most ~524M at the board's 32 MHz).
+#[cfg(feature = "frame320")]
+pub const LEARNED_FRAME320_ROW_INTERVAL_INSNS: u32 = 500_000_000;
+
 /// The board's SysTick clock (QEMU: the processor clock of the FPGA image).
 #[cfg(board = "an547")]
 const SYSTICK_HZ: u32 = 32_000_000;
@@ -75,6 +94,15 @@ const _: () = {
     assert!(frame >= 16 && frame < (1 << 24), "SysTick reload out of range");
     assert!(learned >= 16 && learned < (1 << 24), "SysTick reload out of range");
 };
+#[cfg(feature = "frame320")]
+const _: () = {
+    let (fast, learned) = (
+        reload(FRAME320_ROW_INTERVAL_INSNS),
+        reload(LEARNED_FRAME320_ROW_INTERVAL_INSNS),
+    );
+    assert!(fast >= 16 && fast < (1 << 24), "SysTick reload out of range");
+    assert!(learned >= 16 && learned < (1 << 24), "SysTick reload out of range");
+};
 
 /// A filled line: the image row it holds and the slot of the line buffers it is in.
 #[derive(Debug, Clone, Copy)]
@@ -89,6 +117,13 @@ struct Sensor {
     producer: Producer<'static, Line>,
     left: &'static [u8],
     right: &'static [u8],
+    /// Pixels per row of the frame.
+    width: usize,
+    /// The line buffers for rows up to the band's width ([`line_bytes`]`(WIDTH)`, `.bss`):
+    /// what the DMA writes.
+    narrow: &'static mut [u8],
+    /// The line buffers for wider rows (the E7 frame's, outside the DTCM); empty without them.
+    wide: &'static mut [u8],
     /// The rows of the frame.
     rows: usize,
     /// Next row the sensor exposes.
@@ -103,12 +138,18 @@ struct Sensor {
     running: bool,
 }
 
-/// The line buffers, `[slot][view][pixel]`: what the DMA writes, a zeroed static (`.bss`).
-type Lines = [[[u8; WIDTH]; 2]; LINES];
+/// The line buffers that hold [`LINES`] rows `width` wide: `narrow` when it does, else `wide`.
+fn line_buffers<'a>(narrow: &'a mut [u8], wide: &'a mut [u8], width: usize) -> &'a mut [u8] {
+    if line_bytes(width) <= narrow.len() {
+        narrow
+    } else {
+        wide
+    }
+}
 
 impl Sensor {
-    /// One row interval: expose the next row into `lines`, or stop after the last.
-    fn tick(&mut self, lines: &mut Lines) {
+    /// One row interval: expose the next row into the line buffers, or stop after the last.
+    fn tick(&mut self) {
         if self.next >= self.rows {
             self.stop();
             return;
@@ -116,11 +157,15 @@ impl Sensor {
         let row = self.next;
         self.next += 1;
         let slot = self.filled % LINES;
-        let range = row * WIDTH..(row + 1) * WIDTH;
-        match (self.left.get(range.clone()), self.right.get(range)) {
-            (Some(l), Some(r)) if self.producer.ready() => {
-                lines[slot][0].copy_from_slice(l);
-                lines[slot][1].copy_from_slice(r);
+        let width = self.width;
+        let range = row * width..(row + 1) * width;
+        let lines = line_buffers(self.narrow, self.wide, width);
+        let line = lines.get_mut(2 * width * slot..2 * width * (slot + 1));
+        match (self.left.get(range.clone()), self.right.get(range), line) {
+            (Some(l), Some(r), Some(line)) if self.producer.ready() => {
+                let (to_l, to_r) = line.split_at_mut(width);
+                to_l.copy_from_slice(l);
+                to_r.copy_from_slice(r);
                 // Cannot fail: ready() was true and only this interrupt produces.
                 let _ = self.producer.enqueue(Line {
                     row: row as u16,
@@ -147,14 +192,11 @@ impl Sensor {
 /// line buffers), each access in a critical section.
 static SENSOR: Mutex<RefCell<Option<Sensor>>> = Mutex::new(RefCell::new(None));
 
-/// The line buffers, shared the same way.
-static LINE_BUFFERS: Mutex<RefCell<Lines>> = Mutex::new(RefCell::new([[[0; WIDTH]; 2]; LINES]));
-
 #[exception]
 fn SysTick() {
     interrupt::free(|cs| {
         if let Some(sensor) = SENSOR.borrow(cs).borrow_mut().as_mut() {
-            sensor.tick(&mut LINE_BUFFERS.borrow(cs).borrow_mut());
+            sensor.tick();
         }
     });
 }
@@ -176,26 +218,34 @@ pub struct Camera {
     started: bool,
     /// Next row the pipeline gets.
     next: usize,
+    /// Pixels per row of the frame.
+    width: usize,
     /// Rows of the frame.
     height: usize,
 }
 
 impl Camera {
-    /// Sets up the sensor on the frame `left`/`right` (`rows x WIDTH` each), a row every
-    /// [`ROW_INTERVAL_INSNS`], with its timer stopped; `None` if called twice (the queue is a
-    /// singleton). Not inlined: its temporaries stay out of the caller's frame, which the whole
-    /// run keeps.
+    /// Sets up the sensor with no frame and its timer stopped ([`Camera::load`] gives it
+    /// one), its line buffers for rows up to the band's width in `.bss` and for wider rows
+    /// `wide` (empty: none); `None` if called twice (the queue and the line buffers are
+    /// singletons). Not inlined: its temporaries stay out of the caller's frame, which the
+    /// whole run keeps.
     #[inline(never)]
-    pub fn new(syst: SYST, left: &'static [u8], right: &'static [u8], rows: usize) -> Option<Self> {
+    pub fn new(syst: SYST, wide: &'static mut [u8]) -> Option<Self> {
         let queue: &'static mut Queue<Line, { LINES + 1 }> =
             cortex_m::singleton!(: Queue<Line, { LINES + 1 }> = Queue::new())?;
+        let narrow: &'static mut [u8; line_bytes(WIDTH)] =
+            cortex_m::singleton!(: [u8; line_bytes(WIDTH)] = [0; line_bytes(WIDTH)])?;
         let (producer, consumer) = queue.split();
         let mut sensor = Sensor {
             syst,
             producer,
-            left,
-            right,
-            rows: rows.min(left.len().min(right.len()) / WIDTH),
+            left: &[],
+            right: &[],
+            width: 0,
+            narrow,
+            wide,
+            rows: 0,
             next: 0,
             filled: 0,
             lost: 0,
@@ -204,30 +254,30 @@ impl Camera {
         };
         sensor.syst.disable_counter();
         sensor.syst.set_clock_source(SystClkSource::Core);
-        sensor.syst.set_reload(reload(ROW_INTERVAL_INSNS) - 1);
         sensor.syst.clear_current();
-        let height = sensor.rows;
         interrupt::free(|cs| *SENSOR.borrow(cs).borrow_mut() = Some(sensor));
         Some(Self {
             consumer,
             started: false,
             next: 0,
-            height,
+            width: 0,
+            height: 0,
         })
     }
 
-    /// Stops the sensor and points it at another frame, `left`/`right` (`rows x WIDTH` each), a
-    /// row every `interval_insns` instructions; the next request starts it (as [`Camera::rewind`]).
-    pub fn load(&mut self, left: &'static [u8], right: &'static [u8], rows: usize, interval_insns: u32) {
-        let rows = rows.min(left.len().min(right.len()) / WIDTH);
+    /// Stops the sensor and points it at another frame, `left`/`right` (`rows x width` each;
+    /// rows wider than the line buffers are lost), a row every `interval_insns` instructions;
+    /// the next request starts it (as [`Camera::rewind`]).
+    pub fn load(&mut self, left: &'static [u8], right: &'static [u8], width: usize, rows: usize, interval_insns: u32) {
+        let rows = rows.min(left.len().min(right.len()).checked_div(width).unwrap_or(0));
         interrupt::free(|cs| {
             if let Some(s) = SENSOR.borrow(cs).borrow_mut().as_mut() {
                 s.stop();
-                (s.left, s.right) = (left, right);
+                (s.left, s.right, s.width) = (left, right, width);
                 s.syst.set_reload(reload(interval_insns).max(16) - 1);
             }
         });
-        self.height = rows;
+        (self.width, self.height) = (width, rows);
         self.rewind(rows);
     }
 
@@ -252,7 +302,7 @@ impl Camera {
                 s.stop();
                 s.syst.clear_current();
                 (s.next, s.filled, s.lost, s.queue_high_water) = (0, 0, 0, 0);
-                s.rows = rows.min(s.left.len().min(s.right.len()) / WIDTH);
+                s.rows = rows.min(s.left.len().min(s.right.len()).checked_div(s.width).unwrap_or(0));
             }
             while self.consumer.dequeue().is_some() {}
         });
@@ -295,17 +345,21 @@ impl Camera {
     fn take_line(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<Option<usize>, Error> {
         loop {
             let taken = interrupt::free(|cs| {
-                let sensor = SENSOR.borrow(cs).borrow();
-                let Some(s) = sensor.as_ref() else {
+                let mut sensor = SENSOR.borrow(cs).borrow_mut();
+                let Some(s) = sensor.as_mut() else {
                     return Some(None);
                 };
                 if let Some(line) = self.consumer.dequeue() {
                     // The slot stays ours until this critical section ends: the interrupt can
                     // refill it only after the dequeue, and cannot run before we copied.
-                    let lines = LINE_BUFFERS.borrow(cs).borrow();
-                    let [l, r] = &lines[usize::from(line.slot) % LINES];
-                    left.copy_from_slice(l);
-                    right.copy_from_slice(r);
+                    let width = s.width;
+                    let lines = line_buffers(s.narrow, s.wide, width);
+                    let at = 2 * width * usize::from(line.slot);
+                    // next_row checked both buffers against the frame's width.
+                    if let Some((l, r)) = lines.get(at..at + 2 * width).map(|b| b.split_at(width)) {
+                        left.copy_from_slice(l);
+                        right.copy_from_slice(r);
+                    }
                     return Some(Some(usize::from(line.row)));
                 }
                 if !s.running {
@@ -324,7 +378,7 @@ impl Camera {
 
 impl RowSource for Camera {
     fn width(&self) -> usize {
-        WIDTH
+        self.width
     }
 
     fn height(&self) -> usize {
@@ -333,10 +387,10 @@ impl RowSource for Camera {
 
     fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
         for (buf, what) in [(&*left, "left row buffer"), (&*right, "right row buffer")] {
-            if buf.len() != WIDTH {
+            if buf.len() != self.width {
                 return Err(Error::BufferSize {
                     what,
-                    expected: WIDTH,
+                    expected: self.width,
                     found: buf.len(),
                 });
             }

@@ -2,8 +2,10 @@
 //!
 //! Runs the embedded band pair through `bino_core::pipeline` on both pathways of the learned
 //! preset, then the embedded whole frame through the fast preset's census run
-//! (`pipeline::run_census`, in the front of the same arena: its own `census_arena_bytes`), from a
-//! static arena, their rows fed by the camera path (`camera.rs`: a SysTick interrupt plays the sensor and fills line buffers,
+//! (`pipeline::run_census`, in the front of the same arena: its own `census_arena_bytes`) and the
+//! learned preset, and with the `frame320` feature (the Cortex-M55) both presets on the Alif E7's
+//! 320x240 frame (`frame320.rs`, an arena of its own), from a static arena, their rows fed by the
+//! camera path (`camera.rs`: a SysTick interrupt plays the sensor and fills line buffers,
 //! a `heapless` queue hands them to the pipeline), logs each stage's arena use and stack peak,
 //! each output's digest, the camera's lost rows and the obstacle summary with `defmt` over
 //! semihosting, and exits 0 only if every digest equals the host's (baked in by `build.rs`), no
@@ -17,19 +19,23 @@
 #![no_main]
 
 mod camera;
+#[cfg(feature = "frame320")]
+mod frame320;
+mod markers;
 mod workload;
 
 use core::mem::MaybeUninit;
 use core::ptr::{addr_of, addr_of_mut};
 
-use bino_core::pipeline::{self, RowSource};
+use bino_core::pipeline::RowSource;
 use bino_core::Error;
 use camera::Camera;
 // The critical-section implementation (single core) that defmt's logger needs.
 use cortex_m as _;
 use cortex_m_rt::entry;
-use cortex_m_semihosting::debug::{exit, EXIT_FAILURE, EXIT_SUCCESS};
+use cortex_m_semihosting::debug::{exit, ExitStatus, EXIT_FAILURE, EXIT_SUCCESS};
 use defmt_semihosting as _;
+use markers::{bino_mark_end, mark};
 use workload::{Hooks, Run, Stage, OUTPUTS};
 
 pub(crate) mod expected {
@@ -64,7 +70,7 @@ const ARENA_PAINT: u8 = 0xA5;
 const STACK_PAINT: u32 = 0xCCCC_CCCC;
 
 #[repr(C, align(16))]
-struct Aligned<T>(T);
+pub(crate) struct Aligned<T>(T);
 
 /// The weight blob, in the board's read-only flash-like region (see `memory/`).
 #[link_section = ".weights"]
@@ -74,97 +80,6 @@ static BLOB: Aligned<[u8; expected::BLOB_LEN]> = Aligned(*expected::BLOB_BYTES);
 /// The arena: not zeroed at reset (`.uninit`), painted by `main`.
 #[link_section = ".uninit.bino_arena"]
 static mut ARENA: MaybeUninit<Aligned<[u8; ARENA_BYTES]>> = MaybeUninit::uninit();
-
-/// The stage the firmware is in (written by the markers, which also keeps them distinct).
-static mut CURRENT: u32 = u32::MAX;
-
-macro_rules! markers {
-    ($($name:ident = $id:expr;)*) => {
-        $(
-            #[no_mangle]
-            #[inline(never)]
-            #[doc = "Marker the instruction-count plugin watches."]
-            pub extern "C" fn $name() {
-                // SAFETY: only the main thread writes CURRENT; the camera's interrupt never
-                // touches it.
-                unsafe { core::ptr::write_volatile(addr_of_mut!(CURRENT), $id) };
-            }
-        )*
-    };
-}
-
-markers! {
-    bino_mark_load = 0;
-    bino_mark_rows = 1;
-    bino_mark_encode_left = 2;
-    bino_mark_encode_right = 3;
-    bino_mark_match = 4;
-    bino_mark_sgm = 5;
-    bino_mark_left_right = 6;
-    bino_mark_head = 7;
-    bino_mark_refine = 8;
-    bino_mark_encode_pair = 9;
-    bino_mark_native_rows = 101;
-    bino_mark_native_encode_left = 102;
-    bino_mark_native_encode_right = 103;
-    bino_mark_native_match = 104;
-    bino_mark_native_sgm = 105;
-    bino_mark_native_left_right = 106;
-    bino_mark_native_head = 107;
-    bino_mark_native_refine = 108;
-    bino_mark_native_encode_pair = 109;
-    bino_mark_census_rows = 201;
-    bino_mark_census_sgm = 205;
-    bino_mark_census_refine = 208;
-    bino_mark_frame_rows = 301;
-    bino_mark_frame_encode_left = 302;
-    bino_mark_frame_encode_right = 303;
-    bino_mark_frame_match = 304;
-    bino_mark_frame_sgm = 305;
-    bino_mark_frame_left_right = 306;
-    bino_mark_frame_head = 307;
-    bino_mark_frame_refine = 308;
-    bino_mark_frame_encode_pair = 309;
-    bino_mark_end = 0xFFFF;
-}
-
-fn mark(stage: Stage) {
-    use pipeline::Stage as P;
-    match stage {
-        Stage::Load => bino_mark_load(),
-        Stage::Pipeline(P::Rows) => bino_mark_rows(),
-        Stage::Pipeline(P::EncodeLeft) => bino_mark_encode_left(),
-        Stage::Pipeline(P::EncodeRight) => bino_mark_encode_right(),
-        Stage::Pipeline(P::Match) => bino_mark_match(),
-        Stage::Pipeline(P::Sgm) => bino_mark_sgm(),
-        Stage::Pipeline(P::LeftRight) => bino_mark_left_right(),
-        Stage::Pipeline(P::Head) => bino_mark_head(),
-        Stage::Pipeline(P::Refine) => bino_mark_refine(),
-        Stage::Pipeline(P::EncodePair) => bino_mark_encode_pair(),
-        Stage::Native(P::Rows) => bino_mark_native_rows(),
-        Stage::Native(P::EncodeLeft) => bino_mark_native_encode_left(),
-        Stage::Native(P::EncodeRight) => bino_mark_native_encode_right(),
-        Stage::Native(P::Match) => bino_mark_native_match(),
-        Stage::Native(P::Sgm) => bino_mark_native_sgm(),
-        Stage::Native(P::LeftRight) => bino_mark_native_left_right(),
-        Stage::Native(P::Head) => bino_mark_native_head(),
-        Stage::Native(P::Refine) => bino_mark_native_refine(),
-        Stage::Native(P::EncodePair) => bino_mark_native_encode_pair(),
-        Stage::Census(P::Rows) => bino_mark_census_rows(),
-        Stage::Census(P::Refine) => bino_mark_census_refine(),
-        // run_census enters no other stage; were it to, it would count as the SGM's.
-        Stage::Census(_) => bino_mark_census_sgm(),
-        Stage::Frame(P::Rows) => bino_mark_frame_rows(),
-        Stage::Frame(P::EncodeLeft) => bino_mark_frame_encode_left(),
-        Stage::Frame(P::EncodeRight) => bino_mark_frame_encode_right(),
-        Stage::Frame(P::Match) => bino_mark_frame_match(),
-        Stage::Frame(P::Sgm) => bino_mark_frame_sgm(),
-        Stage::Frame(P::LeftRight) => bino_mark_frame_left_right(),
-        Stage::Frame(P::Head) => bino_mark_frame_head(),
-        Stage::Frame(P::Refine) => bino_mark_frame_refine(),
-        Stage::Frame(P::EncodePair) => bino_mark_frame_encode_pair(),
-    }
-}
 
 extern "C" {
     static _stack_end: u32;
@@ -250,6 +165,87 @@ impl Hooks for Firmware {
     }
 }
 
+/// What the camera streams for one run: the views, their size and the row interval.
+#[derive(Clone, Copy)]
+pub(crate) struct Feed {
+    left: &'static [u8],
+    right: &'static [u8],
+    width: usize,
+    rows: usize,
+    interval_insns: u32,
+}
+
+/// The band pair at the band's row interval.
+const BAND: Feed = Feed {
+    left: &expected::LEFT,
+    right: &expected::RIGHT,
+    width: expected::WIDTH,
+    rows: expected::HEIGHT,
+    interval_insns: camera::ROW_INTERVAL_INSNS,
+};
+
+/// What `run` reads, `None` for a run this build does not make.
+fn feed(run: Run) -> Option<Feed> {
+    let frame = |interval_insns| Feed {
+        left: &expected::FRAME_LEFT,
+        right: &expected::FRAME_RIGHT,
+        width: expected::WIDTH,
+        rows: expected::FRAME_HEIGHT,
+        interval_insns,
+    };
+    match run {
+        Run::Export | Run::Native => Some(BAND),
+        // The fast preset at a sensor's pace; the learned one from a camera slow enough for it.
+        Run::Census => Some(frame(camera::FRAME_ROW_INTERVAL_INSNS)),
+        Run::Frame => Some(frame(camera::LEARNED_FRAME_ROW_INTERVAL_INSNS)),
+        #[cfg(feature = "frame320")]
+        Run::Census320 | Run::Frame320 => Some(frame320::feed(run)),
+        #[cfg(not(feature = "frame320"))]
+        Run::Census320 | Run::Frame320 => None,
+    }
+}
+
+/// The host's digests and arena high-water of `run` (`build.rs`).
+fn expected_of(run: Run) -> (&'static [u32; OUTPUTS.len()], usize) {
+    match run {
+        Run::Export => (&expected::EXPORT_DIGESTS, expected::EXPORT_ARENA_USED),
+        Run::Native => (&expected::NATIVE_DIGESTS, expected::NATIVE_ARENA_USED),
+        Run::Census => (&expected::CENSUS_DIGESTS, expected::CENSUS_ARENA_USED),
+        Run::Frame => (&expected::FRAME_DIGESTS, expected::FRAME_ARENA_USED),
+        #[cfg(feature = "frame320")]
+        Run::Census320 => (&expected::CENSUS320_DIGESTS, expected::CENSUS320_ARENA_USED),
+        #[cfg(feature = "frame320")]
+        Run::Frame320 => (&expected::FRAME320_DIGESTS, expected::FRAME320_ARENA_USED),
+        // Never run without the feature.
+        #[cfg(not(feature = "frame320"))]
+        Run::Census320 | Run::Frame320 => (&[0; OUTPUTS.len()], usize::MAX),
+    }
+}
+
+/// One run's outcome, whether the camera delivered every row, and the arena's painted
+/// high-water.
+struct Done {
+    outcome: Result<workload::Outcome, Error>,
+    rows_ok: bool,
+    painted: usize,
+}
+
+/// Runs `run` on `feed` from the camera, in the front of `arena` its `const fn` gives it
+/// (painted anew), logging the camera path.
+fn run_fed(run: Run, feed: Feed, blob: &[u8], camera: &mut Camera, arena: &mut [u8], fw: &mut Firmware) -> Done {
+    camera.load(feed.left, feed.right, feed.width, feed.rows, feed.interval_insns);
+    let bytes = workload::run_arena_bytes(run, feed.rows, feed.width);
+    let arena = arena.get_mut(..bytes).unwrap_or_default();
+    arena.fill(ARENA_PAINT);
+    let outcome = workload::run(blob, run, camera, arena, fw);
+    let rows_ok = report_camera(run, camera, feed);
+    Done {
+        outcome,
+        rows_ok,
+        painted: arena_high_water(arena),
+    }
+}
+
 #[entry]
 fn main() -> ! {
     // SAFETY: main runs once and makes the only reference to ARENA; painting it first makes
@@ -270,10 +266,7 @@ fn main() -> ! {
         stack_top - stack_bottom
     );
     let Some(syst) = cortex_m::Peripherals::take().map(|p| p.SYST) else {
-        defmt::println!("bino result=error error=peripherals-taken");
-        exit(EXIT_FAILURE);
-        #[allow(clippy::empty_loop)]
-        loop {}
+        fail("peripherals-taken");
     };
     defmt::println!(
         "bino census frame={=usize}x{=usize} arena_bytes={=usize}",
@@ -287,11 +280,15 @@ fn main() -> ! {
         expected::WIDTH,
         FRAME_ARENA_BYTES
     );
-    let Some(mut camera) = Camera::new(syst, &expected::LEFT, &expected::RIGHT, expected::HEIGHT) else {
-        defmt::println!("bino result=error error=camera-set-up-twice");
-        exit(EXIT_FAILURE);
-        #[allow(clippy::empty_loop)]
-        loop {}
+    #[cfg(feature = "frame320")]
+    frame320::log_header();
+    // The E7 frame's runs have their own arena and line buffers, in the board's larger SRAM.
+    #[cfg(feature = "frame320")]
+    let (e7_arena, e7_lines) = frame320::arena_and_line_buffers();
+    #[cfg(not(feature = "frame320"))]
+    let (e7_arena, e7_lines): (&mut [u8], &'static mut [u8]) = (&mut [], &mut []);
+    let Some(mut camera) = Camera::new(syst, e7_lines) else {
+        fail("camera-set-up-twice");
     };
     let mut fw = Firmware {
         current: None,
@@ -300,103 +297,82 @@ fn main() -> ! {
     // SAFETY: BLOB is immutable; reading its address through a volatile load keeps the
     // optimiser from folding the blob's contents into the code.
     let blob: &[u8] = unsafe { &*core::ptr::read_volatile(&addr_of!(BLOB.0)) };
-    let export = workload::run(blob, Run::Export, &mut camera, arena, &mut fw);
-    let export_rows_ok = report_camera(Run::Export, &camera);
-    let export_painted = arena_high_water(arena);
-    // The native run: the same band again from the camera, in the same arena, painted anew.
-    arena.fill(ARENA_PAINT);
-    camera.rewind(expected::HEIGHT);
-    let native = workload::run(blob, Run::Native, &mut camera, arena, &mut fw);
-    let native_rows_ok = report_camera(Run::Native, &camera);
-    let native_painted = arena_high_water(arena);
-    // The fast preset: the whole frame from the camera, at a sensor's pace, in the front of the
-    // arena (only as much as its `const fn` says), painted anew.
-    let census_arena = arena.get_mut(..CENSUS_ARENA_BYTES).unwrap_or_default();
-    census_arena.fill(ARENA_PAINT);
-    camera.load(
-        &expected::FRAME_LEFT,
-        &expected::FRAME_RIGHT,
-        expected::FRAME_HEIGHT,
-        camera::FRAME_ROW_INTERVAL_INSNS,
-    );
-    let census = workload::run(blob, Run::Census, &mut camera, census_arena, &mut fw);
-    let census_rows_ok = report_camera(Run::Census, &camera);
-    let census_painted = arena_high_water(census_arena);
-    // The learned preset on the same frame, band after band, from a camera slow enough for it.
-    let frame_arena = arena.get_mut(..FRAME_ARENA_BYTES).unwrap_or_default();
-    frame_arena.fill(ARENA_PAINT);
-    camera.load(
-        &expected::FRAME_LEFT,
-        &expected::FRAME_RIGHT,
-        expected::FRAME_HEIGHT,
-        camera::LEARNED_FRAME_ROW_INTERVAL_INSNS,
-    );
-    let frame = workload::run(blob, Run::Frame, &mut camera, frame_arena, &mut fw);
-    let frame_rows_ok = report_camera(Run::Frame, &camera);
-    let frame_painted = arena_high_water(frame_arena);
-    let code = match (export, native, census, frame) {
-        (Ok(export), Ok(native), Ok(census), Ok(frame)) => {
-            let per_stage = workload::arena_per_stage(&export.report, &native.report, &census.report, &frame.report);
-            for (i, (&arena_in_use, &stack)) in per_stage.iter().zip(&fw.stack).enumerate() {
-                defmt::println!(
-                    "bino stage={=str} arena_in_use={=usize} stack_peak={=usize}",
-                    Stage::at(i).name(),
-                    arena_in_use,
-                    stack
-                );
+    // Each run in turn: the band pair on each pathway, then the frames, in the front of the
+    // arena (only as much as each run's `const fn` says), painted anew.
+    let mut done: [Option<Done>; Run::ALL.len()] = [const { None }; Run::ALL.len()];
+    for (slot, run) in done.iter_mut().zip(Run::ALL) {
+        let Some(feed) = feed(run) else { continue };
+        let arena = if run.on_e7_frame() { &mut *e7_arena } else { &mut *arena };
+        *slot = Some(run_fed(run, feed, blob, &mut camera, arena, &mut fw));
+    }
+    let mut reports = [None; Run::ALL.len()];
+    for ((report, d), run) in reports.iter_mut().zip(&done).zip(Run::ALL) {
+        match d.as_ref().map(|d| &d.outcome) {
+            Some(Ok(o)) => *report = Some(o.report),
+            Some(Err(e)) => {
+                defmt::println!("bino result=error pathway={=str} error={}", run.name(), e);
+                exit_with(EXIT_FAILURE);
             }
-            let export_ok = check_outcome(
-                Run::Export,
-                &export,
-                &expected::DIGESTS,
-                expected::ARENA_USED,
-                export_painted,
-            );
-            let native_ok = check_outcome(
-                Run::Native,
-                &native,
-                &expected::NATIVE_DIGESTS,
-                expected::NATIVE_ARENA_USED,
-                native_painted,
-            );
-            let census_ok = check_outcome(
-                Run::Census,
-                &census,
-                &expected::CENSUS_DIGESTS,
-                expected::CENSUS_ARENA_USED,
-                census_painted,
-            );
-            let frame_ok = check_outcome(
-                Run::Frame,
-                &frame,
-                &expected::FRAME_DIGESTS,
-                expected::FRAME_ARENA_USED,
-                frame_painted,
-            );
-            let rows_ok = export_rows_ok && native_rows_ok && census_rows_ok && frame_rows_ok;
-            let overflow_ok = overflow_check(&mut camera);
-            let outputs: usize = Run::ALL.iter().map(|&r| workload::outputs(r).len()).sum();
-            if export_ok && native_ok && census_ok && frame_ok && rows_ok && overflow_ok {
-                defmt::println!("bino result=pass outputs={=usize}", outputs);
-                EXIT_SUCCESS
-            } else {
-                defmt::println!(
-                    "bino result=fail export_ok={=bool} native_ok={=bool} census_ok={=bool} frame_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
-                    export_ok,
-                    native_ok,
-                    census_ok,
-                    frame_ok,
-                    rows_ok,
-                    overflow_ok
-                );
-                EXIT_FAILURE
-            }
+            None => {}
         }
-        (Err(e), _, _, _) | (_, Err(e), _, _) | (_, _, Err(e), _) | (_, _, _, Err(e)) => {
-            defmt::println!("bino result=error error={}", e);
-            EXIT_FAILURE
+    }
+    let at = |run: Run| Run::ALL.iter().position(|&r| r == run).and_then(|i| reports[i]);
+    let per_stage = workload::arena_per_stage(at);
+    for (i, (&arena_in_use, &stack)) in per_stage.iter().zip(&fw.stack).enumerate() {
+        let stage = Stage::at(i);
+        // A build without the E7 frame reports none of its stages.
+        if stage.run().is_some_and(|r| feed(r).is_none()) {
+            continue;
         }
+        defmt::println!(
+            "bino stage={=str} arena_in_use={=usize} stack_peak={=usize}",
+            stage.name(),
+            arena_in_use,
+            stack
+        );
+    }
+    let (mut all_ok, mut rows_ok, mut outputs) = (true, true, 0);
+    for (d, run) in done.iter().zip(Run::ALL) {
+        let Some(Done {
+            outcome: Ok(outcome),
+            rows_ok: delivered,
+            painted,
+        }) = d
+        else {
+            continue;
+        };
+        let (digests, arena_used) = expected_of(run);
+        let ok = check_outcome(run, outcome, digests, arena_used, *painted);
+        #[cfg(feature = "frame320")]
+        let ok = ok & frame320::check_bino_run(run, outcome);
+        all_ok &= ok;
+        rows_ok &= *delivered;
+        outputs += workload::outputs(run).len();
+    }
+    let overflow_ok = overflow_check(&mut camera);
+    let code = if all_ok && rows_ok && overflow_ok {
+        defmt::println!("bino result=pass outputs={=usize}", outputs);
+        EXIT_SUCCESS
+    } else {
+        defmt::println!(
+            "bino result=fail outputs_ok={=bool} rows_ok={=bool} overflow_check_ok={=bool}",
+            all_ok,
+            rows_ok,
+            overflow_ok
+        );
+        EXIT_FAILURE
     };
+    exit_with(code)
+}
+
+/// Logs the error and exits non-zero.
+fn fail(error: &str) -> ! {
+    defmt::println!("bino result=error error={=str}", error);
+    exit_with(EXIT_FAILURE)
+}
+
+/// Ends the QEMU run with `code` (semihosting); never returns.
+fn exit_with(code: ExitStatus) -> ! {
     exit(code);
     #[allow(clippy::empty_loop)]
     loop {}
@@ -458,27 +434,23 @@ fn check_outcome(
     mismatches == 0 && arena_ok
 }
 
-/// Logs the camera path of `run` (the inputs of the sustainable row rate that report.py
-/// derives from the instruction counts); `true` when every row arrived and none was lost.
+/// Logs the camera path of `run` on `feed` (the inputs of the sustainable row rate that
+/// report.py derives from the instruction counts); `true` when every row arrived and none was
+/// lost.
 #[inline(never)]
-fn report_camera(run: Run, camera: &Camera) -> bool {
+fn report_camera(run: Run, camera: &Camera, feed: Feed) -> bool {
     let stats = camera.stats();
-    let (rows, interval) = match run {
-        Run::Census => (expected::FRAME_HEIGHT, camera::FRAME_ROW_INTERVAL_INSNS),
-        Run::Frame => (expected::FRAME_HEIGHT, camera::LEARNED_FRAME_ROW_INTERVAL_INSNS),
-        Run::Export | Run::Native => (expected::HEIGHT, camera::ROW_INTERVAL_INSNS),
-    };
     defmt::println!(
         "bino camera pathway={=str} frame_rows={=usize} line_buffers={=usize} row_interval_insns={=u32} delivered={=usize} lost={=usize} queue_high_water={=usize}",
         run.name(),
-        rows,
+        feed.rows,
         camera::LINES,
-        interval,
+        feed.interval_insns,
         stats.delivered,
         stats.lost,
         stats.queue_high_water
     );
-    stats.lost == 0 && stats.delivered == rows
+    stats.lost == 0 && stats.delivered == feed.rows
 }
 
 /// The camera's overflow path, checked on the target after the run (outside the stage
@@ -489,7 +461,14 @@ fn report_camera(run: Run, camera: &Camera) -> bool {
 #[inline(never)]
 fn overflow_check(camera: &mut Camera) -> bool {
     const EXTRA: usize = 3;
-    camera.rewind(camera::LINES + EXTRA);
+    let band = BAND;
+    camera.load(
+        band.left,
+        band.right,
+        band.width,
+        camera::LINES + EXTRA,
+        band.interval_insns,
+    );
     camera.start();
     camera.wait_stopped();
     let lost = camera.stats().lost;
@@ -529,7 +508,5 @@ fn overflow_check(camera: &mut Camera) -> bool {
 #[panic_handler]
 fn panic(info: &core::panic::PanicInfo) -> ! {
     defmt::println!("bino result=panic {}", defmt::Display2Format(info));
-    exit(EXIT_FAILURE);
-    #[allow(clippy::empty_loop)]
-    loop {}
+    exit_with(EXIT_FAILURE)
 }

@@ -20,6 +20,10 @@
 //! - Frame (the learned preset on the whole frame): the native run on the fast preset's frame,
 //!   band after band (`bino_core::band::BandPlan`), each band's head on its own rows, in
 //!   [`frame_arena_bytes`].
+//! - Census320 and Frame320 (the Alif E7's whole [`E7_FRAME`]): the fast and the learned preset
+//!   with the options and the refinement of that width, as `bino run` and the board run them
+//!   (`preset::options_for_width`: 16 head candidates, +-4 px refinement), in
+//!   [`run_arena_bytes`]. Only the Cortex-M55 firmware runs them (feature `frame320`).
 //!
 //! The rows come from any `RowSource`: `build.rs` hands over the embedded band as a
 //! `SlicePair`, the firmware the interrupt-fed camera (`camera.rs`); the digests must agree.
@@ -36,7 +40,11 @@ use bino_core::Error;
 
 // The readouts, the refinement, the example board's calibration and the sector count: the
 // preset the board apps (`boards/`) run too.
+use bino_core::preset::{census_refine_for_width, options_for_width, refine_for_width};
 pub use bino_core::preset::{CALIBRATION, CENSUS_REFINE, EXPORT_OPTIONS, EXPORT_REFINE, OPTIONS, REFINE, SECTORS};
+
+/// The Alif E7's frame, `(height, width)`: QVGA, what the board runs whole.
+pub const E7_FRAME: (usize, usize) = (240, 320);
 
 /// Arena bytes for a `height x width` band pair on both pathways (one arena serves each run).
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
@@ -60,8 +68,20 @@ pub const fn census_arena_bytes(height: usize, width: usize) -> usize {
     bino_core::preset::census_arena_bytes(height, width)
 }
 
+/// Arena bytes of `run` on a `height x width` pair: the preset's `const fn` for it.
+pub const fn run_arena_bytes(run: Run, height: usize, width: usize) -> usize {
+    match run {
+        Run::Export | Run::Native => arena_bytes(height, width),
+        Run::Census => census_arena_bytes(height, width),
+        Run::Frame => frame_arena_bytes(height, width),
+        Run::Census320 => bino_core::preset::census_arena_bytes_for_width(height, width),
+        Run::Frame320 => bino_core::preset::arena_bytes_for_width(height, width),
+    }
+}
+
 /// The firmware's runs, in order: the learned preset's band pair on each pathway, then the fast
-/// preset's whole frame, then the learned preset's.
+/// preset's whole frame, then the learned preset's; then, on the Cortex-M55, both on the E7's
+/// frame.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Run {
     /// The export pathway's band pair.
@@ -72,35 +92,59 @@ pub enum Run {
     Census,
     /// The learned preset's frame: the native pathway, band after band.
     Frame,
+    /// The fast preset on the E7's frame, with the options of its width.
+    Census320,
+    /// The learned preset on the E7's frame, with the options and refinement of its width.
+    Frame320,
 }
 
 impl Run {
     /// Every run, in the firmware's order.
-    pub const ALL: [Run; 4] = [Run::Export, Run::Native, Run::Census, Run::Frame];
+    pub const ALL: [Run; 6] = [
+        Run::Export,
+        Run::Native,
+        Run::Census,
+        Run::Frame,
+        Run::Census320,
+        Run::Frame320,
+    ];
 
-    /// `export`, `native`, `census` or `frame`: the `pathway` of its log lines and JSON.
+    /// `export`, `native`, `census`, `frame`, `census320` or `frame320`: the `pathway` of its
+    /// log lines and JSON.
     pub const fn name(self) -> &'static str {
         match self {
             Run::Export => "export",
             Run::Native => "native",
             Run::Census => "census",
             Run::Frame => "frame",
+            Run::Census320 => "census320",
+            Run::Frame320 => "frame320",
         }
+    }
+
+    /// Whether the run is on the E7's frame ([`E7_FRAME`]), which only the Cortex-M55 firmware
+    /// runs.
+    pub const fn on_e7_frame(self) -> bool {
+        matches!(self, Run::Census320 | Run::Frame320)
     }
 }
 
 /// The readout options and refinement of `run`.
 pub const fn preset(run: Run) -> (Options, Refine) {
+    let e7 = E7_FRAME.1;
     match run {
         Run::Export => (EXPORT_OPTIONS, EXPORT_REFINE),
         Run::Native | Run::Frame => (OPTIONS, REFINE),
         Run::Census => (OPTIONS, CENSUS_REFINE),
+        Run::Census320 => (options_for_width(e7), census_refine_for_width(e7)),
+        Run::Frame320 => (options_for_width(e7), refine_for_width(e7)),
     }
 }
 
 /// The stages the firmware reports: blob loading (the learned runs), then each pathway's
 /// pipeline stages, the native run's named `native_<stage>`, then the census run's three
-/// (`census_rows`, `census_sgm`, `census_refine`), then the learned frame's (`frame_<stage>`).
+/// (`census_rows`, `census_sgm`, `census_refine`), then the learned frame's (`frame_<stage>`),
+/// then the same two runs' on the E7's frame (`census320_<stage>`, `frame320_<stage>`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Stage {
     /// Blob header, CRC over the whole blob, tensor table, weights.
@@ -113,6 +157,10 @@ pub enum Stage {
     Census(pipeline::Stage),
     /// A stage of `bino_core::pipeline` in the learned preset's frame.
     Frame(pipeline::Stage),
+    /// A stage of the census run on the E7's frame ([`CENSUS_STAGES`]).
+    Census320(pipeline::Stage),
+    /// A stage of `bino_core::pipeline` in the learned preset's E7 frame.
+    Frame320(pipeline::Stage),
 }
 
 /// Pipeline stages per pathway.
@@ -121,9 +169,19 @@ const PIPELINE_STAGES: usize = pipeline::Stage::ALL.len();
 /// The stages `pipeline::run_census` enters: rows, the census SGM, the refinement.
 pub const CENSUS_STAGES: [pipeline::Stage; 3] = [pipeline::Stage::Rows, pipeline::Stage::Sgm, pipeline::Stage::Refine];
 
+/// Where each run's stages start in run order ([`Stage::index`]): after `load`, the export
+/// and native band pairs, the census frame, the learned frame, and the two on the E7's frame.
+const FIRST_OF: [usize; 6] = {
+    let census = 1 + 2 * PIPELINE_STAGES;
+    let frame = census + CENSUS_STAGES.len();
+    let census320 = frame + PIPELINE_STAGES;
+    let frame320 = census320 + CENSUS_STAGES.len();
+    [1, 1 + PIPELINE_STAGES, census, frame, census320, frame320]
+};
+
 impl Stage {
     /// Number of stages.
-    pub const COUNT: usize = 1 + 3 * PIPELINE_STAGES + CENSUS_STAGES.len();
+    pub const COUNT: usize = FIRST_OF[5] + PIPELINE_STAGES;
 
     /// The stage `stage` of `run`.
     pub const fn of(run: Run, stage: pipeline::Stage) -> Stage {
@@ -132,22 +190,46 @@ impl Stage {
             Run::Native => Stage::Native(stage),
             Run::Census => Stage::Census(stage),
             Run::Frame => Stage::Frame(stage),
+            Run::Census320 => Stage::Census320(stage),
+            Run::Frame320 => Stage::Frame320(stage),
+        }
+    }
+
+    /// The run the stage belongs to (`None` for `load`, which the learned runs share).
+    pub const fn run(self) -> Option<Run> {
+        match self {
+            Stage::Load => None,
+            Stage::Pipeline(_) => Some(Run::Export),
+            Stage::Native(_) => Some(Run::Native),
+            Stage::Census(_) => Some(Run::Census),
+            Stage::Frame(_) => Some(Run::Frame),
+            Stage::Census320(_) => Some(Run::Census320),
+            Stage::Frame320(_) => Some(Run::Frame320),
         }
     }
 
     /// Stage `i` in run order.
     pub const fn at(i: usize) -> Stage {
+        const fn census(at: usize) -> pipeline::Stage {
+            CENSUS_STAGES[at % CENSUS_STAGES.len()]
+        }
+        const fn all(at: usize) -> pipeline::Stage {
+            pipeline::Stage::ALL[at % PIPELINE_STAGES]
+        }
         if i == 0 {
             Stage::Load
-        } else if i <= PIPELINE_STAGES {
-            Stage::Pipeline(pipeline::Stage::ALL[i - 1])
-        } else if i <= 2 * PIPELINE_STAGES {
-            Stage::Native(pipeline::Stage::ALL[i - 1 - PIPELINE_STAGES])
-        } else if i <= 2 * PIPELINE_STAGES + CENSUS_STAGES.len() {
-            Stage::Census(CENSUS_STAGES[i - 1 - 2 * PIPELINE_STAGES])
+        } else if i < FIRST_OF[1] {
+            Stage::Pipeline(all(i - FIRST_OF[0]))
+        } else if i < FIRST_OF[2] {
+            Stage::Native(all(i - FIRST_OF[1]))
+        } else if i < FIRST_OF[3] {
+            Stage::Census(census(i - FIRST_OF[2]))
+        } else if i < FIRST_OF[4] {
+            Stage::Frame(all(i - FIRST_OF[3]))
+        } else if i < FIRST_OF[5] {
+            Stage::Census320(census(i - FIRST_OF[4]))
         } else {
-            let at = i - 1 - 2 * PIPELINE_STAGES - CENSUS_STAGES.len();
-            Stage::Frame(pipeline::Stage::ALL[at % PIPELINE_STAGES])
+            Stage::Frame320(all(i - FIRST_OF[5]))
         }
     }
 
@@ -185,22 +267,38 @@ impl Stage {
                 P::Refine => "frame_refine",
                 P::EncodePair => "frame_encode_pair",
             },
+            Stage::Census320(s) => match s {
+                P::Rows => "census320_rows",
+                P::Refine => "census320_refine",
+                _ => "census320_sgm",
+            },
+            Stage::Frame320(s) => match s {
+                P::Rows => "frame320_rows",
+                P::EncodeLeft => "frame320_encode_left",
+                P::EncodeRight => "frame320_encode_right",
+                P::Match => "frame320_match",
+                P::Sgm => "frame320_sgm",
+                P::LeftRight => "frame320_left_right",
+                P::Head => "frame320_head",
+                P::Refine => "frame320_refine",
+                P::EncodePair => "frame320_encode_pair",
+            },
         }
     }
 
     /// Index in run order (`Stage::at(s.index()) == s`).
     pub fn index(self) -> usize {
         let position = |s: pipeline::Stage| pipeline::Stage::ALL.iter().position(|&x| x == s).unwrap_or(0);
+        // run_census enters no other stage; were it to, it would count as the SGM's.
+        let census = |s: pipeline::Stage| CENSUS_STAGES.iter().position(|&x| x == s).unwrap_or(1);
         match self {
             Stage::Load => 0,
-            Stage::Pipeline(s) => 1 + position(s),
-            Stage::Native(s) => 1 + PIPELINE_STAGES + position(s),
-            Stage::Census(s) => {
-                // run_census enters no other stage; were it to, it would count as the SGM's.
-                let at = CENSUS_STAGES.iter().position(|&x| x == s).unwrap_or(1);
-                1 + 2 * PIPELINE_STAGES + at
-            }
-            Stage::Frame(s) => 1 + 2 * PIPELINE_STAGES + CENSUS_STAGES.len() + position(s),
+            Stage::Pipeline(s) => FIRST_OF[0] + position(s),
+            Stage::Native(s) => FIRST_OF[1] + position(s),
+            Stage::Census(s) => FIRST_OF[2] + census(s),
+            Stage::Frame(s) => FIRST_OF[3] + position(s),
+            Stage::Census320(s) => FIRST_OF[4] + census(s),
+            Stage::Frame320(s) => FIRST_OF[5] + position(s),
         }
     }
 }
@@ -225,8 +323,8 @@ pub const OUTPUTS: [&str; 12] = [
 pub const fn outputs(run: Run) -> &'static [usize] {
     match run {
         Run::Export => &[0, 1, 2, 3, 4, 5, 6, 10, 7, 8],
-        Run::Native | Run::Frame => &[9, 5, 6, 10, 7, 8],
-        Run::Census => &[11, 7, 8],
+        Run::Native | Run::Frame | Run::Frame320 => &[9, 5, 6, 10, 7, 8],
+        Run::Census | Run::Census320 => &[11, 7, 8],
     }
 }
 
@@ -352,7 +450,7 @@ pub fn run(
     hooks: &mut impl Hooks,
 ) -> Result<Outcome, Error> {
     let first = match run {
-        Run::Census => Stage::Census(pipeline::Stage::Rows),
+        Run::Census | Run::Census320 => Stage::of(run, pipeline::Stage::Rows),
         _ => Stage::Load,
     };
     hooks.enter(first);
@@ -368,8 +466,8 @@ pub fn run(
     };
     let (options, refine) = preset(run);
     let report = match run {
-        Run::Census => pipeline::run_census(source, &options, Some(&refine), arena, &mut recorder),
-        Run::Export | Run::Native | Run::Frame => {
+        Run::Census | Run::Census320 => pipeline::run_census(source, &options, Some(&refine), arena, &mut recorder),
+        Run::Export | Run::Native | Run::Frame | Run::Frame320 => {
             match Blob::parse(blob).map_err(Error::from).and_then(Pipeline::new) {
                 Ok(pipeline) => pipeline.run_refined(source, &options, &refine, arena, &mut recorder),
                 Err(e) => Err(e),
@@ -405,34 +503,41 @@ fn sectors_digest(summary: &SectorSummary<SECTORS>) -> u32 {
     crc.finish()
 }
 
-/// Arena bytes in use during each stage (index as [`Stage::index`]), from the pipeline reports
-/// of the four runs. Export: the pixel band, plus the left descriptors and the encoder's scratch
-/// while encoding, plus both descriptor maps and the readout streams afterwards, and the
-/// refinement's buffers while it refines. Native: the pixel band and the head check's rows, plus
-/// the encoder's scratch while encoding; the whole high-water after (the head's stream and the
-/// refinement's row scratch follow the tokens in that scratch). Census: the pixel band, plus the
-/// census SGM's stream, plus the refinement's state and row scratch while it refines. Frame: as
-/// native.
-pub fn arena_per_stage(r: &Report, native: &Report, census: &Report, frame: &Report) -> [usize; Stage::COUNT] {
+/// Arena bytes in use during each stage (index as [`Stage::index`]), from the pipeline report
+/// of each run (`None`: the run did not run; its stages used none). Export: the pixel band,
+/// plus the left descriptors and the encoder's scratch while encoding, plus both descriptor maps
+/// and the readout streams afterwards, and the refinement's buffers while it refines. Native:
+/// the pixel band and the head check's rows, plus the encoder's scratch while encoding; the
+/// whole high-water after (the head's stream and the refinement's row scratch follow the tokens
+/// in that scratch). Census: the pixel band, plus the census SGM's stream, plus the
+/// refinement's state and row scratch while it refines. Frame: as native. The E7 frame's runs:
+/// as census and frame.
+pub fn arena_per_stage(report_of: impl Fn(Run) -> Option<Report>) -> [usize; Stage::COUNT] {
+    use pipeline::Stage as P;
     let mut out = [0; Stage::COUNT];
     for (i, o) in out.iter_mut().enumerate() {
-        *o = match Stage::at(i) {
+        let stage = Stage::at(i);
+        let Some(r) = stage.run().and_then(&report_of) else {
+            continue;
+        };
+        *o = match stage {
+            Stage::Native(s) | Stage::Frame(s) | Stage::Frame320(s) => match s {
+                P::Rows => r.pixels,
+                P::EncodePair => r.pixels + r.streams + r.encoder,
+                _ => r.arena_used,
+            },
+            Stage::Pipeline(s) => match s {
+                P::Rows => r.pixels,
+                P::EncodeLeft | P::EncodeRight | P::EncodePair => r.pixels + r.descriptors + r.encoder,
+                P::Refine => r.pixels + 2 * r.descriptors + r.streams + r.refine,
+                _ => r.pixels + 2 * r.descriptors + r.streams,
+            },
+            Stage::Census(s) | Stage::Census320(s) => match s {
+                P::Rows => r.pixels,
+                P::Refine => r.arena_used,
+                _ => r.pixels + r.streams,
+            },
             Stage::Load => 0,
-            Stage::Native(pipeline::Stage::Rows) => native.pixels,
-            Stage::Native(pipeline::Stage::EncodePair) => native.pixels + native.streams + native.encoder,
-            Stage::Native(_) => native.arena_used,
-            Stage::Frame(pipeline::Stage::Rows) => frame.pixels,
-            Stage::Frame(pipeline::Stage::EncodePair) => frame.pixels + frame.streams + frame.encoder,
-            Stage::Frame(_) => frame.arena_used,
-            Stage::Pipeline(pipeline::Stage::Rows) => r.pixels,
-            Stage::Pipeline(
-                pipeline::Stage::EncodeLeft | pipeline::Stage::EncodeRight | pipeline::Stage::EncodePair,
-            ) => r.pixels + r.descriptors + r.encoder,
-            Stage::Pipeline(pipeline::Stage::Refine) => r.pixels + 2 * r.descriptors + r.streams + r.refine,
-            Stage::Pipeline(_) => r.pixels + 2 * r.descriptors + r.streams,
-            Stage::Census(pipeline::Stage::Rows) => census.pixels,
-            Stage::Census(pipeline::Stage::Refine) => census.arena_used,
-            Stage::Census(_) => census.pixels + census.streams,
         };
     }
     out

@@ -116,6 +116,13 @@ def board_pathways(src: Sources) -> str:
     return table(header, rows) + "\n\n" + footer(src)
 
 
+def e7_arena(run: Json) -> str:
+    """The learned preset's arena on the E7's 320x240 frame, static / used, or a dash for a core
+    that did not run it."""
+    f = run.get("frame320")
+    return f"{n(f['arena_bytes'])} / {n(f['arena_used'])} B" if f else "- (not run)"
+
+
 def fw_memory(src: Sources) -> str:
     cs = {k: src.core(k) for k in CORES}
     runs = {k: src.run(k) for k in CORES}
@@ -143,7 +150,11 @@ def fw_memory(src: Sources) -> str:
             lambda k: f"{n(cs[k]['ram_reserved_bytes'])} B",
         ),
         (
-            "QEMU wall time of the run (both pathways)",
+            "the E7 frame's arena, static / high-water (`--frame320`, in SRAM)",
+            lambda k: e7_arena(runs[k]),
+        ),
+        (
+            "QEMU wall time of the run (every run of the firmware)",
             lambda k: f"{cs[k]['qemu_wall_seconds']:.0f} s",
         ),
     ]
@@ -180,8 +191,9 @@ def fw_stages(src: Sources) -> str:
     for name in names:
         row = [STAGE_NOTES.get(name, name), n(stages["m55"][name]["arena_in_use_bytes"])]
         for k in CORES:
-            s = stages[k][name]
-            row += [n(s["instructions"]), f"{s['estimated_ms']:,.1f}"]
+            # A stage only one core ran (the E7 frame's: the M55's) is a dash on the other.
+            s = stages[k].get(name)
+            row += [n(s["instructions"]), f"{s['estimated_ms']:,.1f}"] if s else ["-", "-"]
         rows.append(row)
 
     def total(label: str, key: str, arena: str) -> list[str]:
@@ -441,6 +453,19 @@ PRESET_SOURCES = {
 }
 
 
+def preset_source(p: Json, presets: list[Json]) -> str:
+    """Where a preset's figures come from; a scaled frame names the measured frame it was scaled
+    from (the core's first measured frame of that preset, as `bino budget` takes it)."""
+    if p["source"] != "scaled_frame":
+        return PRESET_SOURCES[p["source"]]
+    base = next(
+        q["frame"]
+        for q in presets
+        if q["core"] == p["core"] and q["preset"] == p["preset"] and q["source"] == "measured_frame"
+    )
+    return f"scaled from the measured {base['width']}x{base['height']} frame"
+
+
 def board_presets(src: Sources) -> str:
     """The board's two presets per frame and core (`bino budget`'s presets): the fast one
     (`census+lr+ref`, no encoder) and the learned one (the native pathway), each counted on the
@@ -457,7 +482,7 @@ def board_presets(src: Sources) -> str:
                 f"{core_label(src.core(p['core'])).split(' (')[0]} at {p['clock_mhz']:.0f} MHz",
                 f"{p['preset']}: `{p['readout']}`",
                 mega(p["instructions"]),
-                PRESET_SOURCES[p["source"]],
+                preset_source(p, b["presets"]["frames"]),
                 fps3(p["frames_per_s_ipc1"]),
                 fps3(modelled) if modelled else "-",
                 f"{n(p['arena_bytes'])} B",

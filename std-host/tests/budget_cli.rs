@@ -46,7 +46,7 @@ fn budget_reports_the_committed_runs() {
         let got = &report["cores"][i];
         assert_eq!(got["core"], *core);
         // The export band pair is every stage the plugin counted except blob loading at boot, the
-        // native run's stages and the census frame's; the native band pair is the native ones.
+        // native run's stages and the whole frames'; the native band pair is the native ones.
         let stages = run["stages"].as_array().unwrap();
         let of = |prefix: &str| -> u64 {
             stages
@@ -58,7 +58,10 @@ fn budget_reports_the_committed_runs() {
         let sum = |native: bool| -> u64 {
             match native {
                 true => of("native_"),
-                false => of("") - of("native_") - of("census_") - of("frame_") - of("load"),
+                false => {
+                    let frames: u64 = ["census_", "frame_", "census320_", "frame320_"].map(of).iter().sum();
+                    of("") - of("native_") - frames - of("load")
+                }
             }
         };
         let band_pair = sum(false);
@@ -112,7 +115,27 @@ fn budget_reports_the_committed_runs() {
             stdout.contains(&bino_host::budget::grouped(band_pair)),
             "{core}: {stdout}"
         );
+        // The E7's 320x240 frame: counted where the core ran it (the M55, `--frame320`: its
+        // census320_* and frame320_* stages, in their arena), scaled where it did not (the M7).
+        for (preset, key) in [("fast", "census320"), ("learned", "frame320")] {
+            let row = report["presets"]["frames"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .find(|p| p["core"] == *core && p["preset"] == preset && p["frame"]["width"] == 320)
+                .unwrap_or_else(|| panic!("{core}: no {preset} 320x240 frame"));
+            if *core == "m55" {
+                assert_eq!(row["source"], "measured_frame", "{core} {preset}");
+                assert_eq!(row["instructions"], of(&format!("{key}_")), "{core} {preset}");
+                assert_eq!(row["instructions"], run[key]["frame_instructions"], "{core} {preset}");
+                assert_eq!(row["arena_bytes"], run[key]["arena_bytes"], "{core} {preset}");
+            } else {
+                assert_ne!(row["source"], "measured_frame", "{core} {preset}");
+                assert!(run[key].is_null(), "{core}: {key}");
+            }
+        }
     }
+    assert!(stdout.contains("Scaled, as no frame of that size was measured on that core: M7 320x240"));
     // The cycle model: per stage, modelled cycles = sum over classes and adjustments of count x
     // cost, from the run's own counts; the classes add up to the stage's instructions.
     assert!(stdout.contains("Cycle model (a model, not a measurement)"), "{stdout}");
@@ -151,7 +174,9 @@ fn budget_reports_the_committed_runs() {
             assert!((ms - cycles / (mhz * 1e3)).abs() < 1e-9, "{core} {}", r["name"]);
             // The model's band pair is the export pathway's.
             let name = r["name"].as_str().unwrap();
-            let other_run = ["native_", "census_", "frame_"].iter().any(|p| name.starts_with(p));
+            let other_run = ["native_", "census_", "frame_", "census320_", "frame320_"]
+                .iter()
+                .any(|p| name.starts_with(p));
             if name != "load" && !other_run {
                 band_pair += cycles;
             }

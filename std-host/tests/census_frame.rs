@@ -67,7 +67,7 @@ fn run_writes_the_pixels_the_firmware_refines_on_its_frame() {
         let firmware = firmware_refined(core);
         assert_eq!(
             written, firmware,
-            "{core}: bino run {written:08x}, firmware {firmware:08x} (re-measure with scripts/firmware.sh --profile --out firmware-sim/measured after changing the engine)"
+            "{core}: bino run {written:08x}, firmware {firmware:08x} (re-measure with scripts/firmware.sh --profile --kernels --frame320 --out firmware-sim/measured after changing the engine)"
         );
     }
 }

@@ -1,9 +1,10 @@
 //! Determinism (issue 12): the firmware's own workload (`firmware-sim/src/workload.rs`, the
 //! shipped blob, the embedded 48x160 band pair on both pathways of the learned preset, the
-//! embedded 160x120 frame through the fast preset's census run) gives bit-identical outputs run
-//! after run and on several threads at once on the host, and the same digests the Cortex-M55
-//! and Cortex-M7 firmwares computed under QEMU (`firmware-sim/measured/*.json`, written by
-//! `scripts/firmware.sh --profile --out firmware-sim/measured`). The refined rows' digest is
+//! embedded 160x120 frame through both presets, and the Alif E7's 320x240 frame through both
+//! with the options of that width) gives bit-identical outputs run after run and on several
+//! threads at once on the host, and the same digests the Cortex-M55 and Cortex-M7 firmwares
+//! computed under QEMU (`firmware-sim/measured/*.json`, written by `scripts/firmware.sh
+//! --profile --kernels --frame320 --out firmware-sim/measured`: only the M55 runs the E7 frame). The refined rows' digest is
 //! also recomputed from the specification: the whole-map refinement the preset names
 //! (`refine::sharpness::refine_map_equalised`, or `refine::refine_map` without equalisation) on
 //! the whole token map the preset reads: the head and SGM fused by their checks (`lr::fuse_row`
@@ -48,11 +49,15 @@ impl Pair {
     }
 
     /// What `run` reads: the 48x160 band for the learned preset's band pair, the 160x120 frame
-    /// for the fast preset and the learned frame.
+    /// for the fast preset and the learned frame, the E7's frame for their runs on it.
     fn of(run: Run) -> Self {
         match run {
             Run::Export | Run::Native => Self::read("band", 48, 160),
             Run::Census | Run::Frame => Self::read("frame", 120, 160),
+            Run::Census320 | Run::Frame320 => {
+                let (height, width) = workload::E7_FRAME;
+                Self::read("frame", height, width)
+            }
         }
     }
 }
@@ -61,12 +66,7 @@ impl Pair {
 /// firmware's size each time.
 fn digests(blob: &[u8], run: Run, pair: &Pair) -> [u32; OUTPUTS.len()] {
     let (height, width) = (pair.height, pair.width);
-    let bytes = match run {
-        Run::Census => workload::census_arena_bytes(height, width),
-        Run::Frame => workload::frame_arena_bytes(height, width),
-        Run::Export | Run::Native => workload::arena_bytes(height, width),
-    };
-    let mut arena = vec![0xA5u8; bytes];
+    let mut arena = vec![0xA5u8; workload::run_arena_bytes(run, height, width)];
     let mut source = SlicePair::new(&pair.left, &pair.right, width, height).unwrap();
     workload::run(blob, run, &mut source, &mut arena, &mut Quiet)
         .unwrap()
@@ -131,13 +131,13 @@ fn refined_digest_from_the_whole_map(blob: &[u8], run: Run, pair: &Pair) -> u32 
     let (options, refine) = workload::preset(run);
     let want = match run {
         Run::Export => RefineInput::FusedAllLr,
-        Run::Native | Run::Frame => RefineInput::FusedCensusLr,
-        Run::Census => RefineInput::CensusLr,
+        Run::Native | Run::Frame | Run::Frame320 => RefineInput::FusedCensusLr,
+        Run::Census | Run::Census320 => RefineInput::CensusLr,
     };
     assert_eq!(refine.input, want);
     let cols = width / 4;
     let (census, census_mask) = census_whole_map(left, right, width, height, options.head_candidates);
-    if run == Run::Census {
+    if matches!(run, Run::Census | Run::Census320) {
         return refined_crc(pair, census, &census_mask, &refine);
     }
     let pipeline = Pipeline::new(Blob::parse(blob).unwrap()).unwrap();
@@ -162,7 +162,7 @@ fn refined_digest_from_the_whole_map(blob: &[u8], run: Run, pair: &Pair) -> u32 
             let first = (&first[..], &first_mask[..]);
             fuse_grid(first, &maps.confidence, sgm, cols, census::FUSE_ALL_FIRST_WEIGHT).unwrap()
         }
-        Run::Native | Run::Frame | Run::Census => (first, first_mask),
+        Run::Native | Run::Frame | Run::Frame320 | Run::Census | Run::Census320 => (first, first_mask),
     };
     refined_crc(pair, grid, &mask, &refine)
 }
@@ -232,18 +232,20 @@ fn outputs_are_bit_identical_across_runs_threads_and_targets() {
             limit(fastest);
         }
         for &slot in workload::outputs(run) {
-            host.push((run.name().to_string(), OUTPUTS[slot].to_string(), first[slot]));
+            host.push((run, OUTPUTS[slot].to_string(), first[slot]));
         }
     }
-    for core in ["m55", "m7"] {
+    // The M55's measurement runs the E7 frame too (--frame320); the M7's does not.
+    for (core, e7) in [("m55", true), ("m7", false)] {
         let recorded = firmware_digests(core);
+        let host: Vec<_> = host.iter().filter(|(run, ..)| e7 || !run.on_e7_frame()).collect();
         let names: Vec<(&str, &str)> = recorded.iter().map(|(p, n, _)| (p.as_str(), n.as_str())).collect();
-        let want: Vec<(&str, &str)> = host.iter().map(|(p, n, _)| (p.as_str(), n.as_str())).collect();
+        let want: Vec<(&str, &str)> = host.iter().map(|(r, n, _)| (r.name(), n.as_str())).collect();
         assert_eq!(names, want, "{core}: the workload's outputs, every run");
-        for ((pathway, name, digest), (_, _, host)) in recorded.iter().zip(&host) {
+        for ((pathway, name, digest), (_, _, host)) in recorded.iter().zip(host) {
             assert_eq!(
                 digest, host,
-                "{core} {pathway} {name}: firmware {digest:08x}, host {host:08x} (re-measure with scripts/firmware.sh --profile --out firmware-sim/measured after changing the blob or the engine)"
+                "{core} {pathway} {name}: firmware {digest:08x}, host {host:08x} (re-measure with scripts/firmware.sh --profile --kernels --frame320 --out firmware-sim/measured after changing the blob or the engine)"
             );
         }
     }

@@ -170,3 +170,44 @@ fn run_and_sim_give_the_firmware_digest_of_its_readout_on_both_pathways() {
     }
     let _ = std::fs::remove_dir_all(&views);
 }
+
+/// The E7 frame: the refined digest the Cortex-M55 firmware logged for each preset on the Alif
+/// E7's 320x240 frame (its `census320` and `frame320` runs, `scripts/firmware.sh --frame320`) is
+/// the one `bino run` writes for that frame and preset (`firmware-sim/measured/host-frame-320x240.json`,
+/// which `std-host/tests/e7_frame.rs` holds `bino run` to), and the firmware logged the match.
+#[test]
+fn the_m55_refines_the_e7_frame_as_bino_run_does() {
+    let read = |rel: &str| -> serde_json::Value {
+        let path = repo().join(rel);
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap_or_else(|e| panic!("{rel}: {e}"))
+    };
+    let (m55, host) = (
+        read("firmware-sim/measured/m55.json"),
+        read("firmware-sim/measured/host-frame-320x240.json"),
+    );
+    for (run, preset) in [(workload::Run::Census320, "fast"), (workload::Run::Frame320, "learned")] {
+        let recorded = (host["runs"].as_array().unwrap().iter())
+            .find(|r| r["preset"] == preset)
+            .unwrap()["refined"]
+            .clone();
+        let logged = (m55["outputs"].as_array().unwrap().iter())
+            .find(|o| o["pathway"] == run.name() && o["name"] == "refined")
+            .unwrap_or_else(|| {
+                panic!(
+                    "m55.json: no refined output of {} (measure with --frame320)",
+                    run.name()
+                )
+            });
+        assert_eq!(
+            logged["digest"], recorded,
+            "{preset}: the M55's refined rows against bino run's"
+        );
+        assert_eq!(logged["match"], true);
+        let frame = &m55[run.name()];
+        assert_eq!(frame["frame"], serde_json::json!({"height": 240, "width": 320}));
+        assert_eq!(frame["bino_run"]["bino_run_refined"], recorded);
+        assert_eq!(frame["bino_run"]["match"], true);
+        let (height, width) = workload::E7_FRAME;
+        assert_eq!(frame["arena_bytes"], workload::run_arena_bytes(run, height, width));
+    }
+}

@@ -14,7 +14,7 @@ use plotters::coord::Shift;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::{grouped, CoreRun, CENSUS_PREFIX, FRAME_PREFIX, NATIVE_PREFIX, TARGETS};
+use super::{e7_frame_stage, grouped, CoreRun, StageRun, CENSUS_PREFIX, FRAME_PREFIX, NATIVE_PREFIX, TARGETS};
 
 /// Chart size in pixels.
 pub const SIZE: (u32, u32) = (960, 600);
@@ -39,6 +39,15 @@ fn font() -> Result<()> {
         .ok_or_else(|| anyhow!("the embedded chart font (DejaVu Sans) does not parse"))
 }
 
+/// The stages the chart draws: all but the learned frame's (the native band pair's again, four
+/// bands' worth) and the E7 frame's (both presets again on a larger frame); the presets table
+/// has them.
+pub(super) fn charted_stages(run: &CoreRun) -> Vec<&StageRun> {
+    (run.stages.iter())
+        .filter(|s| !s.name.starts_with(FRAME_PREFIX) && !e7_frame_stage(&s.name))
+        .collect()
+}
+
 /// Draws the chart into an RGB image of [`SIZE`].
 pub fn draw(runs: &[CoreRun]) -> Result<image::RgbImage> {
     font()?;
@@ -49,13 +58,7 @@ pub fn draw(runs: &[CoreRun]) -> Result<image::RgbImage> {
         root.fill(&WHITE).map_err(plot_error)?;
         let (top, bottom) = root.split_vertically(h / 2);
         let first = &runs[0];
-        // The learned frame's stages are the native band pair's again, four bands' worth: the
-        // presets table has them.
-        let charted: Vec<_> = first
-            .stages
-            .iter()
-            .filter(|s| !s.name.starts_with(FRAME_PREFIX))
-            .collect();
+        let charted = charted_stages(first);
         let stages: Vec<String> = charted.iter().map(|s| s.name.clone()).collect();
 
         let memory = [

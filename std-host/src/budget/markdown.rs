@@ -5,7 +5,7 @@ use std::fmt::Write as _;
 
 use super::frame::{FramesReport, Pathway, Scaling, RULE};
 use super::presets::{PresetsReport, Source, NOTE as PRESETS_NOTE};
-use super::{clock, cycles, verdicts, CoreRun, TARGETS};
+use super::{clock, cycles, e7_frame_stage, verdicts, CoreRun, TARGETS};
 
 /// `1234567` as `1,234,567`.
 pub fn grouped(n: u64) -> String {
@@ -135,6 +135,13 @@ pub fn markdown(runs: &[CoreRun]) -> String {
         );
     }
     md.push('\n');
+    if runs.iter().any(|r| r.stages.iter().any(|s| e7_frame_stage(&s.name))) {
+        md.push_str(
+            "\nThe `census320_*` and `frame320_*` stages are both presets on the Alif E7's whole \
+             320x240 frame with the options of that width (`scripts/firmware.sh --frame320`; a core \
+             without them did not run it), in an arena of their own outside the static one.\n",
+        );
+    }
     let _ = writeln!(
         md,
         "\nInstructions are executed instructions counted by a QEMU TCG plugin, not cycles. The \
@@ -335,6 +342,49 @@ pub fn presets_markdown(presets: &PresetsReport) -> String {
             grouped(p.stack_peak_bytes),
         );
     }
+    md.push_str(&which_measured(presets));
+    md
+}
+
+/// One sentence per kind of source: which cores and frames were counted on a whole frame, and
+/// which were scaled because their core measured no frame of that size (a preset named where
+/// the other one's came otherwise).
+fn which_measured(presets: &PresetsReport) -> String {
+    let pairs = |measured: bool| {
+        let mut out: Vec<String> = Vec::new();
+        let is = |p: &super::PresetFrame| (p.source == Source::MeasuredFrame) == measured;
+        for p in presets.frames.iter().filter(|p| is(p)) {
+            let same = |q: &&super::PresetFrame| q.core == p.core && q.frame == p.frame;
+            let all = presets.frames.iter().filter(same).all(is);
+            let pair = match all {
+                true => format!("{} {}", p.core.to_uppercase(), p.frame),
+                false => format!("{} {} ({})", p.core.to_uppercase(), p.frame, p.preset.name()),
+            };
+            if !out.contains(&pair) {
+                out.push(pair);
+            }
+        }
+        out
+    };
+    let (measured, scaled) = (pairs(true), pairs(false));
+    let mut md = String::new();
+    if !measured.is_empty() {
+        let _ = write!(
+            md,
+            "\nCounted on a whole frame the firmware ran (\"measured frame\"): {}.",
+            measured.join(", ")
+        );
+    }
+    if !scaled.is_empty() {
+        let _ = write!(
+            md,
+            " Scaled, as no frame of that size was measured on that core: {} (the fast preset from its \
+             measured frame by token rows x cells, keeping that frame's options; the learned one from \
+             its band pair).",
+            scaled.join(", ")
+        );
+    }
+    md.push('\n');
     md
 }
 

@@ -32,8 +32,8 @@ pub use markdown::{frames_markdown, grouped, markdown, presets_markdown};
 pub use presets::{PresetFrame, PresetsReport};
 pub use report::{Band, BudgetReport, CoreBudget, CoreCycles, StageBudget, SCHEMA};
 pub use runs::{
-    frame_run_stage, load_runs, BandJson, CoreRun, FrameRun, SectionSource, Sections, StageRun, CENSUS_PREFIX,
-    FRAME_PREFIX, NATIVE_PREFIX,
+    e7_frame_stage, frame_run_stage, load_runs, BandJson, CoreRun, FrameKind, FrameRun, SectionSource, Sections,
+    StageRun, CENSUS320_PREFIX, CENSUS_PREFIX, FRAME320_PREFIX, FRAME_PREFIX, NATIVE_PREFIX,
 };
 pub use verdict::{verdicts, Verdict};
 

@@ -4,18 +4,20 @@
 //! rate at IPC 1 and under the cycle model, its exact arena (the preset's `const fn`) and its
 //! stack peak.
 //!
-//! A frame of the measured size is counted, not scaled. Another size is, for the fast preset,
-//! its stages scaled by token rows x cells (its work per pixel does not grow with the frame:
-//! the search range and the refinement's window are the preset's, fixed); for the learned one,
-//! its band pair scaled to the frame ([`super::frame`]: the encoder's attention grows with the
-//! width); each says so.
+//! A frame of a measured size is counted, not scaled: the 160x120 frame on both cores, and the
+//! Alif E7's 320x240 frame (with the options of that width, as the board runs it) where the
+//! firmware ran it (the Cortex-M55's, `scripts/firmware.sh --frame320`). Another size is, for
+//! the fast preset, its first measured frame's stages scaled by token rows x cells (its work per
+//! pixel does not grow with the frame: the search range and the refinement's window are the
+//! measured frame's, fixed); for the learned one, its band pair scaled to the frame
+//! ([`super::frame`]: the encoder's attention grows with the width); each says so.
 
 use anyhow::Result;
-use bino_core::preset::{arena_bytes as learned_arena_bytes, census_arena_bytes};
+use bino_core::preset::{arena_bytes_for_width, census_arena_bytes_for_width};
 use serde::Serialize;
 
 use super::frame::{FrameBudget, FramesReport, Pathway, Scaling};
-use super::{clock, Clock, CoreRun, Frame, FAST_PRESET_TARGET};
+use super::{clock, Clock, CoreRun, Frame, FrameKind, FrameRun, FAST_PRESET_TARGET};
 use crate::io::checkout;
 
 /// One of the board's presets.
@@ -62,7 +64,8 @@ pub enum Source {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct PresetFrame {
     // Declared in the JSON's key order (alphabetical; see `report`).
-    /// The preset's arena for the frame, exact (its `const fn`), bytes.
+    /// The preset's arena for the frame with the options of its width, exact (its `const fn`),
+    /// bytes.
     pub arena_bytes: u64,
     /// Clock of the times, MHz.
     pub clock_mhz: f64,
@@ -104,11 +107,13 @@ pub struct PresetsReport {
 
 /// The section's note.
 pub const NOTE: &str = "fast: census+lr+ref (pipeline::run_census, no encoder, no weights), counted on the \
-    firmware's whole frame (rows from the camera), other sizes scaled from it by token rows x cells; learned: \
-    the native pathway's fuse-census+lr+ref, counted on the firmware's whole frame, other sizes its band pair \
-    scaled to the frame (frames.rule); arena: the preset's const fn for the frame (preset::census_arena_bytes, \
-    preset::arena_bytes); stack: the peak of the preset's run; fps at the stated clock, IPC 1, and under the \
-    cycle model";
+    firmware's whole frames (rows from the camera: 160x120 on every core, the Alif E7's 320x240 with the \
+    options of that width, 16 head candidates and a +-4 px refinement, where the core ran it), other sizes its \
+    160x120 frame scaled by token rows x cells (keeping that frame's options); learned: the native pathway's \
+    fuse-census+lr+ref, counted on the same frames, other sizes its band pair scaled to the frame (frames.rule); \
+    arena: the preset's const fn for the frame with the options of its width (preset::census_arena_bytes_for_width, \
+    preset::arena_bytes_for_width); stack: the peak of the preset's run; fps at the stated clock, IPC 1, and under \
+    the cycle model";
 
 impl PresetsReport {
     /// Both presets on every frame of `frames` (the learned preset's figures are its native
@@ -156,24 +161,35 @@ impl PresetsReport {
     }
 }
 
-/// The fast preset on `frame`: the run's census frame, counted or scaled; `None` without one.
+/// The run's whole frame of `kind` measured at `frame`, with the prefix of its stages.
+fn measured_frame(run: &CoreRun, kind: FrameKind, frame: Frame) -> Option<(&FrameRun, &'static str)> {
+    run.frame_runs(kind).find(|(f, _)| size(f) == frame)
+}
+
+fn size(run: &FrameRun) -> Frame {
+    Frame::new(run.frame.height as usize, run.frame.width as usize)
+}
+
+/// The fast preset on `frame`: the run's census frame of that size, counted, else its first
+/// (160x120) census frame scaled; `None` without one.
 fn fast(run: &CoreRun, frame: Frame, c: Clock) -> Result<Option<PresetFrame>> {
-    let Some(census) = &run.census else {
-        return Ok(None);
+    let (census, prefix, ratio, source) = match measured_frame(run, FrameKind::Fast, frame) {
+        Some((census, prefix)) => (census, prefix, 1.0, Source::MeasuredFrame),
+        None => {
+            let Some((census, prefix)) = run.frame_runs(FrameKind::Fast).next() else {
+                return Ok(None);
+            };
+            let ratio = Scaling::Cells.ratio(size(census), frame)?;
+            (census, prefix, ratio, Source::ScaledFrame)
+        }
     };
-    let measured = Frame::new(census.frame.height as usize, census.frame.width as usize);
-    let ratio = if measured == frame {
-        1.0
-    } else {
-        Scaling::Cells.ratio(measured, frame)?
-    };
-    let stages: Vec<_> = run.census_stages().collect();
+    let stages: Vec<_> = run.stages_with(prefix).collect();
     let counted: u64 = stages.iter().map(|s| s.instructions).sum();
     let instructions = (counted as f64 * ratio).round() as u64;
     let modelled: Option<f64> = stages.iter().map(|s| s.modelled_cycles(&run.core)).sum();
     let seconds = round6(c.ms(instructions) / 1e3);
     Ok(Some(PresetFrame {
-        arena_bytes: census_arena_bytes(frame.height, frame.width) as u64,
+        arena_bytes: census_arena_bytes_for_width(frame.height, frame.width) as u64,
         clock_mhz: c.mhz,
         core: run.core.clone(),
         frame,
@@ -183,11 +199,7 @@ fn fast(run: &CoreRun, frame: Frame, c: Clock) -> Result<Option<PresetFrame>> {
         preset: Preset::Fast,
         readout: Preset::Fast.readout(),
         seconds_ipc1: seconds,
-        source: if measured == frame {
-            Source::MeasuredFrame
-        } else {
-            Source::ScaledFrame
-        },
+        source,
         stack_peak_bytes: census.stack_peak,
         weights_bytes: 0,
     }))
@@ -199,19 +211,15 @@ pub fn learned_weights_bytes(run: &CoreRun) -> u64 {
     std::fs::metadata(checkout::path(checkout::NATIVE_BLOB)).map_or(run.sections.weights, |m| m.len())
 }
 
-/// The learned preset counted on the run's learned frame, when it measured `frame`.
+/// The learned preset counted on the run's learned frame of size `frame`, when it measured one.
 fn measured_learned(run: &CoreRun, frame: Frame, c: Clock) -> Option<PresetFrame> {
-    let learned = run.frame.as_ref()?;
-    let measured = Frame::new(learned.frame.height as usize, learned.frame.width as usize);
-    if measured != frame {
-        return None;
-    }
-    let stages: Vec<_> = run.frame_stages().collect();
+    let (learned, prefix) = measured_frame(run, FrameKind::Learned, frame)?;
+    let stages: Vec<_> = run.stages_with(prefix).collect();
     let instructions: u64 = stages.iter().map(|s| s.instructions).sum();
     let modelled: Option<f64> = stages.iter().map(|s| s.modelled_cycles(&run.core)).sum();
     let seconds = round6(c.ms(instructions) / 1e3);
     Some(PresetFrame {
-        arena_bytes: learned_arena_bytes(frame.height, frame.width) as u64,
+        arena_bytes: arena_bytes_for_width(frame.height, frame.width) as u64,
         clock_mhz: c.mhz,
         core: run.core.clone(),
         frame,
@@ -237,7 +245,7 @@ fn learned_frame(run: &CoreRun, e: &FrameBudget) -> PresetFrame {
         .max()
         .unwrap_or(0);
     PresetFrame {
-        arena_bytes: learned_arena_bytes(e.frame.height, e.frame.width) as u64,
+        arena_bytes: arena_bytes_for_width(e.frame.height, e.frame.width) as u64,
         clock_mhz: e.clock_mhz,
         core: e.core.clone(),
         frame: e.frame,

@@ -24,8 +24,8 @@ pub struct BudgetReport {
     pub frames: FramesReport,
     /// What the instruction counts and times are (and are not).
     pub note: &'static str,
-    /// The board's presets per frame and core: the fast one from its measured frame, the
-    /// learned one scaled from its band pair.
+    /// The board's presets per frame and core: each counted on the firmware's whole frame of
+    /// that size where the core ran one, else scaled (each says which).
     pub presets: PresetsReport,
     /// [`SCHEMA`].
     pub schema: &'static str,

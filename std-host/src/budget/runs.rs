@@ -150,6 +150,12 @@ pub struct CoreRun {
     pub census: Option<FrameRun>,
     /// The learned preset's whole-frame run (stages `frame_*`), when the firmware ran it.
     pub frame: Option<FrameRun>,
+    /// The fast preset on the Alif E7's 320x240 frame with the options of that width (stages
+    /// `census320_*`), when the firmware ran it (the Cortex-M55's, `scripts/firmware.sh
+    /// --frame320`).
+    pub census320: Option<FrameRun>,
+    /// The learned preset on the E7's frame (stages `frame320_*`), likewise.
+    pub frame320: Option<FrameRun>,
 }
 
 /// A whole-frame run of a firmware, rows from the camera: the fast preset's (`census` in its
@@ -194,6 +200,10 @@ struct RunJson {
     census: Option<FrameRun>,
     #[serde(default)]
     frame: Option<FrameRun>,
+    #[serde(default)]
+    census320: Option<FrameRun>,
+    #[serde(default)]
+    frame320: Option<FrameRun>,
 }
 
 /// A band or frame size, pixels.
@@ -225,9 +235,33 @@ pub const CENSUS_PREFIX: &str = "census_";
 /// `frame_head`, ...).
 pub const FRAME_PREFIX: &str = "frame_";
 
-/// Whether stage `name` belongs to a whole-frame run (the fast or the learned preset's).
+/// Prefix of the fast preset's run on the Alif E7's 320x240 frame (`census320_rows`, ...).
+pub const CENSUS320_PREFIX: &str = "census320_";
+
+/// Prefix of the learned preset's run on the E7's frame (`frame320_encode_pair`, ...).
+pub const FRAME320_PREFIX: &str = "frame320_";
+
+/// Whether stage `name` belongs to a whole-frame run (the fast or the learned preset's, on
+/// either frame).
 pub fn frame_run_stage(name: &str) -> bool {
-    name.starts_with(CENSUS_PREFIX) || name.starts_with(FRAME_PREFIX)
+    [CENSUS_PREFIX, FRAME_PREFIX, CENSUS320_PREFIX, FRAME320_PREFIX]
+        .iter()
+        .any(|p| name.starts_with(p))
+}
+
+/// Whether stage `name` belongs to a run on the E7's frame, which has an arena of its own
+/// outside the static one (`firmware-sim/memory/an547.x`).
+pub fn e7_frame_stage(name: &str) -> bool {
+    name.starts_with(CENSUS320_PREFIX) || name.starts_with(FRAME320_PREFIX)
+}
+
+/// Which preset a whole-frame run is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FrameKind {
+    /// The fast preset (`census+lr+ref`).
+    Fast,
+    /// The learned preset (the native pathway's `fuse-census+lr+ref`).
+    Learned,
 }
 
 /// Whether stage `name` is part of the export pathway's band pair.
@@ -286,17 +320,35 @@ impl CoreRun {
             outside_instructions: run.outside_instructions,
             census: run.census,
             frame: run.frame,
+            census320: run.census320,
+            frame320: run.frame320,
         })
+    }
+
+    /// The whole-frame runs of one preset with the prefix of their stages, in run order: the
+    /// 160x120 frame's, then the E7 frame's.
+    pub fn frame_runs(&self, kind: FrameKind) -> impl Iterator<Item = (&FrameRun, &'static str)> {
+        let runs = match kind {
+            FrameKind::Fast => [(&self.census, CENSUS_PREFIX), (&self.census320, CENSUS320_PREFIX)],
+            FrameKind::Learned => [(&self.frame, FRAME_PREFIX), (&self.frame320, FRAME320_PREFIX)],
+        };
+        runs.into_iter()
+            .filter_map(|(run, prefix)| Some((run.as_ref()?, prefix)))
+    }
+
+    /// The stages named `<prefix>*`, in run order.
+    pub fn stages_with(&self, prefix: &'static str) -> impl Iterator<Item = &StageRun> {
+        self.stages.iter().filter(move |s| s.name.starts_with(prefix))
     }
 
     /// The census run's stages (`census_*`), in run order.
     pub fn census_stages(&self) -> impl Iterator<Item = &StageRun> {
-        self.stages.iter().filter(|s| s.name.starts_with(CENSUS_PREFIX))
+        self.stages_with(CENSUS_PREFIX)
     }
 
     /// The learned frame run's stages (`frame_*`), in run order.
     pub fn frame_stages(&self) -> impl Iterator<Item = &StageRun> {
-        self.stages.iter().filter(|s| s.name.starts_with(FRAME_PREFIX))
+        self.stages_with(FRAME_PREFIX)
     }
 
     /// Executed instructions of one band pair on the export pathway: every stage but blob
@@ -370,9 +422,14 @@ impl CoreRun {
         self.stages.iter().map(|s| s.stack_peak).max().unwrap_or(0)
     }
 
-    /// Highest arena use of any stage.
+    /// Highest use of the static arena by any stage (the E7 frame's runs have their own).
     pub fn arena_high_water(&self) -> u64 {
-        self.stages.iter().map(|s| s.arena_in_use).max().unwrap_or(0)
+        self.stages
+            .iter()
+            .filter(|s| !e7_frame_stage(&s.name))
+            .map(|s| s.arena_in_use)
+            .max()
+            .unwrap_or(0)
     }
 
     /// RAM the link reserves: `.data + .bss + .uninit` (the arena) and the stack budget.

@@ -512,11 +512,14 @@ fn the_scaling_check_compares_a_run_with_its_second_width() {
 fn chart_labels_do_not_overlap() {
     let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../firmware-sim/measured");
     let runs = load_runs(&dir).unwrap();
-    let stages: Vec<String> = (runs[0].stages.iter())
-        .filter(|s| !s.name.starts_with(FRAME_PREFIX))
+    let stages: Vec<String> = (chart::charted_stages(&runs[0]).iter())
         .map(|s| s.name.clone())
         .collect();
     assert!(stages.len() >= 13, "{stages:?}");
+    assert!(
+        !stages.iter().any(|s| s.contains("320") || s.starts_with(FRAME_PREFIX)),
+        "{stages:?}"
+    );
     // The plot spans the chart less its margins (10 px) and the y labels (60 px).
     let span = (70, chart::SIZE.0 as i32 - 10);
     let font = |t: &str| chart::text_width(t);
@@ -590,7 +593,10 @@ fn the_fast_preset_is_its_measured_frame_beside_the_learned_one() {
     // 320x240: 60 token rows of 80 cells against 30 of 40, four times the work.
     let big = find(Preset::Fast, 320);
     assert_eq!((big.instructions, big.source), (320_400_000, Source::ScaledFrame));
-    assert_eq!(big.arena_bytes, bino_core::preset::census_arena_bytes(240, 320) as u64);
+    // The arena is the preset's as the board runs it at that width (16 candidates).
+    let e7_arena = bino_core::preset::census_arena_bytes_for_width(240, 320) as u64;
+    assert_eq!(big.arena_bytes, e7_arena);
+    assert!(e7_arena > bino_core::preset::census_arena_bytes(240, 320) as u64);
     let learned = find(Preset::Learned, 160);
     let native = frames
         .estimates
@@ -670,5 +676,149 @@ fn the_learned_preset_is_its_measured_frame_where_the_firmware_ran_one() {
     assert!(
         md.contains("| 160x120 | M55 at 400 MHz | learned | `fuse-census+lr+ref` | 2,400,400,000 | measured frame |"),
         "{md}"
+    );
+}
+
+/// `run_with_census` as the Cortex-M55 measures it with `scripts/firmware.sh --frame320`: both
+/// presets on the E7's 320x240 frame too (their own stages and sections).
+fn run_with_e7_frame() -> CoreRun {
+    let mut v: Value = serde_json::from_str(&frame_run_json()).unwrap();
+    let stages = v["stages"].as_array_mut().unwrap();
+    for (name, n, arena, stack) in [
+        ("census_rows", 100_000u64, 1u64, 900u64),
+        ("census_sgm", 30_000_000, 1, 6_000),
+        ("census_refine", 50_000_000, 1, 11_000),
+        ("frame_encode_pair", 1_000_000_000, 1, 24_000),
+        ("census320_rows", 400_000, 38_400, 1_000),
+        ("census320_sgm", 250_000_000, 120_000, 6_500),
+        ("census320_refine", 150_000_000, 165_936, 12_000),
+        ("frame320_rows", 1_000_000, 76_800, 6_000),
+        ("frame320_encode_pair", 4_000_000_000, 965_808, 25_000),
+        ("frame320_head", 1_000_000_000, 965_808, 18_000),
+    ] {
+        stages.push(json!({"name": name, "instructions": n, "arena_in_use": arena, "stack_peak": stack}));
+    }
+    v["census"] = json!({"frame": {"height": 120, "width": 160}, "arena_bytes": 70177, "arena_used": 70176,
+                         "frame_instructions": 80_100_000u64, "stack_peak": 11_000});
+    v["frame"] = json!({"frame": {"height": 120, "width": 160}, "arena_bytes": 467_238, "arena_used": 467_232,
+                        "frame_instructions": 1_000_000_000u64, "stack_peak": 24_000});
+    v["census320"] = json!({"frame": {"height": 240, "width": 320}, "arena_bytes": 165_937, "arena_used": 165_936,
+                            "frame_instructions": 400_400_000u64, "stack_peak": 12_000});
+    v["frame320"] = json!({"frame": {"height": 240, "width": 320}, "arena_bytes": 965_812, "arena_used": 965_808,
+                           "frame_instructions": 5_001_000_000u64, "stack_peak": 25_000});
+    CoreRun::parse(&v.to_string()).unwrap()
+}
+
+#[test]
+fn the_e7_frame_is_counted_on_the_core_that_ran_it_and_scaled_on_the_other() {
+    use presets::{Preset, Source};
+    let m55 = run_with_e7_frame();
+    let mut m7_json: Value = serde_json::from_str(&frame_run_json()).unwrap();
+    m7_json["core"] = json!("m7");
+    let stages = m7_json["stages"].as_array_mut().unwrap();
+    stages.push(json!({"name": "census_sgm", "instructions": 60_000_000u64, "arena_in_use": 1, "stack_peak": 5_000}));
+    m7_json["census"] = json!({"frame": {"height": 120, "width": 160}, "arena_bytes": 70177, "arena_used": 70176,
+                               "frame_instructions": 60_000_000u64, "stack_peak": 5_000});
+    let m7 = CoreRun::parse(&m7_json.to_string()).unwrap();
+
+    // The E7 frame's stages are neither pathway's band pair, nor in the static arena.
+    let plain = frame_run();
+    assert_eq!(m55.band_pair_instructions(), plain.band_pair_instructions());
+    assert_eq!(
+        m55.native_band_pair_instructions(),
+        plain.native_band_pair_instructions()
+    );
+    for name in ["census320_sgm", "frame320_head", "frame320_encode_pair"] {
+        assert!(frame_run_stage(name) && e7_frame_stage(name), "{name}");
+        assert!(
+            !frame::Pathway::Export.has(name) && !frame::Pathway::Native.has(name),
+            "{name}"
+        );
+    }
+    assert!(!e7_frame_stage("census_sgm") && !e7_frame_stage("frame_head"));
+    assert_eq!(m55.arena_high_water(), plain.arena_high_water());
+    assert_eq!(m55.stack_peak(), 25_000, "the stack is the DTCM's, whichever run");
+
+    let runs = [m55, m7];
+    let opts = FrameOptions::default();
+    let frames = FramesReport::new(&runs, &[], &opts).unwrap();
+    let presets = PresetsReport::new(&runs, &frames, &opts.frames).unwrap();
+    let find = |core: &str, preset, w| {
+        presets
+            .frames
+            .iter()
+            .find(|p| p.core == core && p.preset == preset && p.frame.width == w)
+            .unwrap()
+    };
+    // The M55 counted both presets on the E7's frame: their stages, stacks and the arenas of
+    // the options of that width.
+    let fast = find("m55", Preset::Fast, 320);
+    assert_eq!((fast.instructions, fast.source), (400_400_000, Source::MeasuredFrame));
+    assert_eq!((fast.arena_bytes, fast.stack_peak_bytes), (165_937, 12_000));
+    assert_eq!(fast.frames_per_s_ipc1, 0.999001);
+    let learned = find("m55", Preset::Learned, 320);
+    assert_eq!(
+        (learned.instructions, learned.source),
+        (5_001_000_000, Source::MeasuredFrame)
+    );
+    assert_eq!((learned.arena_bytes, learned.stack_peak_bytes), (965_812, 25_000));
+    assert_eq!(
+        learned.arena_bytes,
+        bino_core::preset::arena_bytes_for_width(240, 320) as u64
+    );
+    assert!(presets.measured("m55", learned.frame, Preset::Learned).is_some());
+    // Its 160x120 frames are still their own.
+    let small = find("m55", Preset::Fast, 160);
+    assert_eq!((small.instructions, small.source), (80_100_000, Source::MeasuredFrame));
+    let small = find("m55", Preset::Learned, 160);
+    assert_eq!(
+        (small.instructions, small.source),
+        (1_000_000_000, Source::MeasuredFrame)
+    );
+    // The M7 measured no E7 frame: its 160x120 frame scaled, its band pair scaled.
+    let fast7 = find("m7", Preset::Fast, 320);
+    assert_eq!((fast7.instructions, fast7.source), (240_000_000, Source::ScaledFrame));
+    assert_eq!(fast7.arena_bytes, 165_937);
+    assert_eq!(find("m7", Preset::Learned, 320).source, Source::ScaledBandPair);
+
+    let md = presets_markdown(&presets);
+    for row in [
+        "| 320x240 | M55 at 400 MHz | fast | `census+lr+ref` | 400,400,000 | measured frame | 0.999 |",
+        "| 320x240 | M55 at 400 MHz | learned | `fuse-census+lr+ref` | 5,001,000,000 | measured frame |",
+        "| 320x240 | M7 at 480 MHz | fast | `census+lr+ref` | 240,000,000 | scaled from the measured frame |",
+        "Counted on a whole frame the firmware ran (\"measured frame\"): M55 160x120, M7 160x120 (fast), M55 \
+         320x240.",
+        "Scaled, as no frame of that size was measured on that core: M7 160x120 (learned), M7 320x240 (the fast",
+    ] {
+        assert!(md.contains(row), "{row}\n{md}");
+    }
+    // The stage table lists the E7 frame's stages for the M55 and none for the M7.
+    let table = markdown(&runs);
+    assert!(
+        table.contains("| frame320_encode_pair | 965,808 B | 25,000 B | 4,000,000,000 |"),
+        "{table}"
+    );
+    assert!(table.contains("frame320_encode_pair | 965,808 B | 25,000 B | 4,000,000,000 | 10000.0 | - | - | - |"));
+    assert!(
+        table.contains("an arena of their own outside the static one"),
+        "{table}"
+    );
+    assert!(!markdown(&[frame_run()]).contains("census320_"));
+    let json = serde_json::to_value(BudgetReport::new(&runs, frames, presets)).unwrap();
+    let e7: Vec<&Value> = (json["presets"]["frames"].as_array().unwrap().iter())
+        .filter(|p| p["frame"]["width"] == 320)
+        .collect();
+    let sources: Vec<(&str, &str)> = e7
+        .iter()
+        .map(|p| (p["core"].as_str().unwrap(), p["source"].as_str().unwrap()))
+        .collect();
+    assert_eq!(
+        sources,
+        [
+            ("m55", "measured_frame"),
+            ("m55", "measured_frame"),
+            ("m7", "scaled_frame"),
+            ("m7", "scaled_band_pair")
+        ]
     );
 }
