@@ -135,8 +135,10 @@ pub fn loop_len(n: usize) -> usize {
 
 /// Whether this core's GEMMs take requantisation columns prepared once per pass
 /// ([`PreparedRequant`](super::types::prepared::PreparedRequant)): the Cortex-M assembly kernels
-/// fuse the requantisation into their tiles; elsewhere the columns would go unused.
-pub const PREPARED_GEMM: bool = cfg!(any(bino_dsp, bino_mve));
+/// fuse the requantisation into their tiles, and x86 hosts requantise their accumulators in
+/// AVX2 lanes from them (instead of decoding the parameters from the blob per token block);
+/// elsewhere the columns would go unused.
+pub const PREPARED_GEMM: bool = cfg!(any(bino_dsp, bino_mve, target_arch = "x86_64"));
 
 /// One query block's attention over keys stored in `layout` (see
 /// [`attention::attend_block`]): the x86 VNNI scores on

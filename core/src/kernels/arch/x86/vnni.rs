@@ -197,8 +197,8 @@ pub fn with_avx512<R>(f: impl FnOnce() -> R) -> Option<R> {
     Some(unsafe { run_avx512(f) })
 }
 
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512dq")]
-fn run_avx512<R>(f: impl FnOnce() -> R) -> R {
+#[target_feature(enable = "avx2,bmi1,bmi2,avx512f,avx512bw,avx512vl,avx512dq")]
+pub(super) fn run_avx512<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
 
