@@ -344,7 +344,14 @@ fn x86_prepared_requantisation_matches_the_reference() {
     let mut rng = Rng::new(41);
     let mut a = [0i8; 9 * 480];
     let mut w = [0i8; 131 * 480];
-    for (m, n, k) in [(1, 1, 16), (8, 128, 128), (5, 131, 32), (8, 13, 480), (3, 8, 48), (4, 9, 17)] {
+    for (m, n, k) in [
+        (1, 1, 16),
+        (8, 128, 128),
+        (5, 131, 32),
+        (8, 13, 480),
+        (3, 8, 48),
+        (4, 9, 17),
+    ] {
         rng.fill_i8(&mut a[..m * k]);
         rng.fill_i8(&mut w[..n * k]);
         if n == 13 {
@@ -381,13 +388,21 @@ fn x86_prepared_requantisation_declines_accumulators_out_of_range() {
     let mut rng = Rng::new(43);
     let n = 11;
     let cols: [[i32; 4]; 11] = core::array::from_fn(|_| {
-        let (bias, mult) = (rng.range(-(1 << 20), 1 << 20) as i32, rng.range(1 << 30, i32::MAX as i64) as i32);
+        let (bias, mult) = (
+            rng.range(-(1 << 20), 1 << 20) as i32,
+            rng.range(1 << 30, i32::MAX as i64) as i32,
+        );
         Col::new(bias, mult, rng.range(33, 45) as u8, rng.range(-128, 128) as i32)
             .expect("in range")
             .to_words()
     });
     let edges = [(1 << 30) - 1, -(1 << 30), 0, -1, 12345, -999_999];
-    for bad in [None, Some((3, 1 << 30)), Some((9, -(1 << 30) - 1)), Some((26, i32::MAX))] {
+    for bad in [
+        None,
+        Some((3, 1 << 30)),
+        Some((9, -(1 << 30) - 1)),
+        Some((26, i32::MAX)),
+    ] {
         let mut acc: [i32; 3 * 11] = core::array::from_fn(|i| edges[i % edges.len()]);
         if let Some((at, v)) = bad {
             acc[at] = v;

@@ -22,7 +22,6 @@ use crate::config::HEAD_DIM;
 pub use attention::{AttentionQ, KeyLayout, QUERY_BLOCK};
 
 // The entry points and parameter types the model and the pipeline use.
-pub use crate::kernels::lut::apply_lut;
 pub use attention::{attend, key_layout, value_sums, AVG_FRAC_BITS, MAX_KEYS};
 pub use conv::ConvEpilogue;
 pub use epilogue::{
@@ -94,6 +93,18 @@ pub fn limit(to: Isa) -> Isa {
     }
     let _ = to;
     active()
+}
+
+/// Maps every value of `x` through `table`, indexed by the value's two's-complement byte
+/// ([`lut::apply_lut`](crate::kernels::lut::apply_lut)): 64 codes a step on x86 hosts with
+/// AVX-512 VBMI, the scalar lookup elsewhere.
+#[inline]
+pub fn apply_lut(x: &mut [i8], table: &[i8; 256]) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::kernels::arch::x86::vbmi::apply_lut(x, table) {
+        return;
+    }
+    crate::kernels::lut::apply_lut(x, table)
 }
 
 /// Stores token `t`'s values channel-major (`store[c * tokens + t] = token[c]`, `DIM x tokens`):

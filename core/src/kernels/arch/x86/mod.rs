@@ -2,6 +2,7 @@
 //! a crate that depends on `bino-core` gets them without `-C target-cpu` flags:
 //! - [`mod@vnni`]: AVX-512 VNNI tiles (`vpdpbusd`) where the CPU and OS support AVX-512 F, DQ,
 //!   BW, VL and VNNI;
+//! - [`mod@vbmi`]: AVX-512 VBMI table lookups (`vpermi2b`) where the CPU has them too;
 //! - [`mod@avx2`]: AVX2 tiles (`vpmaddwd`) where the CPU has AVX2;
 //! - [`with_avx2`] / [`vnni::with_avx512`]: portable loops compiled again for those features
 //!   (LLVM vectorises them wider than the SSE2 baseline of `x86_64-unknown-linux-gnu`).
@@ -12,6 +13,7 @@
 //! a fast CPU.
 
 pub mod avx2;
+pub mod vbmi;
 pub mod vnni;
 
 use core::sync::atomic::{AtomicU8, Ordering};
