@@ -18,7 +18,7 @@ use crate::kernels::types::requant::NarrowChunk;
 /// differ (then `out` may be partly written: the caller runs the 64-bit formula on the row).
 pub(crate) fn requant_row_narrow(c: &NarrowChunk, acc: &[i32], out: &mut [i8]) -> bool {
     let len = c.len;
-    if acc.len() != len || out.len() != len || !super::super::avx2() {
+    if acc.len() != len || out.len() != len || !crate::kernels::arch::x86::avx2() {
         return false;
     }
     // SAFETY: `avx2()` saw AVX2 on this CPU. The kernel itself only reads and writes through
@@ -43,7 +43,7 @@ pub(crate) fn requant_row_narrow(c: &NarrowChunk, acc: &[i32], out: &mut [i8]) -
 /// `-2^30..2^30` (then `out` may be partly written: the caller recomputes it).
 pub(crate) fn requant_prepared(words: &[[i32; 4]], acc: &[i32], out: &mut [i8]) -> bool {
     let n = words.len();
-    if n == 0 || acc.len() != out.len() || !acc.len().is_multiple_of(n) || !super::super::avx2() {
+    if n == 0 || acc.len() != out.len() || !acc.len().is_multiple_of(n) || !crate::kernels::arch::x86::avx2() {
         return false;
     }
     // SAFETY: `avx2()` saw AVX2 on this CPU. The kernel only reads and writes through safe

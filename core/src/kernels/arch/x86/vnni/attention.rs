@@ -9,8 +9,8 @@ use core::arch::x86_64::{
 
 use bytemuck::must_cast;
 
-use super::super::avx2::sum4;
 use super::{available, load, store, HEAD, STEP};
+use crate::kernels::arch::x86::avx2::sum4;
 
 /// Keys a half step: the weighted sums take windows of a multiple of it.
 const HALF: usize = STEP / 2;
