@@ -220,7 +220,10 @@ pub fn matmul_requant_prepared(
     // Every accumulator first, then the requantisation two rows at a time in vector lanes.
     #[cfg(bino_mve)]
     return super::mve::gemm_prepared(a, w, k, prepared.records(), acc, out);
-    #[cfg(not(any(bino_dsp, bino_mve)))]
+    // The x86 matrix multiply, then the requantisation eight columns at a time.
+    #[cfg(target_arch = "x86_64")]
+    return super::x86::matmul_requant_prepared(a, w, k, prepared.records(), acc, out);
+    #[cfg(not(any(bino_dsp, bino_mve, target_arch = "x86_64")))]
     {
         let _ = (a, w, k, prepared, acc, out);
         false

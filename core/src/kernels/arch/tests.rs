@@ -335,3 +335,86 @@ fn shapes_outside_the_kernels_are_declined() {
     assert_eq!(shape(&[0; 3], &[0; 8], 4, 4), None);
     assert_eq!(shape(&[0; 8], &[0; 8], 4, 4), Some((2, 2)));
 }
+
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn x86_prepared_requantisation_matches_the_reference() {
+    // The x86 matrix multiplies, then the prepared columns in AVX2 lanes (eight columns a step
+    // and a scalar tail), against the reference GEMM and requantisation.
+    let mut rng = Rng::new(41);
+    let mut a = [0i8; 9 * 480];
+    let mut w = [0i8; 131 * 480];
+    for (m, n, k) in [
+        (1, 1, 16),
+        (8, 128, 128),
+        (5, 131, 32),
+        (8, 13, 480),
+        (3, 8, 48),
+        (4, 9, 17),
+    ] {
+        rng.fill_i8(&mut a[..m * k]);
+        rng.fill_i8(&mut w[..n * k]);
+        if n == 13 {
+            a.fill(-128);
+            w.fill(-128);
+        }
+        let (a, w) = (&a[..m * k], &w[..n * k]);
+        let bias: [i32; 131] = core::array::from_fn(|_| rng.range(-(1 << 30) + 1, 1 << 30) as i32);
+        let mult: [i32; 131] = core::array::from_fn(|_| rng.range(i32::MIN as i64, i32::MAX as i64) as i32);
+        let shift: [u8; 131] = core::array::from_fn(|_| rng.range(33, 53) as u8);
+        let zero: [i32; 131] = core::array::from_fn(|_| rng.range(-128, 128) as i32);
+        let rq = ChannelRequant {
+            bias: &bias[..n],
+            mult: &mult[..n],
+            shift: &shift[..n],
+        };
+        let mut want = [0i8; 9 * 131];
+        matmul_requant_reference(a, w, k, &rq, &zero[..n], &mut want[..m * n]);
+        let mut storage = [0i32; 4 * 131];
+        let prepared = PreparedRequant::new(&rq, &zero[..n], &mut storage).expect("columns in range");
+        let (mut got, mut acc) = ([0i8; 9 * 131], [0i32; 9 * 131]);
+        let took = x86::matmul_requant_prepared(a, w, k, prepared.records(), &mut acc, &mut got[..m * n]);
+        let takes = k % 16 == 0 && x86::avx2();
+        assert_eq!(took, takes, "m={m} n={n} k={k}");
+        if took {
+            assert_eq!(got[..m * n], want[..m * n], "m={m} n={n} k={k}");
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn x86_prepared_requantisation_declines_accumulators_out_of_range() {
+    let mut rng = Rng::new(43);
+    let n = 11;
+    let cols: [[i32; 4]; 11] = core::array::from_fn(|_| {
+        let (bias, mult) = (
+            rng.range(-(1 << 20), 1 << 20) as i32,
+            rng.range(1 << 30, i32::MAX as i64) as i32,
+        );
+        Col::new(bias, mult, rng.range(33, 45) as u8, rng.range(-128, 128) as i32)
+            .expect("in range")
+            .to_words()
+    });
+    let edges = [(1 << 30) - 1, -(1 << 30), 0, -1, 12345, -999_999];
+    for bad in [
+        None,
+        Some((3, 1 << 30)),
+        Some((9, -(1 << 30) - 1)),
+        Some((26, i32::MAX)),
+    ] {
+        let mut acc: [i32; 3 * 11] = core::array::from_fn(|i| edges[i % edges.len()]);
+        if let Some((at, v)) = bad {
+            acc[at] = v;
+        }
+        let mut out = [0i8; 3 * 11];
+        let took = x86::avx2::requant_prepared(&cols, &acc, &mut out);
+        assert_eq!(took, bad.is_none() && x86::avx2(), "{bad:?}");
+        if took {
+            for (i, (&a, &o)) in acc.iter().zip(&out).enumerate() {
+                let col = Col::from_words(&cols[i % n]);
+                assert_eq!(o, col.apply(a + col.bias), "index {i}");
+            }
+        }
+    }
+}

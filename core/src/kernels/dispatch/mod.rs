@@ -22,7 +22,6 @@ use crate::config::HEAD_DIM;
 pub use attention::{AttentionQ, KeyLayout, QUERY_BLOCK};
 
 // The entry points and parameter types the model and the pipeline use.
-pub use crate::kernels::lut::apply_lut;
 pub use attention::{attend, key_layout, value_sums, AVG_FRAC_BITS, MAX_KEYS};
 pub use conv::ConvEpilogue;
 pub use epilogue::{
@@ -96,6 +95,18 @@ pub fn limit(to: Isa) -> Isa {
     active()
 }
 
+/// Maps every value of `x` through `table`, indexed by the value's two's-complement byte
+/// ([`lut::apply_lut`](crate::kernels::lut::apply_lut)): 64 codes a step on x86 hosts with
+/// AVX-512 VBMI, the scalar lookup elsewhere.
+#[inline]
+pub fn apply_lut(x: &mut [i8], table: &[i8; 256]) {
+    #[cfg(target_arch = "x86_64")]
+    if crate::kernels::arch::x86::vbmi::apply_lut(x, table) {
+        return;
+    }
+    crate::kernels::lut::apply_lut(x, table)
+}
+
 /// Stores token `t`'s values channel-major (`store[c * tokens + t] = token[c]`, `DIM x tokens`):
 /// each head's slice is then the `HEAD_DIM x tokens` transposed layout attention reads. The
 /// Cortex-M55's Helium scatter where it takes the shape, else the plain loop.
@@ -135,8 +146,10 @@ pub fn loop_len(n: usize) -> usize {
 
 /// Whether this core's GEMMs take requantisation columns prepared once per pass
 /// ([`PreparedRequant`](super::types::prepared::PreparedRequant)): the Cortex-M assembly kernels
-/// fuse the requantisation into their tiles; elsewhere the columns would go unused.
-pub const PREPARED_GEMM: bool = cfg!(any(bino_dsp, bino_mve));
+/// fuse the requantisation into their tiles, and x86 hosts requantise their accumulators in
+/// AVX2 lanes from them (instead of decoding the parameters from the blob per token block);
+/// elsewhere the columns would go unused.
+pub const PREPARED_GEMM: bool = cfg!(any(bino_dsp, bino_mve, target_arch = "x86_64"));
 
 /// One query block's attention over keys stored in `layout` (see
 /// [`attention::attend_block`]): the x86 VNNI scores on

@@ -2,6 +2,7 @@
 //! a crate that depends on `bino-core` gets them without `-C target-cpu` flags:
 //! - [`mod@vnni`]: AVX-512 VNNI tiles (`vpdpbusd`) where the CPU and OS support AVX-512 F, DQ,
 //!   BW, VL and VNNI;
+//! - [`mod@vbmi`]: AVX-512 VBMI table lookups (`vpermi2b`) where the CPU has them too;
 //! - [`mod@avx2`]: AVX2 tiles (`vpmaddwd`) where the CPU has AVX2;
 //! - [`with_avx2`] / [`vnni::with_avx512`]: portable loops compiled again for those features
 //!   (LLVM vectorises them wider than the SSE2 baseline of `x86_64-unknown-linux-gnu`).
@@ -12,6 +13,7 @@
 //! a fast CPU.
 
 pub mod avx2;
+pub mod vbmi;
 pub mod vnni;
 
 use core::sync::atomic::{AtomicU8, Ordering};
@@ -59,11 +61,18 @@ pub fn with_avx2<R>(f: impl FnOnce() -> R) -> Option<R> {
     Some(unsafe { run_avx2(f) })
 }
 
-/// `f()` compiled for AVX2 where [`avx2()`] holds, else `f()` as the build compiled it: the same
-/// result either way.
+/// `f()` compiled for AVX-512 where the VNNI kernels run ([`vnni::with_avx512`]: 64-bit lane
+/// multiplies and shifts, which the portable loops' 64-bit arithmetic needs), else for AVX2 where
+/// [`avx2()`] holds, else `f()` as the build compiled it: the same result every way.
 #[inline(always)]
 pub fn widened<R>(f: impl FnOnce() -> R) -> R {
-    if avx2() {
+    if vnni::available() {
+        // SAFETY: `available()` saw AVX-512 F/BW/VL/DQ/VNNI on this CPU, enabled by the OS.
+        #[allow(unsafe_code)]
+        unsafe {
+            vnni::run_avx512(f)
+        }
+    } else if avx2() {
         // SAFETY: `avx2()` saw AVX2, BMI1 and BMI2 on this CPU, enabled by the OS.
         #[allow(unsafe_code)]
         unsafe {
@@ -72,6 +81,30 @@ pub fn widened<R>(f: impl FnOnce() -> R) -> R {
     } else {
         f()
     }
+}
+
+/// `out` (`m x n` int8) = the prepared columns `words` (one per row of `w`) applied to
+/// `a` times the transpose of `w`, through `acc` (at least `m * n`): the VNNI or AVX2 matrix
+/// multiply, then [`avx2::requant_prepared`]. `false` where neither multiply takes the shape,
+/// the lengths differ or an accumulator is outside the lanes' range (then `out` may be partly
+/// written: the caller recomputes it).
+pub fn matmul_requant_prepared(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    words: &[[i32; 4]],
+    acc: &mut [i32],
+    out: &mut [i8],
+) -> bool {
+    let n = words.len();
+    if k == 0 || w.len() != n * k || !a.len().is_multiple_of(k) {
+        return false;
+    }
+    let cells = a.len() / k * n;
+    let (Some(acc), Some(out)) = (acc.get_mut(..cells), out.get_mut(..cells)) else {
+        return false;
+    };
+    (vnni::matmul_i32(a, w, k, acc) || avx2::matmul_i32(a, w, k, acc)) && avx2::requant_prepared(words, acc, out)
 }
 
 #[target_feature(enable = "avx2,bmi1,bmi2")]

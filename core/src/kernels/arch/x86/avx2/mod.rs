@@ -9,24 +9,23 @@
 //! Each entry point returns `false` (computing nothing) for shapes it does not take; the
 //! caller then runs the portable kernel.
 
+mod requant;
 mod scores;
 mod softmax;
 
+pub(crate) use requant::{requant_prepared, requant_row_narrow};
 pub use scores::{keys_paired, scores4_paired};
 pub use softmax::softmax_row;
 
 use bytemuck::must_cast;
 use core::arch::x86_64::{
-    __m128i, __m256i, _mm256_add_epi32, _mm256_blend_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16,
-    _mm256_cvtepu8_epi16, _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_madd_epi16, _mm256_max_epi32,
-    _mm256_min_epi32, _mm256_mul_epi32, _mm256_or_si256, _mm256_permutevar8x32_epi32, _mm256_set1_epi32,
-    _mm256_setr_epi32, _mm256_setr_epi8, _mm256_setzero_si256, _mm256_shuffle_epi8, _mm256_srav_epi32,
-    _mm256_srli_epi64, _mm_add_epi32, _mm_unpackhi_epi32, _mm_unpackhi_epi64, _mm_unpacklo_epi32, _mm_unpacklo_epi64,
+    __m128i, __m256i, _mm256_add_epi32, _mm256_castsi256_si128, _mm256_cvtepi8_epi16, _mm256_cvtepu8_epi16,
+    _mm256_extracti128_si256, _mm256_hadd_epi32, _mm256_madd_epi16, _mm256_setzero_si256, _mm_add_epi32,
+    _mm_unpackhi_epi32, _mm_unpackhi_epi64, _mm_unpacklo_epi32, _mm_unpacklo_epi64,
 };
 
 use crate::kernels::reference::matmul::dot;
 use crate::kernels::types::code::Code;
-use crate::kernels::types::requant::NarrowChunk;
 
 /// Elements per step: 16 int8 values widened to one 256-bit vector of int16.
 pub const LANES: usize = 16;
@@ -324,72 +323,6 @@ fn widen<T: Code>(chunk: &[T]) -> __m256i {
     } else {
         _mm256_cvtepu8_epi16(bytes)
     }
-}
-
-/// One row of a requantisation chunk in 32-bit lanes ([`NarrowChunk`]'s identity), eight
-/// channels per step: `false` where an accumulator lies outside `-2^30..2^30` or the lengths
-/// differ (then `out` may be partly written: the caller runs the 64-bit formula on the row).
-pub(crate) fn requant_row_narrow(c: &NarrowChunk, acc: &[i32], out: &mut [i8]) -> bool {
-    let len = c.len;
-    if acc.len() != len || out.len() != len || !super::avx2() {
-        return false;
-    }
-    // SAFETY: as in `dot4`, `avx2()` saw AVX2 on this CPU. The kernel itself only reads
-    // and writes through safe slices.
-    #[allow(unsafe_code)]
-    let in_range = unsafe { requant_narrow_avx2(c, acc, out) };
-    let whole = len / 8 * 8;
-    let params = c.bias.iter().zip(&c.mult).zip(c.addend.iter().zip(&c.s)).skip(whole);
-    let mut tail_in_range = true;
-    for ((o, &a), ((&b, &m), (&addend, &s))) in out.iter_mut().zip(acc).skip(whole).zip(params) {
-        tail_in_range &= (-(1 << 30)..1 << 30).contains(&a);
-        // |a|, |b| < 2^30 where it matters, so neither sum wraps (see `NarrowChunk`).
-        let high = ((a.wrapping_add(b) as i64 * m as i64) >> 32) as i32;
-        *o = (high.wrapping_add(addend) >> (s & 31)).clamp(-128, 127) as i8;
-    }
-    in_range && tail_in_range
-}
-
-/// The whole steps of eight of [`requant_row_narrow`]; `false` if an accumulator among them
-/// lies outside `-2^30..2^30` (their outputs are then wrong: the caller recomputes the row).
-#[target_feature(enable = "avx2")]
-fn requant_narrow_avx2(c: &NarrowChunk, acc: &[i32], out: &mut [i8]) -> bool {
-    // Byte 0 of each 32-bit lane to the low four bytes of its 128-bit half, then the two
-    // halves' low words side by side.
-    let pick = _mm256_setr_epi8(
-        0, 4, 8, 12, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, -1, 0, 4, 8, 12, -1, -1, -1, -1, -1, -1, -1, -1, -1,
-        -1, -1, -1,
-    );
-    let join = _mm256_setr_epi32(0, 4, 0, 0, 0, 0, 0, 0);
-    let (lo, hi, bound) = (
-        _mm256_set1_epi32(-128),
-        _mm256_set1_epi32(127),
-        _mm256_set1_epi32(1 << 30),
-    );
-    // `acc + 2^30` has its sign bit set exactly for accumulators outside -2^30..2^30.
-    let mut outside = _mm256_setzero_si256();
-    let lanes = |v: &[i32]| -> __m256i { must_cast(<[i32; 8]>::try_from(v).unwrap_or([0; 8])) };
-    let params = c
-        .bias
-        .chunks_exact(8)
-        .zip(c.mult.chunks_exact(8))
-        .zip(c.addend.chunks_exact(8).zip(c.s.chunks_exact(8)));
-    for ((o, a), ((b, m), (addend, s))) in out.chunks_exact_mut(8).zip(acc.chunks_exact(8)).zip(params) {
-        let a = lanes(a);
-        outside = _mm256_or_si256(outside, _mm256_add_epi32(a, bound));
-        let (x, m) = (_mm256_add_epi32(a, lanes(b)), lanes(m));
-        // High halves of the eight 64-bit products: even lanes, then odd lanes.
-        let even = _mm256_mul_epi32(x, m);
-        let odd = _mm256_mul_epi32(_mm256_srli_epi64::<32>(x), _mm256_srli_epi64::<32>(m));
-        let high = _mm256_blend_epi32::<0b1010_1010>(_mm256_srli_epi64::<32>(even), odd);
-        let v = _mm256_srav_epi32(_mm256_add_epi32(high, lanes(addend)), lanes(s));
-        let v = _mm256_min_epi32(_mm256_max_epi32(v, lo), hi);
-        let bytes = _mm256_permutevar8x32_epi32(_mm256_shuffle_epi8(v, pick), join);
-        let words: [u64; 4] = must_cast(bytes);
-        o.copy_from_slice(&words[0].to_le_bytes().map(|b| b as i8));
-    }
-    let outside: [i32; 8] = must_cast(outside);
-    outside.iter().all(|&f| f >= 0)
 }
 
 #[cfg(test)]
