@@ -85,7 +85,7 @@ pub fn widened<R>(f: impl FnOnce() -> R) -> R {
 
 /// `out` (`m x n` int8) = the prepared columns `words` (one per row of `w`) applied to
 /// `a` times the transpose of `w`, through `acc` (at least `m * n`): the VNNI or AVX2 matrix
-/// multiply, then [`avx2::requant_prepared`]. `false` where neither multiply takes the shape,
+/// multiply, then `avx2::requant_prepared`. `false` where neither multiply takes the shape,
 /// the lengths differ or an accumulator is outside the lanes' range (then `out` may be partly
 /// written: the caller recomputes it).
 pub fn matmul_requant_prepared(

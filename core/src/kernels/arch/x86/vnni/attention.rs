@@ -59,7 +59,7 @@ pub fn scores4_transposed(queries: &[[i8; HEAD]; 4], keys_t: &[i8], n: usize, sc
 /// Weighted sums of attention, `acc[q][d] = weights_q . values_t_d` for four weight rows
 /// (`4 x n`) and the `HEAD_DIM` value channels (`HEAD_DIM x n`), given the channels' wrapping
 /// sums `sums` (`attention::value_sums`). `false` where the kernels do not run, `n` is not a
-/// multiple of [`HALF`] or the slices do not fit.
+/// multiple of `HALF` or the slices do not fit.
 pub fn weighted_sums4(
     weights: &[i8],
     values_t: &[i8],
