@@ -61,18 +61,20 @@ mod layout;
 mod native;
 mod refine_stage;
 mod row_buffers;
+mod row_passes;
 mod sizing;
 mod streams;
 
 /// A head row as [`Sink::head`] receives it.
 pub use crate::model::head::HeadRow;
 pub use api::{
-    BandEncoder, CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Pathway, Refine, RefineInput, Report,
+    BandEncoder, CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Passes, Pathway, Refine, RefineInput, Report,
     RowSource, Sink, SlicePair, Stage,
 };
 pub use census_run::run_census;
 pub use driver::Pipeline;
 pub use layout::band_pixel_rows;
 pub use sizing::{
-    arena_bytes, arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, census_arena_bytes, refine_bytes,
+    arena_bytes, arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, arena_bytes_with, census_arena_bytes,
+    refine_bytes,
 };

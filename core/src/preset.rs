@@ -14,6 +14,11 @@
 //! `bino run`'s default): no weights, an arena the size of [`census_arena_bytes`], the same
 //! for a band and for a whole frame of that width.
 //!
+//! The arenas here are sized for the shipped weights, whose token rows are independent: the
+//! encoder runs a token row at a time ([`Passes::TokenRow`](crate::pipeline::Passes)), its
+//! scratch one row's work. Weights that need whole-band passes need
+//! [`Pipeline::arena_bytes`](crate::pipeline::Pipeline::arena_bytes).
+//!
 //! ```
 //! use bino_core::preset::{arena_bytes, export_arena_bytes, EXPORT_REFINE, OPTIONS, REFINE};
 //! use bino_core::pipeline::{Pathway, RefineInput};
@@ -21,17 +26,19 @@
 //! assert_eq!(REFINE.input, RefineInput::FusedCensusLr);
 //! assert_eq!(EXPORT_REFINE.input, RefineInput::FusedAllLr);
 //! // The 48x160 band pair of the budget.
-//! assert_eq!(arena_bytes(48, 160), 466_598);
-//! assert_eq!(export_arena_bytes(48, 160), 486_918);
-//! // A whole frame: each band's heads start afresh in the encoder's scratch, so only what
-//! // carries from band to band adds to the band's, whatever the height.
-//! assert_eq!(export_arena_bytes(120, 160), 513_382);
+//! assert_eq!(arena_bytes(48, 160), 408_212);
+//! assert_eq!(export_arena_bytes(48, 160), 428_297);
+//! // A whole frame: each band's heads start afresh after the band's outputs and the encoder's
+//! // scratch is one token row's, so what carries from band to band fits beside it: a frame
+//! // needs the band's arena and the refinement's two-row ring, whatever the height.
+//! assert_eq!(export_arena_bytes(120, 160), 428_937);
 //! assert_eq!(export_arena_bytes(120, 160), export_arena_bytes(480, 160));
-//! assert!(export_arena_bytes(120, 160) <= 512 * 1024);
+//! assert!(export_arena_bytes(120, 160) - export_arena_bytes(48, 160) < 1024);
+//! assert!(arena_bytes(120, 160) - arena_bytes(48, 160) < 1024);
 //! // The fast preset: a 160x120 frame in a fraction of one learned band's arena.
 //! use bino_core::preset::census_arena_bytes;
 //! assert_eq!(census_arena_bytes(120, 160), census_arena_bytes(480, 160));
-//! assert!(census_arena_bytes(120, 160) * 6 < arena_bytes(48, 160));
+//! assert!(census_arena_bytes(120, 160) * 5 < arena_bytes(48, 160));
 //! // On wider views the head searches further and the refinement wider, as the host's
 //! // commands do at that width; at 160 px they are the presets above.
 //! use bino_core::preset::{census_refine_for_width, options_for_width, refine_for_width, CENSUS_REFINE};
@@ -43,7 +50,7 @@
 //! ```
 
 use crate::config::head_candidates;
-use crate::pipeline::{self, Options, Pathway, Refine};
+use crate::pipeline::{self, Options, Passes, Pathway, Refine};
 
 /// The board's readout options: the native pathway, the head (its trained 12 candidates: a
 /// 160-px view's disparities stay below 44 px) with its left-right check read from the same
@@ -66,7 +73,7 @@ pub const REFINE: Refine = Refine::for_options(&OPTIONS);
 
 /// Arena bytes a `height x width` band pair needs with [`OPTIONS`] and [`REFINE`].
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes_refined(height, width, &OPTIONS, &REFINE)
+    pipeline::arena_bytes_with(height, width, &OPTIONS, Some(&REFINE), Passes::TokenRow)
 }
 
 /// [`OPTIONS`] on the export pathway: both encoder passes, (L, L) and (R, R), the descriptor
@@ -82,7 +89,7 @@ pub const EXPORT_REFINE: Refine = Refine::for_options(&EXPORT_OPTIONS);
 
 /// Arena bytes a `height x width` band pair needs with [`EXPORT_OPTIONS`] and [`EXPORT_REFINE`].
 pub const fn export_arena_bytes(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes_refined(height, width, &EXPORT_OPTIONS, &EXPORT_REFINE)
+    pipeline::arena_bytes_with(height, width, &EXPORT_OPTIONS, Some(&EXPORT_REFINE), Passes::TokenRow)
 }
 
 /// The fast preset's refinement: the census SGM with its own check (`census+lr`, refined), run
@@ -121,7 +128,8 @@ pub const fn census_refine_for_width(width: usize) -> Refine {
 /// the refinement of that width ([`options_for_width`], [`refine_for_width`]); [`arena_bytes`]
 /// below 200 px.
 pub const fn arena_bytes_for_width(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes_refined(height, width, &options_for_width(width), &refine_for_width(width))
+    let (opts, refine) = (options_for_width(width), refine_for_width(width));
+    pipeline::arena_bytes_with(height, width, &opts, Some(&refine), Passes::TokenRow)
 }
 
 /// Arena bytes the fast preset needs on a `height x width` frame with the options and the

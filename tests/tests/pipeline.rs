@@ -322,7 +322,11 @@ fn bad_inputs_are_errors() {
     let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
     let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
     let px = vec![0u8; 48 * 160];
-    let mut arena = vec![0u8; arena_bytes(48, 160, MAX_COLS)];
+    // The blob's own size: the shipped weights run a token row a pass, in less than the size
+    // any weights fit in (`arena_bytes`).
+    let exact = pipeline.arena_bytes(48, 160, &options(), None);
+    assert!(exact < arena_bytes(48, 160, MAX_COLS));
+    let mut arena = vec![0u8; exact];
     let mut sink = Collect::default();
     let mut run = |source: &mut SlicePair<'_>, opts: Options, arena: &mut [u8]| {
         pipeline.run(source, &opts, arena, &mut sink).unwrap_err()
@@ -474,11 +478,14 @@ fn the_heads_left_right_check_is_the_head_on_the_mirrored_pair() {
             true => assert_eq!(growth, 0),
             false => assert!(growth > 0 && growth < 4 * 1024, "{growth}"),
         }
-        let mut arena = vec![0u8; needed];
+        // The shipped blob runs a token row a pass, in its own smaller size.
+        let exact = pipeline.arena_bytes(height, width, &opts, None);
+        assert!(exact < needed, "{exact} {needed}");
+        let mut arena = vec![0u8; exact];
         let err = pipeline.run(
             &mut SlicePair::new(l, r, width, height).unwrap(),
             &opts,
-            &mut arena[..needed - 1],
+            &mut arena[..exact - 1],
             &mut Collect::default(),
         );
         assert!(matches!(err, Err(Error::ArenaTooSmall { .. })), "{err:?}");
@@ -491,7 +498,7 @@ fn the_heads_left_right_check_is_the_head_on_the_mirrored_pair() {
                 &mut out,
             )
             .unwrap();
-        assert!(report.arena_used <= needed);
+        assert!(report.arena_used <= exact);
         let (cols, left) = model.descriptor_bands(&view(l, width, height)).unwrap();
         let (_, right) = model.descriptor_bands(&view(r, width, height)).unwrap();
         let (rows, nd) = (left.rows, opts.head_candidates);
@@ -593,6 +600,7 @@ fn the_native_pathway_streams_like_the_whole_map_steps() {
                 ..opts
             };
             assert!(needed < arena_bytes_for(height, width, &export), "{what}");
+            let needed = pipeline.arena_bytes(height, width, &opts, None);
             let mut arena = vec![0u8; needed];
             let err = pipeline.run(
                 &mut SlicePair::new(l, r, width, height).unwrap(),

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 const LAYERS: &[&[&str]] = &[
     &["layout"],
     &["api"],
-    &["refine_stage"],
+    &["refine_stage", "row_passes"],
     &["census_stage", "feeding"],
     &["head_check", "row_buffers"],
     &["sizing"],

@@ -426,7 +426,7 @@ fn the_arena_grows_by_the_refinements_buffers_and_not_at_all_for_one_48x160_band
     assert_eq!(refine_bytes(96, 160, &plain), 12_085);
     // Too small by a byte is an error, not a wrong row.
     let s = scene(32, 80);
-    let needed = arena_bytes_refined(80, 32, &head_lr, &refine);
+    let needed = pipeline.arena_bytes(80, 32, &head_lr, Some(&refine));
     let mut arena = vec![0u8; needed - 1];
     let mut source = SlicePair::new(&s.left, &s.right, 32, 80).unwrap();
     let err = pipeline.run_refined(&mut source, &head_lr, &refine, &mut arena, &mut Collect::new(32, 80));

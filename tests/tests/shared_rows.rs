@@ -1,14 +1,15 @@
 //! Shared token rows. With the shipped blob (attention within each token row, one row
 //! embedding for every token row) a token row's codes do not depend on where its band starts,
-//! so a frame's overlapping bands encode each token row once, and every band the pipeline hands
-//! on is exactly the encoder's pass over that whole band.
+//! so a frame's overlapping bands encode each token row once, one token row a pass in an arena
+//! that holds one row's work, and every band the pipeline hands on is exactly the encoder's pass
+//! over that whole band.
 
 use bino_core::band::{Band, BandPlan};
 use bino_core::blob::Blob;
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
 use bino_core::model::ids::{self, kind, Linear};
 use bino_core::model::probe::NoProbe;
-use bino_core::pipeline::{arena_bytes_for, BandEncoder, Options, Pathway, Pipeline, Sink, SlicePair};
+use bino_core::pipeline::{arena_bytes_for, BandEncoder, Options, Passes, Pathway, Pipeline, Sink, SlicePair};
 use bino_core::testutil::Rng;
 use bino_core::Error;
 use bino_host::int8::blob_writer::BlobWriter;
@@ -102,20 +103,36 @@ fn a_token_row_is_the_same_wherever_its_band_starts() {
     }
 }
 
-/// The blob's encoder, counting the token rows its passes encode.
+/// The blob's encoder, counting the token rows its passes encode and the tallest pass.
 struct Counting<'w> {
     encoder: Encoder<'w>,
     token_rows: usize,
+    tallest: usize,
+}
+
+impl<'w> Counting<'w> {
+    fn new(encoder: Encoder<'w>) -> Self {
+        Self {
+            encoder,
+            token_rows: 0,
+            tallest: 0,
+        }
+    }
+
+    fn count(&mut self, pixel_rows: usize) {
+        self.token_rows += pixel_rows / 4;
+        self.tallest = self.tallest.max(pixel_rows);
+    }
 }
 
 impl BandEncoder for Counting<'_> {
     fn view_pass(&mut self, view: GrayBand<'_>, arena: &mut [u8]) -> Result<(usize, usize), Error> {
-        self.token_rows += view.height() / 4;
+        self.count(view.height());
         self.encoder.view_pass(view, arena)
     }
 
     fn pair_pass(&mut self, l: GrayBand<'_>, r: GrayBand<'_>, arena: &mut [u8]) -> Result<(usize, usize), Error> {
-        self.token_rows += l.height() / 4;
+        self.count(l.height());
         self.encoder.pair_pass(l, r, arena)
     }
 }
@@ -152,15 +169,25 @@ fn a_frame_encodes_each_token_row_once_and_hands_on_whole_band_passes() {
             head_lr: true,
             ..bino_core::preset::OPTIONS
         };
-        let mut arena = vec![0u8; arena_bytes_for(height, WIDTH, &opts)];
-        let mut counting = Counting { encoder, token_rows: 0 };
+        // A token row a pass: the arena holds one row's encoder work beside the band's outputs,
+        // less than the whole-band passes any weights fit in; a byte less is an error.
+        assert_eq!(pipeline.passes(), Passes::TokenRow);
+        let needed = pipeline.arena_bytes(height, WIDTH, &opts, None);
+        assert!(needed < arena_bytes_for(height, WIDTH, &opts), "{pathway:?}");
+        let mut arena = vec![0u8; needed];
+        let mut source = SlicePair::new(left, right, WIDTH, height).unwrap();
+        let err = pipeline.run(&mut source, &opts, &mut arena[..needed - 1], &mut Bands::default());
+        assert!(matches!(err, Err(Error::ArenaTooSmall { .. })), "{err:?}");
+        let mut counting = Counting::new(encoder);
         let mut bands = Bands::default();
         let mut source = SlicePair::new(left, right, WIDTH, height).unwrap();
-        pipeline
+        let report = pipeline
             .run_encoded(&mut source, &opts, None, &mut counting, &mut arena, &mut bands)
             .unwrap();
-        // 30 token rows, each once (four whole bands would be 48).
+        assert!(report.arena_used <= needed);
+        // 30 token rows, each once (four whole bands would be 48), one a pass.
         assert_eq!(counting.token_rows, views * 30, "{pathway:?}");
+        assert_eq!(counting.tallest, 4, "{pathway:?}");
         assert_eq!(bands.0.len(), plan.len());
         for ((band, first, second), expected) in bands.0.iter().zip(plan.iter()) {
             assert_eq!(*band, expected);
@@ -186,4 +213,38 @@ fn a_frame_encodes_each_token_row_once_and_hands_on_whole_band_passes() {
             }
         }
     }
+}
+
+/// Weights whose rows depend on their band are encoded a whole band a pass, in the size any
+/// weights fit in.
+#[test]
+fn weights_that_do_not_share_rows_take_whole_band_passes() {
+    let bytes = shipped();
+    let band_attention = edited(&Blob::parse(&bytes).unwrap(), ids::id(kind::ATTENTION_ROWS, 0), None);
+    let blob = Blob::parse(&band_attention).unwrap();
+    let pipeline = Pipeline::new(blob).unwrap();
+    assert_eq!(pipeline.passes(), Passes::Band);
+    let height = 56;
+    let (left, right) = (pixels(5, WIDTH * height), pixels(6, WIDTH * height));
+    let opts = Options {
+        pathway: Pathway::Native,
+        ..bino_core::preset::OPTIONS
+    };
+    let needed = pipeline.arena_bytes(height, WIDTH, &opts, None);
+    assert_eq!(needed, arena_bytes_for(height, WIDTH, &opts));
+    let mut arena = vec![0u8; needed];
+    let mut counting = Counting::new(Encoder::new(blob).unwrap());
+    let mut source = SlicePair::new(&left, &right, WIDTH, height).unwrap();
+    pipeline
+        .run_encoded(
+            &mut source,
+            &opts,
+            None,
+            &mut counting,
+            &mut arena,
+            &mut Bands::default(),
+        )
+        .unwrap();
+    // Two whole bands of 12 token rows.
+    assert_eq!((counting.token_rows, counting.tallest), (24, 48));
 }

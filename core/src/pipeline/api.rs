@@ -145,6 +145,21 @@ impl RowSource for SlicePair<'_> {
 /// grid read by the native head only).
 pub type Pathway = HeadKind;
 
+/// How the encoder covers a band's token rows. Weights whose token rows do not depend on their
+/// place in the band ([`Encoder::rows_independent`]) are encoded one token row at a time, each
+/// row's output after the last, so the encoder's scratch holds one row's work beside the band's
+/// outputs instead of the whole band's; any other weights take one pass per band. Both give the
+/// same bytes; only the arena differs ([`arena_bytes_with`](super::arena_bytes_with)).
+///
+/// [`Encoder::rows_independent`]: crate::model::encoder::Encoder::rows_independent
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Passes {
+    /// One pass per band: any weights.
+    Band,
+    /// One pass per token row: weights whose token rows are independent.
+    TokenRow,
+}
+
 /// What the readouts use.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct Options {

@@ -2,12 +2,12 @@
 //! view's size; its helpers cut the refinement's scratch and run the export pathway's two
 //! encoder passes (the encoder is the run's [`BandEncoder`], not part of the context).
 
-use super::api::{BandEncoder, Options, Refine, Sink, Stage};
+use super::api::{BandEncoder, Options, Passes, Refine, Sink, Stage};
 #[cfg(doc)]
 use super::arena_bytes_for;
 use super::feeding::Fresh;
 use super::refine_stage::{BandView, RefineIo, Scratch};
-use super::sizing::ReadoutShape;
+use super::sizing::{arena_bytes_with, ReadoutShape};
 use crate::arena::split;
 use crate::config::{DIM, PATCH_H};
 use crate::model::encoder::GrayBand;
@@ -23,12 +23,26 @@ pub(super) struct Context<'p, 'w> {
     pub(super) width: usize,
     pub(super) height: usize,
     pub(super) band_px: usize,
-    /// Whether overlapping bands share their common token rows
-    /// ([`Encoder::rows_independent`](crate::model::encoder::Encoder::rows_independent)).
-    pub(super) shared_rows: bool,
+    /// How the encoder covers a band: with [`Passes::TokenRow`] (weights whose token rows are
+    /// independent) overlapping bands also share their common token rows.
+    pub(super) passes: Passes,
 }
 
 impl Context<'_, '_> {
+    /// Whether overlapping bands share their common token rows ([`Fresh`]).
+    pub(super) fn shared_rows(&self) -> bool {
+        self.passes == Passes::TokenRow
+    }
+
+    /// The arena bytes of this run ([`arena_bytes_with`]), for the error of an arena that
+    /// turns out too small.
+    pub(super) fn too_small(&self, available: usize) -> Error {
+        Error::ArenaTooSmall {
+            needed: arena_bytes_with(self.height, self.width, self.opts, self.refine, self.passes),
+            available,
+        }
+    }
+
     /// Whether this run checks the head left against right.
     pub(super) fn head_lr(&self) -> bool {
         self.head.is_some() && self.opts.head_lr

@@ -2,10 +2,11 @@
 //! (`export.rs`), the native one (`native.rs`) or, for a census input, the encoder-free run
 //! (`census_run.rs`).
 
-use super::api::{BandEncoder, Options, Pathway, Refine, RefineInput, Report, RowSource, Sink};
+use super::api::{BandEncoder, Options, Passes, Pathway, Refine, RefineInput, Report, RowSource, Sink};
 use super::context::Context;
 use super::layout::band_pixel_rows;
-use super::sizing::arena_bytes_run;
+use super::row_passes::RowPasses;
+use super::sizing::arena_bytes_with;
 use super::{export, native};
 use crate::band::BandPlan;
 use crate::config::check_view_size;
@@ -50,6 +51,21 @@ impl<'w> Pipeline<'w> {
             Pathway::Export => self.head.is_some(),
             Pathway::Native => self.native.is_some(),
         }
+    }
+
+    /// How this blob's encoder covers a band: [`Passes::TokenRow`] when its token rows are
+    /// independent ([`Encoder::rows_independent`]), else [`Passes::Band`].
+    pub fn passes(&self) -> Passes {
+        match self.encoder.rows_independent() {
+            true => Passes::TokenRow,
+            false => Passes::Band,
+        }
+    }
+
+    /// The arena bytes a run of this blob with `opts` (refined when `refine` is given) needs on
+    /// a `height x width` pair: [`arena_bytes_with`] for its [`Pipeline::passes`].
+    pub fn arena_bytes(&self, height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+        arena_bytes_with(height, width, opts, refine, self.passes())
     }
 
     /// Runs the pair `source` delivers through every readout, in `arena`
@@ -163,7 +179,8 @@ impl<'w> Pipeline<'w> {
                 });
             }
         }
-        crate::arena::check_size(arena, arena_bytes_run(height, width, opts, refine))?;
+        let passes = self.passes();
+        crate::arena::check_size(arena, arena_bytes_with(height, width, opts, refine, passes))?;
         let plan = BandPlan::new(token_rows)?;
         let band_px = band_pixel_rows(height);
         let ctx = Context {
@@ -174,12 +191,13 @@ impl<'w> Pipeline<'w> {
             width,
             height,
             band_px,
-            shared_rows: self.encoder.rows_independent(),
+            passes,
         };
+        let mut encoder = RowPasses { encoder, passes };
         if native {
-            return native::run(&ctx, encoder, source, &plan, arena, sink);
+            return native::run(&ctx, &mut encoder, source, &plan, arena, sink);
         }
-        export::run(&ctx, encoder, source, &plan, arena, sink)
+        export::run(&ctx, &mut encoder, source, &plan, arena, sink)
     }
 }
 

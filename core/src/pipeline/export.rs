@@ -19,7 +19,7 @@ use super::api::{BandEncoder, Report, RowSource, Sink};
 use super::context::Context;
 use super::feeding::{BandRows, Fresh};
 use super::refine_stage::BandView;
-use super::sizing::{arena_bytes_run, band_head_bytes, refine_parts, resident_region};
+use super::sizing::{band_head_bytes, refine_parts, resident_region};
 use super::streams::Streams;
 use crate::arena::split;
 use crate::band::{Band, BandPlan};
@@ -39,10 +39,7 @@ pub(super) fn run(
 ) -> Result<Report, Error> {
     let (opts, refine) = (ctx.opts, ctx.refine);
     let (cols, width, height, band_px) = (ctx.cols, ctx.width, ctx.height, ctx.band_px);
-    let too_small = Error::ArenaTooSmall {
-        needed: arena_bytes_run(height, width, opts, refine),
-        available: arena.len(),
-    };
+    let too_small = ctx.too_small(arena.len());
     let desc_len = (band_px / PATCH_H) * cols * DIM;
     let (pixels, rest) = split(arena, 2 * band_px * width).ok_or(too_small)?;
     let (left_px, right_px) = pixels.split_at_mut(band_px * width);
@@ -75,7 +72,7 @@ pub(super) fn run(
     let mut band_used = 0;
     for (i, band) in plan.iter().enumerate() {
         rows.advance(band, left_px, right_px, resident.as_mut().map(|s| &mut s.refine), sink)?;
-        let fresh = Fresh::of(plan, i, ctx.shared_rows);
+        let fresh = Fresh::of(plan, i, ctx.shared_rows());
         let (encoder_used, right_desc, rest) =
             ctx.encode(encoder, (left_px, right_px), fresh, desc_left, scratch, sink)?;
         sink.band(band, desc_left, right_desc);

@@ -20,7 +20,7 @@ use super::feeding::{BandRows, Fresh};
 use super::head_check::{Feed, HeadRows, OnePassCheck, OnePassRows};
 use super::layout::aligned;
 use super::refine_stage::{BandView, RefineIo, Refinement};
-use super::sizing::{native_arena_bytes, native_census_bytes, native_check_bytes, refine_parts};
+use super::sizing::{native_census_bytes, native_check_bytes, refine_parts};
 use crate::arena::split;
 use crate::band::{Band, BandPlan};
 use crate::config::{DIM, PATCH_H};
@@ -48,10 +48,7 @@ pub(super) fn run(
     let check_len = native_check_bytes(cols, ctx.head_lr());
     let census_len = native_census_bytes(width, ctx.opts, ctx.refine);
     let state_len = aligned(ctx.refine.map_or(0, |r| refine_parts(ctx.height, width, r).0));
-    let too_small = Error::ArenaTooSmall {
-        needed: native_arena_bytes(ctx.height, width, ctx.opts, ctx.refine),
-        available: arena.len(),
-    };
+    let too_small = ctx.too_small(arena.len());
     let (pixels, rest) = split(arena, 2 * pixel_len).ok_or(too_small)?;
     let (left_px, right_px) = pixels.split_at_mut(pixel_len);
     let (check_arena, rest) = split(rest, check_len).ok_or(too_small)?;
@@ -72,7 +69,7 @@ pub(super) fn run(
         rows.advance(band, left_px, right_px, Some(&mut readouts.refine), sink)?;
         // The rows this band shares with the band before stay at the scratch's front, where
         // that band's tokens are; the pass computes the rest after them.
-        let fresh = Fresh::of(plan, i, ctx.shared_rows);
+        let fresh = Fresh::of(plan, i, ctx.shared_rows());
         fresh.keep(scratch, row_len, "pair token band")?;
         let fresh_px = band_px - fresh.kept * PATCH_H;
         let left = GrayBand::new(fresh.pixels(left_px, width), width, fresh_px)?;

@@ -2,13 +2,13 @@
 //! the driver and the streams cut the arena by (saturating, so an absurd size is never a small
 //! wrong one).
 
-use super::api::{Options, Pathway, Refine, RefineInput};
+use super::api::{Options, Passes, Pathway, Refine, RefineInput};
 use super::head_check::{check_rows_bytes, fusion_bytes, HEAD_CHECK_ROWS};
 use super::layout::{aligned, band_pixel_rows, max, sum};
 use super::row_buffers::row_bytes;
+use super::row_passes::scratch_bytes;
 use super::{census_stage, refine_stage};
 use crate::config::{CELL_W, DIM, PATCH_H};
-use crate::model::encoder;
 use crate::model::head;
 use crate::model::ids::HeadKind;
 use crate::sgm::state_len;
@@ -124,20 +124,27 @@ pub(super) const fn band_head_bytes(cols: usize, candidates: usize) -> usize {
 /// [`Error::ArenaTooSmall`] (or earlier, as [`Error::TooWide`] / [`Error::Candidates`]); the
 /// result is never a small wrong size.
 pub const fn arena_bytes(height: usize, width: usize, max_cols: usize) -> usize {
-    arena_bytes_of(height, width, max_cols, ReadoutShape::trained(false), None)
+    arena_bytes_of(
+        height,
+        width,
+        max_cols,
+        ReadoutShape::trained(false),
+        None,
+        Passes::Band,
+    )
 }
 
 /// [`arena_bytes`] with the head's left-right check ([`Options::head_lr`]): the left rows
 /// it keeps and the fused readout's (the mirrored head reruns each band on the head's stream).
 pub const fn arena_bytes_head_lr(height: usize, width: usize, max_cols: usize) -> usize {
-    arena_bytes_of(height, width, max_cols, ReadoutShape::trained(true), None)
+    arena_bytes_of(height, width, max_cols, ReadoutShape::trained(true), None, Passes::Band)
 }
 
 /// The arena bytes a run with `opts` needs: on the export pathway [`arena_bytes`] or
 /// [`arena_bytes_head_lr`]; on the native one the pixel band, the check's rows and the
 /// encoder's scratch, which holds the band's pair tokens and its head after each pass.
 pub const fn arena_bytes_for(height: usize, width: usize, opts: &Options) -> usize {
-    arena_bytes_run(height, width, opts, None)
+    arena_bytes_with(height, width, opts, None, Passes::Band)
 }
 
 /// The arena bytes [`Pipeline::run_refined`] needs with `opts` and `refine`. For one band
@@ -146,19 +153,31 @@ pub const fn arena_bytes_for(height: usize, width: usize, opts: &Options) -> usi
 /// refinement's state ([`refine_bytes`] less the row scratch, which the encoder's scratch
 /// holds).
 pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, refine: &Refine) -> usize {
-    arena_bytes_run(height, width, opts, Some(refine))
+    arena_bytes_with(height, width, opts, Some(refine), Passes::Band)
 }
 
-/// The arena bytes of a run with `opts`, refined when `refine` is given, on either pathway.
-pub(super) const fn arena_bytes_run(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+/// The arena bytes of a run with `opts`, refined when `refine` is given, on either pathway, its
+/// encoder passes by `passes`. The other sizes here are [`Passes::Band`]'s, which fit any
+/// weights; weights whose token rows are independent run in the smaller
+/// [`Passes::TokenRow`] size ([`Pipeline::arena_bytes`] answers for a blob).
+pub const fn arena_bytes_with(
+    height: usize,
+    width: usize,
+    opts: &Options,
+    refine: Option<&Refine>,
+    passes: Passes,
+) -> usize {
     if let Some(r) = refine {
         if r.input.census_only() {
             return census_arena_bytes(height, width, opts, refine);
         }
     }
     match opts.pathway {
-        Pathway::Export => arena_bytes_of(height, width, opts.max_cols, ReadoutShape::of(opts, refine), refine),
-        Pathway::Native => native_arena_bytes(height, width, opts, refine),
+        Pathway::Export => {
+            let head = ReadoutShape::of(opts, refine);
+            arena_bytes_of(height, width, opts.max_cols, head, refine, passes)
+        }
+        Pathway::Native => native_arena_bytes(height, width, opts, refine, passes),
     }
 }
 
@@ -211,12 +230,13 @@ const fn arena_bytes_of(
     max_cols: usize,
     head: ReadoutShape,
     refine: Option<&Refine>,
+    passes: Passes,
 ) -> usize {
     let band_rows = band_pixel_rows(height);
     let cols = width / CELL_W;
     let pixels = band_rows.saturating_mul(width).saturating_mul(2);
     let descriptors = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(DIM);
-    let encoder = encoder::arena_bytes(band_rows, width);
+    let encoder = scratch_bytes(passes, band_rows, width, cols.saturating_mul(DIM));
     let (state, scratch) = match refine {
         Some(r) => refine_parts(height, width, r),
         None => (0, 0),
@@ -254,12 +274,19 @@ pub(super) const fn native_check_bytes(cols: usize, head_lr: bool) -> usize {
 /// with the band, so only the check's rows, the census stage and the refinement's state sit
 /// outside it: the size depends on the band and the width, and on the height only through the
 /// refinement's ring (one band or several).
-pub(super) const fn native_arena_bytes(height: usize, width: usize, opts: &Options, refine: Option<&Refine>) -> usize {
+pub(super) const fn native_arena_bytes(
+    height: usize,
+    width: usize,
+    opts: &Options,
+    refine: Option<&Refine>,
+    passes: Passes,
+) -> usize {
     let band_rows = band_pixel_rows(height);
     let cols = width / CELL_W;
     let pixels = band_rows.saturating_mul(width).saturating_mul(2);
-    let tokens = (band_rows / PATCH_H).saturating_mul(cols).saturating_mul(2 * DIM);
-    let encoder = encoder::arena_bytes(band_rows, width);
+    let row_len = cols.saturating_mul(2 * DIM);
+    let tokens = (band_rows / PATCH_H).saturating_mul(row_len);
+    let encoder = scratch_bytes(passes, band_rows, width, row_len);
     let head = aligned(head::arena_bytes_with(HeadKind::Native, cols, opts.head_candidates));
     let (state, scratch) = match refine {
         Some(r) => refine_parts(height, width, r),
@@ -298,7 +325,7 @@ mod tests {
     fn the_export_arena_does_not_grow_with_the_height() {
         for input in [RefineInput::FusedAllLr, RefineInput::HeadLr, RefineInput::SgmLr] {
             let refine = Refine { input, ..EXPORT_REFINE };
-            let size = |h: usize, w: usize| arena_bytes_run(h, w, &EXPORT_OPTIONS, Some(&refine));
+            let size = |h: usize, w: usize| arena_bytes_with(h, w, &EXPORT_OPTIONS, Some(&refine), Passes::Band);
             for width in [32, 160, 320] {
                 let (band, frame) = (size(48, width), size(52, width));
                 let cols = width / CELL_W;
@@ -315,7 +342,7 @@ mod tests {
         // The default readout's 160 px frame: the band's and 26,464 B (the census stage 16.9 KB,
         // both SGMs' aggregates 5.1 KB, the check 3.5 KB, the refinement's state 0.9 KB).
         assert_eq!(
-            arena_bytes_run(120, 160, &EXPORT_OPTIONS, Some(&EXPORT_REFINE)),
+            arena_bytes_with(120, 160, &EXPORT_OPTIONS, Some(&EXPORT_REFINE), Passes::Band),
             486_918 + 26_464
         );
     }

@@ -5,8 +5,8 @@
 //! `tests/tests/determinism.rs`); the rest of the pipeline runs as it always does.
 //!
 //! On a host with several cores the record is filled ahead ([`PassCache::prefill`]): the
-//! passes of the core's band plan ([`BandPlan`], band buffers of [`band_pixel_rows`]) computed a
-//! band a thread, so the pipeline that follows spends its time on the cheap stages, with the
+//! passes of the core's band plan ([`BandPlan`], band buffers of [`band_pixel_rows`]; with
+//! independent token rows a pass a token row) computed a pass a thread, so the pipeline that follows spends its time on the cheap stages, with the
 //! same outputs as one thread's (`tests/tests/threads.rs`). A band the plan did not foresee is
 //! encoded when asked, so a wrong guess costs time, never a different answer.
 
@@ -77,8 +77,8 @@ impl<'w> PassCache<'w> {
     }
 
     /// Records every pass a `pathway` run over the `width x height` views will ask for (two
-    /// descriptor passes a band on the export pathway, one pair pass on the native one) that
-    /// is not recorded yet, computed on up to `threads` threads at once, each with its own
+    /// descriptor passes a band, or a token row with independent rows, on the export pathway;
+    /// one pair pass on the native one) that is not recorded yet, computed on up to `threads` threads at once, each with its own
     /// arena. Counted in [`PassCache::encoded`].
     #[allow(clippy::too_many_arguments)]
     pub fn prefill(
@@ -90,39 +90,45 @@ impl<'w> PassCache<'w> {
         height: usize,
         threads: usize,
     ) -> Result<()> {
-        let rows = band_pixel_rows(height);
         let plan = BandPlan::new(height / PATCH_H).map_err(anyhow::Error::msg)?;
         let mut keys: Vec<Key> = Vec::new();
-        let shared = self.encoder.rows_independent();
+        // With independent token rows the pipeline encodes a band's rows from the first the band
+        // before did not (`BandPlan::fresh_from`), one token row a pass (`Passes::TokenRow`).
+        let by_row = self.encoder.rows_independent();
+        let band_rows = band_pixel_rows(height);
         for (i, b) in plan.iter().enumerate() {
-            // With shared rows the pipeline encodes a band from its first row the band before
-            // did not (`BandPlan::fresh_from`).
-            let fresh = match (shared, plan.fresh_from(i)) {
+            let fresh = match (by_row, plan.fresh_from(i)) {
                 (true, Some(fresh)) => fresh,
                 _ => b.start,
             };
-            let start = fresh * PATCH_H;
-            let pass_rows = rows - (fresh - b.start) * PATCH_H;
-            let rows_of = start * width..(start + pass_rows) * width;
-            let (l, r) = (
-                band_view(left.get(rows_of.clone()).unwrap_or_default(), width, pass_rows, false),
-                band_view(right.get(rows_of).unwrap_or_default(), width, pass_rows, false),
-            );
-            // A band the views do not hold is left to the run (encoded when asked, or refused).
-            let (Ok(l), Ok(r)) = (l, r) else {
-                continue;
+            let end = b.start * PATCH_H + band_rows;
+            let passes: Vec<(usize, usize)> = match by_row {
+                true => (fresh * PATCH_H..end).step_by(PATCH_H).map(|y| (y, PATCH_H)).collect(),
+                false => vec![(fresh * PATCH_H, end - fresh * PATCH_H)],
             };
-            let wanted = match pathway {
-                Pathway::Export => vec![Key::of_view(&l), Key::of_view(&r)],
-                Pathway::Native => vec![Key::of_pair(&l, &r)],
-            };
-            for key in wanted {
-                let known = self.passes.iter().any(|p| p.key == key) || keys.contains(&key);
-                if !known {
-                    keys.push(key);
+            for (start, pass_rows) in passes {
+                let rows_of = start * width..(start + pass_rows) * width;
+                let (l, r) = (
+                    band_view(left.get(rows_of.clone()).unwrap_or_default(), width, pass_rows, false),
+                    band_view(right.get(rows_of).unwrap_or_default(), width, pass_rows, false),
+                );
+                // A band the views do not hold is left to the run (encoded when asked, or refused).
+                let (Ok(l), Ok(r)) = (l, r) else {
+                    continue;
+                };
+                let wanted = match pathway {
+                    Pathway::Export => vec![Key::of_view(&l), Key::of_view(&r)],
+                    Pathway::Native => vec![Key::of_pair(&l, &r)],
+                };
+                for key in wanted {
+                    let known = self.passes.iter().any(|p| p.key == key) || keys.contains(&key);
+                    if !known {
+                        keys.push(key);
+                    }
                 }
             }
         }
+        let rows = if by_row { PATCH_H } else { band_rows };
         let done = encode_all(self.encoder, &keys, rows, threads)?;
         for (key, (arena_used, output)) in keys.into_iter().zip(done) {
             self.record(key, arena_used, output);

@@ -111,6 +111,23 @@ impl<'a> GrayBand<'a> {
         }
     }
 
+    /// Pixel rows `first..first + rows` of the band, read as it reads them (mirrored or not).
+    pub fn rows(&self, first: usize, rows: usize) -> Result<Self, Error> {
+        let at = first.saturating_mul(self.width);
+        let len = rows.saturating_mul(self.width);
+        let found = self.pixels.len();
+        let pixels = self.pixels.get(at..at.saturating_add(len)).ok_or(Error::BufferSize {
+            what: "band pixels",
+            expected: at.saturating_add(len),
+            found,
+        })?;
+        let band = Self::new(pixels, self.width, rows)?;
+        Ok(Self {
+            mirrored: self.mirrored,
+            ..band
+        })
+    }
+
     /// Width in pixels.
     pub fn width(&self) -> usize {
         self.width
