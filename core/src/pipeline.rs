@@ -69,7 +69,7 @@ mod streams;
 pub use crate::model::head::HeadRow;
 pub use api::{
     BandEncoder, CensusRow, FusedRow, HeadChecked, MatchedRow, Options, Passes, Pathway, Refine, RefineInput, Report,
-    RowSource, Sink, SlicePair, Stage,
+    RowSource, Sink, SlicePair, Stage, TOKEN_ROWS_PER_PASS,
 };
 pub use census_run::run_census;
 pub use driver::Pipeline;

@@ -15,8 +15,8 @@
 //! for a band and for a whole frame of that width.
 //!
 //! The arenas here are sized for the shipped weights, whose token rows are independent: the
-//! encoder runs a token row at a time ([`Passes::TokenRow`](crate::pipeline::Passes)), its
-//! scratch one row's work. Weights that need whole-band passes need
+//! encoder runs a few token rows a pass ([`Passes::TokenRows`](crate::pipeline::Passes)), its
+//! scratch one pass's work. Weights that need whole-band passes need
 //! [`Pipeline::arena_bytes`](crate::pipeline::Pipeline::arena_bytes).
 //!
 //! ```
@@ -73,7 +73,7 @@ pub const REFINE: Refine = Refine::for_options(&OPTIONS);
 
 /// Arena bytes a `height x width` band pair needs with [`OPTIONS`] and [`REFINE`].
 pub const fn arena_bytes(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes_with(height, width, &OPTIONS, Some(&REFINE), Passes::TokenRow)
+    pipeline::arena_bytes_with(height, width, &OPTIONS, Some(&REFINE), Passes::TokenRows)
 }
 
 /// [`OPTIONS`] on the export pathway: both encoder passes, (L, L) and (R, R), the descriptor
@@ -89,7 +89,7 @@ pub const EXPORT_REFINE: Refine = Refine::for_options(&EXPORT_OPTIONS);
 
 /// Arena bytes a `height x width` band pair needs with [`EXPORT_OPTIONS`] and [`EXPORT_REFINE`].
 pub const fn export_arena_bytes(height: usize, width: usize) -> usize {
-    pipeline::arena_bytes_with(height, width, &EXPORT_OPTIONS, Some(&EXPORT_REFINE), Passes::TokenRow)
+    pipeline::arena_bytes_with(height, width, &EXPORT_OPTIONS, Some(&EXPORT_REFINE), Passes::TokenRows)
 }
 
 /// The fast preset's refinement: the census SGM with its own check (`census+lr`, refined), run
@@ -129,7 +129,7 @@ pub const fn census_refine_for_width(width: usize) -> Refine {
 /// below 200 px.
 pub const fn arena_bytes_for_width(height: usize, width: usize) -> usize {
     let (opts, refine) = (options_for_width(width), refine_for_width(width));
-    pipeline::arena_bytes_with(height, width, &opts, Some(&refine), Passes::TokenRow)
+    pipeline::arena_bytes_with(height, width, &opts, Some(&refine), Passes::TokenRows)
 }
 
 /// Arena bytes the fast preset needs on a `height x width` frame with the options and the

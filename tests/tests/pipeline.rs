@@ -322,7 +322,7 @@ fn bad_inputs_are_errors() {
     let model = Int8Model::load(DEFAULT_BLOB.as_ref()).unwrap();
     let pipeline = Pipeline::new(model.blob().unwrap()).unwrap();
     let px = vec![0u8; 48 * 160];
-    // The blob's own size: the shipped weights run a token row a pass, in less than the size
+    // The blob's own size: the shipped weights run a few token rows a pass, in less than the size
     // any weights fit in (`arena_bytes`).
     let exact = pipeline.arena_bytes(48, 160, &options(), None);
     assert!(exact < arena_bytes(48, 160, MAX_COLS));
@@ -478,7 +478,7 @@ fn the_heads_left_right_check_is_the_head_on_the_mirrored_pair() {
             true => assert_eq!(growth, 0),
             false => assert!(growth > 0 && growth < 4 * 1024, "{growth}"),
         }
-        // The shipped blob runs a token row a pass, in its own smaller size.
+        // The shipped blob runs a few token rows a pass, in its own smaller size.
         let exact = pipeline.arena_bytes(height, width, &opts, None);
         assert!(exact < needed, "{exact} {needed}");
         let mut arena = vec![0u8; exact];

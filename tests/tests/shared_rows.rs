@@ -1,7 +1,7 @@
 //! Shared token rows. With the shipped blob (attention within each token row, one row
 //! embedding for every token row) a token row's codes do not depend on where its band starts,
-//! so a frame's overlapping bands encode each token row once, one token row a pass in an arena
-//! that holds one row's work, and every band the pipeline hands on is exactly the encoder's pass
+//! so a frame's overlapping bands encode each token row once, a few token rows a pass in an
+//! arena that holds one pass's work, and every band the pipeline hands on is exactly the encoder's pass
 //! over that whole band.
 
 use bino_core::band::{Band, BandPlan};
@@ -9,7 +9,9 @@ use bino_core::blob::Blob;
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
 use bino_core::model::ids::{self, kind, Linear};
 use bino_core::model::probe::NoProbe;
-use bino_core::pipeline::{arena_bytes_for, BandEncoder, Options, Passes, Pathway, Pipeline, Sink, SlicePair};
+use bino_core::pipeline::{
+    arena_bytes_for, BandEncoder, Options, Passes, Pathway, Pipeline, Sink, SlicePair, TOKEN_ROWS_PER_PASS,
+};
 use bino_core::testutil::Rng;
 use bino_core::Error;
 use bino_host::int8::blob_writer::BlobWriter;
@@ -169,9 +171,9 @@ fn a_frame_encodes_each_token_row_once_and_hands_on_whole_band_passes() {
             head_lr: true,
             ..bino_core::preset::OPTIONS
         };
-        // A token row a pass: the arena holds one row's encoder work beside the band's outputs,
-        // less than the whole-band passes any weights fit in; a byte less is an error.
-        assert_eq!(pipeline.passes(), Passes::TokenRow);
+        // A few token rows a pass: the arena holds one pass's encoder work beside the band's
+        // outputs, less than the whole-band passes any weights fit in; a byte less is an error.
+        assert_eq!(pipeline.passes(), Passes::TokenRows);
         let needed = pipeline.arena_bytes(height, WIDTH, &opts, None);
         assert!(needed < arena_bytes_for(height, WIDTH, &opts), "{pathway:?}");
         let mut arena = vec![0u8; needed];
@@ -185,9 +187,9 @@ fn a_frame_encodes_each_token_row_once_and_hands_on_whole_band_passes() {
             .run_encoded(&mut source, &opts, None, &mut counting, &mut arena, &mut bands)
             .unwrap();
         assert!(report.arena_used <= needed);
-        // 30 token rows, each once (four whole bands would be 48), one a pass.
+        // 30 token rows, each once (four whole bands would be 48), a few a pass.
         assert_eq!(counting.token_rows, views * 30, "{pathway:?}");
-        assert_eq!(counting.tallest, 4, "{pathway:?}");
+        assert_eq!(counting.tallest, 4 * TOKEN_ROWS_PER_PASS, "{pathway:?}");
         assert_eq!(bands.0.len(), plan.len());
         for ((band, first, second), expected) in bands.0.iter().zip(plan.iter()) {
             assert_eq!(*band, expected);

@@ -23,7 +23,7 @@ pub(super) struct Context<'p, 'w> {
     pub(super) width: usize,
     pub(super) height: usize,
     pub(super) band_px: usize,
-    /// How the encoder covers a band: with [`Passes::TokenRow`] (weights whose token rows are
+    /// How the encoder covers a band: with [`Passes::TokenRows`] (weights whose token rows are
     /// independent) overlapping bands also share their common token rows.
     pub(super) passes: Passes,
 }
@@ -31,7 +31,7 @@ pub(super) struct Context<'p, 'w> {
 impl Context<'_, '_> {
     /// Whether overlapping bands share their common token rows ([`Fresh`]).
     pub(super) fn shared_rows(&self) -> bool {
-        self.passes == Passes::TokenRow
+        self.passes == Passes::TokenRows
     }
 
     /// The arena bytes of this run ([`arena_bytes_with`]), for the error of an arena that

@@ -53,11 +53,11 @@ impl<'w> Pipeline<'w> {
         }
     }
 
-    /// How this blob's encoder covers a band: [`Passes::TokenRow`] when its token rows are
+    /// How this blob's encoder covers a band: [`Passes::TokenRows`] when its token rows are
     /// independent ([`Encoder::rows_independent`]), else [`Passes::Band`].
     pub fn passes(&self) -> Passes {
         match self.encoder.rows_independent() {
-            true => Passes::TokenRow,
+            true => Passes::TokenRows,
             false => Passes::Band,
         }
     }

@@ -159,7 +159,7 @@ pub const fn arena_bytes_refined(height: usize, width: usize, opts: &Options, re
 /// The arena bytes of a run with `opts`, refined when `refine` is given, on either pathway, its
 /// encoder passes by `passes`. The other sizes here are [`Passes::Band`]'s, which fit any
 /// weights; weights whose token rows are independent run in the smaller
-/// [`Passes::TokenRow`] size ([`Pipeline::arena_bytes`] answers for a blob).
+/// [`Passes::TokenRows`] size ([`Pipeline::arena_bytes`] answers for a blob).
 pub const fn arena_bytes_with(
     height: usize,
     width: usize,

@@ -6,7 +6,7 @@
 //!
 //! On a host with several cores the record is filled ahead ([`PassCache::prefill`]): the
 //! passes of the core's band plan ([`BandPlan`], band buffers of [`band_pixel_rows`]; with
-//! independent token rows a pass a token row) computed a pass a thread, so the pipeline that follows spends its time on the cheap stages, with the
+//! independent token rows a pass a few token rows) computed a pass a thread, so the pipeline that follows spends its time on the cheap stages, with the
 //! same outputs as one thread's (`tests/tests/threads.rs`). A band the plan did not foresee is
 //! encoded when asked, so a wrong guess costs time, never a different answer.
 
@@ -17,7 +17,7 @@ use anyhow::{anyhow, Result};
 use bino_core::band::BandPlan;
 use bino_core::config::PATCH_H;
 use bino_core::model::encoder::{arena_bytes, Encoder, GrayBand};
-use bino_core::pipeline::{band_pixel_rows, BandEncoder, Pathway};
+use bino_core::pipeline::{band_pixel_rows, BandEncoder, Pathway, TOKEN_ROWS_PER_PASS};
 use bino_core::Error;
 
 /// Threads [`PassCache::prefill`] runs on for the host's pipeline runs (`bino run`, `bino eval`,
@@ -77,8 +77,8 @@ impl<'w> PassCache<'w> {
     }
 
     /// Records every pass a `pathway` run over the `width x height` views will ask for (two
-    /// descriptor passes a band, or a token row with independent rows, on the export pathway;
-    /// one pair pass on the native one) that is not recorded yet, computed on up to `threads` threads at once, each with its own
+    /// descriptor passes a band, or a few token rows with independent rows, on the export
+    /// pathway; one pair pass on the native one) that is not recorded yet, computed on up to `threads` threads at once, each with its own
     /// arena. Counted in [`PassCache::encoded`].
     #[allow(clippy::too_many_arguments)]
     pub fn prefill(
@@ -93,7 +93,7 @@ impl<'w> PassCache<'w> {
         let plan = BandPlan::new(height / PATCH_H).map_err(anyhow::Error::msg)?;
         let mut keys: Vec<Key> = Vec::new();
         // With independent token rows the pipeline encodes a band's rows from the first the band
-        // before did not (`BandPlan::fresh_from`), one token row a pass (`Passes::TokenRow`).
+        // before did not (`BandPlan::fresh_from`), `TOKEN_ROWS_PER_PASS` token rows a pass (`Passes::TokenRows`).
         let by_row = self.encoder.rows_independent();
         let band_rows = band_pixel_rows(height);
         for (i, b) in plan.iter().enumerate() {
@@ -102,8 +102,12 @@ impl<'w> PassCache<'w> {
                 _ => b.start,
             };
             let end = b.start * PATCH_H + band_rows;
+            let step = TOKEN_ROWS_PER_PASS * PATCH_H;
             let passes: Vec<(usize, usize)> = match by_row {
-                true => (fresh * PATCH_H..end).step_by(PATCH_H).map(|y| (y, PATCH_H)).collect(),
+                true => (fresh * PATCH_H..end)
+                    .step_by(step)
+                    .map(|y| (y, step.min(end - y)))
+                    .collect(),
                 false => vec![(fresh * PATCH_H, end - fresh * PATCH_H)],
             };
             for (start, pass_rows) in passes {
@@ -128,7 +132,11 @@ impl<'w> PassCache<'w> {
                 }
             }
         }
-        let rows = if by_row { PATCH_H } else { band_rows };
+        let rows = if by_row {
+            TOKEN_ROWS_PER_PASS * PATCH_H
+        } else {
+            band_rows
+        };
         let done = encode_all(self.encoder, &keys, rows, threads)?;
         for (key, (arena_used, output)) in keys.into_iter().zip(done) {
             self.record(key, arena_used, output);

@@ -34,6 +34,11 @@ pub struct PreparedResidual<'s> {
 }
 
 impl<'s> PreparedResidual<'s> {
+    /// Words of storage the parameters of `n` channels take.
+    pub const fn storage_words(n: usize) -> usize {
+        n.div_ceil(CHANNEL_CHUNK) * CHUNK_WORDS
+    }
+
     /// The parameters for blocks of `rows` rows; `None` where a channel is outside the lanes'
     /// bounds or `storage` is short (then [`residual_add`]).
     pub fn new<Z, M, B, M2, Z2>(
@@ -52,7 +57,7 @@ impl<'s> PreparedResidual<'s> {
     {
         let n = delta.channels();
         let per_channel = residual_lanes::per_channel(rows, n);
-        let words = n.div_ceil(CHANNEL_CHUNK) * CHUNK_WORDS;
+        let words = Self::storage_words(n);
         let params = storage.get_mut(..words).filter(|_| n > 0)?;
         for (i, chunk) in params.chunks_exact_mut(CHUNK_WORDS).enumerate() {
             let start = i * CHANNEL_CHUNK;

@@ -22,7 +22,7 @@ use crate::config::{BAND_ROWS, CELL_W, DEPTH, DIM, MLP_HIDDEN, PATCH_H};
 use crate::fixed::{round_shift, sat_i8_i64, Requant};
 use crate::kernels::dispatch::matmul_requant_i8_prepared;
 use crate::kernels::dispatch::ChannelRequant;
-use crate::kernels::dispatch::{out_of_line, QUERY_BLOCK};
+use crate::kernels::dispatch::{out_of_line, PreparedLayerNorm, PreparedResidual, QUERY_BLOCK};
 use crate::kernels::params::Offset;
 use crate::Error;
 
@@ -49,19 +49,33 @@ const fn max(a: usize, b: usize) -> usize {
 /// Widest accumulator row: fc1's hidden layer, or keys and values together.
 const ACC_WIDTH: usize = max(MLP_HIDDEN, 2 * DIM);
 
+/// Words of the attention scores' room that the passes which score nothing lend to the
+/// parameters they prepare once a pass: at most the MLP's (its LayerNorm, fc1's requantisation
+/// and the residual add's lanes). A short pass (one token row) keeps this room, so its kernels
+/// run on prepared parameters as a whole band's do.
+const PREPARED_WORDS: usize =
+    PreparedLayerNorm::storage_words(DIM) + 4 * MLP_HIDDEN + PreparedResidual::storage_words(DIM);
+
+/// i32 words of the attention scores' room for `tokens`: one query block's scores against every
+/// token, and at least [`PREPARED_WORDS`].
+const fn score_words(tokens: usize) -> usize {
+    max(tokens.saturating_mul(QUERY_BLOCK), PREPARED_WORDS)
+}
+
 /// Arena bytes the encoder needs for a band of `band_rows` image rows and `width` pixels.
 /// Firmware sizes its static arena with it: `static ARENA: [u8; arena_bytes(48, 160)]`.
 /// Saturates at `usize::MAX` for sizes no memory holds (so such a run is
 /// [`Error::ArenaTooSmall`], never a small wrong size).
 pub const fn arena_bytes(band_rows: usize, width: usize) -> usize {
     let tokens = (band_rows / PATCH_H).saturating_mul(2 * (width / CELL_W));
-    // Bytes per token: residual stream, keys, values; attention scores (i32) and softmax
-    // weights of one query block.
-    let per_token = 3 * DIM + QUERY_BLOCK * 4 + QUERY_BLOCK;
+    // Bytes per token: residual stream, keys, values; softmax weights of one query block.
+    let per_token = 3 * DIM + QUERY_BLOCK;
     let fixed = 2 * ALIGN_SLACK
         + TOKEN_BLOCK * (3 * DIM + MLP_HIDDEN) // normalised, queries, attention output, hidden
         + TOKEN_BLOCK * ACC_WIDTH * 4; // accumulators
-    tokens.saturating_mul(per_token).saturating_add(fixed)
+    (tokens.saturating_mul(per_token))
+        .saturating_add(score_words(tokens).saturating_mul(4))
+        .saturating_add(fixed)
 }
 
 /// One grayscale view of a band: `height x width` pixels, row-major.
@@ -220,7 +234,7 @@ impl<'a> Buffers<'a> {
             x: carver.i8s(tokens * DIM)?,
             keys: carver.i8s(tokens * DIM)?,
             values: carver.i8s(tokens * DIM)?,
-            scores: carver.i32s(QUERY_BLOCK * tokens)?,
+            scores: carver.i32s(score_words(tokens))?,
             softmax: carver.u8s(QUERY_BLOCK * tokens)?,
             normed: carver.i8s(TOKEN_BLOCK * DIM)?,
             queries: carver.i8s(TOKEN_BLOCK * DIM)?,
