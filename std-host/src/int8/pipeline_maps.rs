@@ -162,10 +162,8 @@ impl<'m> PairRuns<'m> {
         let views = &self.views;
         let (w, h) = (views.width, views.height);
         let mut source = SlicePair::new(&views.left, &views.right, w, h).map_err(anyhow::Error::msg)?;
-        let arena_bytes = match refine {
-            Some(r) => pipeline::arena_bytes_refined(h, w, opts, r),
-            None => pipeline::arena_bytes_for(h, w, opts),
-        };
+        // The blob's own size: what a board running this blob sizes its arena by.
+        let arena_bytes = self.pipeline.arena_bytes(h, w, opts, refine);
         let mut arena = vec![0u8; arena_bytes];
         let bands = BandPlan::new(h / PATCH_H).map_err(anyhow::Error::msg)?.len();
         let mut sink = Collect {

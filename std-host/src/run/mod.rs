@@ -102,7 +102,7 @@ pub struct RunReport {
     pub stage_times: Vec<(Stage, Duration)>,
     /// The core pipeline's report (arena use by part, bands, left-right counts).
     pub pipeline: PipelineReport,
-    /// Arena bytes allocated (`bino_core::pipeline::arena_bytes`).
+    /// Arena bytes allocated: the blob's own size (`Pipeline::arena_bytes`).
     pub arena_bytes: usize,
     /// Files written.
     pub files: Vec<PathBuf>,

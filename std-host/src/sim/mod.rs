@@ -82,7 +82,7 @@ pub struct SimReport {
     pub stage_times: Vec<(&'static str, Duration)>,
     /// The core pipeline's report of the last frame.
     pub pipeline: Report,
-    /// Arena bytes allocated (`bino_core::pipeline::arena_bytes`).
+    /// Arena bytes allocated: the blob's own size (`Pipeline::arena_bytes`).
     pub arena_bytes: usize,
     /// Rows drawn on the display: token rows, or pixel rows for a `+ref` readout.
     pub rows_drawn: usize,
@@ -151,10 +151,12 @@ pub fn run_sim(opts: &SimOptions, mut progress: impl FnMut(&str)) -> Result<SimR
         false => None,
     };
     let layout = Layout::new(opts.display, width, height)?;
-    let arena_bytes = match &refine {
-        _ if input.census_only() => pipeline::census_arena_bytes(height, width, &pipeline_opts, refine.as_ref()),
-        Some(r) => pipeline::arena_bytes_refined(height, width, &pipeline_opts, r),
-        None => pipeline::arena_bytes_for(height, width, &pipeline_opts),
+    let arena_bytes = match (&pipeline, &refine) {
+        (_, _) if input.census_only() => pipeline::census_arena_bytes(height, width, &pipeline_opts, refine.as_ref()),
+        // The blob's own size: what a board running this blob sizes its arena by.
+        (Some(p), _) => p.arena_bytes(height, width, &pipeline_opts, refine.as_ref()),
+        (None, Some(r)) => pipeline::arena_bytes_refined(height, width, &pipeline_opts, r),
+        (None, None) => pipeline::arena_bytes_for(height, width, &pipeline_opts),
     };
     let mut arena = vec![0u8; arena_bytes];
 
