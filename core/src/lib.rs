@@ -17,7 +17,7 @@
 //!
 //! const HEIGHT: usize = 48; // one band (a taller image needs more, the same for any height)
 //! const WIDTH: usize = 160;
-//! const ARENA_BYTES: usize = preset::arena_bytes(HEIGHT, WIDTH); // a const fn: 466,598 B
+//! const ARENA_BYTES: usize = preset::arena_bytes(HEIGHT, WIDTH); // a const fn: 408,212 B
 //!
 //! // The weight blob, read in place (in flash on a board), checked once.
 //! static BLOB: &[u8] = include_bytes!(concat!(env!("CARGO_MANIFEST_DIR"), "/../weights/bino_int8.bin"));
@@ -55,7 +55,8 @@
 //! [`pipeline::Sink`] (readouts out), and [`preset`], the readouts the firmware and the boards
 //! run with the `const fn` sizing their arena ([`preset::arena_bytes`]; the export pathway's
 //! [`preset::EXPORT_OPTIONS`] and [`preset::export_arena_bytes`]; for other
-//! [`pipeline::Options`], [`pipeline::arena_bytes_refined`]). Every error is an [`Error`].
+//! [`pipeline::Options`], [`pipeline::arena_bytes_refined`], or for a blob's own encoder passes
+//! [`pipeline::Pipeline::arena_bytes`]). Every error is an [`Error`].
 //! `examples/board` (a `no_std` program for Cortex-M) and `examples/host` (a PNG pair in, a
 //! disparity PNG out) in the repository build on this.
 //!

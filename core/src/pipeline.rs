@@ -23,6 +23,11 @@
 //!   to band), then the encoder's scratch, which between passes holds the right descriptors and
 //!   the refinement's row scratch.
 //!
+//! With weights whose token rows are independent (the shipped ones) the encoder runs
+//! [`TOKEN_ROWS_PER_PASS`] token rows a pass ([`Passes`]), each pass's outputs after the last,
+//! so its scratch holds one pass's work beside the band's outputs instead of the whole band's;
+//! [`Pipeline::arena_bytes`] is a blob's own size, the free `const fn`s here size for any weights.
+//!
 //! # The refinement
 //! [`Refine`] names the readout whose token grid is refined ([`RefineInput`]; the rule of
 //! [`Refine::for_options`]: head+lr when the run checks the head, else sgm+lr), the
