@@ -132,6 +132,18 @@ impl BandPlan {
         Some(fresh)
     }
 
+    /// The token rows band `index`'s encoder passes compute: with `shared` rows (weights whose
+    /// token rows are independent) those from [`BandPlan::fresh_from`] to the band's end, else the
+    /// whole band; `None` past the end.
+    pub fn encoded(&self, index: usize, shared: bool) -> Option<core::ops::Range<usize>> {
+        let band = self.get(index)?;
+        let first = match shared {
+            true => self.fresh_from(index)?,
+            false => band.start,
+        };
+        Some(first..band.start + band.rows)
+    }
+
     /// The bands, top to bottom.
     pub fn iter(&self) -> impl Iterator<Item = Band> + '_ {
         (0..self.count).filter_map(move |i| self.get(i))
@@ -189,7 +201,10 @@ mod tests {
                 assert_eq!(fresh, next, "rows {rows}: band {i} starts its pass at {fresh}");
                 assert!(band.start <= fresh && fresh < band.start + band.rows);
                 next = band.start + band.rows;
+                assert_eq!(plan.encoded(i, true), Some(fresh..next));
+                assert_eq!(plan.encoded(i, false), Some(band.start..next));
             }
+            assert_eq!(plan.encoded(plan.len(), true), None);
             assert_eq!(next, rows);
             assert_eq!(plan.fresh_from(plan.len()), None);
         }

@@ -65,7 +65,7 @@ pub struct Run {
     /// The refinement's input, an index into [`REFINE_INPUTS`] (`None`: no refinement; a
     /// readout the run does not make must be refused).
     pub refine: Option<u8>,
-    /// Arena bytes relative to what `arena_bytes` asks for.
+    /// Arena bytes relative to what `Pipeline::arena_bytes` asks for.
     pub arena_delta: i16,
     /// Pixel values, cycled over both views.
     pub pixels: Vec<u8>,
@@ -198,10 +198,9 @@ pub fn run_pipeline(blob: Blob<'_>, run: &Run) -> Result<pipeline::Report, Error
     let refine = run
         .refine
         .map(|i| pipeline::Refine::of(REFINE_INPUTS[usize::from(i) % REFINE_INPUTS.len()]));
-    let wanted = match &refine {
-        Some(r) => pipeline::arena_bytes_refined(reported_height, reported_width, &opts, r),
-        None => pipeline::arena_bytes_for(reported_height, reported_width, &opts),
-    };
+    // The blob's own size (the shipped blob's passes of a few token rows), where a board sizes
+    // its arena, so the nudges probe that size's edge.
+    let wanted = pipeline.arena_bytes(reported_height, reported_width, &opts, refine.as_ref());
     let len = (wanted as i64 + i64::from(run.arena_delta)).clamp(0, 1 << 22) as usize;
     let mut arena = vec![0u8; len];
     let mut source = FuzzSource {

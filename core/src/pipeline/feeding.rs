@@ -176,16 +176,19 @@ pub(super) struct Fresh {
 impl Fresh {
     /// Band `index` of `plan`; `shared`: whether bands share rows (else nothing is kept).
     pub(super) fn of(plan: &BandPlan, index: usize, shared: bool) -> Self {
-        let (Some(band), Some(before)) = (plan.get(index), index.checked_sub(1).and_then(|i| plan.get(i))) else {
+        let (Some(band), Some(before), Some(encoded)) = (
+            plan.get(index),
+            index.checked_sub(1).and_then(|i| plan.get(i)),
+            plan.encoded(index, shared),
+        ) else {
             return Self { kept: 0, shift: 0 };
         };
-        let fresh = plan.fresh_from(index).unwrap_or(band.start);
-        match shared {
-            true => Self {
-                kept: fresh - band.start,
+        match encoded.start - band.start {
+            0 => Self { kept: 0, shift: 0 },
+            kept => Self {
+                kept,
                 shift: band.start - before.start,
             },
-            false => Self { kept: 0, shift: 0 },
         }
     }
 

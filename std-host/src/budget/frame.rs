@@ -129,15 +129,10 @@ pub(crate) fn shipped_span() -> AttentionSpan {
 }
 
 /// The token rows each band of `plan` encodes: the whole band, or with the shipped blob's
-/// shared rows only those the band before did not ([`BandPlan::fresh_from`]).
+/// shared rows only those the band before did not ([`BandPlan::encoded`]).
 pub(crate) fn encoded_rows(plan: &BandPlan) -> impl Iterator<Item = usize> + '_ {
     let shared = shipped().1;
-    plan.iter()
-        .enumerate()
-        .map(move |(i, band)| match (shared, plan.fresh_from(i)) {
-            (true, Some(fresh)) => band.start + band.rows - fresh,
-            _ => band.rows,
-        })
+    (0..plan.len()).map(move |i| plan.encoded(i, shared).map_or(0, |rows| rows.len()))
 }
 
 /// How a stage's work grows with the frame (see the module's doc).

@@ -93,24 +93,20 @@ impl<'w> PassCache<'w> {
         let plan = BandPlan::new(height / PATCH_H).map_err(anyhow::Error::msg)?;
         let mut keys: Vec<Key> = Vec::new();
         // With independent token rows the pipeline encodes a band's rows from the first the band
-        // before did not (`BandPlan::fresh_from`), `TOKEN_ROWS_PER_PASS` token rows a pass (`Passes::TokenRows`).
+        // before did not (`BandPlan::encoded`), `TOKEN_ROWS_PER_PASS` token rows a pass.
         let by_row = self.encoder.rows_independent();
-        let band_rows = band_pixel_rows(height);
-        for (i, b) in plan.iter().enumerate() {
-            let fresh = match (by_row, plan.fresh_from(i)) {
-                (true, Some(fresh)) => fresh,
-                _ => b.start,
+        // Pixel rows of the tallest pass.
+        let rows = match by_row {
+            true => TOKEN_ROWS_PER_PASS * PATCH_H,
+            false => band_pixel_rows(height),
+        };
+        for i in 0..plan.len() {
+            let Some(encoded) = plan.encoded(i, by_row) else {
+                continue;
             };
-            let end = b.start * PATCH_H + band_rows;
-            let step = TOKEN_ROWS_PER_PASS * PATCH_H;
-            let passes: Vec<(usize, usize)> = match by_row {
-                true => (fresh * PATCH_H..end)
-                    .step_by(step)
-                    .map(|y| (y, step.min(end - y)))
-                    .collect(),
-                false => vec![(fresh * PATCH_H, end - fresh * PATCH_H)],
-            };
-            for (start, pass_rows) in passes {
+            let (first, end) = (encoded.start * PATCH_H, encoded.end * PATCH_H);
+            for start in (first..end).step_by(rows.max(1)) {
+                let pass_rows = rows.min(end - start);
                 let rows_of = start * width..(start + pass_rows) * width;
                 let (l, r) = (
                     band_view(left.get(rows_of.clone()).unwrap_or_default(), width, pass_rows, false),
@@ -132,11 +128,6 @@ impl<'w> PassCache<'w> {
                 }
             }
         }
-        let rows = if by_row {
-            TOKEN_ROWS_PER_PASS * PATCH_H
-        } else {
-            band_rows
-        };
         let done = encode_all(self.encoder, &keys, rows, threads)?;
         for (key, (arena_used, output)) in keys.into_iter().zip(done) {
             self.record(key, arena_used, output);
