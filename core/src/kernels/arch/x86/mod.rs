@@ -125,7 +125,14 @@ pub fn matmul_requant_summed(
         return false;
     }
     let cells = a.len() / k * n;
-    let (Some(acc), Some(out)) = (acc.get_mut(..cells), out.get_mut(..cells)) else {
+    let Some(out) = out.get_mut(..cells) else {
+        return false;
+    };
+    // Requantised in registers where the shape allows, else through `acc`.
+    if vnni::gemm::matmul_requant_summed(a, w, k, sums, words, out) {
+        return true;
+    }
+    let Some(acc) = acc.get_mut(..cells) else {
         return false;
     };
     vnni::gemm::matmul_i32_summed(a, w, k, sums, acc) && avx2::requant_prepared(words, acc, out)

@@ -9,10 +9,14 @@
 //! kernels' wrapping adds do).
 
 use core::arch::x86_64::{
-    __m256i, _mm256_castsi256_si128, _mm256_dpbusd_epi32, _mm256_extracti128_si256, _mm256_permute2x128_si256,
+    __m256i, __m512i, _mm256_castsi256_si128, _mm256_dpbusd_epi32, _mm256_extracti128_si256, _mm256_permute2x128_si256,
     _mm256_set1_epi32, _mm256_set1_epi8, _mm256_setzero_si256, _mm256_sub_epi32, _mm256_unpackhi_epi32,
-    _mm256_unpackhi_epi64, _mm256_unpacklo_epi32, _mm256_unpacklo_epi64, _mm256_xor_si256, _mm_add_epi32,
-    _mm_cvtsi128_si32, _mm_hadd_epi32,
+    _mm256_unpackhi_epi64, _mm256_unpacklo_epi32, _mm256_unpacklo_epi64, _mm256_xor_si256, _mm512_add_epi32,
+    _mm512_and_si512, _mm512_castsi256_si512, _mm512_inserti64x4, _mm512_mask_blend_epi32, _mm512_mul_epi32,
+    _mm512_packs_epi16, _mm512_packs_epi32, _mm512_permutexvar_epi32, _mm512_set1_epi32, _mm512_set_epi32,
+    _mm512_setzero_si512, _mm512_srav_epi32, _mm512_srli_epi64, _mm512_sub_epi32, _mm512_unpackhi_epi32,
+    _mm512_unpackhi_epi64, _mm512_unpacklo_epi32, _mm512_unpacklo_epi64, _mm_add_epi32, _mm_cvtsi128_si32,
+    _mm_hadd_epi32,
 };
 
 use bytemuck::must_cast;
@@ -72,6 +76,32 @@ pub fn matmul_i32_summed(a: &[i8], w: &[i8], k: usize, sums: &[i32], out: &mut [
     true
 }
 
+/// `out` (`m x n` int8) = the prepared columns `words` (`Col` records, one per row of `w`)
+/// applied to [`matmul_i32_summed`]'s products, requantised in registers sixteen channels at a
+/// time (no accumulator buffer). `false` (nothing written) where it does not take the shape
+/// (`n` a multiple of sixteen, besides [`takes`]) or the lengths differ. The prepared columns'
+/// identity needs accumulators within `2^30`: with `k <= MAX_GEMM_K` they stay within
+/// `1024 * 2^14 = 2^24`.
+pub fn matmul_requant_summed(a: &[i8], w: &[i8], k: usize, sums: &[i32], words: &[[i32; 4]], out: &mut [i8]) -> bool {
+    let n = sums.len();
+    if !takes(k, n) || !n.is_multiple_of(GROUP) || words.len() != n || n.checked_mul(k) != Some(w.len()) {
+        return false;
+    }
+    if !a.len().is_multiple_of(k) || (a.len() / k).checked_mul(n) != Some(out.len()) {
+        return false;
+    }
+    // SAFETY: as in `weight_sums`.
+    #[allow(unsafe_code)]
+    unsafe {
+        match k / 4 {
+            0..=32 => requant_summed::<32>(a, w, k, sums, words, out),
+            33..=120 => requant_summed::<120>(a, w, k, sums, words, out),
+            _ => requant_summed::<{ MAX_GEMM_K / 4 }>(a, w, k, sums, words, out),
+        }
+    };
+    true
+}
+
 #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
 fn weight_sums_vnni(w: &[i8], k: usize, sums: &mut [i32]) {
     // `vpdpbusd` of 128 (unsigned) and the weights: four `128 * w` a lane.
@@ -111,6 +141,105 @@ fn matmul_summed<const G: usize>(a: &[i8], w: &[i8], k: usize, sums: &[i32], out
             store_rows(&acc, sums, whole, o8, rows, n);
         }
     }
+}
+
+// `matmul_summed` with each group's sums requantised in registers: the rows of sixteen
+// channels from two 8 x 8 transposes, less their corrections, through `Requant16`; four rows'
+// bytes packed together.
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn requant_summed<const G: usize>(a: &[i8], w: &[i8], k: usize, sums: &[i32], words: &[[i32; 4]], out: &mut [i8]) {
+    let n = sums.len();
+    let mut groups = [_mm256_setzero_si256(); G];
+    let Some(groups) = groups.get_mut(..k / 4) else {
+        return;
+    };
+    for (a8, o8) in a.chunks(ROWS * k).zip(out.chunks_mut(ROWS * n)) {
+        let rows = a8.len() / k;
+        transpose_block(a8, k, groups);
+        let params = w
+            .chunks_exact(GROUP * k)
+            .zip(sums.chunks_exact(GROUP))
+            .zip(words.chunks_exact(GROUP));
+        for (q, ((w16, s16), cols)) in params.enumerate() {
+            let (Ok(s16), Ok(cols)) = (<[i32; GROUP]>::try_from(s16), <&[[i32; 4]; GROUP]>::try_from(cols)) else {
+                continue;
+            };
+            let acc = channels::<GROUP>(groups, w16);
+            let (first, second) = acc.split_at(HALF_GROUP);
+            let (Ok(first), Ok(second)) = (<[__m256i; ROWS]>::try_from(first), <[__m256i; ROWS]>::try_from(second))
+            else {
+                continue;
+            };
+            let (low, high) = (transpose8(first), transpose8(second));
+            let corr: __m512i = must_cast(s16);
+            let rq = Requant16::new(cols);
+            let values: [__m512i; ROWS] = core::array::from_fn(|r| {
+                rq.apply(_mm512_sub_epi32(
+                    _mm512_inserti64x4::<1>(_mm512_castsi256_si512(low[r]), high[r]),
+                    corr,
+                ))
+            });
+            let bytes: [[[i8; GROUP]; 4]; 2] = [pack4(&values[..4]), pack4(&values[4..])];
+            for (r, row) in bytes.as_flattened().iter().enumerate().take(rows) {
+                if let Some(slot) = o8.get_mut(r * n + q * GROUP..r * n + (q + 1) * GROUP) {
+                    slot.copy_from_slice(row);
+                }
+            }
+        }
+    }
+}
+
+/// Sixteen channels' prepared columns (`Col`'s bias, multiplier, addend and shift) in lanes.
+struct Requant16 {
+    bias: __m512i,
+    mult: __m512i,
+    addend: __m512i,
+    s: __m512i,
+}
+
+impl Requant16 {
+    // The records transposed: after the two unpacks, dword `4 L + i` of a field holds channel
+    // `4 i + L`; one `vpermd` a field puts channel `c` in dword `c`.
+    #[inline]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+    fn new(cols: &[[i32; 4]; GROUP]) -> Self {
+        let flat: &[[i32; GROUP]; 4] = bytemuck::must_cast_ref(cols);
+        let v: [__m512i; 4] = flat.map(must_cast);
+        let (t0, t1) = (_mm512_unpacklo_epi32(v[0], v[1]), _mm512_unpackhi_epi32(v[0], v[1]));
+        let (t2, t3) = (_mm512_unpacklo_epi32(v[2], v[3]), _mm512_unpackhi_epi32(v[2], v[3]));
+        let natural = _mm512_set_epi32(15, 11, 7, 3, 14, 10, 6, 2, 13, 9, 5, 1, 12, 8, 4, 0);
+        let field = |x| _mm512_permutexvar_epi32(natural, x);
+        Requant16 {
+            bias: field(_mm512_unpacklo_epi64(t0, t2)),
+            mult: field(_mm512_unpackhi_epi64(t0, t2)),
+            addend: field(_mm512_unpacklo_epi64(t1, t3)),
+            // `Col::from_words`' mask.
+            s: _mm512_and_si512(field(_mm512_unpackhi_epi64(t1, t3)), _mm512_set1_epi32(31)),
+        }
+    }
+
+    // `Col::apply(acc + bias)` before saturation: `(hi32((acc + bias) * mult) + addend) >> s`.
+    #[inline]
+    #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+    fn apply(&self, acc: __m512i) -> __m512i {
+        let x = _mm512_add_epi32(acc, self.bias);
+        let even = _mm512_mul_epi32(x, self.mult);
+        let odd = _mm512_mul_epi32(_mm512_srli_epi64::<32>(x), _mm512_srli_epi64::<32>(self.mult));
+        let high = _mm512_mask_blend_epi32(0xAAAA, _mm512_srli_epi64::<32>(even), odd);
+        _mm512_srav_epi32(_mm512_add_epi32(high, self.addend), self.s)
+    }
+}
+
+// Four vectors of sixteen 32-bit values to bytes, saturated (the portable clamp to -128..=127):
+// the packs interleave their 128-bit lanes, one `vpermd` restores the order.
+#[inline]
+#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
+fn pack4(v: &[__m512i]) -> [[i8; GROUP]; 4] {
+    let zero = _mm512_setzero_si512();
+    let at = |i: usize| v.get(i).copied().unwrap_or(zero);
+    let unlane = _mm512_set_epi32(15, 11, 7, 3, 14, 10, 6, 2, 13, 9, 5, 1, 12, 8, 4, 0);
+    let words = (_mm512_packs_epi32(at(0), at(1)), _mm512_packs_epi32(at(2), at(3)));
+    must_cast(_mm512_permutexvar_epi32(unlane, _mm512_packs_epi16(words.0, words.1)))
 }
 
 // The block's rows (up to eight, `k` codes each; missing rows read as zeros, their lanes
@@ -273,6 +402,67 @@ mod tests {
     }
 
     #[test]
+    fn requantised_in_registers_equals_the_reference() {
+        use crate::kernels::dispatch::ChannelRequant;
+        use crate::kernels::reference::gemm::matmul_requant_reference;
+        use crate::kernels::types::prepared::PreparedRequant;
+        if !available() {
+            return;
+        }
+        let mut rng = Rng::new(58);
+        let mut a = [0i8; 19 * 480];
+        let mut w = [0i8; 480 * 128];
+        let shapes = [
+            (8, 128, 128),
+            (8, 480, 128),
+            (19, 16, 480),
+            (5, 32, 64),
+            (1, 48, 32),
+            (8, 128, 480),
+        ];
+        for (case, (m, n, k)) in shapes.into_iter().enumerate() {
+            rng.fill_i8(&mut a[..m * k]);
+            rng.fill_i8(&mut w[..n * k]);
+            match case % 3 {
+                1 => {
+                    a[..m * k].fill(-128);
+                    w[..n * k].fill(-128);
+                }
+                2 => a[..m * k].fill(127),
+                _ => {}
+            }
+            let (a, w) = (&a[..m * k], &w[..n * k]);
+            // Parameters over the prepared columns' whole range.
+            let bias: [i32; 480] = core::array::from_fn(|_| rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32);
+            let mult: [i32; 480] = core::array::from_fn(|_| rng.range(i32::MIN as i64, i32::MAX as i64) as i32);
+            // Shifts up to 54: `2^(s-1) + zero * 2^s` (s = shift - 32) stays within 2^30.
+            let shift: [u8; 480] = core::array::from_fn(|i| [33, 54, 40, 47][i % 4]);
+            let zero: [i32; 480] = core::array::from_fn(|_| rng.range(-128, 127) as i32);
+            let rq = ChannelRequant {
+                bias: &bias[..n],
+                mult: &mult[..n],
+                shift: &shift[..n],
+            };
+            let mut storage = [0i32; 4 * 480];
+            let prepared = PreparedRequant::new(&rq, &zero[..n], &mut storage).expect("columns in range");
+            let mut sums = [0i32; 480];
+            assert!(weight_sums(w, k, &mut sums[..n]));
+            let mut got = [0i8; 19 * 480];
+            assert!(matmul_requant_summed(
+                a,
+                w,
+                k,
+                &sums[..n],
+                prepared.records(),
+                &mut got[..m * n]
+            ));
+            let mut want = [0i8; 19 * 480];
+            matmul_requant_reference(a, w, k, &rq, &zero[..n], &mut want[..m * n]);
+            assert_eq!(got[..m * n], want[..m * n], "{m}x{n}x{k}");
+        }
+    }
+
+    #[test]
     fn shapes_it_does_not_take_are_declined_untouched() {
         let mut out = [7i32; 64];
         let mut sums = [3i32; 12];
@@ -303,5 +493,24 @@ mod tests {
         ));
         assert_eq!(out, [7; 64]);
         assert_eq!(sums, [3; 12]);
+        // The requantised products: channels not a multiple of sixteen, a short output.
+        let (words, mut bytes) = ([[0, 1, 0, 1]; 24], [5i8; 64]);
+        assert!(!matmul_requant_summed(
+            &[1; 64],
+            &[1; 24 * 32],
+            32,
+            &[0; 24],
+            &words,
+            &mut bytes[..48]
+        ));
+        assert!(!matmul_requant_summed(
+            &[1; 64],
+            &[1; 16 * 32],
+            32,
+            &[0; 16],
+            &words[..16],
+            &mut bytes[..31]
+        ));
+        assert_eq!(bytes, [5; 64]);
     }
 }
