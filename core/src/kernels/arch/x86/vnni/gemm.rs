@@ -234,7 +234,7 @@ impl Requant16 {
 // the packs interleave their 128-bit lanes, one `vpermd` restores the order.
 #[inline]
 #[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl,avx512vnni")]
-fn pack4(v: &[__m512i]) -> [[i8; GROUP]; 4] {
+pub(super) fn pack4(v: &[__m512i]) -> [[i8; GROUP]; 4] {
     let zero = _mm512_setzero_si512();
     let at = |i: usize| v.get(i).copied().unwrap_or(zero);
     let unlane = _mm512_set_epi32(15, 11, 7, 3, 14, 10, 6, 2, 13, 9, 5, 1, 12, 8, 4, 0);
