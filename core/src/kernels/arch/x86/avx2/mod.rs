@@ -10,6 +10,7 @@
 //! caller then runs the portable kernel.
 
 mod requant;
+pub(crate) mod residual;
 mod scores;
 mod softmax;
 
