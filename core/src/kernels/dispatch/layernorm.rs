@@ -140,7 +140,7 @@ impl<'s> NarrowParams<'s> {
         }
         let mut scratch = LaneScratch { values, normalised };
         #[cfg(target_arch = "x86_64")]
-        if self.rows_in_avx512(x, out, &mut scratch) {
+        if self.rows_in_x86_lanes(x, out, &mut scratch) {
             return;
         }
         for (row, out_row) in x.chunks_exact(self.dim).zip(out.chunks_exact_mut(self.dim)) {
@@ -206,21 +206,28 @@ impl<'s> NarrowParams<'s> {
 }
 
 impl NarrowParams<'_> {
-    /// [`NarrowParams::rows_with`] where the AVX-512 VNNI kernels run and rows have
-    /// [`LANE_DIM`] channels: eight rows at a time in `kernels::arch::x86::vnni::layernorm`
-    /// (bit for bit [`NarrowParams::row_in_lanes`]), any row it leaves by [`NarrowParams::row`].
-    /// `false` (nothing written) where it does not apply.
+    /// [`NarrowParams::rows_with`] on x86 hosts with AVX-512 VNNI or AVX2 for rows of
+    /// [`LANE_DIM`] channels: eight rows at a time in `kernels::arch::x86::vnni::layernorm` or
+    /// `kernels::arch::x86::avx2::layernorm` (bit for bit [`NarrowParams::row_in_lanes`]), any
+    /// row it leaves by [`NarrowParams::row`]. `false` (nothing written) where it does not apply.
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
-    fn rows_in_avx512(&self, x: &[i8], out: &mut [i8], scratch: &mut LaneScratch) -> bool {
-        use crate::kernels::arch::x86::vnni::{available, layernorm};
+    fn rows_in_x86_lanes(&self, x: &[i8], out: &mut [i8], scratch: &mut LaneScratch) -> bool {
+        use crate::kernels::arch::x86::{avx2, vnni, vnni::layernorm};
         let (Ok(zero), Ok(rel)) = (
             <&[i32; LANE_DIM]>::try_from(self.zero),
             <&[i32; LANE_DIM]>::try_from(self.rel),
         ) else {
             return false;
         };
-        if self.dim != LANE_DIM || !available() {
+        let kernel = if vnni::available() {
+            layernorm::rows
+        } else if crate::kernels::arch::x86::avx2() {
+            avx2::layernorm::rows
+        } else {
+            return false;
+        };
+        if self.dim != LANE_DIM {
             return false;
         }
         let lanes = layernorm::NormLanes {
@@ -236,7 +243,7 @@ impl NarrowParams<'_> {
         };
         let block = layernorm::ROWS * LANE_DIM;
         for (x8, o8) in x.chunks(block).zip(out.chunks_mut(block)) {
-            let left = layernorm::rows(&lanes, x8, o8).unwrap_or(u8::MAX);
+            let left = kernel(&lanes, x8, o8).unwrap_or(u8::MAX);
             for (r, (row, out_row)) in x8.chunks_exact(LANE_DIM).zip(o8.chunks_exact_mut(LANE_DIM)).enumerate() {
                 if left & (1 << r) != 0 {
                     self.row(row, out_row, scratch);

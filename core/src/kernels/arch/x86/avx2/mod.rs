@@ -9,6 +9,7 @@
 //! Each entry point returns `false` (computing nothing) for shapes it does not take; the
 //! caller then runs the portable kernel.
 
+pub mod layernorm;
 mod requant;
 pub(crate) mod residual;
 mod scores;

@@ -359,9 +359,35 @@ mod tests {
     use crate::kernels::reference::matmul::matmul_i8_reference;
     use crate::testutil::Rng;
 
+    // The kernels themselves, where the CPU has them: the process-wide switch (`enable`) is
+    // turned off for a moment by another test, and the entry points would decline then.
+    fn sums_of(w: &[i8], k: usize, sums: &mut [i32]) {
+        // SAFETY: the callers checked `supported()`.
+        #[allow(unsafe_code)]
+        unsafe {
+            weight_sums_vnni(w, k, sums)
+        }
+    }
+
+    fn products(a: &[i8], w: &[i8], k: usize, sums: &[i32], out: &mut [i32]) {
+        // SAFETY: as in `sums_of`.
+        #[allow(unsafe_code)]
+        unsafe {
+            matmul_summed::<{ MAX_GEMM_K / 4 }>(a, w, k, sums, out)
+        }
+    }
+
+    fn requantised(a: &[i8], w: &[i8], k: usize, sums: &[i32], words: &[[i32; 4]], out: &mut [i8]) {
+        // SAFETY: as in `sums_of`.
+        #[allow(unsafe_code)]
+        unsafe {
+            requant_summed::<{ MAX_GEMM_K / 4 }>(a, w, k, sums, words, out)
+        }
+    }
+
     #[test]
     fn broadcast_products_equal_the_reference() {
-        if !available() {
+        if !super::super::supported() {
             return; // `takes` is false: the callers run the other kernels (tested there)
         }
         let mut rng = Rng::new(57);
@@ -392,9 +418,9 @@ mod tests {
             }
             let (a, w) = (&a[..m * k], &w[..n * k]);
             let mut sums = [0i32; 40];
-            assert!(weight_sums(w, k, &mut sums[..n]));
+            sums_of(w, k, &mut sums[..n]);
             let mut got = [i32::MIN; 19 * 40];
-            assert!(matmul_i32_summed(a, w, k, &sums[..n], &mut got[..m * n]), "{m}x{n}x{k}");
+            products(a, w, k, &sums[..n], &mut got[..m * n]);
             let mut want = [0i32; 19 * 40];
             matmul_i8_reference(a, w, k, &mut want[..m * n]);
             assert_eq!(got[..m * n], want[..m * n], "{m}x{n}x{k}");
@@ -406,7 +432,7 @@ mod tests {
         use crate::kernels::dispatch::ChannelRequant;
         use crate::kernels::reference::gemm::matmul_requant_reference;
         use crate::kernels::types::prepared::PreparedRequant;
-        if !available() {
+        if !super::super::supported() {
             return;
         }
         let mut rng = Rng::new(58);
@@ -446,16 +472,9 @@ mod tests {
             let mut storage = [0i32; 4 * 480];
             let prepared = PreparedRequant::new(&rq, &zero[..n], &mut storage).expect("columns in range");
             let mut sums = [0i32; 480];
-            assert!(weight_sums(w, k, &mut sums[..n]));
+            sums_of(w, k, &mut sums[..n]);
             let mut got = [0i8; 19 * 480];
-            assert!(matmul_requant_summed(
-                a,
-                w,
-                k,
-                &sums[..n],
-                prepared.records(),
-                &mut got[..m * n]
-            ));
+            requantised(a, w, k, &sums[..n], prepared.records(), &mut got[..m * n]);
             let mut want = [0i8; 19 * 480];
             matmul_requant_reference(a, w, k, &rq, &zero[..n], &mut want[..m * n]);
             assert_eq!(got[..m * n], want[..m * n], "{m}x{n}x{k}");

@@ -182,7 +182,7 @@ fn output(n: &[__m512i; STEPS], recip_q: i32, mult: i32, round: i32, post: u32, 
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::fixed::{isqrt_u64, Requant};
     use crate::kernels::reference::layernorm::layernorm_rows_reference;
@@ -191,7 +191,7 @@ mod tests {
 
     #[test]
     fn eight_roots_at_once_equal_the_scalar_root() {
-        if !available() {
+        if !super::super::supported() {
             return;
         }
         let mut rng = Rng::new(61);
@@ -216,7 +216,7 @@ mod tests {
                 }
                 _ => rng.range(0, i64::MAX) as u64 >> rng.range(0, 62),
             });
-            // SAFETY: `available()` saw the features `isqrt8` is compiled for.
+            // SAFETY: `supported()` saw the features `isqrt8` is compiled for.
             #[allow(unsafe_code)]
             let roots = unsafe { isqrt8(n) };
             assert_eq!(roots, n.map(isqrt_u64), "{n:?}");
@@ -225,9 +225,25 @@ mod tests {
 
     #[test]
     fn rows_equal_the_reference_and_declined_rows_are_left_alone() {
-        if !available() {
-            return;
+        if super::super::supported() {
+            check_rows_against_the_reference(on_this_cpu);
         }
+    }
+
+    // `rows` whatever the process-wide switch says (another test turns it off for a moment).
+    fn on_this_cpu(p: &NormLanes<'_>, x: &[i8], out: &mut [i8]) -> Option<u8> {
+        let fits = x.len() == out.len() && x.len().is_multiple_of(DIM) && x.len() <= ROWS * DIM;
+        if !fits || !(33..=MAX_SHIFT).contains(&p.shift) {
+            return None;
+        }
+        // SAFETY: the caller checked `supported()`.
+        #[allow(unsafe_code)]
+        Some(unsafe { rows_avx512(p, x, out) })
+    }
+
+    /// A LayerNorm row kernel (`rows`' contract) against `layernorm_rows_reference`: formats
+    /// to the lanes' limit, tiny scales, rows it must decline (left untouched), partial blocks.
+    pub(crate) fn check_rows_against_the_reference(rows: fn(&NormLanes<'_>, &[i8], &mut [i8]) -> Option<u8>) {
         let mut rng = Rng::new(62);
         let (mut done, mut left) = (0, 0);
         for trial in 0..300 {
