@@ -116,7 +116,7 @@ impl RopeLanes {
     /// [`rope_token`] of one token's `DIM` accumulators; `false` (nothing written) for
     /// accumulators from `2^29` in magnitude or slices of another length.
     pub fn token(&mut self, acc: &[i32], row: &Angles, col: &Angles, out: &mut [i8]) -> bool {
-        // AVX-512 lanes where the VNNI kernels run (`kernels::arch::x86::vnni::rope`).
+        // AVX-512 lanes where the VNNI kernels run (`kernels::arch::x86::vnni::rope`), else AVX2.
         #[cfg(target_arch = "x86_64")]
         if let (Some(acc), Some(out)) = (acc.first_chunk::<DIM>(), out.first_chunk_mut::<DIM>()) {
             let params = crate::kernels::arch::x86::vnni::rope::RopeParams {
@@ -127,7 +127,9 @@ impl RopeLanes {
                 post: &self.post,
                 limit: PRE_ROPE_LIMIT as i32,
             };
-            if let Some(done) = crate::kernels::arch::x86::vnni::rope::token(&params, acc, row, col, out) {
+            let done = crate::kernels::arch::x86::vnni::rope::token(&params, acc, row, col, out)
+                .or_else(|| crate::kernels::arch::x86::avx2::rope::token(&params, acc, row, col, out));
+            if let Some(done) = done {
                 return done;
             }
         }

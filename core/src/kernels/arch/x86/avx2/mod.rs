@@ -12,6 +12,7 @@
 pub mod layernorm;
 mod requant;
 pub(crate) mod residual;
+pub mod rope;
 mod scores;
 mod softmax;
 

@@ -147,11 +147,14 @@ impl Turn {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::kernels::dispatch::{rope_token, ChannelRequant};
     use crate::kernels::types::rope::PRE_ROPE_LIMIT;
     use crate::testutil::Rng;
+
+    /// A token kernel: `false` where it declines.
+    pub(crate) type Kernel = fn(&RopeParams<'_>, &[i32; DIM], &Angles, &Angles, &mut [i8; DIM]) -> bool;
 
     // The kernel itself where the CPU has it (another test turns the switch off for a moment).
     fn on_this_cpu(p: &RopeParams<'_>, acc: &[i32; DIM], row: &Angles, col: &Angles, out: &mut [i8; DIM]) -> bool {
@@ -180,9 +183,15 @@ mod tests {
 
     #[test]
     fn lanes_equal_the_portable_rotation_at_random_and_extreme_values() {
-        if !super::super::supported() {
-            return; // `token` declines (None): the portable loop runs (tested in dispatch::rope)
+        if super::super::supported() {
+            check_against_rope_token(on_this_cpu);
         }
+        // Elsewhere `token` declines (None): the portable loop runs (tested in dispatch::rope).
+    }
+
+    /// A token kernel (`token_avx512`'s contract) against `rope_token`: random and extreme
+    /// accumulators, biases, multipliers, shifts and angles.
+    pub(crate) fn check_against_rope_token(kernel: Kernel) {
         let mut rng = Rng::new(157);
         let top = (1i64 << 29) - 1;
         for trial in 0..600 {
@@ -223,7 +232,7 @@ mod tests {
                 limit: PRE_ROPE_LIMIT as i32,
             };
             let mut got = [0i8; DIM];
-            assert!(on_this_cpu(&params, &acc, &row, &col, &mut got), "trial {trial}");
+            assert!(kernel(&params, &acc, &row, &col, &mut got), "trial {trial}");
             let mut want = [0i8; DIM];
             let rq = ChannelRequant {
                 bias: &bias,
@@ -237,9 +246,13 @@ mod tests {
 
     #[test]
     fn accumulators_from_two_to_the_29_are_declined_untouched() {
-        if !super::super::supported() {
-            return;
+        if super::super::supported() {
+            check_declines(on_this_cpu);
         }
+    }
+
+    /// A token kernel declines accumulators from `2^29` in magnitude and writes nothing.
+    pub(crate) fn check_declines(kernel: Kernel) {
         let (zeros, shifts) = ([0i32; DIM], lanes(&[40; DIM]));
         let params = RopeParams {
             bias: &zeros,
@@ -254,7 +267,7 @@ mod tests {
             acc[DIM - 3] = bad;
             let mut out = [7i8; DIM];
             let angles = Angles::default();
-            assert!(!on_this_cpu(&params, &acc, &angles, &angles, &mut out));
+            assert!(!kernel(&params, &acc, &angles, &angles, &mut out));
             assert_eq!(out, [7; DIM]);
         }
     }
