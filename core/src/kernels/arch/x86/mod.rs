@@ -142,3 +142,6 @@ pub fn matmul_requant_summed(
 fn run_avx2<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
+
+#[cfg(test)]
+mod tests;

@@ -185,7 +185,6 @@ fn output(n: &[__m256i; STEPS], recip_q: i32, mult: i32, round: i32, post: u32, 
 mod tests {
     use super::*;
     use crate::fixed::isqrt_u64;
-    use crate::kernels::arch::x86::vnni::layernorm::tests::check_rows_against_the_reference;
     use crate::testutil::Rng;
 
     #[test]
@@ -214,7 +213,7 @@ mod tests {
     #[test]
     fn rows_equal_the_reference_and_declined_rows_are_left_alone() {
         if crate::kernels::arch::x86::avx2() {
-            check_rows_against_the_reference(rows);
+            crate::kernels::arch::x86::tests::check_layernorm_rows(rows);
         }
     }
 }

@@ -139,7 +139,7 @@ impl Turn {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::arch::x86::vnni::rope::tests::{check_against_rope_token, check_declines};
+    use crate::kernels::arch::x86::tests::{check_rope_against_rope_token, check_rope_declines};
 
     fn on_this_cpu(p: &RopeParams<'_>, acc: &[i32; DIM], row: &Angles, col: &Angles, out: &mut [i8; DIM]) -> bool {
         token(p, acc, row, col, out).expect("AVX2 on this CPU")
@@ -148,8 +148,8 @@ mod tests {
     #[test]
     fn lanes_equal_the_portable_rotation_and_decline_large_accumulators() {
         if crate::kernels::arch::x86::avx2() {
-            check_against_rope_token(on_this_cpu);
-            check_declines(on_this_cpu);
+            check_rope_against_rope_token(on_this_cpu);
+            check_rope_declines(on_this_cpu);
         }
     }
 }

@@ -387,7 +387,7 @@ mod tests {
 
     #[test]
     fn broadcast_products_equal_the_reference() {
-        if !super::super::supported() {
+        if !crate::kernels::arch::x86::vnni::supported() {
             return; // `takes` is false: the callers run the other kernels (tested there)
         }
         let mut rng = Rng::new(57);
@@ -432,7 +432,7 @@ mod tests {
         use crate::kernels::dispatch::ChannelRequant;
         use crate::kernels::reference::gemm::matmul_requant_reference;
         use crate::kernels::types::prepared::PreparedRequant;
-        if !super::super::supported() {
+        if !crate::kernels::arch::x86::vnni::supported() {
             return;
         }
         let mut rng = Rng::new(58);

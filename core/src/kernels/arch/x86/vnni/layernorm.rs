@@ -182,16 +182,14 @@ fn output(n: &[__m512i; STEPS], recip_q: i32, mult: i32, round: i32, post: u32, 
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
     use super::*;
-    use crate::fixed::{isqrt_u64, Requant};
-    use crate::kernels::reference::layernorm::layernorm_rows_reference;
-    use crate::kernels::types::layernorm::LayerNormQ;
+    use crate::fixed::isqrt_u64;
     use crate::testutil::Rng;
 
     #[test]
     fn eight_roots_at_once_equal_the_scalar_root() {
-        if !super::super::supported() {
+        if !crate::kernels::arch::x86::vnni::supported() {
             return;
         }
         let mut rng = Rng::new(61);
@@ -225,8 +223,8 @@ pub(crate) mod tests {
 
     #[test]
     fn rows_equal_the_reference_and_declined_rows_are_left_alone() {
-        if super::super::supported() {
-            check_rows_against_the_reference(on_this_cpu);
+        if crate::kernels::arch::x86::vnni::supported() {
+            crate::kernels::arch::x86::tests::check_layernorm_rows(on_this_cpu);
         }
     }
 
@@ -239,86 +237,6 @@ pub(crate) mod tests {
         // SAFETY: the caller checked `supported()`.
         #[allow(unsafe_code)]
         Some(unsafe { rows_avx512(p, x, out) })
-    }
-
-    /// A LayerNorm row kernel (`rows`' contract) against `layernorm_rows_reference`: formats
-    /// to the lanes' limit, tiny scales, rows it must decline (left untouched), partial blocks.
-    pub(crate) fn check_rows_against_the_reference(rows: fn(&NormLanes<'_>, &[i8], &mut [i8]) -> Option<u8>) {
-        let mut rng = Rng::new(62);
-        let (mut done, mut left) = (0, 0);
-        for trial in 0..300 {
-            // Formats from narrow to the lanes' limit (2^15), tiny scales (large left shifts),
-            // and constant rows (zero variance: the reciprocal passes 2^23, the row is left).
-            let wide = trial % 5 == 4;
-            let zero: [i32; DIM] = core::array::from_fn(|_| {
-                if wide {
-                    rng.range(-(1 << 15), 1 << 15) as i32
-                } else {
-                    rng.range(-300, 300) as i32
-                }
-            });
-            let rel: [i32; DIM] = core::array::from_fn(|_| match trial % 5 {
-                4 => rng.range(-(1 << 15), 1 << 15) as i32,
-                3 => rng.range(1, 3) as i32,
-                _ => rng.range(1, 30_000) as i32,
-            });
-            // Rows the lanes decline: a constant row without eps (the reciprocal passes
-            // 2^23), and values of +-2^30 (a shift of 14).
-            let (zero, rel) = match trial % 11 {
-                9 => ([0; DIM], [1; DIM]),
-                10 => (
-                    core::array::from_fn(|c| if c % 2 == 0 { 1 << 15 } else { -(1 << 15) }),
-                    [1 << 15; DIM],
-                ),
-                _ => (zero, rel),
-            };
-            let (eps, mult, shift) = (
-                if trial % 11 == 9 { 0 } else { rng.range(0, 1 << 24) },
-                rng.range(1 << 30, i32::MAX as i64) as i32,
-                rng.range(33, 62) as u32,
-            );
-            let count = 1 + trial % ROWS;
-            let mut x = [0i8; ROWS * DIM];
-            rng.fill_i8(&mut x[..count * DIM]);
-            match trial % 7 {
-                5 => x[..DIM].fill(-128),
-                6 => x[DIM..2 * DIM].fill(127),
-                _ => {}
-            }
-            if trial % 11 == 9 {
-                x[..DIM].fill(5);
-            }
-            let x = &x[..count * DIM];
-            let p = NormLanes {
-                zero: &zero,
-                rel: &rel,
-                eps,
-                mult,
-                shift,
-            };
-            let mut got = [55i8; ROWS * DIM];
-            let mask = rows(&p, x, &mut got[..count * DIM]).expect("the kernels run");
-            let q = LayerNormQ {
-                zero: &zero,
-                rel: &rel,
-                eps,
-                out: Requant { mult, shift },
-            };
-            let mut want = [0i8; ROWS * DIM];
-            layernorm_rows_reference(x, DIM, &q, &mut want[..count * DIM]);
-            for r in 0..count {
-                let span = r * DIM..(r + 1) * DIM;
-                if mask & (1 << r) == 0 {
-                    assert_eq!(got[span.clone()], want[span], "trial {trial} row {r}");
-                    done += 1;
-                } else {
-                    assert!(got[span].iter().all(|&b| b == 55), "trial {trial} row {r} written");
-                    left += 1;
-                }
-            }
-            assert_eq!(u32::from(mask) >> count, 0, "trial {trial}: rows past the input");
-        }
-        assert!(done > 1000 && left > 0, "{done} done, {left} left");
     }
 
     #[test]

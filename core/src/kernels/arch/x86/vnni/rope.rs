@@ -147,14 +147,9 @@ impl Turn {
 }
 
 #[cfg(test)]
-pub(crate) mod tests {
+mod tests {
     use super::*;
-    use crate::kernels::dispatch::{rope_token, ChannelRequant};
-    use crate::kernels::types::rope::PRE_ROPE_LIMIT;
-    use crate::testutil::Rng;
-
-    /// A token kernel: `false` where it declines.
-    pub(crate) type Kernel = fn(&RopeParams<'_>, &[i32; DIM], &Angles, &Angles, &mut [i8; DIM]) -> bool;
+    use crate::kernels::arch::x86::tests::{check_rope_against_rope_token, check_rope_declines};
 
     // The kernel itself where the CPU has it (another test turns the switch off for a moment).
     fn on_this_cpu(p: &RopeParams<'_>, acc: &[i32; DIM], row: &Angles, col: &Angles, out: &mut [i8; DIM]) -> bool {
@@ -165,110 +160,18 @@ pub(crate) mod tests {
         }
     }
 
-    /// `RopeLanes::new`'s lanes of the shifts (32..=62) and biases (below 2^29) given.
-    struct Lanes {
-        round: [i32; DIM],
-        pre: [u8; DIM],
-        post: [u8; DIM],
-    }
-
-    fn lanes(shift: &[u8; DIM]) -> Lanes {
-        let pre: [u8; DIM] = core::array::from_fn(|c| (shift[c] == 32) as u8);
-        Lanes {
-            round: core::array::from_fn(|c| 1 << (shift[c] as u32 + pre[c] as u32 - 33)),
-            post: core::array::from_fn(|c| shift[c] + pre[c] - 32),
-            pre,
-        }
-    }
-
     #[test]
     fn lanes_equal_the_portable_rotation_at_random_and_extreme_values() {
-        if super::super::supported() {
-            check_against_rope_token(on_this_cpu);
-        }
         // Elsewhere `token` declines (None): the portable loop runs (tested in dispatch::rope).
-    }
-
-    /// A token kernel (`token_avx512`'s contract) against `rope_token`: random and extreme
-    /// accumulators, biases, multipliers, shifts and angles.
-    pub(crate) fn check_against_rope_token(kernel: Kernel) {
-        let mut rng = Rng::new(157);
-        let top = (1i64 << 29) - 1;
-        for trial in 0..600 {
-            // Extremes every few trials: the largest accumulators and biases, the i16 ends of
-            // the angles, the shifts' ends.
-            let edge = trial % 3 == 0;
-            let pick = |rng: &mut Rng, lo: i64, hi: i64| {
-                if edge {
-                    if rng.range(0, 1) == 0 {
-                        lo
-                    } else {
-                        hi
-                    }
-                } else {
-                    rng.range(lo, hi)
-                }
-            };
-            let shift: [u8; DIM] = core::array::from_fn(|_| pick(&mut rng, 32, 62) as u8);
-            let mult: [i32; DIM] = core::array::from_fn(|_| pick(&mut rng, i32::MIN as i64, i32::MAX as i64) as i32);
-            let bias: [i32; DIM] = core::array::from_fn(|_| pick(&mut rng, -top, top) as i32);
-            let acc: [i32; DIM] = core::array::from_fn(|_| match trial % 4 {
-                0 | 1 => pick(&mut rng, -top, top) as i32,
-                2 => rng.range(-(1 << 20), 1 << 20) as i32,
-                _ => rng.range(-300, 300) as i32,
-            });
-            let angles = |rng: &mut Rng| Angles {
-                cos: core::array::from_fn(|_| pick(rng, i16::MIN as i64, i16::MAX as i64) as i16),
-                sin: core::array::from_fn(|_| pick(rng, i16::MIN as i64, i16::MAX as i64) as i16),
-            };
-            let (row, col) = (angles(&mut rng), angles(&mut rng));
-            let l = lanes(&shift);
-            let params = RopeParams {
-                bias: &bias,
-                mult: &mult,
-                round: &l.round,
-                pre: &l.pre,
-                post: &l.post,
-                limit: PRE_ROPE_LIMIT as i32,
-            };
-            let mut got = [0i8; DIM];
-            assert!(kernel(&params, &acc, &row, &col, &mut got), "trial {trial}");
-            let mut want = [0i8; DIM];
-            let rq = ChannelRequant {
-                bias: &bias,
-                mult: &mult,
-                shift: &shift,
-            };
-            rope_token(&acc, &rq, &row, &col, &mut want);
-            assert_eq!(got, want, "trial {trial}");
+        if crate::kernels::arch::x86::vnni::supported() {
+            check_rope_against_rope_token(on_this_cpu);
         }
     }
 
     #[test]
     fn accumulators_from_two_to_the_29_are_declined_untouched() {
-        if super::super::supported() {
-            check_declines(on_this_cpu);
-        }
-    }
-
-    /// A token kernel declines accumulators from `2^29` in magnitude and writes nothing.
-    pub(crate) fn check_declines(kernel: Kernel) {
-        let (zeros, shifts) = ([0i32; DIM], lanes(&[40; DIM]));
-        let params = RopeParams {
-            bias: &zeros,
-            mult: &zeros,
-            round: &shifts.round,
-            pre: &shifts.pre,
-            post: &shifts.post,
-            limit: PRE_ROPE_LIMIT as i32,
-        };
-        for bad in [1 << 29, -(1 << 29), i32::MIN, i32::MAX] {
-            let mut acc = [5i32; DIM];
-            acc[DIM - 3] = bad;
-            let mut out = [7i8; DIM];
-            let angles = Angles::default();
-            assert!(!kernel(&params, &acc, &angles, &angles, &mut out));
-            assert_eq!(out, [7; DIM]);
+        if crate::kernels::arch::x86::vnni::supported() {
+            check_rope_declines(on_this_cpu);
         }
     }
 }
