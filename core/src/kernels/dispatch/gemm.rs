@@ -2,7 +2,7 @@
 //! in one pass, int8 out, no `i32` buffer in between on cores with an assembly kernel.
 
 use super::epilogue::{requant_rows, ChannelRequant};
-use super::matmul::matmul_i8;
+use super::matmul::{matmul_i8, PassWeights};
 use crate::kernels::arch;
 pub use crate::kernels::reference::gemm::matmul_requant_reference;
 use crate::kernels::I32s;
@@ -58,4 +58,29 @@ pub fn matmul_requant_i8_prepared<B, M, Z>(
         return;
     }
     matmul_requant_i8(a, w, k, rq, zero, acc, out);
+}
+
+/// [`matmul_requant_i8_prepared`] on a pass's weights: on x86 with VNNI, where the weights
+/// carry their sums, the broadcast multiply then the prepared requantisation.
+#[allow(clippy::too_many_arguments)]
+pub fn matmul_requant_i8_pass<B, M, Z>(
+    a: &[i8],
+    w: &PassWeights<'_>,
+    prepared: Option<&arch::PreparedRequant<'_>>,
+    rq: &ChannelRequant<'_, B, M>,
+    zero: &Z,
+    acc: &mut [i32],
+    out: &mut [i8],
+) where
+    B: I32s + ?Sized,
+    M: I32s + ?Sized,
+    Z: I32s + ?Sized,
+{
+    #[cfg(target_arch = "x86_64")]
+    if let (Some(p), Some(sums)) = (prepared, w.sums()) {
+        if arch::x86::matmul_requant_summed(a, w.weight(), w.k(), sums, p.words, acc, out) {
+            return;
+        }
+    }
+    matmul_requant_i8_prepared(a, w.weight(), w.k(), prepared, rq, zero, acc, out);
 }

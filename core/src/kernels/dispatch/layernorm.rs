@@ -139,6 +139,10 @@ impl<'s> NarrowParams<'s> {
             return;
         }
         let mut scratch = LaneScratch { values, normalised };
+        #[cfg(target_arch = "x86_64")]
+        if self.rows_in_x86_lanes(x, out, &mut scratch) {
+            return;
+        }
         for (row, out_row) in x.chunks_exact(self.dim).zip(out.chunks_exact_mut(self.dim)) {
             self.row(row, out_row, &mut scratch);
         }
@@ -202,6 +206,53 @@ impl<'s> NarrowParams<'s> {
 }
 
 impl NarrowParams<'_> {
+    /// [`NarrowParams::rows_with`] on x86 hosts with AVX-512 VNNI or AVX2 for rows of
+    /// [`LANE_DIM`] channels: eight rows at a time in `kernels::arch::x86::vnni::layernorm` or
+    /// `kernels::arch::x86::avx2::layernorm` (bit for bit [`NarrowParams::row_in_lanes`]), any
+    /// row it leaves by [`NarrowParams::row`]. `false` (nothing written) where it does not apply.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn rows_in_x86_lanes(&self, x: &[i8], out: &mut [i8], scratch: &mut LaneScratch) -> bool {
+        use crate::kernels::arch::x86::{avx2, vnni, vnni::layernorm};
+        let (Ok(zero), Ok(rel)) = (
+            <&[i32; LANE_DIM]>::try_from(self.zero),
+            <&[i32; LANE_DIM]>::try_from(self.rel),
+        ) else {
+            return false;
+        };
+        let kernel = if vnni::available() {
+            layernorm::rows
+        } else if crate::kernels::arch::x86::avx2() {
+            avx2::layernorm::rows
+        } else {
+            return false;
+        };
+        if self.dim != LANE_DIM {
+            return false;
+        }
+        let lanes = layernorm::NormLanes {
+            zero,
+            rel,
+            eps: self.eps,
+            mult: self.out.mult,
+            shift: self.out.shift,
+        };
+        let rows = x.len().min(out.len()) / LANE_DIM;
+        let (Some(x), Some(out)) = (x.get(..rows * LANE_DIM), out.get_mut(..rows * LANE_DIM)) else {
+            return false;
+        };
+        let block = layernorm::ROWS * LANE_DIM;
+        for (x8, o8) in x.chunks(block).zip(out.chunks_mut(block)) {
+            let left = kernel(&lanes, x8, o8).unwrap_or(u8::MAX);
+            for (r, (row, out_row)) in x8.chunks_exact(LANE_DIM).zip(o8.chunks_exact_mut(LANE_DIM)).enumerate() {
+                if left & (1 << r) != 0 {
+                    self.row(row, out_row, scratch);
+                }
+            }
+        }
+        true
+    }
+
     /// [`NarrowParams::row`] in 32-bit lanes, three passes that are Helium loops on Cortex-M55
     /// (`kernels::arch`; portable twins below on Cortex-M7, where 32-bit lanes in scalar code
     /// also beat 64-bit arithmetic, and in host tests), for rows of [`LANE_DIM`]

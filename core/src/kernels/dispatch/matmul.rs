@@ -49,6 +49,72 @@ pub fn matmul_i8_portable(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     }
 }
 
+/// Widest matrix [`PassWeights`] keeps channel sums for: the MLP's hidden layer.
+#[cfg(target_arch = "x86_64")]
+const MAX_SUMMED: usize = crate::config::MLP_HIDDEN;
+
+/// A weight matrix (`n x k`, one channel per row) for the calls of one pass, with what the
+/// host's fastest multiply needs made once: on x86 with AVX-512 VNNI, each channel's
+/// `128 * sum(w)` (`kernels::arch::x86::vnni::gemm`: the weights are read in place as
+/// broadcasts, and the sums take off the unsigned activations' offset); elsewhere, or for
+/// shapes that kernel does not take, just the matrix.
+pub struct PassWeights<'w> {
+    w: &'w [i8],
+    k: usize,
+    #[cfg(target_arch = "x86_64")]
+    sums: [i32; MAX_SUMMED],
+    /// Channels with a sum in `sums` (0: none made).
+    #[cfg(target_arch = "x86_64")]
+    summed: usize,
+}
+
+impl<'w> PassWeights<'w> {
+    /// `w` (`n x k`) with its sums where the kernels take it.
+    pub fn new(w: &'w [i8], k: usize) -> Self {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let n = w.len().checked_div(k).unwrap_or(0);
+            let mut sums = [0; MAX_SUMMED];
+            let made = sums
+                .get_mut(..n)
+                .is_some_and(|s| crate::kernels::arch::x86::vnni::gemm::weight_sums(w, k, s));
+            let summed = if made { n } else { 0 };
+            PassWeights { w, k, sums, summed }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        PassWeights { w, k }
+    }
+
+    /// The matrix.
+    pub fn weight(&self) -> &'w [i8] {
+        self.w
+    }
+
+    /// Its row length.
+    pub fn k(&self) -> usize {
+        self.k
+    }
+
+    /// The channel sums, where made.
+    #[cfg(target_arch = "x86_64")]
+    pub(crate) fn sums(&self) -> Option<&[i32]> {
+        self.sums.get(..self.summed).filter(|s| !s.is_empty())
+    }
+}
+
+/// [`matmul_i8`] of `a` and a pass's weights: the same products, through the VNNI broadcast
+/// multiply where the weights carry their sums.
+#[inline]
+pub fn matmul_i8_pass(a: &[i8], w: &PassWeights<'_>, out: &mut [i32]) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(sums) = w.sums() {
+        if crate::kernels::arch::x86::vnni::gemm::matmul_i32_summed(a, w.w, w.k, sums, out) {
+            return;
+        }
+    }
+    matmul_i8(a, w.w, w.k, out)
+}
+
 /// Four dot products of rows `a0..a3` (equal lengths) against one shared int8 vector `w`
 /// (each `w` element loaded once). Products of a `u8` and an `i8` fit 16 bits too.
 #[inline(always)]

@@ -27,9 +27,9 @@ pub use conv::ConvEpilogue;
 pub use epilogue::{
     requant_rows, residual_add, residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual,
 };
-pub use gemm::{matmul_requant_i8, matmul_requant_i8_prepared};
+pub use gemm::{matmul_requant_i8, matmul_requant_i8_pass, matmul_requant_i8_prepared};
 pub use layernorm::{layernorm_rows, layernorm_rows_prepared, LayerNormQ, PreparedLayerNorm, Z_FRAC_BITS};
-pub use matmul::{dot, matmul_i8};
+pub use matmul::{dot, matmul_i8, matmul_i8_pass, PassWeights};
 pub use rope::{rope_token, Angles, RopeLanes, QUARTER};
 
 /// The instruction set whose kernels run in this process.

@@ -97,6 +97,13 @@ pub fn residual_add_prepared<Z, M, B, M2, Z2>(
                 return;
             }
             let rows = x.len().min(acc.len()) / n;
+            // x86 with AVX2: the prepared lanes eight channels a vector, all rows at once.
+            #[cfg(target_arch = "x86_64")]
+            if let Some(p) = prepared.filter(|p| p.n == n && !p.per_channel) {
+                if crate::kernels::arch::x86::avx2::residual::residual_rows(x, acc, n, rows, p.params) {
+                    return;
+                }
+            }
             // The lanes' bound on the accumulators, checked once for every chunk.
             // (Not on x86 hosts: there the 64-bit chunk vectorises better than the lanes' groups of 4.)
             let small = cfg!(any(bino_mve, bino_dsp, test))

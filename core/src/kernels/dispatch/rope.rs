@@ -116,6 +116,23 @@ impl RopeLanes {
     /// [`rope_token`] of one token's `DIM` accumulators; `false` (nothing written) for
     /// accumulators from `2^29` in magnitude or slices of another length.
     pub fn token(&mut self, acc: &[i32], row: &Angles, col: &Angles, out: &mut [i8]) -> bool {
+        // AVX-512 lanes where the VNNI kernels run (`kernels::arch::x86::vnni::rope`), else AVX2.
+        #[cfg(target_arch = "x86_64")]
+        if let (Some(acc), Some(out)) = (acc.first_chunk::<DIM>(), out.first_chunk_mut::<DIM>()) {
+            let params = crate::kernels::arch::x86::vnni::rope::RopeParams {
+                bias: &self.bias,
+                mult: &self.mult,
+                round: &self.round,
+                pre: &self.pre,
+                post: &self.post,
+                limit: PRE_ROPE_LIMIT as i32,
+            };
+            let done = crate::kernels::arch::x86::vnni::rope::token(&params, acc, row, col, out)
+                .or_else(|| crate::kernels::arch::x86::avx2::rope::token(&params, acc, row, col, out));
+            if let Some(done) = done {
+                return done;
+            }
+        }
         crate::kernels::arch::vectorised(
             #[inline(always)]
             || {

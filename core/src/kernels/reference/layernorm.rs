@@ -28,10 +28,24 @@ pub fn layernorm_rows_reference<Z: I32s + ?Sized, R: I32s + ?Sized>(
 
 /// `2^RECIP_BITS / sqrt(var + eps)`, with eps (in unit^2) brought to the centred values'
 /// scale: they carry a factor `d` and `2^-shift`.
+#[inline(always)]
 pub fn reciprocal_std(var: i64, eps: i64, d: i64, shift: i32) -> i64 {
+    reciprocal_of_root(isqrt_u64(variance_radicand(var, eps, d, shift)))
+}
+
+/// The square root's argument in [`reciprocal_std`]: `var + eps` at the centred values' scale
+/// (kernels that take several rows' roots at once split the formula here).
+#[inline(always)]
+pub fn variance_radicand(var: i64, eps: i64, d: i64, shift: i32) -> u64 {
     let eps = scale_pow2(eps.saturating_mul(d * d), -2 * shift);
-    let std = (isqrt_u64(var.saturating_add(eps).max(0) as u64) as i64).max(1);
-    (1i64 << RECIP_BITS) / std
+    var.saturating_add(eps).max(0) as u64
+}
+
+/// `2^RECIP_BITS / root` for the floor square root of [`variance_radicand`] (a zero root
+/// counts as one).
+#[inline(always)]
+pub fn reciprocal_of_root(root: u32) -> i64 {
+    (1i64 << RECIP_BITS) / (root as i64).max(1)
 }
 
 /// One row (`row.len()` channels) by the saturating formulas.

@@ -3,11 +3,10 @@
 //! over the whole band, or over their own token row ([`AttentionSpan`]).
 
 use crate::config::{DIM, HEADS, HEAD_DIM};
-use crate::kernels::dispatch::matmul_i8;
-use crate::kernels::dispatch::matmul_requant_i8_prepared;
 use crate::kernels::dispatch::ChannelRequant;
 use crate::kernels::dispatch::PreparedLayerNorm;
 use crate::kernels::dispatch::{attend_block, key_layout, scatter_channels, store_key};
+use crate::kernels::dispatch::{matmul_i8_pass, matmul_requant_i8_pass, PassWeights};
 use crate::kernels::dispatch::{rope_token, RopeLanes};
 use crate::kernels::dispatch::{value_sums, KeyLayout, QUERY_BLOCK};
 use crate::kernels::params::Uniform;
@@ -147,17 +146,17 @@ impl AttentionPass<'_, '_> {
         let mut angles = AngleCache::new(self.rope);
         let mut rotated = [0i8; DIM];
         let mut block_values = [0i8; TOKEN_BLOCK * DIM];
+        let (k_weights, v_weights) = (PassWeights::new(k_weights, DIM), PassWeights::new(v_weights, DIM));
         for (block, x_block) in x.chunks(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
             normalise_block(x_block, &ln, ln_prepared.as_mut(), normed);
             let (k_acc, v_acc) = acc.split_at_mut(count * DIM);
-            matmul_i8(&normed[..count * DIM], k_weights, DIM, k_acc);
+            matmul_i8_pass(&normed[..count * DIM], &k_weights, k_acc);
             // Values need no rotation: requantised in the matrix multiply itself.
             let v_out = &mut block_values[..count * DIM];
-            matmul_requant_i8_prepared(
+            matmul_requant_i8_pass(
                 &normed[..count * DIM],
-                v_weights,
-                DIM,
+                &v_weights,
                 value_prepared.as_ref(),
                 &value_rq,
                 &Uniform(0),
@@ -206,7 +205,7 @@ impl AttentionPass<'_, '_> {
     ) -> Result<(), Error> {
         let ln = self.w.norm1.with_input(self.input);
         let qkv = &self.w.qkv;
-        let q_weights = qkv.weight.get(..DIM * DIM).unwrap_or(&[]);
+        let q_weights = PassWeights::new(qkv.weight.get(..DIM * DIM).unwrap_or(&[]), DIM);
         let (query_bias, query_mult) = (decode_channels(&qkv.bias, 0), decode_channels(&qkv.mult, 0));
         let query_rq = ChannelRequant {
             bias: &query_bias,
@@ -215,6 +214,7 @@ impl AttentionPass<'_, '_> {
         };
         let mut query_lanes = RopeLanes::new(&query_rq);
         let proj = &self.w.proj;
+        let proj_weights = PassWeights::new(proj.weight, DIM);
         let residual = ResidualParams::new(&self.w.carry_attention.from_format(self.input), proj, &self.output.zero);
         let tokens = self.grid.tokens();
         let head_len = tokens * HEAD_DIM;
@@ -233,7 +233,7 @@ impl AttentionPass<'_, '_> {
         for (block, x_block) in x.chunks_mut(TOKEN_BLOCK * DIM).enumerate() {
             let count = x_block.len() / DIM;
             normalise_block(x_block, &ln, ln_prepared.as_mut(), normed);
-            matmul_i8(&normed[..count * DIM], q_weights, DIM, &mut acc[..count * DIM]);
+            matmul_i8_pass(&normed[..count * DIM], &q_weights, &mut acc[..count * DIM]);
             for (i, (q_acc, query)) in acc
                 .chunks_exact(DIM)
                 .zip(queries.chunks_exact_mut(DIM))
@@ -303,7 +303,7 @@ impl AttentionPass<'_, '_> {
                 i += run;
             }
             project_add(
-                proj,
+                &proj_weights,
                 &attended[..count * DIM],
                 acc,
                 x_block,

@@ -5,9 +5,8 @@ use crate::blob::Le;
 use crate::config::{DIM, MLP_HIDDEN};
 use crate::kernels::dispatch::apply_lut;
 use crate::kernels::dispatch::layernorm_rows;
-use crate::kernels::dispatch::matmul_i8;
-use crate::kernels::dispatch::matmul_requant_i8_prepared;
 use crate::kernels::dispatch::{layernorm_rows_prepared, LayerNormQ, PreparedLayerNorm};
+use crate::kernels::dispatch::{matmul_i8_pass, matmul_requant_i8_pass, PassWeights};
 use crate::kernels::dispatch::{residual_add_prepared, ChannelRequant, ChannelRescale, PreparedResidual};
 use crate::kernels::params::Uniform;
 use crate::kernels::types::prepared::PreparedRequant;
@@ -71,9 +70,9 @@ impl<'w> ResidualParams<'w> {
     }
 }
 
-/// `x += proj(a)` with the residual format change of `p`.
+/// `x += proj(a)` with the residual format change of `p` (`proj`: the projection's weights).
 pub(super) fn project_add(
-    proj: &LinearQ<'_>,
+    proj: &PassWeights<'_>,
     a: &[i8],
     acc: &mut [i32],
     x_block: &mut [i8],
@@ -81,8 +80,7 @@ pub(super) fn project_add(
     prepared: Option<&PreparedResidual<'_>>,
 ) {
     let count = x_block.len() / DIM;
-    let inputs = a.len() / count.max(1);
-    matmul_i8(a, proj.weight, inputs, &mut acc[..count * DIM]);
+    matmul_i8_pass(a, proj, &mut acc[..count * DIM]);
     let (carry, delta) = p.views();
     residual_add_prepared(x_block, &carry, &acc[..count * DIM], &delta, &p.new_zero, prepared);
 }
@@ -108,14 +106,17 @@ pub(super) fn mlp(
     let (fc1_storage, residual_storage) = scratch.split_at_mut((4 * MLP_HIDDEN).min(scratch.len()));
     let fc1_prepared = prepare(&fc1, fc1_storage);
     let residual_prepared = residual.prepare(residual_storage);
+    let (fc1_weights, fc2_weights) = (
+        PassWeights::new(w.fc1.weight, DIM),
+        PassWeights::new(w.fc2.weight, MLP_HIDDEN),
+    );
     for x_block in x.chunks_mut(TOKEN_BLOCK * DIM) {
         let count = x_block.len() / DIM;
         normalise_block(x_block, &ln, ln_prepared.as_mut(), normed);
         let hidden = &mut hidden[..count * MLP_HIDDEN];
-        matmul_requant_i8_prepared(
+        matmul_requant_i8_pass(
             &normed[..count * DIM],
-            w.fc1.weight,
-            DIM,
+            &fc1_weights,
             fc1_prepared.as_ref(),
             &fc1,
             &Uniform(0),
@@ -123,7 +124,14 @@ pub(super) fn mlp(
             hidden,
         );
         apply_lut(hidden, w.gelu);
-        project_add(&w.fc2, hidden, acc, x_block, &residual, residual_prepared.as_ref());
+        project_add(
+            &fc2_weights,
+            hidden,
+            acc,
+            x_block,
+            &residual,
+            residual_prepared.as_ref(),
+        );
     }
 }
 

@@ -107,7 +107,41 @@ pub fn matmul_requant_prepared(
     (vnni::matmul_i32(a, w, k, acc) || avx2::matmul_i32(a, w, k, acc)) && avx2::requant_prepared(words, acc, out)
 }
 
+/// [`matmul_requant_prepared`] through the VNNI broadcast multiply (`vnni::gemm`), given the
+/// weights' `sums` ([`vnni::gemm::weight_sums`]): `false` where it does not take the shape, the
+/// lengths differ or an accumulator is outside the lanes' range (then `out` may be partly
+/// written: the caller recomputes it).
+pub fn matmul_requant_summed(
+    a: &[i8],
+    w: &[i8],
+    k: usize,
+    sums: &[i32],
+    words: &[[i32; 4]],
+    acc: &mut [i32],
+    out: &mut [i8],
+) -> bool {
+    let n = words.len();
+    if k == 0 || sums.len() != n || !a.len().is_multiple_of(k) {
+        return false;
+    }
+    let cells = a.len() / k * n;
+    let Some(out) = out.get_mut(..cells) else {
+        return false;
+    };
+    // Requantised in registers where the shape allows, else through `acc`.
+    if vnni::gemm::matmul_requant_summed(a, w, k, sums, words, out) {
+        return true;
+    }
+    let Some(acc) = acc.get_mut(..cells) else {
+        return false;
+    };
+    vnni::gemm::matmul_i32_summed(a, w, k, sums, acc) && avx2::requant_prepared(words, acc, out)
+}
+
 #[target_feature(enable = "avx2,bmi1,bmi2")]
 fn run_avx2<R>(f: impl FnOnce() -> R) -> R {
     f()
 }
+
+#[cfg(test)]
+mod tests;

@@ -407,6 +407,9 @@ fn tile(a4: &[i8], w4: &[i8], k: usize, rows: usize, cols: usize) -> [[__m256i; 
 }
 
 mod attention;
+pub mod gemm;
+pub mod layernorm;
+pub mod rope;
 
 pub use attention::{keys_transposed, scores4, scores4_transposed, weighted_sums4};
 

@@ -145,3 +145,64 @@ fn residual_add_changes_format_and_adds() {
     // (30-10)/2 + (36+4)/4 - 5 = 15; (-10-10)/2 + 0 - 5 = -15; saturated; saturated.
     assert_eq!(x, [15, -15, 127, -128]);
 }
+
+#[cfg(target_arch = "x86_64")]
+#[test]
+fn x86_lanes_take_prepared_blocks_within_their_bound_and_equal_the_reference() {
+    use crate::kernels::arch::x86::{avx2, avx2::residual::residual_rows};
+    const N: usize = 128;
+    let mut rng = Rng::new(79);
+    for trial in 0..60 {
+        let rows = 1 + trial % 9;
+        let mult: [i32; N] = core::array::from_fn(|_| rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32);
+        let shift: [u8; N] = core::array::from_fn(|c| [33, 62, 40, 51][(c + trial) % 4]);
+        let cmult: [i32; N] = core::array::from_fn(|_| rng.range(-(i32::MAX as i64), i32::MAX as i64) as i32);
+        let cshift: [u8; N] = core::array::from_fn(|c| [18, 47, 48, 62, 31][(c + trial) % 5]);
+        let bias: [i32; N] = core::array::from_fn(|_| rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32);
+        let zero: [i32; N] = core::array::from_fn(|_| rng.range(-(1 << 15), 1 << 15) as i32);
+        let new_zero: [i32; N] = core::array::from_fn(|_| rng.range(-(1 << 29) + 1, (1 << 29) - 1) as i32);
+        let delta = ChannelRequant {
+            bias: &bias,
+            mult: &mult,
+            shift: &shift,
+        };
+        let carry = ChannelRescale {
+            zero: &zero,
+            mult: &cmult,
+            shift: &cshift,
+        };
+        let mut acc = [0i32; 9 * N];
+        for a in acc.iter_mut() {
+            *a = match trial % 3 {
+                0 => rng.range(-(1 << 30) + 1, (1 << 30) - 1) as i32,
+                _ => rng.range(-(1 << 20), 1 << 20) as i32,
+            };
+        }
+        // Every third trial one accumulator at the bound: declined, nothing written.
+        let outside = trial % 3 == 2;
+        if outside {
+            acc[(rows - 1) * N + trial % N] = if trial % 2 == 0 { 1 << 30 } else { -(1 << 30) };
+        }
+        let mut x = [0i8; 9 * N];
+        rng.fill_i8(&mut x[..rows * N]);
+        match trial % 4 {
+            1 => x[..N].fill(-128),
+            3 => x[..N].fill(127),
+            _ => {}
+        }
+        let mut storage = [0i32; N * residual_lanes::VECTORS];
+        let prepared =
+            PreparedResidual::new(&carry, &delta, &new_zero, rows, &mut storage).expect("in the lanes' bounds");
+        let (acc, x) = (&acc[..rows * N], &x[..rows * N]);
+        let mut got = [0i8; 9 * N];
+        got[..rows * N].copy_from_slice(x);
+        let took = residual_rows(&mut got[..rows * N], acc, N, rows, prepared.params);
+        assert_eq!(took, !outside && avx2(), "trial {trial}");
+        let mut want = [0i8; 9 * N];
+        want[..rows * N].copy_from_slice(x);
+        if took {
+            residual_add_reference(&mut want[..rows * N], &carry, acc, &delta, &new_zero);
+        }
+        assert_eq!(got[..rows * N], want[..rows * N], "trial {trial}");
+    }
+}

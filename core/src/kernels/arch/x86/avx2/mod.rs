@@ -9,7 +9,10 @@
 //! Each entry point returns `false` (computing nothing) for shapes it does not take; the
 //! caller then runs the portable kernel.
 
+pub mod layernorm;
 mod requant;
+pub(crate) mod residual;
+pub mod rope;
 mod scores;
 mod softmax;
 
@@ -60,10 +63,15 @@ pub fn matmul_i32(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) -> bool {
     if m == 0 || n == 0 || m.checked_mul(n) != Some(out.len()) {
         return false;
     }
-    // SAFETY: as in `dot4`, `avx2()` saw AVX2 on this CPU.
+    // SAFETY: as in `dot4`, `avx2()` saw AVX2 on this CPU. The widened rows live on the stack,
+    // sized for the model's widths (zeroing them for the longest `k` was 1 % of a pass).
     #[allow(unsafe_code)]
     unsafe {
-        matmul_avx2(&a[..m * k], &w[..n * k], k, out)
+        match k / LANES {
+            0..=8 => matmul_avx2::<8>(&a[..m * k], &w[..n * k], k, out),
+            9..=30 => matmul_avx2::<30>(&a[..m * k], &w[..n * k], k, out),
+            _ => matmul_avx2::<{ MAX_GEMM_K / LANES }>(&a[..m * k], &w[..n * k], k, out),
+        }
     };
     true
 }
@@ -132,9 +140,12 @@ fn dot4_avx2<A: Code>(a0: &[A], a1: &[A], a2: &[A], a3: &[A], w: &[i8]) -> [i32;
 // Tiles of 4 rows of `a` (widened once into `wide`) x 2 rows of `w`: 8 accumulators, and per
 // 16 elements 2 widenings and 8 `vpmaddwd`. Rows past the last full four use `dot`.
 #[target_feature(enable = "avx2")]
-fn matmul_avx2(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
+fn matmul_avx2<const S: usize>(a: &[i8], w: &[i8], k: usize, out: &mut [i32]) {
     let (steps, n) = (k / LANES, w.len() / k);
-    let mut wide = [[_mm256_setzero_si256(); MAX_GEMM_K / LANES]; 4];
+    if steps > S {
+        return;
+    }
+    let mut wide = [[_mm256_setzero_si256(); S]; 4];
     let mut a_quads = a.chunks_exact(4 * k);
     let mut out_quads = out.chunks_exact_mut(4 * n);
     for (a4, o4) in (&mut a_quads).zip(&mut out_quads) {
