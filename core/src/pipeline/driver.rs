@@ -27,16 +27,24 @@ pub struct Pipeline<'w> {
     pub(super) encoder: Encoder<'w>,
     pub(super) head: Option<HeadWeights<'w>>,
     pub(super) native: Option<HeadWeights<'w>>,
+    /// How the encoder covers a band, decided once from the blob ([`Pipeline::passes`]).
+    passes: Passes,
 }
 
 impl<'w> Pipeline<'w> {
     /// The pipeline of a blob; a head the blob does not carry (or carries incomplete) is left
     /// out, and a run that needs it is an error naming its first missing tensor.
     pub fn new(blob: crate::blob::Blob<'w>) -> Result<Self, Error> {
+        let encoder = Encoder::new(blob)?;
+        let passes = match encoder.rows_independent() {
+            true => Passes::TokenRows,
+            false => Passes::Band,
+        };
         Ok(Self {
-            encoder: Encoder::new(blob)?,
+            encoder,
             head: HeadWeights::for_kind(blob, HeadKind::Export).ok(),
             native: HeadWeights::for_kind(blob, HeadKind::Native).ok(),
+            passes,
         })
     }
 
@@ -56,10 +64,7 @@ impl<'w> Pipeline<'w> {
     /// How this blob's encoder covers a band: [`Passes::TokenRows`] when its token rows are
     /// independent ([`Encoder::rows_independent`]), else [`Passes::Band`].
     pub fn passes(&self) -> Passes {
-        match self.encoder.rows_independent() {
-            true => Passes::TokenRows,
-            false => Passes::Band,
-        }
+        self.passes
     }
 
     /// The arena bytes a run of this blob with `opts` (refined when `refine` is given) needs on

@@ -10,7 +10,7 @@
 use crate::fixed::{bit_length, sat_i8_i64, Requant};
 use crate::kernels::layernorm::{layernorm_row, BUFFERED_DIM};
 pub use crate::kernels::reference::layernorm::layernorm_rows_reference;
-use crate::kernels::reference::layernorm::{reciprocal_std, RECIP_BITS, WORK_BITS};
+use crate::kernels::reference::layernorm::{narrow_shift, reciprocal_std, NarrowShift, RECIP_BITS, WORK_BITS};
 pub use crate::kernels::types::layernorm::{LayerNormQ, Z_FRAC_BITS};
 use crate::kernels::I32s;
 
@@ -284,17 +284,14 @@ impl NarrowParams<'_> {
             return false;
         };
         let d = dim as i64;
-        let max_dev = (hi as i64 * d - sum).max(sum - lo as i64 * d) as u64;
-        let shift = bit_length(max_dev) as i32 - WORK_BITS;
-        let (left, add, right) = match shift {
-            ..=0 => (
-                (7 - shift) as u32,
-                sum.wrapping_neg().wrapping_shl((-shift) as u32) as i32,
-                0,
-            ),
-            1..=7 => ((7 - shift) as u32, (((1i64 << (shift - 1)) - sum) >> shift) as i32, 0),
-            8..=13 => (0, (((1i64 << (shift - 1)) - sum) >> 7) as i32, (shift - 7) as u32),
-            _ => return false,
+        let Some(NarrowShift {
+            shift,
+            left,
+            add,
+            right,
+        }) = narrow_shift(sum, lo, hi, d)
+        else {
+            return false;
         };
         let Some(sum_sq) = lanes::normalise(v, left, add, right, n) else {
             return false;

@@ -26,6 +26,45 @@ pub fn layernorm_rows_reference<Z: I32s + ?Sized, R: I32s + ?Sized>(
     }
 }
 
+/// How the narrow (32-bit lane) paths bring a row's centred values to [`WORK_BITS`]:
+/// `n = ((v << left) + add) >> right` centres `v` (the row's `d` values summing to `sum`) and
+/// carries the factor `d` and `2^-shift` of [`reciprocal_std`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct NarrowShift {
+    /// Bits of the deviation above [`WORK_BITS`] (the scale [`reciprocal_std`] takes).
+    pub shift: i32,
+    /// Left shift of each value.
+    pub left: u32,
+    /// What centres and rounds the shifted value.
+    pub add: i32,
+    /// Right shift after the add.
+    pub right: u32,
+}
+
+/// The [`NarrowShift`] of a row of `d` values with sum `sum`, least `lo` and greatest `hi`;
+/// `None` where the deviation is too wide for the narrow paths (the 64-bit path then).
+#[inline(always)]
+pub fn narrow_shift(sum: i64, lo: i32, hi: i32, d: i64) -> Option<NarrowShift> {
+    let max_dev = (hi as i64 * d - sum).max(sum - lo as i64 * d) as u64;
+    let shift = bit_length(max_dev) as i32 - WORK_BITS;
+    let (left, add, right) = match shift {
+        ..=0 => (
+            (7 - shift) as u32,
+            sum.wrapping_neg().wrapping_shl((-shift) as u32) as i32,
+            0,
+        ),
+        1..=7 => ((7 - shift) as u32, (((1i64 << (shift - 1)) - sum) >> shift) as i32, 0),
+        8..=13 => (0, (((1i64 << (shift - 1)) - sum) >> 7) as i32, (shift - 7) as u32),
+        _ => return None,
+    };
+    Some(NarrowShift {
+        shift,
+        left,
+        add,
+        right,
+    })
+}
+
 /// `2^RECIP_BITS / sqrt(var + eps)`, with eps (in unit^2) brought to the centred values'
 /// scale: they carry a factor `d` and `2^-shift`.
 #[inline(always)]

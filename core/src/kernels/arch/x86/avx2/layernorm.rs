@@ -13,9 +13,9 @@ use core::arch::x86_64::{
     _mm_cvtsi32_si128, _mm_cvtsi64_si128,
 };
 
-use crate::fixed::{bit_length, MAX_SHIFT};
+use crate::fixed::MAX_SHIFT;
 use crate::kernels::arch::x86::vnni::layernorm::{NormLanes, DIM, ROWS};
-use crate::kernels::reference::layernorm::{reciprocal_of_root, variance_radicand, WORK_BITS};
+use crate::kernels::reference::layernorm::{narrow_shift, reciprocal_of_root, variance_radicand, NarrowShift};
 
 const LANES: usize = 8;
 const STEPS: usize = DIM / LANES;
@@ -82,21 +82,16 @@ fn rows_avx2(p: &NormLanes<'_>, x: &[i8], out: &mut [i8]) -> u8 {
         let hi = must_cast::<__m256i, [i32; LANES]>(hi)
             .into_iter()
             .fold(i32::MIN, i32::max);
-        // `row_in_lanes`' shift cases, verbatim.
-        let max_dev = (hi as i64 * d - sum).max(sum - lo as i64 * d) as u64;
-        let shift = bit_length(max_dev) as i32 - WORK_BITS;
-        let (left, add, right) = match shift {
-            ..=0 => (
-                (7 - shift) as u32,
-                sum.wrapping_neg().wrapping_shl((-shift) as u32) as i32,
-                0,
-            ),
-            1..=7 => ((7 - shift) as u32, (((1i64 << (shift - 1)) - sum) >> shift) as i32, 0),
-            8..=13 => (0, (((1i64 << (shift - 1)) - sum) >> 7) as i32, (shift - 7) as u32),
-            _ => {
-                left_rows |= 1 << r;
-                continue;
-            }
+        // `row_in_lanes`' shift cases.
+        let Some(NarrowShift {
+            shift,
+            left,
+            add,
+            right,
+        }) = narrow_shift(sum, lo, hi, d)
+        else {
+            left_rows |= 1 << r;
+            continue;
         };
         let (left, right) = (_mm_cvtsi32_si128(left as i32), _mm_cvtsi32_si128(right as i32));
         let add = _mm256_set1_epi32(add);

@@ -17,8 +17,8 @@ use bytemuck::must_cast;
 
 use super::available;
 use super::gemm::pack4;
-use crate::fixed::{bit_length, MAX_SHIFT};
-use crate::kernels::reference::layernorm::{reciprocal_of_root, variance_radicand, WORK_BITS};
+use crate::fixed::MAX_SHIFT;
+use crate::kernels::reference::layernorm::{narrow_shift, reciprocal_of_root, variance_radicand, NarrowShift};
 
 /// Channels of a row: the encoder's width (`d = 2^7` in the identities).
 pub const DIM: usize = 128;
@@ -91,21 +91,16 @@ fn rows_avx512(p: &NormLanes<'_>, x: &[i8], out: &mut [i8]) -> u8 {
             _mm512_reduce_min_epi32(lo),
             _mm512_reduce_max_epi32(hi),
         );
-        // `row_in_lanes`' shift cases, verbatim.
-        let max_dev = (hi as i64 * d - sum).max(sum - lo as i64 * d) as u64;
-        let shift = bit_length(max_dev) as i32 - WORK_BITS;
-        let (left, add, right) = match shift {
-            ..=0 => (
-                (7 - shift) as u32,
-                sum.wrapping_neg().wrapping_shl((-shift) as u32) as i32,
-                0,
-            ),
-            1..=7 => ((7 - shift) as u32, (((1i64 << (shift - 1)) - sum) >> shift) as i32, 0),
-            8..=13 => (0, (((1i64 << (shift - 1)) - sum) >> 7) as i32, (shift - 7) as u32),
-            _ => {
-                left_rows |= 1 << r;
-                continue;
-            }
+        // `row_in_lanes`' shift cases.
+        let Some(NarrowShift {
+            shift,
+            left,
+            add,
+            right,
+        }) = narrow_shift(sum, lo, hi, d)
+        else {
+            left_rows |= 1 << r;
+            continue;
         };
         // `n = ((v << left) + add) >> right` and the 64-bit sum of its squares (`|n| < 2^25`).
         let (left, right) = (_mm_cvtsi32_si128(left as i32), _mm_cvtsi32_si128(right as i32));
