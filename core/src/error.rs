@@ -210,7 +210,10 @@ impl fmt::Display for Error {
                 write!(f, "row source lost {lost} rows by row {row} (its row queue overflowed)")
             }
             Error::RowsStalled { row, waited_ms } => {
-                write!(f, "row source delivered no row {row} within {waited_ms} ms (its camera stalled)")
+                write!(
+                    f,
+                    "row source delivered no row {row} within {waited_ms} ms (its camera stalled)"
+                )
             }
             Error::Blob(e) => write!(f, "{e}"),
         }

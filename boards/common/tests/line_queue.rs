@@ -239,7 +239,10 @@ fn a_camera_that_stalls_is_an_error_after_the_timeout() {
     assert_eq!(next_err(&mut rows), Error::RowsStalled { row: 3, waited_ms: 120 });
     // The error is one line that says what happened.
     let text = Error::RowsStalled { row: 3, waited_ms: 120 }.to_string();
-    assert!(text.contains("no row 3 within 120 ms") && !text.contains('\n'), "{text}");
+    assert!(
+        text.contains("no row 3 within 120 ms") && !text.contains('\n'),
+        "{text}"
+    );
 }
 
 #[test]
