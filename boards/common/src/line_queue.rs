@@ -306,3 +306,46 @@ impl<P: LinePort> RowSource for QueuedRows<P> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_bad_slot_or_row_is_lost_and_a_slot_comes_back_once() {
+        let mut q = LineQueue::new();
+        assert_eq!(q.take_free(), None, "no slot before the first reset");
+        q.reset();
+        assert_eq!(q.free_slots(), LINES);
+        let slot = q.take_free().unwrap();
+        q.push(usize::from(u16::MAX) + 1, slot);
+        q.push(0, LINES);
+        assert_eq!((q.stats().queued, q.stats().lost), (0, 2));
+        assert!(!q.ready());
+        q.push(3, slot);
+        assert!(q.ready());
+        assert_eq!(
+            q.pop(),
+            Some(Line {
+                row: 3,
+                slot: slot as u8
+            })
+        );
+        // Handed back twice, or out of range: the free slots stay the LINES distinct ones.
+        q.release(slot);
+        q.release(slot);
+        q.release(LINES);
+        assert_eq!(q.free_slots(), LINES);
+        let mut taken = [usize::MAX; LINES];
+        for t in taken.iter_mut() {
+            *t = q.take_free().unwrap();
+        }
+        taken.sort_unstable();
+        assert_eq!(taken, core::array::from_fn(|i| i));
+        assert_eq!(q.take_free(), None);
+        q.end();
+        assert!(q.ready());
+        q.reset();
+        assert_eq!((q.stats(), q.free_slots()), (QueueStats::default(), LINES));
+    }
+}

@@ -1,25 +1,39 @@
 //! Camera rows through the line queue (`bino_board::line_queue`) with a fake camera as the
-//! producer, interleaved with the pipeline's requests as an interrupt would be: rows in order
-//! and as written, rows lost when the camera runs further ahead than the line buffers hold, a
-//! frame that ends early, a camera that stalls (a fake millisecond clock), a clean frame after
-//! each error, and the STM32H743's whole 160x120 test frame through the fast preset giving the
-//! same summary and report as the same frame in memory.
+//! producer, interleaved with the pipeline's requests as an interrupt would be, both taking free
+//! slots line by line and through a double-buffered DMA's two targets
+//! (`bino_board::double_buffer`, the H743's): rows in order and as written, rows lost when the
+//! camera runs further ahead than the line buffers hold, a frame that ends early, a transfer
+//! error, a camera that stalls (a fake millisecond clock), a clean frame after each error, and the
+//! STM32H743's whole 160x120 test frame through the fast preset giving the same summary and report
+//! as the same frame in memory.
 
 mod common;
 
+use bino_board::double_buffer::{DoubleBuffer, Refill};
 use bino_board::line_queue::{line_bytes, LinePort, LineQueue, QueueStats, QueuedRows, LINES};
 use bino_board::options::STM32H7;
 use bino_board::run::Preset;
 use bino_board::side_by_side::SideBySide;
 use bino_board::summary::{NoClock, Summary};
-use bino_core::pipeline::RowSource;
+use bino_core::pipeline::{Report, RowSource};
 use bino_core::Error;
 use common::{side_by_side, test_frame};
+
+/// A DMA in double-buffer mode: the targets' slots, and the one it writes now.
+struct FakeDma {
+    buffer: DoubleBuffer,
+    targets: [Option<usize>; 2],
+    current: usize,
+    /// The line whose transfer fails, if any.
+    error_at: Option<usize>,
+}
 
 /// A camera that exposes the rows of a side-by-side frame into free line buffers: a burst of
 /// rows at its start and one at each wait of the consumer (as interrupts land meanwhile).
 struct FakeCamera {
     queue: LineQueue,
+    /// Through a double-buffered DMA (else each line takes a free slot as it comes).
+    dma: Option<FakeDma>,
     /// The line buffers: `LINES` slots of `line_bytes(width)`.
     lines: Vec<u8>,
     frame: Vec<u8>,
@@ -47,6 +61,7 @@ impl FakeCamera {
         let rows = frame.len() / line_bytes(width);
         Self {
             queue: LineQueue::new(),
+            dma: None,
             lines: vec![0; LINES * line_bytes(width)],
             frame,
             width,
@@ -63,10 +78,24 @@ impl FakeCamera {
         }
     }
 
+    /// The same camera behind a double-buffered DMA expecting frames of `height` lines.
+    fn through_dma(mut self, height: usize) -> Self {
+        self.dma = Some(FakeDma {
+            buffer: DoubleBuffer::new(height),
+            targets: [None, None],
+            current: 0,
+            error_at: None,
+        });
+        self
+    }
+
     /// One row interval: the next row into a free slot, or lost.
     fn expose(&mut self) {
         if !self.running || self.next >= self.rows {
             return;
+        }
+        if self.dma.is_some() {
+            return self.expose_by_dma();
         }
         let (row, line) = (self.next, line_bytes(self.width));
         self.next += 1;
@@ -82,6 +111,39 @@ impl FakeCamera {
             self.running = false;
             if self.ends {
                 self.queue.end();
+            }
+        }
+    }
+
+    /// One row interval behind the DMA: the line lands in the current target (the discard
+    /// line: dropped), the DMA turns to the other, the finished target is refilled.
+    fn expose_by_dma(&mut self) {
+        let (row, line) = (self.next, line_bytes(self.width));
+        self.next += 1;
+        let Some(dma) = self.dma.as_mut() else { return };
+        if dma.error_at == Some(row) {
+            dma.buffer.lose_rest(&mut self.queue);
+            self.running = false;
+            return;
+        }
+        let done = dma.current;
+        if let Some(slot) = dma.targets[done] {
+            let src = &self.frame[row * line..(row + 1) * line];
+            self.lines[slot * line..(slot + 1) * line].copy_from_slice(src);
+        }
+        dma.current ^= 1;
+        match dma.buffer.line_done(&mut self.queue, done) {
+            Refill::Target(slot) => dma.targets[done] = slot,
+            Refill::FrameDone => {
+                dma.buffer.stop(&mut self.queue);
+                self.running = false;
+            }
+        }
+        if self.next == self.rows && self.running {
+            // The camera's frame ends here, short of the DMA's height: its frame-end interrupt.
+            self.running = false;
+            if self.ends {
+                dma.buffer.stop(&mut self.queue);
             }
         }
     }
@@ -111,11 +173,18 @@ impl LinePort for FakeCamera {
 
     fn start(&mut self) {
         (self.next, self.running) = (0, true);
+        if let Some(dma) = self.dma.as_mut() {
+            dma.targets = dma.buffer.start(&mut self.queue);
+            dma.current = 0;
+        }
         self.burst(self.start_burst);
     }
 
     fn stop(&mut self) {
         self.running = false;
+        if let Some(dma) = self.dma.as_mut() {
+            dma.buffer.stop(&mut self.queue);
+        }
     }
 
     fn wait(&mut self) {
@@ -165,26 +234,37 @@ fn next_err(source: &mut impl RowSource) -> Error {
     source.next_row(&mut l, &mut r).expect_err("an error")
 }
 
+/// The camera sending `frame` both ways: slot by slot as lines come, and through a
+/// double-buffered DMA expecting `height` lines; with the most lines a paced camera queues (the
+/// DMA's two targets hold two slots).
+fn both_ways(frame: &[u8], width: usize, height: usize) -> [(FakeCamera, usize); 2] {
+    [
+        (FakeCamera::new(frame.to_vec(), width), LINES),
+        (FakeCamera::new(frame.to_vec(), width).through_dma(height), LINES - 2),
+    ]
+}
+
 #[test]
 fn rows_come_out_in_order_as_the_camera_wrote_them() {
     let (width, height) = (12, 40);
     let frame = numbered_frame(width, height);
-    let mut camera = FakeCamera::new(frame.clone(), width);
-    camera.bursts = vec![1, 3, 0, 8, 2, 5];
-    let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
-    assert_eq!(take(&mut rows, height), expected(&frame, width, 0..height));
-    let stats = rows.stats();
-    assert_eq!(
-        stats,
-        QueueStats {
-            queued: height,
-            lost: 0,
-            high_water: LINES,
-            ended: true
-        }
-    );
-    // Past the frame's height: the end, not a wait.
-    assert_eq!(next_err(&mut rows), Error::EndOfRows { row: height, height });
+    for (mut camera, most) in both_ways(&frame, width, height) {
+        camera.bursts = vec![1, 3, 0, 8, 2, 5];
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        assert_eq!(take(&mut rows, height), expected(&frame, width, 0..height));
+        let stats = rows.stats();
+        assert_eq!(
+            stats,
+            QueueStats {
+                queued: height,
+                lost: 0,
+                high_water: most,
+                ended: true
+            }
+        );
+        // Past the frame's height: the end, not a wait.
+        assert_eq!(next_err(&mut rows), Error::EndOfRows { row: height, height });
+    }
 }
 
 #[test]
@@ -192,51 +272,75 @@ fn a_camera_further_ahead_than_the_line_buffers_loses_exactly_the_rows_beyond_th
     // 11 rows with nobody reading: 8 queued, 3 lost, then the frame ends.
     let (width, height) = (8, 11);
     let frame = numbered_frame(width, height);
-    let mut camera = FakeCamera::new(frame.clone(), width);
-    (camera.start_burst, camera.paced, camera.bursts) = (11, false, vec![0]);
-    let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
-    assert_eq!(take(&mut rows, LINES), expected(&frame, width, 0..LINES));
-    assert_eq!(next_err(&mut rows), Error::RowsLost { row: 8, lost: 3 });
-    assert_eq!(rows.stats().high_water, LINES);
+    for (mut camera, _) in both_ways(&frame, width, height) {
+        (camera.start_burst, camera.paced, camera.bursts) = (11, false, vec![0]);
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        assert_eq!(take(&mut rows, LINES), expected(&frame, width, 0..LINES));
+        assert_eq!(next_err(&mut rows), Error::RowsLost { row: 8, lost: 3 });
+        assert_eq!(rows.stats().high_water, LINES);
+    }
 
-    // The camera goes on after the loss: the first later row is the error, not a gap.
+    // The camera goes on after the loss: the first later row is the error, not a gap. Slot by
+    // slot rows 8 and 9 are lost and row 10 finds a slot the pipeline freed; behind the DMA
+    // rows 10 and 11 are lost too, their targets set up while no slot was free.
     let (width, height) = (8, 20);
     let frame = numbered_frame(width, height);
-    let mut camera = FakeCamera::new(frame.clone(), width);
-    (camera.start_burst, camera.paced, camera.bursts) = (10, false, vec![1]);
-    let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
-    assert_eq!(take(&mut rows, LINES), expected(&frame, width, 0..LINES));
-    assert_eq!(next_err(&mut rows), Error::RowsLost { row: 8, lost: 2 });
+    for ((mut camera, _), lost) in both_ways(&frame, width, height).into_iter().zip([2, 4]) {
+        (camera.start_burst, camera.paced, camera.bursts) = (10, false, vec![1]);
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        assert_eq!(take(&mut rows, LINES), expected(&frame, width, 0..LINES));
+        assert_eq!(next_err(&mut rows), Error::RowsLost { row: 8, lost });
+    }
 }
 
 #[test]
 fn a_frame_that_ends_early_is_the_end_of_rows() {
     let (width, height) = (8, 12);
     let frame = numbered_frame(width, 5);
-    let mut camera = FakeCamera::new(frame.clone(), width);
-    camera.bursts = vec![2];
+    for (mut camera, _) in both_ways(&frame, width, height) {
+        camera.bursts = vec![2];
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        assert_eq!(take(&mut rows, 5), expected(&frame, width, 0..5));
+        assert_eq!(next_err(&mut rows), Error::EndOfRows { row: 5, height: 5 });
+    }
+}
+
+#[test]
+fn a_failed_transfer_loses_the_rest_of_the_frame() {
+    let (width, height) = (8, 12);
+    let frame = numbered_frame(width, height);
+    let mut camera = FakeCamera::new(frame.clone(), width).through_dma(height);
+    camera.bursts = vec![3];
+    if let Some(dma) = camera.dma.as_mut() {
+        dma.error_at = Some(4);
+    }
     let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
-    assert_eq!(take(&mut rows, 5), expected(&frame, width, 0..5));
-    assert_eq!(next_err(&mut rows), Error::EndOfRows { row: 5, height: 5 });
+    assert_eq!(take(&mut rows, 4), expected(&frame, width, 0..4));
+    assert_eq!(next_err(&mut rows), Error::RowsLost { row: 4, lost: 8 });
+    // Every slot came back, the DMA's two included.
+    assert_eq!(rows.port_mut().queue.free_slots(), LINES);
 }
 
 #[test]
 fn a_camera_that_stalls_is_an_error_after_the_timeout() {
     // Silent from the start: every wait moves the clock 10 ms; the 10th reaches the timeout.
     let (width, height) = (8, 12);
-    let mut camera = FakeCamera::new(numbered_frame(width, height), width);
-    (camera.bursts, camera.ms_per_wait) = (vec![0], 10);
-    let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
-    assert_eq!(next_err(&mut rows), Error::RowsStalled { row: 0, waited_ms: 100 });
-    assert_eq!(rows.port_mut().waits, 10);
+    let frame = numbered_frame(width, height);
+    for (mut camera, _) in both_ways(&frame, width, height) {
+        (camera.bursts, camera.ms_per_wait) = (vec![0], 10);
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        assert_eq!(next_err(&mut rows), Error::RowsStalled { row: 0, waited_ms: 100 });
+        assert_eq!(rows.port_mut().waits, 10);
+    }
 
     // Three rows, then silence without the frame's end; the clock wraps meanwhile.
-    let frame = numbered_frame(width, height);
-    let mut camera = FakeCamera::new(frame.clone(), width);
-    (camera.rows, camera.ends, camera.ms_per_wait, camera.clock_ms) = (3, false, 30, u32::MAX - 40);
-    let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
-    assert_eq!(take(&mut rows, 3), expected(&frame, width, 0..3));
-    assert_eq!(next_err(&mut rows), Error::RowsStalled { row: 3, waited_ms: 120 });
+    for (mut camera, _) in both_ways(&frame, width, height) {
+        (camera.rows, camera.ends) = (3, false);
+        (camera.ms_per_wait, camera.clock_ms) = (30, u32::MAX - 40);
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        assert_eq!(take(&mut rows, 3), expected(&frame, width, 0..3));
+        assert_eq!(next_err(&mut rows), Error::RowsStalled { row: 3, waited_ms: 120 });
+    }
     // The error is one line that says what happened.
     let text = Error::RowsStalled { row: 3, waited_ms: 120 }.to_string();
     assert!(
@@ -249,10 +353,16 @@ fn a_camera_that_stalls_is_an_error_after_the_timeout() {
 fn after_each_error_the_next_frame_runs_clean() {
     let (width, height) = (8, 16);
     let frame = numbered_frame(width, height);
-    let mut camera = FakeCamera::new(frame.clone(), width);
+    for (camera, _) in both_ways(&frame, width, height) {
+        frames_after_errors(camera, &frame, width, height);
+    }
+}
+
+/// Rows lost, then frames that stall, end early and run whole, each after a rewind.
+fn frames_after_errors(mut camera: FakeCamera, frame: &[u8], width: usize, height: usize) {
     (camera.start_burst, camera.paced, camera.bursts) = (12, false, vec![0]);
     let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
-    assert_eq!(take(&mut rows, LINES), expected(&frame, width, 0..LINES));
+    assert_eq!(take(&mut rows, LINES), expected(frame, width, 0..LINES));
     // Rows lost (reported once the camera falls silent), the producer left running: the next
     // frame resets it all.
     assert_eq!(next_err(&mut rows), Error::RowsLost { row: 8, lost: 4 });
@@ -262,7 +372,7 @@ fn after_each_error_the_next_frame_runs_clean() {
         let camera = rows.port_mut();
         (camera.start_burst, camera.paced, camera.bursts) = (start_burst, true, vec![3, 1]);
         (camera.rows, camera.ends) = (rows_sent, ends);
-        assert_eq!(take(&mut rows, rows_sent), expected(&frame, width, 0..rows_sent));
+        assert_eq!(take(&mut rows, rows_sent), expected(frame, width, 0..rows_sent));
         let stats = rows.stats();
         assert_eq!((stats.queued, stats.lost), (rows_sent, 0));
         if rows_sent < height {
@@ -296,20 +406,33 @@ fn the_h743_frame_through_the_queue_gives_the_summary_of_the_frame_in_memory() {
     let mut source = SideBySide::new(&whole, frame.width, frame.height).unwrap();
     let want = preset.run(&mut source, &mut arena, &mut in_memory).unwrap();
 
-    let mut camera = FakeCamera::new(whole.clone(), frame.width);
-    camera.bursts = vec![1, 4, 0, 8, 2, 7, 3];
-    let mut rows = QueuedRows::new(camera, frame.width, frame.height, STALL_MS);
-    // Twice: the second frame after a rewind, in the same arena.
+    for (mut camera, most) in both_ways(&whole, frame.width, frame.height) {
+        camera.bursts = vec![1, 4, 0, 8, 2, 7, 3];
+        let rows = QueuedRows::new(camera, frame.width, frame.height, STALL_MS);
+        twice_as_in_memory(rows, &preset, &mut arena, (&want, &in_memory), most);
+    }
+}
+
+/// Two frames from `rows`, the second after a rewind, in the same arena: each gives `want`'s
+/// report and `in_memory`'s summary, losing nothing, `most` lines queued at once.
+fn twice_as_in_memory(
+    mut rows: QueuedRows<FakeCamera>,
+    preset: &Preset<'_>,
+    arena: &mut [u8],
+    (want, in_memory): (&Report, &Summary<NoClock>),
+    most: usize,
+) {
+    let frame = STM32H7;
     for _ in 0..2 {
         rows.rewind();
         let mut queued = Summary::new(frame.width, NoClock).unwrap();
-        let report = preset.run(&mut rows, &mut arena, &mut queued).unwrap();
-        assert_eq!(report, want);
+        let report = preset.run(&mut rows, arena, &mut queued).unwrap();
+        assert_eq!(&report, want);
         assert_eq!(queued.refined_rows(), frame.height);
         assert_eq!(queued.refined_crc(), in_memory.refined_crc());
         assert_eq!(queued.sectors(), in_memory.sectors());
         let stats = rows.stats();
-        assert_eq!((stats.queued, stats.lost, stats.high_water), (frame.height, 0, LINES));
+        assert_eq!((stats.queued, stats.lost, stats.high_water), (frame.height, 0, most));
         assert_eq!(rows.delivered(), frame.height);
     }
 }

@@ -13,9 +13,10 @@
 //! - DMA1 stream 1 (DMAMUX1 request 75, the DCMI's) in double-buffer mode, one line per
 //!   transfer: while it writes one line buffer the other target register holds the next.
 //!
-//! Its transfer-complete interrupt is the queue's producer: the line just finished is pushed as
-//! (row, slot), and the target register it used gets the next free slot; with none free it
-//! gets the discard line, and that row is lost and counted. The DCMI's interrupt ends the
+//! Its transfer-complete interrupt is the queue's producer (`bino_board::double_buffer` keeps
+//! the targets' slots): the line just finished is pushed as (row, slot), and the target
+//! register it used gets the next free slot; with none free it gets the discard line, and the
+//! line written there is lost and counted. The DCMI's interrupt ends the
 //! frame (its end, or an overrun, which loses the rest of the frame). Both run in a critical
 //! section on [`CAPTURE`], which the pipeline's side ([`DcmiLines`], a
 //! [`LinePort`]) takes for each queue operation.
@@ -31,6 +32,7 @@ use core::mem::MaybeUninit;
 use core::ptr::{addr_of, addr_of_mut};
 
 use bino_board::clock;
+use bino_board::double_buffer::{DoubleBuffer, Refill};
 use bino_board::line_queue::{line_bytes, LinePort, LineQueue, LINES};
 use bino_core::Error;
 use cortex_m::interrupt::Mutex;
@@ -68,31 +70,25 @@ fn line_address(slot: Option<usize>) -> usize {
 /// What the interrupts and the pipeline share.
 struct Capture {
     queue: LineQueue,
-    /// The slot each DMA target register (M0AR, M1AR) points at; `None`: the discard line.
-    targets: [Option<usize>; 2],
-    /// The row the DMA's current line is.
-    row: usize,
-    running: bool,
+    /// The slots of the DMA's target registers (M0AR, M1AR) and the frame's rows.
+    dma: DoubleBuffer,
 }
 
 static CAPTURE: Mutex<RefCell<Capture>> = Mutex::new(RefCell::new(Capture {
     queue: LineQueue::new(),
-    targets: [None, None],
-    row: 0,
-    running: false,
+    dma: DoubleBuffer::new(FRAME.height),
 }));
 
 impl Capture {
     /// Starts the DMA on the first two free slots and the DCMI on one frame.
     fn start(&mut self) {
-        self.targets = [self.queue.take_free(), self.queue.take_free()];
-        (self.row, self.running) = (0, true);
+        let targets = self.dma.start(&mut self.queue);
         let st = pac::DMA1.st(STREAM);
         clear_dma_flags();
         // The DCMI's data register, read a word at a time, into the two targets in turn.
         st.par().write_value(pac::DCMI.dr().as_ptr() as u32);
-        st.m0ar().write_value(line_address(self.targets[0]) as u32);
-        st.m1ar().write_value(line_address(self.targets[1]) as u32);
+        st.m0ar().write_value(line_address(targets[0]) as u32);
+        st.m1ar().write_value(line_address(targets[1]) as u32);
         st.ndtr().write(|w| w.set_ndt(LINE_WORDS as u16));
         st.fcr().write(|w| {
             w.set_dmdis(vals::Dmdis::DISABLED);
@@ -142,28 +138,8 @@ impl Capture {
 
     /// Stops the DCMI and the DMA; hands back the slots the DMA held; the frame ends.
     fn stop(&mut self) {
-        pac::DCMI.cr().modify(|w| {
-            w.set_capture(false);
-            w.set_enable(false);
-        });
-        pac::DCMI.ier().write(|_| {});
-        let st = pac::DMA1.st(STREAM);
-        st.cr().modify(|w| w.set_en(false));
-        // The stream stops after the word in flight; bounded, never an endless loop.
-        for _ in 0..10_000 {
-            if !st.cr().read().en() {
-                break;
-            }
-        }
-        clear_dma_flags();
-        clear_dcmi_flags();
-        for slot in self.targets.iter_mut().filter_map(Option::take) {
-            self.queue.give_back(slot);
-        }
-        if self.running {
-            self.queue.end();
-        }
-        self.running = false;
+        halt();
+        self.dma.stop(&mut self.queue);
     }
 
     /// DMA interrupt: a line is complete, or the transfer failed.
@@ -171,7 +147,7 @@ impl Capture {
         let flags = pac::DMA1.isr(STREAM / 4).read();
         clear_dma_flags();
         let n = STREAM % 4;
-        if !self.running {
+        if !self.dma.running() {
             return;
         }
         if flags.teif(n) || flags.dmeif(n) {
@@ -183,36 +159,17 @@ impl Capture {
                 vals::Ct::MEMORY1 => 0,
                 _ => 1,
             };
-            self.line_done(done);
-        }
-    }
-
-    /// The line in target `done` is complete: queue it (or count it lost) and point the
-    /// target at a free slot for the line after the one now being written.
-    fn line_done(&mut self, done: usize) {
-        let row = self.row;
-        self.row += 1;
-        match self.targets[done].take() {
-            Some(slot) => self.queue.push(row, slot),
-            None => self.queue.lose(),
-        }
-        if self.row >= FRAME.height {
-            return self.stop();
-        }
-        // The target is refilled for row + 2 (row + 1 is being written): none past the frame.
-        let next = if row + 2 < FRAME.height {
-            self.queue.take_free()
-        } else {
-            None
-        };
-        self.targets[done] = next;
-        let st = pac::DMA1.st(STREAM);
-        let address = line_address(next) as u32;
-        // In double-buffer mode the target register not in use may be written while the
-        // stream runs.
-        match done {
-            0 => st.m0ar().write_value(address),
-            _ => st.m1ar().write_value(address),
+            let address = match self.dma.line_done(&mut self.queue, done) {
+                Refill::Target(slot) => line_address(slot) as u32,
+                Refill::FrameDone => return self.stop(),
+            };
+            // In double-buffer mode the target register not in use may be written while the
+            // stream runs.
+            let st = pac::DMA1.st(STREAM);
+            match done {
+                0 => st.m0ar().write_value(address),
+                _ => st.m1ar().write_value(address),
+            }
         }
     }
 
@@ -220,7 +177,7 @@ impl Capture {
     fn on_dcmi(&mut self) {
         let ris = pac::DCMI.ris().read();
         clear_dcmi_flags();
-        if !self.running {
+        if !self.dma.running() {
             return;
         }
         if ris.ovr_ris() || ris.err_ris() {
@@ -231,7 +188,7 @@ impl Capture {
             if pac::DMA1.isr(STREAM / 4).read().tcif(STREAM % 4) {
                 self.on_dma();
             }
-            if self.running {
+            if self.dma.running() {
                 self.stop();
             }
         }
@@ -240,11 +197,28 @@ impl Capture {
     /// The transfer failed or the DCMI overran: the line in flight and the rest of the frame
     /// are lost.
     fn lose_rest(&mut self) {
-        for _ in self.row..FRAME.height {
-            self.queue.lose();
-        }
-        self.stop();
+        halt();
+        self.dma.lose_rest(&mut self.queue);
     }
+}
+
+/// Stops the DCMI and the DMA stream, their interrupts masked and flags cleared.
+fn halt() {
+    pac::DCMI.cr().modify(|w| {
+        w.set_capture(false);
+        w.set_enable(false);
+    });
+    pac::DCMI.ier().write(|_| {});
+    let st = pac::DMA1.st(STREAM);
+    st.cr().modify(|w| w.set_en(false));
+    // The stream stops after the word in flight; bounded, never an endless loop.
+    for _ in 0..10_000 {
+        if !st.cr().read().en() {
+            break;
+        }
+    }
+    clear_dma_flags();
+    clear_dcmi_flags();
 }
 
 fn clear_dma_flags() {
