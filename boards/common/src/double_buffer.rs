@@ -7,8 +7,10 @@
 //!
 //! A target is set up one line ahead, so a line is lost when no slot was free as its target
 //! was set up, even if one came free while it was written. With nobody reading, [`LINES`]
-//! lines are queued and the rest lost, as in the QEMU firmware's model. Bookkeeping only: the
-//! board writes the registers.
+//! lines are queued and the rest lost, as in the QEMU firmware's model. Row `r` is always in
+//! target `r % 2`: an interrupt served so late that the next line finished too shows as the
+//! other target finishing, and the rest of the frame is lost rather than mislabelled.
+//! Bookkeeping only: the board writes the registers.
 
 use crate::line_queue::LineQueue;
 #[cfg(doc)]
@@ -54,13 +56,19 @@ impl DoubleBuffer {
     }
 
     /// Target `done` (0 or 1) finished a line: it is queued (or lost, from the discard line);
-    /// the target is refilled for the line after the one now being written.
+    /// the target is refilled for the line after the one now being written. The other target
+    /// than the row's (an interrupt missed) loses the rest of the frame.
     pub fn line_done(&mut self, queue: &mut LineQueue, done: usize) -> Refill {
         if !self.running {
             return Refill::FrameDone;
         }
+        if done != self.row % 2 {
+            // Two lines finished for one interrupt: the first target's slot was written over.
+            self.lose_rest(queue);
+            return Refill::FrameDone;
+        }
         let Some(target) = self.targets.get_mut(done) else {
-            return Refill::Target(None);
+            return Refill::FrameDone;
         };
         let row = self.row;
         self.row += 1;

@@ -26,6 +26,8 @@ struct FakeDma {
     current: usize,
     /// The line whose transfer fails, if any.
     error_at: Option<usize>,
+    /// The line whose transfer-complete interrupt is missed (served after the next one), if any.
+    missed_at: Option<usize>,
 }
 
 /// A camera that exposes the rows of a side-by-side frame into free line buffers: a burst of
@@ -85,6 +87,7 @@ impl FakeCamera {
             targets: [None, None],
             current: 0,
             error_at: None,
+            missed_at: None,
         });
         self
     }
@@ -132,6 +135,9 @@ impl FakeCamera {
             self.lines[slot * line..(slot + 1) * line].copy_from_slice(src);
         }
         dma.current ^= 1;
+        if dma.missed_at == Some(row) {
+            return;
+        }
         match dma.buffer.line_done(&mut self.queue, done) {
             Refill::Target(slot) => dma.targets[done] = slot,
             Refill::FrameDone => {
@@ -306,7 +312,7 @@ fn a_frame_that_ends_early_is_the_end_of_rows() {
 }
 
 #[test]
-fn a_failed_transfer_loses_the_rest_of_the_frame() {
+fn a_failed_transfer_or_a_missed_interrupt_loses_the_rest_of_the_frame() {
     let (width, height) = (8, 12);
     let frame = numbered_frame(width, height);
     let mut camera = FakeCamera::new(frame.clone(), width).through_dma(height);
@@ -318,6 +324,18 @@ fn a_failed_transfer_loses_the_rest_of_the_frame() {
     assert_eq!(take(&mut rows, 4), expected(&frame, width, 0..4));
     assert_eq!(next_err(&mut rows), Error::RowsLost { row: 4, lost: 8 });
     // Every slot came back, the DMA's two included.
+    assert_eq!(rows.port_mut().queue.free_slots(), LINES);
+
+    // An interrupt missed at row 5: the next one sees row 6's target finish; rows 5 to 11 are
+    // lost, never row 6 handed over as row 5.
+    let mut camera = FakeCamera::new(frame.clone(), width).through_dma(height);
+    camera.bursts = vec![1];
+    if let Some(dma) = camera.dma.as_mut() {
+        dma.missed_at = Some(5);
+    }
+    let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+    assert_eq!(take(&mut rows, 5), expected(&frame, width, 0..5));
+    assert_eq!(next_err(&mut rows), Error::RowsLost { row: 5, lost: 7 });
     assert_eq!(rows.port_mut().queue.free_slots(), LINES);
 }
 

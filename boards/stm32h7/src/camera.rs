@@ -23,9 +23,11 @@
 //!
 //! The line buffers live in the AXI SRAM (DMA1 does not reach the DTCM) and are cached: the
 //! CPU never writes them after boot (no dirty line can be evicted over what the DMA wrote), and
-//! the consumer invalidates a line's cache lines before reading it. A line whose interrupt is
-//! served more than one line time late would be counted against the wrong row; the DCMI's
-//! frame end then finds the row count short and the frame reports it.
+//! the consumer invalidates a line's cache lines before reading it. An interrupt served so late
+//! that the next line finished too loses the rest of the frame (`double_buffer` sees the wrong
+//! target finish); one that missed two lines would go unseen, but nothing masks interrupts for
+//! anywhere near two line times while a frame is captured (the consumer's critical sections
+//! copy a line's bookkeeping, not its bytes, and the log prints after the run).
 
 use core::cell::RefCell;
 use core::mem::MaybeUninit;
