@@ -106,6 +106,14 @@ pub enum Error {
         /// Rows lost so far.
         lost: usize,
     },
+    /// A row source waited for `row` longer than its timeout and got nothing (a camera that
+    /// stopped sending mid-frame, or never started): an error, never an endless wait.
+    RowsStalled {
+        /// The row the pipeline asked for.
+        row: usize,
+        /// Milliseconds it waited.
+        waited_ms: u32,
+    },
     /// A row source was asked for a row past its last one: the frame ended before the image's
     /// height (a camera that stopped, a pair in memory shorter than its stated height).
     EndOfRows {
@@ -200,6 +208,12 @@ impl fmt::Display for Error {
             }
             Error::RowsLost { row, lost } => {
                 write!(f, "row source lost {lost} rows by row {row} (its row queue overflowed)")
+            }
+            Error::RowsStalled { row, waited_ms } => {
+                write!(
+                    f,
+                    "row source delivered no row {row} within {waited_ms} ms (its camera stalled)"
+                )
             }
             Error::Blob(e) => write!(f, "{e}"),
         }

@@ -1,7 +1,10 @@
 //! The boards' report over defmt (RTT on the boards): one line for the frame's summary, one
-//! per pipeline stage with its cycles, one for the whole frame's.
+//! per pipeline stage with its cycles, one for the whole frame's, and for a camera's frame one
+//! for its line queue.
 
 use bino_core::pipeline::Report;
+
+use crate::line_queue::QueueStats;
 
 use crate::summary::{Clock, Summary, SECTORS};
 
@@ -40,6 +43,19 @@ pub fn print<C: Clock>(frame: u32, summary: &Summary<C>, report: &Report, core_h
         total,
         millis(total, core_hz),
         core_hz
+    );
+}
+
+/// Prints what `frame`'s line queue saw: rows handed to the pipeline, lines queued and lost,
+/// the most lines waiting at once.
+pub fn print_queue(frame: u32, delivered: usize, stats: &QueueStats) {
+    defmt::println!(
+        "bino frame={=u32} rows_delivered={=usize} lines_queued={=usize} lines_lost={=usize} queue_high_water={=usize}",
+        frame,
+        delivered,
+        stats.queued,
+        stats.lost,
+        stats.high_water
     );
 }
 

@@ -59,7 +59,7 @@ impl Frame {
 }
 
 /// The STM32H743's frame, QQVGA 160x120: its 512 KiB AXI SRAM holds the learned preset's arena
-/// beside the whole DCMI frame (docs/boards.md, Memory).
+/// beside the DCMI's line buffers (docs/boards.md, Memory).
 pub const STM32H7: Frame = Frame {
     width: 160,
     height: 120,

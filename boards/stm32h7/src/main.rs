@@ -2,12 +2,17 @@
 //! 480 MHz, the int8 weight blob in internal flash, the pipeline's arena in the AXI SRAM, the
 //! stack in DTCM.
 //!
-//! Frames come from the DCMI (embassy-stm32's driver, 8-bit parallel, snapshot mode with DMA):
-//! one frame is `FRAME.height` (120) lines of `2 x FRAME.width` gray pixels, the rectified left
-//! row then the right row (a side-by-side stereo module). The frame lands in a buffer in the AXI
-//! SRAM beside the arena, the pipeline reads it line by line ([`SideBySide`]), band after band of
-//! the learned preset, and the board prints each frame's sector summary and the cycles of every
-//! stage over defmt-RTT. With the `test-frame` feature the board runs the QEMU firmware's
+//! Rows come from the DCMI (8-bit parallel): one frame is `FRAME.height` (120) lines of
+//! `2 x FRAME.width` gray pixels, the rectified left row then the right row (a side-by-side
+//! stereo module). There is no frame buffer: the DCMI's DMA writes each line into one of 8 line
+//! buffers in the AXI SRAM beside the arena, and its interrupt pushes the line's row and slot
+//! into a heapless queue that the pipeline's row source pops (`camera`,
+//! `bino_board::line_queue`), one whole frame per run, started at the run's first row. A line
+//! that finds every buffer taken is lost and the frame fails with `RowsLost`; a camera that
+//! sends nothing for a second fails it with `RowsStalled`; the next frame starts clean either
+//! way. The board prints each frame's sector summary, the cycles of every stage (the rows
+//! stage includes the wait for the camera) and the queue's high-water mark and lost rows over
+//! defmt-RTT. With the `test-frame` feature the board runs the QEMU firmware's
 //! embedded 160x120 test frame instead, over and over, and reports whether it reproduced the
 //! host's result bit for bit.
 //!
@@ -116,33 +121,38 @@ fn main() -> ! {
 }
 
 #[cfg(not(feature = "test-frame"))]
+mod camera;
+
+#[cfg(not(feature = "test-frame"))]
 mod source {
-    //! Camera frames from the DCMI, forever.
+    //! Camera frames from the DCMI, row by row through the line queue, forever.
 
     use super::*;
     use bino_board::clock::DwtClock;
-    use bino_board::side_by_side::SideBySide;
+    use bino_board::line_queue::QueuedRows;
     use bino_board::summary::Summary;
     use cortex_m::peripheral::SCB;
     use embassy_stm32::dcmi::{self, Dcmi};
     use embassy_stm32::{bind_interrupts, dma, peripherals, Peripherals};
 
+    use crate::camera::{DcmiLines, FrameEnd, LineComplete, LINE_BUFFER_BYTES};
+
     bind_interrupts!(struct Irqs {
-        DCMI => dcmi::InterruptHandler<peripherals::DCMI>;
+        DCMI => dcmi::InterruptHandler<peripherals::DCMI>, FrameEnd;
         DMA1_STREAM0 => dma::InterruptHandler<peripherals::DMA1_CH0>;
+        DMA1_STREAM1 => LineComplete;
     });
 
-    /// Words of one frame: FRAME.height lines of 2 x FRAME.width bytes.
-    const FRAME_WORDS: usize = 2 * FRAME.pixels() / 4;
-
-    /// The DCMI's DMA target: AXI SRAM (the DMA does not reach DTCM), cache-line aligned.
-    #[link_section = ".axisram.frame"]
-    static mut FRAME_BUFFER: MaybeUninit<Aligned<[u32; FRAME_WORDS]>> = MaybeUninit::uninit();
+    /// Milliseconds `next_row` waits for a line before the frame fails as stalled: the first
+    /// row waits for the sensor's next frame to start, so this is longer than a frame period.
+    const STALL_MS: u32 = 1_000;
 
     pub fn run(p: Peripherals, scb: &mut SCB, preset: &Preset<'_>, arena: &mut [u8]) -> ! {
         // Pins of the DCMI's 8-bit bus (the embassy STM32H7 DCMI example's): D0 PC6, D1 PC7,
         // D2 PE0, D3 PE1, D4 PE4, D5 PD3, D6 PE5, D7 PE6, VSYNC PB7, HSYNC PA4, PIXCLK PA6.
-        let mut dcmi = Dcmi::new_8bit(
+        // The driver sets up the pins, the clock and the bus; the capture is `camera`'s, on
+        // DMA1 stream 1 (the driver's stream 0 stays idle).
+        let _dcmi = Dcmi::new_8bit(
             p.DCMI,
             p.DMA1_CH0,
             Irqs,
@@ -159,40 +169,27 @@ mod source {
             p.PA6,
             dcmi::Config::default(),
         );
-        // SAFETY: FRAME_BUFFER is only referenced here, once; zeroing it makes it initialised.
-        let frame = unsafe {
-            let f = addr_of_mut!(FRAME_BUFFER).cast::<u32>();
-            core::ptr::write_bytes(f, 0, FRAME_WORDS);
-            core::slice::from_raw_parts_mut(f, FRAME_WORDS)
-        };
+        // The capture's stream: taken so that nothing else claims it.
+        let _stream = p.DMA1_CH1;
+        let mut rows = QueuedRows::new(DcmiLines::new(scb), FRAME.width, FRAME.height, STALL_MS);
         defmt::println!(
-            "bino source=dcmi frame_bytes={=usize} waiting for frames",
-            FRAME_WORDS * 4
+            "bino source=dcmi line_buffer_bytes={=usize} waiting for frames",
+            LINE_BUFFER_BYTES
         );
         let mut n = 0u32;
         loop {
-            // No dirty line of the frame may be evicted over what the DMA writes: write back
-            // and drop its lines first (the zeroing above left some dirty).
-            scb.clean_invalidate_dcache_by_address(frame.as_ptr() as usize, FRAME_WORDS * 4);
-            let captured = embassy_futures::block_on(dcmi.capture(frame));
-            // The DMA wrote behind the data cache: drop the lines speculative reads may have
-            // filled meanwhile, before reading.
-            // SAFETY: the buffer is 32-byte aligned and a whole number of cache lines, so no
-            // other data shares its lines; nothing else writes it.
-            unsafe { scb.invalidate_dcache_by_slice(frame) };
-            if let Err(e) = captured {
-                defmt::println!("bino frame={=u32} capture_error={}", n, defmt::Debug2Format(&e));
-                continue;
-            }
-            let bytes: &[u8] = bytemuck::cast_slice(frame);
-            let result = SideBySide::new(bytes, FRAME.width, FRAME.height).and_then(|mut rows| {
-                let mut summary = Summary::new(FRAME.width, DwtClock)?;
-                preset.run(&mut rows, arena, &mut summary).map(|r| (summary, r))
-            });
+            // A new frame: capture stopped, queue empty, every slot free, counters zeroed.
+            rows.rewind();
+            let result = Summary::new(FRAME.width, DwtClock)
+                .and_then(|mut summary| preset.run(&mut rows, arena, &mut summary).map(|r| (summary, r)));
+            let (delivered, stats) = (rows.delivered(), rows.stats());
+            // Stops a capture an error left running.
+            rows.rewind();
             match result {
                 Ok((summary, report)) => bino_board::log::print(n, &summary, &report, CORE_HZ),
                 Err(e) => defmt::println!("bino frame={=u32} error={}", n, defmt::Display2Format(&e)),
             }
+            bino_board::log::print_queue(n, delivered, &stats);
             n = n.wrapping_add(1);
         }
     }
