@@ -61,24 +61,32 @@ pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [
     Ok(kept)
 }
 
-/// The `+lr` readouts' dense output: each cell the left-right check rejected (`consistent`
-/// 0) takes the disparity of the nearest kept cell to its left; rejected cells before the
-/// first kept one take that one's; a row with no kept cell is all 0. In place. Generic so the
-/// host's float readouts fill with this same definition (a copy of kept values, exact in any
-/// precision).
-pub fn fill_rejected<T: Copy + Default>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
+/// The `+lr` readouts' dense output: each run of cells the left-right check rejected
+/// (`consistent` 0) takes the lower of the two kept disparities around it, the nearest to its
+/// left and to its right (the background side: an occlusion hides the farther surface beside a
+/// nearer one), or the one that exists at a row's ends; a row with no kept cell is all 0. In
+/// place. Generic so the host's float readouts fill with this same definition (a copy of kept
+/// values, exact in any precision).
+pub fn fill_rejected<T: Copy + Default + PartialOrd>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
     Error::check_len("left-right mask row", row.len(), consistent.len())?;
-    let Some(first) = consistent.iter().position(|&k| k != 0) else {
-        row.fill(T::default());
-        return Ok(());
-    };
-    let mut carried = row.get(first).copied().unwrap_or_default();
-    for (value, &kept) in row.iter_mut().zip(consistent) {
-        if kept != 0 {
-            carried = *value;
-        } else {
-            *value = carried;
+    // The nearest kept value left of the current run, and where the run starts.
+    let mut before: Option<T> = None;
+    let mut run = 0;
+    for at in 0..=row.len() {
+        let after = row.get(at).copied();
+        if after.is_some() && consistent.get(at).is_some_and(|&k| k == 0) {
+            continue;
         }
+        let fill = match (before, after) {
+            (Some(b), Some(a)) if a < b => a,
+            (Some(v), _) | (None, Some(v)) => v,
+            (None, None) => T::default(),
+        };
+        if let Some(cells) = row.get_mut(run..at) {
+            cells.fill(fill);
+        }
+        before = after;
+        run = at + 1;
     }
     Ok(())
 }
@@ -212,10 +220,20 @@ mod tests {
     }
 
     #[test]
-    fn rejected_cells_take_the_nearest_kept_value_to_their_left() {
+    fn rejected_cells_take_the_lower_of_their_kept_neighbours() {
         let mut row = [10, 20, 30, 40, 50];
         fill_rejected(&mut row, &[0, 1, 0, 0, 1]).unwrap();
-        assert_eq!(row, [20, 20, 20, 20, 50]);
+        assert_eq!(row, [20, 20, 20, 20, 50], "the left neighbour is lower");
+        let mut row = [10, 50, 30, 40, 20, 60];
+        fill_rejected(&mut row, &[1, 1, 0, 0, 1, 0]).unwrap();
+        assert_eq!(
+            row,
+            [10, 50, 20, 20, 20, 20],
+            "the right neighbour is lower; the row's end takes its only one"
+        );
+        let mut one = [3, 9, 9];
+        fill_rejected(&mut one, &[1, 0, 0]).unwrap();
+        assert_eq!(one, [3, 3, 3]);
         let mut none = [7, 8];
         fill_rejected(&mut none, &[0, 0]).unwrap();
         assert_eq!(none, [0, 0]);

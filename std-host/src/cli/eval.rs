@@ -50,7 +50,7 @@ pub struct EvalArgs {
     /// Readouts to score (repeat or comma-separate); the default is every readout of the pathway.
     ///
     /// nolink, sgm, head, fuse, census, fuse-census or fuse-all, each optionally with +lr (cells the
-    /// method's own left-right check rejects filled from the left), then optionally +ref (pixels
+    /// method's own left-right check rejects filled from their lower kept neighbour), then optionally +ref (pixels
     /// by the integer refinement instead of bilinear upsampling). Default: every readout of the
     /// pathway, each unrefined then refined (all 28 on export; the head's, census's and
     /// fuse-census's twelve on native).

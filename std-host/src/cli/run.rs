@@ -35,9 +35,9 @@ pub struct RunArgs {
     ///
     /// Methods: nolink, sgm, head, fuse, census, fuse-census, fuse-all.
     ///
-    /// +lr: cells the method's own left-right check rejects filled from the nearest kept cell to
-    /// their left; +ref: the same as --refine on. fuse+lr: the head and SGM, their weighted mean
-    /// where both pass their checks, the one that passes elsewhere. census: census matching of
+    /// +lr: cells the method's own left-right check rejects filled by the lower of their nearest
+    /// kept neighbours left and right; +ref: the same as --refine on. fuse+lr: the head and SGM,
+    /// their weighted mean where both pass their checks, the one that passes elsewhere. census: census matching of
     /// the pixels with SGM (no encoder); fuse-census: the head fused with it as fuse+lr fuses
     /// the head and SGM (on either pathway); fuse-all: the head fused with the census, then with
     /// the SGM (export pathway). Default: census+lr, no encoder (the most accurate on the real

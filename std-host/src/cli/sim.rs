@@ -35,7 +35,7 @@ pub struct SimArgs {
     /// and fuse-all+lr (native pathway: fuse-census+lr).
     ///
     /// nolink, sgm, head, census: cells their left-right check rejects are dark; +lr: those
-    /// cells filled from the left, as `bino eval` scores; each token row as the pipeline streams
+    /// cells filled from their lower kept neighbour, as `bino eval` scores; each token row as the pipeline streams
     /// it. A +ref readout draws its refined pixel rows as the pipeline's refinement stage
     /// streams them. The default is `bino run`'s, refined: census+lr+ref (no encoder); with
     /// --pathway, that pathway's (export: fuse-all+lr+ref; native, the board's learned preset:

@@ -6,7 +6,7 @@
 //! | readout | token grid |
 //! |---|---|
 //! | `nolink`, `sgm`, `head` | the method's disparity, every cell |
-//! | `nolink+lr`, `sgm+lr`, `head+lr` | the same, cells the method's own left-right check rejects filled from the nearest kept cell to their left (`bino_core::lr::fill_rejected`) |
+//! | `nolink+lr`, `sgm+lr`, `head+lr` | the same, cells the method's own left-right check rejects filled by the lower of their nearest kept neighbours left and right (`bino_core::lr::fill_rejected`) |
 //! | `fuse` | the weighted mean of `head` and `sgm` in every cell (Q8, `bino_core::lr::fuse_row` with every cell kept; the head's share [`fuse_head_weight`], moved by its confidence) |
 //! | `fuse+lr` | `bino_core::lr::fuse_row` of the head and SGM with their own checks: the weighted mean where both pass, the one that passes, else rejected and filled as above |
 //!
