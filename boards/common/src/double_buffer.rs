@@ -7,10 +7,13 @@
 //!
 //! A target is set up one line ahead, so a line is lost when no slot was free as its target
 //! was set up, even if one came free while it was written. With nobody reading, [`LINES`]
-//! lines are queued and the rest lost, as in the QEMU firmware's model. Row `r` is always in
-//! target `r % 2`: an interrupt served so late that the next line finished too shows as the
-//! other target finishing, and the rest of the frame is lost rather than mislabelled.
-//! Bookkeeping only: the board writes the registers.
+//! lines are queued and the rest lost, as in the QEMU firmware's model; or, when the queue
+//! [resumes](LineQueue::resumes), the capture stops before the first row whose target found no
+//! slot (the line being written then still lands in its slot, so all [`LINES`] are queued) and
+//! is re-armed from that row later ([`DoubleBuffer::start`] at a row). The `k`-th row of a
+//! capture is always in target `k % 2`: an interrupt served so late that the next line finished
+//! too shows as the other target finishing, and the rest of the frame is lost rather than
+//! mislabelled. Bookkeeping only: the board writes the registers.
 
 use crate::line_queue::LineQueue;
 #[cfg(doc)]
@@ -32,6 +35,10 @@ pub struct DoubleBuffer {
     targets: [Option<usize>; 2],
     /// The row of the next line to finish.
     row: usize,
+    /// The capture's first row (target 0's).
+    first: usize,
+    /// The row the capture stops before: the frame's height, or the first row without a slot.
+    end: usize,
     height: usize,
     running: bool,
 }
@@ -42,16 +49,18 @@ impl DoubleBuffer {
         Self {
             targets: [None, None],
             row: 0,
+            first: 0,
+            end: height,
             height,
             running: false,
         }
     }
 
-    /// A frame starts: a slot for each target (target 0 takes row 0), from a freshly reset
-    /// `queue`.
-    pub fn start(&mut self, queue: &mut LineQueue) -> [Option<usize>; 2] {
+    /// A capture starts at row `first` (0: the frame's start; later, a re-arm): a slot for each
+    /// target (target 0 takes row `first`), from a queue holding no line.
+    pub fn start(&mut self, queue: &mut LineQueue, first: usize) -> [Option<usize>; 2] {
         self.targets = [queue.take_free(), queue.take_free()];
-        (self.row, self.running) = (0, true);
+        (self.row, self.first, self.end, self.running) = (first, first, self.height, true);
         self.targets
     }
 
@@ -62,7 +71,7 @@ impl DoubleBuffer {
         if !self.running {
             return Refill::FrameDone;
         }
-        if done != self.row % 2 {
+        if done != (self.row - self.first) % 2 {
             // Two lines finished for one interrupt: the first target's slot was written over.
             self.lose_rest(queue);
             return Refill::FrameDone;
@@ -76,17 +85,23 @@ impl DoubleBuffer {
             Some(slot) => queue.push(row, slot),
             None => queue.lose(),
         }
-        if self.row >= self.height {
+        if self.row >= self.end {
             return Refill::FrameDone;
         }
-        // The other target is writing row + 1; this one gets row + 2, if the frame has it.
-        let next = if row + 2 < self.height { queue.take_free() } else { None };
+        // The other target is writing row + 1; this one gets row + 2, if the capture has it.
+        let after = row + 2;
+        let next = if after < self.end { queue.take_free() } else { None };
+        if next.is_none() && after < self.end && queue.resumes() {
+            // No slot for it: the capture ends once row + 1 is done, and resumes there.
+            queue.stop_at(after);
+            self.end = after;
+        }
         *target = next;
         Refill::Target(next)
     }
 
     /// The transfer failed or the camera overran: the line in flight and the rest of the frame
-    /// are lost; the frame stops.
+    /// are lost (a stopped capture's rows after its end too); the frame stops.
     pub fn lose_rest(&mut self, queue: &mut LineQueue) {
         if self.running {
             for _ in self.row..self.height {
@@ -96,8 +111,8 @@ impl DoubleBuffer {
         self.stop(queue);
     }
 
-    /// The DMA has stopped: the targets' slots go back, and a running frame ends there (short
-    /// of its height if lines are missing).
+    /// The DMA has stopped: the targets' slots go back, and a running capture ends there (short
+    /// of its height if lines are missing, or stopped to resume).
     pub fn stop(&mut self, queue: &mut LineQueue) {
         for slot in self.targets.iter_mut().filter_map(Option::take) {
             queue.give_back(slot);
@@ -113,8 +128,9 @@ impl DoubleBuffer {
         self.running
     }
 
-    /// Lines finished this frame (queued or lost).
-    pub fn lines_done(&self) -> usize {
+    /// The row of the next line to finish: the frame's rows before it are done (queued, lost,
+    /// or queued by an earlier capture).
+    pub fn next_row(&self) -> usize {
         self.row
     }
 }

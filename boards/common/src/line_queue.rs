@@ -1,6 +1,7 @@
 //! Camera rows through a heapless queue: what a board's camera interrupt (a DCMI's DMA, a
 //! parallel or MIPI bridge) and the pipeline's [`RowSource`] share, the same path the QEMU
-//! firmware models (`firmware-sim/src/camera.rs`).
+//! firmware models (`firmware-sim/src/camera.rs`; its sensor is never re-armed, but paced so that
+//! no row is lost).
 //!
 //! [`LINES`] line buffers each hold one side-by-side line (`2 x width` bytes: the left view's
 //! row, then the right's). The producer (the interrupt) takes a free slot for the next line
@@ -9,10 +10,18 @@
 //! line, copies it into the pipeline's row buffers and hands the slot back over the free-slot
 //! queue; while nothing is queued it sleeps (the board's [`LinePort::wait`]: `wfi`).
 //!
-//! The camera never waits: a line that finds no free slot is lost and counted
-//! ([`LineQueue::lose`]), and the pipeline gets [`Error::RowsLost`] instead of a later row,
-//! never a silent gap. A frame that ends before its height is [`Error::EndOfRows`]; a camera
-//! that sends nothing for the port's timeout is [`Error::RowsStalled`], never an endless wait.
+//! The camera never waits. A line that finds no free slot ends the capture there when the port
+//! can re-arm its camera mid-frame ([`LinePort::restarts`]): the producer records that row
+//! ([`LineQueue::stop_at`]) and drops the rest of that sensor frame; the consumer drains the
+//! rows already queued, and when the pipeline asks for the missing row it re-arms the camera
+//! from there ([`LinePort::restart_from`]), so the sensor's next frame delivers the rest. No row
+//! is lost and they come in order, but a frame is then stitched from several sensor frames (the
+//! re-arms are counted: [`QueueStats::captures`]); in a moving scene its bands are from
+//! different moments, as with a rolling shutter. A port that cannot re-arm mid-frame loses the
+//! line and counts it ([`LineQueue::lose`]), and the pipeline gets [`Error::RowsLost`] instead
+//! of a later row, never a silent gap; so does a failed transfer on any port. A frame that ends
+//! before its height is [`Error::EndOfRows`]; a camera that sends nothing for the port's timeout
+//! (after a start or a re-arm too) is [`Error::RowsStalled`], never an endless wait.
 //! Every frame starts clean: the producer stopped, the queue emptied, every slot free, the
 //! counters zeroed, whatever the last frame left.
 //!
@@ -51,8 +60,11 @@ pub struct QueueStats {
     pub lost: usize,
     /// Most lines waiting in the queue at once.
     pub high_water: usize,
-    /// The producer has said the frame ended.
+    /// The producer has said the frame ended (or, resuming, that its capture stopped).
     pub ended: bool,
+    /// Camera frames this frame's rows came from: the capture started at the frame's first row
+    /// and each re-arm at a row that found no free slot (1: no re-arm).
+    pub captures: usize,
 }
 
 /// The slots' bookkeeping: filled lines in row order, free slots, the frame's counters.
@@ -63,6 +75,11 @@ pub struct LineQueue {
     /// Free slots (producer: the pipeline, as it is done with a line; consumer: the interrupt).
     free: Queue<u8, { LINES + 1 }>,
     stats: QueueStats,
+    /// A line without a free slot stops the capture ([`LineQueue::stop_at`]) rather than being
+    /// lost: the port re-arms its camera from that row.
+    resumes: bool,
+    /// The first row the stopped capture did not store: where it resumes.
+    resume_at: Option<usize>,
 }
 
 impl Default for LineQueue {
@@ -83,13 +100,17 @@ impl LineQueue {
                 lost: 0,
                 high_water: 0,
                 ended: false,
+                captures: 0,
             },
+            resumes: false,
+            resume_at: None,
         }
     }
 
-    /// A new frame: no line queued, every slot free, every counter zeroed. The producer must be
-    /// stopped (it holds no slot afterwards).
-    pub fn reset(&mut self) {
+    /// A new frame: no line queued, every slot free, every counter zeroed; a line without a
+    /// free slot stops the capture if `resumes` (the port re-arms mid-frame), else is lost. The
+    /// producer must be stopped (it holds no slot afterwards).
+    pub fn reset(&mut self, resumes: bool) {
         while self.filled.dequeue().is_some() {}
         while self.free.dequeue().is_some() {}
         for slot in 0..LINES as u8 {
@@ -97,6 +118,33 @@ impl LineQueue {
             let _ = self.free.enqueue(slot);
         }
         self.stats = QueueStats::default();
+        (self.resumes, self.resume_at) = (resumes, None);
+    }
+
+    /// Consumer: a capture is armed (the frame's first, or a re-arm after
+    /// [`LineQueue::stop_at`]): counted; the stopped capture's end and row are forgotten. The
+    /// producer must be stopped.
+    pub fn arm(&mut self) {
+        self.stats.captures += 1;
+        (self.stats.ended, self.resume_at) = (false, None);
+    }
+
+    /// Whether a line without a free slot stops the capture ([`LineQueue::stop_at`]) rather
+    /// than being lost ([`LineQueue::lose`]).
+    pub fn resumes(&self) -> bool {
+        self.resumes
+    }
+
+    /// Producer, resuming: row `row` found no free slot; the capture stops before it (the
+    /// producer takes no more lines until re-armed) and resumes there. The first such row
+    /// counts.
+    pub fn stop_at(&mut self, row: usize) {
+        self.resume_at = self.resume_at.or(Some(row));
+    }
+
+    /// Where the stopped capture resumes, if it stopped for want of a slot.
+    pub fn resume_at(&self) -> Option<usize> {
+        self.resume_at
     }
 
     /// Producer: a free slot for the next line, if any is left.
@@ -150,10 +198,10 @@ impl LineQueue {
         }
     }
 
-    /// Whether a waiting consumer has nothing to wait for: a line is queued, or the frame
-    /// ended.
+    /// Whether a waiting consumer has nothing to wait for: a line is queued, the frame ended,
+    /// or the capture stopped to resume.
     pub fn ready(&self) -> bool {
-        !self.filled.is_empty() || self.stats.ended
+        !self.filled.is_empty() || self.stats.ended || self.resume_at.is_some()
     }
 
     /// Slots free for the producer now.
@@ -168,7 +216,7 @@ impl LineQueue {
 }
 
 /// What a board gives [`QueuedRows`]: the shared queue, the line buffers' memory, the producer's
-/// start and stop, a way to sleep and a millisecond clock.
+/// start, re-arm and stop, a way to sleep and a millisecond clock.
 pub trait LinePort {
     /// Runs `f` on the queue the producer shares (in a critical section on a board).
     fn with_queue<R>(&mut self, f: impl FnOnce(&mut LineQueue) -> R) -> R;
@@ -179,6 +227,14 @@ pub trait LinePort {
     fn start(&mut self);
     /// Stops the producer: afterwards it takes, pushes and loses nothing (at once if stopped).
     fn stop(&mut self);
+    /// Whether the producer can be re-armed mid-frame ([`LinePort::restart_from`]): a camera
+    /// whose capture can start at any row of its next frame (a crop window). Without it a line
+    /// that finds no free slot is lost.
+    fn restarts(&self) -> bool;
+    /// Re-arms the stopped producer on the camera's next frame from row `row` on (to the
+    /// frame's last row); the queue holds no line and the producer no slot. Called only if
+    /// [`LinePort::restarts`].
+    fn restart_from(&mut self, row: usize);
     /// Sleeps until the producer may have pushed a line or the clock moved (`wfi`), or
     /// returns at once when the queue is [`ready`](LineQueue::ready).
     fn wait(&mut self);
@@ -191,7 +247,8 @@ pub struct QueuedRows<P> {
     port: P,
     width: usize,
     height: usize,
-    /// Milliseconds `next_row` waits for a line before [`Error::RowsStalled`].
+    /// Milliseconds `next_row` waits for a line before [`Error::RowsStalled`]; after a start
+    /// or a re-arm the first row waits for the camera's next frame, and then for its row.
     stall_ms: u32,
     /// Next row the pipeline gets.
     next: usize,
@@ -201,7 +258,9 @@ pub struct QueuedRows<P> {
 
 impl<P: LinePort> QueuedRows<P> {
     /// Frames of `height` rows of views `width` pixels wide from `port`, waiting at most
-    /// `stall_ms` for each row. The producer starts at the first row asked for.
+    /// `stall_ms` for each row (more than two of the camera's frame periods: a re-arm waits for
+    /// the next frame's start, then for the row). The producer starts at the first row asked
+    /// for.
     pub fn new(port: P, width: usize, height: usize, stall_ms: u32) -> Self {
         Self {
             port,
@@ -216,8 +275,17 @@ impl<P: LinePort> QueuedRows<P> {
     /// Stops the producer; the next request starts a new frame, clean (after an error too).
     pub fn rewind(&mut self) {
         self.port.stop();
-        self.port.with_queue(LineQueue::reset);
+        let resumes = self.port.restarts();
+        self.port.with_queue(|q| q.reset(resumes));
         (self.next, self.started) = (0, false);
+    }
+
+    /// The capture stopped at the next row for want of a slot and every row before it is
+    /// delivered: re-arms the camera from it.
+    fn resume(&mut self) {
+        self.port.stop();
+        self.port.with_queue(LineQueue::arm);
+        self.port.restart_from(self.next);
     }
 
     /// The frame's counters so far.
@@ -257,6 +325,7 @@ impl<P: LinePort> RowSource for QueuedRows<P> {
         Error::check_len("right row buffer", self.width, right.len())?;
         if !self.started {
             self.rewind();
+            self.port.with_queue(LineQueue::arm);
             self.port.start();
             self.started = true;
         }
@@ -266,9 +335,11 @@ impl<P: LinePort> RowSource for QueuedRows<P> {
                 height: self.height,
             });
         }
-        let since = self.port.now_ms();
+        let mut since = self.port.now_ms();
+        // Re-armed for this row: with every slot free the row must come, or the port is broken.
+        let mut rearmed = false;
         loop {
-            match self.port.with_queue(|q| q.pop().ok_or(q.stats())) {
+            match self.port.with_queue(|q| q.pop().ok_or((q.stats(), q.resume_at()))) {
                 Ok(line) => {
                     let slot = usize::from(line.slot);
                     let copied = self.port.read_line(slot, left, right);
@@ -281,14 +352,22 @@ impl<P: LinePort> RowSource for QueuedRows<P> {
                     self.next += 1;
                     return Ok(());
                 }
-                Err(stats) if stats.lost > 0 && stats.ended => return Err(self.lost()),
-                Err(stats) if stats.ended => {
+                // Every row before the stop is delivered: the camera's next frame gives the
+                // rest, and the wait for it starts now.
+                Err((_, Some(row))) if row == self.next && !rearmed => {
+                    self.resume();
+                    (since, rearmed) = (self.port.now_ms(), true);
+                }
+                // Stopped past a row the queue never got, or again before the re-armed row: lost.
+                Err((_, Some(_))) => return Err(self.lost()),
+                Err((stats, None)) if stats.lost > 0 && stats.ended => return Err(self.lost()),
+                Err((stats, None)) if stats.ended => {
                     return Err(Error::EndOfRows {
                         row: self.next,
                         height: self.next,
                     })
                 }
-                Err(stats) => {
+                Err((stats, None)) => {
                     let waited_ms = self.port.now_ms().wrapping_sub(since);
                     if waited_ms >= self.stall_ms {
                         return Err(if stats.lost > 0 {
@@ -315,7 +394,7 @@ mod tests {
     fn a_bad_slot_or_row_is_lost_and_a_slot_comes_back_once() {
         let mut q = LineQueue::new();
         assert_eq!(q.take_free(), None, "no slot before the first reset");
-        q.reset();
+        q.reset(false);
         assert_eq!(q.free_slots(), LINES);
         let slot = q.take_free().unwrap();
         q.push(usize::from(u16::MAX) + 1, slot);
@@ -345,7 +424,25 @@ mod tests {
         assert_eq!(q.take_free(), None);
         q.end();
         assert!(q.ready());
-        q.reset();
+        q.reset(false);
         assert_eq!((q.stats(), q.free_slots()), (QueueStats::default(), LINES));
+    }
+
+    #[test]
+    fn a_stop_keeps_its_first_row_until_the_re_arm() {
+        let mut q = LineQueue::new();
+        q.reset(true);
+        assert!(q.resumes() && !q.ready());
+        q.arm();
+        q.stop_at(5);
+        q.stop_at(7);
+        assert_eq!(q.resume_at(), Some(5));
+        assert!(q.ready(), "a stopped capture is nothing to wait for");
+        q.end();
+        q.arm();
+        assert_eq!((q.resume_at(), q.stats().ended, q.stats().captures), (None, false, 2));
+        assert!(!q.ready());
+        q.reset(false);
+        assert_eq!((q.resumes(), q.resume_at(), q.stats().captures), (false, None, 0));
     }
 }

@@ -47,15 +47,16 @@ pub fn print<C: Clock>(frame: u32, summary: &Summary<C>, report: &Report, core_h
 }
 
 /// Prints what `frame`'s line queue saw: rows handed to the pipeline, lines queued and lost,
-/// the most lines waiting at once.
+/// the most lines waiting at once, and the camera frames its rows came from (1 + re-arms).
 pub fn print_queue(frame: u32, delivered: usize, stats: &QueueStats) {
     defmt::println!(
-        "bino frame={=u32} rows_delivered={=usize} lines_queued={=usize} lines_lost={=usize} queue_high_water={=usize}",
+        "bino frame={=u32} rows_delivered={=usize} lines_queued={=usize} lines_lost={=usize} queue_high_water={=usize} captures={=usize}",
         frame,
         delivered,
         stats.queued,
         stats.lost,
-        stats.high_water
+        stats.high_water,
+        stats.captures
     );
 }
 

@@ -5,14 +5,19 @@
 //! camera runs further ahead than the line buffers hold, a frame that ends early, a transfer
 //! error, a camera that stalls (a fake millisecond clock), a clean frame after each error, and the
 //! STM32H743's whole 160x120 test frame through the fast preset giving the same summary and report
-//! as the same frame in memory.
+//! as the same frame in memory. A free-running sensor (a frame every so many line times, read
+//! in bands with long pauses as the learned preset reads) behind a port that re-arms mid-frame:
+//! every row once, in order, each from the sensor frame its capture took, stitched from as many
+//! sensor frames as expected; the same without the re-arm: rows lost; a re-arm the sensor never
+//! answers: stalled; and the H743's frame from such a sensor, still, giving both presets the
+//! summary and report of the frame in memory.
 
 mod common;
 
 use bino_board::double_buffer::{DoubleBuffer, Refill};
 use bino_board::line_queue::{line_bytes, LinePort, LineQueue, QueueStats, QueuedRows, LINES};
 use bino_board::options::STM32H7;
-use bino_board::run::Preset;
+use bino_board::run::{load, Preset};
 use bino_board::side_by_side::SideBySide;
 use bino_board::summary::{NoClock, Summary};
 use bino_core::pipeline::{Report, RowSource};
@@ -30,8 +35,22 @@ struct FakeDma {
     missed_at: Option<usize>,
 }
 
+/// A sensor that streams frames whether or not a capture is armed: line `step % period` of frame
+/// `step / period` at each step (the rows, then blanking lines).
+struct Sensor {
+    period: usize,
+    step: usize,
+    /// Frames it sends before falling silent, if it does.
+    frames: Option<usize>,
+    /// Each frame's rows differ by the frame's number (a moving scene), else all alike.
+    moving: bool,
+    /// A capture waits for the next frame's start.
+    armed: bool,
+}
+
 /// A camera that exposes the rows of a side-by-side frame into free line buffers: a burst of
-/// rows at its start and one at each wait of the consumer (as interrupts land meanwhile).
+/// rows at its start and one at each wait of the consumer (as interrupts land meanwhile); or,
+/// with a [`Sensor`], a step of the sensor at each.
 struct FakeCamera {
     queue: LineQueue,
     /// Through a double-buffered DMA (else each line takes a free slot as it comes).
@@ -49,6 +68,12 @@ struct FakeCamera {
     bursts: Vec<usize>,
     /// Exposes only as many rows as slots are free (a sensor paced to the pipeline).
     paced: bool,
+    /// The port re-arms a capture mid-frame ([`LinePort::restart_from`]).
+    restarts: bool,
+    /// A broken re-arm: the capture stops again before its first row.
+    rearm_stops: bool,
+    /// A free-running sensor behind the capture (else the frame starts as the capture does).
+    sensor: Option<Sensor>,
     next: usize,
     running: bool,
     waits: usize,
@@ -72,6 +97,9 @@ impl FakeCamera {
             start_burst: 0,
             bursts: vec![1],
             paced: true,
+            restarts: false,
+            rearm_stops: false,
+            sensor: None,
             next: 0,
             running: false,
             waits: 0,
@@ -92,21 +120,84 @@ impl FakeCamera {
         self
     }
 
-    /// One row interval: the next row into a free slot, or lost.
+    /// A free-running sensor streaming `frames`' rows (the camera's), a frame every `period`
+    /// steps, behind a port that re-arms mid-frame; paced by nothing, a step at each wait.
+    fn free_running(mut self, period: usize, moving: bool) -> Self {
+        self.sensor = Some(Sensor {
+            period,
+            step: 0,
+            frames: None,
+            moving,
+            armed: false,
+        });
+        (self.restarts, self.paced, self.bursts) = (true, false, vec![1]);
+        self
+    }
+
+    /// The capture is armed at row `row`: at once, or at the sensor's next frame start.
+    fn arm_at(&mut self, row: usize) {
+        self.next = row;
+        match self.sensor.as_mut() {
+            Some(sensor) => (sensor.armed, self.running) = (true, false),
+            None => self.running = true,
+        }
+        if let Some(dma) = self.dma.as_mut() {
+            dma.targets = dma.buffer.start(&mut self.queue, row);
+            dma.current = 0;
+        }
+    }
+
+    /// The sensor's step: whether its line is the capture's next row. A frame's start begins an
+    /// armed capture; lines above the capture's window and the blanking carry nothing.
+    fn sensor_step(&mut self) -> bool {
+        let Some(sensor) = self.sensor.as_mut() else {
+            return true;
+        };
+        let (frame, line) = (sensor.step / sensor.period, sensor.step % sensor.period);
+        sensor.step += 1;
+        if sensor.frames.is_some_and(|n| frame >= n) {
+            return false;
+        }
+        if line == 0 && sensor.armed {
+            (sensor.armed, self.running) = (false, true);
+        }
+        line == self.next
+    }
+
+    /// What the sensor's current frame shows on row `row`: the frame's row, each byte plus the
+    /// sensor frame's number if the scene moves.
+    fn write_row(&mut self, row: usize, slot: usize) {
+        let line = line_bytes(self.width);
+        let shift = match &self.sensor {
+            Some(s) if s.moving => ((s.step - 1) / s.period) as u8,
+            _ => 0,
+        };
+        let src = &self.frame[row * line..(row + 1) * line];
+        for (dst, &b) in self.lines[slot * line..(slot + 1) * line].iter_mut().zip(src) {
+            *dst = b.wrapping_add(shift);
+        }
+    }
+
+    /// One row interval: the next row into a free slot, or lost, or (resuming) the capture
+    /// stops before it.
     fn expose(&mut self) {
-        if !self.running || self.next >= self.rows {
+        if !self.sensor_step() || !self.running || self.next >= self.rows {
             return;
         }
         if self.dma.is_some() {
             return self.expose_by_dma();
         }
-        let (row, line) = (self.next, line_bytes(self.width));
+        let row = self.next;
         self.next += 1;
         match self.queue.take_free() {
             Some(slot) => {
-                let src = &self.frame[row * line..(row + 1) * line];
-                self.lines[slot * line..(slot + 1) * line].copy_from_slice(src);
+                self.write_row(row, slot);
                 self.queue.push(row, slot);
+            }
+            None if self.queue.resumes() => {
+                self.queue.stop_at(row);
+                self.running = false;
+                return;
             }
             None => self.queue.lose(),
         }
@@ -121,7 +212,7 @@ impl FakeCamera {
     /// One row interval behind the DMA: the line lands in the current target (the discard
     /// line: dropped), the DMA turns to the other, the finished target is refilled.
     fn expose_by_dma(&mut self) {
-        let (row, line) = (self.next, line_bytes(self.width));
+        let row = self.next;
         self.next += 1;
         let Some(dma) = self.dma.as_mut() else { return };
         if dma.error_at == Some(row) {
@@ -130,11 +221,12 @@ impl FakeCamera {
             return;
         }
         let done = dma.current;
-        if let Some(slot) = dma.targets[done] {
-            let src = &self.frame[row * line..(row + 1) * line];
-            self.lines[slot * line..(slot + 1) * line].copy_from_slice(src);
-        }
+        let target = dma.targets[done];
         dma.current ^= 1;
+        if let Some(slot) = target {
+            self.write_row(row, slot);
+        }
+        let Some(dma) = self.dma.as_mut() else { return };
         if dma.missed_at == Some(row) {
             return;
         }
@@ -178,11 +270,7 @@ impl LinePort for FakeCamera {
     }
 
     fn start(&mut self) {
-        (self.next, self.running) = (0, true);
-        if let Some(dma) = self.dma.as_mut() {
-            dma.targets = dma.buffer.start(&mut self.queue);
-            dma.current = 0;
-        }
+        self.arm_at(0);
         self.burst(self.start_burst);
     }
 
@@ -190,6 +278,18 @@ impl LinePort for FakeCamera {
         self.running = false;
         if let Some(dma) = self.dma.as_mut() {
             dma.buffer.stop(&mut self.queue);
+        }
+    }
+
+    fn restarts(&self) -> bool {
+        self.restarts
+    }
+
+    fn restart_from(&mut self, row: usize) {
+        assert!(self.restarts, "re-armed a port that cannot");
+        self.arm_at(row);
+        if self.rearm_stops {
+            self.queue.stop_at(row);
         }
     }
 
@@ -265,7 +365,8 @@ fn rows_come_out_in_order_as_the_camera_wrote_them() {
                 queued: height,
                 lost: 0,
                 high_water: most,
-                ended: true
+                ended: true,
+                captures: 1,
             }
         );
         // Past the frame's height: the end, not a wait.
@@ -452,5 +553,244 @@ fn twice_as_in_memory(
         let stats = rows.stats();
         assert_eq!((stats.queued, stats.lost, stats.high_water), (frame.height, 0, most));
         assert_eq!(rows.delivered(), frame.height);
+    }
+}
+
+/// Reads `height` rows in bands of `band`, the sensor running `pause` steps after each band (the
+/// pipeline working on it): every row, and the sensor frame each came from (each row must be
+/// that frame's row exactly).
+fn read_in_bands(
+    rows: &mut QueuedRows<FakeCamera>,
+    frame: &[u8],
+    (band, pause): (usize, usize),
+) -> Result<Vec<usize>, Error> {
+    let (width, height) = (rows.width(), rows.height());
+    let mut from = Vec::new();
+    let (mut l, mut r) = (vec![0; width], vec![0; width]);
+    for row in 0..height {
+        rows.next_row(&mut l, &mut r)?;
+        // A moving scene adds the sensor frame's number to every byte of its rows.
+        let line = &frame[row * line_bytes(width)..(row + 1) * line_bytes(width)];
+        let shift = l[0].wrapping_sub(line[0]);
+        let want: Vec<u8> = line.iter().map(|b| b.wrapping_add(shift)).collect();
+        assert_eq!([l.as_slice(), r.as_slice()].concat(), want, "row {row}");
+        from.push(usize::from(shift));
+        if (row + 1).is_multiple_of(band) {
+            rows.port_mut().burst(pause);
+        }
+    }
+    Ok(from)
+}
+
+/// Both ways, behind a free-running sensor with a frame every `period` steps, re-arming.
+fn free_running(frame: &[u8], width: usize, height: usize, period: usize) -> [FakeCamera; 2] {
+    both_ways(frame, width, height).map(|(camera, _)| camera.free_running(period, true))
+}
+
+#[test]
+fn a_free_running_sensor_resumes_where_the_line_buffers_ran_out() {
+    // 40 rows and 10 blanking lines a sensor frame; bands of 16 rows, 150 steps of work after
+    // each. Rows 0-15 come as the sensor sends sensor frame 0; in the pause rows 16-23 fill the
+    // 8 line buffers and the capture stops before row 24. The next band drains them and asks
+    // for row 24: the re-arm at step 166 waits for sensor frame 4 (step 200), which gives rows
+    // 24-31 as they come; in the next pause rows 32-39 fill the buffers and end the frame.
+    let (width, height, period) = (8, 40, 50);
+    let frame = numbered_frame(width, height);
+    for camera in free_running(&frame, width, height, period) {
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        for _ in 0..2 {
+            // The second frame after a rewind: clean, the sensor still running.
+            rows.rewind();
+            let from = read_in_bands(&mut rows, &frame, (16, 3 * period)).unwrap();
+            let first = from[0];
+            let mut want = vec![first; 24];
+            want.extend([first + 4; 16]);
+            assert_eq!(from, want);
+            let stats = rows.stats();
+            assert_eq!((stats.queued, stats.lost, stats.captures), (height, 0, 2));
+            assert_eq!((stats.high_water, stats.ended), (LINES, true));
+            assert_eq!(next_err(&mut rows), Error::EndOfRows { row: height, height });
+        }
+    }
+}
+
+#[test]
+fn rows_come_in_order_from_later_sensor_frames_whatever_the_pauses() {
+    // Bands and pauses of every size against a short and a long sensor frame: each row once,
+    // in order, its sensor frame never earlier than the row before's; each capture is one
+    // sensor frame, so the frames used are the captures.
+    let (width, height) = (8, 40);
+    let frame = numbered_frame(width, height);
+    for period in [41, 120] {
+        for (band, pause) in [(1, 9), (3, 40), (8, 8), (8, 9), (13, 500), (40, 0)] {
+            for camera in free_running(&frame, width, height, period) {
+                let mut rows = QueuedRows::new(camera, width, height, 3 * period as u32);
+                let from = read_in_bands(&mut rows, &frame, (band, pause)).unwrap();
+                assert!(from.windows(2).all(|w| w[0] <= w[1]), "{from:?}");
+                let mut used = from.clone();
+                used.dedup();
+                let stats = rows.stats();
+                assert_eq!((stats.queued, stats.lost), (height, 0));
+                assert_eq!(stats.captures, used.len(), "band {band} pause {pause}: {from:?}");
+                // A pause shorter than the line buffers fill never needs a re-arm.
+                if pause < LINES - 2 || band == height {
+                    assert_eq!(stats.captures, 1);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn without_the_re_arm_the_rows_beyond_the_line_buffers_are_lost() {
+    // As above, but the port cannot re-arm: rows 24-39 of the only capture are lost.
+    let (width, height, period) = (8, 40, 50);
+    let frame = numbered_frame(width, height);
+    for mut camera in free_running(&frame, width, height, period) {
+        camera.restarts = false;
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        let err = read_in_bands(&mut rows, &frame, (16, 3 * period)).unwrap_err();
+        assert_eq!(err, Error::RowsLost { row: 24, lost: 16 });
+        let stats = rows.stats();
+        assert_eq!((stats.queued, stats.captures), (24, 1));
+    }
+}
+
+#[test]
+fn a_re_arm_the_sensor_never_answers_stalls_and_the_next_frame_is_clean() {
+    let (width, height, period) = (8, 40, 50);
+    let frame = numbered_frame(width, height);
+    for mut camera in free_running(&frame, width, height, period) {
+        // One sensor frame, then silence: the re-arm at row 24 waits for nothing.
+        if let Some(sensor) = camera.sensor.as_mut() {
+            sensor.frames = Some(1);
+        }
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        let err = read_in_bands(&mut rows, &frame, (16, 3 * period)).unwrap_err();
+        assert_eq!(
+            err,
+            Error::RowsStalled {
+                row: 24,
+                waited_ms: STALL_MS
+            }
+        );
+        assert_eq!(rows.stats().captures, 2);
+        // The sensor back: a clean frame, every slot free, stitched again.
+        rows.rewind();
+        assert_eq!(rows.stats(), QueueStats::default());
+        assert_eq!(rows.port_mut().queue.free_slots(), LINES);
+        if let Some(sensor) = rows.port_mut().sensor.as_mut() {
+            sensor.frames = None;
+        }
+        read_in_bands(&mut rows, &frame, (16, 3 * period)).unwrap();
+        let stats = rows.stats();
+        assert_eq!((stats.queued, stats.lost, stats.captures), (height, 0, 2));
+    }
+}
+
+#[test]
+fn a_re_arm_that_stops_again_before_its_row_is_an_error_not_a_loop() {
+    let (width, height, period) = (8, 40, 50);
+    let frame = numbered_frame(width, height);
+    for mut camera in free_running(&frame, width, height, period) {
+        camera.rearm_stops = true;
+        let mut rows = QueuedRows::new(camera, width, height, STALL_MS);
+        let err = read_in_bands(&mut rows, &frame, (16, 3 * period)).unwrap_err();
+        assert_eq!(err, Error::RowsLost { row: 24, lost: 0 });
+        assert_eq!(rows.stats().captures, 2);
+    }
+}
+
+#[test]
+fn a_re_arm_low_in_the_frame_waits_up_to_two_sensor_frames() {
+    // 40 rows and a blanking line a sensor frame; bands of 30 rows, 53 steps of work after the
+    // first: rows 30-37 fill the line buffers, the capture stops before row 38, and the pause
+    // ends at step 83, line 1 of sensor frame 2. The re-arm there misses that frame: row 38
+    // comes from frame 3, at step 161, 78 steps (ms) later, most of two frame periods. A stall
+    // limit of one period calls that a stall; the boards' limit covers two periods and more.
+    let (width, height, period) = (8, 40, 41);
+    let frame = numbered_frame(width, height);
+    for (limit, stalls) in [(period, true), (2 * period + 10, false)] {
+        for camera in free_running(&frame, width, height, period) {
+            let mut rows = QueuedRows::new(camera, width, height, limit as u32);
+            let result = read_in_bands(&mut rows, &frame, (30, 53));
+            if stalls {
+                let waited_ms = limit as u32;
+                assert_eq!(result, Err(Error::RowsStalled { row: 38, waited_ms }));
+            } else {
+                let mut want = vec![0; 38];
+                want.extend([3; 2]);
+                assert_eq!(result, Ok(want));
+                assert_eq!(rows.stats().captures, 2);
+            }
+        }
+    }
+}
+
+/// A row source that works `pause` sensor steps after every `band` rows, as the learned preset
+/// encodes a band between reading its rows.
+struct Slow {
+    rows: QueuedRows<FakeCamera>,
+    band: usize,
+    pause: usize,
+    read: usize,
+}
+
+impl RowSource for Slow {
+    fn width(&self) -> usize {
+        self.rows.width()
+    }
+
+    fn height(&self) -> usize {
+        self.rows.height()
+    }
+
+    fn next_row(&mut self, left: &mut [u8], right: &mut [u8]) -> Result<(), Error> {
+        self.rows.next_row(left, right)?;
+        self.read += 1;
+        if self.read.is_multiple_of(self.band) {
+            self.rows.port_mut().burst(self.pause);
+        }
+        Ok(())
+    }
+}
+
+#[test]
+fn the_h743_frame_from_a_free_running_sensor_read_slowly_gives_both_presets_the_frame_in_memory() {
+    // A still scene from a free-running sensor, read by each preset with a long pause after
+    // every 16 rows (the learned preset as it encodes its bands): stitched from several sensor
+    // frames, the frame's summary and report.
+    let frame = STM32H7;
+    let (left, right) = test_frame(frame);
+    let whole = side_by_side(&left, &right, frame.width);
+    let blob = common::read("weights/bino_int8_native.bin");
+    let learned = Preset::Learned(load(&blob).unwrap());
+    for preset in [Preset::Fast, learned] {
+        let mut arena = vec![0u8; preset.arena_bytes(frame)];
+        let mut in_memory = Summary::new(frame.width, NoClock).unwrap();
+        let mut source = SideBySide::new(&whole, frame.width, frame.height).unwrap();
+        let want = preset.run(&mut source, &mut arena, &mut in_memory).unwrap();
+
+        let period = frame.height + 20;
+        for (camera, _) in both_ways(&whole, frame.width, frame.height) {
+            let camera = camera.free_running(period, false);
+            let rows = QueuedRows::new(camera, frame.width, frame.height, 3 * period as u32);
+            let (band, pause) = (16, 2 * period);
+            let mut slow = Slow {
+                rows,
+                band,
+                pause,
+                read: 0,
+            };
+            let mut queued = Summary::new(frame.width, NoClock).unwrap();
+            let report = preset.run(&mut slow, &mut arena, &mut queued).unwrap();
+            assert_eq!(report, want, "{}", preset.name());
+            assert_eq!(queued.refined_crc(), in_memory.refined_crc());
+            assert_eq!(queued.sectors(), in_memory.sectors());
+            let stats = slow.rows.stats();
+            assert_eq!((stats.queued, stats.lost), (frame.height, 0));
+            // Each band after the first drains 8 rows and re-arms for the other 8.
+            assert_eq!(stats.captures, frame.height / band);
+        }
     }
 }

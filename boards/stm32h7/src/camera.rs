@@ -8,17 +8,22 @@
 //! PAC embassy re-exports (`embassy_stm32::pac`, feature `unstable-pac`):
 //!
 //! - the DCMI in snapshot mode (one frame per start) with its crop window set to exactly
-//!   `FRAME.height` lines of `2 x FRAME.width` bytes, so that every line is the same number of
-//!   32-bit words whatever the sensor's frame size;
+//!   `FRAME.height` lines of `2 x FRAME.width` bytes from the sensor's line [`CROP_TOP`], so
+//!   that every line is the same number of 32-bit words whatever the sensor's frame size;
 //! - DMA1 stream 1 (DMAMUX1 request 75, the DCMI's) in double-buffer mode, one line per
 //!   transfer: while it writes one line buffer the other target register holds the next.
 //!
 //! Its transfer-complete interrupt is the queue's producer (`bino_board::double_buffer` keeps
 //! the targets' slots): the line just finished is pushed as (row, slot), and the target
-//! register it used gets the next free slot; with none free it gets the discard line, and the
-//! line written there is lost and counted. The DCMI's interrupt ends the
-//! frame (its end, or an overrun, which loses the rest of the frame). Both run in a critical
-//! section on [`CAPTURE`], which the pipeline's side ([`DcmiLines`], a
+//! register it used gets the next free slot. With none free the capture stops once the line
+//! being written has landed (the rest of that sensor frame is dropped) and the queue records the
+//! row it stopped before; when the pipeline, having drained the queued rows, asks for that row,
+//! [`DcmiLines::restart_from`] re-arms the snapshot with the crop window starting at it, and the
+//! sensor's next frame delivers the rest. The sensor free-runs and no row is lost, but a frame
+//! is stitched from as many sensor frames as re-arms plus one (logged as `captures`): in a
+//! moving scene its bands are from different moments, like a rolling shutter's rows. The DCMI's
+//! interrupt ends the frame (its end, or an overrun, which loses the rest of the frame). Both
+//! run in a critical section on [`CAPTURE`], which the pipeline's side ([`DcmiLines`], a
 //! [`LinePort`]) takes for each queue operation.
 //!
 //! The line buffers live in the AXI SRAM (DMA1 does not reach the DTCM) and are cached: the
@@ -57,6 +62,12 @@ const STREAM: usize = 1;
 /// DMAMUX1's request line of the DCMI (RM0433, DMAMUX1 inputs).
 const DCMI_REQUEST: u8 = 75;
 
+/// The sensor line the frame's row 0 is (the crop window's top): a re-arm at row `r` starts the
+/// window at line `CROP_TOP + r`.
+const CROP_TOP: usize = 0;
+// CWSTRT.VST is 13 bits, CWSIZE.VLINE 14.
+const _: () = assert!(CROP_TOP + FRAME.height <= 1 << 13);
+
 /// Bytes of the line buffers: [`LINES`] slots and the discard line.
 pub const LINE_BUFFER_BYTES: usize = (LINES + 1) * LINE;
 
@@ -82,12 +93,20 @@ static CAPTURE: Mutex<RefCell<Capture>> = Mutex::new(RefCell::new(Capture {
 }));
 
 impl Capture {
-    /// Starts the DMA on the first two free slots and the DCMI on one frame.
-    fn start(&mut self) {
-        let targets = self.dma.start(&mut self.queue);
+    /// Starts the DMA on the first two free slots and the DCMI on the sensor's next frame, from
+    /// row `first` to the frame's last (0: a new frame; later: a re-arm where the last capture
+    /// stopped). The DCMI and the DMA are stopped (`halt`: `stop` ran), so every register below
+    /// may be written, and the queue holds no line.
+    fn start(&mut self, first: usize) {
+        let first = first.min(FRAME.height - 1);
+        let targets = self.dma.start(&mut self.queue, first);
         let st = pac::DMA1.st(STREAM);
+        // A stopped transfer's flags must not count as a line of this capture.
         clear_dma_flags();
-        // The DCMI's data register, read a word at a time, into the two targets in turn.
+        // The DCMI's data register, read a word at a time, into the two targets in turn. The
+        // targets, the count and CT are written only while the stream is disabled: a whole line
+        // again (a stopped transfer left NDTR part-way), target 0 first (double_buffer counts
+        // the capture's rows from target 0).
         st.par().write_value(pac::DCMI.dr().as_ptr() as u32);
         st.m0ar().write_value(line_address(targets[0]) as u32);
         st.m1ar().write_value(line_address(targets[1]) as u32);
@@ -112,22 +131,28 @@ impl Capture {
         st.cr().modify(|w| w.set_en(true));
 
         let dcmi = pac::DCMI;
+        // The stopped capture's frame end or overrun must not end this one.
         clear_dcmi_flags();
+        // The crop window starts at row `first` of the frame: the lines above it in the
+        // sensor's next frame are skipped, and the rows come out as `first`, `first + 1`, ...
         dcmi.cwstrt().write(|w| {
             w.set_hoffcnt(0);
-            w.set_vst(0);
+            w.set_vst((CROP_TOP + first) as u16);
         });
-        // Pixel clocks per line (a byte each on the 8-bit bus) and lines, each minus one.
+        // Pixel clocks per line (a byte each on the 8-bit bus) and the rows left, each minus one:
+        // the snapshot ends with the frame's last row.
         dcmi.cwsize().write(|w| {
             w.set_capcnt((LINE - 1) as u16);
-            w.set_vline((FRAME.height - 1) as u16);
+            w.set_vline((FRAME.height - first - 1) as u16);
         });
         dcmi.ier().modify(|w| {
             w.set_frame_ie(true);
             w.set_ovr_ie(true);
             w.set_err_ie(true);
         });
-        // Configured while disabled (`stop`), then enabled with the DMA ready.
+        // Configured while disabled (`stop`), then enabled with the DMA ready: a snapshot
+        // starts at the next frame start (VSYNC), never part-way through the sensor's frame
+        // (a re-arm waits for up to a frame period, then for the lines above the window).
         dcmi.cr().modify(|w| {
             w.set_cm(true); // snapshot: this frame only
             w.set_crop(true);
@@ -138,7 +163,8 @@ impl Capture {
         });
     }
 
-    /// Stops the DCMI and the DMA; hands back the slots the DMA held; the frame ends.
+    /// Stops the DCMI and the DMA; hands back the slots the DMA held; the capture ends (the
+    /// frame, unless it stopped for want of a slot and is re-armed).
     fn stop(&mut self) {
         halt();
         self.dma.stop(&mut self.queue);
@@ -315,11 +341,28 @@ impl LinePort for DcmiLines<'_> {
     }
 
     fn start(&mut self) {
-        with_capture(Capture::start);
+        with_capture(|c| c.start(0));
     }
 
     fn stop(&mut self) {
         with_capture(Capture::stop);
+    }
+
+    /// The DCMI's crop window starts at any line: a capture re-armed at a row takes the rest of
+    /// the sensor's next frame.
+    fn restarts(&self) -> bool {
+        true
+    }
+
+    /// Re-arms the snapshot from `row` (the capture was stopped by `stop`: DCMI and stream
+    /// disabled, the DMA's slots back): the registers as for a new frame, the window lower.
+    fn restart_from(&mut self, row: usize) {
+        with_capture(|c| {
+            // The DCMI's capture and the stream must be off for the window, the targets, the
+            // count and CT to be written; `stop` turned them off, and doing it again is harmless.
+            halt();
+            c.start(row)
+        });
     }
 
     fn wait(&mut self) {

@@ -8,11 +8,15 @@
 //! buffers in the AXI SRAM beside the arena, and its interrupt pushes the line's row and slot
 //! into a heapless queue that the pipeline's row source pops (`camera`,
 //! `bino_board::line_queue`), one whole frame per run, started at the run's first row. A line
-//! that finds every buffer taken is lost and the frame fails with `RowsLost`; a camera that
-//! sends nothing for a second fails it with `RowsStalled`; the next frame starts clean either
+//! that finds every buffer taken stops the capture there; once the pipeline has read the rows
+//! before it, the DCMI is re-armed with its crop window starting at that row and the sensor's
+//! next frame delivers the rest: no row is lost with a free-running sensor, and a frame is
+//! stitched from several sensor frames when the pipeline falls behind (the learned preset's
+//! encoder does). A DCMI overrun or DMA error fails the frame with `RowsLost`; a camera that
+//! sends nothing for `STALL_MS` fails it with `RowsStalled`; the next frame starts clean either
 //! way. The board prints each frame's sector summary, the cycles of every stage (the rows
-//! stage includes the wait for the camera) and the queue's high-water mark and lost rows over
-//! defmt-RTT. With the `test-frame` feature the board runs the QEMU firmware's
+//! stage includes the wait for the camera) and the queue's high-water mark, lost rows and
+//! captures (sensor frames used) over defmt-RTT. With the `test-frame` feature the board runs the QEMU firmware's
 //! embedded 160x120 test frame instead, over and over, and reports whether it reproduced the
 //! host's result bit for bit.
 //!
@@ -143,9 +147,12 @@ mod source {
         DMA1_STREAM1 => LineComplete;
     });
 
-    /// Milliseconds `next_row` waits for a line before the frame fails as stalled: the first
-    /// row waits for the sensor's next frame to start, so this is longer than a frame period.
-    const STALL_MS: u32 = 1_000;
+    /// Milliseconds `next_row` waits for a line before the frame fails as stalled. After a
+    /// start or a re-arm the row waits for the sensor's next frame to start (up to one frame
+    /// period) and then for the lines above it (up to another, for a row near the bottom): 3 s
+    /// covers a slow sensor's 1-s frame period twice with a second to spare. A camera that is
+    /// gone is reported that much later.
+    const STALL_MS: u32 = 3_000;
 
     pub fn run(p: Peripherals, scb: &mut SCB, preset: &Preset<'_>, arena: &mut [u8]) -> ! {
         // Pins of the DCMI's 8-bit bus (the embassy STM32H7 DCMI example's): D0 PC6, D1 PC7,
