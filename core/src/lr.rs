@@ -61,13 +61,54 @@ pub fn consistent_row(left: &[u16], right: &[u16], max_diff_q8: u16, out: &mut [
     Ok(kept)
 }
 
-/// The `+lr` readouts' dense output: each run of cells the left-right check rejected
-/// (`consistent` 0) takes the lower of the two kept disparities around it, the nearest to its
-/// left and to its right (the background side: an occlusion hides the farther surface beside a
-/// nearer one), or the one that exists at a row's ends; a row with no kept cell is all 0. In
-/// place. Generic so the host's float readouts fill with this same definition (a copy of kept
-/// values, exact in any precision).
-pub fn fill_rejected<T: Copy + Default + PartialOrd>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
+/// How a `+lr` readout fills the cells its left-right check rejected, chosen per readout on the
+/// held-out labeled pairs (`train/experiments.json`, `background_fill`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Fill {
+    /// The nearest kept cell to the left ([`fill_rejected`]): the heads' and the descriptor
+    /// matchers' readouts, whose rejected cells are mostly their own mismatches.
+    FromLeft,
+    /// The lower of the kept cells around a rejected run ([`fill_background`]): the readouts
+    /// with the census in them, whose rejected cells are mostly occlusions.
+    Background,
+}
+
+impl Fill {
+    /// Fills `row`'s rejected cells (`consistent` 0) in place by this rule.
+    pub fn apply<T: Copy + Default + PartialOrd>(self, row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
+        match self {
+            Fill::FromLeft => fill_rejected(row, consistent),
+            Fill::Background => fill_background(row, consistent),
+        }
+    }
+}
+
+/// [`Fill::FromLeft`]: each cell the left-right check rejected (`consistent` 0) takes the
+/// disparity of the nearest kept cell to its left; rejected cells before the first kept one take
+/// that one's; a row with no kept cell is all 0. In place. Generic so the host's float readouts
+/// fill with this same definition (a copy of kept values, exact in any precision).
+pub fn fill_rejected<T: Copy + Default>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
+    Error::check_len("left-right mask row", row.len(), consistent.len())?;
+    let Some(first) = consistent.iter().position(|&k| k != 0) else {
+        row.fill(T::default());
+        return Ok(());
+    };
+    let mut carried = row.get(first).copied().unwrap_or_default();
+    for (value, &kept) in row.iter_mut().zip(consistent) {
+        if kept != 0 {
+            carried = *value;
+        } else {
+            *value = carried;
+        }
+    }
+    Ok(())
+}
+
+/// [`Fill::Background`]: each run of cells the left-right check rejected (`consistent` 0) takes
+/// the lower of the two kept disparities around it, the nearest to its left and to its right (an
+/// occlusion hides the farther surface beside a nearer one), or the one that exists at a row's
+/// ends; a row with no kept cell is all 0. In place, generic as [`fill_rejected`].
+pub fn fill_background<T: Copy + Default + PartialOrd>(row: &mut [T], consistent: &[u8]) -> Result<(), Error> {
     Error::check_len("left-right mask row", row.len(), consistent.len())?;
     // The nearest kept value left of the current run, and where the run starts.
     let mut before: Option<T> = None;
@@ -220,24 +261,38 @@ mod tests {
     }
 
     #[test]
-    fn rejected_cells_take_the_lower_of_their_kept_neighbours() {
+    fn rejected_cells_take_the_nearest_kept_value_to_their_left() {
         let mut row = [10, 20, 30, 40, 50];
         fill_rejected(&mut row, &[0, 1, 0, 0, 1]).unwrap();
-        assert_eq!(row, [20, 20, 20, 20, 50], "the left neighbour is lower");
-        let mut row = [10, 50, 30, 40, 20, 60];
-        fill_rejected(&mut row, &[1, 1, 0, 0, 1, 0]).unwrap();
-        assert_eq!(
-            row,
-            [10, 50, 20, 20, 20, 20],
-            "the right neighbour is lower; the row's end takes its only one"
-        );
-        let mut one = [3, 9, 9];
-        fill_rejected(&mut one, &[1, 0, 0]).unwrap();
-        assert_eq!(one, [3, 3, 3]);
+        assert_eq!(row, [20, 20, 20, 20, 50]);
         let mut none = [7, 8];
         fill_rejected(&mut none, &[0, 0]).unwrap();
         assert_eq!(none, [0, 0]);
         assert!(matches!(fill_rejected(&mut none, &[1]), Err(Error::BufferSize { .. })));
+    }
+
+    #[test]
+    fn background_fill_takes_the_lower_of_a_runs_kept_neighbours() {
+        let mut row = [10, 50, 30, 40, 20, 60];
+        Fill::Background.apply(&mut row, &[1, 1, 0, 0, 1, 0]).unwrap();
+        assert_eq!(
+            row,
+            [10, 50, 20, 20, 20, 20],
+            "the right one is lower; a row's end takes its only one"
+        );
+        let mut row = [10, 50, 30, 40, 20, 60];
+        Fill::FromLeft.apply(&mut row, &[1, 1, 0, 0, 1, 0]).unwrap();
+        assert_eq!(row, [10, 50, 50, 50, 20, 20]);
+        let mut row = [9, 30, 9, 9, 20];
+        fill_background(&mut row, &[0, 1, 0, 0, 1]).unwrap();
+        assert_eq!(row, [30, 30, 20, 20, 20], "leading cells take the first kept one");
+        let mut none = [7, 8];
+        fill_background(&mut none, &[0, 0]).unwrap();
+        assert_eq!(none, [0, 0]);
+        assert!(matches!(
+            fill_background(&mut none, &[1]),
+            Err(Error::BufferSize { .. })
+        ));
     }
 
     #[test]

@@ -32,8 +32,8 @@
 //! [`Refine`] names the readout whose token grid is refined ([`RefineInput`]; the rule of
 //! [`Refine::for_options`]: head+lr when the run checks the head, else sgm+lr), the
 //! parameters and whether the views' sharpness is equalised first (on in every preset). A `+lr`
-//! input is the readout's row filled by its own left-right check ([`crate::lr::fill_rejected`],
-//! as the host fills), so the pixel rows equal
+//! input is the readout's row filled by its own left-right check ([`RefineInput::fill`], as
+//! the host fills), so the pixel rows equal
 //! [`crate::refine::sharpness::refine_map_equalised`] (or, without equalisation,
 //! [`crate::refine::refine_map`]) on the filled token map. The stage reads the view rows from the
 //! band buffer; only the head's rows, which trail the band by six token rows, need a small

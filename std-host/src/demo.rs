@@ -151,7 +151,10 @@ pub fn run_demo(opts: &DemoOptions, mut progress: impl FnMut(&str)) -> Result<De
         readouts.push(scored("head", &tokens, &truth)?);
         let (filled, kept) = steps.run("head+lr: the head on the mirrored pair, left-right fill", || {
             let kept = model.head_check(&bands_left, &bands_right, &maps, HEAD_MAX_DISP, DEMO_LR_MAX_DIFF_Q8)?;
-            Ok((crate::readout::fill_rejected(&tokens, &kept), kept))
+            Ok((
+                crate::readout::fill_rejected(&tokens, &kept, crate::readout::Method::Head.fill()),
+                kept,
+            ))
         })?;
         readouts.push(scored("head+lr", &filled, &truth)?);
         readouts.push(steps.run(

@@ -5,7 +5,7 @@
 //! never enters an encoder stage, `Pipeline::run_refined` with a census input is the same run,
 //! and its arena does not grow with the image's height.
 
-use bino_core::lr::fill_rejected;
+use bino_core::lr::fill_background;
 use bino_core::pipeline::{
     arena_bytes_refined, census_arena_bytes, run_census, CensusRow, Options, Pathway, Pipeline, Refine, RefineInput,
     Report, Sink, SlicePair, Stage,
@@ -76,7 +76,7 @@ fn whole_map(s: &Scene, grid: &[u16], mask: &[u8], refine: &Refine) -> Vec<u16> 
     }
     let mut filled = grid.to_vec();
     for (row, m) in filled.chunks_exact_mut(s.width / 4).zip(mask.chunks_exact(s.width / 4)) {
-        fill_rejected(row, m).unwrap();
+        fill_background(row, m).unwrap();
     }
     refine_whole_map(s, &filled, Some(mask), refine)
 }

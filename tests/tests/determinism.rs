@@ -16,7 +16,7 @@ mod firmware;
 use bino_core::blob::Blob;
 use bino_core::census;
 use bino_core::crc32::Crc32;
-use bino_core::lr::fill_rejected;
+use bino_core::lr::fill_background;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{HeadChecked, MatchedRow, Pipeline, RefineInput, Sink, SlicePair};
 use bino_core::refine::sharpness::refine_map_equalised;
@@ -167,13 +167,13 @@ fn refined_digest_from_the_whole_map(blob: &[u8], run: Run, pair: &Pair) -> u32 
     refined_crc(pair, grid, &mask, &refine)
 }
 
-/// CRC-32 of the whole-map refinement of `grid` (its rejected cells filled, then kept at the
-/// bilinear step) on `pair`.
+/// CRC-32 of the whole-map refinement of `grid` (its rejected cells filled from the background,
+/// as every preset's readout has the census in it, then kept at the bilinear step) on `pair`.
 fn refined_crc(pair: &Pair, mut grid: Vec<u16>, mask: &[u8], refine: &bino_core::pipeline::Refine) -> u32 {
     let (width, height, left, right) = (pair.width, pair.height, &pair.left[..], &pair.right[..]);
     let cols = width / 4;
     for (row, m) in grid.chunks_exact_mut(cols).zip(mask.chunks_exact(cols)) {
-        fill_rejected(row, m).unwrap();
+        fill_background(row, m).unwrap();
     }
     let mut scratch = vec![0u32; scratch_len(width, &refine.params)];
     let mut refined = vec![0u16; width * height];

@@ -9,7 +9,7 @@
 //! its own head and SGM rows with their checks.
 
 use bino_core::census;
-use bino_core::lr::{fill_rejected, fuse_head_weight};
+use bino_core::lr::fuse_head_weight;
 use bino_core::model::head::HeadRow;
 use bino_core::pipeline::{
     arena_bytes_for, arena_bytes_head_lr, arena_bytes_refined, refine_bytes, FusedRow, HeadChecked, MatchedRow,
@@ -123,7 +123,7 @@ impl Collect {
         let mut grid = map.clone();
         if self.mask(input).is_some() {
             for (row, m) in grid.chunks_exact_mut(self.cols).zip(mask.chunks_exact(self.cols)) {
-                fill_rejected(row, m).unwrap();
+                input.fill().apply(row, m).unwrap();
             }
         }
         grid

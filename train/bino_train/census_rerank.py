@@ -20,7 +20,7 @@ Pipelines (`Pipeline`) turn a per-cell choice into a refined map: the census's k
 (left-right and, unless `nouniq`, the uniqueness test) for cells on the winner; for a switched
 cell the same mask, or with `recheck` the chosen candidate's own left-right check (so a rejected
 cell whose runner-up agrees comes back, and a switched cell that disagrees is dropped); rejected
-cells filled from the left (`head_eval.fill_from_left`, the core's rule when this study ran) or with `bg` by the lower
+cells filled from the left (`head_eval.fill_rejected`, the core's rule) or with `bg` by the lower
 of the nearest kept neighbours left and right (`census_selector.fill_background`); then
 `census_companion.refined`. Every cell on the winner under the default pipeline is exactly
 `census+lr+ref`.
@@ -84,7 +84,7 @@ from .census_selector_fit import (
 )
 from .census_selector_readouts import cell_errors, fill_background
 from .census_study import load_models, study_parser, write_result
-from .head_eval import fill_from_left
+from .head_eval import fill_rejected
 from .probe import mean_metrics, score
 from .refine import CELL
 
@@ -134,7 +134,7 @@ def assemble(r: RerankCells, pipe: Pipeline, choice: NDArray[np.int64]) -> tuple
         kept = np.where(choice == 0, kept0, lr)
     else:
         kept = kept0
-    filled = fill_background(d, kept) if pipe.background else fill_from_left(d, kept)
+    filled = fill_background(d, kept) if pipe.background else fill_rejected(d, kept)
     return filled, np.asarray(kept, dtype=bool)
 
 

@@ -38,9 +38,16 @@ def base_readouts(c: PairCells) -> dict[str, Readout]:
 def fill_background(disparity: Grid, kept: Mask) -> Grid:
     """Each rejected cell takes the lower of the nearest kept values to its left and right (the
     background side of an occlusion; the one that exists at a row's ends; 0 in a row with nothing
-    kept): this study's alternative to the left fill, since adopted as the core's
-    (`head_eval.fill_rejected`)."""
-    return fill_rejected(disparity, kept)
+    kept): a classical alternative to `fill_rejected`'s left fill, since adopted by the core for
+    the census readouts (`bino_core::lr::Fill::Background`)."""
+    from_left = fill_rejected(disparity, kept)
+    from_right = fill_rejected(disparity[:, ::-1], kept[:, ::-1])[:, ::-1]
+    cols = np.arange(kept.shape[1])
+    seen_left = np.maximum.accumulate(np.where(kept, cols, -1), axis=1) >= 0
+    seen_right = np.maximum.accumulate(np.where(kept, cols, -1)[:, ::-1] >= 0, axis=1)[:, ::-1]
+    both = np.minimum(from_left, from_right)
+    out = np.where(seen_left & seen_right, both, np.where(seen_left, from_left, from_right))
+    return np.where(kept, disparity, out)
 
 
 def select(readouts: Sequence[Readout], choice: NDArray[np.int64]) -> Readout:

@@ -65,10 +65,9 @@ def consistent(left: np.ndarray, right: np.ndarray, max_diff: float = LR_MAX_DIF
     return inside & (np.abs(landed - left) <= max_diff)
 
 
-def fill_from_left(disparity: np.ndarray, kept: np.ndarray) -> np.ndarray:
+def fill_rejected(disparity: np.ndarray, kept: np.ndarray) -> np.ndarray:
     """Each rejected cell takes the nearest kept value to its left (the first kept value for
-    those before it); a row with nothing kept is 0: EVAL.md's fill, and the core's `+lr` fill
-    before 2026-12-07 (the studies recorded before then used it)."""
+    those before it); a row with nothing kept is 0 (`bino_core::lr::fill_rejected`)."""
     out = np.zeros_like(disparity)
     for r, (row, mask) in enumerate(zip(disparity, kept, strict=True)):
         if not mask.any():
@@ -79,20 +78,6 @@ def fill_from_left(disparity: np.ndarray, kept: np.ndarray) -> np.ndarray:
                 carried = value
             out[r, c] = carried
     return out
-
-
-def fill_rejected(disparity: np.ndarray, kept: np.ndarray) -> np.ndarray:
-    """The core's `+lr` fill (`bino_core::lr::fill_rejected`): each rejected cell takes the lower
-    of the nearest kept values to its left and right (the background side of an occlusion), the
-    one that exists at a row's ends; a row with nothing kept is 0."""
-    from_left = fill_from_left(disparity, kept)
-    from_right = fill_from_left(disparity[:, ::-1], kept[:, ::-1])[:, ::-1]
-    cols = np.arange(kept.shape[1])
-    seen_left = np.maximum.accumulate(np.where(kept, cols, -1), axis=1) >= 0
-    seen_right = np.maximum.accumulate(np.where(kept, cols, -1)[:, ::-1] >= 0, axis=1)[:, ::-1]
-    both = np.minimum(from_left, from_right)
-    out = np.where(seen_left & seen_right, both, np.where(seen_left, from_left, from_right))
-    return np.asarray(np.where(kept, disparity, out), dtype=disparity.dtype)
 
 
 def soft_argmin(logits: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -40,7 +40,6 @@ from bino_train.head_data import (
 from bino_train.head_eval import (
     consistent,
     evaluate_head,
-    fill_from_left,
     fill_rejected,
     head_lr,
     mirror_descriptors,
@@ -318,11 +317,6 @@ def test_left_right_check_and_fill_follow_the_core_rules() -> None:
     row = np.array([[10.0, 20.0, 30.0, 40.0, 50.0], [7.0, 8.0, 9.0, 1.0, 2.0]])
     kept = np.array([[False, True, False, False, True], [False] * 5])
     assert fill_rejected(row, kept).tolist() == [[20, 20, 20, 20, 50], [0, 0, 0, 0, 0]]
-    # The lower neighbour fills a run (the core's rule), the left one alone at a row's end.
-    row = np.array([[10, 50, 30, 40, 20, 60]])
-    kept = np.array([[True, True, False, False, True, False]])
-    assert fill_rejected(row, kept).tolist() == [[10, 50, 20, 20, 20, 20]]
-    assert fill_from_left(row, kept).tolist() == [[10, 50, 50, 50, 20, 20]]
 
 
 def test_the_mirrored_head_reads_the_right_view() -> None:

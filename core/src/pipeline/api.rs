@@ -4,6 +4,7 @@
 
 use super::layout::stage_reach;
 use crate::band::Band;
+use crate::lr::Fill;
 use crate::model::encoder::{Encoder, GrayBand};
 use crate::model::head::HeadRow;
 use crate::model::ids::HeadKind;
@@ -199,7 +200,7 @@ pub struct Options {
 
 /// The readout whose token grid the refinement reads, named as the host names readouts. A
 /// `+lr` input is the readout's disparity with the cells its left-right check rejects filled
-/// ([`crate::lr::fill_rejected`]).
+/// ([`RefineInput::fill`]).
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum RefineInput {
     /// No-linkage WTA.
@@ -247,6 +248,15 @@ impl RefineInput {
             Pathway::Native => RefineInput::Head,
             Pathway::Export if opts.head && opts.head_lr => RefineInput::FusedAllLr,
             Pathway::Export => RefineInput::SgmLr,
+        }
+    }
+
+    /// How it fills the cells its check rejected: from the background where the census is in it
+    /// (`census+lr`, `fuse-census+lr`, `fuse-all+lr`), else from the left.
+    pub const fn fill(self) -> Fill {
+        match self {
+            RefineInput::CensusLr | RefineInput::FusedCensusLr | RefineInput::FusedAllLr => Fill::Background,
+            _ => Fill::FromLeft,
         }
     }
 

@@ -7,7 +7,7 @@
 //! and the view rows `y - reach ..= y + reach` ([`RefineParams::reach`], 4 for the defaults).
 //! Token row `t` arriving makes pixel rows `4t - 2 ..= 4t + 1` computable (the last token row
 //! also the two below it), so two token rows are all the stage keeps, filled by the readout's
-//! left-right check when the readout is a `+lr` one ([`fill_rejected`], as the host fills),
+//! left-right check when the readout is a `+lr` one (its [`Fill`], as the host fills),
 //! with that check's masks: the pixels of rejected cells keep the bilinear step
 //! ([`keep_rejected_row`]).
 //!
@@ -32,7 +32,7 @@ use super::api::{Refine, RefineInput, Sink, Stage};
 use super::layout::{stage_reach, sum, CUT_MARGIN};
 use crate::arena::{Carver, ALIGN_SLACK};
 use crate::config::{CELL_W, PATCH_H};
-use crate::lr::fill_rejected;
+use crate::lr::Fill;
 use crate::refine::sharpness::{smoothed_len, EqualisedRefiner, MAX_EQUALISED_ROWS};
 use crate::refine::{
     keep_rejected_row, scratch_len, token_rows, window_row, RefineParams, RowRefiner, TokenRows, ViewRows,
@@ -206,6 +206,8 @@ pub(super) struct RefineStage<'a> {
     used: usize,
     /// The first error of a push from inside a head callback (which cannot return one).
     failed: Option<Error>,
+    /// How a `+lr` row's rejected cells are filled.
+    fill: Fill,
 }
 
 impl<'a> RefineStage<'a> {
@@ -244,7 +246,13 @@ impl<'a> RefineStage<'a> {
             ring_to: 0,
             used: carver.used(),
             failed: None,
+            fill: Fill::FromLeft,
         })
+    }
+
+    /// The stage filling `+lr` rows by `fill` (from the left unless told).
+    pub fn with_fill(self, fill: Fill) -> Self {
+        Self { fill, ..self }
     }
 
     /// Arena bytes of its state.
@@ -284,7 +292,7 @@ impl<'a> RefineStage<'a> {
         match mask {
             Some(mask) => {
                 // The fill checks the mask against the token row, as long as `kept`.
-                fill_rejected(slot, mask)?;
+                self.fill.apply(slot, mask)?;
                 kept.iter_mut().zip(mask).for_each(|(k, &m)| *k = m);
             }
             None => kept.fill(1),
@@ -462,7 +470,7 @@ impl<'a> Refinement<'a> {
             return Ok(Self(None));
         };
         let ring = if several_bands { ring_rows(r.reach(), 0) } else { 0 };
-        let stage = RefineStage::new(r.params, r.equalise, width, height, ring, state)?;
+        let stage = RefineStage::new(r.params, r.equalise, width, height, ring, state)?.with_fill(r.input.fill());
         Ok(Self(Some((r.input, stage))))
     }
 

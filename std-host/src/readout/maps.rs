@@ -183,7 +183,7 @@ impl MethodMaps {
                 mask.len() == map.values.len(),
                 "{readout}: mask and disparity sizes differ"
             );
-            fill_rejected(&map, mask)
+            fill_rejected(&map, mask, readout.method.fill())
         } else {
             map.into_owned()
         };

@@ -6,7 +6,7 @@
 //! | readout | token grid |
 //! |---|---|
 //! | `nolink`, `sgm`, `head` | the method's disparity, every cell |
-//! | `nolink+lr`, `sgm+lr`, `head+lr` | the same, cells the method's own left-right check rejects filled by the lower of their nearest kept neighbours left and right (`bino_core::lr::fill_rejected`) |
+//! | `nolink+lr`, `sgm+lr`, `head+lr` | the same, cells the method's own left-right check rejects filled from the nearest kept cell to their left (`bino_core::lr::Fill::FromLeft`); the census's readouts (`census+lr`, `fuse-census+lr`, `fuse-all+lr`, [`census`]) by the lower of the kept cells around each rejected run (`Fill::Background`) |
 //! | `fuse` | the weighted mean of `head` and `sgm` in every cell (Q8, `bino_core::lr::fuse_row` with every cell kept; the head's share [`fuse_head_weight`], moved by its confidence) |
 //! | `fuse+lr` | `bino_core::lr::fuse_row` of the head and SGM with their own checks: the weighted mean where both pass, the one that passes, else rejected and filled as above |
 //!
@@ -64,6 +64,17 @@ pub struct Readout {
     pub lr: bool,
     /// Pixels by the integer refinement instead of bilinear upsampling (`+ref`).
     pub refine: bool,
+}
+
+impl Method {
+    /// How its `+lr` readout fills the cells its check rejected: the core's rule
+    /// (`bino_core::pipeline::RefineInput::fill`), from the background where the census is in it.
+    pub const fn fill(self) -> Fill {
+        match self {
+            Method::Census | Method::CensusFused | Method::FusedAll => Fill::Background,
+            Method::Nolink | Method::Sgm | Method::Head | Method::Fused => Fill::FromLeft,
+        }
+    }
 }
 
 impl Readout {
@@ -187,15 +198,15 @@ impl FromStr for Readout {
     }
 }
 
-/// `map` with the cells `kept` rejects filled by the core's `+lr` fill
-/// ([`bino_core::lr::fill_rejected`]), row by row: the one definition the firmware runs.
-pub fn fill_rejected(map: &DisparityMap, kept: &[bool]) -> DisparityMap {
+/// `map` with the cells `kept` rejects filled by the core's `+lr` fill `fill`
+/// ([`bino_core::lr::Fill`]), row by row: the one definition the firmware runs.
+pub fn fill_rejected(map: &DisparityMap, kept: &[bool], fill: Fill) -> DisparityMap {
     let mut values = map.values.clone();
     let mask: Vec<u8> = kept.iter().map(|&k| u8::from(k)).collect();
     if map.width > 0 {
         for (row, m) in values.chunks_exact_mut(map.width).zip(mask.chunks_exact(map.width)) {
             // Both slices are one row of `map.width` cells, the only error the fill reports.
-            let _ = bino_core::lr::fill_rejected(row, m);
+            let _ = fill.apply(row, m);
         }
     }
     DisparityMap { values, ..*map }
@@ -206,7 +217,7 @@ pub use bino_core::census::FUSE_ALL_FIRST_WEIGHT;
 
 /// The head's share, in 256ths, of a `fuse` cell where both checks pass: the core's rule,
 /// which the board's pipeline follows too.
-pub use bino_core::lr::{fuse_head_weight, FUSE_HEAD_HEAVY_MAX_WIDTH};
+pub use bino_core::lr::{fuse_head_weight, Fill, FUSE_HEAD_HEAVY_MAX_WIDTH};
 
 /// A left-right tolerance in patch columns as the core's Q8.
 pub fn lr_tolerance_q8(columns: f32) -> u16 {

@@ -151,3 +151,21 @@ fn head_candidates_follow_the_sgbm_range_of_the_width() {
     let counts: Vec<usize> = [32, 160, 320, 400, 4000].into_iter().map(head_candidates).collect();
     assert_eq!(counts, [12, 12, 16, 20, 64]);
 }
+
+/// One readout, one fill: every `+lr` readout the core streams fills as the core's refinement
+/// input does (census readouts from the background, the others from the left).
+#[test]
+fn each_readouts_fill_is_the_cores() {
+    use crate::int8::pipeline_maps::streamed_input;
+    use crate::readout::pathway::Pathway;
+    let mut backgrounds = 0;
+    for readout in Readout::ALL.into_iter().filter(|r| r.lr) {
+        for pathway in [Pathway::Export, Pathway::Native] {
+            if let Some(input) = streamed_input(readout, pathway) {
+                assert_eq!(readout.method.fill(), input.fill(), "{readout} on {pathway:?}");
+                backgrounds += usize::from(input.fill() == Fill::Background);
+            }
+        }
+    }
+    assert!(backgrounds > 0, "the census readouts fill from the background");
+}

@@ -84,12 +84,12 @@ impl<'f> DisplaySink<'f> {
         names.zip(self.times).collect()
     }
 
-    /// Draws one token row of the readout: a `+lr` readout's rejected cells filled
-    /// (`bino_core::lr::fill_rejected`), the others' shown dark.
+    /// Draws one token row of the readout: a `+lr` readout's rejected cells filled by its rule
+    /// (`bino_core::lr::Fill`), the others' shown dark.
     fn show_row(&mut self, row: usize, disparity_q8: &[u16], consistent: &[u8]) {
         if self.readout.lr {
             let mut filled = disparity_q8.to_vec();
-            if bino_core::lr::fill_rejected(&mut filled, consistent).is_ok() {
+            if self.readout.method.fill().apply(&mut filled, consistent).is_ok() {
                 self.draw_row(row, &filled, &vec![1; filled.len()]);
             }
         } else {

@@ -4,6 +4,7 @@
 use super::*;
 use crate::band::BandPlan;
 use crate::config::BAND_TOKEN_ROWS;
+use crate::lr::fill_rejected;
 use crate::pipeline::layout::HEAD_LAG;
 use crate::refine::sharpness::{decide_map_row, refine_map_equalised};
 use crate::refine::{keep_rejected_map, refine_map};
