@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Builds the firmware of both real boards (boards/: STM32H743, Alif Ensemble E7) in release,
-# every build each has: the learned preset's and the fast preset's (feature `fast`:
-# census+lr+ref, no weights), each on whole frames of the board's size (H743 160x120, E7
+# every build each has: the fast preset's (the default: census+lr+ref, no weights) and the
+# learned preset's (feature `learned`: the weight blob linked), each on whole frames of the board's size (H743 160x120, E7
 # 320x240: bino_board::options), and on the H743 each also on the embedded test frame
 # (feature `test-frame`; the E7 always runs its test frame), and prints each build's memory
 # regions' use next to their size. Nothing is flashed: the QEMU boards (scripts/firmware.sh) stay the ones that
@@ -11,7 +11,8 @@
 #   scripts/boards.sh [--no-lint] [--out DIR]
 #
 #   --no-lint   skip rustfmt, clippy and the host tests of boards/common
-#   --out DIR   also write each board's region use (its default build: the learned preset) as
+#   --out DIR   also write each board's region use (its `learned` build, the one whose arena
+#               and weights fill the memories) as
 #               DIR/board-<board>.json (the committed ones: --out firmware-sim/measured;
 #               docs/boards.md renders its table from them)
 set -euo pipefail
@@ -43,7 +44,7 @@ if [ "$lint" = 1 ]; then
 fi
 
 # board:target:the feature sets of its other builds (each linted, built, its regions printed)
-for board in stm32h7:thumbv7em-none-eabihf:"test-frame fast fast,test-frame" alif-e7:thumbv8m.main-none-eabihf:fast; do
+for board in stm32h7:thumbv7em-none-eabihf:"learned test-frame learned,test-frame" alif-e7:thumbv8m.main-none-eabihf:learned; do
   IFS=: read -r dir target others <<<"$board"
   echo "== boards/$dir ($target, release)"
   if [ "$lint" = 1 ]; then
@@ -53,14 +54,14 @@ for board in stm32h7:thumbv7em-none-eabihf:"test-frame fast fast,test-frame" ali
     done
   fi
   (cd "boards/$dir" && cargo build --locked --release -q)
-  json=()
-  [ -n "$out" ] && json=(--json "$out/board-$dir.json")
   python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \
-    "${json[@]}" "$CARGO_TARGET_DIR/$target/release/bino-$dir"
+    "$CARGO_TARGET_DIR/$target/release/bino-$dir"
   for features in $others; do
     echo "== boards/$dir ($target, release, --features $features)"
     (cd "boards/$dir" && cargo build --locked --release -q --features "$features")
+    json=()
+    [ -n "$out" ] && [ "$features" = learned ] && json=(--json "$out/board-$dir.json")
     python3 scripts/board_regions.py --objdump "$objdump" --memory "boards/$dir/memory.x" \
-      "$CARGO_TARGET_DIR/$target/release/bino-$dir"
+      "${json[@]}" "$CARGO_TARGET_DIR/$target/release/bino-$dir"
   done
 done

@@ -23,8 +23,8 @@ fn bake(repo: &Path, out: &Path) {
         println!("cargo::rerun-if-changed={}", path.display());
         fs::read(&path).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
     };
-    // The learned preset reads the blob; the fast preset (feature `fast`) no weights.
-    let fast = env::var_os("CARGO_FEATURE_FAST").is_some();
+    // The learned preset (feature `learned`) reads the blob; the fast preset no weights.
+    let fast = env::var_os("CARGO_FEATURE_LEARNED").is_none();
     let blob = (!fast).then(|| read("weights/bino_int8_native.bin"));
     let frame = bino_board::options::ALIF_E7;
     let left = read(&bake::test_frame_path(frame, "left"));

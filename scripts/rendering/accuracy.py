@@ -38,7 +38,7 @@ def accuracy_headline(src: Sources) -> str:
         readouts = (
             ("`bino run`'s default, no encoder", CENSUS, ev),
             ("export pathway, learned", EXPORT_DEFAULT, ev),
-            ("native pathway, learned, the board's", NATIVE_DEFAULT, na),
+            ("native pathway, the board's learned preset", NATIVE_DEFAULT, na),
         )
         for label, readout, run in readouts:
             ours = metrics_of(run["mean"][f"int8_{readout}"])

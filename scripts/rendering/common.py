@@ -150,7 +150,7 @@ DEFAULT = {"w160": CENSUS, "w320": CENSUS}
 EXPORT_DEFAULT = "fuse-all+lr+ref"
 """The export pathway's learned readout (`bino run --pathway export`)."""
 NATIVE_DEFAULT = "fuse-census+lr+ref"
-"""The native pathway's learned readout (`bino run --pathway native`, the board's preset)."""
+"""The native pathway's learned readout (`bino run --pathway native`, the board's learned preset)."""
 CENSUS_STAGES = ("native_rows", "native_sgm", "native_refine")
 """The firmware's measured native band pair stages that the census readout runs alone: the rows,
 the census SGM (its codes, costs and SGM) and the refinement."""

@@ -37,7 +37,7 @@ def core_label(c: Json) -> str:
 
 
 def board_headline(src: Sources) -> str:
-    """Per core, the board's preset (the native pathway) and the export pathway: instructions of
+    """Per core, the board's learned preset (the native pathway) and the export pathway: instructions of
     a 48x160 band pair, their time at IPC 1 and under the cycle model, the firmware's arena
     (one serves both runs) and blob."""
     rows = []
@@ -45,7 +45,7 @@ def board_headline(src: Sources) -> str:
         c = src.core(core)
         cm = c["cycle_model"]
         runs = (
-            ("native (the board's preset)", c["native_band_pair_instructions"], cm["native_band_pair_modelled_ms"]),
+            ("native (the board's learned preset)", c["native_band_pair_instructions"], cm["native_band_pair_modelled_ms"]),
             ("export", c["band_pair_instructions"], cm["band_pair_modelled_ms"]),
         )
         for pathway, ins, modelled_ms in runs:
@@ -96,7 +96,7 @@ def board_pathways(src: Sources) -> str:
             EXPORT_DEFAULT,
         ),
         (
-            "native (the board's preset): one encode on (L, R), native head, right view from its logits, census SGM",
+            "native (the board's learned preset): one encode on (L, R), native head, right view from its logits, census SGM",
             lambda c: c["native_band_pair_instructions"],
             (na, na320),
             NATIVE_DEFAULT,

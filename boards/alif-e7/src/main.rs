@@ -6,12 +6,13 @@
 //! SysTick); the camera interfaces (CPI, MIPI CSI-2) are not driven. The rows come from the
 //! embedded 320x240 test frame (`bino_board::options::ALIF_E7`), copied at boot side by side
 //! into a frame buffer in SRAM0 beside the arena, where a camera's DMA would write its frame,
-//! and read from there line by line (`SideBySide`): the board runs the learned preset on the
-//! whole frame, band after band, over and over, prints the sector summary and the cycles of
-//! every stage over defmt-RTT, and reports whether it reproduced the host's result bit for bit.
+//! and read from there line by line (`SideBySide`): the board runs its preset on the whole
+//! frame, over and over, prints the sector summary and the cycles of every stage over
+//! defmt-RTT, and reports whether it reproduced the host's result bit for bit.
 //!
-//! With the `fast` feature it runs the fast preset (`census+lr+ref`, no encoder, no weights
-//! linked) on the same frame instead, in the preset's own arena.
+//! By default the preset is the fast one (`census+lr+ref`, no encoder, no weights linked), the
+//! more accurate and the cheaper one on every real labeled set measured, in its own arena; with
+//! the `learned` feature the learned preset (the blob in MRAM), band after band.
 #![no_std]
 #![no_main]
 
@@ -39,7 +40,7 @@ const CORE_HZ: u32 = 400_000_000;
 #[repr(C, align(32))]
 struct Aligned<T>(T);
 
-#[cfg(not(feature = "fast"))]
+#[cfg(feature = "learned")]
 mod preset {
     //! The learned preset: its weights.
 
@@ -64,7 +65,7 @@ mod preset {
     }
 }
 
-#[cfg(feature = "fast")]
+#[cfg(not(feature = "learned"))]
 mod preset {
     //! The fast preset: no weights.
 

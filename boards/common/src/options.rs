@@ -4,7 +4,7 @@
 //! `bino run --profile native --pathway native` compute too: per band of the frame one encoder
 //! pass on (L, R), the native head with its left-right check read from the same pass, fused with
 //! the census SGM, and the pixel refinement of that fuse-census+lr grid; and the fast preset
-//! (`bino_core::preset::CENSUS_REFINE` at the frame's width, the boards' `fast` feature), which
+//! (`bino_core::preset::CENSUS_REFINE` at the frame's width, the boards' default build), which
 //! the QEMU firmware's census run and `bino run --profile native`'s default compute too: the
 //! census SGM with its check, refined, no weights. On wider frames the head and the census SGM
 //! search further and the refinement wider, as the host's commands do at that width

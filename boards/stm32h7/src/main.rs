@@ -1,5 +1,5 @@
 //! BINO edge on an STM32H743 board (Nucleo-H743ZI; OpenMV Cam H7 class): Cortex-M7 at
-//! 480 MHz, the int8 weight blob in internal flash, the pipeline's arena in the AXI SRAM, the
+//! 480 MHz, the int8 weight blob (learned preset) in internal flash, the pipeline's arena in the AXI SRAM, the
 //! stack in DTCM.
 //!
 //! Rows come from the DCMI (8-bit parallel): one frame is `FRAME.height` (120) lines of
@@ -16,12 +16,14 @@
 //! sends nothing for `STALL_MS` fails it with `RowsStalled`; the next frame starts clean either
 //! way. The board prints each frame's sector summary, the cycles of every stage (the rows
 //! stage includes the wait for the camera) and the queue's high-water mark, lost rows and
-//! captures (sensor frames used) over defmt-RTT. With the `test-frame` feature the board runs the QEMU firmware's
-//! embedded 160x120 test frame instead, over and over, and reports whether it reproduced the
-//! host's result bit for bit.
+//! captures (sensor frames used) over defmt-RTT. With the `test-frame` feature the board runs
+//! the QEMU firmware's embedded 160x120 test frame instead, over and over, and reports whether
+//! it reproduced the host's result bit for bit.
 //!
-//! With the `fast` feature the board runs the fast preset (`census+lr+ref`, no encoder, no
-//! weights in flash) on the same frames, in its own `FRAME.fast_arena_bytes()` arena.
+//! By default the board runs the fast preset (`census+lr+ref`, no encoder, no weights in
+//! flash), the more accurate and the cheaper one on every real labeled set measured, in its own
+//! `FRAME.fast_arena_bytes()` arena; with the `learned` feature the learned preset (the native
+//! pathway's `fuse-census+lr+ref`, the blob in flash) on the same frames.
 #![no_std]
 #![no_main]
 
@@ -45,12 +47,12 @@ const CORE_HZ: u32 = 480_000_000;
 struct Aligned<T>(T);
 
 /// The preset's arena for a whole frame, bytes.
-#[cfg(not(feature = "fast"))]
+#[cfg(feature = "learned")]
 const ARENA_LEN: usize = FRAME.arena_bytes();
-#[cfg(feature = "fast")]
+#[cfg(not(feature = "learned"))]
 const ARENA_LEN: usize = FRAME.fast_arena_bytes();
 
-#[cfg(not(feature = "fast"))]
+#[cfg(feature = "learned")]
 mod weights {
     //! The learned preset's weights.
 
@@ -72,7 +74,7 @@ mod weights {
     }
 }
 
-#[cfg(feature = "fast")]
+#[cfg(not(feature = "learned"))]
 mod weights {
     //! The fast preset reads no weights: none are linked.
 

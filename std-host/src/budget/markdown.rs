@@ -193,7 +193,7 @@ pub fn frames_markdown(runs: &[CoreRun], frames: &FramesReport) -> String {
         "A frame runs the bands the pipeline cuts it into (48 rows each, overlapping: \
          `bino_core::band::BandPlan`); its figures come from the {}x{} band pair, {RULE}. Times at {clocks}; IPC 1 and the cycle model as above. The arena is the \
          firmware's for a frame of that size, exact: `preset::export_arena_bytes(h, w)` (export) and \
-         `preset::arena_bytes(h, w)` (native, the board's preset). \"fitted\" adds to each stage a constant per \
+         `preset::arena_bytes(h, w)` (native, the board's learned preset). \"fitted\" adds to each stage a constant per \
          run (per band for the encoder, per token row for the others) fitted through both measured \
          band widths: exact at both, an estimate elsewhere. On either pathway each band's head \
          lives in the encoder's scratch, so a frame's arena is the band pair's and what carries \

@@ -95,7 +95,7 @@ pub struct CoreCycles {
     pub band_pair_modelled_cycles: f64,
     /// Those cycles in milliseconds at the core's clock.
     pub band_pair_modelled_ms: f64,
-    /// Modelled cycles of one band pair on the native pathway (the board's preset), when the
+    /// Modelled cycles of one band pair on the native pathway (the board's learned preset), when the
     /// firmware ran it.
     pub native_band_pair_modelled_cycles: Option<f64>,
     /// Those cycles in milliseconds at the core's clock.

@@ -48,7 +48,7 @@ impl Pathway {
 
     /// The pathway's learned readout, what `bino run --pathway P` and `bino sim --pathway P`
     /// use when no readout is given (without `--pathway` they use [`DEFAULT_READOUT`]), the one
-    /// the streaming pipeline refines by its rule (`RefineInput::for_options`; the board's preset runs the
+    /// the streaming pipeline refines by its rule (`RefineInput::for_options`; the board's learned preset runs the
     /// native one): on the export pathway `fuse-all+lr` (the head fused with the census SGM,
     /// then with the descriptor SGM, by their checks: better than `fuse+lr` on all eight
     /// validation sets, `train/experiments.json`, `census_companion`), on the native pathway
@@ -142,7 +142,7 @@ mod tests {
     fn run_and_the_pipeline_read_out_the_same_fusion_on_each_pathway() {
         assert_eq!(Pathway::Export.default_readout().name(), "fuse-all+lr");
         assert_eq!(Pathway::Native.default_readout().name(), "fuse-census+lr");
-        // The pipeline's rule refines the same grids; the board's preset is the native pathway's.
+        // The pipeline's rule refines the same grids; the board's learned preset is the native pathway's.
         let rule = |opts| bino_core::pipeline::RefineInput::for_options(&opts).name();
         for pathway in [Pathway::Export, Pathway::Native] {
             let opts = bino_core::pipeline::Options {
