@@ -10,7 +10,8 @@
 //! every row once, in order, each from the sensor frame its capture took, stitched from as many
 //! sensor frames as expected; the same without the re-arm: rows lost; a re-arm the sensor never
 //! answers: stalled; and the H743's frame from such a sensor, still, giving both presets the
-//! summary and report of the frame in memory.
+//! summary and report of the frame in memory. And 400 randomized cameras and consumers: every
+//! request returns, rows in order or one clear error naming the row, the next frame clean.
 
 mod common;
 
@@ -793,4 +794,113 @@ fn the_h743_frame_from_a_free_running_sensor_read_slowly_gives_both_presets_the_
             assert_eq!(stats.captures, frame.height / band);
         }
     }
+}
+
+/// A small deterministic generator for the randomized schedules below.
+struct Lcg(u64);
+
+impl Lcg {
+    fn below(&mut self, n: usize) -> usize {
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        ((self.0 >> 33) as usize) % n.max(1)
+    }
+}
+
+/// One randomized camera for a frame of `height` rows (each of `rows_sent` rows sent): bursts,
+/// pacing, a DMA with a failed or missed transfer, a free-running sensor (still or moving), a
+/// port that re-arms or not, a sensor that falls silent.
+fn random_camera(rng: &mut Lcg, frame: &[u8], width: usize, height: usize) -> FakeCamera {
+    let mut camera = FakeCamera::new(frame.to_vec(), width);
+    if rng.below(2) == 0 {
+        camera = camera.through_dma(height);
+        if let Some(dma) = camera.dma.as_mut() {
+            dma.error_at = (rng.below(4) == 0).then(|| rng.below(height));
+            dma.missed_at = (rng.below(4) == 0).then(|| rng.below(height));
+        }
+    }
+    if rng.below(3) == 0 {
+        camera = camera.free_running(height + rng.below(60), rng.below(2) == 0);
+        camera.restarts = rng.below(4) != 0;
+        if let Some(sensor) = camera.sensor.as_mut() {
+            sensor.frames = (rng.below(4) == 0).then(|| 1 + rng.below(4));
+        }
+    } else {
+        camera.paced = rng.below(2) == 0;
+        camera.bursts = (0..1 + rng.below(6)).map(|_| rng.below(LINES + 3)).collect();
+        camera.start_burst = rng.below(LINES + 3);
+    }
+    camera.rows = height - rng.below(4).min(height - 1) * usize::from(rng.below(3) == 0);
+    camera.ends = rng.below(4) != 0;
+    camera.ms_per_wait = 1 + rng.below(3) as u32;
+    camera
+}
+
+#[test]
+fn any_schedule_gives_the_frames_rows_in_order_or_one_clear_error_and_the_next_frame_runs_clean() {
+    // Randomized cameras and consumers (read in random bands with random pauses): every request
+    // returns, the rows before the first error are the frame's rows in order (a moving scene
+    // shifts a whole row by its sensor frame), the error names the row asked for and is one of
+    // the camera path's, and after a rewind a well-behaved camera on the same port delivers a
+    // whole frame.
+    let (width, height) = (8, 24);
+    let frame = numbered_frame(width, height);
+    let line = line_bytes(width);
+    let mut rng = Lcg(0x5eed);
+    let (mut whole, mut failed) = (0, 0);
+    for case in 0..400 {
+        let camera = random_camera(&mut rng, &frame, width, height);
+        let mut rows = QueuedRows::new(camera, width, height, 40 + rng.below(200) as u32);
+        let (band, pause) = (1 + rng.below(height), rng.below(3 * LINES));
+        let (mut l, mut r) = (vec![0; width], vec![0; width]);
+        let mut delivered = 0;
+        let error = loop {
+            if delivered == height {
+                break None;
+            }
+            match rows.next_row(&mut l, &mut r) {
+                Ok(()) => {
+                    let want = &frame[delivered * line..(delivered + 1) * line];
+                    let shift = l[0].wrapping_sub(want[0]);
+                    let got = [l.as_slice(), r.as_slice()].concat();
+                    let want: Vec<u8> = want.iter().map(|b| b.wrapping_add(shift)).collect();
+                    assert_eq!(got, want, "case {case}: row {delivered}");
+                    delivered += 1;
+                    if delivered % band == 0 {
+                        rows.port_mut().burst(pause);
+                    }
+                }
+                Err(e) => break Some(e),
+            }
+        };
+        match error {
+            None => whole += 1,
+            Some(Error::RowsLost { row, .. } | Error::RowsStalled { row, .. }) => {
+                assert_eq!(row, delivered, "case {case}");
+                failed += 1;
+            }
+            Some(Error::EndOfRows { row, .. }) => {
+                assert_eq!(row, delivered, "case {case}");
+                failed += 1;
+            }
+            Some(e) => panic!("case {case}: unexpected {e:?}"),
+        }
+        // The next frame: the same port, its camera now well behaved.
+        let camera = rows.port_mut();
+        (camera.rows, camera.ends, camera.paced, camera.bursts) = (height, true, true, vec![1]);
+        camera.sensor = None;
+        if let Some(dma) = camera.dma.as_mut() {
+            (dma.error_at, dma.missed_at) = (None, None);
+        }
+        rows.rewind();
+        assert_eq!(
+            take(&mut rows, height),
+            expected(&frame, width, 0..height),
+            "case {case}: next frame"
+        );
+    }
+    // The schedules reach both ends: whole frames and every kind of failure.
+    assert!(whole > 40 && failed > 40, "{whole} whole frames, {failed} failed");
 }
