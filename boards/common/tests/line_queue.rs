@@ -832,7 +832,10 @@ fn random_camera(rng: &mut Lcg, frame: &[u8], width: usize, height: usize) -> Fa
         camera.bursts = (0..1 + rng.below(6)).map(|_| rng.below(LINES + 3)).collect();
         camera.start_burst = rng.below(LINES + 3);
     }
-    camera.rows = height - rng.below(4).min(height - 1) * usize::from(rng.below(3) == 0);
+    if rng.below(3) == 0 {
+        // A frame that ends up to three rows short.
+        camera.rows = height - rng.below(4);
+    }
     camera.ends = rng.below(4) != 0;
     camera.ms_per_wait = 1 + rng.below(3) as u32;
     camera
