@@ -30,11 +30,12 @@ data="${BINO_DATA:-$BINO_ROOT/../shared/data}"
 folders="$BINO_CACHE/validation"
 py() { (cd train && "$BINO_VENV/bin/python" -W ignore "$@"); }
 
-# Writes one validation folder once; a half-written one (no PAIRS.tsv) is written again.
+# Writes one validation folder once; a half-written one (no PAIRS.tsv), or one older than the
+# module that writes it (a changed generator), is written again.
 folder() {
-  local dir="$folders/$1$2" width="$2"
+  local dir="$folders/$1$2" width="$2" module="train/${4//.//}.py"
   shift 2
-  if [[ ! -f "$dir/PAIRS.tsv" ]]; then
+  if [[ ! -f "$dir/PAIRS.tsv" || "$module" -nt "$dir/PAIRS.tsv" ]]; then
     rm -rf "$dir"
     py "$@" --width "$width" --out "$dir"
   fi

@@ -58,6 +58,8 @@ class TuneConfig:
     synthetic_fraction: float = 0.4
     labeled_fraction: float = 0.4
     blur_prob: float = 0.2
+    flat_grain_levels: float = 0.0
+    """Grain of the synthetic scenes' textureless surfaces (head_data.DataConfig)."""
 
     def data(self) -> DataConfig:
         return replace(
@@ -68,6 +70,7 @@ class TuneConfig:
             synthetic_kind="layered",
             label_weighting="lr",
             augment=replace(HEAD_AUGMENT, blur_prob=self.blur_prob),
+            flat_grain_levels=self.flat_grain_levels,
         )
 
 
@@ -205,6 +208,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--lr-head", type=float, default=3e-4)
     p.add_argument("--lr-encoder", type=float, default=1e-4)
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument(
+        "--flat-grain",
+        type=float,
+        default=0.0,
+        help="grey levels of grain on the synthetic textureless surfaces (0: the shipped heads')",
+    )
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--checkpoint-minutes", type=float, default=10.0)
     p.add_argument("--log-every", type=int, default=25)
@@ -217,6 +226,8 @@ def config_from_args(args: argparse.Namespace) -> TuneConfig:
             sys.exit(f"error: {flag} is required for a new run")
         if not path.is_file():
             sys.exit(f"error: {flag} {path} does not exist")
+    if args.flat_grain < 0.0:
+        sys.exit(f"error: --flat-grain {args.flat_grain} is negative")
     if args.steps < 1 or args.batch < 1:
         sys.exit(f"error: --steps {args.steps} and --batch {args.batch} must be at least 1")
     return TuneConfig(
@@ -228,6 +239,7 @@ def config_from_args(args: argparse.Namespace) -> TuneConfig:
         lr_head=args.lr_head,
         lr_encoder=args.lr_encoder,
         seed=args.seed,
+        flat_grain_levels=args.flat_grain,
     )
 
 

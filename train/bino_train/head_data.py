@@ -88,6 +88,10 @@ class DataConfig:
     """"plane": `synthetic_sample` (a slanted plane and a rectangle); "layered":
     synth_train.layered_sample (slanted layers, thin structures, textureless and repetitive
     surfaces, exact occlusion, disparities over the whole candidate range)."""
+    flat_grain_levels: float = 0.0
+    """Grain of the layered scenes' textureless surfaces, grey levels rms of its high-pass: 0 the
+    sub-grey-level grain the shipped heads were trained with, synth_folder.FLAT_GRAIN_LEVELS
+    (1.5) what real flat regions carry (`bino_train.flat_texture`)."""
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

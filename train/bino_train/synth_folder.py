@@ -3,13 +3,15 @@ scores (issue 13: the w320 bad1tok gap lies on textureless interiors, which the 
 validation against left-right-consistent StereoSGBM cannot see: SGBM rejects them).
 
 Each scene: a textured slanted background plane and two to four nearer fronto-parallel objects
-(rectangles and ellipses), half of them textureless (a flat grey with gentle shading, as a white
-bottle or a wall). Textures are value noise, or with `--textures real` crops of train-split
-left views (real texture statistics: repetitive patterns, weak texture, fine detail). Layers
-are rendered into both views with exact occlusion (nearer objects drawn last in each view) and
-a little sensor noise. The ground truth is the left view's disparity at every
-pixel (occluded pixels included, as Middlebury's). Seeds are fixed, apart from every training
-run's, so the folder is the same on every machine.
+(rectangles and ellipses), half of them textureless (a flat grey with gentle shading and the
+fine grain real surfaces carry, as a white bottle or a wall). Textures are value noise, or with
+`--textures real` crops of train-split left views (real texture statistics: repetitive
+patterns, weak texture, fine detail). Layers are rendered into both views with exact occlusion
+(nearer objects drawn last in each view) and sensor noise. The grain and the noise follow what
+the flat regions of the labeled train pairs measure (`FLAT_GRAIN_LEVELS`, `SENSOR_NOISE_LEVELS`;
+`bino_train.flat_texture`). The ground truth is the left view's disparity at every pixel
+(occluded pixels included, as Middlebury's). Seeds are fixed, apart from every training run's,
+so the folder is the same on every machine.
 
     python -m bino_train.synth_folder --width 320 --out /tmp/synth320
     python -m bino_train.synth_folder --width 320 --textures real --count 32 --out /tmp/real320
@@ -30,10 +32,21 @@ from numpy.typing import NDArray
 from .folder_writer import errors_as_one_line, write_index, write_pair
 from .pairs import load_gray, training_pairs
 from .profile import to_u8
-from .synthetic import smooth_texture
+from .synthetic import fine_grain, smooth_texture
 
 SEED = 20261204
 """Scene i uses the generator seeded [SEED, i]; no training run draws from it."""
+
+FLAT_GRAIN_LEVELS = 1.5
+"""View-consistent micro-texture of a textureless surface: rms of its high-pass ([`high_pass`]),
+grey levels. The flat regions of the labeled train pairs outside the held-out five carry 1.53
+(160 px) and 1.67 (320 px) (`python -m bino_train.flat_texture`); the surfaces here had 0.16-0.21,
+under a grey level, which left the census blind on them where it is not on real scenes."""
+
+SENSOR_NOISE_LEVELS = 2.0
+"""Each view's independent noise, grey levels rms. The same flat regions differ between the views
+by 2.01 (160 px) and 1.74 (320 px) of high-pass rms each (noise and photometric mismatch); one
+grey level of noise, as before, gave 0.95-1.16."""
 
 Gray = NDArray[np.float32]
 Mask = NDArray[np.bool_]
@@ -73,11 +86,13 @@ class RealTextures:
 
 
 def textureless(rng: np.random.Generator, h: int, w: int) -> Gray:
-    """A flat grey with a gentle linear shading and a faint grain (under one grey level)."""
+    """A flat grey with a gentle linear shading and the fine grain of a real surface
+    ([`FLAT_GRAIN_LEVELS`]): no structure a window-sum or a head's 4-pixel cells sees, the
+    micro-texture a census of signs does."""
     level = rng.uniform(0.15, 0.9)
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     shade = rng.uniform(-0.08, 0.08) * xs / w + rng.uniform(-0.08, 0.08) * ys / h
-    grain = (smooth_texture(rng, h, w) - 0.5) * 0.004
+    grain = fine_grain(rng, h, w) * np.float32(FLAT_GRAIN_LEVELS / 255.0)
     return np.clip(level + shade + grain, 0.0, 1.0).astype(np.float32)
 
 
@@ -143,7 +158,7 @@ def scene(
         mask = shape_mask(rng, h, w)
         layers.append(Layer(np.full((h, w), d, np.float32), mask, texture))
     left, right, disparity = render(layers, h, w, margin)
-    noise = rng.normal(0.0, 1.0 / 255.0, size=(2, h, w)).astype(np.float32)
+    noise = rng.normal(0.0, SENSOR_NOISE_LEVELS / 255.0, size=(2, h, w)).astype(np.float32)
     return np.clip(left + noise[0], 0, 1), np.clip(right + noise[1], 0, 1), disparity
 
 

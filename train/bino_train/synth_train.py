@@ -6,7 +6,9 @@
   structures (bars 1-5 px wide, tilted, alone or as a fence), so their edges make occlusion
   boundaries in both directions;
 - surfaces textured with value noise at a random contrast, textureless (a flat grey with gentle
-  shading and a sub-grey-level grain: only their edges can be matched) or repetitive (stripes
+  shading and a grain: by default under a grey level, so only their edges can be matched, as the
+  shipped heads were trained; `DataConfig.flat_grain_levels` gives them the fine grain real flat
+  surfaces carry, `synth_folder.FLAT_GRAIN_LEVELS`) or repetitive (stripes
   of 4-16 px period, where a local match is ambiguous);
 disparities over the whole range 0 .. 4 (max_disp - 1) px (60 px for 16 candidates: the w320
 profile's range). The views then get the head's nuisances (head_data.HEAD_AUGMENT or the run's:
@@ -32,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .augment import nuisances
-from .synthetic import smooth_texture
+from .synthetic import fine_grain, smooth_texture
 
 if TYPE_CHECKING:
     from .head_data import DataConfig, Sample
@@ -57,12 +59,17 @@ def noise_texture(rng: np.random.Generator, h: int, w: int) -> Gray:
     return np.clip(0.5 + (tex - tex.mean()) * contrast * 1.6, 0.0, 1.0).astype(np.float32)
 
 
-def flat_texture(rng: np.random.Generator, h: int, w: int) -> Gray:
-    """A flat grey with a gentle linear shading and a faint grain (under one grey level)."""
+def flat_texture(rng: np.random.Generator, h: int, w: int, grain_levels: float = 0.0) -> Gray:
+    """A flat grey with a gentle linear shading and a grain: `grain_levels` grey levels rms of
+    fine grain (`synthetic.fine_grain`, what real flat surfaces carry), or with 0 a faint one
+    under a grey level (the shipped heads' training data)."""
     level = rng.uniform(0.1, 0.9)
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float32)
     shade = rng.uniform(-0.1, 0.1) * xs / w + rng.uniform(-0.1, 0.1) * ys / h
-    grain = (smooth_texture(rng, h, w) - 0.5) * 0.004
+    if grain_levels > 0.0:
+        grain = fine_grain(rng, h, w) * np.float32(grain_levels / 255.0)
+    else:
+        grain = (smooth_texture(rng, h, w) - 0.5) * 0.004
     return np.clip(level + shade + grain, 0.0, 1.0).astype(np.float32)
 
 
@@ -81,10 +88,12 @@ def stripe_texture(rng: np.random.Generator, h: int, w: int) -> Gray:
     return np.clip(level + amp * wave + grain, 0.0, 1.0).astype(np.float32)
 
 
-def random_texture(rng: np.random.Generator, h: int, w: int, flat_share: float) -> Gray:
+def random_texture(
+    rng: np.random.Generator, h: int, w: int, flat_share: float, grain_levels: float = 0.0
+) -> Gray:
     draw = rng.random()
     if draw < flat_share:
-        return flat_texture(rng, h, w)
+        return flat_texture(rng, h, w, grain_levels)
     if draw < flat_share + 0.08:
         return stripe_texture(rng, h, w)
     return noise_texture(rng, h, w)
@@ -175,23 +184,26 @@ def render_layers(
 
 
 def layered_scene(
-    rng: np.random.Generator, h: int, w: int, max_px: float
+    rng: np.random.Generator, h: int, w: int, max_px: float, grain_levels: float = 0.0
 ) -> tuple[Gray, Gray, Gray]:
-    """(left, right, left disparity px) of a random layered scene, disparities in [0, max_px]."""
+    """(left, right, left disparity px) of a random layered scene, disparities in [0, max_px];
+    textureless surfaces with `grain_levels` of grain (`flat_texture`)."""
     margin = int(math.ceil(max_px)) + 4
     cw, tw = w + margin, w + 2 * margin
     # The background anywhere in the range; sometimes near the top (large disparities).
     top = max_px if rng.random() < 0.25 else rng.uniform(0.3, 1.0) * max_px
     background = plane(rng, h, w, 0.0, top, MAX_SLANT)
     flat_share = 0.35
-    layers = [(background, np.ones((h, cw), bool), random_texture(rng, h, tw, flat_share))]
+    layers = [
+        (background, np.ones((h, cw), bool), random_texture(rng, h, tw, flat_share, grain_levels))
+    ]
     floor = background[0] + abs(background[1]) * w / 2 + abs(background[2]) * h / 2
     count = int(rng.integers(0, 5)) if floor < max_px - 3.0 else 0
     levels = sorted(rng.uniform(floor + 2.0, max_px, size=count)) if count else []
     for level in levels:
         geometry = plane(rng, h, w, level - 1.0, min(max_px, level + 3.0), MAX_SLANT / 2)
         mask = shape_mask(rng, h, cw, w)
-        layers.append((geometry, mask, random_texture(rng, h, tw, flat_share)))
+        layers.append((geometry, mask, random_texture(rng, h, tw, flat_share, grain_levels)))
     left, right, disparity = render_layers(layers, h, w, margin)
     return left, right, np.clip(disparity, 0.0, max_px).astype(np.float32)
 
@@ -202,7 +214,9 @@ def layered_sample(rng: np.random.Generator, cfg: DataConfig) -> Sample:
     from .head_data import Sample, cell_labels
 
     max_px = float(CELL * (cfg.max_disp - 1))
-    left, right, disparity = layered_scene(rng, cfg.crop_h, cfg.crop_w, max_px)
+    left, right, disparity = layered_scene(
+        rng, cfg.crop_h, cfg.crop_w, max_px, cfg.flat_grain_levels
+    )
     valid = np.ones_like(disparity, dtype=bool)
     label = cell_labels(disparity, valid, cfg.min_valid, cfg.max_spread)
     clean = (left, right)

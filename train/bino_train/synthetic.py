@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -24,6 +25,18 @@ def smooth_texture(rng: np.random.Generator, height: int, width: int) -> NDArray
         bottom = g10 * (1 - fx) + g11 * fx
         out += weight * (top * (1 - fy) + bottom * fy)
     return out.astype(np.float32)
+
+
+def high_pass(image: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The image minus its Gaussian blur of 1.5 px: the micro-texture `flat_texture` measures."""
+    return np.asarray(image - cv2.GaussianBlur(image, (0, 0), 1.5), dtype=np.float32)
+
+
+def fine_grain(rng: np.random.Generator, h: int, w: int) -> NDArray[np.float32]:
+    """Gaussian noise softened by a 0.7 px blur (a lens), scaled to unit rms of its high-pass."""
+    noise = rng.normal(size=(h, w)).astype(np.float32)
+    raw = np.asarray(cv2.GaussianBlur(noise, (0, 0), 0.7), dtype=np.float32)
+    return np.asarray(raw / max(float(np.sqrt(np.mean(high_pass(raw) ** 2))), 1e-6), np.float32)
 
 
 def shifted_pair(
