@@ -21,7 +21,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import asdict, dataclass, replace
@@ -35,6 +34,7 @@ from torch import Tensor, nn
 from .head import StereoHead, head_loss, load_head, with_candidates
 from .head_data import HEAD_AUGMENT, DataConfig, HeadSampler, Sample
 from .model import BinoEncoder
+from .pretrain_run import save_atomic
 from .pretrain_trainer import rng_states, set_rng_states
 
 
@@ -180,19 +180,13 @@ class Tuner:
         """encoder.pt ({config, encoder}) and head.pt ({head_config, head}) of the run as it is."""
         self.encoder.eval()
         self.head.eval()
-        _save(
+        save_atomic(
             {"config": self.encoder.cfg.to_dict(), "encoder": self.encoder.state_dict()},
             out / "encoder.pt",
         )
-        _save(
+        save_atomic(
             {"head_config": asdict(self.head.cfg), "head": self.head.state_dict()}, out / "head.pt"
         )
-
-
-def _save(obj: dict[str, Any], path: Path) -> None:
-    tmp = path.with_suffix(path.suffix + ".tmp")
-    torch.save(obj, tmp)
-    os.replace(tmp, path)
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -277,9 +271,9 @@ def main(argv: list[str] | None = None) -> None:
                 log.flush()
                 print(json.dumps(record), flush=True)
             if time.perf_counter() - last >= 60.0 * args.checkpoint_minutes:
-                _save(tuner.state_dict(), ckpt)
+                save_atomic(tuner.state_dict(), ckpt)
                 last = time.perf_counter()
-    _save(tuner.state_dict(), ckpt)
+    save_atomic(tuner.state_dict(), ckpt)
     tuner.write_weights(args.out)
     print(f"wrote {args.out / 'encoder.pt'} and {args.out / 'head.pt'} after {tuner.step} steps")
 
