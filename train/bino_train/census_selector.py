@@ -109,6 +109,10 @@ CLEAN_PAIRS = LABELED_HOLDOUT
 TEXTURELESS_GRADIENT = 2.0
 """Mean |horizontal gradient| of a cell (grey levels per px, central differences) below which a
 cell counts as textureless."""
+REPETITIVE_RISE = 1.2
+"""`cell_periodicity` above which a textured cell counts as repetitive texture: the window's
+correlation climbs back by more than this after its dip (a period within 16 px gives close to
+2; white noise and value noise stay below it in 99 % of cells)."""
 DISCONTINUITY_PX = 2.0
 """Spread (px) of the valid ground truth over a cell and its 8 neighbours above which a cell
 counts as near a discontinuity."""
@@ -124,6 +128,7 @@ def conditions(c: PairCells) -> dict[str, Mask]:
     return {
         "all": np.ones(c.gt_cell.shape, dtype=bool),
         "textureless": c.gradient < TEXTURELESS_GRADIENT,
+        "repetitive": (c.gradient >= TEXTURELESS_GRADIENT) & (c.periodicity > REPETITIVE_RISE),
         "discontinuity": c.spread > DISCONTINUITY_PX,
         "large_disparity": known & (c.gt_cell > median),
         "census_rejected": ~c.census.kept,

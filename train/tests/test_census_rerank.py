@@ -60,6 +60,7 @@ def _cells(seed: int = 3) -> RerankCells:
         head_entropy=rng.uniform(0, 1, (ROWS, COLS)),
         gt_cell=cell_ground_truth(gt, valid),
         gradient=rng.uniform(0, 30, (ROWS, COLS)),
+        periodicity=rng.uniform(0, 1, (ROWS, COLS)),
         spread=cell_spread(gt, valid),
         gt=gt,
         valid=valid,

@@ -53,6 +53,7 @@ def _pair(seed: int = 3, rows: int = 4, cols: int = 8) -> PairCells:
         head_entropy=rng.uniform(0, 1, (rows, cols)),
         gt_cell=cell_ground_truth(gt, valid),
         gradient=rng.uniform(0, 10, (rows, cols)),
+        periodicity=rng.uniform(0, 1, (rows, cols)),
         spread=cell_spread(gt, valid),
         gt=gt,
         valid=valid,
@@ -141,3 +142,23 @@ def test_background_fill_takes_the_lower_neighbour() -> None:
     d = np.array([[5.0, 0.0, 0.0, 2.0, 0.0], [0.0, 3.0, 0.0, 0.0, 0.0]])
     kept = np.array([[True, False, False, True, False], [False, True, False, False, False]])
     assert fill_background(d, kept).tolist() == [[5, 2, 2, 2, 2], [3, 3, 3, 3, 3]]
+
+
+def test_periodicity_finds_stripes_and_not_noise_or_ramps() -> None:
+    from bino_train.census_selector import REPETITIVE_RISE
+    from bino_train.census_selector_cells import cell_periodicity
+    from bino_train.synthetic import smooth_texture
+
+    xs = np.arange(160)[None, :].repeat(48, 0)
+    inner = (slice(1, -1), slice(4, -4))  # away from the padded borders
+    for period in (4, 6, 12, 16):
+        stripes = (128 + 80 * np.sin(2 * np.pi * xs / period)).astype(np.uint8)
+        assert cell_periodicity(stripes).shape == (12, 40)
+        assert cell_periodicity(stripes)[inner].min() > REPETITIVE_RISE
+    for seed in range(3):
+        noise = np.random.default_rng(seed).integers(0, 256, (48, 160)).astype(np.uint8)
+        smooth = (255 * smooth_texture(np.random.default_rng(seed), 48, 160)).astype(np.uint8)
+        assert (cell_periodicity(noise)[inner] > REPETITIVE_RISE).mean() < 0.01
+        assert (cell_periodicity(smooth)[inner] > REPETITIVE_RISE).mean() < 0.01
+    ramp = (xs * 1.5).astype(np.uint8)
+    assert cell_periodicity(ramp)[inner].max() < 0.1
