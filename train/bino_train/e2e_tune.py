@@ -29,10 +29,11 @@ from typing import Any
 
 import numpy as np
 import torch
-from torch import Tensor, nn
+from torch import nn
 
 from .head import StereoHead, head_loss, load_head, with_candidates
-from .head_data import HEAD_AUGMENT, DataConfig, HeadSampler, Sample
+from .head_data import HEAD_AUGMENT, DataConfig, HeadSampler
+from .head_descriptors import gray_batch
 from .model import BinoEncoder
 from .pretrain_run import save_atomic
 from .pretrain_trainer import rng_states, set_rng_states
@@ -95,12 +96,6 @@ def trainable_blocks(encoder: BinoEncoder, blocks: int) -> list[nn.Parameter]:
     return params
 
 
-def _views(samples: list[Sample]) -> tuple[Tensor, Tensor]:
-    left = torch.from_numpy(np.stack([s.left for s in samples])[:, None]).expand(-1, 3, -1, -1)
-    right = torch.from_numpy(np.stack([s.right for s in samples])[:, None]).expand(-1, 3, -1, -1)
-    return left, right
-
-
 class Tuner:
     """Encoder, head, optimiser and data stream of one run."""
 
@@ -130,7 +125,8 @@ class Tuner:
         t0 = time.perf_counter()
         first = self.step * cfg.batch
         samples = self.sampler.samples(range(first, first + cfg.batch))
-        left, right = _views(samples)
+        left = gray_batch([s.left for s in samples], torch.device("cpu"))
+        right = gray_batch([s.right for s in samples], torch.device("cpu"))
         label = torch.from_numpy(np.stack([s.label for s in samples]))
         weight = torch.from_numpy(np.stack([s.label_weight() for s in samples]))
         scale = lr_scale(self.step, cfg)

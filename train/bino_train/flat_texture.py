@@ -30,9 +30,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from .labeled import LABELED_HOLDOUT, labeled_pairs, load_checked_gt
+from .labeled import LABELED_HOLDOUT, labeled_pairs
+from .labeled_folder import resized_pair
 from .pairs import load_gray, load_gt, load_pairs
-from .profile import resize_gt, resize_image, to_u8
+from .profile import to_u8
 from .synthetic import high_pass
 
 Gray = NDArray[np.float32]
@@ -95,11 +96,8 @@ def real_pairs(width: int, data_dir: Path | None) -> list[FlatTexture]:
     for pair in labeled_pairs(data_dir):
         if pair.pair_id in LABELED_HOLDOUT:
             continue
-        grays = [load_gray(p) for p in (pair.left, pair.right)]
-        disparity, valid = load_checked_gt(pair, grays[0].shape)
-        left, right = (to_u8(resize_image(g, width)).astype(np.float32) for g in grays)
-        disp, ok = resize_gt(disparity, valid, width)
-        r = measure(left, right, np.where(ok, disp, np.float32(np.nan)).astype(np.float32))
+        views, gt = resized_pair(pair, width)
+        r = measure(views[0].astype(np.float32), views[1].astype(np.float32), gt)
         if r is not None:
             out.append(r)
     return out

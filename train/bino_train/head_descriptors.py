@@ -55,7 +55,7 @@ def check_pathway(pathway: str) -> str:
     return pathway
 
 
-def _gray_batch(images: Sequence[Gray], device: torch.device) -> Tensor:
+def gray_batch(images: Sequence[Gray], device: torch.device) -> Tensor:
     """(N, 3, H, W) from grayscale crops (replicated, as the encoder expects)."""
     x = torch.from_numpy(np.stack(images)[:, None]).to(device)
     return x.expand(-1, 3, -1, -1)
@@ -70,15 +70,15 @@ def encode_maps(
         evens, odds = [], []
         for i in range(0, len(samples), ENCODE_CHUNK):
             chunk = samples[i : i + ENCODE_CHUNK]
-            left = _gray_batch([s.left for s in chunk], device)
-            right = _gray_batch([s.right for s in chunk], device)
+            left = gray_batch([s.left for s in chunk], device)
+            right = gray_batch([s.right for s in chunk], device)
             even, odd = encoder.phase_maps(left, right)
             evens.append(even.float())
             odds.append(odd.float())
         return torch.cat(evens), torch.cat(odds)
     images = [s.left for s in samples] + [s.right for s in samples]
     descs = [
-        encoder.descriptors(_gray_batch(images[i : i + ENCODE_CHUNK], device)).float()
+        encoder.descriptors(gray_batch(images[i : i + ENCODE_CHUNK], device)).float()
         for i in range(0, len(images), ENCODE_CHUNK)
     ]
     d = torch.cat(descs)

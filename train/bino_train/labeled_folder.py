@@ -23,10 +23,11 @@ import argparse
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from .folder_writer import errors_as_one_line, write_index, write_pair
 from .labeled import LABELED_HOLDOUT, heldout_labeled_pairs, load_checked_gt
-from .pairs import load_gray
+from .pairs import Pair, load_gray
 from .profile import resize_gt, resize_image, to_u8
 
 
@@ -38,16 +39,22 @@ def write_folder(out: Path, width: int, data_dir: Path | None = None) -> list[st
     out.mkdir(parents=True, exist_ok=True)
     rows = []
     for pair in pairs:
-        grays = [load_gray(p) for p in (pair.left, pair.right)]
-        disparity, valid = load_checked_gt(pair, grays[0].shape)
-        views = [to_u8(resize_image(g, width)) for g in grays]
-        disp, ok = resize_gt(disparity, valid, width)
-        if disp.shape != views[0].shape:
-            raise AssertionError(f"{pair.pair_id}: labels {disp.shape} vs view {views[0].shape}")
-        gt = np.where(ok, disp, np.float32(np.nan))
+        views, gt = resized_pair(pair, width)
         rows.append(write_pair(out, pair.pair_id, pair.dataset, views, gt))
     write_index(out, rows)
     return [p.pair_id for p in pairs]
+
+
+def resized_pair(pair: Pair, width: int) -> tuple[list[NDArray[np.uint8]], NDArray[np.float32]]:
+    """A labeled pair as the folder holds it: both views resized to `width` px as 8-bit grey, and
+    the left view's ground truth at that size (NaN unknown)."""
+    grays = [load_gray(p) for p in (pair.left, pair.right)]
+    disparity, valid = load_checked_gt(pair, grays[0].shape)
+    views = [to_u8(resize_image(g, width)) for g in grays]
+    disp, ok = resize_gt(disparity, valid, width)
+    if disp.shape != views[0].shape:
+        raise AssertionError(f"{pair.pair_id}: labels {disp.shape} vs view {views[0].shape}")
+    return views, np.where(ok, disp, np.float32(np.nan)).astype(np.float32)
 
 
 def main(argv: list[str] | None = None) -> None:
